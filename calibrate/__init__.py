@@ -1,0 +1,1 @@
+"""Calibration of sensor models from GCPs and stars, accuracy reports, batch runs, and the CLI."""
