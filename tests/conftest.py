@@ -1,0 +1,22 @@
+"""Shared test fixtures.
+
+Real data lives in ``../shared/data`` beside the project's root (see its README); tests that
+need it use the ``shared_data`` fixture and skip with a reason when it is absent.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """Path of ``../shared/data``; skips the test when it is not there."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"real test data not found at {SHARED_DATA} (../shared/data beside the project)")
+    return SHARED_DATA
