@@ -1,0 +1,322 @@
+"""The ``gcpcal`` command line: one click group, one subcommand per job.
+
+Every subcommand turns user mistakes (:class:`~sensor_models.errors.GcpcalError`) into a
+one-line message on stderr and exit code 1; click's usage errors exit with 2. Library code
+never calls ``sys.exit``; only :func:`main` does.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import click
+import numpy as np
+
+from sensor_models import __version__
+from sensor_models.errors import GcpcalError, InputError
+
+log = logging.getLogger("gcpcal")
+
+
+# ---------------------------------------------------------------- shared helpers
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_summary(path: Path, summary: dict) -> Path:
+    """Write a stage's JSON summary atomically and return its path."""
+    atomic_write_text(Path(path), json.dumps(summary, indent=2, default=_json_default) + "\n")
+    return Path(path)
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"not JSON serializable: {type(value).__name__}")
+
+
+def _float_list(text: str, what: str) -> np.ndarray:
+    try:
+        return np.array([float(v) for v in text.split(",") if v.strip() != ""], dtype=np.float64)
+    except ValueError:
+        raise InputError(f"--{what} must be comma-separated numbers, got {text!r}") from None
+
+
+def read_points_csv(path: Path, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Read numeric ``columns`` from a CSV with a header; errors name the file, row and column."""
+    path = Path(path)
+    try:
+        fh = path.open(newline="", encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+    with fh:
+        reader = csv.DictReader(fh)
+        header = reader.fieldnames or []
+        missing = [c for c in columns if c not in header]
+        if missing:
+            raise InputError(f"missing column(s) {', '.join(missing)} (header: {','.join(header)})", path=str(path))
+        values = {c: [] for c in columns}
+        for line, rec in enumerate(reader, start=2):
+            for c in columns:
+                try:
+                    v = float(rec[c])
+                except (TypeError, ValueError):
+                    raise InputError(f"row {line}: column '{c}' is not a number: {rec[c]!r}", path=str(path)) from None
+                if not np.isfinite(v):
+                    raise InputError(f"row {line}: column '{c}' is not finite", path=str(path))
+                values[c].append(v)
+    if not values[columns[0]]:
+        raise InputError("holds no data rows", path=str(path))
+    return {c: np.asarray(v) for c, v in values.items()}
+
+
+def open_dem(dem_path, datum, geoid):
+    """Open a DEM for the CLI (the datum must be declared when the file does not say)."""
+    from sensor_models.terrain import Dem
+
+    return Dem.open(dem_path, vertical_datum=datum, geoid=geoid)
+
+
+dem_options = [
+    click.option("--dem", "dem_path", type=click.Path(dir_okay=False), help="DEM raster (any CRS rasterio reads)."),
+    click.option(
+        "--dem-datum",
+        type=click.Choice(["ellipsoid", "egm96"]),
+        default=None,
+        help="Vertical datum of the DEM heights when the file does not declare it.",
+    ),
+    click.option("--geoid", type=click.Path(dir_okay=False), help="Geoid grid (e.g. egm96_15.gtx) for egm96 heights."),
+]
+
+
+def add_options(options):
+    def wrap(func):
+        for opt in reversed(options):
+            func = opt(func)
+        return func
+
+    return wrap
+
+
+# ---------------------------------------------------------------- the group
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="gcpcal")
+@click.option("-v", "--verbose", count=True, help="More log output (repeatable).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors.")
+@click.pass_context
+def cli(ctx, verbose, quiet):
+    """gcpcal: on-orbit geometric calibration of satellite cameras."""
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    ctx.ensure_object(dict)
+    ctx.obj["quiet"] = quiet
+
+
+@cli.command()
+@click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
+@click.option("--rows", help="Comma-separated rows (direct localization).")
+@click.option("--cols", help="Comma-separated columns (direct localization).")
+@click.option("--lon", help="Comma-separated longitudes, degrees (inverse localization).")
+@click.option("--lat", help="Comma-separated latitudes, degrees (inverse localization).")
+@click.option("--h", "h_text", help="Comma-separated ellipsoidal heights, m (inverse localization).")
+@click.option("--csv", "csv_path", type=click.Path(dir_okay=False), help="CSV with row,col (direct) or lon,lat,h (--inverse).")
+@click.option("--inverse", is_flag=True, help="Ground -> image (with --csv).")
+@click.option("--height", type=float, help="Ellipsoidal height of the ground for direct localization, m.")
+@add_options(dem_options)
+@click.option("--band", help="Band (multi-band models; default: the reference band).")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False), help="Write the results as CSV (plus a .summary.json).")
+@click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
+@click.pass_context
+def localize(ctx, model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height, dem_path, dem_datum, geoid, band, out_path, as_json):
+    """Localize points through MODEL, image -> ground or ground -> image.
+
+    Direct: --rows/--cols (or --csv with row,col) and --height or --dem. Inverse: --lon/--lat/--h
+    (or --csv with lon,lat,h and --inverse). Image coordinates put the first pixel's centre at
+    (0.5, 0.5); heights are metres above the WGS84 ellipsoid.
+    """
+    from sensor_models import open_model
+
+    t0 = time.perf_counter()
+    direct_given = rows is not None or cols is not None
+    inverse_given = lon is not None or lat is not None or h_text is not None
+    if csv_path and (direct_given or inverse_given):
+        raise click.UsageError("give points either on the command line or with --csv, not both")
+    if direct_given and inverse_given:
+        raise click.UsageError("give --rows/--cols (direct) or --lon/--lat/--h (inverse), not both")
+    if not (csv_path or direct_given or inverse_given):
+        raise click.UsageError("give points: --rows/--cols, --lon/--lat/--h, or --csv")
+    direction = "inverse" if (inverse_given or (csv_path and inverse)) else "direct"
+    if direction == "direct":
+        if csv_path:
+            pts = read_points_csv(Path(csv_path), ("row", "col"))
+            r, c = pts["row"], pts["col"]
+        else:
+            if rows is None or cols is None:
+                raise click.UsageError("direct localization needs both --rows and --cols")
+            r, c = _float_list(rows, "rows"), _float_list(cols, "cols")
+            if r.size != c.size:
+                raise InputError(f"--rows has {r.size} values, --cols {c.size}")
+        if (height is None) == (dem_path is None):
+            raise click.UsageError("direct localization needs exactly one of --height and --dem")
+    else:
+        if csv_path:
+            pts = read_points_csv(Path(csv_path), ("lon", "lat", "h"))
+            lo, la, hh = pts["lon"], pts["lat"], pts["h"]
+        else:
+            if lon is None or lat is None or h_text is None:
+                raise click.UsageError("inverse localization needs --lon, --lat and --h")
+            lo, la, hh = _float_list(lon, "lon"), _float_list(lat, "lat"), _float_list(h_text, "h")
+            if not lo.size == la.size == hh.size:
+                raise InputError("--lon, --lat and --h need the same number of values")
+    model = open_model(model_path)
+    kwargs = {} if band is None else {"band": band}
+    if direction == "direct":
+        if dem_path is not None:
+            dem = open_dem(dem_path, dem_datum, geoid)
+            lo, la, hh = model.image_to_ground(r, c, dem=dem, **kwargs)
+        else:
+            lo, la, hh = model.image_to_ground(r, c, height=height, **kwargs)
+    else:
+        r, c = model.ground_to_image(lo, la, hh, **kwargs)
+    table = {"row": np.atleast_1d(r), "col": np.atleast_1d(c), "lon": np.atleast_1d(lo), "lat": np.atleast_1d(la), "h": np.atleast_1d(hh)}
+    n = table["row"].size
+    summary = {
+        "command": "localize",
+        "model": str(model_path),
+        "model_kind": model.kind,
+        "direction": direction,
+        "points": int(n),
+        "not_localized": int(np.count_nonzero(~np.isfinite(table["row"] + table["lon"]))),
+        "seconds": round(time.perf_counter() - t0, 4),
+    }
+    if out_path:
+        lines = ["row,col,lon,lat,h"]
+        lines += [f"{a:.6f},{b:.6f},{x:.10f},{y:.10f},{z:.4f}" for a, b, x, y, z in zip(*table.values())]
+        atomic_write_text(Path(out_path), "\n".join(lines) + "\n")
+        write_summary(Path(out_path).with_suffix(".summary.json"), summary | {"output": str(out_path)})
+    if as_json:
+        click.echo(json.dumps(summary | {"results": {k: v.tolist() for k, v in table.items()}}, default=_json_default))
+    elif not out_path:
+        click.echo(f"{'row':>14} {'col':>14} {'lon_deg':>16} {'lat_deg':>16} {'h_m':>11}")
+        for a, b, x, y, z in zip(*table.values()):
+            click.echo(f"{a:14.6f} {b:14.6f} {x:16.10f} {y:16.10f} {z:11.4f}")
+
+
+@cli.command()
+@click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="Output: *_RPC.TXT, *.RPB, or *.tif (RPC tags).")
+@add_options(dem_options)
+@click.option("--height-range", nargs=2, type=float, help="Min and max ellipsoidal heights (m) when no --dem is given.")
+@click.option("--band", help="Band (multi-band models; default: the reference band).")
+@click.option("--json", "as_json", is_flag=True, help="Print the fit summary as JSON.")
+def rpc(model_path, out_path, dem_path, dem_datum, geoid, height_range, band, as_json):
+    """Fit an RPC to MODEL over its image and height range and write it.
+
+    The height range comes from --dem (its minimum and maximum over the scene, with a margin) or
+    --height-range. The fit is terrain-independent; its errors on an independent check grid are
+    reported in OUT.summary.json.
+    """
+    from sensor_models import open_model
+    from sensor_models.rpc import fit_rpc
+
+    t0 = time.perf_counter()
+    model = open_model(model_path)
+    if dem_path is not None:
+        dem = open_dem(dem_path, dem_datum, geoid)
+        h_lo, h_hi = dem.height_range_m
+        pad = max(50.0, 0.05 * (h_hi - h_lo))
+        height_range = (h_lo - pad, h_hi + pad)
+    elif height_range is None:
+        height_range = (-100.0, 3000.0)
+    kwargs = {} if band is None else {"band": band}
+    fitted, report = fit_rpc(model, height_range_m=tuple(height_range), **kwargs)
+    out = Path(out_path)
+    fitted.write(out)
+    summary = {
+        "command": "rpc",
+        "model": str(model_path),
+        "output": str(out),
+        "height_range_m": list(height_range),
+        "fit": report,
+        "seconds": round(time.perf_counter() - t0, 3),
+    }
+    write_summary(out.with_name(out.name + ".summary.json"), summary)
+    if as_json:
+        click.echo(json.dumps(summary, default=_json_default))
+    else:
+        click.echo(f"wrote {out}")
+        for key in ("fit_max_px", "fit_rms_px", "check_max_px", "check_rms_px"):
+            if key in report:
+                click.echo(f"  {key:14s} {report[key]:.2e}")
+
+
+@cli.command()
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="gcpcal-demo", show_default=True, help="Output folder.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.pass_context
+def demo(ctx, out_dir, as_json):
+    """Run the main job on the embedded fixtures and write OUT/summary.json."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from calibrate.demo import run_demo
+
+    console = Console(stderr=True, quiet=ctx.obj.get("quiet", False) or as_json)
+    with console.status("gcpcal demo") as status:
+        summary = run_demo(Path(out_dir), progress=lambda m: status.update(f"gcpcal demo: {m}"))
+    if as_json:
+        click.echo(json.dumps(summary, default=_json_default))
+        return
+    table = Table(title="Localization round trip image -> ground -> image (100x100 grid per CCD)")
+    for col in ("band", "ccd", "height_m", "rms_px", "max_px"):
+        table.add_column(col, justify="right")
+    for r in summary["round_trip"]:
+        table.add_row(r["band"], r["ccd"], f"{r['height_m']:.0f}", f"{r['rms_px']:.1e}", f"{r['max_px']:.1e}")
+    out = Console()
+    out.print(table)
+    fit = summary["rpc_fit"]
+    out.print(f"RPC fit: check-grid max error {fit.get('check_max_px', float('nan')):.2e} px")
+    out.print(f"wrote {out_dir}/summary.json in {summary['seconds']:.1f} s")
+
+
+def main(argv=None) -> int:
+    """Console entry point: run the CLI, turn user errors into one line and exit code 1."""
+    try:
+        cli.main(args=argv, prog_name="gcpcal", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("gcpcal: aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except GcpcalError as exc:
+        click.echo(f"gcpcal: error: {exc}", err=True)
+        return 1
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
