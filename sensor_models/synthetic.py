@@ -146,15 +146,29 @@ def example_pushbroom_model(
     epoch: str = "2023-06-15T03:00:00",
     installation: Installation = Installation(),
     attitude_kwargs: dict | None = None,
-    argument_of_latitude_deg: float = 44.0,
-    raan_deg: float = 0.0,
+    center_lon_deg: float = 5.5,
+    center_lat_deg: float = 44.5,
     name: str = "synthetic",
 ) -> PushbroomModel:
-    """An HY-1C-like push-broom model over mid-latitudes with a GCRF orbit and orbital attitude.
+    """An HY-1C-like push-broom model with a GCRF orbit and orbital-frame attitude.
 
-    Line period = ground sampling distance / ground speed, so pixels are roughly square.
-    Ephemeris is sampled every 1 s and attitude every 0.25 s, covering the image plus 20 s.
+    The orbit's node and phase are chosen so that the image centre (at zero height) falls on
+    ``(center_lon_deg, center_lat_deg)`` within a few hundred metres (default: the SRTM tile
+    N44E005 under the Ventoux test data). Line period = ground sampling distance / ground speed,
+    so pixels are roughly square. Ephemeris is sampled every 1 s and attitude every 0.25 s,
+    covering the image plus 20 s on each side.
     """
+    kwargs = dict(n_rows=n_rows, design=design, epoch=epoch, installation=installation, attitude_kwargs=attitude_kwargs, name=name)
+    raan, arg_lat = center_lon_deg, center_lat_deg / np.sin(np.radians(98.5))
+    for _ in range(3):
+        model = _example(raan_deg=raan, argument_of_latitude_deg=arg_lat, **kwargs)
+        lon, lat, _ = model.image_to_ground([n_rows / 2], [model.n_cols / 2], height=0.0)
+        raan += center_lon_deg - float(lon[0])
+        arg_lat += (center_lat_deg - float(lat[0])) / np.sin(np.radians(98.5))
+    return _example(raan_deg=raan, argument_of_latitude_deg=arg_lat, **kwargs)
+
+
+def _example(*, n_rows, design, epoch, installation, attitude_kwargs, argument_of_latitude_deg, raan_deg, name):
     altitude = 782_121.0
     a = 6_378_137.0 + altitude
     ground_speed = np.sqrt(GM_EARTH_M3_S2 / a) * 6_378_137.0 / a

@@ -150,3 +150,20 @@ def test_row_time_and_ground_track_are_consistent(model):
     xyz = geodetic_to_ecef(lon, lat, h)
     step_m = np.linalg.norm(xyz[1] - xyz[0]) / 100.0
     assert 45.0 < step_m < 55.0
+
+
+def test_round_trip_over_real_srtm(shared_data):
+    """Acceptance: image -> DEM -> image over the real SRTM tile (EGM96 heights converted)."""
+    from sensor_models.terrain import Dem
+
+    dem = Dem.open(shared_data / "dem" / "N44E005.hgt", vertical_datum="egm96", geoid=shared_data / "dem" / "egm96_15.gtx")
+    model = example_pushbroom_model(n_rows=1500, installation=Installation(0.0, 0.0, np.radians(3.55)), attitude_kwargs=ATTITUDE)
+    for i, ccd in enumerate(model.band_ccds()):
+        r, c = _grid(model, ccd)
+        lon, lat, h = model.image_to_ground(r, c, dem=dem)
+        inside = np.isfinite(lon)
+        assert inside.mean() > 0.6  # the 100 km scene overhangs the 1x1 degree tile
+        np.testing.assert_allclose(h[inside], dem.height_m(lon[inside], lat[inside]), atol=1e-3)
+        r2, c2 = model.ground_to_image(lon[inside], lat[inside], h[inside], ccd=i)
+        err = np.hypot(r2 - r[inside], c2 - c[inside])
+        assert np.sqrt(np.mean(err**2)) <= 1e-4 and err.max() <= 1e-3
