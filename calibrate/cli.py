@@ -230,9 +230,13 @@ def localize(ctx, model_path, rows, cols, lon, lat, h_text, csv_path, inverse, h
 @add_options(dem_options)
 @click.option("--height-range", nargs=2, type=float, help="Min and max ellipsoidal heights (m) when no --dem is given.")
 @click.option("--band", help="Band (multi-band models; default: the reference band).")
+@click.option("--ccd", help="CCD name; default: one RPC per CCD (suffix _<ccd> in the file name).")
 @click.option("--json", "as_json", is_flag=True, help="Print the fit summary as JSON.")
-def rpc(model_path, out_path, dem_path, dem_datum, geoid, height_range, band, as_json):
+def rpc(model_path, out_path, dem_path, dem_datum, geoid, height_range, band, ccd, as_json):
     """Fit an RPC to MODEL over its image and height range and write it.
+
+    A push-broom band with several CCDs gets one RPC per CCD image (columns counted from the
+    CCD's first detector), since the stitched raster is discontinuous where CCDs overlap.
 
     The height range comes from --dem (its minimum and maximum over the scene, with a margin) or
     --height-range. The fit is terrain-independent; its errors on an independent check grid are
@@ -250,26 +254,50 @@ def rpc(model_path, out_path, dem_path, dem_datum, geoid, height_range, band, as
         height_range = (h_lo - pad, h_hi + pad)
     elif height_range is None:
         height_range = (-100.0, 3000.0)
-    kwargs = {} if band is None else {"band": band}
-    fitted, report = fit_rpc(model, height_range_m=tuple(height_range), **kwargs)
     out = Path(out_path)
-    fitted.write(out)
+    targets = [(model, out, None)]
+    if hasattr(model, "band_ccds"):
+        # an RPC describes one smooth image: one per CCD (the stitched raster jumps at overlaps)
+        ccds = model.band_ccds(band)
+        if ccd is not None:
+            targets = [(model.ccd_view(ccd, band=band), out, ccd)]
+        elif len(ccds) == 1:
+            targets = [(model.ccd_view(0, band=band), out, ccds[0].name)]
+        else:
+            targets = [(model.ccd_view(i, band=band), _with_ccd_suffix(out, c.name), c.name) for i, c in enumerate(ccds)]
+    elif ccd is not None:
+        raise InputError(f"--ccd applies to push-broom models, not to a {model.kind} model")
+    fits = []
+    out.parent.mkdir(parents=True, exist_ok=True)
+    for target, path, ccd_name in targets:
+        kwargs = {} if (band is None or ccd_name is not None) else {"band": band}
+        fitted, report = fit_rpc(target, height_range_m=tuple(height_range), **kwargs)
+        fitted.write(path)
+        fits.append({"ccd": ccd_name, "output": str(path), "fit": report})
     summary = {
         "command": "rpc",
         "model": str(model_path),
-        "output": str(out),
         "height_range_m": list(height_range),
-        "fit": report,
+        "rpcs": fits,
+        "check_max_px": max(f["fit"]["check_max_px"] for f in fits),
         "seconds": round(time.perf_counter() - t0, 3),
     }
     write_summary(out.with_name(out.name + ".summary.json"), summary)
     if as_json:
         click.echo(json.dumps(summary, default=_json_default))
     else:
-        click.echo(f"wrote {out}")
-        for key in ("fit_max_px", "fit_rms_px", "check_max_px", "check_rms_px"):
-            if key in report:
-                click.echo(f"  {key:14s} {report[key]:.2e}")
+        for f in fits:
+            rep = f["fit"]
+            label = f" (CCD {f['ccd']})" if f["ccd"] else ""
+            click.echo(f"wrote {f['output']}{label}: check-grid max {rep['check_max_px']:.2e} px, rms {rep['check_rms_px']:.2e} px")
+
+
+def _with_ccd_suffix(path: Path, ccd: str) -> Path:
+    """``scene_RPC.TXT`` -> ``scene_ccd1_RPC.TXT``; ``scene.RPB`` -> ``scene_ccd1.RPB``."""
+    name = path.name
+    if name.upper().endswith("_RPC.TXT"):
+        return path.with_name(f"{name[:-8]}_{ccd}{name[-8:]}")
+    return path.with_name(f"{path.stem}_{ccd}{path.suffix}")
 
 
 @cli.command()
@@ -296,8 +324,7 @@ def demo(ctx, out_dir, as_json):
         table.add_row(r["band"], r["ccd"], f"{r['height_m']:.0f}", f"{r['rms_px']:.1e}", f"{r['max_px']:.1e}")
     out = Console()
     out.print(table)
-    fit = summary["rpc_fit"]
-    out.print(f"RPC fit: check-grid max error {fit.get('check_max_px', float('nan')):.2e} px")
+    out.print(f"RPC per CCD, max error on an independent check grid: {summary['rpc_check_max_px']:.2e} px")
     out.print(f"wrote {out_dir}/summary.json in {summary['seconds']:.1f} s")
 
 

@@ -76,8 +76,12 @@ class InverseLocalizationGrid:
     def _index(self, values, axis):
         return (values - axis[0]) / (axis[1] - axis[0])
 
-    def ground_to_image(self, lon, lat, h):
-        """Interpolated ``(row, col)``; NaN outside the grid or where nodes were not imaged."""
+    def ground_to_image(self, lon, lat, h, *, ccd=None):
+        """Interpolated ``(row, col)``; NaN outside the grid or where nodes were not imaged.
+
+        ``ccd`` (an index or an array of indices into the band's CCDs) forces the CCD, as in
+        :meth:`PushbroomModel.ground_to_image`.
+        """
         lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
         shape = lon.shape
         coords = np.stack([self._index(h.ravel(), self.h), self._index(lat.ravel(), self.lat), self._index(lon.ravel(), self.lon)])
@@ -87,10 +91,14 @@ class InverseLocalizationGrid:
         row = np.full(coords.shape[1], np.nan)
         col = np.full(coords.shape[1], np.nan)
         best = np.full(coords.shape[1], np.inf)
-        for ccd, (rg, cg) in zip(self.ccds, self.nodes):
-            c = map_coordinates(cg, coords, order=1, mode="nearest", prefilter=False)
-            r = map_coordinates(rg, coords, order=1, mode="nearest", prefilter=False)
-            dist = np.maximum(np.maximum(ccd.first_col - c, c - ccd.last_col), 0.0)
+        forced = None if ccd is None else np.broadcast_to(np.asarray(ccd), shape).reshape(-1)
+        for i, (look, (rg, cg)) in enumerate(zip(self.ccds, self.nodes)):
+            sel = slice(None) if forced is None else forced == i
+            c = np.full(coords.shape[1], np.nan)
+            r = np.full(coords.shape[1], np.nan)
+            c[sel] = map_coordinates(cg, coords[:, sel], order=1, mode="nearest", prefilter=False)
+            r[sel] = map_coordinates(rg, coords[:, sel], order=1, mode="nearest", prefilter=False)
+            dist = np.maximum(np.maximum(look.first_col - c, c - look.last_col), 0.0)
             better = dist < best
             row[better] = r[better]
             col[better] = c[better]

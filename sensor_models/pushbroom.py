@@ -48,7 +48,7 @@ from sensor_models.errors import InputError, OutOfRangeError
 from sensor_models.geodesy import ecef_to_geodetic, geodetic_to_ecef
 from sensor_models.pushbroom_types import CcdLook, Installation, LineTiming
 
-__all__ = ["PushbroomModel"]
+__all__ = ["CcdView", "PushbroomModel"]
 
 #: points processed at once; bounds temporary memory to a few tens of MB
 CHUNK = 1 << 16
@@ -81,6 +81,13 @@ def _catmull_rom_weights(t):
         axis=-1,
     )
     return w, dw
+
+
+def _chunk_of(ccd, a, b):
+    """The slice ``a:b`` of a per-point CCD selection (names and scalars pass through)."""
+    if ccd is None or isinstance(ccd, str) or np.ndim(ccd) == 0:
+        return ccd
+    return np.asarray(ccd).reshape(-1)[a:b]
 
 
 class _LineTable:
@@ -423,7 +430,7 @@ class PushbroomModel(SensorModel):
         col = np.empty(ground.shape[0])
         for a in range(0, ground.shape[0], CHUNK):
             b = a + CHUNK
-            row[a:b], col[a:b], _ = self._ground_to_image_chunk(ground[a:b], band, ccd)
+            row[a:b], col[a:b], _ = self._ground_to_image_chunk(ground[a:b], band, _chunk_of(ccd, a, b))
         return row.reshape(shape), col.reshape(shape)
 
     def _ground_to_image_chunk(self, ground, band, ccd):
@@ -555,7 +562,7 @@ class PushbroomModel(SensorModel):
         ccds = self.band_ccds(band)
         for a in range(0, n, CHUNK):
             g = ground[a : a + CHUNK]
-            r_c, c_c, idx = self._ground_to_image_chunk(g, band, ccd)
+            r_c, c_c, idx = self._ground_to_image_chunk(g, band, _chunk_of(ccd, a, a + CHUNK))
             row[a : a + CHUNK], col[a : a + CHUNK] = r_c, c_c
             for i, c in enumerate(ccds):
                 sel = np.nonzero((idx == i) & np.isfinite(r_c))[0]
@@ -583,6 +590,52 @@ class PushbroomModel(SensorModel):
                 jac[a + sel] = -np.einsum("nij,njp->nip", inv, dfdp)
         return row, col, jac
 
+    def ccd_view(self, ccd, *, band=None) -> "CcdView":
+        """One CCD of one band as a model of its own image (columns ``0 .. n_detectors``).
+
+        A stitched multi-CCD raster maps the ground discontinuously where CCDs overlap, so an
+        RPC (or any smooth approximation) describes one CCD at a time.
+        """
+        return CcdView(self, band=self._band(band), ccd=ccd)
+
     def __repr__(self):
         bands = ", ".join(f"{b}: {len(c)} CCD" for b, c in self.bands.items())
         return f"PushbroomModel({self.name!r}, {self.n_rows}x{self.n_cols}, {bands})"
+
+
+class CcdView(SensorModel):
+    """A single CCD of a :class:`PushbroomModel` seen as an image of its own.
+
+    ``col_view = col_scene - ccd.first_col``; rows are unchanged. Parameters are those of the
+    parent model.
+    """
+
+    kind = "pushbroom_ccd"
+
+    def __init__(self, model: PushbroomModel, *, band: str, ccd):
+        self.model = model
+        self.band = band
+        self.index = int(model.ccd_index(np.zeros(1), band=band, ccd=ccd)[0])
+        self.ccd = model.band_ccds(band)[self.index]
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        return (self.model.n_rows, self.ccd.n_detectors)
+
+    def image_to_ground(self, row, col, *, height=None, dem=None, band=None):
+        col = np.asarray(col, dtype=np.float64) + self.ccd.first_col
+        return self.model.image_to_ground(row, col, height=height, dem=dem, band=self.band, ccd=self.index)
+
+    def ground_to_image(self, lon, lat, h, *, band=None):
+        row, col = self.model.ground_to_image(lon, lat, h, band=self.band, ccd=self.index)
+        return row, col - self.ccd.first_col
+
+    def parameters(self) -> ParameterVector:
+        return self.model.parameters()
+
+    def with_parameters(self, values) -> "CcdView":
+        return CcdView(self.model.with_parameters(values), band=self.band, ccd=self.index)
+
+    def image_jacobian(self, lon, lat, h, *, band=None, names=None):
+        row, col, jac = self.model.image_jacobian(lon, lat, h, band=self.band, names=names, ccd=self.index)
+        return row, col - self.ccd.first_col, jac

@@ -1188,28 +1188,41 @@ def fit_rpc(
     if not np.all(np.isfinite(coefs)):
         raise RpcError("the RPC fit produced non-finite coefficients; check the grid and "
                        "height range, or raise regularization")  # fmt: skip
-    rpc = RpcModel(
-        line_num=line_num, line_den=line_den, samp_num=samp_num, samp_den=samp_den,
-        image_shape=(n_rows, n_cols), **norm,
-    )  # fmt: skip
+    def build(ln, ld, sn, sd):
+        return RpcModel(
+            line_num=ln, line_den=ld, samp_num=sn, samp_den=sd, image_shape=(n_rows, n_cols), **norm,
+        )  # fmt: skip
 
-    def errors(R_, C_, lon_, lat_, h_):
-        r, c = rpc.ground_to_image(lon_, lat_, h_)
+    def errors(rpc_, R_, C_, lon_, lat_, h_):
+        r, c = rpc_.ground_to_image(lon_, lat_, h_)
         dr, dc = r - R_, c - C_
         d = np.hypot(dr, dc)
-        v = rpc._coef.T @ _terms(*rpc._normalize(lon_, lat_, h_))
+        v = rpc_._coef.T @ _terms(*rpc_._normalize(lon_, lat_, h_))
         min_den = float(np.min(np.abs(v[[1, 3]]))) if v.size else float("nan")
         return (float(np.max(d)), float(np.sqrt(np.mean(d * d))), float(np.max(np.abs(dr))),
                 float(np.max(np.abs(dc))), min_den)  # fmt: skip
 
-    fit_max, fit_rms, fit_max_r, fit_max_c, den_fit = errors(R, C, lon, lat, h)
     Rc, Cc, lonc, latc, hc, dropped_c = _localize_grid(
         model, band, n_rows, n_cols, h_lo, h_hi, check_grid_shape, offset=True
     )
     if Rc.size == 0:
         raise RpcError("no check-grid point could be localized")
-    chk_max, chk_rms, chk_max_r, chk_max_c, den_chk = errors(Rc, Cc, lonc, latc, hc)
+    # Candidates: the rational fit and the cubic polynomial (denominators = 1). Rational terms
+    # can chase what a cubic cannot represent (attitude jitter) and blow up between the fit
+    # nodes; the independent check grid decides.
+    unit = np.zeros(20)
+    unit[0] = 1.0
+    normal = T.T @ T
+    ridge = lam * np.mean(np.diag(normal)) * np.eye(20)
+    poly_line = np.linalg.solve(normal + ridge, T.T @ y_line)
+    poly_samp = np.linalg.solve(normal + ridge, T.T @ y_samp)
+    candidates = [("rational", build(line_num, line_den, samp_num, samp_den)), ("polynomial", build(poly_line, unit, poly_samp, unit))]
+    scored = [(errors(m_, Rc, Cc, lonc, latc, hc), form, m_) for form, m_ in candidates]
+    (chk_max, chk_rms, chk_max_r, chk_max_c, den_chk), form, rpc = min(scored, key=lambda item: item[0][0])
+    fit_max, fit_rms, fit_max_r, fit_max_c, den_fit = errors(rpc, R, C, lon, lat, h)
     report = {
+        "form": form,
+        "check_max_px_rational": scored[0][0][0],
         "fit_max_px": fit_max,
         "fit_rms_px": fit_rms,
         "fit_max_row_px": fit_max_r,

@@ -90,9 +90,12 @@ class Fields:
         if value is default and default is not _MISSING:
             return value
         try:
-            arr = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
+            arr = np.asarray(value)
+        except (TypeError, ValueError):  # ragged nesting
             raise self.error(key, "must be an array of numbers") from None
+        if arr.dtype.kind not in "iuf" and not (arr.dtype.kind == "O" and arr.size == 0):
+            raise self.error(key, "must be an array of numbers (no strings, booleans or nulls)")
+        arr = arr.astype(np.float64)
         if arr.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, arr.shape)):
             want = "x".join("N" if s is None else str(s) for s in shape)
             raise self.error(key, f"must have shape {want}, got {'x'.join(map(str, arr.shape)) or 'scalar'}")
