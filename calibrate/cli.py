@@ -10,9 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -20,27 +18,13 @@ import click
 import numpy as np
 
 from sensor_models import __version__
+from sensor_models.atomic import atomic_write_text
 from sensor_models.errors import GcpcalError, InputError
 
 log = logging.getLogger("gcpcal")
 
 
 # ---------------------------------------------------------------- shared helpers
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def write_summary(path: Path, summary: dict) -> Path:
     """Write a stage's JSON summary atomically and return its path."""
     atomic_write_text(Path(path), json.dumps(summary, indent=2, default=_json_default) + "\n")

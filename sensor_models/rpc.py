@@ -68,11 +68,11 @@ from __future__ import annotations
 import math
 import os
 import re
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from sensor_models.atomic import temporary_beside
 from sensor_models.base import ParameterVector, SensorModel, as_float_arrays
 from sensor_models.errors import InputError, RpcError
 
@@ -170,9 +170,7 @@ def _terms_dP(L, P, H):
 
 def _atomic_output(path: Path, suffix: str):
     """A temporary file beside ``path`` (same filesystem, so ``os.replace`` is atomic)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    return Path(tmp)
+    return temporary_beside(path, suffix)
 
 
 # ---------------------------------------------------------------------------------------------

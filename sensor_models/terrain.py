@@ -71,7 +71,7 @@ _MAX_STEP_NODES = 0.45
 #: Rays processed together: bounds memory to a few tens of MB whatever the number of rays.
 _CHUNK_RAYS = 1 << 15
 #: Rounds of bracket narrowing with the min/max pyramid before marching.
-_NARROWING_ROUNDS = 3
+_NARROWING_ROUNDS = 2
 #: March steps evaluated together for each ray still marching.
 _BLOCK_STEPS = 8
 #: Cubic interpolation nodes along the bracket and the inverse of their Vandermonde matrix.
@@ -1169,16 +1169,18 @@ class _RangePyramid:
 def _solve_model_height(coef, h_target, s_lo, s_hi):
     """Parameter in [s_lo, s_hi] where the model height equals ``h_target`` (h decreasing).
 
-    A chord estimate then two Newton steps on the cubic; NaN where ``h_target`` is not finite.
-    Clipped to the interval (the caller pads the target by a metre).
+    A chord estimate then one Newton step on the cubic (the chord is off by the ray's
+    curvature in height, under a metre for brackets of a few km; Newton removes that).
+    Clipped to the interval; NaN where ``h_target`` is not finite.
     """
-    (h_lo, _, _), (h_hi, _, _) = (_eval_model_d(coef, s_lo)[0], _eval_model_d(coef, s_hi)[0])
+    c0, c1, c2, c3 = (coef[:, 0, k] for k in range(4))
+    h_lo = ((c3 * s_lo + c2) * s_lo + c1) * s_lo + c0
+    h_hi = ((c3 * s_hi + c2) * s_hi + c1) * s_hi + c0
     with np.errstate(invalid="ignore", divide="ignore"):
-        s = s_lo + (h_lo - h_target) / (h_lo - h_hi) * (s_hi - s_lo)
-        s = np.clip(s, s_lo, s_hi)
-        for _ in range(2):
-            (h, _, _), (dh, _, _) = _eval_model_d(coef, s)
-            s = np.clip(s - (h - h_target) / dh, s_lo, s_hi)
+        s = np.clip(s_lo + (h_lo - h_target) / (h_lo - h_hi) * (s_hi - s_lo), s_lo, s_hi)
+        h = ((c3 * s + c2) * s + c1) * s + c0
+        dh = (3.0 * c3 * s + 2.0 * c2) * s + c1
+        s = np.clip(s - (h - h_target) / dh, s_lo, s_hi)
     return np.where(np.isfinite(h_target), s, np.nan)
 
 

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from sensor_models.atomic import atomic_write_text
 from sensor_models.ephemeris import ATTITUDE_FRAMES, ORBIT_FRAMES, Attitude, Orbit
 from sensor_models.errors import InputError, ManifestError
 from sensor_models.pushbroom import PushbroomModel
@@ -252,15 +252,5 @@ def write_manifest(model: PushbroomModel, path, *, rasters=None) -> Path:
     """Write a manifest atomically (temporary file in the same folder, then rename)."""
     path = Path(path)
     doc = manifest_to_dict(model, rasters=rasters, base_dir=path.parent.resolve())
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(doc, fh, indent=1)
-            fh.write("\n")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
     return path
