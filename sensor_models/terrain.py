@@ -23,10 +23,18 @@ then marched in steps of at most 0.45 node spacing in both ``col`` and ``row``; 
 reach (a 4 x 4-node maximum precomputed at load), which cannot miss a crossing. A step that may
 hold one is split where it crosses grid lines; inside each DEM cell the bilinear surface along
 the ray is a quadratic in ``t``, so the first root of ``f(t) = h(t) - z(col(t), row(t))`` is
-found in closed form. That root is finally checked and polished with exact evaluations
-(:func:`~sensor_models.geodesy.ecef_to_geodetic`, the DEM's own CRS transform, bilinear
-interpolation) to ``|f| < 1e-4 m`` by bracketed Illinois (regula falsi) steps. The point
-returned is ``o + t d``: exactly on the ray, so an image -> ground -> image round trip is exact.
+found in closed form, then made exact on the model by two Newton steps. That root is finally
+checked with exact evaluations (:func:`~sensor_models.geodesy.ecef_to_geodetic`, the DEM's
+own CRS transform, bilinear interpolation); where ``|f| >= 1e-4 m`` (not seen in practice:
+model roots are within 1e-8 m on SRTM and 2e-6 m at 70 degrees over 8 km of relief) it is
+polished by bracketed Illinois (regula falsi) steps. The point returned is ``o + t d``:
+exactly on the ray, so an image -> ground -> image round trip is exact.
+
+Before marching, the bracket is narrowed with a min/max pyramid of the DEM (extrema over
+blocks of 2**l cells): the ray cannot meet the surface while above the highest node under
+its track, and has met it once below the lowest. A "crossing" includes touching: a ray
+tangent to the surface (to ~1e-8 m) stops there. Auxiliary bounds are kept in float32
+rounded outwards: a Dem takes about 2.8 times the memory of its float64 height grid.
 
 References
 ----------
@@ -71,7 +79,7 @@ _MAX_STEP_NODES = 0.45
 #: Rays processed together: bounds memory to a few tens of MB whatever the number of rays.
 _CHUNK_RAYS = 1 << 15
 #: Rounds of bracket narrowing with the min/max pyramid before marching.
-_NARROWING_ROUNDS = 2
+_NARROWING_ROUNDS = 1
 #: March steps evaluated together for each ray still marching.
 _BLOCK_STEPS = 8
 #: Cubic interpolation nodes along the bracket and the inverse of their Vandermonde matrix.
@@ -144,6 +152,12 @@ def _as_affine(transform) -> Affine:
             f"transform needs the 6 affine coefficients (a, b, c, d, e, f), got {len(coeffs)}"
         )
     return Affine(*coeffs[:6])
+
+
+def _apply_affine(transform: Affine, x, y):
+    """``transform`` applied to arrays ``x``, ``y`` (pixel <-> CRS coordinates)."""
+    return (transform.a * x + transform.b * y + transform.c,
+            transform.d * x + transform.e * y + transform.f)
 
 
 def _node_index_affine(transform: Affine):
@@ -471,8 +485,8 @@ class _GridGeometry:
         self.wrap_west_deg = None
         if crs.is_geographic:
             n_rows, n_cols = shape
-            xs, ys = transform * (np.array([0.5, n_cols - 0.5, 0.5, n_cols - 0.5]),
-                                  np.array([0.5, 0.5, n_rows - 0.5, n_rows - 0.5]))
+            xs, ys = _apply_affine(transform, np.array([0.5, n_cols - 0.5, 0.5, n_cols - 0.5]),
+                                   np.array([0.5, 0.5, n_rows - 0.5, n_rows - 0.5]))
             lon, lat = self.from_grid.transform(xs, ys)
             if (np.allclose(lon, xs, rtol=0.0, atol=1e-10)
                     and np.allclose(lat, ys, rtol=0.0, atol=1e-10)):
@@ -496,8 +510,8 @@ class _GridGeometry:
 
     def index_to_lonlat(self, col, row):
         """WGS84 ``(lon, lat)`` in degrees of node indices."""
-        x, y = self.transform * (np.asarray(col, dtype=np.float64) + 0.5,
-                                 np.asarray(row, dtype=np.float64) + 0.5)
+        x, y = _apply_affine(self.transform, np.asarray(col, dtype=np.float64) + 0.5,
+                             np.asarray(row, dtype=np.float64) + 0.5)
         if self.plain_lonlat:
             return x, y
         lon, lat = self.from_grid.transform(x, y)
@@ -552,10 +566,16 @@ class Dem:
         # such a step stays within cells j-1..j+1, i-1..i+1, i.e. nodes j-1..j+2, i-1..i+2.
         z_inf = np.where(valid, z, np.inf)
         dmax = ndimage.maximum_filter(z_inf, size=4, mode="constant", cval=np.inf, origin=-1)
-        self._cell_max_flat = np.ascontiguousarray(dmax[:-1, :-1]).reshape(-1)
+        self._cell_max_flat = _float32_bound(dmax[:-1, :-1], upper=True).reshape(-1)
         self._pyramid = _RangePyramid(z)
-        self._resolution_m = self._ground_spacing_m()
         self._bounds_lonlat = self._lonlat_box()
+        lon0, lat0, lon1, lat1 = self._bounds_lonlat
+        if not (np.isfinite([lon0, lon1]).all() and -90.0 <= lat0 <= lat1 <= 90.0):
+            raise DemError(
+                f"{source or 'DEM'}: its grid does not map to valid WGS84 coordinates through "
+                f"{self.crs.name!r} (lat {lat0}..{lat1}); check the transform and CRS"
+            )
+        self._resolution_m = self._ground_spacing_m()
 
     # -- construction ---------------------------------------------------------------------
 
@@ -581,7 +601,7 @@ class Dem:
             the caller must say ``"egm96"``. A value contradicting the metadata is an error.
         geoid : str, os.PathLike or Geoid, optional
             EGM96 undulation grid; required for EGM96 heights, refused when the caller says
-            ``"ellipsoid"``.
+            ``"ellipsoid"``, unused when the file itself declares ellipsoidal heights.
         bounds : tuple of 4 floats, optional
             ``(lon_min, lat_min, lon_max, lat_max)`` in WGS84 degrees: read only the part of
             the raster covering this box plus ``margin_deg`` (windowed read).
@@ -599,6 +619,8 @@ class Dem:
             the raster, no valid heights, geoid grid not covering the DEM.
         GeoidGridMissingError
             EGM96 heights and no (or a missing) geoid grid.
+        InputError
+            Unknown ``vertical_datum``, malformed ``bounds``, a geoid with ``"ellipsoid"``.
         """
         source = os.fspath(path)
         datum = _check_datum_name(vertical_datum)
@@ -639,7 +661,7 @@ class Dem:
         transform : affine.Affine or sequence of 6 floats
             Pixel-corner affine of the grid, as rasterio gives it.
         crs : pyproj.CRS or anything pyproj accepts
-            Horizontal CRS (a compound CRS's vertical part is ignored: say the datum here).
+            CRS of the grid; a compound CRS's vertical part must agree with ``vertical_datum``.
         vertical_datum : {"ellipsoid", "egm96"}
         geoid : str, os.PathLike or Geoid, optional
             Required when ``vertical_datum="egm96"``.
@@ -649,9 +671,15 @@ class Dem:
             raise InputError("vertical_datum must be given for an in-memory DEM")
         if datum == "ellipsoid" and geoid is not None:
             raise InputError("geoid is only used with vertical_datum='egm96'")
+        crs = pyproj.CRS.from_user_input(crs)
+        declared = _declared_datum(crs, source="in-memory DEM")
+        if declared is not None and declared != datum:
+            raise DemError(
+                f"vertical_datum={datum!r} contradicts the datum of the CRS {crs.name!r} "
+                f"({declared!r})"
+            )
         values = np.array(heights_m, dtype=np.float64)
-        return cls._with_datum(values, transform, pyproj.CRS.from_user_input(crs), datum, geoid,
-                               source=None)
+        return cls._with_datum(values, transform, crs, datum, geoid, source=None)
 
     @classmethod
     def _with_datum(cls, values, transform, crs, datum, geoid, *, source):
@@ -832,9 +860,10 @@ class Dem:
         n = o.shape[0]
         t = np.full(n, np.nan)
         status = np.zeros(n, dtype=np.int8)
+        geo = np.full((n, 3), np.nan)
         for start in range(0, n, _CHUNK_RAYS):
             sl = slice(start, min(start + _CHUNK_RAYS, n))
-            t[sl], status[sl] = self._intersect_chunk(o[sl], d[sl])
+            t[sl], status[sl], geo[sl] = self._intersect_chunk(o[sl], d[sl])
         failed = status != _HIT
         if failed.any():
             if outside == "raise":
@@ -854,18 +883,22 @@ class Dem:
                 h_fb = np.full(idx.size, fallback_h)
                 t[idx] = _newton_on_height(o[idx], d[idx], h_fb, _first_root_t(a_, b_, c_, disc),
                                            max_iter=10)
+                geo[idx] = np.stack(ecef_to_geodetic(o[idx] + t[idx, None] * d[idx]), axis=1)
             else:
                 t[failed] = np.nan
         xyz = o + t[:, None] * d
-        lon, lat, h = ecef_to_geodetic(xyz)
-        return (lon.reshape(shape), lat.reshape(shape), h.reshape(shape),
+        return (geo[:, 0].reshape(shape), geo[:, 1].reshape(shape), geo[:, 2].reshape(shape),
                 xyz.reshape(shape + (3,)))
 
     def _intersect_chunk(self, o, d):
-        """First crossing for a chunk of rays: returns ``(t, status)``, shapes (n,)."""
+        """First crossing for a chunk of rays.
+
+        Returns ``t`` (n,), ``status`` (n,) and ``lon, lat, h`` of the hits, shape (n, 3).
+        """
         n = o.shape[0]
         status = np.zeros(n, dtype=np.int8)
         t_hit = np.full(n, np.nan)
+        geo = np.full((n, 3), np.nan)
 
         # 1. Bracket between the DEM's top and bottom heights (padded).
         top = _scaled_ellipsoid(o, d, self._h_max + _BRACKET_PAD_M)
@@ -880,7 +913,7 @@ class Dem:
 
         idx = np.nonzero(status == _PENDING)[0]
         if idx.size == 0:
-            return t_hit, status
+            return t_hit, status, geo
         o_a, d_a, t0, t1 = o[idx], d[idx], t_top[idx], t_bot[idx]
 
         # 2. Cubic model of (h, col, row) along the bracket from 4 exact points.
@@ -918,10 +951,11 @@ class Dem:
         k_cur = np.zeros(idx.size, dtype=np.int64)
         active = np.nonzero(~under)[0]
         n_rows, n_cols = self.shape
-        steps = np.arange(_BLOCK_STEPS + 1)
         while active.size:
+            # Steps evaluated together: a block, or fewer when every ray is nearly done.
+            block = int(min(_BLOCK_STEPS, np.max(n_steps[active] - k_cur[active])))
             c = coef[active]
-            ks = k_cur[active, None] + steps
+            ks = k_cur[active, None] + np.arange(block + 1)
             ka = n_steps[active, None]
             s = s0[active, None] + ds[active, None] * (np.minimum(ks, ka) / ka)
             hs, cs, rs = _eval_model(c, s)
@@ -936,7 +970,7 @@ class Dem:
 
             # Rays with nothing in this block move on (or, past their last step, missed).
             quiet = active[~found_any]
-            k_cur[quiet] += _BLOCK_STEPS
+            k_cur[quiet] += block
             ended = quiet[k_cur[quiet] >= n_steps[quiet]]
             status[idx[ended]] = _MISSED
 
@@ -959,12 +993,13 @@ class Dem:
         # 5. Exact check and polish on the true geometry.
         hit = np.nonzero(status[idx] == _HIT)[0]
         t_root = t0[hit] + s_hit[hit] * (t1[hit] - t0[hit])
-        t_root = self._polish(o_a[hit], d_a[hit], t_root,
-                              (t1[hit] - t0[hit]) * ds[hit] / n_steps[hit])
+        t_root, geo_root = self._polish(o_a[hit], d_a[hit], t_root,
+                                        (t1[hit] - t0[hit]) * ds[hit] / n_steps[hit])
         t_hit[idx[hit]] = t_root
+        geo[idx[hit]] = geo_root
         lost = ~np.isfinite(t_root)
         status[idx[hit[lost]]] = _LEFT_DEM
-        return t_hit, status
+        return t_hit, status, geo
 
     def _first_root_in_step(self, coef, s_a, s_b):
         """First root of ``h - z`` on the model between ``s_a`` and ``s_b`` (one march step).
@@ -1048,11 +1083,20 @@ class Dem:
         return s
 
     def _polish(self, o, d, t, step_t):
-        """Exact check of model roots; bracketed Illinois where ``|h - z| >= 1e-4 m``."""
-        f, *_ = self._residual_exact(o, d, t)
+        """Exact check of model roots; bracketed Illinois where ``|h - z| >= 1e-4 m``.
+
+        Returns
+        -------
+        t : ndarray, shape (m,)
+            Ray parameters (NaN where no root could be confirmed).
+        lon_lat_h : ndarray, shape (m, 3)
+            Geodetic coordinates of ``o + t d``.
+        """
+        f, lon, lat, h, _ = self._residual_exact(o, d, t)
+        geo = np.stack([lon, lat, h], axis=1)
         todo = np.nonzero(~(np.abs(f) < _SURFACE_TOL_M))[0]
         if todo.size == 0:
-            return t
+            return t, geo
         t = t.copy()
         o, d, tr, w = o[todo], d[todo], t[todo], np.minimum(0.05, 0.5 * step_t[todo])
         ta, tb = tr - w, tr + w
@@ -1091,10 +1135,11 @@ class Dem:
             side = np.where(low, 1, np.where(high, -1, side)).astype(np.int8)
             active &= ~done & ((tb - ta) > 1e-9)
         # Unbracketed: a graze within the model error; keep the model root.
-        f_best, *_ = self._residual_exact(o, d, best)
+        f_best, lon, lat, h, _ = self._residual_exact(o, d, best)
         ok = np.abs(f_best) < max(100.0 * _SURFACE_TOL_M, 1e-2)
         t[todo] = np.where(ok, best, np.nan)
-        return t
+        geo[todo] = np.stack([lon, lat, h], axis=1)
+        return t, geo
 
 
 class _RangePyramid:
@@ -1126,7 +1171,7 @@ class _RangePyramid:
                 padded[:rows, :cols] = level
                 level = reduce(reduce(padded[0::2, 0::2], padded[0::2, 1::2]),
                                reduce(padded[1::2, 0::2], padded[1::2, 1::2]))
-            flats.append(np.concatenate(blocks))
+            flats.append(_float32_bound(np.concatenate(blocks), upper=reduce is np.maximum))
         self._max_flat, self._min_flat = flats
         self._offsets = np.array(offsets, dtype=np.intp)
         self._widths = np.array(widths, dtype=np.intp)
@@ -1164,6 +1209,14 @@ class _RangePyramid:
             top = np.maximum(top, self._max_flat.take(k))
             bottom = np.minimum(bottom, self._min_flat.take(k))
         return np.where(inside, top, np.inf), np.where(inside, bottom, -np.inf)
+
+
+def _float32_bound(values, *, upper):
+    """``values`` as float32 rounded outwards (up for upper bounds), halving their memory."""
+    out = np.ascontiguousarray(values, dtype=np.float32)
+    if upper:
+        return np.where(out < values, np.nextafter(out, np.float32(np.inf)), out)
+    return np.where(out > values, np.nextafter(out, np.float32(-np.inf)), out)
 
 
 def _solve_model_height(coef, h_target, s_lo, s_hi):
@@ -1225,11 +1278,12 @@ def _grid_line_crossing(coef, q, s_a, s_b, v_a, v_b):
 
 
 def _first_quadratic_root(f0, fm, f1):
-    """Smallest ``u`` in [0, 1] with ``q(u) = 0`` for the quadratic through (0, f0), (.5, fm), (1, f1).
+    """Smallest ``u`` in [0, 1] where the quadratic through (0, f0), (1/2, fm), (1, f1) is 0.
 
-    ``q(u) = f0 + b u + c u^2`` with ``c = 2 (f0 - 2 fm + f1)``, ``b = f1 - f0 - c``. Roots by
-    the cancellation-free pair ``q / c`` and ``f0 / q``, ``q = -(b + sign(b) sqrt(b^2 - 4 c f0)) / 2``
-    (which also covers the linear case ``c = 0``). NaN where there is none.
+    ``f(u) = f0 + b u + c u^2`` with ``c = 2 (f0 - 2 fm + f1)``, ``b = f1 - f0 - c``. Roots by
+    the cancellation-free pair ``q / c`` and ``f0 / q`` with
+    ``q = -(b + sign(b) sqrt(b^2 - 4 c f0)) / 2``, which also covers the linear case ``c = 0``.
+    NaN where there is none.
     """
     c = 2.0 * (f0 - 2.0 * fm + f1)
     b = f1 - f0 - c
@@ -1273,7 +1327,7 @@ def _window_for_bounds(bounds, margin_deg, *, source):
             raise DemError(f"{source}: the DEM declares no coordinate reference system")
         to_grid = pyproj.Transformer.from_crs("EPSG:4326", _horizontal_crs(crs), always_xy=True)
         x, y = to_grid.transform(lon, lat)
-        cols, rows = ~transform * (np.asarray(x), np.asarray(y))
+        cols, rows = _apply_affine(~transform, np.asarray(x), np.asarray(y))
         ok = np.isfinite(cols) & np.isfinite(rows)
         if not ok.any():
             raise DemError(f"{source}: bounds {tuple(bounds)} cannot be placed on the DEM")
