@@ -571,8 +571,7 @@ class PushbroomModel(SensorModel):
                 s = c_c[sel] - c.first_col - 0.5
                 _, jrs, cam = self._collinearity(r_c[sel], s, g[sel], c, r_inst)
                 inv = np.linalg.inv(jrs)
-                p, r = self._table.evaluate(r_c[sel])
-                body = np.einsum("nji,nj->ni", r, g[sel] - p)  # R^T (G - P)
+                body = cam @ r_inst.T  # R^T (G - P) = R_inst cam, already evaluated above
                 x, y, z = cam[:, 0], cam[:, 1], cam[:, 2]
                 dfdp = np.zeros((sel.size, 2, len(names)))
                 for k, j in inst_cols:

@@ -15,7 +15,7 @@ import numpy as np
 
 from sensor_models.atomic import atomic_write_text
 from sensor_models.ephemeris import ATTITUDE_FRAMES, ORBIT_FRAMES, Attitude, Orbit
-from sensor_models.errors import InputError, ManifestError
+from sensor_models.errors import GcpcalError, InputError, ManifestError
 from sensor_models.pushbroom import PushbroomModel
 from sensor_models.pushbroom_types import CcdLook, Installation, LineTiming
 from sensor_models.readers._strict import Fields
@@ -86,7 +86,7 @@ def _ccd(f: Fields) -> CcdLook:
     return CcdLook(name, first_col, n_det, tx, ty)
 
 
-def _interior(f: Fields, path: Path):
+def _interior(f: Fields):
     model = f.string("model", choices=("directional_angles", "lab"))
     if model == "lab":
         from sensor_models.lab import lab_from_fields
@@ -126,7 +126,7 @@ def read_manifest(path) -> PushbroomModel:
     version = root.integer("format_version")
     if version != FORMAT_VERSION:
         raise root.error("format_version", f"unsupported version {version}; this gcpcal reads {FORMAT_VERSION}")
-    sensor = root.string("sensor", choices=("pushbroom",))
+    root.string("sensor", choices=("pushbroom",))
     name = root.string("name", "")
     epoch = _epoch(root, "epoch_utc")
 
@@ -153,9 +153,8 @@ def read_manifest(path) -> PushbroomModel:
     fi = root.sub("installation")
     installation = Installation(fi.number("roll_rad"), fi.number("pitch_rad"), fi.number("yaw_rad"))
     fi.finish()
-    bands = _interior(root.sub("interior"), path)
+    bands = _interior(root.sub("interior"))
     root.finish()
-    del sensor
 
     unknown = sorted(set(rasters) - set(bands))
     if unknown:
@@ -175,12 +174,8 @@ def read_manifest(path) -> PushbroomModel:
         )
     except InputError as exc:
         raise ManifestError(exc.reason, path=str(path), field=exc.field) from None
-    except Exception as exc:  # OutOfRangeError from the data spans
-        from sensor_models.errors import GcpcalError
-
-        if isinstance(exc, GcpcalError):
-            raise ManifestError(str(exc), path=str(path), field="orbit/attitude") from None
-        raise
+    except GcpcalError as exc:  # OutOfRangeError: the data spans do not cover the lines
+        raise ManifestError(str(exc), path=str(path), field="orbit/attitude") from None
     model.rasters = rasters
     model.manifest_path = str(path)
     return model
