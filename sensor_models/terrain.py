@@ -326,6 +326,31 @@ def _declared_datum(crs: pyproj.CRS | None, *, source):
     return None
 
 
+#: GDAL metadata item by which a raster in a projected CRS declares its vertical datum
+VERTICAL_DATUM_TAG = "VERTICAL_DATUM"
+
+
+def _tagged_datum(path):
+    """The datum declared by the raster's ``VERTICAL_DATUM`` metadata item, or None.
+
+    A projected CRS cannot carry "heights above the WGS84 ellipsoid" in a standard compound
+    CRS, so gcpcal's own DEMs (and any user's) may say ``VERTICAL_DATUM=ellipsoid`` (or
+    ``egm96``) in the dataset's default metadata domain.
+    """
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        value = ds.tags().get(VERTICAL_DATUM_TAG)
+    if value is None:
+        return None
+    name = value.strip().lower()
+    if name not in VERTICAL_DATUMS:
+        raise DemError(
+            f"{path}: metadata {VERTICAL_DATUM_TAG}={value!r} is not one of {', '.join(VERTICAL_DATUMS)}"
+        )
+    return name
+
+
 def _horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:
     if crs.is_compound:
         return crs.sub_crs_list[0]
@@ -633,6 +658,8 @@ class Dem:
         if crs is None:
             raise DemError(f"{source}: the DEM declares no coordinate reference system")
         declared = _declared_datum(crs, source=source)
+        if declared is None:
+            declared = _tagged_datum(source)
         if datum is None:
             if declared is None:
                 raise DemError(

@@ -1,0 +1,374 @@
+"""Render a level-1A push-broom scene from a DOM and a DEM through the TRUE model.
+
+``simulate_pushbroom(out_dir, config=...)`` writes, into ``out_dir``:
+
+* ``B1.tif`` ... one raw-geometry raster per band (uint16, no georeferencing, DEFLATE);
+* ``cloud_mask.tif`` (uint8, 1 = cloud in the reference band) when clouds are simulated;
+* ``manifest.json``: the LAB model with noisy orbit and attitude, what a user receives;
+* ``truth_manifest.json``: the TRUE model (degree-7 directional angles, 20 Hz attitude);
+* ``truth.json``: the true parameters and the configuration; ``summary.json``: figures;
+* ``reference/dom.tif``, ``reference/dem.tif`` (and ``water_mask.tif``) when the reference was
+  generated procedurally (no ``dom``/``dem`` given).
+
+Every file is written in a hidden temporary folder inside ``out_dir`` and moved into place at
+the end, so a failure leaves no partial output. Lines are rendered in blocks (bounded memory:
+no full-scene float arrays), the (band, CCD) tasks of a block on a thread pool; every random
+draw is seeded from ``(seed, purpose, band, CCD, block)``, so the output does not depend on the
+number of workers.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pyproj
+
+from sensor_models.errors import InputError
+from sensor_models.simulate.config import SimConfig
+from sensor_models.simulate.radiometry import MapImage, psf_sigma_dom_px, smooth_field, to_dn
+from sensor_models.simulate.render import MapGrid, locate_block
+from sensor_models.simulate.scene import SceneModels, build_models
+from sensor_models.terrain import Dem
+
+__all__ = ["footprint_lonlat", "simulate_pushbroom"]
+
+#: coarse grid factor (DOM pixels per node) of the seasonal and cloud fields
+FIELD_FACTOR = 8
+
+
+def footprint_lonlat(model, heights_m, *, step_px: int = 32):
+    """Lon/lat of the image border of every band at each height: arrays (N,)."""
+    n_rows, n_cols = model.image_shape
+    rows = np.linspace(0.5, n_rows - 0.5, max(2, n_rows // step_px + 1))
+    cols = np.linspace(0.5, n_cols - 0.5, max(2, n_cols // step_px + 1))
+    r = np.concatenate([rows, rows, np.full(cols.size, 0.5), np.full(cols.size, n_rows - 0.5)])
+    c = np.concatenate([np.full(rows.size, 0.5), np.full(rows.size, n_cols - 0.5), cols, cols])
+    lons, lats = [], []
+    for band in model.bands:
+        for h in heights_m:
+            lon, lat, _ = model.image_to_ground(r, c, height=float(h), band=band)
+            lons.append(lon)
+            lats.append(lat)
+    return np.concatenate(lons), np.concatenate(lats)
+
+
+def _utm_crs(lon: float, lat: float) -> pyproj.CRS:
+    zone = int(np.floor((lon + 180.0) / 6.0)) % 60 + 1
+    return pyproj.CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
+
+
+def _check_covers(grid: MapGrid, lon, lat, *, what: str, path: str | None, margin_px: float = 2.0):
+    tr = pyproj.Transformer.from_crs("EPSG:4326", grid.crs, always_xy=True)
+    x, y = tr.transform(lon, lat)
+    a = grid.index_affine()
+    u = a.a * np.asarray(x) + a.b * np.asarray(y) + a.c
+    v = a.d * np.asarray(x) + a.e * np.asarray(y) + a.f
+    n_rows, n_cols = grid.shape
+    inside = (u >= margin_px) & (u <= n_cols - 1 - margin_px) & (v >= margin_px) & (v <= n_rows - 1 - margin_px)
+    if not inside.all():
+        frac = 1.0 - inside.mean()
+        raise InputError(
+            f"the {what} does not cover the scene footprint ({100 * frac:.0f} % of the border points "
+            f"outside, footprint lon {lon.min():.4f}..{lon.max():.4f}, lat {lat.min():.4f}..{lat.max():.4f})",
+            path=path or what,
+        )
+
+
+def _procedural_reference(cfg: SimConfig, models: SceneModels, out_dir: Path):
+    """Generate DOM, DEM and water mask around the TRUE footprint; write them to ``out_dir``."""
+    from sensor_models.simulate.procedural import generate_reference
+
+    ref = cfg.reference
+    h_lo = ref.mean_height_m - ref.relief_m - 100.0
+    h_hi = ref.mean_height_m + ref.relief_m + 100.0
+    lon, lat = footprint_lonlat(models.true_model, (h_lo, h_hi))
+    crs = _utm_crs(float(lon.mean()), float(lat.mean()))
+    to_map = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    x, y = to_map.transform(lon, lat)
+    width = float(np.ptp(x)) + 2.0 * ref.margin_m
+    height = float(np.ptp(y)) + 2.0 * ref.margin_m
+    cx, cy = 0.5 * (np.min(x) + np.max(x)), 0.5 * (np.min(y) + np.max(y))
+    clon, clat = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(cx, cy)
+    data = generate_reference(
+        float(clon), float(clat), width, height, seed=cfg.seed,
+        dom_resolution_m=ref.dom_resolution_m, dem_resolution_m=ref.dem_resolution_m,
+        relief_m=ref.relief_m, mean_height_m=ref.mean_height_m, sea_fraction=ref.sea_fraction,
+    )
+    dom_path, dem_path = data.write(out_dir)
+    return data, Path(dom_path), Path(dem_path)
+
+
+class _Renderer:
+    """Renders one (band, CCD, block of lines) task; shared read-only state."""
+
+    def __init__(self, cfg: SimConfig, models: SceneModels, dem: Dem, dom: MapImage):
+        self.cfg = cfg
+        self.model = models.true_model
+        self.dem = dem
+        self.dom = dom
+        r = cfg.radiometry
+        self.sigma_dom = psf_sigma_dom_px(cfg.scene.gsd_m, _grid_resolution_m(dom.grid), r.psf_sigma_px)
+        self.pad = int(np.ceil(4.0 * self.sigma_dom)) + 3
+        self.dom_scale = _dom_scale(dom)
+        n_rows, n_cols = dom.grid.shape
+        shape = (n_rows // FIELD_FACTOR + 2, n_cols // FIELD_FACTOR + 2)
+        res = _grid_resolution_m(dom.grid) * FIELD_FACTOR
+        self.seasonal = smooth_field(shape, cfg.radiometry.seasonal_scale_m / res,
+                                     np.random.SeedSequence([cfg.seed, 10]))
+        self.clouds = None
+        if cfg.clouds.cover > 0:
+            f = smooth_field(shape, cfg.clouds.scale_m / res, np.random.SeedSequence([cfg.seed, 11]))
+            thr = float(np.quantile(f, 1.0 - cfg.clouds.cover)) if cfg.clouds.cover < 1 else -np.inf
+            # soft edges: opacity ramps over 0.3 standard deviations of the field
+            self.clouds = np.clip((f - thr) / 0.3 + 0.5, 0.0, 1.0).astype(np.float32)
+            self.cloud_texture = smooth_field(shape, 2.0, np.random.SeedSequence([cfg.seed, 12]))
+        self.band_index = {b: i for i, b in enumerate(cfg.camera.bands)}
+
+    def task(self, band: str, ccd: int, row0: int, row1: int):
+        cfg, r = self.cfg, self.cfg.radiometry
+        b = self.band_index[band]
+        pg = locate_block(self.model, self.dem, [self.dom.grid], band=band, ccd=ccd, row0=row0, row1=row1)
+        u, v = pg.uv[0]
+        ok = np.isfinite(u) & np.isfinite(v)
+        refl = np.full(u.shape, np.nan, dtype=np.float32)
+        if ok.any():
+            c0 = int(np.floor(u[ok].min())) - self.pad
+            c1 = int(np.ceil(u[ok].max())) + self.pad + 1
+            r0 = int(np.floor(v[ok].min())) - self.pad
+            r1 = int(np.ceil(v[ok].max())) + self.pad + 1
+            crop = self.dom.read(r0, r1, c0, c1) / np.float32(self.dom_scale)
+            valid = np.isfinite(crop).astype(np.float32)
+            crop = np.where(valid > 0, crop, 0.0).astype(np.float32)
+            if self.sigma_dom > 0:
+                crop = cv2.GaussianBlur(crop, (0, 0), self.sigma_dom, borderType=cv2.BORDER_REPLICATE)
+                valid = cv2.GaussianBlur(valid, (0, 0), self.sigma_dom, borderType=cv2.BORDER_REPLICATE)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                crop = np.where(valid > 0.99, crop / valid, np.nan).astype(np.float32)
+            refl = cv2.remap(crop, u - c0, v - r0, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                             borderValue=np.nan)
+        fu = (u + 0.5) / FIELD_FACTOR - 0.5
+        fv = (v + 0.5) / FIELD_FACTOR - 0.5
+        seasonal = r.seasonal_change * cv2.remap(self.seasonal, fu, fv, cv2.INTER_LINEAR,
+                                                 borderMode=cv2.BORDER_REPLICATE)
+        n_det = u.shape[1]
+        prnu = np.random.default_rng([cfg.seed, 5, b, ccd]).normal(1.0, r.prnu, n_det).astype(np.float32)
+        rng = np.random.default_rng([cfg.seed, 6, b, ccd, row0])
+        dn = to_dn(refl, gain=r.band_gain[b], offset_dn=r.band_offset_dn[b], gamma=r.band_gamma[b],
+                   seasonal=seasonal, prnu_gain=prnu[None, :], snr=r.snr, bits=r.bits, rng=rng)
+        alpha = None
+        if self.clouds is not None:
+            alpha = cv2.remap(self.clouds, fu, fv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            tex = cv2.remap(self.cloud_texture, fu, fv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            cloud_dn = (0.82 + 0.06 * tex) * (2**r.bits - 1)
+            mixed = (1.0 - alpha) * dn.astype(np.float32) + alpha * cloud_dn
+            dn = np.clip(np.rint(mixed), 0, 2**r.bits - 1).astype(np.uint16)
+        return dn, alpha
+
+
+def _grid_resolution_m(grid: MapGrid) -> float:
+    t = grid.transform
+    res = float(np.sqrt(abs(t.a * t.e - t.b * t.d)))
+    if grid.crs.is_geographic:
+        res *= 111_320.0
+    return res
+
+
+def _dom_scale(dom: MapImage) -> float:
+    """DN of a bright land pixel (99.5th percentile of a decimated read): reflectance 1.0."""
+    n_rows, n_cols = dom.grid.shape
+    if dom._array is not None:
+        sample = np.asarray(dom._array[:: max(1, n_rows // 512), :: max(1, n_cols // 512)], dtype=np.float64)
+    else:
+        import rasterio
+
+        with rasterio.open(dom.path) as ds:
+            sample = ds.read(1, out_shape=(min(512, n_rows), min(512, n_cols)), masked=True)
+            sample = np.ma.filled(sample.astype(np.float64), np.nan)
+    sample = sample[np.isfinite(sample)]
+    if dom.nodata is not None:
+        sample = sample[sample != dom.nodata]
+    if sample.size == 0:
+        raise InputError("the DOM holds no valid pixel", path=dom.path or "DOM")
+    scale = float(np.percentile(sample, 99.5))
+    if not scale > 0:
+        raise InputError("the DOM is uniformly dark (no texture to simulate from)", path=dom.path or "DOM")
+    return scale
+
+
+def _open_writer(path: Path, n_rows: int, n_cols: int, dtype: str):
+    import rasterio
+
+    return rasterio.open(
+        path, "w", driver="GTiff", width=n_cols, height=n_rows, count=1, dtype=dtype,
+        compress="deflate", predictor=2, zlevel=6, tiled=False, blockysize=16,
+    )
+
+
+def simulate_pushbroom(
+    out_dir,
+    *,
+    config: SimConfig | None = None,
+    dom=None,
+    dem=None,
+    geoid=None,
+    workers: int = 2,
+    block_lines: int = 256,
+    progress=None,
+) -> dict:
+    """Simulate a push-broom scene into ``out_dir`` (see the module docstring).
+
+    Parameters
+    ----------
+    out_dir : str or os.PathLike
+    config : SimConfig, optional
+        Default: the embedded fixture's configuration.
+    dom, dem : path, optional
+        Real reference rasters (both or neither). The DEM must declare its vertical datum (or
+        be EGM96 with ``geoid``). Without them a procedural reference is generated.
+    geoid : path, optional
+        EGM96 grid for an orthometric DEM.
+    workers : int
+        Threads rendering (band, CCD) tasks of a block.
+    block_lines : int
+        Lines rendered per block (memory ~ block_lines x columns x 40 bytes per worker).
+    progress : callable, optional
+        ``progress(done_blocks, total_blocks)``.
+
+    Returns
+    -------
+    dict
+        The summary also written to ``summary.json``.
+    """
+    t_start = time.perf_counter()
+    cfg = (config or SimConfig()).validate()
+    if (dom is None) != (dem is None):
+        raise InputError("give both --dom and --dem, or neither (procedural reference)")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
+    try:
+        summary = _simulate(cfg, out_dir, tmp, dom, dem, geoid, workers, block_lines, progress, t_start)
+        for src in sorted(tmp.rglob("*")):
+            if src.is_file():
+                dst = out_dir / src.relative_to(tmp)
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(src, dst)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return summary
+
+
+def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines, progress, t_start):
+    from sensor_models.readers.manifest import write_manifest
+    from sensor_models.simulate.truth import truth_error
+
+    models = build_models(cfg)
+    model = models.true_model
+    reference_files = {}
+    if dom_path is None:
+        data, p_dom, p_dem = _procedural_reference(cfg, models, tmp / "reference")
+        dom = MapImage.from_array(data.dom, data.dom_transform, data.crs)
+        dem = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
+        reference_files = {"dom": f"reference/{p_dom.name}", "dem": f"reference/{p_dem.name}"}
+    else:
+        dom = MapImage.open(dom_path)
+        dem = Dem.open(dem_path, geoid=geoid)
+        reference_files = {"dom": os.path.abspath(dom_path), "dem": os.path.abspath(dem_path)}
+    h_lo, h_hi = dem.height_range_m
+    lon, lat = footprint_lonlat(model, (h_lo, h_hi))
+    _check_covers(dom.grid, lon, lat, what="DOM", path=dom.path)
+    _check_covers(MapGrid.of_dem(dem), lon, lat, what="DEM", path=dem.source)
+
+    renderer = _Renderer(cfg, models, dem, dom)
+    from sensor_models.simulate.render import _dem_planes
+
+    _dem_planes(dem)  # build the shared sampling planes once, before the threads
+    n_rows, n_cols = model.image_shape
+    bands = list(cfg.camera.bands)
+    ref_band = cfg.camera.reference_band
+    n_ccd = len(model.band_ccds(ref_band))
+    blocks = [(r, min(n_rows, r + block_lines)) for r in range(0, n_rows, block_lines)]
+    from rasterio.errors import NotGeoreferencedWarning
+    from rasterio.windows import Window
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)  # raw sensor geometry
+        writers = {b: _open_writer(tmp / f"{b}.tif", n_rows, n_cols, "uint16") for b in bands}
+        mask_writer = (_open_writer(tmp / "cloud_mask.tif", n_rows, n_cols, "uint8")
+                       if renderer.clouds is not None else None)
+    cloud_pixels = 0
+    t_render = time.perf_counter()
+    try:
+        with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+
+            for k, (r0, r1) in enumerate(blocks):
+                jobs = {(b, c): pool.submit(renderer.task, b, c, r0, r1) for b in bands for c in range(n_ccd)}
+                for b in bands:
+                    block = np.zeros((r1 - r0, n_cols), dtype=np.uint16)
+                    mask = np.zeros((r1 - r0, n_cols), dtype=np.uint8) if b == ref_band else None
+                    for c, look in enumerate(model.band_ccds(b)):
+                        dn, alpha = jobs[(b, c)].result()
+                        block[:, look.first_col : look.first_col + look.n_detectors] = dn
+                        if mask is not None and alpha is not None:
+                            mask[:, look.first_col : look.first_col + look.n_detectors] = alpha > 0.5
+                    writers[b].write(block, 1, window=Window(0, r0, n_cols, r1 - r0))
+                    if mask is not None and mask_writer is not None:
+                        mask_writer.write(mask, 1, window=Window(0, r0, n_cols, r1 - r0))
+                        cloud_pixels += int(mask.sum())
+                if progress is not None:
+                    progress(k + 1, len(blocks))
+    finally:
+        for w in writers.values():
+            w.close()
+        if mask_writer is not None:
+            mask_writer.close()
+    render_seconds = time.perf_counter() - t_render
+
+    rasters = {b: str(tmp / f"{b}.tif") for b in bands}
+    write_manifest(models.lab_model, tmp / "manifest.json", rasters=rasters)
+    write_manifest(models.true_model, tmp / "truth_manifest.json", rasters=rasters)
+    initial = truth_error(model, models.lab_model, dem=dem, step_px=32)
+    truth = {
+        "format_version": 1,
+        "kind": "gcpcal.simulate.pushbroom",
+        "seed": cfg.seed,
+        "true_model": "truth_manifest.json",
+        "lab_model": "manifest.json",
+        "reference": reference_files,
+        "clouds": {"cover_requested": cfg.clouds.cover, "mask": "cloud_mask.tif" if mask_writer else None},
+        **models.truth,
+        "config": cfg.to_dict(),
+    }
+    pixels = n_rows * n_cols * len(bands)
+    summary = {
+        "kind": "gcpcal.simulate.pushbroom",
+        "seed": cfg.seed,
+        "image": {"n_rows": n_rows, "n_cols": n_cols, "bands": bands, "ccds": n_ccd},
+        "files": {**{b: f"{b}.tif" for b in bands}, "manifest": "manifest.json",
+                  "truth": "truth.json", "truth_manifest": "truth_manifest.json",
+                  **({"cloud_mask": "cloud_mask.tif"} if mask_writer else {})},
+        "reference": reference_files,
+        "cloud_fraction": cloud_pixels / float(n_rows * n_cols),
+        "lab_truth_error_px": {"rms": initial["rms_px"], "max": initial["max_px"],
+                               "mean_row": initial["mean_row_px"], "mean_col": initial["mean_col_px"]},
+        "render_seconds": render_seconds,
+        "pixels_per_second": pixels / render_seconds,
+        "workers": workers,
+        "seconds": time.perf_counter() - t_start,
+    }
+    _write_json(tmp / "truth.json", truth)
+    _write_json(tmp / "summary.json", summary)
+    return summary
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    path.write_text(json.dumps(doc, indent=1, sort_keys=False) + "\n", encoding="utf-8")
