@@ -34,7 +34,7 @@ import pyproj
 
 from sensor_models.errors import InputError
 from sensor_models.simulate.config import SimConfig
-from sensor_models.simulate.radiometry import MapImage, psf_sigma_dom_px, smooth_field, to_dn
+from sensor_models.simulate.radiometry import MapImage, psf_sigma_dom_px, sample_map_image, smooth_field, to_dn
 from sensor_models.simulate.render import MapGrid, locate_block
 from sensor_models.simulate.scene import SceneModels, build_models
 from sensor_models.terrain import Dem
@@ -117,7 +117,6 @@ class _Renderer:
         self.dom = dom
         r = cfg.radiometry
         self.sigma_dom = psf_sigma_dom_px(cfg.scene.gsd_m, _grid_resolution_m(dom.grid), r.psf_sigma_px)
-        self.pad = int(np.ceil(4.0 * self.sigma_dom)) + 3
         self.dom_scale = _dom_scale(dom)
         n_rows, n_cols = dom.grid.shape
         shape = (n_rows // FIELD_FACTOR + 2, n_cols // FIELD_FACTOR + 2)
@@ -138,23 +137,7 @@ class _Renderer:
         b = self.band_index[band]
         pg = locate_block(self.model, self.dem, [self.dom.grid], band=band, ccd=ccd, row0=row0, row1=row1)
         u, v = pg.uv[0]
-        ok = np.isfinite(u) & np.isfinite(v)
-        refl = np.full(u.shape, np.nan, dtype=np.float32)
-        if ok.any():
-            c0 = int(np.floor(u[ok].min())) - self.pad
-            c1 = int(np.ceil(u[ok].max())) + self.pad + 1
-            r0 = int(np.floor(v[ok].min())) - self.pad
-            r1 = int(np.ceil(v[ok].max())) + self.pad + 1
-            crop = self.dom.read(r0, r1, c0, c1) / np.float32(self.dom_scale)
-            valid = np.isfinite(crop).astype(np.float32)
-            crop = np.where(valid > 0, crop, 0.0).astype(np.float32)
-            if self.sigma_dom > 0:
-                crop = cv2.GaussianBlur(crop, (0, 0), self.sigma_dom, borderType=cv2.BORDER_REPLICATE)
-                valid = cv2.GaussianBlur(valid, (0, 0), self.sigma_dom, borderType=cv2.BORDER_REPLICATE)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                crop = np.where(valid > 0.99, crop / valid, np.nan).astype(np.float32)
-            refl = cv2.remap(crop, u - c0, v - r0, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                             borderValue=np.nan)
+        refl = sample_map_image(self.dom, u, v, sigma_px=self.sigma_dom) / np.float32(self.dom_scale)
         fu = (u + 0.5) / FIELD_FACTOR - 0.5
         fv = (v + 0.5) / FIELD_FACTOR - 0.5
         seasonal = r.seasonal_change * cv2.remap(self.seasonal, fu, fv, cv2.INTER_LINEAR,

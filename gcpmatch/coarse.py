@@ -1,0 +1,196 @@
+"""Coarse stage: SIFT matches between the scene and the DOM, RANSAC, model pre-correction.
+
+1. The scene band is averaged down by an integer factor ``f`` (longest side <= ``target_px``);
+   the DOM is read over the model's predicted footprint plus a search margin of
+   ``max_offset_px`` scene pixels, averaged down to the same ground resolution.
+2. The reduced scene is warped into the DOM's frame by the affine map the current model
+   predicts (image -> map at mid-DEM height). Raw push-broom images are mirrored and rotated
+   against north-up maps and SIFT descriptors are not mirror invariant; after this warp what
+   is left is the model's error (offset, a few degrees of rotation, scale), which SIFT and
+   RANSAC absorb.
+3. SIFT (OpenCV) on both, brute-force L2 matching with Lowe's ratio test (0.8), and RANSAC
+   of an affine map between the warped scene and the DOM (threshold ``ransac_px``).
+4. The inliers become ground points (DOM position, DEM height) and the model's exterior is
+   fitted to them in ground space (:func:`gcpmatch.precorrect.fit_exterior_in_ground`), then all
+   ratio-test matches are re-screened against the corrected model and each CCD's offset is
+   removed (:func:`gcpmatch.precorrect.fit_ccd_offsets`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import pyproj
+
+from gcpmatch.precorrect import fit_ccd_offsets, fit_exterior_in_ground
+from gcpmatch.reference import grid_resolution_m, scene_gsd_m
+from sensor_models.errors import GcpcalError
+
+__all__ = ["CoarseResult", "coarse_match", "to_uint8"]
+
+
+class CoarseMatchError(GcpcalError, RuntimeError):
+    """The coarse stage found no consistent set of matches."""
+
+
+@dataclass
+class CoarseResult:
+    model: object
+    n_keypoints_scene: int
+    n_keypoints_dom: int
+    n_matches: int
+    n_ransac_inliers: int
+    n_inliers: int
+    rms_m: float
+    factor: int
+    ccd_offsets_px: dict = field(default_factory=dict)
+    points: dict = field(default_factory=dict)  # row, col, lon, lat, h of the final inliers
+
+    def summary(self) -> dict:
+        return {
+            "keypoints_scene": self.n_keypoints_scene, "keypoints_dom": self.n_keypoints_dom,
+            "ratio_matches": self.n_matches, "ransac_inliers": self.n_ransac_inliers,
+            "inliers": self.n_inliers, "rms_m": self.rms_m, "factor": self.factor,
+            "ccd_offsets_px": {str(k): v for k, v in self.ccd_offsets_px.items()},
+        }
+
+
+def to_uint8(img: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+    """Stretch the 1-99 % range of the valid pixels to 0..255 (invalid -> 0)."""
+    valid = np.isfinite(img) if valid is None else valid
+    if not valid.any():
+        return np.zeros(img.shape, np.uint8)
+    lo, hi = np.percentile(img[valid], [1.0, 99.0])
+    out = (np.clip((img - lo) / max(hi - lo, 1e-6), 0.0, 1.0) * 255.0)
+    return np.where(valid, out, 0.0).astype(np.uint8)
+
+
+def _border(model, band, n=24):
+    n_rows, n_cols = model.image_shape
+    t = np.linspace(0.5, 1.0, n)
+    rows = np.concatenate([t * 0 + 0.5, t * 0 + n_rows - 0.5, np.linspace(0.5, n_rows - 0.5, n), np.linspace(0.5, n_rows - 0.5, n)])
+    cols = np.concatenate([np.linspace(0.5, n_cols - 0.5, n), np.linspace(0.5, n_cols - 0.5, n), t * 0 + 0.5, t * 0 + n_cols - 0.5])
+    return rows, cols
+
+
+def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None, max_offset_px: float = 1000.0,
+                 target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
+                 seed: int = 0) -> CoarseResult:
+    """Pre-correct ``model`` so that it lands within a few pixels of the truth (see module doc).
+
+    Parameters
+    ----------
+    scene : ndarray (n_rows, n_cols)
+        The scene band (NaN or 0 = no data are ignored).
+    model : SensorModel
+        Current model of the scene (e.g. the LAB model).
+    dem : Dem
+    dom : MapImage
+    band : str, optional
+    max_offset_px : float
+        Largest expected error of the model, in scene pixels (the DOM search margin).
+
+    Raises
+    ------
+    CoarseMatchError
+        Too few consistent matches (no texture, wrong area, all clouds).
+    """
+    n_rows, n_cols = scene.shape
+    f = max(1, int(np.ceil(max(n_rows, n_cols) / target_px)))
+    valid = np.isfinite(scene) & (scene > 0)
+    small = cv2.resize(np.where(valid, scene, 0).astype(np.float32), (n_cols // f, n_rows // f), interpolation=cv2.INTER_AREA)
+    small_valid = cv2.resize(valid.astype(np.float32), (n_cols // f, n_rows // f), interpolation=cv2.INTER_AREA) > 0.99
+    h_lo, h_hi = dem.height_range_m
+    h_mid = 0.5 * (h_lo + h_hi)
+    gsd = scene_gsd_m(model, band=band, height_m=h_mid)
+    coarse_res = gsd * f  # metres per reduced pixel
+    dom_res = grid_resolution_m(dom.grid)
+    to_map = pyproj.Transformer.from_crs("EPSG:4326", dom.grid.crs, always_xy=True)
+    from_map = pyproj.Transformer.from_crs(dom.grid.crs, "EPSG:4326", always_xy=True)
+    index = dom.grid.index_affine()
+
+    # predicted footprint in DOM indices, plus the search margin
+    br, bc = _border(model, band)
+    lon, lat, _ = model.image_to_ground(br, bc, height=h_mid, band=band)
+    x, y = to_map.transform(lon, lat)
+    u = index.a * np.asarray(x) + index.b * np.asarray(y) + index.c
+    v = index.d * np.asarray(x) + index.e * np.asarray(y) + index.f
+    margin = max_offset_px * gsd / dom_res
+    dr, dc = dom.grid.shape
+    r0, r1 = max(0, int(np.nanmin(v) - margin)), min(dr, int(np.nanmax(v) + margin) + 1)
+    c0, c1 = max(0, int(np.nanmin(u) - margin)), min(dc, int(np.nanmax(u) + margin) + 1)
+    if r1 - r0 < 16 or c1 - c0 < 16:
+        raise CoarseMatchError("the DOM does not overlap the scene's predicted footprint")
+    k = coarse_res / dom_res  # DOM pixels per reduced pixel
+    out_shape = (max(8, int(round((r1 - r0) / k))), max(8, int(round((c1 - c0) / k))))
+    dom_small = dom.read_decimated(r0, r1, c0, c1, out_shape)
+    sy, sx = (r1 - r0) / out_shape[0], (c1 - c0) / out_shape[1]  # DOM px per reduced DOM px
+
+    def dom_small_to_index(px, py):  # reduced DOM pixel coords (OpenCV: centre of [0,0] at 0)
+        return c0 + (px + 0.5) * sx - 0.5, r0 + (py + 0.5) * sy - 0.5
+
+    # affine: reduced scene -> reduced DOM, as the model predicts
+    gr, gc = np.meshgrid(np.linspace(0.5, n_rows - 0.5, 12), np.linspace(0.5, n_cols - 0.5, 12), indexing="ij")
+    lon, lat, _ = model.image_to_ground(gr.ravel(), gc.ravel(), height=h_mid, band=band)
+    x, y = to_map.transform(lon, lat)
+    uu = index.a * np.asarray(x) + index.b * np.asarray(y) + index.c
+    vv = index.d * np.asarray(x) + index.e * np.asarray(y) + index.f
+    src = np.stack([gc.ravel() / f - 0.5, gr.ravel() / f - 0.5], axis=-1)
+    dst = np.stack([(uu - c0 + 0.5) / sx - 0.5, (vv - r0 + 0.5) / sy - 0.5], axis=-1)
+    a_pred = np.linalg.lstsq(np.c_[src, np.ones(len(src))], dst, rcond=None)[0].T  # (2, 3)
+    warped = cv2.warpAffine(to_uint8(small, small_valid), a_pred, (out_shape[1], out_shape[0]), flags=cv2.INTER_LINEAR)
+    warped_valid = cv2.warpAffine(small_valid.astype(np.uint8), a_pred, (out_shape[1], out_shape[0]), flags=cv2.INTER_NEAREST)
+    dom_valid = np.isfinite(dom_small)
+    sift = cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.01)
+    kp_s, des_s = sift.detectAndCompute(warped, (warped_valid > 0).astype(np.uint8) * 255)
+    kp_d, des_d = sift.detectAndCompute(to_uint8(dom_small, dom_valid), dom_valid.astype(np.uint8) * 255)
+    if des_s is None or des_d is None or len(kp_s) < 8 or len(kp_d) < 8:
+        raise CoarseMatchError(f"too few SIFT keypoints (scene {len(kp_s)}, DOM {len(kp_d)}): no texture?")
+    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(des_s, des_d, k=2)
+    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
+    if len(good) < 8:
+        raise CoarseMatchError(f"only {len(good)} SIFT matches pass the ratio test")
+    ps = np.float32([kp_s[m.queryIdx].pt for m in good])
+    pd = np.float32([kp_d[m.trainIdx].pt for m in good])
+    cv2.setRNGSeed(seed)
+    _, mask = cv2.estimateAffine2D(ps, pd, method=cv2.RANSAC, ransacReprojThreshold=ransac_px,
+                                   maxIters=10000, confidence=0.999)
+    ransac_in = np.zeros(len(good), bool) if mask is None else mask.ravel().astype(bool)
+    if ransac_in.sum() < 6:
+        raise CoarseMatchError("RANSAC found no consistent set of SIFT matches")
+    # scene coordinates of all ratio-test matches (undo the warp) and their ground points
+    inv = cv2.invertAffineTransform(a_pred)
+    sc = ps @ inv[:, :2].T + inv[:, 2]
+    col = (sc[:, 0] + 0.5) * f
+    row = (sc[:, 1] + 0.5) * f
+    ui, vi = dom_small_to_index(pd[:, 0].astype(np.float64), pd[:, 1].astype(np.float64))
+    inv_index = ~index
+    xm = inv_index.a * ui + inv_index.b * vi + inv_index.c
+    ym = inv_index.d * ui + inv_index.e * vi + inv_index.f
+    glon, glat = from_map.transform(xm, ym)
+    glon, glat = np.asarray(glon), np.asarray(glat)
+    gh = dem.height_m(glon, glat)
+    inside = (row > 0) & (row < n_rows) & (col > 0) & (col < n_cols) & np.isfinite(gh)
+    sel = ransac_in & inside
+    if sel.sum() < 6:
+        raise CoarseMatchError("too few RANSAC inliers inside the scene and the DEM")
+    ccd = model.ccd_index(col, band=band) if hasattr(model, "ccd_index") else None
+    fit = fit_exterior_in_ground(model, row[sel], col[sel], glon[sel], glat[sel], gh[sel], band=band,
+                                 ccd=None if ccd is None else ccd[sel], min_scale_m=0.5 * coarse_res)
+    # re-screen every ratio-test match against the corrected model
+    fit2 = fit_exterior_in_ground(fit.model, row[inside], col[inside], glon[inside], glat[inside], gh[inside],
+                                  band=band, ccd=None if ccd is None else ccd[inside], min_scale_m=0.5 * coarse_res)
+    keep = np.flatnonzero(inside)[fit2.inlier]
+    corrected = fit2.model
+    offsets = {}
+    if ccd is not None and hasattr(corrected, "band_ccds"):
+        corrected, offsets = fit_ccd_offsets(corrected, row[keep], col[keep], glon[keep], glat[keep], gh[keep],
+                                             ccd[keep], band=band or corrected.reference_band)
+    return CoarseResult(
+        model=corrected, n_keypoints_scene=len(kp_s), n_keypoints_dom=len(kp_d), n_matches=len(good),
+        n_ransac_inliers=int(ransac_in.sum()), n_inliers=int(keep.size), rms_m=fit2.rms_m, factor=f,
+        ccd_offsets_px=offsets,
+        points={"row": row[keep], "col": col[keep], "lon": glon[keep], "lat": glat[keep], "h": gh[keep]},
+    )

@@ -1,0 +1,98 @@
+"""Outlier rejection of dense matches: local consistency and robust smooth-correction residuals.
+
+Never a fixed fraction: every test compares a match with what its neighbours or a fitted model
+say, with thresholds scaled by robust (MAD) spreads and floored at a fraction of a pixel.
+
+* :func:`local_consistency`: on the regular window grid of one CCD, a match whose shift differs
+  from the median of its valid neighbours (5 x 5 grid cells) by more than
+  ``max(floor_px, k * 1.4826 MAD)`` is rejected.
+* :func:`smooth_residuals`: per CCD, the shifts ``(d_row, d_col)`` are fitted by a low-degree
+  polynomial in ``(row, col)`` (cubic across track like the directional-angle model, quadratic
+  along track for attitude drift), by IRLS with Huber weights; matches whose residual exceeds
+  ``max(floor_px, k sigma)`` are rejected and ``sigma`` (robust) is returned as the matches'
+  measurement uncertainty.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+__all__ = ["local_consistency", "smooth_residuals"]
+
+
+def local_consistency(shift_grid: np.ndarray, *, radius: int = 2, k: float = 4.0, floor_px: float = 0.5) -> np.ndarray:
+    """Flags (n_r, n_c) of grid matches consistent with their neighbours.
+
+    Parameters
+    ----------
+    shift_grid : ndarray (n_r, n_c, 2)
+        Shifts on the window grid; NaN where there is no valid match.
+    radius : int
+        Neighbourhood half-size in grid cells.
+    """
+    n_r, n_c, _ = shift_grid.shape
+    pad = np.pad(shift_grid, ((radius, radius), (radius, radius), (0, 0)), constant_values=np.nan)
+    win = sliding_window_view(pad, (2 * radius + 1, 2 * radius + 1), axis=(0, 1))  # (n_r, n_c, 2, w, w)
+    win = win.reshape(n_r, n_c, 2, -1).copy()
+    win[:, :, :, win.shape[-1] // 2] = np.nan  # exclude the match itself
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(win, axis=-1)  # (n_r, n_c, 2)
+            count = np.sum(np.isfinite(win[:, :, 0, :]), axis=-1)
+    dev = np.hypot(*(shift_grid - med).transpose(2, 0, 1))
+    ok = np.isfinite(dev)
+    if not ok.any():
+        return np.zeros((n_r, n_c), bool)
+    spread = 1.4826 * np.median(dev[ok])
+    thr = max(floor_px, k * spread)
+    # isolated matches (fewer than 2 valid neighbours) cannot be checked here: keep them for the
+    # model-residual test
+    return np.isfinite(shift_grid[..., 0]) & ((count < 2) | (dev <= thr))
+
+
+def _design(row, col, row_span, col_span):
+    u = (col - col_span[0]) / max(col_span[1] - col_span[0], 1.0) * 2.0 - 1.0
+    v = (row - row_span[0]) / max(row_span[1] - row_span[0], 1.0) * 2.0 - 1.0
+    return np.stack([np.ones_like(u), u, u * u, u**3, v, v * v, u * v], axis=-1)
+
+
+def smooth_residuals(row, col, d_row, d_col, *, k: float = 4.0, floor_px: float = 0.25, iterations: int = 8):
+    """Robust smooth fit of the shifts of one CCD; returns (inlier flags, sigma_px, residuals).
+
+    Parameters
+    ----------
+    row, col : ndarray (N,)
+        Match positions (pixels).
+    d_row, d_col : ndarray (N,)
+        Measured shifts (pixels).
+
+    Returns
+    -------
+    inlier : ndarray (N,) bool
+    sigma_px : float
+        Robust standard deviation of the residuals (per axis, MAD-based) of the inliers.
+    residual : ndarray (N, 2)
+    """
+    n = row.size
+    if n < 10:
+        return np.ones(n, bool), float("nan"), np.zeros((n, 2))
+    a = _design(row, col, (row.min(), row.max()), (col.min(), col.max()))
+    y = np.stack([d_row, d_col], axis=-1)
+    w = np.ones(n)
+    for _ in range(iterations):
+        sw = np.sqrt(w)[:, None]
+        coef = np.linalg.lstsq(a * sw, y * sw, rcond=None)[0]
+        res = y - a @ coef
+        dist = np.hypot(res[:, 0], res[:, 1])
+        u = dist / (1.345 * 1.4826 * np.median(dist) + 1e-9)
+        w = np.where(u <= 1.0, 1.0, 1.0 / u)  # Huber weights
+    res = y - a @ coef
+    dist = np.hypot(res[:, 0], res[:, 1])
+    per_axis = 1.4826 * np.median(np.abs(res), axis=0)
+    sigma = float(np.sqrt(np.mean(per_axis**2)))
+    inlier = dist <= max(floor_px, k * sigma * np.sqrt(2.0))
+    return inlier, sigma, res

@@ -1,0 +1,154 @@
+"""Pre-correction of a sensor model from a few hundred coarse matches.
+
+After launch a model can be off by hundreds (or thousands) of pixels, so image-space residuals
+may not even exist (the ground point projects outside the tabulated lines). The fit is therefore
+done in ground space: each matched scene pixel is localized at the height of its ground point
+and the horizontal distance to that point (east, north in metres, local tangent plane) is
+minimized by robust Gauss-Newton (Huber weights, MAD scale) over a few exterior parameters:
+installation roll, pitch, yaw for a push-broom model, the RPC image offsets for an RPC.
+Jacobians are central differences (3 parameters, cheap).
+
+Then, for push-broom models, each CCD gets the along- and across-track offset (``tan psi``
+``c0`` terms) of its median image-space residual, which absorbs camera-to-camera rotations and
+CCD placement errors of a few pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sensor_models.geodesy import enu_basis, geodetic_to_ecef
+
+__all__ = ["PrecorrectResult", "exterior_names", "fit_exterior_in_ground", "fit_ccd_offsets"]
+
+HUBER_K = 1.345
+
+
+@dataclass
+class PrecorrectResult:
+    model: object
+    names: tuple
+    delta: np.ndarray
+    rms_m: float
+    inlier: np.ndarray
+    iterations: int
+
+
+def exterior_names(model) -> tuple[str, ...]:
+    names = model.parameters().names
+    if "installation.roll" in names:
+        return ("installation.roll", "installation.pitch", "installation.yaw")
+    if "bias.row.a0" in names:
+        return ("bias.row.a0", "bias.col.b0")
+    raise ValueError(f"no exterior parameters known for {type(model).__name__}")
+
+
+def _ground_residual(model, row, col, xyz, h, basis, band, ccd):
+    kw = {"band": band}
+    if ccd is not None:
+        kw["ccd"] = ccd
+    lon, lat, hh = model.image_to_ground(row, col, height=h, **kw)
+    d = geodetic_to_ecef(lon, lat, hh) - xyz
+    return np.stack([d @ basis[0], d @ basis[1]], axis=-1)  # (N, 2) east, north metres
+
+
+def _steps(names):
+    return np.array([1e-6 if n.startswith("installation") else 0.05 for n in names])
+
+
+def fit_exterior_in_ground(model, row, col, lon, lat, h, *, band=None, ccd=None, names=None,
+                           max_iter: int = 12, min_scale_m: float = 1.0) -> PrecorrectResult:
+    """Robustly fit exterior parameters so that pixels land on their matched ground points.
+
+    Parameters
+    ----------
+    model : SensorModel
+    row, col : ndarray (N,)
+        Observed scene coordinates of the matches.
+    lon, lat, h : ndarray (N,)
+        Their ground points (DEM heights).
+    band : str, optional
+    ccd : ndarray (N,) of int, optional
+        CCD of each match (push-broom); default: the model's choice.
+    names : sequence of str, optional
+        Parameters to fit (default :func:`exterior_names`).
+    min_scale_m : float
+        Floor of the robust residual scale.
+
+    Returns
+    -------
+    PrecorrectResult
+        The corrected model, the parameter change, the inlier flags (|r| < 3 scale) and the
+        inliers' RMS in metres.
+    """
+    names = tuple(names or exterior_names(model))
+    pv = model.parameters()
+    idx = pv.index(names)
+    x = pv.values.copy()
+    xyz = geodetic_to_ecef(lon, lat, h)
+    basis = enu_basis(float(np.mean(lon)), float(np.mean(lat)))
+    steps = _steps(names)
+    w = np.ones(row.size)
+    cur = model
+    scale = np.inf
+    it = 0
+    for it in range(1, max_iter + 1):
+        r = _ground_residual(cur, row, col, xyz, h, basis, band, ccd).reshape(-1)
+        jac = np.empty((r.size, len(names)))
+        for k, (j, dx) in enumerate(zip(idx, steps)):
+            xp, xm = x.copy(), x.copy()
+            xp[j] += dx
+            xm[j] -= dx
+            rp = _ground_residual(model.with_parameters(xp), row, col, xyz, h, basis, band, ccd).reshape(-1)
+            rm = _ground_residual(model.with_parameters(xm), row, col, xyz, h, basis, band, ccd).reshape(-1)
+            jac[:, k] = (rp - rm) / (2 * dx)
+        dist = np.hypot(r[0::2], r[1::2])
+        ok = np.isfinite(dist)
+        scale = max(min_scale_m, 1.4826 * np.median(dist[ok]) if ok.any() else np.inf)
+        u = dist / scale
+        w = np.where(ok, np.where(u <= HUBER_K, 1.0, HUBER_K / np.maximum(u, 1e-12)), 0.0)
+        ww = np.repeat(w, 2)
+        good = np.isfinite(r) & np.all(np.isfinite(jac), axis=1)
+        a = jac[good] * ww[good, None]
+        delta = np.linalg.lstsq(a.T @ jac[good], a.T @ r[good], rcond=None)[0]
+        x[idx] -= delta
+        cur = model.with_parameters(x)
+        if np.all(np.abs(delta) < steps * 1e-2):
+            break
+    r = _ground_residual(cur, row, col, xyz, h, basis, band, ccd)
+    dist = np.hypot(r[:, 0], r[:, 1])
+    ok = np.isfinite(dist)
+    scale = max(min_scale_m, 1.4826 * np.median(dist[ok]))
+    inlier = ok & (dist < 3.0 * scale)
+    rms = float(np.sqrt(np.mean(dist[inlier] ** 2))) if inlier.any() else float("nan")
+    return PrecorrectResult(cur, names, x[idx] - pv.values[idx], rms, inlier, it)
+
+
+def fit_ccd_offsets(model, row, col, lon, lat, h, ccd, *, band: str, min_points: int = 5):
+    """Shift each CCD's ``tan psi`` ``c0`` terms by its median image-space residual.
+
+    Returns the corrected model and a dict CCD index -> (d_row, d_col) median residual in pixels
+    that was removed (CCDs with fewer than ``min_points`` matches are left alone).
+    """
+    pv = model.parameters()
+    x = pv.values.copy()
+    removed = {}
+    for i, look in enumerate(model.band_ccds(band)):
+        sel = ccd == i
+        if sel.sum() < min_points:
+            continue
+        names = (f"{band}.{look.name}.tan_psi_x.c0", f"{band}.{look.name}.tan_psi_y.c0")
+        rr, cc, jac = model.image_jacobian(lon[sel], lat[sel], h[sel], band=band, names=names, ccd=i)
+        res = np.stack([row[sel] - rr, col[sel] - cc], axis=-1)
+        ok = np.all(np.isfinite(res), axis=1)
+        if ok.sum() < min_points:
+            continue
+        med = np.median(res[ok], axis=0)
+        j = np.mean(jac[ok], axis=0)  # (2, 2)
+        delta = np.linalg.solve(j, med)
+        for n, d in zip(names, delta):
+            x[pv.index([n])[0]] += d
+        removed[i] = (float(med[0]), float(med[1]))
+    return model.with_parameters(x), removed
