@@ -387,6 +387,45 @@ def truth_error_cmd(model_path, truth_path, dem_path, dem_datum, geoid, heights,
                    f"mean (row, col) ({r['mean_row_px']:+.4f}, {r['mean_col_px']:+.4f})")
     click.echo(f"all: rms {result['rms_px']:.4f} px, max {result['max_px']:.4f} px over {result['n_points']} points")
 
+# ---------------------------------------------------------------- matching
+@cli.command()
+@click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
+@click.option("--dom", "dom_path", required=True, type=click.Path(dir_okay=False), help="Reference orthoimage (any CRS).")
+@add_options(dem_options)
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="GCP table (CSV); a .summary.json goes beside it.")
+@click.option("--gpkg", "gpkg_path", type=click.Path(dir_okay=False), help="Also write the GCPs as a GeoPackage layer.")
+@click.option("--geotiff", "geotiff_path", type=click.Path(dir_okay=False), help="Also write the GCPs into a GeoTIFF (GDAL GCPs).")
+@click.option("--band", help="Band to match (default: the reference band).")
+@click.option("--image", type=click.Path(dir_okay=False), help="Scene raster (default: the manifest's raster of the band).")
+@click.option("--mask", "mask_path", type=click.Path(dir_okay=False), help="Cloud/invalid mask raster in scene geometry (nonzero = invalid).")
+@click.option("--check-fraction", type=click.FloatRange(0.0, 0.9), default=0.2, show_default=True, help="Share of matches kept as independent check points.")
+@click.option("--window", type=click.IntRange(min=16), default=64, show_default=True, help="Phase-correlation window, pixels.")
+@click.option("--spacing", type=click.IntRange(min=1), default=32, show_default=True, help="Window grid spacing, pixels.")
+@click.option("--max-offset", type=click.FloatRange(min=1.0), default=1000.0, show_default=True, help="Largest expected model error, pixels.")
+@click.option("--backend", type=click.Choice(["cpu", "gpu"]), default="cpu", show_default=True, help="Phase correlation on CPU (numpy) or GPU (torch).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.pass_context
+def match(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_path, geotiff_path, band, image, mask_path,
+          check_fraction, window, spacing, max_offset, backend, as_json):
+    """Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation)."""
+    from gcpmatch.extract import MatchOptions, match_scene
+
+    if dem_path is None:
+        raise InputError("--dem is required: GCPs need terrain heights")
+    options = MatchOptions(window_px=window, spacing_px=spacing, max_offset_px=max_offset,
+                           check_fraction=check_fraction, backend=backend)
+    quiet = ctx.obj.get("quiet", False) or as_json
+    summary = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=out_path, geoid=geoid,
+                          dem_datum=dem_datum, band=band, image=image, mask_path=mask_path, gpkg_path=gpkg_path,
+                          geotiff_path=geotiff_path, options=options,
+                          progress=None if quiet else (lambda m: click.echo(m, err=True)))
+    if as_json:
+        click.echo(json.dumps(summary, default=_json_default))
+        return
+    click.echo(f"{out_path}: {summary['gcps']} GCPs + {summary['check_points']} check points from "
+               f"{summary['windows']} windows ({100 * summary['usable_fraction']:.0f} % usable, "
+               f"{100 * summary['cloud_fraction']:.0f} % cloud) in {summary['timings']['total_s']:.1f} s")
+
 
 def main(argv=None) -> int:
     """Console entry point: run the CLI, turn user errors into one line and exit code 1."""

@@ -13,7 +13,62 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["bright_outliers", "low_texture"]
+__all__ = ["bright_outliers", "cloud_pixels", "low_texture"]
+
+
+def _local_ncc(a: np.ndarray, b: np.ndarray, size: int) -> np.ndarray:
+    """Normalized cross-correlation of ``a`` and ``b`` in a sliding ``size`` x ``size`` box."""
+    import cv2
+
+    def box(x):
+        return cv2.boxFilter(x, -1, (size, size), normalize=True, borderType=cv2.BORDER_REFLECT)
+
+    ma, mb = box(a), box(b)
+    cov = box(a * b) - ma * mb
+    va = np.maximum(box(a * a) - ma * ma, 0.0)
+    vb = np.maximum(box(b * b) - mb * mb, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return cov / np.sqrt(va * vb + 1e-12)
+
+
+def cloud_pixels(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, ncc_land: float = 0.5,
+                 box_px: int = 15, min_size_px: int = 5) -> np.ndarray:
+    """Pixels much brighter than the reference predicts (clouds), as a boolean mask.
+
+    1. Land is where scene and reference correlate locally (normalized cross-correlation in a
+       ``box_px`` box above ``ncc_land``); clouds and water do not.
+    2. On land pixels the scene is regressed on the reference (``s ~ a r + b``, IRLS with Huber
+       weights, pixels more than 2.5 sigma on the bright side trimmed: haze and cloud edges
+       correlate but are brighter), so the relation holds even when clouds cover most of a CCD.
+    3. Pixels whose residual exceeds ``k`` robust standard deviations on the bright side, after
+       a morphological opening of ``min_size_px`` (clouds are extended, noise is not), are
+       flagged. NaN reference pixels are never flagged.
+    """
+    import cv2
+
+    ok = np.isfinite(scene) & np.isfinite(reference) & (scene > 0)
+    out = np.zeros(scene.shape, bool)
+    s32 = np.where(ok, scene, 0.0).astype(np.float32)
+    r32 = np.where(ok, reference, 0.0).astype(np.float32)
+    land = ok & (_local_ncc(s32, r32, box_px) > ncc_land)
+    land[::2, :] = False  # a regular subsample is plenty for two coefficients
+    if land.sum() < 100:
+        return out
+    x, y = r32[land].astype(np.float64), s32[land].astype(np.float64)
+    w = np.ones(x.size)
+    for it in range(9):
+        a = np.stack([x, np.ones_like(x)], axis=-1) * np.sqrt(w)[:, None]
+        coef = np.linalg.lstsq(a, y * np.sqrt(w), rcond=None)[0]
+        res = y - (coef[0] * x + coef[1])
+        s = 1.4826 * np.median(np.abs(res[w > 0])) + 1e-9
+        w = np.where(np.abs(res) <= 1.345 * s, 1.0, 1.345 * s / np.abs(res))
+        # haze and cloud edges still correlate with the ground but are brighter: trim the
+        # bright side (one-sided contamination) so that they cannot pull the fit
+        w[res > 2.5 * s] = 0.0
+    resid = np.where(ok, s32 - (coef[0] * r32 + coef[1]), 0.0)
+    bright = (resid > k * s).astype(np.uint8)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (min_size_px, min_size_px))
+    return cv2.morphologyEx(bright, cv2.MORPH_OPEN, kernel).astype(bool)
 
 
 def bright_outliers(mean_scene: np.ndarray, mean_ref: np.ndarray, *, k: float = 4.0) -> np.ndarray:

@@ -140,8 +140,15 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     src = np.stack([gc.ravel() / f - 0.5, gr.ravel() / f - 0.5], axis=-1)
     dst = np.stack([(uu - c0 + 0.5) / sx - 0.5, (vv - r0 + 0.5) / sy - 0.5], axis=-1)
     a_pred = np.linalg.lstsq(np.c_[src, np.ones(len(src))], dst, rcond=None)[0].T  # (2, 3)
-    warped = cv2.warpAffine(to_uint8(small, small_valid), a_pred, (out_shape[1], out_shape[0]), flags=cv2.INTER_LINEAR)
-    warped_valid = cv2.warpAffine(small_valid.astype(np.uint8), a_pred, (out_shape[1], out_shape[0]), flags=cv2.INTER_NEAREST)
+    # keep the predicted mirror, rotation and scale but not the position: the model may be off
+    # by more than the scene's size, so the warped scene gets a canvas of its own
+    h_s, w_s = small.shape
+    corners = np.array([[0, 0], [w_s, 0], [0, h_s], [w_s, h_s]], dtype=np.float64) - 0.5
+    moved = corners @ a_pred[:, :2].T
+    a_pred[:, 2] = -moved.min(axis=0)
+    canvas = tuple(int(np.ceil(v)) + 1 for v in (moved.max(axis=0) - moved.min(axis=0)))
+    warped = cv2.warpAffine(to_uint8(small, small_valid), a_pred, canvas, flags=cv2.INTER_LINEAR)
+    warped_valid = cv2.warpAffine(small_valid.astype(np.uint8), a_pred, canvas, flags=cv2.INTER_NEAREST)
     dom_valid = np.isfinite(dom_small)
     sift = cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.01)
     kp_s, des_s = sift.detectAndCompute(warped, (warped_valid > 0).astype(np.uint8) * 255)

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from gcpmatch.clouds import bright_outliers, low_texture
+from gcpmatch.clouds import cloud_pixels, low_texture
 from gcpmatch.coarse import coarse_match
 from gcpmatch.gcps import GcpTable
 from gcpmatch.outliers import local_consistency, smooth_residuals
@@ -115,7 +115,7 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
         progress(f"coarse stage: {coarse.n_inliers} SIFT matches, model pre-corrected")
     w, half = opt.window_px, opt.window_px // 2
     reasons = {r: 0 for r in REASONS}
-    per_ccd, tables = [], []
+    per_ccd, tables, cloud_sum = [], [], 0.0
     t_ref = t_phase = 0.0
     n_windows = 0
     for i, look in enumerate(model_pc.band_ccds(band)):
@@ -123,7 +123,11 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
         ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=i, psf_sigma_px=opt.psf_sigma_px)
         t_ref += time.perf_counter() - t1
         img = scene[:, look.first_col : look.first_col + look.n_detectors]
-        msk = None if mask is None else mask[:, look.first_col : look.first_col + look.n_detectors]
+        if mask is None:  # detector: much brighter than the reference predicts
+            msk = cloud_pixels(img, ref)
+        else:
+            msk = mask[:, look.first_col : look.first_col + look.n_detectors]
+        cloud_px = float(msk.mean())
         rs = _grid_starts(img.shape[0], w, opt.spacing_px)
         cs = _grid_starts(img.shape[1], w, opt.spacing_px)
         if rs.size == 0 or cs.size == 0:
@@ -135,7 +139,7 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
         win_s = sliding_window_view(img, (w, w))
         win_r = sliding_window_view(ref, (w, w))
         status = np.full(n, "", dtype=object)
-        mean_s, mean_r, std_r = (np.full(n, np.nan) for _ in range(3))
+        std_r = np.full(n, np.nan)
         shift = np.full((n, 2), np.nan)
         score = np.full(n, np.nan)
         t1 = time.perf_counter()
@@ -147,13 +151,10 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
             bad_s = ~(np.isfinite(ws).all(axis=(1, 2)) & (ws > 0).all(axis=(1, 2)))
             status[a:b][bad_ref] = "no_reference"
             status[a:b][~bad_ref & bad_s] = "no_data"
-            mean_s[a:b] = ws.mean(axis=(1, 2))
             with np.errstate(invalid="ignore"):
-                mean_r[a:b] = wr.mean(axis=(1, 2))
                 std_r[a:b] = wr.std(axis=(1, 2))
-            if msk is not None:
-                cloudy = sliding_window_view(msk, (w, w))[rr[a:b], cc[a:b]].mean(axis=(1, 2)) > opt.cloud_window_fraction
-                status[a:b][(status[a:b] == "") & cloudy] = "cloud"
+            cloudy = sliding_window_view(msk, (w, w))[rr[a:b], cc[a:b]].mean(axis=(1, 2)) > opt.cloud_window_fraction
+            status[a:b][(status[a:b] == "") & cloudy] = "cloud"
             go = np.flatnonzero(status[a:b] == "")
             if go.size == 0:
                 continue
@@ -166,9 +167,7 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
             for code, name in _PHASE_REASON.items():
                 status[a + go[pm.reason == code]] = name
         t_phase += time.perf_counter() - t1
-        # clouds (detector) and water, judged on the whole CCD
-        if msk is None:
-            status[(status == "") & bright_outliers(mean_s, mean_r)] = "cloud"
+        # water and other featureless ground, judged on the whole CCD
         texture_ok = np.isfinite(std_r)
         status[(status == "") & texture_ok & low_texture(std_r, texture_fraction=opt.texture_fraction)] = "no_texture"
         # local consistency on the window grid
@@ -196,10 +195,12 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
                 "band": np.full(ok.sum(), band, dtype=object), "ccd": np.full(ok.sum(), look.name, dtype=object),
                 "score": score[keep[ok]],
             })
+        cloud_sum += cloud_px * look.n_detectors
         per_ccd.append({
             "ccd": look.name, "windows": int(n), "gcps": int(keep.size),
             "usable_fraction": float(keep.size / n),
-            "cloud_fraction": float(np.mean(status == "cloud")),
+            "cloud_fraction": cloud_px,
+            "cloud_windows": int(np.sum(status == "cloud")),
             "no_texture_fraction": float(np.mean(status == "no_texture")),
             "sigma_px": None if not np.isfinite(sigma) else sigma,
             "coverage": _coverage(r_c, c_c - look.first_col, img.shape),
@@ -222,7 +223,8 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
         "check_points": int(0 if table is None else np.sum(table.kind == "check")),
         "windows": n_windows,
         "usable_fraction": n_gcp / max(n_windows, 1),
-        "cloud_fraction": reasons["cloud"] / max(n_windows, 1),
+        "cloud_fraction": cloud_sum / scene.shape[1],
+        "cloud_window_fraction": reasons["cloud"] / max(n_windows, 1),
         "rejected": reasons,
         "per_ccd": per_ccd,
         "coarse": coarse.summary(),

@@ -127,10 +127,13 @@ def fit_exterior_in_ground(model, row, col, lon, lat, h, *, band=None, ccd=None,
 
 
 def fit_ccd_offsets(model, row, col, lon, lat, h, ccd, *, band: str, min_points: int = 5):
-    """Shift each CCD's ``tan psi`` ``c0`` terms by its median image-space residual.
+    """Correct each CCD's ``tan psi`` offset (``c0``) and, with enough points, scale (``c1``).
 
-    Returns the corrected model and a dict CCD index -> (d_row, d_col) median residual in pixels
-    that was removed (CCDs with fewer than ``min_points`` matches are left alone).
+    Per CCD, the image-space residuals of its matches are fitted by robust (Huber IRLS) least
+    squares on the analytic Jacobian of ``tan_psi_x/y.c0`` (and ``.c1`` with >= 4 ``min_points``
+    matches spread over the CCD), which absorbs camera-to-camera rotations, CCD placement and
+    the linear part of the distortion. CCDs with fewer than ``min_points`` matches are left
+    alone. Returns the corrected model and a dict CCD index -> median (d_row, d_col) removed.
     """
     pv = model.parameters()
     x = pv.values.copy()
@@ -139,16 +142,27 @@ def fit_ccd_offsets(model, row, col, lon, lat, h, ccd, *, band: str, min_points:
         sel = ccd == i
         if sel.sum() < min_points:
             continue
-        names = (f"{band}.{look.name}.tan_psi_x.c0", f"{band}.{look.name}.tan_psi_y.c0")
+        names = [f"{band}.{look.name}.tan_psi_x.c0", f"{band}.{look.name}.tan_psi_y.c0"]
+        s_span = np.ptp(col[sel]) / max(look.n_detectors, 1)
+        if sel.sum() >= 4 * min_points and s_span > 0.5:
+            names += [f"{band}.{look.name}.tan_psi_x.c1", f"{band}.{look.name}.tan_psi_y.c1"]
         rr, cc, jac = model.image_jacobian(lon[sel], lat[sel], h[sel], band=band, names=names, ccd=i)
         res = np.stack([row[sel] - rr, col[sel] - cc], axis=-1)
         ok = np.all(np.isfinite(res), axis=1)
         if ok.sum() < min_points:
             continue
-        med = np.median(res[ok], axis=0)
-        j = np.mean(jac[ok], axis=0)  # (2, 2)
-        delta = np.linalg.solve(j, med)
-        for n, d in zip(names, delta):
-            x[pv.index([n])[0]] += d
+        res, jac = res[ok], jac[ok]
+        a = jac.reshape(-1, len(names))
+        y = res.reshape(-1)
+        scale = np.abs(a).max(axis=0)
+        w = np.ones(y.size)
+        for _ in range(6):
+            sw = np.sqrt(w)
+            delta = np.linalg.lstsq(a / scale * sw[:, None], y * sw, rcond=None)[0] / scale
+            r = y - a @ delta
+            s = 1.4826 * np.median(np.abs(r)) + 1e-9
+            w = np.where(np.abs(r) <= HUBER_K * s, 1.0, HUBER_K * s / np.abs(r))
+        x[pv.index(names)] += delta
+        med = np.median(res, axis=0)
         removed[i] = (float(med[0]), float(med[1]))
     return model.with_parameters(x), removed
