@@ -1,0 +1,1231 @@
+"""Ground control point (GCP) tables: the :class:`GcpTable` type and its CSV, GeoPackage and
+GeoTIFF forms.
+
+A GCP ties a continuous image position ``(row, col)`` to a ground point ``(lon, lat, h)``.
+
+Conventions
+-----------
+- ``row, col``: continuous image coordinates (line, sample) in pixels, the centre of the first
+  pixel at ``(0.5, 0.5)`` and its upper-left corner at ``(0, 0)`` (GDAL/rasterio). A point lies
+  in an image of ``(n_rows, n_cols)`` pixels when ``0 <= row <= n_rows`` and
+  ``0 <= col <= n_cols``.
+- ``lon, lat``: WGS84 degrees, ``lat`` in [-90, 90], ``lon`` in [-180, 360).
+- ``h``: metres above the WGS84 ellipsoid (not above the geoid).
+- ``sigma_px``: a priori standard deviation of the image measurement, pixels, > 0. Default 1:
+  unit weights, the absolute scale being left to the a posteriori variance factor of the
+  adjustment. (Not NaN: every numeric value in a table is finite.)
+- ``band``, ``ccd``: free text naming the spectral band and the CCD (detector array) the point
+  was measured in; default ``""`` (the only band / CCD).
+- ``score``: match quality (e.g. the phase-correlation peak), any finite number; default 1.
+- ``kind``: ``"gcp"`` (used in the adjustment) or ``"check"`` (independent check point, never
+  used in a fit); default ``"gcp"``.
+
+Formats
+-------
+CSV (``*.csv``)
+    UTF-8 (an optional byte-order mark is skipped), comma separated, header on line 1 naming
+    the columns in any order: ``id,row,col,lon,lat,h`` are required, ``sigma_px, band, ccd,
+    score, kind`` optional (their defaults above apply to the whole column when it is absent).
+    Numbers as Python's ``float`` reads them; blank lines are skipped; fields may be quoted
+    (RFC 4180). Written with every column, floats in their shortest repr-exact form (reading
+    them back gives the same float64 bit for bit) and ``\\n`` line ends.
+GeoPackage (``*.gpkg``)
+    OGC GeoPackage 1.3 [1]_ written with :mod:`sqlite3`: one features layer (default name
+    ``gcps``) in EPSG:4326 whose ``POINT Z`` geometry holds ``(lon, lat, h)`` and whose
+    attribute columns hold every field above. On reading, the attributes are authoritative and
+    the geometry must agree with them (1e-9 degree, 1e-6 m).
+GeoTIFF (``*.tif``, ``*.tiff``)
+    GDAL ground control points (GeoTIFF tie points) in EPSG:4326, readable by any GIS. GDAL's GCP
+    ``(pixel, line)`` use the corner convention (``(0, 0)`` is the upper-left corner of the
+    first pixel), the same as ours, so ``line = row`` and ``pixel = col`` with no shift. GeoTIFF
+    tie points cannot carry ids or the other fields, so the whole table is also stored, as CSV
+    text, in the GDAL metadata item ``GCP_TABLE_CSV`` of domain ``gcpcal`` (inside the TIFF);
+    the reader uses it and checks it against the tie points. A GeoTIFF written by another tool
+    (no such item) reads with ids from GDAL (``"1"``, ``"2"``, ...) and default optional fields.
+    At most :data:`GEOTIFF_MAX_GCPS` (10922) points, GDAL's limit for the tie-point tag; use
+    CSV or GeoPackage for more (or thin the table first).
+
+Reading is strict: the first problem in the file (in file order) is raised as a one-line
+:class:`~sensor_models.errors.InputError` naming the file, the place (CSV line number with the
+header on line 1, GeoPackage feature id, GeoTIFF GCP number), the column and how many rows
+share the problem. Validation is vectorized. Writing is atomic: a temporary file beside the
+destination, renamed onto it at the end, so an error leaves no partial output (an existing
+destination is left untouched).
+
+References
+----------
+.. [1] Open Geospatial Consortium, "OGC GeoPackage Encoding Standard", version 1.3.1,
+   OGC 12-128r18 (2021): sections 1.1.1 (SQLite container, ``application_id`` and
+   ``user_version``), 1.1.2 (``gpkg_spatial_ref_sys``), 1.1.3 (``gpkg_contents``), 2.1.3
+   (GeoPackageBinary geometry encoding), 2.1.5 (``gpkg_geometry_columns``), 2.1.6 (features
+   tables).
+.. [2] D. Hilbert, "Ueber die stetige Abbildung einer Linie auf ein Flaechenstueck",
+   Mathematische Annalen 38, 459-460 (1891): the space-filling curve whose order
+   :meth:`GcpTable.split_check` samples along (computed bit by bit, quadrant by quadrant, with
+   the rotation that keeps each sub-curve's ends on its quadrant's corners).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import re
+import sqlite3
+import warnings
+from dataclasses import dataclass
+from operator import itemgetter
+from pathlib import Path
+
+import numpy as np
+
+from sensor_models.atomic import temporary_beside
+from sensor_models.errors import InputError
+
+__all__ = [
+    "COLUMNS",
+    "GEOTIFF_MAX_GCPS",
+    "OPTIONAL_COLUMNS",
+    "REQUIRED_COLUMNS",
+    "KINDS",
+    "GcpTable",
+    "read_gcps",
+    "write_gcps_csv",
+    "write_gcps_geotiff",
+    "write_gcps_gpkg",
+]
+
+REQUIRED_COLUMNS = ("id", "row", "col", "lon", "lat", "h")
+OPTIONAL_COLUMNS = ("sigma_px", "band", "ccd", "score", "kind")
+COLUMNS = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
+_FLOAT_COLUMNS = frozenset(("row", "col", "lon", "lat", "h", "sigma_px", "score"))
+_DEFAULTS = {"sigma_px": 1.0, "band": "", "ccd": "", "score": 1.0, "kind": "gcp"}
+KINDS = ("gcp", "check")
+
+_CHUNK_ROWS = 65536  # rows formatted / inserted at a time by the writers
+_GPKG_APPLICATION_IDS = (0x47504B47, 0x47503130, 0x47503131)  # 'GPKG', 'GP10', 'GP11'
+_GPKG_USER_VERSION = 10300
+_TIFF_DOMAIN, _TIFF_ITEM = "gcpcal", "GCP_TABLE_CSV"
+# GDAL writes at most 10922 GCPs into the GeoTIFF tie-point tag (6 doubles each, a uint16
+# count: GDAL issue #10164, pull request #10166); beyond that it falls back to a .aux.xml file.
+GEOTIFF_MAX_GCPS = 10922
+
+
+# ---------------------------------------------------------------------------------------------
+# The table
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class GcpTable:
+    """A table of N ground control points, one read-only ``(N,)`` array per column.
+
+    Construction coerces every column (floats to float64, the rest to numpy unicode strings)
+    and validates the values: finite numbers, ``lat`` in [-90, 90], ``lon`` in [-180, 360),
+    ``sigma_px > 0``, ``kind`` in {"gcp", "check"}, non-empty unique ids, no leading or trailing
+    spaces in ``id``/``band``/``ccd``. A violation raises
+    :class:`~sensor_models.errors.InputError` naming the column and the first offending point.
+    Prefer :meth:`from_arrays`, which fills the optional columns and the ids.
+
+    Attributes
+    ----------
+    id : ndarray of str, shape (N,)
+        Unique point identifiers.
+    row, col : ndarray of float64, shape (N,)
+        Continuous image coordinates, pixels; first pixel's centre at (0.5, 0.5).
+    lon, lat : ndarray of float64, shape (N,)
+        WGS84 longitude and latitude, degrees.
+    h : ndarray of float64, shape (N,)
+        Height above the WGS84 ellipsoid, metres.
+    sigma_px : ndarray of float64, shape (N,)
+        A priori standard deviation of the image measurement, pixels (default 1).
+    band, ccd : ndarray of str, shape (N,)
+        Band and CCD names (default "").
+    score : ndarray of float64, shape (N,)
+        Match quality (default 1).
+    kind : ndarray of str, shape (N,)
+        "gcp" or "check" (default "gcp").
+    """
+
+    id: np.ndarray
+    row: np.ndarray
+    col: np.ndarray
+    lon: np.ndarray
+    lat: np.ndarray
+    h: np.ndarray
+    sigma_px: np.ndarray
+    band: np.ndarray
+    ccd: np.ndarray
+    score: np.ndarray
+    kind: np.ndarray
+
+    def __post_init__(self):
+        cols = {name: _coerce(name, getattr(self, name)) for name in COLUMNS}
+        n = cols["id"].shape[0]
+        for name, arr in cols.items():
+            if arr.shape != (n,):
+                raise InputError(f"has shape {arr.shape}; every column must have shape ({n},) "
+                                 "like 'id'", field=name)  # fmt: skip
+        _validate(cols, where=lambda i: f"point {i} (id {str(cols['id'][i])!r})")
+        for name, arr in cols.items():
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    @classmethod
+    def _trusted(cls, cols: dict) -> GcpTable:
+        """Build from columns already coerced to owned arrays and validated (no copy, no check)."""
+        table = object.__new__(cls)
+        for name in COLUMNS:
+            arr = cols[name]
+            arr.setflags(write=False)
+            object.__setattr__(table, name, arr)
+        return table
+
+    @classmethod
+    def from_arrays(cls, row, col, lon, lat, h, *, id=None, sigma_px=None, band=None, ccd=None,
+                    score=None, kind=None) -> GcpTable:  # fmt: skip
+        """A table from the required columns; every column but ``row`` may be a scalar (broadcast).
+
+        Parameters
+        ----------
+        row : array_like, shape (N,)
+            Image row (line) coordinates, pixels (first pixel's centre at 0.5).
+        col : array_like, shape (N,) or scalar
+            Image column (sample) coordinates, pixels.
+        lon, lat, h : array_like, shape (N,) or scalar
+            WGS84 degrees and metres above the ellipsoid.
+        id : array_like of str, shape (N,), optional
+            Default ``"g000001"``, ``"g000002"``, ... (at least six digits).
+        sigma_px, band, ccd, score, kind : scalar or array_like, shape (N,), optional
+            Defaults 1.0, "", "", 1.0, "gcp".
+
+        Returns
+        -------
+        GcpTable
+        """
+        row = np.atleast_1d(np.asarray(row))
+        n = row.shape[0] if row.ndim == 1 else -1
+        if id is None:
+            id = np.char.add("g", np.char.zfill(np.arange(1, max(n, 0) + 1).astype(str), 6))
+        given = {"col": col, "lon": lon, "lat": lat, "h": h, "sigma_px": sigma_px, "band": band,
+                 "ccd": ccd, "score": score, "kind": kind}  # fmt: skip
+        cols = {}
+        for name, value in given.items():
+            value = _DEFAULTS[name] if value is None and name in _DEFAULTS else value
+            if np.ndim(value) == 0 and n >= 0:
+                value = np.full(n, value, dtype=np.float64 if name in _FLOAT_COLUMNS else object)
+            cols[name] = value
+        return cls(id=id, row=row, **cols)
+
+    # -- helpers ------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return int(self.id.shape[0])
+
+    def __repr__(self) -> str:
+        n_check = int(np.count_nonzero(self.kind == "check"))
+        return f"GcpTable({len(self)} points: {len(self) - n_check} gcp, {n_check} check)"
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        """The columns, in :data:`COLUMNS` order, as a ``{name: (N,) array}`` dict."""
+        return {name: getattr(self, name) for name in COLUMNS}
+
+    def select(self, which) -> GcpTable:
+        """The points picked by a boolean mask of shape (N,) or by integer indices."""
+        which = np.asarray(which)
+        if which.dtype == bool:
+            if which.shape != (len(self),):
+                raise InputError(f"boolean mask has shape {which.shape}, expected ({len(self)},)")
+            return GcpTable._trusted({k: v[which] for k, v in self.as_dict().items()})
+        if which.size and not np.issubdtype(which.dtype, np.integer):
+            raise InputError(f"select() takes a boolean mask or integer indices, got {which.dtype}")
+        which = which.astype(np.intp).reshape(-1)
+        return GcpTable(**{k: v[which] for k, v in self.as_dict().items()})  # ids checked unique
+
+    def gcps(self) -> GcpTable:
+        """The points of kind "gcp" (the ones a fit may use)."""
+        return self.select(self.kind == "gcp")
+
+    def checks(self) -> GcpTable:
+        """The points of kind "check" (independent check points)."""
+        return self.select(self.kind == "check")
+
+    @classmethod
+    def concatenate(cls, tables) -> GcpTable:
+        """One table holding the points of ``tables`` in order; ids must stay unique."""
+        tables = list(tables)
+        if not tables:
+            raise InputError("concatenate() needs at least one table")
+        for t in tables:
+            if not isinstance(t, GcpTable):
+                raise InputError(f"concatenate() takes GcpTable objects, got {type(t).__name__}")
+        return cls(**{k: np.concatenate([getattr(t, k) for t in tables]) for k in COLUMNS})
+
+    def split_check(self, fraction: float, *, seed, stratify_by=("band", "ccd")) -> GcpTable:
+        """Mark a spatially spread, random ``fraction`` of the points as check points.
+
+        Every point's kind is reassigned: the chosen points become "check", all others "gcp".
+        Points are grouped into strata by the ``stratify_by`` columns (by default one stratum
+        per band and CCD). In a stratum of ``n`` points, ``k = floor(fraction * n + 1/2)``
+        check points (at most ``n - 1``, so each stratum keeps a GCP) are drawn by stratified
+        sampling along a Hilbert curve: the points are ordered along the curve over their
+        ``(row, col)`` bounding box ([2]_), the ordered sequence is cut into ``k``
+        consecutive runs of equal length (+-1), and one point is drawn uniformly from each run.
+        Since consecutive runs of a Hilbert ordering cover compact neighbouring regions, the
+        check points cover the image evenly (like one point per cell of an adaptive grid),
+        unlike a plain random draw, which leaves holes and clusters.
+
+        Parameters
+        ----------
+        fraction : float
+            Wanted share of check points, in [0, 1).
+        seed : int or numpy.random.Generator
+            Seed of the draw (required: the split is reproducible).
+        stratify_by : sequence of str
+            Columns among "band", "ccd" defining the strata; ``()`` for one stratum.
+
+        Returns
+        -------
+        GcpTable
+            A copy of this table with ``kind`` set.
+        """
+        fraction = float(fraction)
+        if not 0.0 <= fraction < 1.0:
+            raise InputError(f"fraction must be in [0, 1), got {fraction}")
+        stratify_by = tuple(stratify_by)
+        for name in stratify_by:
+            if name not in ("band", "ccd"):
+                raise InputError(f"stratify_by takes 'band' and/or 'ccd', got {name!r}")
+        rng = np.random.default_rng(seed)
+        n = len(self)
+        stratum = np.zeros(n, dtype=np.intp)
+        for name in stratify_by:
+            _, codes = np.unique(getattr(self, name), return_inverse=True)
+            stratum = stratum * (int(codes.max(initial=0)) + 1) + codes.reshape(-1)
+        is_check = np.zeros(n, dtype=bool)
+        for s in np.unique(stratum):
+            members = np.flatnonzero(stratum == s)
+            k = min(int(np.floor(fraction * members.size + 0.5)), members.size - 1)
+            if k <= 0:
+                continue
+            order = members[np.argsort(_hilbert_key(self.row[members], self.col[members]),
+                                       kind="stable")]  # fmt: skip
+            edges = (np.arange(k + 1) * members.size) // k
+            pick = edges[:-1] + (rng.random(k) * np.diff(edges)).astype(np.intp)
+            is_check[order[pick]] = True
+        cols = self.as_dict()
+        cols["kind"] = np.where(is_check, "check", "gcp")
+        return GcpTable._trusted(cols)
+
+
+def _coerce(name: str, values) -> np.ndarray:
+    """An owned 1-D array of the column's dtype (float64, or numpy unicode for text)."""
+    try:
+        if name in _FLOAT_COLUMNS:
+            arr = np.array(values, dtype=np.float64)
+        else:
+            arr = np.array(values)
+            if arr.dtype.kind != "U":
+                if arr.dtype.kind == "S":
+                    arr = np.char.decode(arr, "utf-8")
+                elif arr.dtype.kind in "iuO" and arr.size:
+                    arr = arr.astype(str)
+                elif arr.size == 0:
+                    arr = arr.astype("U1")
+                else:
+                    raise TypeError(f"got dtype {arr.dtype}")
+    except (TypeError, ValueError) as err:
+        kind = "float64" if name in _FLOAT_COLUMNS else "text"
+        raise InputError(f"cannot be converted to {kind}: {err}", field=name) from None
+    if arr.ndim != 1:
+        raise InputError(f"must be one-dimensional, got shape {arr.shape}", field=name)
+    return arr
+
+
+def _hilbert_key(row: np.ndarray, col: np.ndarray, order: int = 16) -> np.ndarray:
+    """Position along a Hilbert curve of ``2**order`` cells a side over the points' bounding box.
+
+    Parameters
+    ----------
+    row, col : ndarray, shape (N,)
+        Coordinates (any units).
+    order : int
+        Bits per axis (<= 31).
+
+    Returns
+    -------
+    ndarray of int64, shape (N,)
+        Keys in [0, 4**order); consecutive keys are edge-adjacent cells.
+    """
+    side = 1 << order
+
+    def quantize(v):
+        lo, span = v.min(), np.ptp(v)
+        if span == 0:
+            return np.zeros(v.shape, dtype=np.int64)
+        return np.minimum(((v - lo) / span * side).astype(np.int64), side - 1)
+
+    x, y = quantize(np.asarray(col, dtype=np.float64)), quantize(np.asarray(row, dtype=np.float64))
+    key = np.zeros(x.shape, dtype=np.int64)
+    s = side >> 1
+    while s > 0:
+        rx = (x & s) > 0
+        ry = (y & s) > 0
+        key += s * s * ((3 * rx) ^ ry)
+        # rotate the quadrant so that the sub-curve starts and ends at the right corners
+        flip = ~ry & rx
+        x = np.where(flip, side - 1 - x, x)
+        y = np.where(flip, side - 1 - y, y)
+        x, y = np.where(ry, x, y), np.where(ry, y, x)
+        s >>= 1
+    return key
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation (shared by the constructor and the readers)
+# ---------------------------------------------------------------------------------------------
+def _first(mask: np.ndarray):
+    """(first index, count) of the True entries of ``mask``, or None."""
+    bad = np.flatnonzero(mask)
+    return None if bad.size == 0 else (int(bad[0]), int(bad.size))
+
+
+def _fmt(x) -> str:
+    return repr(float(x))
+
+
+def _validate(cols: dict, *, where, path=None, image_shape=None, problems=()) -> None:
+    """Raise the first (in point order) problem of the coerced columns as an InputError.
+
+    ``where(i)`` names point ``i`` in the message (e.g. ``"line 7"``). ``problems`` holds the
+    parse errors already found, as ``(index, column order, column, message, count)`` tuples;
+    at the same point and column they win over the checks here.
+    """
+    problems = list(problems)
+
+    def add(name, found, message):
+        if found is not None:
+            i, count = found
+            problems.append((i, COLUMNS.index(name), name, message(i), count))
+
+    ids = cols["id"]
+    add("id", _first(np.char.str_len(ids) == 0), lambda i: "empty id")
+    for name in ("id", "band", "ccd"):
+        a = cols[name]
+        add(name, _first(np.char.strip(a) != a),
+            lambda i, a=a, name=name: f"{name} {str(a[i])!r} has leading or trailing spaces")
+    for name in ("row", "col", "lon", "lat", "h", "sigma_px", "score"):
+        a = cols[name]
+        add(name, _first(~np.isfinite(a)),
+            lambda i, a=a, name=name: f"{name} = {_fmt(a[i])}: NaN and infinity are not allowed")
+    lat, lon, sigma = cols["lat"], cols["lon"], cols["sigma_px"]
+    add("lat", _first((lat < -90.0) | (lat > 90.0)),
+        lambda i: f"lat = {_fmt(lat[i])} is outside [-90, 90] degrees")
+    add("lon", _first((lon < -180.0) | (lon >= 360.0)),
+        lambda i: f"lon = {_fmt(lon[i])} is outside [-180, 360) degrees")
+    add("sigma_px", _first(sigma <= 0.0),
+        lambda i: f"sigma_px = {_fmt(sigma[i])} must be > 0 pixels")
+    kind = cols["kind"]
+    add("kind", _first(~np.isin(kind, KINDS)),
+        lambda i: f"kind {str(kind[i])!r} must be 'gcp' or 'check'")
+    if image_shape is not None:
+        for name, size in (("row", image_shape[0]), ("col", image_shape[1])):
+            a = cols[name]
+            add(name, _first((a < 0.0) | (a > size)),
+                lambda i, a=a, name=name, size=size: f"{name} = {_fmt(a[i])} is outside the "
+                f"image [0, {size}] (image_shape {tuple(image_shape)})")
+    if not problems:
+        dup = _first_duplicate(ids)
+        if dup is None:
+            return
+        first, repeat, count = dup
+        problems.append((repeat, 0, "id", f"id {str(ids[repeat])!r} is already used at "
+                                            f"{where(first)}", count))  # fmt: skip
+    i, _, name, message, count = min(problems, key=itemgetter(0, 1))  # stable: parse errors first
+    more = f" ({count} rows have this problem)" if count > 1 else ""
+    raise InputError(f"{where(i)}: {message}{more}", path=path, field=name)
+
+
+def _first_duplicate(ids: np.ndarray):
+    """(index of the first occurrence, index of the earliest repeat, number of repeats) or None."""
+    if len(set(ids.tolist())) == ids.size:
+        return None
+    order = np.argsort(ids, kind="stable")
+    s = ids[order]
+    new_group = np.r_[True, s[1:] != s[:-1]]
+    group_start = np.flatnonzero(new_group)[np.cumsum(new_group) - 1]
+    repeats = order[~new_group]
+    firsts = order[group_start[~new_group]]
+    j = int(np.argmin(repeats))
+    return int(firsts[j]), int(repeats[j]), int(repeats.size)
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------------------------
+def read_gcps(path, *, image_shape=None, layer=None) -> GcpTable:
+    """Read a GCP table from CSV (``*.csv``), GeoPackage (``*.gpkg``) or GeoTIFF (``*.tif``).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file; its extension selects the format.
+    image_shape : (int, int), optional
+        ``(n_rows, n_cols)``: points outside ``[0, n_rows] x [0, n_cols]`` are errors. For a
+        GeoTIFF the raster's own shape is used when not given (and must agree when given).
+    layer : str, optional
+        GeoPackage only: the features layer. Default: the only one, else ``"gcps"``.
+
+    Returns
+    -------
+    GcpTable
+
+    Raises
+    ------
+    InputError
+        One line naming the file, the place (CSV line number, header = line 1; GeoPackage
+        feature id; GeoTIFF GCP number), the column and the problem.
+    """
+    path = Path(path)
+    image_shape = _check_image_shape(image_shape)
+    suffix = path.suffix.lower()
+    if layer is not None and suffix != ".gpkg":
+        raise InputError("layer= applies to GeoPackage (*.gpkg) files only", path=str(path))
+    if suffix == ".csv":
+        return _read_csv_bytes(_read_bytes(path), str(path), image_shape)
+    if suffix == ".gpkg":
+        return _read_gpkg(path, image_shape, layer)
+    if suffix in (".tif", ".tiff"):
+        return _read_geotiff(path, image_shape)
+    raise InputError("unknown GCP table format; expected *.csv, *.gpkg, *.tif or *.tiff",
+                     path=str(path))  # fmt: skip
+
+
+def _check_image_shape(image_shape):
+    if image_shape is None:
+        return None
+    try:
+        n_rows, n_cols = (int(v) for v in image_shape)
+        ok = (n_rows, n_cols) == tuple(image_shape) and n_rows > 0 and n_cols > 0
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise InputError(f"image_shape must be two positive integers (n_rows, n_cols), "
+                         f"got {image_shape!r}")  # fmt: skip
+    return n_rows, n_cols
+
+
+def _read_bytes(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+
+
+def _read_csv_bytes(data: bytes, source: str, image_shape) -> GcpTable:
+    """Parse and validate CSV bytes; ``source`` names the file in messages."""
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputError(f"line {line}: not UTF-8 text ({exc.reason})", path=source) from None
+    if "\x00" in text:
+        line = text.count("\n", 0, text.index("\x00")) + 1
+        raise InputError(f"line {line}: NUL byte; this is not a CSV text file", path=source)
+    if not text.strip():
+        raise InputError(f"empty file; expected the header line {','.join(REQUIRED_COLUMNS)}"
+                         f"[,{','.join(OPTIONAL_COLUMNS)}] and data rows", path=source)  # fmt: skip
+    if '"' in text:  # quoted fields: the csv module
+        names, fields, lines = _split_quoted(text, source)
+    else:  # no quotes: split on byte positions, vectorized
+        first_line = text.split("\n", 1)[0].rstrip("\r")
+        names = _header(first_line.split(",") if first_line.strip() else [], source)
+        fields, lines = _split_plain(data, len(names), source)
+    if lines.size == 0:
+        raise InputError("no data rows after the header (line 1)", path=source)
+    cols, problems = _columns_from_text(names, fields, lines)
+    _validate(cols, where=lambda i: f"line {lines[i]}", path=source, image_shape=image_shape,
+              problems=problems)  # fmt: skip
+    return GcpTable._trusted(cols)
+
+
+def _header(fields: list[str], source: str) -> list[str]:
+    """Check the header's column names (line 1) and return them, stripped."""
+    names = [name.strip() for name in fields]
+    if not any(names):
+        raise InputError("line 1: empty header; expected column names "
+                         f"{','.join(REQUIRED_COLUMNS)}[,...]", path=source)  # fmt: skip
+    for j, name in enumerate(names):
+        if name not in COLUMNS:
+            raise InputError(f"line 1: unknown column {name!r} (header column {j + 1}); columns "
+                             f"are {', '.join(COLUMNS)}", path=source, field=name)  # fmt: skip
+        if name in names[:j]:
+            raise InputError(f"line 1: column {name!r} appears twice in the header (columns "
+                             f"{names.index(name) + 1} and {j + 1})", path=source,
+                             field=name)  # fmt: skip
+    for name in REQUIRED_COLUMNS:
+        if name not in names:
+            raise InputError(f"line 1: missing required column {name!r}; the header must name "
+                             f"{', '.join(REQUIRED_COLUMNS)}", path=source, field=name)  # fmt: skip
+    return names
+
+
+def _split_plain(data: bytes, ncol: int, source: str):
+    """Fields of a quote-free CSV as fixed-width byte-string arrays, plus 1-based line numbers.
+
+    Returns
+    -------
+    fields : list of ndarray of bytes (S), each shape (N,)
+        Column ``j`` of every data record, as written (not stripped).
+    lines : ndarray of int64, shape (N,)
+        Line number of each record (header = line 1; blank lines skipped).
+    """
+    b = np.frombuffer(data, dtype=np.uint8)
+    newline = np.flatnonzero(b == 10)
+    if b.size and b[-1] != 10:
+        newline = np.append(newline, b.size)
+    start = np.r_[0, newline[:-1] + 1]
+    end = newline.copy()
+    end[(end > start) & (b[np.maximum(end - 1, 0)] == 13)] -= 1  # CRLF
+    commas = np.flatnonzero(b == 44)
+    first_comma = np.searchsorted(commas, start)
+    n_commas = np.searchsorted(commas, end) - first_comma
+    data_line = end > start
+    data_line[0] = False  # the header
+    wrong = data_line & (n_commas != ncol - 1)
+    if wrong.any():
+        i = int(np.flatnonzero(wrong)[0])
+        raise InputError(f"line {i + 1}: {_fields(n_commas[i] + 1)}, but the header (line 1) "
+                         f"has {ncol} columns", path=source)  # fmt: skip
+    rec = np.flatnonzero(data_line)
+    if rec.size == 0:
+        return [], rec.astype(np.int64)
+    comma_at = commas[first_comma[rec][:, None] + np.arange(ncol - 1)]  # (N, ncol-1)
+    starts = np.concatenate([start[rec][:, None], comma_at + 1], axis=1)
+    ends = np.concatenate([comma_at, end[rec][:, None]], axis=1)
+    width = int((ends - starts).max())
+    padded = np.concatenate([b, np.zeros(max(width, 1), dtype=np.uint8)])
+    fields = [_gather(padded, starts[:, j], ends[:, j]) for j in range(ncol)]
+    return fields, rec.astype(np.int64) + 1
+
+
+def _fields(k) -> str:
+    return f"{k} field" if k == 1 else f"{k} fields"
+
+
+def _gather(buf: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+    """The byte strings ``buf[start[i]:end[i]]`` as an (N,) ``S<w>`` array (buf zero-padded)."""
+    length = end - start
+    w = max(int(length.max()), 1)
+    windows = np.lib.stride_tricks.sliding_window_view(buf, w)[start]  # (N, w) copy
+    windows *= np.arange(w) < length[:, None]  # zero the bytes past each field's end
+    return windows.view(f"S{w}").reshape(-1)
+
+
+def _split_quoted(text: str, source: str):
+    """Header names, per-column unicode arrays and line numbers through the csv module."""
+    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
+    try:
+        names = _header(next(reader), source)
+        ncol = len(names)
+        records, lines = [], []
+        for rec in reader:
+            if not rec:
+                continue
+            if len(rec) != ncol:
+                raise InputError(f"line {reader.line_num}: {_fields(len(rec))}, but the header "
+                                 f"(line 1) has {ncol} columns", path=source)  # fmt: skip
+            records.append(rec)
+            lines.append(reader.line_num)
+    except csv.Error as exc:
+        raise InputError(f"line {reader.line_num}: malformed CSV ({exc})", path=source) from None
+    fields = [np.array(col) for col in zip(*records)] if records else []
+    return names, fields, np.asarray(lines, dtype=np.int64)
+
+
+def _columns_from_text(names, fields, lines):
+    """Typed columns (defaults filled) from raw field arrays, and the parse errors.
+
+    A numeric column that does not parse yields one problem, at its first bad field; its values
+    before that field are kept and the rest set to 1.0 (a value every check accepts), so the
+    validation that follows still finds any earlier problem.
+    """
+    n = lines.size
+    raw = dict(zip(names, fields))
+    cols, problems = {}, []
+    for order, name in enumerate(COLUMNS):
+        if name not in raw:
+            cols[name] = _default_column(name, n)
+            continue
+        a = raw[name]
+        if name in _FLOAT_COLUMNS:
+            try:
+                cols[name] = a.astype(np.float64)
+            except ValueError:
+                i = _first_unparsable(a)
+                value = a[i].decode() if isinstance(a[i], bytes) else str(a[i])
+                what = "empty value" if not value.strip() else f"{value.strip()!r} is not a number"
+                problems.append((i, order, name, f"{what}; {name} must be a number", 1))
+                cols[name] = np.ones(n)
+                cols[name][:i] = a[:i].astype(np.float64)
+        else:
+            a = np.char.strip(a)
+            if a.dtype.kind == "S":
+                a = a.astype("U") if a.tobytes().isascii() else np.char.decode(a, "utf-8")
+            cols[name] = a
+    return cols, problems
+
+
+def _default_column(name: str, n: int) -> np.ndarray:
+    """An absent optional column: its default, ``n`` times."""
+    default = _DEFAULTS[name]
+    if name in _FLOAT_COLUMNS:
+        return np.full(n, default, dtype=np.float64)
+    return np.full(n, default, dtype=f"U{max(len(default), 1)}")
+
+
+def _first_unparsable(a: np.ndarray) -> int:
+    """Index of the first element of a string array that does not convert to float64."""
+    step = 4096
+    for lo in range(0, a.size, step):
+        try:
+            a[lo:lo + step].astype(np.float64)
+        except ValueError:
+            for i in range(lo, min(lo + step, a.size)):
+                try:
+                    a[i:i + 1].astype(np.float64)
+                except ValueError:
+                    return i
+    raise AssertionError("no unparsable element")  # pragma: no cover
+
+
+# -- GeoPackage -------------------------------------------------------------------------------
+def _read_gpkg(path: Path, image_shape, layer) -> GcpTable:
+    source = str(path)
+    if not path.is_file():
+        raise InputError("cannot read: no such file", path=source)
+    try:
+        con = sqlite3.connect(path.resolve().as_uri() + "?mode=ro", uri=True)
+    except sqlite3.Error as exc:
+        raise InputError(f"cannot open as SQLite: {exc}", path=source) from None
+    try:
+        return _read_gpkg_db(con, source, image_shape, layer)
+    except sqlite3.Error as exc:
+        raise InputError(f"not a readable GeoPackage: {exc}", path=source) from None
+    finally:
+        con.close()
+
+
+def _q(name: str) -> str:
+    """An SQL identifier, double-quoted."""
+    return '"' + name.replace('"', '""') + '"'
+
+
+def _read_gpkg_db(con, source, image_shape, layer) -> GcpTable:
+    app_id = con.execute("PRAGMA application_id").fetchone()[0]
+    if app_id not in _GPKG_APPLICATION_IDS:
+        raise InputError(f"not a GeoPackage (SQLite application_id {app_id:#x}, expected "
+                         "0x47504b47 'GPKG')", path=source)  # fmt: skip
+    layers = [r[0] for r in con.execute(
+        "SELECT table_name FROM gpkg_contents WHERE data_type = 'features' ORDER BY table_name")]
+    if layer is None:
+        if len(layers) == 1 or "gcps" in layers:
+            layer = layers[0] if len(layers) == 1 else "gcps"
+        else:
+            raise InputError(f"has {len(layers)} feature layers ({', '.join(layers) or 'none'}); "
+                             "choose one with layer=", path=source)  # fmt: skip
+    elif layer not in layers:
+        raise InputError(f"no features layer {layer!r}; layers: {', '.join(layers) or 'none'}",
+                         path=source)  # fmt: skip
+    geom = con.execute("SELECT column_name, srs_id FROM gpkg_geometry_columns WHERE table_name = ?",
+                       (layer,)).fetchone()  # fmt: skip
+    info = con.execute(f"PRAGMA table_info({_q(layer)})").fetchall()
+    pk = [r[1] for r in info if r[5] == 1]
+    if geom is None or len(pk) != 1:
+        raise InputError(f"layer {layer!r} has no geometry column or no single integer primary "
+                         "key", path=source)  # fmt: skip
+    geom_col, srs_id = geom
+    if srs_id != 4326:
+        raise InputError(f"layer {layer!r} is in srs_id {srs_id}; GCP tables are in EPSG:4326 "
+                         "(WGS84 lon/lat)", path=source)  # fmt: skip
+    names = [r[1] for r in info if r[1] not in (pk[0], geom_col)]
+    for name in names:
+        if name not in COLUMNS:
+            raise InputError(f"layer {layer!r}: unknown column {name!r}; columns are "
+                             f"{', '.join(COLUMNS)}", path=source, field=name)  # fmt: skip
+    for name in REQUIRED_COLUMNS:
+        if name not in names:
+            raise InputError(f"layer {layer!r}: missing required column {name!r}", path=source,
+                             field=name)  # fmt: skip
+    order_by = f"FROM {_q(layer)} ORDER BY {_q(pk[0])}"
+    fids = np.fromiter(map(itemgetter(0), con.execute(f"SELECT {_q(pk[0])} {order_by}")),
+                       dtype=np.int64)  # fmt: skip
+    n = fids.size
+    if n == 0:
+        raise InputError(f"layer {layer!r} has no features", path=source)
+
+    def where(i):
+        return f"feature fid {fids[i]}"
+
+    # the first bad value, found by one scan in SQL, so the bulk reads below meet none
+    bad = []
+    for name in names:
+        allowed = ("'real', 'integer'" if name in _FLOAT_COLUMNS else
+                   "'text', 'integer', 'null'" if name in ("band", "ccd") else "'text', 'integer'")
+        bad.append(f"typeof({_q(name)}) NOT IN ({allowed})")  # band/ccd NULL: ""
+    found = con.execute(f"SELECT {_q(pk[0])}, {', '.join(map(_q, names))} FROM {_q(layer)} "
+                        f"WHERE {' OR '.join(bad)} ORDER BY {_q(pk[0])} LIMIT 1").fetchone()
+    if found is not None:
+        for name, value in zip(names, found[1:]):
+            ok = (isinstance(value, (int, float)) if name in _FLOAT_COLUMNS
+                  else isinstance(value, (str, int)) or (value is None and name in ("band", "ccd")))
+            if not ok:
+                what = "NULL" if value is None else f"{value!r} is not a " + (
+                    "number" if name in _FLOAT_COLUMNS else "text")  # fmt: skip
+                raise InputError(f"feature fid {found[0]}: {what}", path=source, field=name)
+    floats = [name for name in names if name in _FLOAT_COLUMNS]
+    texts = [name for name in names if name not in _FLOAT_COLUMNS]
+    values = np.array(con.execute(f"SELECT {', '.join(map(_q, floats))} {order_by}").fetchall(),
+                      dtype=np.float64).reshape(n, len(floats))  # fmt: skip
+    cols = {name: np.ascontiguousarray(values[:, j]) for j, name in enumerate(floats)}
+    del values
+    text_sql = ", ".join(f"ifnull({_q(name)}, '')" for name in texts)
+    rows = con.execute(f"SELECT {text_sql} {order_by}").fetchall()
+    for name, column in zip(texts, zip(*rows)):
+        column = np.array(column)
+        cols[name] = np.char.strip(column if column.dtype.kind == "U" else column.astype(str))
+    del rows
+    for name in COLUMNS:
+        if name not in names:
+            cols[name] = _default_column(name, n)
+    cols = {name: cols[name] for name in COLUMNS}
+    blobs = list(map(itemgetter(0), con.execute(f"SELECT {_q(geom_col)} {order_by}")))
+    _check_geometry(blobs, cols, where, source)
+    _validate(cols, where=where, path=source, image_shape=image_shape)
+    return GcpTable._trusted(cols)
+
+
+_ENVELOPE_DOUBLES = {0: 0, 1: 4, 2: 6, 3: 6, 4: 8}
+
+
+def _parse_gpkg_point(blob) -> tuple[float, float, float]:
+    """(x, y, z or NaN) of a GeoPackageBinary point; raises ValueError when not one."""
+    if not isinstance(blob, bytes) or len(blob) < 8 or blob[:2] != b"GP":
+        raise ValueError("not a GeoPackageBinary geometry")
+    flags = blob[3]
+    if flags & 0x10:
+        raise ValueError("empty geometry")
+    n_env = _ENVELOPE_DOUBLES.get((flags >> 1) & 0x07)
+    if n_env is None:
+        raise ValueError("invalid envelope code")
+    wkb = blob[8 + 8 * n_env:]
+    endian = "<" if wkb[:1] == b"\x01" else ">"
+    gtype = int(np.frombuffer(wkb[1:5], dtype=endian + "u4")[0])
+    dims = {1: 2, 1001: 3, 0x80000001: 3, 2001: 3, 3001: 4}.get(gtype)
+    if dims is None:
+        raise ValueError(f"WKB geometry type {gtype} is not a point")
+    xyz = np.frombuffer(wkb[5:5 + 8 * dims], dtype=endian + "f8")
+    z = xyz[2] if gtype in (1001, 0x80000001, 3001) else np.nan
+    return float(xyz[0]), float(xyz[1]), float(z)
+
+
+def _check_geometry(blobs, cols, where, source) -> None:
+    """Require every feature's point geometry to agree with its lon/lat/h attributes."""
+    n = len(blobs)
+    xyz = None
+    try:
+        joined = b"".join(blobs)  # TypeError on NULL geometries
+        same_size = len(joined) == 37 * n and all(map((37).__eq__, map(len, blobs)))
+    except TypeError:
+        same_size = False
+    if same_size:  # the layout this module writes: no envelope, little-endian ISO POINT Z
+        raw = np.frombuffer(joined, dtype=_GPKG_POINT_Z)
+        if (np.all(raw["magic"] == b"GP") and np.all(raw["flags"] == 1)
+                and np.all(raw["srs_id"] == 4326) and np.all(raw["wkb_order"] == 1)
+                and np.all(raw["wkb_type"] == 1001)):  # fmt: skip
+            xyz = np.stack([raw["x"], raw["y"], raw["z"]], axis=1)
+    if xyz is None:  # any other layout: one blob at a time
+        xyz = np.empty((n, 3))
+        for i, blob in enumerate(blobs):
+            try:
+                xyz[i] = _parse_gpkg_point(blob)
+            except ValueError as exc:
+                raise InputError(f"{where(i)}: geometry: {exc}", path=source) from None
+    for k, name, tol in ((0, "lon", 1e-9), (1, "lat", 1e-9), (2, "h", 1e-6)):
+        v = cols[name]
+        off = np.abs(xyz[:, k] - v) > tol
+        if k == 2:
+            off &= ~np.isnan(xyz[:, 2])
+        found = _first(off)
+        if found is not None:
+            i, count = found
+            raise InputError(f"{where(i)}: the point geometry's {'xyz'[k]} = {_fmt(xyz[i, k])} "
+                             f"differs from the attribute {name} = {_fmt(v[i])} ({count} "
+                             "features); the attributes define the GCPs: edit them, not the "
+                             "geometry",
+                             path=source, field=name)  # fmt: skip
+
+
+_GPKG_POINT_Z = np.dtype([
+    ("magic", "S2"), ("version", "u1"), ("flags", "u1"), ("srs_id", "<i4"),
+    ("wkb_order", "u1"), ("wkb_type", "<u4"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"),
+])  # fmt: skip
+assert _GPKG_POINT_Z.itemsize == 37
+
+
+# -- GeoTIFF ----------------------------------------------------------------------------------
+def _read_geotiff(path: Path, image_shape) -> GcpTable:
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    source = str(path)
+    try:
+        with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(path) as src:
+            gcps, crs = src.gcps
+            shape = (src.height, src.width)
+            stored = src.tags(ns=_TIFF_DOMAIN).get(_TIFF_ITEM)
+    except (RasterioError, OSError) as exc:
+        raise InputError(f"cannot open as a raster: {exc}", path=source) from None
+    if image_shape is not None and tuple(image_shape) != shape:
+        raise InputError(f"image_shape {tuple(image_shape)} contradicts the raster's {shape}",
+                         path=source)  # fmt: skip
+    if not gcps:
+        raise InputError("the raster carries no GDAL ground control points", path=source)
+    if crs is None or crs.to_epsg() != 4326:
+        raise InputError(f"the GCPs are in {crs}; gcpcal reads GCPs in EPSG:4326 (WGS84 "
+                         "lon/lat degrees) only", path=source)  # fmt: skip
+    gdal = {name: np.array([getattr(g, attr) for g in gcps], dtype=np.float64)
+            for name, attr in (("row", "row"), ("col", "col"), ("lon", "x"), ("lat", "y"),
+                               ("h", "z"))}  # fmt: skip
+    if stored is None:
+        n = len(gcps)
+        cols = {name: gdal[name] for name in ("row", "col", "lon", "lat", "h")}
+        cols["id"] = np.array([str(g.id) for g in gcps])
+        for name in OPTIONAL_COLUMNS:
+            cols[name] = _default_column(name, n)
+        _validate(cols, where=lambda i: f"GCP {i + 1}", path=source, image_shape=shape)
+        return GcpTable._trusted(cols)
+    table = _read_csv_bytes(stored.encode("utf-8"), f"{source} [metadata {_TIFF_DOMAIN}:"
+                            f"{_TIFF_ITEM}]", shape)  # fmt: skip
+    if len(table) != len(gcps):
+        raise InputError(f"holds {len(gcps)} GDAL GCPs but its gcpcal table has {len(table)} "
+                         "rows; the GCPs were edited by another tool", path=source)  # fmt: skip
+    for name, values in gdal.items():
+        found = _first(getattr(table, name) != values)
+        if found is not None:
+            i, count = found
+            raise InputError(f"GCP {i + 1}: the GDAL GCP's {name} = {_fmt(values[i])} differs "
+                             f"from the gcpcal table's {_fmt(getattr(table, name)[i])} ({count} "
+                             "GCPs); the GCPs were edited by another tool", path=source,
+                             field=name)  # fmt: skip
+    return table
+
+
+# ---------------------------------------------------------------------------------------------
+# Writing
+# ---------------------------------------------------------------------------------------------
+def _check_output(table, path) -> Path:
+    if not isinstance(table, GcpTable):
+        raise InputError(f"expected a GcpTable, got {type(table).__name__}")
+    path = Path(path)
+    if len(table) == 0:
+        raise InputError("the GCP table is empty; nothing to write", path=str(path))
+    if not path.parent.is_dir():
+        raise InputError(f"folder {str(path.parent)!r} does not exist", path=str(path))
+    return path
+
+
+def _csv_text_field(a: np.ndarray) -> np.ndarray:
+    """Text column ready for CSV: fields holding , " CR or LF quoted per RFC 4180."""
+    special = np.zeros(a.shape, dtype=bool)
+    for ch in (",", '"', "\n", "\r"):
+        special |= np.char.find(a, ch) >= 0
+    if not special.any():
+        return a
+    out = a.astype(object)
+    out[special] = ['"' + s.replace('"', '""') + '"' for s in a[special].tolist()]
+    return out
+
+
+def _csv_chunks(table: GcpTable):
+    """The CSV text of ``table`` in pieces of :data:`_CHUNK_ROWS` rows (header first)."""
+    yield ",".join(COLUMNS) + "\n"
+    cols = [(_csv_text_field(a) if a.dtype.kind == "U" else a) for a in table.as_dict().values()]
+    ncol = len(cols)
+    row_fmt = ",".join("%r" if name in _FLOAT_COLUMNS else "%s" for name in COLUMNS) + "\n"
+    for lo in range(0, len(table), _CHUNK_ROWS):
+        m = min(_CHUNK_ROWS, len(table) - lo)
+        flat = [None] * (m * ncol)
+        for j, a in enumerate(cols):
+            flat[j::ncol] = a[lo:lo + m].tolist()  # floats: repr() is shortest round-trip
+        yield (row_fmt * m) % tuple(flat)
+
+
+def write_gcps_csv(table: GcpTable, path) -> Path:
+    """Write ``table`` as CSV, every column, floats repr-exact; atomically.
+
+    Parameters
+    ----------
+    table : GcpTable
+        At least one point.
+    path : str or Path
+        Destination; its folder must exist. Written to a temporary file beside it, then
+        renamed: on any error nothing is left and an existing file is untouched.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = _check_output(table, path)
+    tmp = temporary_beside(path, ".csv")
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="") as fh:
+            for piece in _csv_chunks(table):
+                fh.write(piece)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+_WKT_4326 = (
+    'GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563,'
+    'AUTHORITY["EPSG","7030"]],AUTHORITY["EPSG","6326"]],PRIMEM["Greenwich",0,'
+    'AUTHORITY["EPSG","8901"]],UNIT["degree",0.0174532925199433,AUTHORITY["EPSG","9122"]],'
+    'AXIS["Latitude",NORTH],AXIS["Longitude",EAST],AUTHORITY["EPSG","4326"]]'
+)
+
+_GPKG_DDL = """
+CREATE TABLE gpkg_spatial_ref_sys (
+  srs_name TEXT NOT NULL,
+  srs_id INTEGER NOT NULL PRIMARY KEY,
+  organization TEXT NOT NULL,
+  organization_coordsys_id INTEGER NOT NULL,
+  definition TEXT NOT NULL,
+  description TEXT
+);
+CREATE TABLE gpkg_contents (
+  table_name TEXT NOT NULL PRIMARY KEY,
+  data_type TEXT NOT NULL,
+  identifier TEXT UNIQUE,
+  description TEXT DEFAULT '',
+  last_change DATETIME NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')),
+  min_x DOUBLE, min_y DOUBLE, max_x DOUBLE, max_y DOUBLE,
+  srs_id INTEGER,
+  CONSTRAINT fk_gc_r_srs_id FOREIGN KEY (srs_id) REFERENCES gpkg_spatial_ref_sys(srs_id)
+);
+CREATE TABLE gpkg_geometry_columns (
+  table_name TEXT NOT NULL,
+  column_name TEXT NOT NULL,
+  geometry_type_name TEXT NOT NULL,
+  srs_id INTEGER NOT NULL,
+  z TINYINT NOT NULL,
+  m TINYINT NOT NULL,
+  CONSTRAINT pk_geom_cols PRIMARY KEY (table_name, column_name),
+  CONSTRAINT uk_gc_table_name UNIQUE (table_name),
+  CONSTRAINT fk_gc_tn FOREIGN KEY (table_name) REFERENCES gpkg_contents(table_name),
+  CONSTRAINT fk_gc_srs FOREIGN KEY (srs_id) REFERENCES gpkg_spatial_ref_sys (srs_id)
+);
+"""
+
+_SRS_ROWS = (
+    ("Undefined cartesian SRS", -1, "NONE", -1, "undefined",
+     "undefined cartesian coordinate reference system"),
+    ("Undefined geographic SRS", 0, "NONE", 0, "undefined",
+     "undefined geographic coordinate reference system"),
+    ("WGS 84 geodetic", 4326, "EPSG", 4326, _WKT_4326,
+     "longitude/latitude coordinates in decimal degrees on the WGS 84 spheroid"),
+)  # fmt: skip
+
+_LAYER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+
+
+def write_gcps_gpkg(table: GcpTable, path, *, layer: str = "gcps") -> Path:
+    """Write ``table`` as an OGC GeoPackage 1.3 features layer (EPSG:4326 POINT Z); atomically.
+
+    The file holds the mandatory ``gpkg_spatial_ref_sys`` (rows -1, 0 and 4326),
+    ``gpkg_contents`` and ``gpkg_geometry_columns`` tables and the layer: ``fid`` (integer
+    primary key), ``geom`` (GeoPackageBinary [1]_: magic ``GP``, version 0, flags 0x01 =
+    little-endian with no envelope, srs_id 4326, then a little-endian ISO WKB POINT Z (type 1001)
+    holding lon, lat, h), and one column per GCP field (TEXT or DOUBLE, in :data:`COLUMNS`
+    order), rows in table order. No spatial index (optional in the standard; GIS tools build
+    one on demand).
+
+    Parameters
+    ----------
+    table : GcpTable
+        At least one point.
+    path : str or Path
+        Destination (``*.gpkg``); its folder must exist. Replaced atomically.
+    layer : str
+        Layer (table) name: letters, digits and underscores, not starting with ``gpkg_``.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    path = _check_output(table, path)
+    if not (isinstance(layer, str) and _LAYER_NAME.match(layer)
+            and not layer.lower().startswith(("gpkg_", "rtree_", "sqlite_"))):  # fmt: skip
+        raise InputError(f"layer name {layer!r} must be letters, digits and underscores, not "
+                         "starting with a digit, gpkg_, rtree_ or sqlite_",
+                         path=str(path))  # fmt: skip
+    tmp = temporary_beside(path, ".gpkg")
+    try:
+        con = sqlite3.connect(tmp)
+        try:
+            _write_gpkg_db(con, table, layer)
+        finally:
+            con.close()
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _write_gpkg_db(con, table: GcpTable, layer: str) -> None:
+    con.execute("PRAGMA journal_mode = OFF")  # a private temporary file: no rollback journal
+    con.execute("PRAGMA synchronous = OFF")
+    con.execute(f"PRAGMA application_id = {0x47504B47}")
+    con.execute(f"PRAGMA user_version = {_GPKG_USER_VERSION}")
+    con.executescript(_GPKG_DDL)
+    attr = ", ".join(f"{_q(name)} {'DOUBLE' if name in _FLOAT_COLUMNS else 'TEXT'} NOT NULL"
+                     + (" UNIQUE" if name == "id" else "") for name in COLUMNS)  # fmt: skip
+    con.execute(f"CREATE TABLE {_q(layer)} (fid INTEGER PRIMARY KEY AUTOINCREMENT NOT NULL, "
+                f"geom POINT, {attr})")  # fmt: skip
+    with con:
+        con.executemany("INSERT INTO gpkg_spatial_ref_sys VALUES (?, ?, ?, ?, ?, ?)", _SRS_ROWS)
+        con.execute(
+            "INSERT INTO gpkg_contents (table_name, data_type, identifier, description, min_x, "
+            "min_y, max_x, max_y, srs_id) VALUES (?, 'features', ?, ?, ?, ?, ?, ?, 4326)",
+            (layer, layer, "gcpcal ground control points (lon, lat, h above the WGS84 "
+             "ellipsoid; row, col with the first pixel's centre at 0.5, 0.5)",
+             float(table.lon.min()), float(table.lat.min()), float(table.lon.max()),
+             float(table.lat.max())),
+        )  # fmt: skip
+        con.execute("INSERT INTO gpkg_geometry_columns VALUES (?, 'geom', 'POINT', 4326, 1, 0)",
+                    (layer,))  # fmt: skip
+        names = ", ".join(["geom"] + [_q(name) for name in COLUMNS])
+        sql = f"INSERT INTO {_q(layer)} ({names}) VALUES ({', '.join('?' * (len(COLUMNS) + 1))})"
+        cols = list(table.as_dict().values())
+        for lo in range(0, len(table), _CHUNK_ROWS):
+            sl = slice(lo, lo + _CHUNK_ROWS)
+            con.executemany(sql, zip(_gpkg_points(table.lon[sl], table.lat[sl], table.h[sl]),
+                                     *(a[sl].tolist() for a in cols)))  # fmt: skip
+
+
+def _gpkg_points(lon, lat, h) -> list[bytes]:
+    """GeoPackageBinary POINT Z blobs (37 bytes each), built in one vectorized pass."""
+    rec = np.zeros(lon.shape, dtype=_GPKG_POINT_Z)
+    rec["magic"], rec["flags"], rec["srs_id"] = b"GP", 1, 4326
+    rec["wkb_order"], rec["wkb_type"] = 1, 1001
+    rec["x"], rec["y"], rec["z"] = lon, lat, h
+    return rec.view("V37").tolist()
+
+
+def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None) -> Path:
+    """Write ``table`` as GDAL GCPs (EPSG:4326) inside a GeoTIFF; atomically.
+
+    GDAL GCP ``line = row`` and ``pixel = col`` (both corner based, see the module notes),
+    ``x = lon``, ``y = lat``, ``z = h``; the full table is also stored as CSV text in the
+    metadata item ``GCP_TABLE_CSV`` of domain ``gcpcal``, since GeoTIFF tie points keep neither
+    ids nor the other fields.
+
+    Parameters
+    ----------
+    table : GcpTable
+        1 to :data:`GEOTIFF_MAX_GCPS` points, all inside ``[0, n_rows] x [0, n_cols]``.
+    path : str or Path
+        Destination; its folder must exist. Replaced atomically.
+    image_shape : (int, int)
+        ``(n_rows, n_cols)`` of the image the GCPs refer to.
+    source_raster : str or Path, optional
+        A raster of ``image_shape`` whose pixels (every band, its dtype, nodata and band
+        descriptions) are copied into the output; it is only read. Its own georeferencing
+        (geotransform, CRS, RPCs) is not copied: the GCPs take its place. Without it the output
+        is a single-band uint8 raster of zeros (tiled, sparse, deflate: a few kilobytes).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    import rasterio
+    from rasterio.control import GroundControlPoint
+    from rasterio.crs import CRS
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
+    from rasterio.windows import Window
+
+    path = _check_output(table, path)
+    image_shape = _check_image_shape(image_shape)
+    if image_shape is None:
+        raise InputError("image_shape (n_rows, n_cols) is required", path=str(path))
+    if len(table) > GEOTIFF_MAX_GCPS:
+        raise InputError(f"{len(table)} points; a GeoTIFF holds at most {GEOTIFF_MAX_GCPS} GCPs "
+                         "(GDAL's tie-point tag limit): write CSV or GeoPackage, or thin the "
+                         "table", path=str(path))  # fmt: skip
+    _validate(table.as_dict(), where=lambda i: f"point {i} (id {str(table.id[i])!r})",
+              path=str(path), image_shape=image_shape)  # fmt: skip
+    n_rows, n_cols = image_shape
+    src = None
+    if source_raster is not None:
+        source_raster = Path(source_raster)
+        if source_raster.resolve() == path.resolve():
+            raise InputError("the output would replace source_raster; write elsewhere",
+                             path=str(path))  # fmt: skip
+        try:
+            src = rasterio.open(source_raster)
+        except (RasterioError, OSError) as exc:
+            raise InputError(f"cannot open as a raster: {exc}", path=str(source_raster)) from None
+    try:
+        if src is not None and (src.height, src.width) != image_shape:
+            raise InputError(f"raster shape {(src.height, src.width)} differs from image_shape "
+                             f"{image_shape}", path=str(source_raster))  # fmt: skip
+        gcps = [GroundControlPoint(row=r, col=c, x=x, y=y, z=z, id=i, info=k)
+                for r, c, x, y, z, i, k in zip(table.row.tolist(), table.col.tolist(),
+                                               table.lon.tolist(), table.lat.tolist(),
+                                               table.h.tolist(), table.id.tolist(),
+                                               table.kind.tolist())]  # fmt: skip
+        profile = dict(driver="GTiff", width=n_cols, height=n_rows, tiled=True,
+                       compress="deflate", BIGTIFF="IF_SAFER")  # fmt: skip
+        if src is None:
+            profile.update(count=1, dtype="uint8", sparse_ok=True)
+        else:
+            profile.update(count=src.count, dtype=src.dtypes[0], nodata=src.nodata)
+        tmp = temporary_beside(path, ".tif")
+        try:
+            with warnings.catch_warnings(), rasterio.Env(GDAL_PAM_ENABLED="NO"):
+                # the new dataset has no georeferencing until its GCPs are set just below
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                dst = rasterio.open(tmp, "w", **profile)
+            with rasterio.Env(GDAL_PAM_ENABLED="NO"), dst:
+                if src is not None:
+                    row_bytes = n_cols * src.count * np.dtype(src.dtypes[0]).itemsize
+                    step = max(1, 2**24 // row_bytes)  # ~16 MiB of pixels at a time
+                    for r0 in range(0, n_rows, step):
+                        win = Window(0, r0, n_cols, min(step, n_rows - r0))
+                        dst.write(src.read(window=win), window=win)
+                    for band, text in enumerate(src.descriptions, start=1):
+                        if text:
+                            dst.set_band_description(band, text)
+                dst.gcps = (gcps, CRS.from_epsg(4326))
+                dst.update_tags(ns=_TIFF_DOMAIN, **{_TIFF_ITEM: "".join(_csv_chunks(table))})
+            with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(tmp) as check:
+                n_written = len(check.gcps[0])
+            if n_written != len(table):  # never leave a file with GCPs silently dropped
+                raise InputError(f"GDAL kept {n_written} of {len(table)} GCPs in the GeoTIFF",
+                                 path=str(path))  # fmt: skip
+            os.replace(tmp, path)
+        except RasterioError as exc:
+            tmp.unlink(missing_ok=True)
+            raise InputError(f"GDAL could not write the GeoTIFF: {exc}", path=str(path)) from None
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+    finally:
+        if src is not None:
+            src.close()
+    return path
