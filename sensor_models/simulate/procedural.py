@@ -22,11 +22,13 @@ The terrain shape is built on the DEM grid plus a 4-node margin, as
 ``s = 0.45 (0.35 + 0.65 m) f + m r``:
 
 * ``f``: fractional Brownian surface by spectral synthesis [1]_: white noise filtered in the
-  Fourier domain by ``(k^2 + k0^2)^(-beta/4)``, ``beta = 2 H + 2`` with ``H = 0.8``, ``1/k0 = 40
-  km``, so the power spectrum falls as ``k^-3.6`` like that of real relief;
-* ``r``: ridged multifractal [2]_ from band-pass Gaussian fields ``n_j`` at wavelengths 9, 4.5,
-  2.25, 1.1 and 0.56 km: ``r = sum_j 2^(-0.9 j) w_j max(1 - |n_j| / 2, 0)^2``, each octave
-  weighted by ``w_j = clip(2 * previous octave, 0, 1)`` so that detail lives on the crests;
+  Fourier domain by ``(k^2 + k0^2)^(-beta/4) exp(-(k / k1)^2)``, ``beta = 2 H + 2`` with
+  ``H = 0.8``, ``1/k0 = 40 km`` and ``1/k1 = 400 m``, so the power spectrum falls as
+  ``k^-3.6`` like that of real relief and the surface is smooth at the DEM spacing;
+* ``r``: ridged multifractal [2]_ from band-pass Gaussian fields ``n_j`` (unit variance, one
+  octave wide) at wavelengths 12, 6, 3, 1.5 and 0.75 km:
+  ``r = sum_j 2^(-1.5 j) w_j max(1 - |n_j| / 2, 0)^2``, each octave weighted by
+  ``w_j = clip(2 * previous octave, 0, 1)`` so that detail lives on the crests;
 * ``m`` in [0, 1]: a 30 km mountain mask (smoothed value noise), so that plains and ranges
   alternate.
 
@@ -44,9 +46,11 @@ the coast or the lowest point, 1 at the highest) becomes ``h = base + relief_m *
 The range of the DEM is therefore ``relief_m`` (up to the 1/16 m quantisation; lakes and river
 carving only lower it by a few metres). Lakes fill local basins to a level where they reach a
 random target area without spilling out of their window (the DEM is flat at the lake level);
-rivers are traced down the smoothed terrain from random sources with momentum and a
-sine-generated meander [3]_ until they reach the sea, a lake, another river or the border, and
-are carved into the DEM with a monotone bed. The sea surface is flat at ``sea_level_m``
+rivers form a dendritic network draining to the sea, the lakes or the border, found by
+Priority-Flood [9]_ on cells of about 120 m, smoothed and given irregular meanders [3]_, and
+are carved into the DEM with a bed that never rises downstream. At the default relief over a
+30 x 22 km area, the median slope is about 10 degrees and 1 to 5 % of the DEM is steeper than
+35 degrees. The sea surface is flat at ``sea_level_m``
 (ellipsoidal height, i.e. the geoid undulation there; 0 by default).
 
 Image
@@ -89,10 +93,14 @@ References
    Continuity Mission", Remote Sensing of Environment 122, 11-21, 2012.
 .. [8] USGS, Landsat 8-9 OLI/TIRS Collection 2 Level-1 Data Format Control Book (15 m
    panchromatic band 8, 12-bit quantisation), 2020.
+.. [9] R. Barnes, C. Lehman and D. Mulla, "Priority-flood: an optimal depression-filling and
+   watershed-labeling algorithm for digital elevation models", Computers & Geosciences 62,
+   117-127, 2014.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -233,7 +241,10 @@ class ReferenceData:
                 _write_geotiff(tmp, data, transform, self.crs, predictor=predictor, tags=tags,
                                target=path)
             for (path, *_), tmp in zip(jobs, temporaries):
-                os.replace(tmp, path)
+                try:
+                    os.replace(tmp, path)
+                except OSError as err:
+                    raise InputError(f"cannot replace the file ({err})", path=str(path)) from err
         except BaseException:
             for tmp in temporaries:
                 tmp.unlink(missing_ok=True)
@@ -295,8 +306,10 @@ def generate_reference(
         Target fractions of the land covered by towns and by forest (each in [0, 0.8], sum
         <= 0.95).
     n_lakes, n_rivers, n_roads : int, optional
-        Numbers of lakes, river sources and major roads; by default about one lake per 200
-        km^2, one river per 250 km^2 and one road per 150 km^2 (plus one).
+        Numbers of lakes, of channel heads of the river network (each a source; rivers join
+        downstream) and of major roads; by default about one lake per 200 km^2, one river
+        source per 250 km^2 and one road per 150 km^2 (plus one). Lakes and rivers may be
+        fewer where the terrain offers no room for them.
 
     Returns
     -------
@@ -309,11 +322,13 @@ def generate_reference(
     """
     args = _validated(locals())
     rng = np.random.default_rng(args["seed"])
-    keys = iter(int(k) for k in rng.integers(0, 2**32, size=64, dtype=np.uint64))
+    base_key = int(rng.integers(0, 2**32, dtype=np.uint64))
+    keys = (int(_hash(base_key, np.array([i]))[0]) for i in itertools.count())
 
     crs, cx_m, cy_m = _utm(args["center_lon_deg"], args["center_lat_deg"])
-    dom_grid = _Grid.centred(cx_m, cy_m, args["width_m"], args["height_m"], args["dom_resolution_m"])
-    dem_grid = _Grid.centred(cx_m, cy_m, args["width_m"], args["height_m"], args["dem_resolution_m"])
+    size = (args["width_m"], args["height_m"])
+    dom_grid = _Grid.centred(cx_m, cy_m, *size, args["dom_resolution_m"])
+    dem_grid = _Grid.centred(cx_m, cy_m, *size, args["dem_resolution_m"])
     if dom_grid.n_rows * dom_grid.n_cols > _MAX_DOM_PIXELS:
         raise InputError(
             f"the DOM would have {dom_grid.n_rows} x {dom_grid.n_cols} pixels, more than "
@@ -537,21 +552,27 @@ def _unit(h):
     return (h >> np.uint32(8)).astype(np.float32) * np.float32(2.0**-24)
 
 
-def _cubic_weights(t, kind):
-    """Weights of nodes -1, 0, 1, 2 at fraction ``t`` in [0, 1): B-spline or Keys (a = -1/2)."""
+def _taps(t, kind):
+    """Node offsets and weights at fraction ``t`` in [0, 1) of the interpolation kernels.
+
+    ``"keys"``: Keys cubic convolution with ``a = -1/2`` [6]_ (interpolating, C1);
+    ``"bspline"``: uniform cubic B-spline (smoothing, C2); ``"linear"``: two taps.
+    """
     t = t.astype(np.float32)
+    if kind == "linear":
+        return (0, 1), (1.0 - t, t)
     t2 = t * t
     t3 = t2 * t
     if kind == "bspline":
         s = 1.0 - t
-        return (s * s * s / 6.0, (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0,
-                (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0, t3 / 6.0)
-    return (-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1.0,
-            -1.5 * t3 + 2.0 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2)
+        return (-1, 0, 1, 2), (s * s * s / 6.0, (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0,
+                               (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0, t3 / 6.0)
+    return (-1, 0, 1, 2), (-0.5 * t3 + t2 - 0.5 * t, 1.5 * t3 - 2.5 * t2 + 1.0,
+                           -1.5 * t3 + 2.0 * t2 + 0.5 * t, 0.5 * t3 - 0.5 * t2)
 
 
 def _resample(grid, row_f, col_f, kind="keys"):
-    """Separable cubic resampling of node grids at the outer product of rows and columns.
+    """Separable resampling of node grids at the outer product of rows and columns.
 
     Parameters
     ----------
@@ -559,8 +580,8 @@ def _resample(grid, row_f, col_f, kind="keys"):
         Values at integer node indices.
     row_f, col_f : ndarray, shape (m,) and (n,)
         Fractional node indices of the output rows and columns (nodes clamped at the edges).
-    kind : {"keys", "bspline"}
-        Keys cubic convolution (interpolating) or the cubic B-spline (smoothing).
+    kind : {"keys", "bspline", "linear"}
+        Kernel (see :func:`_taps`).
 
     Returns
     -------
@@ -573,13 +594,13 @@ def _resample(grid, row_f, col_f, kind="keys"):
     hi = min(int(r0.max()) + 3, n_r)
     sub = grid[..., lo:hi, :]
     tmp = None
-    for k, w in enumerate(_cubic_weights(col_f - c0, kind)):
-        term = np.take(sub, np.clip(c0 + (k - 1), 0, n_c - 1), axis=-1)
+    for k, w in zip(*_taps(col_f - c0, kind)):
+        term = np.take(sub, np.clip(c0 + k, 0, n_c - 1), axis=-1)
         term *= w
         tmp = term if tmp is None else np.add(tmp, term, out=tmp)
     out = None
-    for k, w in enumerate(_cubic_weights(row_f - r0, kind)):
-        term = np.take(tmp, np.clip(r0 + (k - 1), 0, n_r - 1) - lo, axis=-2)
+    for k, w in zip(*_taps(row_f - r0, kind)):
+        term = np.take(tmp, np.clip(r0 + k, 0, n_r - 1) - lo, axis=-2)
         term *= w[:, None]
         out = term if out is None else np.add(out, term, out=out)
     return out
@@ -798,7 +819,9 @@ def _lakes(args, ext, terrain, rng, area_km2) -> _Lakes:
         made += 1
         shape[r0:r1, c0:c1][component] = value
         mask[r0:r1, c0:c1] |= component
-        near = ndimage.binary_dilation(component, iterations=2)
+        # The level is kept on the lake and on the shore nodes above it, so the DOM's
+        # shoreline (interpolated terrain = level) is drawn there and nowhere else.
+        near = ndimage.binary_dilation(component, iterations=2) & (component | (window > value))
         lv = level[r0:r1, c0:c1]
         lv[near & np.isnan(lv)] = value
     return _Lakes(level, mask, shape)
@@ -853,115 +876,196 @@ class _River:
 
 
 def _rivers(args, ext, terrain, lakes, rng, area_km2):
-    """Trace rivers down the smoothed terrain (momentum plus sine-generated meanders).
+    """A dendritic river network draining the terrain to the sea, lakes or the border.
 
-    The terrain shape (lakes included) is averaged over cells of about 120 m and smoothed;
-    from random sources on mid-slopes a point moves by half a cell per step along a direction
-    that keeps 3/4 of the previous one and turns 1/4 towards the steepest descent, rotated by
-    the sine-generated meander angle ``omega sin(2 pi s / M + phase)`` [3]_. A river ends at
-    the sea, a lake, an earlier river (a confluence) or the border; one that climbs more than
-    4 % of the relief, circles, or stays shorter than 2 km is dropped.
+    On cells of about 120 m (coarser for large areas, at most ~60 000 cells), the smoothed
+    terrain shape is drained by Priority-Flood [9]_ from the outlets (sea, lakes and the border
+    ring): each cell flows to the cell it was reached from, so every closed basin spills over
+    its lowest pass. Drainage areas accumulate down these links; channels are the cells whose
+    area exceeds the threshold giving ``n_rivers`` channel heads (about one per 250 km^2 by
+    default, and at least 5 km^2). Each channel, from its head down to an outlet or a
+    confluence, is smoothed (Chaikin corner cutting) and given irregular meanders (a lateral
+    offset of about 2 widths with a wavelength of about 12 widths, see :func:`_meander` and
+    [3]_), the width being ``w = clip(8 sqrt(A / km^2), 15, 100) m``. The bed is the running
+    minimum of the terrain along the channel, so it never rises downstream.
     """
-    n_rivers = args["n_rivers"]
-    if n_rivers is None:
-        n_rivers = int(round(area_km2 / 250.0))
-    if n_rivers == 0:
-        return []
+    n_heads = args["n_rivers"]
+    if n_heads is None:
+        n_heads = int(round(area_km2 / 250.0))
     res = ext.res_m
-    f = max(1, int(round(120.0 / res)))
+    cell_m = max(120.0, math.sqrt(area_km2 * 1e6 / 60_000.0), res)
+    f = max(1, int(round(cell_m / res)))
+    cell_m = f * res
     nr, nc = ext.n_rows // f, ext.n_cols // f
-    if min(nr, nc) < 8:
+    if n_heads == 0 or min(nr, nc) < 8:
         return []
 
     def blocks(a, how):
         a = a[: nr * f, : nc * f].reshape(nr, f, nc, f)
         return a.mean(axis=(1, 3), dtype=np.float64) if how == "mean" else a.any(axis=(1, 3))
 
-    coarse = ndimage.gaussian_filter(blocks(lakes.shape, "mean"), 1.0, mode="nearest")
-    grad_r, grad_c = np.gradient(coarse)
-    stop = blocks(~terrain.land | lakes.mask, "any")
-    margin = _MARGIN_NODES / f
-    cand = (~stop) & (blocks(terrain.tau, "mean") > 0.7) & (coarse > 0.12) & (coarse < 0.75)
-    edge = int(margin) + 2
-    cand[:edge], cand[-edge:], cand[:, :edge], cand[:, -edge:] = False, False, False, False
-    src_r, src_c = np.nonzero(cand)
-    if src_r.size == 0:
+    height = ndimage.gaussian_filter(blocks(lakes.shape, "mean"), 1.0, mode="nearest")
+    outlet = blocks(~terrain.land | lakes.mask, "any")
+    ring = max(1, int(math.ceil(_MARGIN_NODES / f)))
+    outlet[:ring], outlet[-ring:], outlet[:, :ring], outlet[:, -ring:] = True, True, True, True
+    parent, order = _priority_flood(height, outlet)
+    area = np.ones(nr * nc, dtype=np.float64)
+    for i in order[::-1]:
+        if parent[i] >= 0:
+            area[parent[i]] += area[i]
+    area *= cell_m * cell_m / 1e6  # km^2
+    heads = _channel_heads(area, parent, outlet.ravel(), n_heads, min_km2=5.0)
+    if heads.size == 0:
         return []
-    field_lists = (coarse.tolist(), grad_r.tolist(), grad_c.tolist(), stop.tolist())
-    occupied = np.zeros((nr, nc), dtype=np.int32)
-    bounds = (margin, margin, nr - 1 - margin, nc - 1 - margin)
-    cell_m = f * res
-    max_steps = int(3.0 * math.hypot(nr, nc) / 0.5)
-    rivers = []
-    for idx in rng.permutation(src_r.size)[: 3 * n_rivers]:
-        if len(rivers) == n_rivers:
-            break
-        meander = (rng.uniform(0.5, 0.9), rng.uniform(8.0, 16.0) * 60.0 / cell_m,
-                   rng.uniform(0.0, 2.0 * math.pi))
-        path = _trace_river(float(src_r[idx]), float(src_c[idx]), field_lists, occupied, bounds, meander, max_steps)
-        if path is None or (path.shape[0] - 1) * 0.5 * cell_m < 2000.0:
-            continue
-        ii = np.clip(np.round(path).astype(np.intp), 0, [nr - 1, nc - 1])
-        occupied[ii[:, 0], ii[:, 1]] = len(rivers) + 1
-        node_r = path[:, 0] * f + 0.5 * (f - 1)
-        node_c = path[:, 1] * f + 0.5 * (f - 1)
+
+    owner = np.full(nr * nc, -1, dtype=np.intp)
+    rivers, paths = [], []
+    for head in heads:
+        cells = [head]
+        while parent[cells[-1]] >= 0 and owner[cells[-1]] < 0 and not outlet.flat[cells[-1]]:
+            cells.append(parent[cells[-1]])
+        cells = np.asarray(cells)
+        join = owner[cells[-1]]
+        own = cells if join < 0 else cells[:-1]
+        owner[own] = len(paths)
+        r, c = np.divmod(cells, nc)
+        node_r = r * f + 0.5 * (f - 1)
+        node_c = c * f + 0.5 * (f - 1)
         xy = np.stack([ext.x0_m + (node_c + 0.5) * res, ext.y0_m - (node_r + 0.5) * res], axis=1)
-        s_m = np.arange(path.shape[0]) * 0.5 * cell_m
-        width = 15.0 + 45.0 * np.minimum(1.0, s_m / 25_000.0)
-        bed = ndimage.map_coordinates(lakes.shape, [node_r, node_c], order=1, mode="nearest")
+        width = np.clip(8.0 * np.sqrt(area[cells]), 15.0, 100.0)
+        xy, width = _chaikin(xy, width, 3)
+        xy, width = _meander(xy, width, rng, fixed_end=join >= 0)
+        if join >= 0:
+            # End on the (meandering) centre line of the river joined.
+            other = paths[join]
+            k = int(np.argmin(np.sum((other - xy[-1]) ** 2, axis=1)))
+            xy = np.concatenate([xy, other[k:k + 1]])
+            width = np.concatenate([width, width[-1:]])
+        paths.append(xy)
+        col, row = ext.node_index(xy[:, 0], xy[:, 1])
+        bed = ndimage.map_coordinates(lakes.shape, [row, col], order=1, mode="nearest")
         rivers.append(_River(xy, width, np.minimum.accumulate(bed.astype(np.float64))))
     return rivers
 
 
-def _trace_river(r, c, field_lists, occupied, bounds, meander, max_steps):
-    """Centre line ``(n, 2)`` of one river in coarse-cell indices, or None (see _rivers)."""
-    height, grad_r, grad_c, stop = field_lists
-    nr, nc = len(height), len(height[0])
-    lo_r, lo_c, hi_r, hi_c = bounds
-    omega, wavelength, phase = meander
-    step = 0.5
+def _priority_flood(height, outlet):
+    """Drainage links of a grid by Priority-Flood from outlet cells (Barnes et al. 2014).
 
-    def bilinear(a, r, c):
-        i = min(max(int(r), 0), nr - 2)
-        j = min(max(int(c), 0), nc - 2)
-        fr, fc = r - i, c - j
-        top = a[i][j] + fc * (a[i][j + 1] - a[i][j])
-        bottom = a[i + 1][j] + fc * (a[i + 1][j + 1] - a[i + 1][j])
-        return top + fr * (bottom - top)
+    Cells are taken from a priority queue in order of their filled height (ties first in,
+    first out, so flats drain towards their spill point); each unvisited 8-neighbour is
+    linked to the cell it was reached from and queued at ``max(own height, that height)``.
 
-    gr, gc = bilinear(grad_r, r, c), bilinear(grad_c, r, c)
-    norm = math.hypot(gr, gc)
-    if norm == 0.0:
-        return None
-    dr, dc = -gr / norm, -gc / norm
-    path = [(r, c)]
-    lowest = bilinear(height, r, c)
-    for k in range(1, max_steps):
-        gr, gc = bilinear(grad_r, r, c), bilinear(grad_c, r, c)
-        norm = math.hypot(gr, gc)
-        if norm > 1e-9:
-            dr, dc = 0.75 * dr - 0.25 * gr / norm, 0.75 * dc - 0.25 * gc / norm
-            n2 = math.hypot(dr, dc)
-            dr, dc = dr / n2, dc / n2
-        a = omega * math.sin(2.0 * math.pi * k * step / wavelength + phase)
-        ca, sa = math.cos(a), math.sin(a)
-        r += step * (ca * dr - sa * dc)
-        c += step * (sa * dr + ca * dc)
-        path.append((r, c))
-        if not (lo_r <= r <= hi_r and lo_c <= c <= hi_c):
-            return np.asarray(path)
-        i, j = int(round(r)), int(round(c))
-        if stop[i][j] or occupied[i, j]:
-            return np.asarray(path)
-        h = bilinear(height, r, c)
-        if h > lowest + 0.04:
-            return None
-        lowest = min(lowest, h)
-        if k % 100 == 0 and k >= 200:
-            r_old, c_old = path[k - 200]
-            if math.hypot(r - r_old, c - c_old) < 0.2 * 200 * step:
-                return None
-    return None
+    Returns
+    -------
+    parent : ndarray, shape (rows * cols,), intp
+        Flat index of the cell each cell drains to; -1 for outlets.
+    order : ndarray, shape (rows * cols,), intp
+        Cells in the order they left the queue (every cell after the one it drains to).
+    """
+    import heapq
+
+    nr, nc = height.shape
+    h = height.ravel().tolist()
+    parent = np.full(nr * nc, -1, dtype=np.intp)
+    parent_list = parent.tolist()
+    closed = bytearray(outlet.ravel().astype(np.uint8).tobytes())
+    queue = [(h[i], i, i) for i in np.flatnonzero(outlet.ravel()).tolist()]
+    heapq.heapify(queue)
+    counter = nr * nc
+    order = []
+    steps = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
+    while queue:
+        level, _, i = heapq.heappop(queue)
+        order.append(i)
+        r, c = divmod(i, nc)
+        for dr, dc in steps:
+            rr, cc = r + dr, c + dc
+            if 0 <= rr < nr and 0 <= cc < nc:
+                j = rr * nc + cc
+                if not closed[j]:
+                    closed[j] = 1
+                    parent_list[j] = i
+                    heapq.heappush(queue, (max(h[j], level), counter, j))
+                    counter += 1
+    return np.asarray(parent_list, dtype=np.intp), np.asarray(order, dtype=np.intp)
+
+
+def _channel_heads(area_km2, parent, outlet, n_heads, *, min_km2):
+    """Channel heads for the drainage-area threshold giving about ``n_heads`` of them.
+
+    A head is a land cell whose area reaches the threshold while none of its upstream
+    neighbours does. Returned in decreasing order of drainage area (largest rivers first).
+    """
+    land = ~outlet
+
+    def heads_for(threshold):
+        big = (area_km2 >= threshold) & land
+        fed = np.zeros(area_km2.size, dtype=bool)
+        up = np.flatnonzero(big & (parent >= 0))
+        fed[parent[up]] = True
+        return np.flatnonzero(big & ~fed)
+
+    candidates = np.unique(area_km2[land & (area_km2 >= min_km2)])
+    if candidates.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    lo, hi = 0, candidates.size - 1  # more heads at lower thresholds
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if heads_for(candidates[mid]).size > n_heads:
+            lo = mid + 1
+        else:
+            hi = mid
+    heads = heads_for(candidates[lo])
+    return heads[np.argsort(-area_km2[heads], kind="stable")]
+
+
+def _chaikin(xy, width, iterations):
+    """Chaikin corner cutting of a polyline (end points kept) and of its per-vertex widths."""
+    for _ in range(iterations):
+        if xy.shape[0] < 3:
+            break
+        q = 0.75 * xy[:-1] + 0.25 * xy[1:]
+        r = 0.25 * xy[:-1] + 0.75 * xy[1:]
+        wq = 0.75 * width[:-1] + 0.25 * width[1:]
+        wr = 0.25 * width[:-1] + 0.75 * width[1:]
+        inner = np.stack([q, r], axis=1).reshape(-1, 2)[1:-1]
+        inner_w = np.stack([wq, wr], axis=1).reshape(-1)[1:-1]
+        xy = np.concatenate([xy[:1], inner, xy[-1:]])
+        width = np.concatenate([width[:1], inner_w, width[-1:]])
+    return xy, width
+
+
+def _meander(xy, width, rng, *, fixed_end):
+    """Resample a centre line every ~w/2 and offset it laterally into meanders.
+
+    Returns the new vertices ``(m, 2)`` and their widths ``(m,)``.
+
+    The offset is ``a(s) sin(phi(s))`` with ``phi' = 2 pi / lambda(s)``, a wavelength
+    ``lambda = 12 w (1 + 0.3 sin(...))`` and an amplitude ``a = w (1.8 + 1.2 sin(...))``, both
+    slowly modulated with random phases so that the bends are irregular; it fades in over the
+    first wavelength and, when the river ends on another one (``fixed_end``), out over the last.
+    """
+    phases = rng.uniform(0.0, 2.0 * math.pi, 3)
+    seg = np.hypot(*np.diff(xy, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if s[-1] <= 0.0:
+        return xy, width
+    step = max(0.5 * float(width.min()), 5.0)
+    s_new = np.linspace(0.0, s[-1], max(2, int(s[-1] / step) + 1))
+    xy = np.stack([np.interp(s_new, s, xy[:, 0]), np.interp(s_new, s, xy[:, 1])], axis=1)
+    w = np.interp(s_new, s, width)
+    base = 12.0 * w
+    wavelength = base * (1.0 + 0.3 * np.sin(2.0 * math.pi * s_new / (4.1 * base) + phases[1]))
+    amplitude = w * (1.8 + 1.2 * np.sin(2.0 * math.pi * s_new / (7.3 * base) + phases[2]))
+    ds = np.diff(s_new, prepend=0.0)
+    phi = phases[0] + np.cumsum(2.0 * math.pi * ds / wavelength)
+    fade = np.clip(s_new / base, 0.0, 1.0)
+    if fixed_end:
+        fade = np.minimum(fade, np.clip((s_new[-1] - s_new) / base, 0.0, 1.0))
+    tangent = np.gradient(xy, axis=0)
+    tangent /= np.maximum(np.hypot(tangent[:, 0], tangent[:, 1]), 1e-12)[:, None]
+    normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+    return xy + (amplitude * np.sin(phi) * fade)[:, None] * normal, w
 
 
 def _draw_segments(canvas, pts_px, values, thickness, *, antialias=False):
@@ -1013,36 +1117,48 @@ def _heights(args, ext, terrain, lakes, rivers):
 
 @dataclass
 class _Cover:
-    stack: np.ndarray      # (7, R, C) float32 fields carried to the DOM grid (see _FIELDS)
+    """Fields on the extended DEM grid carried to the DOM grid, and class thresholds."""
+
+    sharp: np.ndarray      # (2, R, C): _SHARP fields, Keys-interpolated (boundaries)
+    smooth: np.ndarray     # (8, R, C): _SMOOTH fields, linearly interpolated
     urban_t: float
     forest_t: float
 
 
-_FIELDS = ("shape_pre", "coast", "shade", "rock", "slope_deg", "urban", "forest")
+_SHARP = ("shape_pre", "coast")
+_SMOOTH = ("shade", "slope_deg", "urban", "forest", "med", "low", "warp_x", "warp_y")
 
 
 def _cover_fields(args, ext, terrain, heights, keys) -> _Cover:
+    """Shading, slope, land-cover scores and medium-scale noises on the DEM grid.
+
+    ``shade = ((1 - d) max(cos i, 0) + d (1 + cos slope) / 2) / ((1 - d) sin E + d)`` with the
+    diffuse fraction ``d`` (1 on flat ground). The urban score favours low, flat land near
+    the coast; the forest score slopes and mid heights; each is thresholded at the quantile
+    that gives ``urban_fraction`` and ``forest_fraction`` of the land.
+    """
     res = ext.res_m
     x = ext.x_m() - ext.x_m().mean()
     y = ext.y_m() - ext.y_m().mean()
     cos_i = illumination(heights, res, sun_azimuth_deg=args["sun_azimuth_deg"],
                          sun_elevation_deg=args["sun_elevation_deg"])
-    dh_r, dh_c = np.gradient(heights.astype(np.float32), np.float32(res))
+    dh_r, dh_c = np.gradient(heights, np.float32(res))
     cos_slope = 1.0 / np.sqrt(1.0 + dh_r * dh_r + dh_c * dh_c)
-    slope_deg = np.degrees(np.arccos(cos_slope)).astype(np.float32)
+    del dh_r, dh_c
+    slope_deg = np.degrees(np.arccos(np.minimum(cos_slope, 1.0))).astype(np.float32)
     sin_el = math.sin(math.radians(args["sun_elevation_deg"]))
     shade = ((1.0 - _DIFFUSE) * np.maximum(cos_i, 0.0) + _DIFFUSE * 0.5 * (1.0 + cos_slope))
     shade = (shade / ((1.0 - _DIFFUSE) * sin_el + _DIFFUSE)).astype(np.float32)
-    del dh_r, dh_c, cos_slope, cos_i
+    del cos_slope, cos_i
 
-    urban = 0.8 * _value_noise(next(keys), x, y, 9000.0) + 0.5 * _value_noise(next(keys), x, y, 2500.0)
+    urban = (0.8 * _value_noise(next(keys), x, y, 9000.0)
+             + 0.5 * _value_noise(next(keys), x, y, 2500.0))
     urban -= 1.2 * terrain.u + slope_deg / 8.0
     if args["sea_fraction"] > 0.0:
         urban += 0.3 * np.exp(-np.maximum(terrain.coast - terrain.c0, 0.0) / 3000.0)
     forest = (_value_noise(next(keys), x, y, 3000.0) + 0.6 * _value_noise(next(keys), x, y, 1000.0)
               + 0.4 * _value_noise(next(keys), x, y, 350.0))
     forest += slope_deg / 12.0 + 1.2 * _smoothstep(0.05, 0.3, terrain.u)
-    rock = terrain.shape * np.float32(args["relief_m"] / 1500.0)
 
     land = terrain.land & terrain.in_area
     urban_t = forest_t = math.inf
@@ -1051,16 +1167,15 @@ def _cover_fields(args, ext, terrain, heights, keys) -> _Cover:
             urban_t = float(np.quantile(urban[land], 1.0 - args["urban_fraction"]))
         rest = land & ~(urban > urban_t)
         if args["forest_fraction"] > 0.0 and rest.any():
-            q = min(args["forest_fraction"] / max(rest.mean() / land.mean(), 1e-6), 1.0)
+            q = min(args["forest_fraction"] * land.sum() / rest.sum(), 1.0)
             forest_t = float(np.quantile(forest[rest], 1.0 - q))
-    stack = np.stack([terrain.shape, terrain.coast, shade, rock, slope_deg,
-                      urban.astype(np.float32), forest.astype(np.float32)])
-    return _Cover(stack=stack.astype(np.float32), urban_t=urban_t, forest_t=forest_t)
-
-
-# ---------------------------------------------------------------------------------------------
-# Roads
-# ---------------------------------------------------------------------------------------------
+    smooth = np.empty((len(_SMOOTH),) + ext.shape, dtype=np.float32)
+    smooth[0], smooth[1], smooth[2], smooth[3] = shade, slope_deg, urban, forest
+    del shade, slope_deg, urban, forest
+    for i, spacing in zip(range(4, 8), (300.0, 2000.0, 1200.0, 1200.0)):
+        smooth[i] = _value_noise(next(keys), x, y, spacing)
+    sharp = np.stack([terrain.shape, terrain.coast]).astype(np.float32)
+    return _Cover(sharp=sharp, smooth=smooth, urban_t=urban_t, forest_t=forest_t)
 
 
 @dataclass
@@ -1121,44 +1236,25 @@ def _catmull_rom(ctrl, n_out):
 
 
 def _render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, rng, keys):
-    """Reflectance per land-cover class, shaded, blurred, noised and quantised (module notes)."""
-    import cv2
+    """Reflectance per land-cover class, shaded, blurred, noised and quantised (module notes).
 
+    Returns
+    -------
+    dom : ndarray, shape grid.shape, uint16
+    water : ndarray, bool
+    land_cover : ndarray, uint8
+    """
     res = grid.res_m
     k = {name: next(keys) for name in (
-        "fine1", "fine2", "med", "low", "warp_x", "warp_y", "block", "stagger", "parcel",
-        "city", "cblock", "building", "lake", "beach")}
+        "fine2", "block", "stagger", "parcel", "city", "cblock", "building", "lake")}
     x_all = grid.x_m() - centre[0]
     y_all = grid.y_m() - centre[1]
     col_f, row_f = ext.node_index(grid.x_m(), grid.y_m())
     near_c = np.clip(np.round(col_f).astype(np.intp), 0, ext.n_cols - 1)
     near_r = np.clip(np.round(row_f).astype(np.intp), 0, ext.n_rows - 1)
-
-    # Overlays drawn once on the whole DOM grid (OpenCV, anti-aliased).
-    river_cov = np.zeros(grid.shape, dtype=np.uint8)
-    riparian = np.zeros(grid.shape, dtype=np.uint8)
-    for river in rivers:
-        col, row = grid.node_index(river.xy_m[:, 0], river.xy_m[:, 1])
-        pts = np.stack([col + 0.5, row + 0.5], axis=1)
-        thick = np.maximum(1, np.round(river.width_m / res)).astype(int)[1:]
-        _draw_segments(riparian, pts, np.full(thick.size, 255.0), thick + max(2, int(60.0 / res)))
-        _draw_segments(river_cov, pts, np.full(thick.size, 255.0), thick, antialias=True)
-    road_cov = np.zeros(grid.shape, dtype=np.uint8)
-    road_id = np.zeros(grid.shape, dtype=np.uint8)
-    road_rho = np.zeros(max(len(roads), 1) + 1, dtype=np.float32)
-    for i, road in enumerate(roads[:254]):
-        col, row = grid.node_index(road.xy_m[:, 0], road.xy_m[:, 1])
-        fixed = np.round(np.stack([col, row], axis=1) * 16.0).astype(np.int32)
-        cv2.polylines(road_cov, [fixed], False, 255, thickness=road.width_px,
-                      lineType=cv2.LINE_AA, shift=4)
-        cv2.polylines(road_id, [fixed], False, i + 1, thickness=road.width_px + 2,
-                      lineType=cv2.LINE_8, shift=4)
-        road_rho[i + 1] = road.reflectance
-
-    orient = np.arange(32) * (math.pi / 32.0)
-    cos_t = np.cos(orient).astype(np.float32)
-    sin_t = np.sin(orient).astype(np.float32)
-    lake_rho = 0.032 + 0.012 * _unit(_hash(k["lake"], np.arange(1)))[0]
+    river_cov, riparian, road_cov, road_id, road_rho = _overlays(grid, rivers, roads)
+    lake_rho = np.float32(0.032 + 0.012 * _unit(_hash(k["lake"], np.arange(1)))[0])
+    rock_scale = np.float32(args["relief_m"] / 1500.0)
 
     radiance = np.empty(grid.shape, dtype=np.float32)
     water = np.zeros(grid.shape, dtype=bool)
@@ -1167,41 +1263,46 @@ def _render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, r
     for r0 in range(0, grid.n_rows, _STRIP_ROWS):
         rows = slice(r0, min(r0 + _STRIP_ROWS, grid.n_rows))
         y = y_all[rows].astype(np.float32)[:, None]
-        f = dict(zip(_FIELDS, _resample(cover.stack, row_f[rows], col_f, "keys")))
+        f = dict(zip(_SHARP, _resample(cover.sharp, row_f[rows], col_f, "keys")))
+        f.update(zip(_SMOOTH, _resample(cover.smooth, row_f[rows], col_f, "linear")))
         lake_level = lakes.level[near_r[rows][:, None], near_c[None, :]]
-        fine1 = _value_noise(k["fine1"], x_all, y_all[rows], 1.0 * res)
+        shape = f["shape_pre"].shape
+        fine1 = np.clip(rng.standard_normal(shape, dtype=np.float32), -3.0, 3.0)
         fine2 = _value_noise(k["fine2"], x_all, y_all[rows], 2.5 * res)
-        med = _value_noise(k["med"], x_all, y_all[rows], 300.0)
-        low = _value_noise(k["low"], x_all, y_all[rows], 2000.0)
+        med, low = f["med"], f["low"]
 
         sea = f["coast"] < terrain.c0
         with np.errstate(invalid="ignore"):
             lake = ~sea & (f["shape_pre"] < lake_level)
         land = ~(sea | lake)
         urban = land & (f["urban"] > cover.urban_t)
-        rock = (land & ~urban & (f["rock"] + 0.12 * med + 0.05 * fine2 > 0.72)
+        rock = (land & ~urban & (f["shape_pre"] * rock_scale + 0.12 * med + 0.05 * fine2 > 0.72)
                 & (f["slope_deg"] > 8.0))
         forest = land & ~urban & ~rock & (
-            (f["forest"] + 0.25 * fine2 > cover.forest_t)
-            | (riparian[rows] > 0))
-        field_ = land & ~(urban | rock | forest) & (f["slope_deg"] < 14.0) & (f["rock"] < 0.45)
+            (f["forest"] + 0.25 * fine2 > cover.forest_t) | (riparian[rows] > 0))
+        field_ = (land & ~(urban | rock | forest) & (f["slope_deg"] < 14.0)
+                  & (f["shape_pre"] * rock_scale < 0.45))
         beach = land & ~urban & (f["coast"] - terrain.c0 < 45.0) & (low > -0.3)
 
         # Natural grass and shrub is the default land reflectance.
-        rho = 0.105 * (1.0 + 0.22 * med + 0.10 * fine2 + 0.05 * fine1)
-        code = np.full(rho.shape, LandCover.GRASS, dtype=np.uint8)
+        rho = 0.105 * (1.0 + 0.22 * med + 0.10 * fine2 + 0.03 * fine1)
+        code = np.full(shape, LandCover.GRASS, dtype=np.uint8)
         if field_.any():
-            rho = np.where(field_, _fields_texture(k, x, y, cos_t, sin_t, fine1, fine2, med), rho)
+            xs, ys = np.broadcast_to(x, shape)[field_], np.broadcast_to(y, shape)[field_]
+            rho[field_] = _fields_texture(
+                k, xs, ys, f["warp_x"][field_], f["warp_y"][field_], fine1[field_],
+                fine2[field_], med[field_])
             code[field_] = LandCover.FIELD
         if forest.any():
-            rho_f = (0.052 * (1.0 + 0.25 * med) * (1.0 + 0.30 * fine1 + 0.22 * fine2))
+            rho_f = 0.052 * (1.0 + 0.25 * med) * (1.0 + 0.18 * fine1 + 0.22 * fine2)
             rho = np.where(forest, rho_f, rho)
             code[forest] = LandCover.FOREST
         if rock.any():
-            rho = np.where(rock, 0.17 * (1.0 + 0.2 * med + 0.2 * fine2 + 0.15 * fine1), rho)
+            rho = np.where(rock, 0.17 * (1.0 + 0.2 * med + 0.2 * fine2 + 0.08 * fine1), rho)
             code[rock] = LandCover.ROCK
         if urban.any():
-            rho = np.where(urban, _urban_texture(k, x, y, cos_t, sin_t, fine1), rho)
+            xs, ys = np.broadcast_to(x, shape)[urban], np.broadcast_to(y, shape)[urban]
+            rho[urban] = _urban_texture(k, xs, ys, fine1[urban])
             code[urban] = LandCover.URBAN
         if beach.any():
             rho = np.where(beach, 0.29 * (1.0 + 0.08 * fine2), rho)
@@ -1220,9 +1321,8 @@ def _render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, r
         code[river] = LandCover.RIVER
         rho = rho * np.where(land & ~river, f["shade"], np.float32(1.0))
 
-        rho_sea = 0.038 * (1.0 + 0.005 * low)
-        rho = np.where(sea, rho_sea, rho)
-        rho = np.where(lake, np.float32(lake_rho) * (1.0 + 0.005 * low), rho)
+        rho = np.where(sea, 0.038 * (1.0 + 0.005 * low), rho)
+        rho = np.where(lake, lake_rho * (1.0 + 0.005 * low), rho)
         code[sea] = LandCover.SEA
         code[lake] = LandCover.LAKE
         radiance[rows] = _DN_OFFSET + _DN_GAIN * rho
@@ -1233,23 +1333,70 @@ def _render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, r
     dom = np.empty(grid.shape, dtype=np.uint16)
     for r0 in range(0, grid.n_rows, _STRIP_ROWS):
         rows = slice(r0, min(r0 + _STRIP_ROWS, grid.n_rows))
-        noisy = radiance[rows] + rng.standard_normal(radiance[rows].shape, dtype=np.float32) * np.float32(_NOISE_DN)
+        noisy = radiance[rows]
+        noisy += rng.standard_normal(noisy.shape, dtype=np.float32) * np.float32(_NOISE_DN)
         dom[rows] = np.clip(np.rint(noisy), 1, _DN_MAX).astype(np.uint16)
     return dom, water, cover_map
 
 
-def _fields_texture(k, x, y, cos_t, sin_t, fine1, fine2, med):
-    """Agricultural parcels: a domain-warped 1.5 km block grid cut into rotated parcels."""
+def _overlays(grid, rivers, roads):
+    """Rivers, riparian strips and roads drawn on the DOM grid (OpenCV, anti-aliased).
+
+    Returns
+    -------
+    river_cov, riparian, road_cov : ndarray, shape grid.shape, uint8
+        Coverage 0..255.
+    road_id : ndarray, shape grid.shape, uint8
+        1 + index of the road drawn there (0: none).
+    road_rho : ndarray, shape (n_roads + 1,), float32
+        Reflectance by road id.
+    """
+    import cv2
+
+    res = grid.res_m
+    river_cov = np.zeros(grid.shape, dtype=np.uint8)
+    riparian = np.zeros(grid.shape, dtype=np.uint8)
+    for river in rivers:
+        col, row = grid.node_index(river.xy_m[:, 0], river.xy_m[:, 1])
+        pts = np.stack([col + 0.5, row + 0.5], axis=1)
+        thick = np.maximum(1, np.round(river.width_m / res)).astype(int)[1:]
+        _draw_segments(riparian, pts, np.full(thick.size, 255.0), thick + max(2, int(60.0 / res)))
+        _draw_segments(river_cov, pts, np.full(thick.size, 255.0), thick, antialias=True)
+    road_cov = np.zeros(grid.shape, dtype=np.uint8)
+    road_id = np.zeros(grid.shape, dtype=np.uint8)
+    roads = roads[:255]
+    road_rho = np.zeros(len(roads) + 1, dtype=np.float32)
+    for i, road in enumerate(roads):
+        col, row = grid.node_index(road.xy_m[:, 0], road.xy_m[:, 1])
+        fixed = np.round(np.stack([col, row], axis=1) * 16.0).astype(np.int32)
+        cv2.polylines(road_cov, [fixed], False, 255, thickness=road.width_px,
+                      lineType=cv2.LINE_AA, shift=4)
+        cv2.polylines(road_id, [fixed], False, i + 1, thickness=road.width_px + 2,
+                      lineType=cv2.LINE_8, shift=4)
+        road_rho[i + 1] = road.reflectance
+    return river_cov, riparian, road_cov, road_id, road_rho
+
+
+_COS_32 = np.cos(np.arange(32) * (math.pi / 32.0)).astype(np.float32)
+_SIN_32 = np.sin(np.arange(32) * (math.pi / 32.0)).astype(np.float32)
+
+
+def _fields_texture(k, x, y, warp_x, warp_y, fine1, fine2, med):
+    """Agricultural parcels at points ``(x, y)`` (1-D arrays, metres from the centre).
+
+    Blocks of a 1.5 km grid warped by smooth noise (farm boundaries, drawn as tracks) are cut
+    into rectangular parcels along one of 32 orientations, staggered from strip to strip;
+    each parcel draws a kind (green crop, bare soil, dry crop or stubble, pasture), a tone
+    and a row period from the hash of its indices. Returns reflectances, float32.
+    """
     block_m = 1500.0
-    warp = 0.3 * block_m
-    xs, ys = x[0].astype(np.float64), y[:, 0].astype(np.float64)
-    xw = x + warp * 0.5 * _value_noise(k["warp_x"], xs, ys, 1200.0)
-    yw = y + warp * 0.5 * _value_noise(k["warp_y"], xs, ys, 1200.0)
-    bi = np.floor(yw / block_m).astype(np.int32)
-    bj = np.floor(xw / block_m).astype(np.int32)
-    hb = _hash(k["block"], bi, bj)
+    xw = x + (0.25 * block_m) * warp_x
+    yw = y + (0.25 * block_m) * warp_y
+    bi = np.floor(yw / block_m)
+    bj = np.floor(xw / block_m)
+    hb = _hash(k["block"], bi.astype(np.int32), bj.astype(np.int32))
     o = (hb & np.uint32(31)).astype(np.intp)
-    ct, st = cos_t[o], sin_t[o]
+    ct, st = _COS_32[o], _SIN_32[o]
     pu = x * ct + y * st
     pv = y * ct - x * st
     width = 90.0 + 260.0 * _unit(_mix32(hb ^ np.uint32(0x5BD1E995)))
@@ -1262,33 +1409,34 @@ def _fields_texture(k, x, y, cos_t, sin_t, fine1, fine2, med):
     hp = _hash(k["parcel"], hb, su.astype(np.int32), sv.astype(np.int32))
     kind = _unit(hp)
     tone = _unit(_mix32(hp ^ np.uint32(0x165667B1)))
-    # Crop (green, dark), bare soil, stubble and dry crop (bright), pasture.
     rho = np.where(kind < 0.35, 0.055 + 0.04 * tone,
           np.where(kind < 0.65, 0.12 + 0.10 * tone,
           np.where(kind < 0.85, 0.18 + 0.12 * tone, 0.08 + 0.05 * tone)))  # fmt: skip
     period = 25.0 + 50.0 * _unit(_mix32(hp ^ np.uint32(0x85EBCA77)))
-    rows_tex = np.sin((2.0 * math.pi) * pu / period)
-    rho = rho * (1.0 + 0.04 * rows_tex + 0.07 * med + 0.04 * fine2 + 0.03 * fine1)
-    # Field boundaries (hedges or tracks) and block boundaries (farm tracks).
+    stripes = np.sin((2.0 * math.pi) * pu / period)
+    rho = rho * (1.0 + 0.04 * stripes + 0.07 * med + 0.04 * fine2 + 0.02 * fine1)
+    # Parcel boundaries (hedges or tracks) and block boundaries (farm tracks).
     fu, fv = gu - su, gv - sv
     edge_m = np.minimum(np.minimum(fu, 1.0 - fu) * width, np.minimum(fv, 1.0 - fv) * height)
-    hedge = (hb >> np.uint32(27)) & np.uint32(1)
-    border = np.where(hedge == 1, 0.05, 0.2)
-    rho = np.where(edge_m < 6.0, border, rho)
+    hedge = ((hb >> np.uint32(27)) & np.uint32(1)) == 1
+    rho = np.where(edge_m < 6.0, np.where(hedge, 0.05, 0.2), rho)
     bu, bv = xw / block_m - bj, yw / block_m - bi
     track_m = np.minimum(np.minimum(bu, 1.0 - bu), np.minimum(bv, 1.0 - bv)) * block_m
     return np.where(track_m < 7.0, 0.22, rho).astype(np.float32)
 
 
-def _urban_texture(k, x, y, cos_t, sin_t, fine1):
-    """Town blocks: bright roofs, dark streets, a few parks and large industrial roofs."""
+def _urban_texture(k, x, y, fine1):
+    """Town blocks at points ``(x, y)`` (1-D arrays): bright roofs, dark streets, parks.
+
+    Each 12 km cell has its own street-grid orientation and block pitch; a block draws its
+    kind (8 % parks, 10 % large bright roofs, the rest four buildings of their own tone);
+    streets are 18 m wide, every fifth one wider and brighter. Returns reflectances.
+    """
     city_m = 12_000.0
-    xs, ys = x[0], y[:, 0]
-    ci = np.floor(ys / city_m).astype(np.int32)[:, None]
-    cj = np.floor(xs / city_m).astype(np.int32)[None, :]
-    hc = _hash(k["city"], ci, cj)
+    hc = _hash(k["city"], np.floor(y / city_m).astype(np.int32),
+               np.floor(x / city_m).astype(np.int32))
     o = (hc & np.uint32(31)).astype(np.intp)
-    ct, st = cos_t[o], sin_t[o]
+    ct, st = _COS_32[o], _SIN_32[o]
     pu = x * ct + y * st
     pv = y * ct - x * st
     pitch_u = 100.0 + 80.0 * _unit(_mix32(hc ^ np.uint32(0x5BD1E995)))
@@ -1299,15 +1447,15 @@ def _urban_texture(k, x, y, cos_t, sin_t, fine1):
     street_m = 18.0
     hb = _hash(k["cblock"], hc, bu.astype(np.int32), bv.astype(np.int32))
     kind = _unit(hb)
-    half = ((fu > 0.5 * (pitch_u + street_m)).astype(np.int32)
-            + 2 * (fv > 0.5 * (pitch_v + street_m)).astype(np.int32))
-    roof = 0.12 + 0.22 * _unit(_hash(k["building"], hb, half))
+    quarter = ((fu > 0.5 * (pitch_u + street_m)).astype(np.int32)
+               + 2 * (fv > 0.5 * (pitch_v + street_m)).astype(np.int32))
+    roof = 0.12 + 0.22 * _unit(_hash(k["building"], hb, quarter))
     rho = np.where(kind < 0.08, 0.06, np.where(kind > 0.9, 0.36 + 0.08 * _unit(_mix32(hb)), roof))
-    rho = rho * (1.0 + 0.10 * fine1)
+    rho = rho * (1.0 + 0.06 * fine1)
+    main = (((bu.astype(np.int64) % 5 == 0) & (fu < 1.6 * street_m))
+            | ((bv.astype(np.int64) % 5 == 0) & (fv < 1.6 * street_m)))
     street = (fu < street_m) | (fv < street_m)
-    main = ((bu.astype(np.int64) % 5 == 0) & (fu < 1.6 * street_m)) | (
-        (bv.astype(np.int64) % 5 == 0) & (fv < 1.6 * street_m))
-    rho = np.where(street | main, np.where(main, 0.11, 0.075), rho)
+    rho = np.where(main, 0.11, np.where(street, 0.075, rho))
     return rho.astype(np.float32)
 
 
