@@ -301,15 +301,22 @@ def demo(ctx, out_dir, as_json):
     if as_json:
         click.echo(json.dumps(summary, default=_json_default))
         return
-    table = Table(title="Localization round trip image -> ground -> image (100x100 grid per CCD)")
-    for col in ("band", "ccd", "height_m", "rms_px", "max_px"):
+    table = Table(title="HY-1C-like scene: LAB model -> calibrated (check points never used in the fit)")
+    for col in ("", "before", "after"):
         table.add_column(col, justify="right")
-    for r in summary["round_trip"]:
-        table.add_row(r["band"], r["ccd"], f"{r['height_m']:.0f}", f"{r['rms_px']:.1e}", f"{r['max_px']:.1e}")
+    for key, label in (("check_rmse_row_px", "check RMSE along track, px"), ("check_rmse_col_px", "check RMSE across track, px"),
+                       ("check_rmse_px", "check RMSE planar, px"), ("check_rmse_m", "check RMSE planar, m")):
+        b, a = summary[key]["before"], summary[key]["after"]
+        table.add_row(label, f"{b:.2f}" if b is not None else "-", f"{a:.3f}" if a is not None else "-")
+    table.add_row("error against the TRUE model (rms), px", f"{summary['truth_error_before_px']['rms']:.2f}",
+                  f"{summary['truth_error_px']['rms']:.3f}")
+    table.add_row("error against the TRUE model (max), px", f"{summary['truth_error_before_px']['max']:.2f}",
+                  f"{summary['truth_error_px']['max']:.3f}")
     out = Console()
     out.print(table)
-    out.print(f"RPC per CCD, max error on an independent check grid: {summary['rpc_check_max_px']:.2e} px")
-    out.print(f"wrote {out_dir}/summary.json in {summary['seconds']:.1f} s")
+    out.print(f"{summary['gcps']} GCPs, {summary['check_points']} check points; "
+              f"wrote {out_dir}/summary.json, {out_dir}/report.html in {summary['seconds']:.1f} s")
+
 
 # ---------------------------------------------------------------- simulation and truth
 @cli.group()

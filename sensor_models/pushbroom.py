@@ -284,16 +284,24 @@ class PushbroomModel(SensorModel):
 
         A column inside a CCD's range belongs to it; a column outside every CCD belongs to the
         nearest CCD (its polynomial is extrapolated). ``ccd`` (a name, an index, or an array of
-        indices) forces the choice.
+        names or indices) forces the choice.
         """
         ccds = self.band_ccds(band)
         col = np.asarray(col, dtype=np.float64)
         if ccd is not None:
+            names = [c.name for c in ccds]
             if isinstance(ccd, str):
-                names = [c.name for c in ccds]
                 if ccd not in names:
                     raise InputError(f"unknown CCD {ccd!r}; band has {', '.join(names)}", field="ccd")
                 return np.full(col.shape, names.index(ccd), dtype=np.intp)
+            arr = np.asarray(ccd)
+            if arr.dtype.kind in "USO":  # names, one per point
+                lookup = {n: i for i, n in enumerate(names)}
+                flat = arr.reshape(-1).astype(str)
+                unknown = sorted(set(flat) - set(lookup))
+                if unknown:
+                    raise InputError(f"unknown CCD {unknown[0]!r}; band has {', '.join(names)}", field="ccd")
+                ccd = np.array([lookup[n] for n in flat], dtype=np.intp).reshape(arr.shape)
             idx = np.broadcast_to(np.asarray(ccd, dtype=np.intp), col.shape).copy()
             if np.any((idx < 0) | (idx >= len(ccds))):
                 raise InputError(f"CCD index out of range 0..{len(ccds) - 1}", field="ccd")

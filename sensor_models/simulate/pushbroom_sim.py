@@ -206,6 +206,7 @@ def simulate_pushbroom(
     workers: int = 2,
     block_lines: int = 256,
     progress=None,
+    record_timings: bool = True,
 ) -> dict:
     """Simulate a push-broom scene into ``out_dir`` (see the module docstring).
 
@@ -225,6 +226,9 @@ def simulate_pushbroom(
         Lines rendered per block (memory ~ block_lines x columns x 40 bytes per worker).
     progress : callable, optional
         ``progress(done_blocks, total_blocks)``.
+    record_timings : bool
+        Write render times into ``summary.json`` (False: every output file is a function of
+        the configuration and inputs only, e.g. for committed fixtures).
 
     Returns
     -------
@@ -239,7 +243,8 @@ def simulate_pushbroom(
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
     try:
-        summary = _simulate(cfg, out_dir, tmp, dom, dem, geoid, workers, block_lines, progress, t_start)
+        summary = _simulate(cfg, out_dir, tmp, dom, dem, geoid, workers, block_lines, progress, t_start,
+                            record_timings)
         for src in sorted(tmp.rglob("*")):
             if src.is_file():
                 dst = out_dir / src.relative_to(tmp)
@@ -250,7 +255,7 @@ def simulate_pushbroom(
     return summary
 
 
-def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines, progress, t_start):
+def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines, progress, t_start, record_timings):
     from sensor_models.readers.manifest import write_manifest
     from sensor_models.simulate.truth import truth_error
 
@@ -349,6 +354,8 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
         "seconds": time.perf_counter() - t_start,
     }
     _write_json(tmp / "truth.json", truth)
+    if not record_timings:
+        summary = {k: v for k, v in summary.items() if k not in ("render_seconds", "pixels_per_second", "seconds")}
     _write_json(tmp / "summary.json", summary)
     return summary
 
