@@ -433,6 +433,35 @@ def match(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_
                f"{summary['windows']} windows ({100 * summary['usable_fraction']:.0f} % usable, "
                f"{100 * summary['cloud_fraction']:.0f} % cloud) in {summary['timings']['total_s']:.1f} s")
 
+# ---------------------------------------------------------------- calibration
+@cli.command()
+@click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
+@click.option("--gcps", "gcps_path", required=True, type=click.Path(dir_okay=False), help="GCP table (CSV, GeoPackage or GeoTIFF).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--scheme", type=click.Choice(["exterior", "interior", "exterior-interior", "interior-exterior", "joint"]),
+              default="exterior-interior", show_default=True, help="Which parameters, in which order (seed 002's schemes).")
+@click.option("--robust", type=click.Choice(["huber", "cauchy", "none"]), default="cauchy", show_default=True, help="Robust loss.")
+@click.option("--band", help="Band of GCPs that name none (default: the reference band).")
+@click.option("--no-report", is_flag=True, help="Skip report.html and its figures.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.pass_context
+def calibrate(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, no_report, as_json):
+    """Calibrate SCENE's model from GCPs; write calibration.json, the calibrated model and report.html."""
+    from calibrate.run import calibrate_scene
+
+    quiet = ctx.obj.get("quiet", False) or as_json
+    summary = calibrate_scene(scene_path, gcps_path, out_dir, scheme=scheme, robust=robust, band=band,
+                              report=not no_report, progress=None if quiet else (lambda m: click.echo(m, err=True)))
+    if as_json:
+        click.echo(json.dumps(summary, default=_json_default))
+        return
+    before, after = summary["check_rmse_px"]["before"], summary["check_rmse_px"]["after"]
+    checks = (f"check RMSE {before:.3f} -> {after:.3f} px on {summary['check_points']} check points"
+              if before is not None else "no check points")
+    click.echo(f"{out_dir}: {'converged' if summary['success'] else 'FAILED'} ({summary['message']}); {checks}")
+    if not summary["success"]:
+        ctx.exit(3)
+
 
 def main(argv=None) -> int:
     """Console entry point: run the CLI, turn user errors into one line and exit code 1."""

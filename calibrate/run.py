@@ -115,7 +115,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, scheme="exterior-interior
         if report and acc_before is not None:
             from calibrate.report import write_report
 
-            write_report(tmp, result=result, accuracy_before=acc_before, accuracy_after=acc_after,
+            write_report(tmp, result=getattr(result, "calibration", result), accuracy_before=acc_before, accuracy_after=acc_after,
                          initial_model=model, gcps=g, checks=checks)
         summary = {
             "kind": "gcpcal.calibrate",

@@ -75,6 +75,25 @@ def _border(model, band, n=24):
     return rows, cols
 
 
+def scene_height_m(model, dem, *, band=None, iterations: int = 3) -> float:
+    """Median DEM height under the scene's predicted footprint (fixed point from mid-range).
+
+    A DEM tile can span kilometres of relief around a scene; localizing at its mid-range would
+    displace the predicted footprint of an oblique view by hundreds of metres.
+    """
+    h_lo, h_hi = dem.height_range_m
+    h = 0.5 * (h_lo + h_hi)
+    n_rows, n_cols = model.image_shape
+    gr, gc = np.meshgrid(np.linspace(0.5, n_rows - 0.5, 9), np.linspace(0.5, n_cols - 0.5, 9), indexing="ij")
+    for _ in range(iterations):
+        lon, lat, _ = model.image_to_ground(gr.ravel(), gc.ravel(), height=h, band=band)
+        z = dem.height_m(lon, lat)
+        if not np.isfinite(z).any():
+            break
+        h = float(np.nanmedian(z))
+    return h
+
+
 def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None, max_offset_px: float = 1000.0,
                  target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
                  seed: int = 0) -> CoarseResult:
@@ -102,8 +121,7 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     valid = np.isfinite(scene) & (scene > 0)
     small = cv2.resize(np.where(valid, scene, 0).astype(np.float32), (n_cols // f, n_rows // f), interpolation=cv2.INTER_AREA)
     small_valid = cv2.resize(valid.astype(np.float32), (n_cols // f, n_rows // f), interpolation=cv2.INTER_AREA) > 0.99
-    h_lo, h_hi = dem.height_range_m
-    h_mid = 0.5 * (h_lo + h_hi)
+    h_mid = scene_height_m(model, dem, band=band)
     gsd = scene_gsd_m(model, band=band, height_m=h_mid)
     coarse_res = gsd * f  # metres per reduced pixel
     dom_res = grid_resolution_m(dom.grid)

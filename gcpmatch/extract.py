@@ -33,7 +33,7 @@ from gcpmatch.coarse import coarse_match
 from gcpmatch.gcps import GcpTable
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.phase import Reject, phase_correlate
-from gcpmatch.reference import reference_for_ccd
+from gcpmatch.reference import reference_for_ccd, reference_for_image
 from sensor_models.errors import InputError
 
 __all__ = ["MatchOptions", "extract_gcps", "match_scene"]
@@ -69,6 +69,15 @@ class MatchOptions:
         if self.backend not in ("cpu", "gpu", "torch"):
             raise InputError(f"backend must be cpu or gpu, got {self.backend!r}", field="backend")
         return self
+
+
+@dataclass(frozen=True)
+class _WholeImage:
+    """The whole image as one detector array (models without CCDs, e.g. RPC products)."""
+
+    n_detectors: int
+    first_col: int = 0
+    name: str = ""
 
 
 def _grid_starts(n: int, window: int, spacing: int) -> np.ndarray:
@@ -118,9 +127,14 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
     per_ccd, tables, cloud_sum = [], [], 0.0
     t_ref = t_phase = 0.0
     n_windows = 0
-    for i, look in enumerate(model_pc.band_ccds(band)):
+    pushbroom = hasattr(model_pc, "band_ccds")
+    looks = model_pc.band_ccds(band) if pushbroom else [_WholeImage(model_pc.image_shape[1])]
+    for i, look in enumerate(looks):
         t1 = time.perf_counter()
-        ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=i, psf_sigma_px=opt.psf_sigma_px)
+        if pushbroom:
+            ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=i, psf_sigma_px=opt.psf_sigma_px)
+        else:
+            ref = reference_for_image(model_pc, dem, dom, band=band, psf_sigma_px=opt.psf_sigma_px)
         t_ref += time.perf_counter() - t1
         img = scene[:, look.first_col : look.first_col + look.n_detectors]
         if mask is None:  # detector: much brighter than the reference predicts
@@ -185,14 +199,15 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
         for r in REASONS:
             reasons[r] += int(np.sum(status == r))
         if keep.size:
+            kw = {"ccd": i} if pushbroom else {}
             lon, lat, h = model_pc.image_to_ground(r_c.astype(np.float64), c_c.astype(np.float64), dem=dem,
-                                                   band=band, ccd=i)
+                                                   band=band, **kw)
             ok = np.isfinite(lon)
             sig = np.full(ok.sum(), max(sigma, 0.01) if np.isfinite(sigma) else 0.1)
             tables.append({
                 "row": r_c[ok] + shift[keep[ok], 0], "col": c_c[ok] + shift[keep[ok], 1],
                 "lon": lon[ok], "lat": lat[ok], "h": h[ok], "sigma_px": sig,
-                "band": np.full(ok.sum(), band, dtype=object), "ccd": np.full(ok.sum(), look.name, dtype=object),
+                "band": np.full(ok.sum(), band or "", dtype=object), "ccd": np.full(ok.sum(), look.name, dtype=object),
                 "score": score[keep[ok]],
             })
         cloud_sum += cloud_px * look.n_detectors

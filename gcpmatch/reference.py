@@ -14,7 +14,7 @@ import numpy as np
 from sensor_models.simulate.radiometry import MapImage, psf_sigma_dom_px, sample_map_image
 from sensor_models.simulate.render import locate_block
 
-__all__ = ["grid_resolution_m", "reference_for_ccd", "scene_gsd_m"]
+__all__ = ["grid_resolution_m", "reference_for_ccd", "reference_for_image", "scene_gsd_m"]
 
 
 def grid_resolution_m(grid) -> float:
@@ -68,4 +68,30 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
         pg = locate_block(model, dem, [dom.grid], band=band, ccd=ccd, row0=a, row1=b)
         u, v = pg.uv[0]
         out[a - row0 : b - row0] = sample_map_image(dom, u, v, sigma_px=sigma)
+    return out
+
+
+def reference_for_image(model, dem, dom: MapImage, *, band=None, psf_sigma_px: float = 0.45,
+                        block_lines: int = 256) -> np.ndarray:
+    """The DOM seen through any sensor model (e.g. an RPC): float32 image_shape, NaN = none.
+
+    Every pixel centre is intersected with the DEM by the model's own
+    ``image_to_ground(row, col, dem=dem)`` (exact, per pixel: meant for the small images of
+    RPC products; push-broom scenes use the faster :func:`reference_for_ccd`).
+    """
+    from sensor_models.simulate.render import _Projector
+
+    n_rows, n_cols = model.image_shape
+    sigma = psf_sigma_dom_px(scene_gsd_m(model, band=band, height_m=float(np.mean(dem.height_range_m))),
+                             grid_resolution_m(dom.grid), psf_sigma_px)
+    project = _Projector(dom.grid)
+    out = np.empty((n_rows, n_cols), dtype=np.float32)
+    cols = np.arange(n_cols) + 0.5
+    for a in range(0, n_rows, block_lines):
+        b = min(n_rows, a + block_lines)
+        rr, cc = np.meshgrid(np.arange(a, b) + 0.5, cols, indexing="ij")
+        lon, lat, _ = model.image_to_ground(rr.ravel(), cc.ravel(), dem=dem, band=band)
+        u, v = project(lon, lat)
+        out[a:b] = sample_map_image(dom, u.reshape(rr.shape).astype(np.float32),
+                                    v.reshape(rr.shape).astype(np.float32), sigma_px=sigma)
     return out
