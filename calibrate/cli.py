@@ -466,7 +466,9 @@ def calibrate(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, no_repo
 def main(argv=None) -> int:
     """Console entry point: run the CLI, turn user errors into one line and exit code 1."""
     try:
-        cli.main(args=argv, prog_name="gcpcal", standalone_mode=False)
+        rv = cli.main(args=argv, prog_name="gcpcal", standalone_mode=False)
+        if isinstance(rv, int) and not isinstance(rv, bool):  # ctx.exit(code) in non-standalone mode
+            return rv
     except click.exceptions.Abort:
         click.echo("gcpcal: aborted", err=True)
         return 130

@@ -132,7 +132,7 @@ def run_demo(out_dir: Path, *, fixture_dir: Path = FIXTURE_DIR, progress=None, s
 
         step("writing the report")
         write_report(out_dir, result=result, accuracy_before=acc_before, accuracy_after=acc_after,
-                     initial_model=lab, gcps=ref_pts, checks=ref_checks, error_vs_count=evc, truth_model=truth,
+                     initial_model=lab, gcps=ref_pts, checks=checks, error_vs_count=evc, truth_model=truth,
                      title="gcpcal demo: HY-1C-like scene", extra={k: summary[k] for k in ("gcps", "check_points")})
         summary["report"] = "report.html"
     except ImportError:  # pragma: no cover - the report module ships with the package
