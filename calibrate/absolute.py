@@ -1,0 +1,934 @@
+"""Absolute geometric calibration of a sensor model from ground control points.
+
+For a push-broom directional-angle model (seed 003 eq. 1-3) the parameters split into
+
+* the *exterior*: installation angles ``installation.roll|pitch|yaw`` (camera -> body);
+* the *interior*: per band and CCD, the directional-angle coefficients
+  ``{band}.{ccd}.tan_psi_x.c0..`` and ``tan_psi_y.c0..`` (cubic in the detector index).
+
+Each GCP ``i`` gives two observation equations (seed 000 eq. 11-12): the residual
+``(row_i, col_i) - model.ground_to_image(lon_i, lat_i, h_i)`` in pixels, linearized with the
+model's analytic Jacobian. Points are weighted by ``score_i / sigma_i^2`` and robustly
+reweighted (:mod:`calibrate.lsq`).
+
+Schemes (seed 002 section 3, seed 003 section 2.2, seed 000 eq. 12-17):
+
+======================  ==========================================================
+``"exterior"``          ECO: installation angles only, interior held at its values
+``"interior"``          ICO: interior of every estimable CCD only
+``"exterior-interior"`` ECBIC (default, seed 003 2.2.1): exterior with the interior
+                        fixed, then the interior in the frame the exterior fixes,
+                        iterated until the exterior no longer moves (after the first
+                        round, exterior steps use only the GCPs of CCDs whose interior
+                        is estimated)
+``"interior-exterior"`` ICBEC: the same, interior first
+``"joint"``             all together; the installation angles and the c0/c1 terms of
+                        the CCDs are nearly dependent (a rotation of the camera is a
+                        shift of every detector's look), so pseudo-observations hold
+                        the reference CCD's mean look and along-track tilt at their
+                        initial values (they fix roll, pitch, yaw; see
+                        ``_gauge_prior``) and the largest correlation is reported
+======================  ==========================================================
+
+A CCD whose GCPs are too few (fewer than ``min_points_factor`` times its unknowns) or cover
+too small a fraction of its detectors keeps its interior; the message names it. In stepwise
+schemes each group's covariance is conditional on the other group (the scheme fixes the
+frame by its order); the cross-covariance between groups is not estimated (zero blocks,
+``covariance_kind = "conditional-blocks"``).
+
+Other sensor models (RPC, a single CCD view...) are calibrated with ``scheme="joint"``
+over ``parameters`` (default: all of the model's parameters).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibrate.lsq import PROBE_POINTS, Chunk, LsqResult, Prior, robust_weights, solve
+from sensor_models.base import SensorModel
+from sensor_models.errors import InputError
+from sensor_models.pushbroom import PushbroomModel
+
+__all__ = ["SCHEMES", "CalibrationResult", "calibrate_model", "parameter_unit"]
+
+SCHEMES = ("exterior-interior", "exterior", "interior", "interior-exterior", "joint")
+#: points per chunk of the normal-equation accumulation
+CHUNK_POINTS = 50_000
+_EXTERIOR = ("installation.roll", "installation.pitch", "installation.yaw")
+_ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
+
+
+# --------------------------------------------------------------------------- result
+@dataclass
+class CalibrationResult:
+    """Outcome of :func:`calibrate_model`.
+
+    Attributes
+    ----------
+    success : bool
+        Every step converged with a well-conditioned system.
+    message : str
+        Summary, naming skipped CCDs, failures and near-dependent parameters.
+    scheme : str
+    model : SensorModel
+        The calibrated model (``initial_model.with_parameters``); on failure, the last
+        accepted values.
+    names : tuple of str
+        Estimated parameters (model order).
+    values, initial_values : ndarray, shape (P,)
+        Their calibrated and initial values.
+    covariance, correlation : ndarray, shape (P, P) or None
+        See ``covariance_kind``.
+    covariance_kind : str
+        ``"joint"`` or ``"conditional-blocks"`` (stepwise schemes, module docstring).
+    condition_numbers : dict of str to float
+        Of the equilibrated normal matrix of the last run of each step.
+    steps : list of dict
+        Per scheme step: ``step, outer, success, message, iterations, cost, scale, sigma0,
+        condition_number, rms_row_px, rms_col_px, rms_px`` (inliers), ``n_points``,
+        ``n_inliers`` and the solver's ``log``.
+    residuals_before, residuals_after : ndarray, shape (N, 2)
+        Observed minus modelled (row, col) in pixels, input order; NaN where the model
+        gives no projection.
+    weights : ndarray, shape (N,)
+        Robust weights at the solution, in [0, 1].
+    inlier : ndarray of bool, shape (N,)
+        Normalized residual at most ``outlier_threshold`` robust standard deviations.
+    band, ccd : ndarray, shape (N,)
+        Band name and CCD index of each point (``None`` / -1 for models without them).
+    skipped : list of dict
+        CCDs whose interior was not estimated: ``band, ccd, n_points, needed, span, reason``.
+    sigma0, scale : float
+        Of the last step (:class:`calibrate.lsq.LsqResult`).
+    """
+
+    success: bool
+    message: str
+    scheme: str
+    model: SensorModel
+    names: tuple
+    values: np.ndarray
+    initial_values: np.ndarray
+    covariance: np.ndarray | None
+    correlation: np.ndarray | None
+    covariance_kind: str
+    condition_numbers: dict
+    steps: list
+    residuals_before: np.ndarray
+    residuals_after: np.ndarray
+    weights: np.ndarray
+    inlier: np.ndarray
+    band: np.ndarray
+    ccd: np.ndarray
+    skipped: list = field(default_factory=list)
+    sigma0: float = float("nan")
+    scale: float = float("nan")
+    robust: str = "huber"
+
+    @property
+    def sigma(self) -> np.ndarray | None:
+        """Standard deviations of ``values``, shape (P,), or None."""
+        if self.covariance is None:
+            return None
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    def statistics(self, which: str = "after") -> dict:
+        """RMS residuals (px) of all valid points and of the inliers, ``which`` in before/after."""
+        res = self.residuals_after if which == "after" else self.residuals_before
+        return residual_statistics(res, self.inlier)
+
+    def to_dict(self, *, points: bool = True) -> dict:
+        """JSON-safe summary (NaN and infinity become ``None``); the CLI's ``calibration.json``.
+
+        Parameters carry names, units, initial and calibrated values, changes and standard
+        deviations (angles also in arcseconds); then the covariance and correlation with their
+        names, condition numbers, the per-step convergence log, residual statistics and, with
+        ``points=True``, the per-point residuals before and after, weights and inlier flags.
+        """
+        sigma = self.sigma
+        params = []
+        for j, name in enumerate(self.names):
+            entry = {
+                "name": name,
+                "unit": parameter_unit(name),
+                "initial": float(self.initial_values[j]),
+                "value": float(self.values[j]),
+                "change": float(self.values[j] - self.initial_values[j]),
+                "sigma": None if sigma is None else float(sigma[j]),
+            }
+            if entry["unit"] == "rad":
+                for key in ("initial", "value", "change", "sigma"):
+                    if entry[key] is not None:
+                        entry[key + "_arcsec"] = entry[key] * _ARCSEC_PER_RAD
+            params.append(entry)
+        out = {
+            "format": "gcpcal.calibration",
+            "format_version": 1,
+            "success": self.success,
+            "message": self.message,
+            "scheme": self.scheme,
+            "robust": self.robust,
+            "model_kind": getattr(self.model, "kind", type(self.model).__name__),
+            "model_name": getattr(self.model, "name", ""),
+            "parameters": params,
+            "covariance": {
+                "kind": self.covariance_kind,
+                "names": list(self.names),
+                "matrix": None if self.covariance is None else self.covariance.tolist(),
+            },
+            "correlation": None if self.correlation is None else self.correlation.tolist(),
+            "condition_numbers": dict(self.condition_numbers),
+            "sigma0": self.sigma0,
+            "scale": self.scale,
+            "skipped": list(self.skipped),
+            "steps": list(self.steps),
+            "statistics": {"before": self.statistics("before"), "after": self.statistics("after")},
+        }
+        if points:
+            out["points"] = {
+                "band": [None if b is None else str(b) for b in self.band],
+                "ccd": [int(c) for c in self.ccd],
+                "row_residual_before_px": self.residuals_before[:, 0],
+                "col_residual_before_px": self.residuals_before[:, 1],
+                "row_residual_after_px": self.residuals_after[:, 0],
+                "col_residual_after_px": self.residuals_after[:, 1],
+                "weight": self.weights,
+                "inlier": self.inlier,
+            }
+        return _json_safe(out)
+
+
+def residual_statistics(residuals, inlier=None) -> dict:
+    """RMS of (row, col) residuals in pixels over valid points and over inliers.
+
+    Returns
+    -------
+    dict
+        ``n_points, n_valid, n_inliers, rms_row_px, rms_col_px, rms_px`` (planar, over the
+        inliers), ``rms_px_all`` (every valid point), ``max_px`` (inliers).
+    """
+    res = np.asarray(residuals, dtype=np.float64).reshape(-1, 2)
+    valid = np.all(np.isfinite(res), axis=1)
+    ins = valid if inlier is None else (valid & np.asarray(inlier, dtype=bool))
+
+    def rms(a):
+        return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
+
+    planar = np.hypot(res[:, 0], res[:, 1])
+    return {
+        "n_points": int(res.shape[0]),
+        "n_valid": int(valid.sum()),
+        "n_inliers": int(ins.sum()),
+        "rms_row_px": rms(res[ins, 0]),
+        "rms_col_px": rms(res[ins, 1]),
+        "rms_px": rms(planar[ins]),
+        "rms_px_all": rms(planar[valid]),
+        "max_px": float(planar[ins].max()) if ins.any() else float("nan"),
+    }
+
+
+def parameter_unit(name: str) -> str:
+    """Unit of a model parameter from its name (``rad``, ``px``, ``1``, ``detector^-k``)."""
+    if name.startswith("installation."):
+        return "rad"
+    if ".tan_psi_" in name:
+        k = int(name.rsplit(".c", 1)[1])
+        return "1" if k == 0 else ("detector^-1" if k == 1 else f"detector^-{k}")
+    if name in ("bias.row.a0", "bias.col.b0"):
+        return "px"
+    if name.startswith("bias."):
+        return "px/px"
+    return ""
+
+
+def _json_safe(value):
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _json_safe(value.tolist())
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    return value
+
+
+# --------------------------------------------------------------------------- inputs
+@dataclass
+class _Group:
+    band: object  # band name or None
+    ccd: int  # CCD index in the band, -1 for models without CCDs
+    ccd_name: str
+    idx: np.ndarray  # point indices (input order)
+    interior: tuple = ()  # interior parameter names of this CCD (estimable or not)
+    estimable: bool = False
+
+
+def _as_points(row, col, lon, lat, h, sigma_px, score):
+    arrays = {}
+    for name, a in (("row", row), ("col", col), ("lon", lon), ("lat", lat), ("h", h)):
+        a = np.asarray(a, dtype=np.float64).reshape(-1)
+        arrays[name] = a
+    n = arrays["row"].size
+    if n == 0:
+        raise InputError("no GCPs given")
+    for name, a in arrays.items():
+        if a.size != n:
+            raise InputError(f"{name} has {a.size} values for {n} GCPs", field=name)
+        if not np.all(np.isfinite(a)):
+            raise InputError("holds NaN or infinite values", field=name)
+    weight = np.ones(n)
+    if sigma_px is not None:
+        s = _per_point_float(sigma_px, n)
+        if s.size != n or not np.all(np.isfinite(s)) or np.any(s <= 0.0):
+            raise InputError(f"needs {n} positive finite values", field="sigma_px")
+        weight = weight / s**2
+    if score is not None:
+        q = _per_point_float(score, n)
+        if q.size != n or not np.all(np.isfinite(q)) or np.any(q < 0.0):
+            raise InputError(f"needs {n} finite values >= 0", field="score")
+        weight = weight * q
+    return arrays, np.ascontiguousarray(weight)
+
+
+def _per_point_float(value, n):
+    a = np.asarray(value, dtype=np.float64)
+    return np.full(n, float(a)) if a.ndim == 0 else a.reshape(-1)
+
+
+def _per_point(value, n, field_name):
+    if value is None:
+        return None
+    if isinstance(value, (str, bytes)) or np.ndim(value) == 0:
+        return np.full(n, value, dtype=object)
+    arr = np.asarray(value).reshape(-1)
+    if arr.size != n:
+        raise InputError(f"has {arr.size} values for {n} GCPs", field=field_name)
+    return arr
+
+
+def _pushbroom_groups(model: PushbroomModel, points, band, ccd, interior_terms):
+    n = points["row"].size
+    bands = _per_point(band, n, "band")
+    if bands is None:
+        bands = np.full(n, model.reference_band, dtype=object)
+    bands = np.asarray(bands).astype(str)
+    unknown = sorted(set(np.unique(bands)) - set(model.bands))
+    if unknown:
+        known = ", ".join(model.bands)
+        raise InputError(f"unknown band(s) {', '.join(unknown)}; the model has {known}", field="band")
+    present = [b for b in model.bands if np.any(bands == b)]
+    ccds = _per_point(ccd, n, "ccd")
+    ccd_idx = np.empty(n, dtype=np.intp)
+    for b in present:
+        sel = np.nonzero(bands == b)[0]
+        look = model.band_ccds(b)
+        if ccds is None:
+            ccd_idx[sel] = model.ccd_index(points["col"][sel], band=b).reshape(-1)
+            continue
+        names = [c.name for c in look]
+        values = ccds[sel]
+        # resolve each distinct value once: a CCD name, an index, or missing (None, "", NaN:
+        # the CCD whose columns hold the point)
+        unique, inverse = np.unique(values.astype(str), return_inverse=True)
+        from_col = model.ccd_index(points["col"][sel], band=b).reshape(-1)
+        resolved = np.array([_resolve_ccd(v, names, b) for v in unique], dtype=np.intp)
+        chosen = resolved[inverse.reshape(-1)]
+        ccd_idx[sel] = np.where(chosen < 0, from_col, chosen)
+    all_names = set(model.parameter_names())
+    groups = []
+    for b in present:
+        in_band = bands == b
+        for ci, look in enumerate(model.band_ccds(b)):
+            idx = np.nonzero(in_band & (ccd_idx == ci))[0]
+            if idx.size == 0:
+                continue
+            interior = _interior_names(b, look, interior_terms, all_names)
+            groups.append(_Group(b, ci, look.name, idx, interior))
+    return groups, bands, ccd_idx
+
+
+def _resolve_ccd(value: str, names, band) -> int:
+    """CCD index of a name or an index given as text; -1 for a missing value."""
+    if value in ("None", "", "nan"):
+        return -1
+    if value in names:
+        return names.index(value)
+    try:
+        number = float(value)
+    except ValueError:
+        raise InputError(f"unknown CCD {value!r} of band {band}; it has {', '.join(names)}", field="ccd") from None
+    if not number.is_integer() or not 0 <= number < len(names):
+        raise InputError(f"CCD index {value} out of range 0..{len(names) - 1} for band {band}", field="ccd")
+    return int(number)
+
+
+def _interior_names(band, look, terms, all_names):
+    if isinstance(terms, (int, np.integer)):
+        if terms < 0:
+            raise InputError("must be >= 0", field="interior_terms")
+        names = [
+            f"{band}.{look.name}.{axis}.c{k}"
+            for axis in ("tan_psi_x", "tan_psi_y")
+            for k in range(min(int(terms) + 1, getattr(look, axis).size))
+        ]
+    else:
+        names = [f"{band}.{look.name}.{t}" for t in terms]
+        bad = [n for n in names if n not in all_names]
+        if bad:
+            raise InputError(f"unknown interior terms {', '.join(bad)}", field="interior_terms")
+    return tuple(names)
+
+
+def _check_estimable(model, group, weight, col, min_points_factor, min_span_fraction):
+    """Decide whether a CCD's interior can be estimated; a skip record if not."""
+    look = model.band_ccds(group.band)[group.ccd]
+    used = group.idx[weight[group.idx] > 0.0]
+    n_unknown = len(group.interior)
+    needed = int(math.ceil(min_points_factor * n_unknown))
+    s = look.detector_index(col[used])
+    span = float((s.max() - s.min()) / max(look.n_detectors - 1, 1)) if used.size else 0.0
+    needs_span = any(not n.endswith(".c0") for n in group.interior)
+    record = {
+        "band": group.band,
+        "ccd": group.ccd_name,
+        "n_points": int(used.size),
+        "needed": needed,
+        "span": span,
+    }
+    if n_unknown == 0:
+        return None
+    if used.size < needed:
+        record["reason"] = (
+            f"{group.band}.{group.ccd_name}: {used.size} GCPs < {needed} needed "
+            f"({min_points_factor:g} x {n_unknown} unknowns); its interior is not estimated"
+        )
+        return record
+    if needs_span and span < min_span_fraction:
+        record["reason"] = (
+            f"{group.band}.{group.ccd_name}: GCPs span {100 * span:.0f} % of its detectors "
+            f"< {100 * min_span_fraction:.0f} %; its interior is not estimated"
+        )
+        return record
+    group.estimable = True
+    return None
+
+
+# --------------------------------------------------------------------------- the problem
+class _Problem:
+    """GCPs grouped by band and CCD, and the chunked residual/Jacobian function of a step."""
+
+    def __init__(self, model, points, weight, groups, chunk_points):
+        self.model = model
+        self.points = points
+        self.weight = weight
+        self.groups = groups
+        self.chunk_points = int(chunk_points)
+        self.all_names = tuple(model.parameters().names)
+        self.lookup = {n: i for i, n in enumerate(self.all_names)}
+        self.pushbroom = isinstance(model, PushbroomModel)
+        # yield order: first a strided sample of every group (the solver takes its provisional
+        # robust scale from the first points it sees), then the rest in chunks
+        n = sum(g.idx.size for g in groups)
+        stride = max(1, n // PROBE_POINTS)
+        probes, rests = [], []
+        for k, g in enumerate(groups):
+            take = np.zeros(g.idx.size, dtype=bool)
+            take[::stride] = True
+            probes.append((k, g.idx[take]))
+            rest = g.idx[~take]
+            rests += [(k, rest[a : a + self.chunk_points]) for a in range(0, rest.size, self.chunk_points)]
+        self.segments = [(k, idx) for k, idx in probes + rests if idx.size]
+        self.order = np.concatenate([idx for _k, idx in self.segments])
+
+    def chunks_for(self, theta, free, active, max_extrapolation=np.inf):
+        """Residual function over the free names; ``active(group) -> bool`` selects the fit.
+
+        Points whose projection, shifted by the chunk's median column residual, falls more
+        than ``max_extrapolation`` (a fraction of the CCD's detectors) outside their CCD are
+        left out of that evaluation: where the interior is estimated the cubic's Jacobian there
+        gives them unbounded leverage, and a point observed on one CCD but projected far beyond
+        it is a mismatch.
+        """
+        free = tuple(free)
+        free_idx = np.array([self.lookup[n] for n in free], dtype=np.intp)
+        position = {n: j for j, n in enumerate(free)}
+        plan = []
+        for g in self.groups:
+            if not active(g):
+                plan.append((g, (), np.zeros(0, dtype=np.intp), False))  # evaluated, not fitted
+                continue
+            names = [n for n in free if n in _EXTERIOR] if self.pushbroom else list(free)
+            if self.pushbroom and g.estimable:
+                names += [n for n in g.interior if n in position]
+            cols = np.array([position[n] for n in names], dtype=np.intp)
+            bounds = None
+            if self.pushbroom and np.isfinite(max_extrapolation):
+                look = self.model.band_ccds(g.band)[g.ccd]
+                margin = max_extrapolation * look.n_detectors
+                lo = look.first_col + 0.5 - margin
+                bounds = (lo, lo + look.n_detectors - 1.0 + 2.0 * margin)
+            plan.append((g, tuple(names), cols, bounds))
+        p = self.points
+
+        def chunks(x):
+            values = theta.copy()
+            values[free_idx] = x
+            model = self.model.with_parameters(values)
+            for k, sel in self.segments:
+                g, names, cols, bounds = plan[k]
+                kw = {"band": g.band, "ccd": g.ccd} if self.pushbroom else {"band": g.band}
+                if names:
+                    r, c, jac = model.image_jacobian(
+                        p["lon"][sel], p["lat"][sel], p["h"][sel], names=names, **kw
+                    )
+                else:
+                    r, c = model.ground_to_image(p["lon"][sel], p["lat"][sel], p["h"][sel], **kw)
+                    jac = np.zeros((sel.size, 2, 0))
+                res = np.stack([p["row"][sel] - r, p["col"][sel] - c], axis=-1)
+                if bounds is False:
+                    w = np.zeros(sel.size)
+                elif bounds is None:
+                    w = self.weight[sel]
+                else:
+                    # the chunk's median column residual removes a common offset (a model
+                    # still hundreds of pixels off) before the extrapolation test
+                    c_shifted = c + _median_or_zero(p["col"][sel] - c)
+                    w = np.where((c_shifted >= bounds[0]) & (c_shifted <= bounds[1]), self.weight[sel], 0.0)
+                yield Chunk(res, jac, w, cols)
+
+        return chunks
+
+    def to_input_order(self, grouped):
+        out = np.full((self.order.size,) + grouped.shape[1:], np.nan)
+        out[self.order] = grouped
+        return out
+
+
+# --------------------------------------------------------------------------- entry point
+def calibrate_model(
+    model: SensorModel,
+    row,
+    col,
+    lon,
+    lat,
+    h,
+    *,
+    band=None,
+    ccd=None,
+    sigma_px=None,
+    score=None,
+    scheme: str = "exterior-interior",
+    robust: str = "cauchy",
+    interior_terms: int | Sequence[str] = 3,
+    parameters: Sequence[str] | None = None,
+    max_outer: int = 10,
+    outer_tol: float = 0.1,
+    max_iter: int = 20,
+    tol: float = 0.1,
+    reference_ccd: tuple[str, str] | None = None,
+    gauge_sigma_px: float = 1e-3,
+    gauge: bool = True,
+    min_points_factor: float = 3.0,
+    min_span_fraction: float = 0.5,
+    max_condition: float = 1e10,
+    outlier_threshold: float = 3.0,
+    max_extrapolation: float = 0.1,
+    chunk_points: int = CHUNK_POINTS,
+) -> CalibrationResult:
+    """Calibrate a sensor model from GCPs.
+
+    Parameters
+    ----------
+    model : SensorModel
+        Initial (e.g. laboratory) model; :class:`~sensor_models.pushbroom.PushbroomModel` for
+        the exterior/interior schemes, any model for ``scheme="joint"``.
+    row, col : array_like, shape (N,)
+        Observed image coordinates in pixels (first pixel centre at 0.5).
+    lon, lat, h : array_like, shape (N,)
+        Ground coordinates (WGS84 degrees, metres above the ellipsoid).
+    band : str or array_like of str, optional
+        Band of every point or per point (push-broom default: the model's reference band).
+    ccd : int, str or array_like, optional
+        CCD index or name per point (push-broom default, and for entries None, "" or NaN:
+        the CCD whose columns hold ``col``).
+    sigma_px : float or array_like, optional
+        Standard deviation of each point's row and column, pixels (weight ``1 / sigma^2``).
+    score : array_like, optional
+        Non-negative relative weights multiplying ``1 / sigma^2`` (0 drops a point).
+    scheme : str
+        One of :data:`SCHEMES` (module docstring).
+    robust : {"cauchy", "huber", "none"}
+        Robust loss (:mod:`calibrate.lsq`). The default Cauchy loss starts with Huber
+        iterations and is as efficient on clean data; with 40 % gross mismatches it keeps the
+        accuracy of a clean fit where Huber loses a factor of about five (tests).
+    interior_terms : int or sequence of str
+        Degree of the estimated directional-angle polynomials (3: cubic, every coefficient
+        up to ``c3``), or explicit suffixes such as ``("tan_psi_y.c0", "tan_psi_y.c1")``.
+    parameters : sequence of str, optional
+        Joint scheme only: the parameters to estimate (default: exterior + estimable
+        interior for a push-broom model, every parameter otherwise).
+    max_outer, outer_tol : int, float
+        Stepwise schemes stop when a step of the exterior moves every angle by less than
+        ``outer_tol`` of its standard deviation; still moving after ``max_outer`` rounds is a
+        failure (``success=False``), except with ``max_outer=1``: a single exterior, interior
+        pass as in seed 003.
+    max_iter, tol : int, float
+        Per step, passed to :func:`calibrate.lsq.solve`: a step ends when an iteration would
+        move every parameter by less than ``tol`` of its standard deviation.
+    reference_ccd : (band, ccd name), optional
+        Joint scheme gauge: default the estimable CCD with the most GCPs in the reference band.
+    gauge_sigma_px : float
+        Joint scheme: standard deviation of the gauge pseudo-observations (the reference
+        CCD's mean look in both directions and its along-track tilt), in pixels (at the CCD's
+        ends for the tilt).
+    gauge : bool
+        Joint scheme: add the gauge pseudo-observations (without them the installation
+        angles and the interior are nearly dependent and the solve reports it).
+    min_points_factor, min_span_fraction : float
+        A CCD's interior is estimated only with at least ``min_points_factor`` times its
+        unknowns in GCPs covering at least ``min_span_fraction`` of its detectors.
+    max_condition : float
+        Largest acceptable condition number of the equilibrated normal matrix.
+    outlier_threshold : float
+        Points whose normalized residual exceeds this many robust standard deviations are
+        flagged as outliers (``inlier=False``); they still enter the fit with their weights.
+    max_extrapolation : float
+        A point whose projection on its CCD (corrected by the median column residual of its
+        chunk) falls more than this fraction of the CCD's detectors outside them is left out
+        of that iteration: the cubic's Jacobian would give it unbounded leverage, and a point
+        observed on one CCD but projected far beyond it is a mismatch (e.g. an outlier moved
+        across a CCD junction). ``inf`` disables the test.
+    chunk_points : int
+        Points per chunk of the normal-equation accumulation (bounds the memory).
+
+    Returns
+    -------
+    CalibrationResult
+        ``success=False`` with a message when a step fails (rank deficiency,
+        ill-conditioning, no convergence).
+
+    Raises
+    ------
+    InputError
+        Malformed inputs (lengths, NaN, unknown band/CCD/scheme/parameters).
+    """
+    if scheme not in SCHEMES:
+        raise InputError(f"scheme must be one of {', '.join(SCHEMES)}, got {scheme!r}", field="scheme")
+    points, weight = _as_points(row, col, lon, lat, h, sigma_px, score)
+    n = points["row"].size
+    pushbroom = isinstance(model, PushbroomModel)
+    if not pushbroom:
+        if scheme != "joint":
+            raise InputError(
+                f"scheme {scheme!r} needs a push-broom model (installation and directional angles); "
+                f"use scheme='joint' for a {getattr(model, 'kind', type(model).__name__)} model",
+                field="scheme",
+            )
+        if ccd is not None:
+            raise InputError("ccd applies to push-broom models only", field="ccd")
+        if band is not None and not (isinstance(band, str) or np.ndim(band) == 0):
+            raise InputError("a single band for this model", field="band")
+        groups = [_Group(band, -1, "", np.arange(n))]
+        bands = np.full(n, band, dtype=object)
+        ccd_idx = np.full(n, -1, dtype=np.intp)
+    else:
+        groups, bands, ccd_idx = _pushbroom_groups(model, points, band, ccd, interior_terms)
+    if parameters is not None and scheme != "joint":
+        raise InputError("parameters= applies to scheme='joint' only", field="parameters")
+    if not np.any(weight > 0.0):
+        raise InputError("every GCP has zero weight", field="score")
+
+    skipped = []
+    if pushbroom:
+        for g in groups:
+            rec = _check_estimable(model, g, weight, points["col"], min_points_factor, min_span_fraction)
+            if rec is not None:
+                skipped.append(rec)
+    problem = _Problem(model, points, weight, groups, chunk_points)
+    theta0 = model.parameters().values.copy()
+    theta = theta0.copy()
+    solve_kw = dict(robust=robust, max_iter=max_iter, tol=tol, max_condition=max_condition)
+
+    unsettled = ""
+    exterior = list(_EXTERIOR) if pushbroom else []
+    interior = [n for g in groups if g.estimable for n in g.interior]
+    runs: list[tuple[str, int, LsqResult, tuple]] = []
+
+    def run(step, outer, free, active, prior=None):
+        nonlocal theta
+        free = tuple(free)
+        idx = np.array([problem.lookup[n] for n in free], dtype=np.intp)
+        chunks = problem.chunks_for(theta, free, active, max_extrapolation)
+        # after the first step the model is close: a redescending loss can start at once
+        result = solve(chunks, theta[idx], names=free, prior=prior, warm_start=bool(runs), **solve_kw)
+        theta = theta.copy()
+        theta[idx] = result.x
+        runs.append((step, outer, result, free))
+        return result
+
+    def every(_g):
+        return True
+
+    def estimable(g):
+        return g.estimable
+
+    if scheme == "joint":
+        if parameters is not None:
+            unknown = [p for p in parameters if p not in problem.lookup]
+            if unknown:
+                raise InputError(f"unknown parameters {', '.join(unknown)}", field="parameters")
+            free = [n for n in problem.all_names if n in set(parameters)]
+        else:
+            free = exterior + interior if pushbroom else list(problem.all_names)
+        use_gauge = pushbroom and gauge
+        prior = _gauge_prior(model, groups, free, reference_ccd, gauge_sigma_px) if use_gauge else None
+        run("joint", 0, free, every, prior)
+    elif scheme == "exterior":
+        run("exterior", 0, exterior, every)
+    elif scheme == "interior":
+        if interior:
+            run("interior", 0, interior, estimable)
+    else:
+        order = ("exterior", "interior") if scheme == "exterior-interior" else ("interior", "exterior")
+        moved = np.inf
+        for outer in range(max(1, int(max_outer))):
+            stop = False
+            for step in order:
+                if step == "interior":
+                    if not interior:
+                        continue
+                    result = run("interior", outer, interior, estimable)
+                else:
+                    # the first exterior step uses every GCP; later ones only those of CCDs
+                    # whose interior is estimated: a CCD holding its laboratory interior would
+                    # drag the frame towards it, a little more each round
+                    before = theta[[problem.lookup[n] for n in exterior]].copy()
+                    result = run("exterior", outer, exterior, every if outer == 0 else estimable)
+                    moved = _moved_sigmas(before, result)
+                    # the exterior no longer moves: the interior, fitted in this frame, holds
+                    if moved < outer_tol and (outer > 0 or order[0] == "interior" or not interior):
+                        stop = True
+                if not result.success or stop:
+                    break
+            if stop or not runs[-1][2].success:
+                break
+        else:
+            if interior and max_outer > 1:  # one round (seed 003's single pass) was asked for
+                unsettled = (
+                    f"{scheme}: the exterior still moved {moved:.3g} standard deviations in round "
+                    f"{max_outer} (max_outer); alternating steps converge slowly when the groups "
+                    "conflict (e.g. a CCD whose interior is not estimated); try scheme='joint'"
+                )
+    return _assemble(
+        model, problem, theta0, theta, runs, skipped, scheme, robust, bands, ccd_idx,
+        outlier_threshold, unsettled,
+    )  # fmt: skip
+
+
+def _median_or_zero(values):
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if finite.size else 0.0
+
+
+def _moved_sigmas(before, result):
+    sd = result.sigma
+    if sd is None or not result.success:
+        return np.inf
+    return float(np.max(np.abs(result.x - before) / np.where(sd > 0, sd, np.inf)))
+
+
+def _gauge_prior(model, groups, free, reference_ccd, gauge_sigma_px):
+    """Pseudo-observations fixing the camera frame in the joint scheme.
+
+    A rotation of the camera shifts every detector's look: roll moves ``tan psi_y``, pitch
+    ``tan psi_x``, and yaw tilts ``tan psi_x`` along the CCD. Three linear functionals of the
+    reference CCD's polynomials, taken over its detectors ``s = 0 .. n-1``, are held at their
+    initial values: the mean of ``tan psi_x(s)``, its least-squares slope in ``s``, and the
+    mean of ``tan psi_y(s)``. (Holding single coefficients is not enough: the cubic's higher
+    terms can mimic a tilt.) No gauge is added when a CCD with GCPs keeps its interior: its
+    points already fix the frame.
+    """
+    if not any(n in free for n in _EXTERIOR):
+        return None
+    if any(not any(n in free for n in g.interior) for g in groups):
+        return None  # a CCD whose interior is held already anchors the frame
+    candidates = [g for g in groups if g.estimable and any(n in free for n in g.interior)]
+    if not candidates:
+        return None
+    if reference_ccd is not None:
+        band, name = reference_ccd
+        chosen = [g for g in candidates if g.band == band and g.ccd_name == name]
+        if not chosen:
+            raise InputError(f"reference CCD {band}.{name} has no estimable interior", field="reference_ccd")
+        ref = chosen[0]
+    else:
+        in_ref = [g for g in candidates if g.band == model.reference_band] or candidates
+        ref = max(in_ref, key=lambda g: g.idx.size)
+    look = model.band_ccds(ref.band)[ref.ccd]
+    ifov = abs(float(look.tan_psi_y[1])) if look.tan_psi_y.size > 1 else 0.0
+    if not ifov > 0.0:
+        ifov = 1e-5
+    s = np.arange(look.n_detectors, dtype=np.float64)
+    sc = s - s.mean()
+    position = {n: j for j, n in enumerate(free)}
+    rows, sigmas = [], []
+    for axis, kind, sigma in (
+        ("tan_psi_x", "mean", gauge_sigma_px * ifov),
+        ("tan_psi_x", "slope", gauge_sigma_px * ifov / max(look.n_detectors / 2.0, 1.0)),
+        ("tan_psi_y", "mean", gauge_sigma_px * ifov),
+    ):
+        row = np.zeros(len(free))
+        for k in range(getattr(look, axis).size):
+            j = position.get(f"{ref.band}.{look.name}.{axis}.c{k}")
+            if j is None:
+                continue
+            row[j] = np.mean(s**k) if kind == "mean" else np.sum(sc * s**k) / np.sum(sc * sc)
+        if np.any(row):
+            rows.append(row)
+            sigmas.append(sigma)
+    if not rows:
+        return None
+    matrix = np.array(rows)
+    lookup = {n: i for i, n in enumerate(model.parameters().names)}
+    x0 = model.parameters().values[[lookup[n] for n in free]]
+    return Prior(matrix, matrix @ x0, np.array(sigmas))
+
+
+def _assemble(
+    model, problem, theta0, theta, runs, skipped, scheme, robust, bands, ccd_idx, threshold, unsettled=""
+):
+    n = problem.order.size
+    names_all = problem.all_names
+    # the last run of each step kind defines that group's values and covariance
+    last = {}
+    for step, _outer, result, free in runs:
+        last[step] = (result, free)
+    estimated = [nm for nm in names_all if any(nm in free for _r, free in last.values())]
+    pos = {nm: j for j, nm in enumerate(estimated)}
+    covariance = np.zeros((len(estimated), len(estimated))) if estimated else None
+    for result, free in last.values():
+        if result.covariance is None:
+            covariance = None
+            break
+        j = np.array([pos[nm] for nm in free], dtype=np.intp)
+        covariance[np.ix_(j, j)] = result.covariance
+    correlation = None
+    if covariance is not None and covariance.size:
+        sd = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            correlation = covariance / np.outer(sd, sd)
+        np.fill_diagonal(correlation, 1.0)
+    idx = np.array([problem.lookup[nm] for nm in estimated], dtype=np.intp)
+
+    if runs:
+        first, final = runs[0][2], runs[-1][2]
+        before = problem.to_input_order(first.initial_residuals)
+        after = problem.to_input_order(final.residuals)
+        scale, sigma0 = final.scale, final.sigma0
+    else:  # nothing estimable: evaluate the model once
+        before = after = _project_all(model, problem)
+        scale, sigma0 = float("nan"), float("nan")
+    norms = np.sqrt(problem.weight) * np.hypot(after[:, 0], after[:, 1])
+    s = scale if np.isfinite(scale) else 1.0
+    u = norms / (np.sqrt(2.0) * s)
+    valid = np.isfinite(u) & (problem.weight > 0.0)
+    weights = np.where(valid, robust_weights(np.where(valid, u, 0.0), robust), 0.0)
+    inlier = valid & (u <= threshold)
+
+    steps = []
+    for step, outer, result, free in runs:
+        res = problem.to_input_order(result.residuals)
+        stats = residual_statistics(res, inlier)
+        steps.append(
+            {
+                "step": step,
+                "outer": outer,
+                "parameters": len(free),
+                "success": result.success,
+                "message": result.message,
+                "iterations": result.iterations,
+                "cost": result.cost,
+                "scale": result.scale,
+                "sigma0": result.sigma0,
+                "condition_number": result.condition_number,
+                "n_valid": result.n_valid,
+                **{k: stats[k] for k in ("rms_row_px", "rms_col_px", "rms_px", "n_inliers")},
+                "log": result.log,
+            }
+        )
+    success = bool(runs) and all(r.success for _s, _o, r, _f in runs) and not unsettled
+    messages = [unsettled]
+    if not runs:
+        messages.append("nothing to estimate")
+    failed = [f"{s_} step (round {o_ + 1}): {r.message}" for s_, o_, r, _f in runs if not r.success]
+    messages += failed
+    if success:
+        stats = residual_statistics(after, inlier)
+        messages.append(
+            f"{scheme} calibration converged ({len(runs)} steps); RMS {stats['rms_px']:.3g} px over "
+            f"{stats['n_inliers']} inliers of {n} GCPs"
+        )
+        for _s, _o, r, _f in runs[-2:]:
+            if "warning" in r.message:
+                messages.append(r.message.split("; ", 1)[1])
+    if scheme == "joint" and success and correlation is not None:
+        messages.append(_max_correlation_note(estimated, correlation))
+    messages += [rec["reason"] for rec in skipped]
+    return CalibrationResult(
+        success=success,
+        message="; ".join(m for m in messages if m),
+        scheme=scheme,
+        model=model.with_parameters(theta),
+        names=tuple(estimated),
+        values=theta[idx].copy(),
+        initial_values=theta0[idx].copy(),
+        covariance=covariance,
+        correlation=correlation,
+        covariance_kind="joint" if scheme in ("joint", "exterior", "interior") else "conditional-blocks",
+        condition_numbers={f"{s_}": float(r.condition_number) for s_, (r, _f) in last.items()},
+        steps=steps,
+        residuals_before=before,
+        residuals_after=after,
+        weights=weights,
+        inlier=inlier,
+        band=bands,
+        ccd=ccd_idx,
+        skipped=skipped,
+        sigma0=float(sigma0),
+        scale=float(scale),
+        robust=robust,
+    )
+
+
+def _project_all(model, problem):
+    """Residuals of every GCP under ``model``, input order (when nothing is estimated)."""
+    p = problem.points
+    out = np.full((problem.order.size, 2), np.nan)
+    for g in problem.groups:
+        kw = {"band": g.band, "ccd": g.ccd} if problem.pushbroom else {"band": g.band}
+        r, c = model.ground_to_image(p["lon"][g.idx], p["lat"][g.idx], p["h"][g.idx], **kw)
+        out[g.idx] = np.stack([p["row"][g.idx] - r, p["col"][g.idx] - c], axis=-1)
+    return out
+
+
+def _max_correlation_note(names, correlation):
+    ext = [j for j, nm in enumerate(names) if nm in _EXTERIOR]
+    other = [j for j, nm in enumerate(names) if nm not in _EXTERIOR]
+    if not ext or not other:
+        return ""
+    block = np.abs(correlation[np.ix_(ext, other)])
+    i, j = np.unravel_index(np.nanargmax(block), block.shape)
+    return (
+        f"largest installation/interior correlation {block[i, j]:.4f} "
+        f"({names[ext[i]]} vs {names[other[j]]})"
+    )
