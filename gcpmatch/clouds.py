@@ -50,11 +50,12 @@ def cloud_pixels(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, nc
     out = np.zeros(scene.shape, bool)
     s32 = np.where(ok, scene, 0.0).astype(np.float32)
     r32 = np.where(ok, reference, 0.0).astype(np.float32)
-    land = ok & (_local_ncc(s32, r32, box_px) > ncc_land)
-    land[::2, :] = False  # a regular subsample is plenty for two coefficients
-    if land.sum() < 100:
+    land = np.flatnonzero(ok & (_local_ncc(s32, r32, box_px) > ncc_land))
+    if land.size < 100:
         return out
-    x, y = r32[land].astype(np.float64), s32[land].astype(np.float64)
+    # a regular subsample of at most ~50 000 land pixels is plenty for two coefficients
+    land = land[:: max(1, land.size // 50_000)]
+    x, y = r32.ravel()[land].astype(np.float64), s32.ravel()[land].astype(np.float64)
     w = np.ones(x.size)
     for it in range(9):
         a = np.stack([x, np.ones_like(x)], axis=-1) * np.sqrt(w)[:, None]
@@ -65,8 +66,7 @@ def cloud_pixels(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, nc
         # haze and cloud edges still correlate with the ground but are brighter: trim the
         # bright side (one-sided contamination) so that they cannot pull the fit
         w[res > 2.5 * s] = 0.0
-    resid = np.where(ok, s32 - (coef[0] * r32 + coef[1]), 0.0)
-    bright = (resid > k * s).astype(np.uint8)
+    bright = (ok & (s32 - (np.float32(coef[0]) * r32 + np.float32(coef[1])) > np.float32(k * s))).astype(np.uint8)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (min_size_px, min_size_px))
     return cv2.morphologyEx(bright, cv2.MORPH_OPEN, kernel).astype(bool)
 
