@@ -94,9 +94,23 @@ def scene_height_m(model, dem, *, band=None, iterations: int = 3) -> float:
     return h
 
 
+def _sift_matches_opencv(img_a, mask_a, img_b, mask_b, n_features):
+    """OpenCV SIFT on two uint8 images, brute-force L2 matching with Lowe's ratio test (0.8)."""
+    sift = cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.01)
+    kp_a, des_a = sift.detectAndCompute(img_a, mask_a.astype(np.uint8) * 255)
+    kp_b, des_b = sift.detectAndCompute(img_b, mask_b.astype(np.uint8) * 255)
+    if des_a is None or des_b is None or len(kp_a) < 2 or len(kp_b) < 2:
+        return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32), len(kp_a), len(kp_b)
+    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(des_a, des_b, k=2)
+    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
+    pa = np.float32([kp_a[m.queryIdx].pt for m in good]).reshape(-1, 2)
+    pb = np.float32([kp_b[m.trainIdx].pt for m in good]).reshape(-1, 2)
+    return pa, pb, len(kp_a), len(kp_b)
+
+
 def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None, max_offset_px: float = 1000.0,
                  target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
-                 seed: int = 0) -> CoarseResult:
+                 seed: int = 0, backend: str = "cpu", device=None) -> CoarseResult:
     """Pre-correct ``model`` so that it lands within a few pixels of the truth (see module doc).
 
     Parameters
@@ -110,6 +124,9 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     band : str, optional
     max_offset_px : float
         Largest expected error of the model, in scene pixels (the DOM search margin).
+    backend : {"cpu", "torch"}
+        OpenCV SIFT, brute-force matching and affine RANSAC, or kornia's SIFT, ratio-test
+        matching and homography RANSAC on the torch ``device`` (``None``: CUDA if available).
 
     Raises
     ------
@@ -168,21 +185,25 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     warped = cv2.warpAffine(to_uint8(small, small_valid), a_pred, canvas, flags=cv2.INTER_LINEAR)
     warped_valid = cv2.warpAffine(small_valid.astype(np.uint8), a_pred, canvas, flags=cv2.INTER_NEAREST)
     dom_valid = np.isfinite(dom_small)
-    sift = cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.01)
-    kp_s, des_s = sift.detectAndCompute(warped, (warped_valid > 0).astype(np.uint8) * 255)
-    kp_d, des_d = sift.detectAndCompute(to_uint8(dom_small, dom_valid), dom_valid.astype(np.uint8) * 255)
-    if des_s is None or des_d is None or len(kp_s) < 8 or len(kp_d) < 8:
-        raise CoarseMatchError(f"too few SIFT keypoints (scene {len(kp_s)}, DOM {len(kp_d)}): no texture?")
-    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(des_s, des_d, k=2)
-    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
-    if len(good) < 8:
-        raise CoarseMatchError(f"only {len(good)} SIFT matches pass the ratio test")
-    ps = np.float32([kp_s[m.queryIdx].pt for m in good])
-    pd = np.float32([kp_d[m.trainIdx].pt for m in good])
-    cv2.setRNGSeed(seed)
-    _, mask = cv2.estimateAffine2D(ps, pd, method=cv2.RANSAC, ransacReprojThreshold=ransac_px,
-                                   maxIters=10000, confidence=0.999)
-    ransac_in = np.zeros(len(good), bool) if mask is None else mask.ravel().astype(bool)
+    if backend == "cpu":
+        ps, pd, n_kp_s, n_kp_d = _sift_matches_opencv(warped, warped_valid > 0, to_uint8(dom_small, dom_valid),
+                                                      dom_valid, n_features)
+    else:
+        from gcpmatch._features_kornia import ransac_inliers, sift_matches
+
+        ps, pd, n_kp_s, n_kp_d = sift_matches(warped, warped_valid > 0, to_uint8(dom_small, dom_valid), dom_valid,
+                                              n_features=n_features, device=device)
+    if n_kp_s < 8 or n_kp_d < 8:
+        raise CoarseMatchError(f"too few SIFT keypoints (scene {n_kp_s}, DOM {n_kp_d}): no texture?")
+    if len(ps) < 8:
+        raise CoarseMatchError(f"only {len(ps)} SIFT matches pass the ratio test")
+    if backend == "cpu":
+        cv2.setRNGSeed(seed)
+        _, mask = cv2.estimateAffine2D(ps, pd, method=cv2.RANSAC, ransacReprojThreshold=ransac_px,
+                                       maxIters=10000, confidence=0.999)
+        ransac_in = np.zeros(len(ps), bool) if mask is None else mask.ravel().astype(bool)
+    else:
+        ransac_in = ransac_inliers(ps, pd, threshold_px=ransac_px, seed=seed, device=device)
     if ransac_in.sum() < 6:
         raise CoarseMatchError("RANSAC found no consistent set of SIFT matches")
     # scene coordinates of all ratio-test matches (undo the warp) and their ground points
@@ -214,7 +235,7 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         corrected, offsets = fit_ccd_offsets(corrected, row[keep], col[keep], glon[keep], glat[keep], gh[keep],
                                              ccd[keep], band=band or corrected.reference_band)
     return CoarseResult(
-        model=corrected, n_keypoints_scene=len(kp_s), n_keypoints_dom=len(kp_d), n_matches=len(good),
+        model=corrected, n_keypoints_scene=n_kp_s, n_keypoints_dom=n_kp_d, n_matches=len(ps),
         n_ransac_inliers=int(ransac_in.sum()), n_inliers=int(keep.size), rms_m=fit2.rms_m, factor=f,
         ccd_offsets_px=offsets,
         points={"row": row[keep], "col": col[keep], "lon": glon[keep], "lat": glat[keep], "h": gh[keep]},

@@ -117,7 +117,10 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
         raise InputError(f"the scene raster is {scene.shape}, the model describes {model.image_shape}")
     if mask is not None and mask.shape != scene.shape:
         raise InputError(f"the mask is {mask.shape}, the scene {scene.shape}")
-    coarse = coarse_match(scene, model, dem, dom, band=band, max_offset_px=opt.max_offset_px, seed=opt.seed)
+    torch_backend = opt.backend in ("gpu", "torch")
+    device = "cuda" if opt.backend == "gpu" else ("cpu" if torch_backend else None)
+    coarse = coarse_match(scene, model, dem, dom, band=band, max_offset_px=opt.max_offset_px, seed=opt.seed,
+                          backend="torch" if torch_backend else "cpu", device=device)
     timings["coarse_s"] = time.perf_counter() - t0
     model_pc = coarse.model
     if progress:
