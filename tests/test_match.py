@@ -165,6 +165,8 @@ def test_torch_backend_gives_the_same_gcps(clear_scene):
     scene = img[:, look.first_col : look.first_col + look.n_detectors]
     a = np.stack([ref[r : r + 64, c : c + 64] for r, c in zip(r0, c0)])
     b = np.stack([scene[r + 3 : r + 67, c + 2 : c + 66] for r, c in zip(r0, c0)])
+    finite = np.isfinite(a).all(axis=(1, 2))  # the reference has no data over parts of the sea
+    a, b = a[finite], b[finite]
     cpu = phase_correlate(a, b, max_shift_px=16)
     tor = phase_correlate(a, b, max_shift_px=16, backend="torch", device="cpu")
     both = cpu.valid & tor.valid
