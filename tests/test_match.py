@@ -160,7 +160,7 @@ def test_torch_backend_gives_the_same_gcps(clear_scene):
     c0 = rng.integers(0, 160 - 70, 200)
     from gcpmatch.reference import reference_for_ccd
 
-    ref = reference_for_ccd(lab, dem, dom, band="B2", ccd=1)
+    ref = reference_for_ccd(truth, dem, dom, band="B2", ccd=1)  # windows that correspond
     look = lab.band_ccds("B2")[1]
     scene = img[:, look.first_col : look.first_col + look.n_detectors]
     a = np.stack([ref[r : r + 64, c : c + 64] for r, c in zip(r0, c0)])
