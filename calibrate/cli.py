@@ -17,6 +17,8 @@ from pathlib import Path
 import click
 import numpy as np
 
+from calibrate._json import json_default
+
 from sensor_models import __version__
 from sensor_models.atomic import atomic_write_text
 from sensor_models.errors import GcpcalError, InputError
@@ -31,14 +33,7 @@ def write_summary(path: Path, summary: dict) -> Path:
     return Path(path)
 
 
-def _json_default(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON serializable: {type(value).__name__}")
+_json_default = json_default
 
 
 def _float_list(text: str, what: str) -> np.ndarray:

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate._json import json_default
+
 __all__ = ["FIXTURE_DIR", "run_demo"]
 
 FIXTURE_DIR = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
@@ -142,9 +144,4 @@ def run_demo(out_dir: Path, *, fixture_dir: Path = FIXTURE_DIR, progress=None, s
     return summary
 
 
-def _json_default(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serializable: {type(value).__name__}")
+_json_default = json_default
