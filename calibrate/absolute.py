@@ -49,7 +49,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibrate._json import json_safe
-
 from calibrate.lsq import PROBE_POINTS, Chunk, LsqResult, Prior, robust_weights, solve
 from sensor_models.base import SensorModel
 from sensor_models.errors import InputError
