@@ -31,10 +31,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-
-from calibrate._json import json_safe
 from scipy import stats
 
+from calibrate._json import json_safe
 from sensor_models.errors import InputError
 from sensor_models.geodesy import geodetic_to_ecef
 from sensor_models.pushbroom import PushbroomModel

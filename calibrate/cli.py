@@ -18,7 +18,6 @@ import click
 import numpy as np
 
 from calibrate._json import json_default
-
 from sensor_models import __version__
 from sensor_models.atomic import atomic_write_text
 from sensor_models.errors import GcpcalError, InputError
