@@ -436,15 +436,16 @@ def match(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_
               default="exterior-interior", show_default=True, help="Which parameters, in which order (seed 002's schemes).")
 @click.option("--robust", type=click.Choice(["huber", "cauchy", "none"]), default="cauchy", show_default=True, help="Robust loss.")
 @click.option("--band", help="Band of GCPs that name none (default: the reference band).")
+@click.option("--image", type=click.Path(dir_okay=False), help="Raster the GCPs were measured in, when it is a crop of SCENE.")
 @click.option("--no-report", is_flag=True, help="Skip report.html and its figures.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @click.pass_context
-def calibrate(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, no_report, as_json):
+def calibrate(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, image, no_report, as_json):
     """Calibrate SCENE's model from GCPs; write calibration.json, the calibrated model and report.html."""
     from calibrate.run import calibrate_scene
 
     quiet = ctx.obj.get("quiet", False) or as_json
-    summary = calibrate_scene(scene_path, gcps_path, out_dir, scheme=scheme, robust=robust, band=band,
+    summary = calibrate_scene(scene_path, gcps_path, out_dir, scheme=scheme, robust=robust, band=band, image=image,
                               report=not no_report, progress=None if quiet else (lambda m: click.echo(m, err=True)))
     if as_json:
         click.echo(json.dumps(summary, default=_json_default))

@@ -86,13 +86,23 @@ def _accuracy(model, pts):
 
 
 def calibrate_scene(scene_path, gcps_path, out_dir, *, scheme="exterior-interior", robust="cauchy", band=None,
-                    report=True, progress=None) -> dict:
-    """Run the calibration stage (see the module docstring); return the summary."""
+                    image=None, report=True, progress=None) -> dict:
+    """Run the calibration stage (see the module docstring); return the summary.
+
+    ``image``: the raster the GCPs were measured in, when it is a crop of the scene the model
+    describes (an RPC product's sub-image with a pixel geotransform): the model is cropped to
+    it, as ``gcpcal match --image`` does.
+    """
+    from gcpmatch.extract import _crop_of, read_band
     from gcpmatch.gcps import read_gcps
     from sensor_models.readers import open_model
 
     t0 = time.perf_counter()
     model = open_model(scene_path)
+    if image is not None:
+        shape = read_band(model, band or getattr(model, "reference_band", None), image).shape
+        if shape != tuple(model.image_shape) and hasattr(model, "cropped"):
+            model = _crop_of(model, image, shape)
     table = read_gcps(gcps_path, image_shape=model.image_shape)
     if progress:
         progress(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")

@@ -288,6 +288,23 @@ def read_band(model, band: str, image=None) -> np.ndarray:
     return np.ma.filled(data.astype(np.float32), np.nan)
 
 
+def _crop_of(model, image, shape):
+    """The model of a crop whose raster says where it lies in the full scene.
+
+    A crop saved with a pixel geotransform ``(1, 0, c0, 0, 1, r0)`` and no CRS (the convention
+    of the shareloc / OTB test data: ``(c0, r0)`` is the full-scene column and row of the crop's
+    first pixel) gets ``model.cropped(r0, c0, shape)``; anything else is an error.
+    """
+    import rasterio
+
+    with rasterio.open(image) as ds:
+        t, crs = ds.transform, ds.crs
+    if crs is None and abs(t.a - 1) < 1e-12 and abs(t.e - 1) < 1e-12 and t.b == 0 and t.d == 0:
+        return model.cropped(t.f, t.c, shape)
+    raise InputError(f"the raster is {shape[0]} x {shape[1]} px but the model describes {model.image_shape}; "
+                     "a crop must carry a pixel geotransform (1, 0, col0, 0, 1, row0)", path=str(image))
+
+
 def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_datum=None, band=None, image=None,
                 mask_path=None, gpkg_path=None, geotiff_path=None, options: MatchOptions = MatchOptions(),
                 progress=None) -> dict:
@@ -301,6 +318,8 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     model = open_model(scene_path)
     band = band or getattr(model, "reference_band", None)
     scene = read_band(model, band, image)
+    if image is not None and scene.shape != tuple(model.image_shape) and hasattr(model, "cropped"):
+        model = _crop_of(model, image, scene.shape)
     dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
     dom = MapImage.open(dom_path)
     mask = None

@@ -91,3 +91,36 @@ def test_rpc_bias_compensation_recovers_sixty_lines(ventoux):
     print(f"compensation: unbiased a0 {fits['geom']['bias.row.a0']:.2f}, biased a0 {fits['bias']['bias.row.a0']:.2f}, "
           f"difference {delta:.3f} lines")
     assert abs(abs(delta) - 60.0) < 0.5
+
+
+def test_match_and_calibrate_commands_on_the_biased_crop(shared_data, tmp_path):
+    """The analyst's path on a real RPC product crop: match, then calibrate the RPC bias."""
+    from calibrate.cli import main
+
+    folder = shared_data / "pleiades_ventoux"
+    left, limg = _crop(folder, "left_image.geom", "left_image.tif")
+    dem_args = ["--dem", str(shared_data / "dem" / "N44E005.hgt"), "--dem-datum", "egm96",
+                "--geoid", str(shared_data / "dem" / "egm96_15.gtx")]
+    dem = Dem.open(shared_data / "dem" / "N44E005.hgt", vertical_datum="egm96", geoid=shared_data / "dem" / "egm96_15.gtx")
+    lon, lat, _ = left.image_to_ground(np.array([0.5, 0.5, 499.5, 499.5]), np.array([0.5, 499.5, 0.5, 499.5]), dem=dem)
+    crs = pyproj.CRS.from_epsg(32631)
+    x, y = pyproj.Transformer.from_crs(4326, crs, always_xy=True).transform(lon, lat)
+    transform = Affine(0.5, 0, min(x) - 10, 0, -0.5, max(y) + 10)
+    shape = (int((max(y) - min(y) + 20) / 0.5), int((max(x) - min(x) + 20) / 0.5))
+    ortho = orthorectify(left, limg, dem, transform, crs, shape)
+    dom = tmp_path / "left_dom.tif"
+    with rasterio.open(dom, "w", driver="GTiff", width=shape[1], height=shape[0], count=1, dtype="float32",
+                       crs=crs.to_wkt(), transform=transform, nodata=np.nan) as ds:
+        ds.write(ortho, 1)
+    geom, image = str(folder / "right_image_bias.geom"), str(folder / "right_image.tif")
+    assert main(["-q", "match", geom, "--image", image, "--dom", str(dom), *dem_args, "--out", str(tmp_path / "g.csv"),
+                 "--window", "32", "--spacing", "8", "--max-offset", "150"]) == 0
+    assert main(["-q", "calibrate", geom, "--image", image, "--gcps", str(tmp_path / "g.csv"),
+                 "--out", str(tmp_path / "cal"), "--no-report"]) == 0
+    import json
+
+    doc = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    a0 = doc["bias"]["bias.row.a0"]
+    print(f"CLI: RPC bias a0 {a0:.2f} lines (60 + the SRTM parallax floor)")
+    assert -66.0 < a0 < -60.0  # 60 lines plus the few-line floor against the left image's RPC and SRTM
+    assert (tmp_path / "cal" / "right_image_bias_RPC.TXT").exists()
