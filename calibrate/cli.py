@@ -458,6 +458,23 @@ def calibrate(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, image, 
         ctx.exit(3)
 
 
+def _register_commands() -> None:
+    """Add the commands that live in their own modules (``calibrate.cli_*``, attribute ``command``)."""
+    import importlib
+
+    for name in ("calibrate.cli_relative", "calibrate.cli_validate", "calibrate.cli_ortho"):
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:  # not written yet
+                continue
+            raise
+        cli.add_command(module.command)
+
+
+_register_commands()
+
+
 def main(argv=None) -> int:
     """Console entry point: run the CLI, turn user errors into one line and exit code 1."""
     try:
