@@ -42,7 +42,7 @@ def scene_gsd_m(model, *, band=None, height_m: float = 0.0) -> float:
 
 
 def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: int = 0, row1: int | None = None,
-                      psf_sigma_px: float = 0.45, block_lines: int = 512) -> np.ndarray:
+                      psf_sigma_px: float = 0.45, block_lines: int = 512, workers: int = 2) -> np.ndarray:
     """The DOM seen through ``model`` by one CCD: float32 (row1 - row0, n_detectors), NaN = none.
 
     Parameters
@@ -57,17 +57,33 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
         Lines to render (default: all).
     psf_sigma_px : float
         Optical PSF sigma in scene pixels added to the pixel's box response.
+    block_lines, workers : int
+        Lines per block and threads rendering blocks.
     """
     n_rows = model.n_rows
     row1 = n_rows if row1 is None else int(row1)
     look = model.band_ccds(band)[ccd]
     sigma = psf_sigma_dom_px(scene_gsd_m(model, band=band), grid_resolution_m(dom.grid), psf_sigma_px)
     out = np.empty((row1 - row0, look.n_detectors), dtype=np.float32)
-    for a in range(row0, row1, block_lines):
+
+    def render(a):
         b = min(row1, a + block_lines)
         pg = locate_block(model, dem, [dom.grid], band=band, ccd=ccd, row0=a, row1=b)
         u, v = pg.uv[0]
         out[a - row0 : b - row0] = sample_map_image(dom, u, v, sigma_px=sigma)
+
+    from concurrent.futures import ThreadPoolExecutor
+
+    from sensor_models.simulate.render import _dem_planes
+
+    _dem_planes(dem)  # shared sampling planes, built once before the threads
+    starts = list(range(row0, row1, block_lines))
+    if workers <= 1 or len(starts) == 1:
+        for a in starts:
+            render(a)
+    else:  # numpy, OpenCV and GDAL release the GIL: blocks render in parallel
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            list(pool.map(render, starts))
     return out
 
 
