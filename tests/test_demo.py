@@ -87,3 +87,38 @@ def test_too_few_points_is_a_reported_failure_not_nonsense(tmp_path, capsys):
     captured = capsys.readouterr()
     assert rc != 0
     assert "Traceback" not in captured.err
+
+
+def test_forty_percent_gross_outliers_barely_move_the_calibration(demo_run):
+    """Seed-like robustness: 40 % of the GCPs moved by 5-200 px; truth error within 1.2x of clean."""
+    import numpy as np
+    from pathlib import Path
+
+    from calibrate.absolute import calibrate_model
+    from calibrate.run import points_of
+    from gcpmatch.gcps import read_gcps
+    from sensor_models.readers import open_model
+    from sensor_models.simulate.truth import truth_error
+    from sensor_models.terrain import Dem
+
+    out, _ = demo_run
+    fixture = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
+    lab, truth = open_model(fixture / "manifest.json"), open_model(fixture / "truth_manifest.json")
+    dem = Dem.open(fixture / "reference" / "dem.tif")
+    table = read_gcps(out / "gcps.csv")
+    g = points_of(table.select((table.band == "B2") & (table.kind == "gcp")))
+    rng = np.random.default_rng(40)
+    bad = rng.random(g["row"].size) < 0.4
+    size = rng.uniform(5.0, 200.0, bad.sum())
+    angle = rng.uniform(0.0, 2.0 * np.pi, bad.sum())
+    row, col = g["row"].copy(), g["col"].copy()
+    row[bad] += size * np.sin(angle)
+    col[bad] += size * np.cos(angle)
+    errors = {}
+    for name, (r, c) in {"clean": (g["row"], g["col"]), "outliers": (row, col)}.items():
+        res = calibrate_model(lab, r, c, g["lon"], g["lat"], g["h"], band="B2", ccd=g["ccd"], scheme="exterior-interior")
+        assert res.success
+        errors[name] = truth_error(truth, res.model, dem=dem, step_px=16, bands=["B2"])["rms_px"]
+    print(f"40 % outliers: truth rms {errors['outliers']:.4f} px vs clean {errors['clean']:.4f} px")
+    assert errors["clean"] < 0.1
+    assert errors["outliers"] <= 1.2 * errors["clean"]

@@ -206,3 +206,20 @@ def test_reference_not_covering_the_footprint_is_an_error(tmp_path):
     with pytest.raises(InputError, match="does not cover the scene footprint"):
         simulate_pushbroom(tmp_path / "far", config=far, dom=p_dom, dem=p_dem)
     assert not any((tmp_path / "far").iterdir())  # no partial output
+
+
+def test_thermal_drift_of_the_installation_grows_with_time():
+    """A drift of the installation (folded into the true attitude) moves late lines, not early ones."""
+    cfg = small_config()
+    warm = replace(cfg, errors=replace(cfg.errors, thermal_drift_arcsec_s=(0.0, 2.0, 0.0)))
+    a, b = build_models(cfg).true_model, build_models(warm).true_model
+    ifov_arcsec = cfg.scene.gsd_m / cfg.scene.altitude_m * 206264.8
+    rows = np.array([0.5, a.n_rows - 0.5])
+    col = np.full(2, 96 + 48.5)  # middle of the second CCD (away from the overlaps)
+    lon, lat, h = a.image_to_ground(rows, col, height=500.0, band="B2", ccd=1)
+    r, c = b.ground_to_image(lon, lat, h, band="B2", ccd=1)
+    shift = np.hypot(r - rows, c - col)
+    seconds = (a.n_rows - 1) * a.line_timing.line_period_s
+    expected = 2.0 * seconds / ifov_arcsec  # pitch drift in pixels at the last line
+    assert shift[0] < 0.02
+    assert 0.8 * expected < shift[1] < 1.2 * expected
