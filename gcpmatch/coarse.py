@@ -68,10 +68,12 @@ def to_uint8(img: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
 
 
 def _border(model, band, n=24):
+    """Rows and columns of ``n`` points along each of the four image edges (pixel centres)."""
     n_rows, n_cols = model.image_shape
-    t = np.linspace(0.5, 1.0, n)
-    rows = np.concatenate([t * 0 + 0.5, t * 0 + n_rows - 0.5, np.linspace(0.5, n_rows - 0.5, n), np.linspace(0.5, n_rows - 0.5, n)])
-    cols = np.concatenate([np.linspace(0.5, n_cols - 0.5, n), np.linspace(0.5, n_cols - 0.5, n), t * 0 + 0.5, t * 0 + n_cols - 0.5])
+    along = np.linspace(0.5, n_rows - 0.5, n)
+    across = np.linspace(0.5, n_cols - 0.5, n)
+    rows = np.concatenate([np.full(n, 0.5), np.full(n, n_rows - 0.5), along, along])
+    cols = np.concatenate([across, across, np.full(n, 0.5), np.full(n, n_cols - 0.5)])
     return rows, cols
 
 

@@ -18,10 +18,8 @@ __all__ = ["grid_resolution_m", "reference_for_ccd", "reference_for_image", "sce
 
 
 def grid_resolution_m(grid) -> float:
-    """Approximate pixel size of a map grid in metres (geographic grids at 111.32 km/deg)."""
-    t = grid.transform
-    res = float(np.sqrt(abs(t.a * t.e - t.b * t.d)))
-    return res * 111_320.0 if grid.crs.is_geographic else res
+    """Approximate pixel size of a map grid in metres (:attr:`MapGrid.resolution_m`)."""
+    return grid.resolution_m
 
 
 def scene_gsd_m(model, *, band=None, height_m: float = 0.0) -> float:

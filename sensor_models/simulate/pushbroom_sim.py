@@ -116,11 +116,11 @@ class _Renderer:
         self.dem = dem
         self.dom = dom
         r = cfg.radiometry
-        self.sigma_dom = psf_sigma_dom_px(cfg.scene.gsd_m, _grid_resolution_m(dom.grid), r.psf_sigma_px)
+        self.sigma_dom = psf_sigma_dom_px(cfg.scene.gsd_m, dom.grid.resolution_m, r.psf_sigma_px)
         self.dom_scale = _dom_scale(dom)
         n_rows, n_cols = dom.grid.shape
         shape = (n_rows // FIELD_FACTOR + 2, n_cols // FIELD_FACTOR + 2)
-        res = _grid_resolution_m(dom.grid) * FIELD_FACTOR
+        res = dom.grid.resolution_m * FIELD_FACTOR
         self.seasonal = smooth_field(shape, cfg.radiometry.seasonal_scale_m / res,
                                      np.random.SeedSequence([cfg.seed, 10]))
         self.clouds = None
@@ -155,14 +155,6 @@ class _Renderer:
             mixed = (1.0 - alpha) * dn.astype(np.float32) + alpha * cloud_dn
             dn = np.clip(np.rint(mixed), 0, 2**r.bits - 1).astype(np.uint16)
         return dn, alpha
-
-
-def _grid_resolution_m(grid: MapGrid) -> float:
-    t = grid.transform
-    res = float(np.sqrt(abs(t.a * t.e - t.b * t.d)))
-    if grid.crs.is_geographic:
-        res *= 111_320.0
-    return res
 
 
 def _dom_scale(dom: MapImage) -> float:

@@ -61,6 +61,13 @@ class MapGrid:
         """Map coordinates ``(x, y)`` -> node indices ``(u, v)``."""
         return Affine.translation(-0.5, -0.5) @ ~self.transform
 
+    @property
+    def resolution_m(self) -> float:
+        """Approximate pixel size in metres (geographic grids at 111.32 km per degree)."""
+        t = self.transform
+        res = float(np.sqrt(abs(t.a * t.e - t.b * t.d)))
+        return res * 111_320.0 if self.crs.is_geographic else res
+
     @classmethod
     def of_dem(cls, dem: Dem) -> "MapGrid":
         return cls(dem.transform, dem.crs, dem.shape)
