@@ -5,11 +5,12 @@ whose LAB model is about 260 px off, its procedural reference DOM and DEM, and t
 that rendered it. The demo does what an analyst does with a new scene, then grades it against
 the truth:
 
-1. **match**: every band against the DOM and DEM (coarse SIFT pre-correction, dense phase
+1. **match** the reference band against the DOM and DEM (coarse SIFT pre-correction, dense phase
    correlation), a fifth of the matches kept apart as check points (``gcps.csv``);
 2. **calibrate** the reference band: exterior (installation roll, pitch, yaw) then interior
-   (directional angles of each CCD), iterated (seed 003 section 2.2); then every other band's
-   interior in the frame the reference band fixed (band-to-band, seed 003 section 2.3);
+   (directional angles of each CCD), iterated (seed 003 section 2.2.1); then every other band
+   against the calibrated reference band from dense band-to-band tie points (seed 003 section
+   2.2.2, :mod:`calibrate.relative`);
 3. **report**: check-point accuracy before and after (never used in a fit), per CCD, the HTML
    report with figures, and ``summary.json`` with ``gcps``, ``check_points``,
    ``check_rmse_px {before, after}``, ``truth_error_px {rms, max}`` (calibrated model against
@@ -35,9 +36,10 @@ def run_demo(out_dir: Path, *, fixture_dir: Path = FIXTURE_DIR, progress=None, s
     """Run the demo and return its summary (also written to ``out_dir/summary.json``)."""
     from calibrate.absolute import calibrate_model
     from calibrate.accuracy import check_point_accuracy, error_versus_gcp_count
+    from calibrate.relative import relative_calibration
     from calibrate.run import points_of
     from gcpmatch.extract import MatchOptions, extract_gcps, read_band
-    from gcpmatch.gcps import GcpTable, write_gcps_csv
+    from gcpmatch.gcps import write_gcps_csv
     from sensor_models.atomic import atomic_write_text
     from sensor_models.readers import open_model
     from sensor_models.readers.manifest import write_manifest
@@ -57,40 +59,34 @@ def run_demo(out_dir: Path, *, fixture_dir: Path = FIXTURE_DIR, progress=None, s
     reference_band = lab.reference_band
     bands = [reference_band] + [b for b in lab.bands if b != reference_band]
 
-    # 1. match every band
-    tables, match_summaries = [], {}
-    for k, band in enumerate(bands):
-        step(f"matching band {band} against the DOM ({k + 1}/{len(bands)})")
-        table, summary = extract_gcps(lab, read_band(lab, band), dem, dom, band=band,
-                                      options=MatchOptions(spacing_px=spacing_px, seed=k))
-        if table is None:
-            raise RuntimeError(f"band {band}: no GCP ({summary.get('message')})")
-        tables.append(table)
-        match_summaries[band] = {key: summary[key] for key in ("gcps", "check_points", "usable_fraction", "cloud_fraction")}
-        match_summaries[band]["coarse_inliers"] = summary["coarse"]["inliers"]
-        match_summaries[band]["seconds"] = summary["timings"]["total_s"]
-    merged = GcpTable.from_arrays(**{c: np.concatenate([np.asarray(getattr(t, c)) for t in tables])
-                                     for c in ("row", "col", "lon", "lat", "h", "sigma_px", "band", "ccd", "score", "kind")})
+    # 1. match the reference band against the DOM and DEM
+    step(f"matching band {reference_band} against the DOM")
+    merged, summary = extract_gcps(lab, read_band(lab, reference_band), dem, dom, band=reference_band,
+                                   options=MatchOptions(spacing_px=spacing_px))
+    if merged is None:
+        raise RuntimeError(f"band {reference_band}: no GCP ({summary.get('message')})")
+    match_summaries = {reference_band: {key: summary[key] for key in ("gcps", "check_points", "usable_fraction",
+                                                                      "cloud_fraction")}}
+    match_summaries[reference_band]["coarse_inliers"] = summary["coarse"]["inliers"]
+    match_summaries[reference_band]["seconds"] = summary["timings"]["total_s"]
     write_gcps_csv(merged, out_dir / "gcps.csv")
 
-    # 2. calibrate: reference band absolute, then the other bands' interiors
+    # 2. calibrate the reference band absolutely: exterior then interior (seed 003 2.2.1)
     step(f"calibrating {reference_band}: exterior then interior")
-    g_all = points_of(merged.gcps())
-    sel = g_all["band"] == reference_band
-    ref_pts = {k: (v[sel] if v is not None else None) for k, v in g_all.items()}
+    ref_pts = points_of(merged.gcps())
     result = calibrate_model(lab, ref_pts["row"], ref_pts["col"], ref_pts["lon"], ref_pts["lat"], ref_pts["h"],
                              band=reference_band, ccd=ref_pts["ccd"], sigma_px=ref_pts["sigma_px"],
                              score=ref_pts["score"], scheme="exterior-interior")
-    model = result.model
     band_results = {reference_band: {"success": bool(result.success), "message": result.message}}
-    for band in bands[1:]:
-        step(f"calibrating band {band} against {reference_band} (interior)")
-        s = g_all["band"] == band
-        r = calibrate_model(model, g_all["row"][s], g_all["col"][s], g_all["lon"][s], g_all["lat"][s], g_all["h"][s],
-                            band=band, ccd=g_all["ccd"][s], sigma_px=g_all["sigma_px"][s], score=g_all["score"][s],
-                            scheme="interior")
-        model = r.model
-        band_results[band] = {"success": bool(r.success), "message": r.message}
+
+    # 3. every other band against the calibrated reference band (seed 003 2.2.2)
+    step(f"band-to-band calibration against {reference_band}")
+    relative = relative_calibration(result.model, {b: read_band(lab, b) for b in bands}, dem,
+                                    reference_band=reference_band)
+    model = relative.model
+    for band, r in relative.bands.items():
+        band_results[band] = {"success": bool(r.success), "message": r.message,
+                              "tie_rms_before_px": r.before.get("rms_px"), "tie_rms_after_px": r.after.get("rms_px")}
     write_manifest(model, out_dir / "manifest.json",
                    rasters={b: ref["path"] for b, ref in (lab.rasters or {}).items()})
 
@@ -103,7 +99,7 @@ def run_demo(out_dir: Path, *, fixture_dir: Path = FIXTURE_DIR, progress=None, s
                                      band=checks["band"], ccd=checks["ccd"])
     t_err = truth_error(truth, model, dem=dem, step_px=8)
     t_err_lab = truth_error(truth, lab, dem=dem, step_px=32)
-    ref_checks = {k: (v[checks["band"] == reference_band] if v is not None else None) for k, v in checks.items()}
+    ref_checks = checks
     n_ref = int(ref_pts["row"].size)
     counts = sorted({c for c in (20, 50, 100, 200, 400, n_ref) if c <= n_ref})
     step("error versus number of GCPs")

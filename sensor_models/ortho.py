@@ -33,7 +33,7 @@ nodes on the test scenes, ``tests/test_ortho.py`` requires <= 0.01 px).
 
 Multi-CCD push-broom rasters stitch CCDs side by side, so the ground -> raster mapping jumps at
 the seams. Each CCD's own mapping is smooth: the node fields are computed per CCD (inverse
-localization forced onto that CCD) for the CCDs a coarse pre-check finds near the block, and a
+localization forced onto that CCD) at the nodes a coarse pre-check finds near that CCD, and a
 pixel takes the first CCD (in column order) whose interpolated column falls inside its columns,
 which is the rule of :meth:`PushbroomModel.ground_to_image` (first CCD wins on overlaps).
 
@@ -363,9 +363,15 @@ class OrthoGeometry:
         tau[~on_dem] = 0.0
 
         todo = on_dem.copy()
-        for solver in self._candidates(lon_n, lat_n, pr.shape, h_lo, h_hi):
-            n = lon_n.size
-            r3, c3 = self._solve(solver, np.tile(lon_n, 3), np.tile(lat_n, 3), np.repeat([h_lo, h_mid, h_hi], n))
+        for solver, nodes in self._plan(lon_n, lat_n, pr.shape, h_lo, h_hi):
+            idx = np.arange(lon_n.size) if nodes is None else np.flatnonzero(nodes)
+            n = idx.size
+            r3 = np.full((3, lon_n.size), np.nan)
+            c3 = np.full((3, lon_n.size), np.nan)
+            r_exact, c_exact = self._solve(solver, np.tile(lon_n[idx], 3), np.tile(lat_n[idx], 3),
+                                           np.repeat([h_lo, h_mid, h_hi], n))
+            r3[:, idx] = r_exact.reshape(3, n)
+            c3[:, idx] = c_exact.reshape(3, n)
             r_ccd = _quadratic_field(r3.reshape(3, *pr.shape), wr, wc, tau)
             c_ccd = _quadratic_field(c3.reshape(3, *pr.shape), wr, wc, tau)
             bad_nodes = ~(np.isfinite(r3) & np.isfinite(c3)).reshape(3, *pr.shape).all(axis=0)
@@ -384,33 +390,50 @@ class OrthoGeometry:
         ccd[~valid] = -1
         return BlockGeometry(row, col, h, ccd, valid)
 
-    def _candidates(self, lon_n, lat_n, node_shape, h_lo, h_hi):
-        """The solvers (CCDs) whose columns the block may reach, from a coarse node subset.
+    def _plan(self, lon_n, lat_n, node_shape, h_lo, h_hi):
+        """Per solver (CCD) that can reach the block, the dense nodes worth localizing exactly.
 
-        Nodes every ``stride`` dense nodes (<= 48 image px apart, plus the last row and
-        column) are localized at ``h_lo`` and ``h_hi`` on every CCD; a CCD is kept when the
-        range of those positions, widened by the coarse spacing, meets its columns and the
-        image rows. A block whose coarse nodes are all unimaged is skipped.
+        Nodes every ``stride`` dense nodes (<= 48 image px apart, plus the last row and column)
+        are localized at ``h_lo`` and ``h_hi`` on every CCD. A coarse node is *near* a CCD when
+        either position lies within ``margin`` of the CCD's columns and of the image rows
+        (``margin`` = the Catmull-Rom reach of two dense node spacings, plus one and a half
+        coarse spacings, plus 8 px); the near set is dilated by one coarse node and a dense node
+        is localized when the coarse cell holding it is near. Nodes left out are never in the
+        stencil of a pixel that the CCD sees, so the fields stay exact where they are used,
+        and a wide block does not localize every node on every CCD (nor far outside the image,
+        where Newton iterations run to the edge of the orbit data).
+
+        Returns
+        -------
+        list of (_Solver, ndarray of bool (node_shape) or None)
+            None: every node (a model without CCDs).
         """
+        from scipy.ndimage import binary_dilation
+
         if len(self.solvers) == 1 and self.solvers[0].index is None:
-            return self.solvers
+            return [(self.solvers[0], None)]
         stride = max(1, int(48.0 / (self.node_step * self.scale)))
         ir = np.unique(np.r_[np.arange(0, node_shape[0], stride), node_shape[0] - 1])
         ic = np.unique(np.r_[np.arange(0, node_shape[1], stride), node_shape[1] - 1])
         sel = (ir[:, None] * node_shape[1] + ic[None, :]).ravel()
         lon, lat = np.tile(lon_n[sel], 2), np.tile(lat_n[sel], 2)
         hh = np.repeat([h_lo, h_hi], sel.size)
-        margin = 1.5 * stride * self.node_step * self.scale + 4.0
-        keep = []
+        spacing = stride * self.node_step * self.scale
+        margin = 2.0 * self.node_step * self.scale + 1.5 * spacing + 8.0
+        cell_r = np.searchsorted(ir, np.arange(node_shape[0]), side="right") - 1
+        cell_c = np.searchsorted(ic, np.arange(node_shape[1]), side="right") - 1
+        plan = []
         for solver in self.solvers:
             r, c = self._solve(solver, lon, lat, hh)
-            fin = np.isfinite(r) & np.isfinite(c)
-            if not fin.any():
+            r, c = r.reshape(2, ir.size, ic.size), c.reshape(2, ir.size, ic.size)
+            with np.errstate(invalid="ignore"):
+                near = ((c >= solver.first_col - margin) & (c <= solver.last_col + margin)
+                        & (r >= -margin) & (r <= self.n_rows + margin)).any(axis=0)
+            if not near.any():
                 continue
-            if (c[fin].min() - margin <= solver.last_col and c[fin].max() + margin >= solver.first_col
-                    and r[fin].min() - margin <= self.n_rows and r[fin].max() + margin >= 0.0):
-                keep.append(solver)
-        return keep
+            near = binary_dilation(near, structure=np.ones((3, 3), dtype=bool))
+            plan.append((solver, near[np.ix_(cell_r, cell_c)]))
+        return plan
 
 
 def _interp(nodes, wr, wc):

@@ -27,7 +27,7 @@ def test_demo_calibrates_the_fixture_from_hundreds_of_pixels_to_a_tenth(demo_run
     assert 0.01 < s["check_rmse_px"]["after"] <= 0.3
     assert 0.005 < s["truth_error_px"]["rms"] <= 0.1
     assert s["truth_error_px"]["max"] < 1.0
-    assert s["gcps"] > 1000 and s["check_points"] > 200
+    assert s["gcps"] > 500 and s["check_points"] > 100
     assert all(v["success"] for v in s["calibration"].values())
     # the calibrated manifest opens and names the fixture's rasters
     from sensor_models.readers import open_model
