@@ -654,7 +654,9 @@ def solve(
     initial_residuals = ev.residuals.copy()
     # the scale follows the residuals until the iterations are near the solution, then it is
     # frozen (and the loss becomes the final one): the last iterations minimize a fixed function
-    frozen = scale is not None or robust == "none"
+    # (without a robust loss the weights do not depend on the scale, but the convergence test
+    # does: a scale frozen at a far start's residuals would declare convergence too early)
+    frozen = scale is not None
     s = scale if scale is not None else robust_scale(ev.norms, k)
     s_previous = np.inf
     cost = _robust_cost(ev.norms, k, ev.weight_scale, rule, c) + _prior_cost(x, prior)
@@ -689,7 +691,7 @@ def solve(
         # converged: a negligible step from weights of the final loss and scale (the frozen
         # one, or one within 1 % of the current residuals' scale)
         if frozen:
-            final_scale = scale is not None or robust == "none" or ev.weight_scale == s
+            final_scale = scale is not None or ev.weight_scale == s
         else:
             final_scale = abs(ev.weight_scale / s - 1.0) < 0.01
         if step_sigma < tol and ev.rule == robust and final_scale:
