@@ -236,6 +236,8 @@ def parameter_unit(name: str) -> str:
     """Unit of a model parameter from its name (``rad``, ``px``, ``1``, ``detector^-k``)."""
     if name.startswith("installation."):
         return "rad"
+    if name.startswith("interior.tan_psi_"):  # staring camera: coefficients of normalized u^i v^j
+        return "1"
     if ".tan_psi_" in name:
         k = int(name.rsplit(".c", 1)[1])
         return "1" if k == 0 else ("detector^-1" if k == 1 else f"detector^-{k}")

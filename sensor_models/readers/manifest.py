@@ -122,11 +122,16 @@ def read_manifest(path) -> PushbroomModel:
         ``model.manifest_path`` set.
     """
     path = Path(path)
-    root = Fields(_load_json(path), "", str(path))
+    doc = _load_json(path)
+    if isinstance(doc, dict) and doc.get("sensor") == "geo_staring":
+        from sensor_models.readers.geo_manifest import geo_model_from_document
+
+        return geo_model_from_document(doc, path)
+    root = Fields(doc, "", str(path))
     version = root.integer("format_version")
     if version != FORMAT_VERSION:
         raise root.error("format_version", f"unsupported version {version}; this gcpcal reads {FORMAT_VERSION}")
-    root.string("sensor", choices=("pushbroom",))
+    root.string("sensor", choices=("pushbroom", "geo_staring"))
     name = root.string("name", "")
     epoch = _epoch(root, "epoch_utc")
 
