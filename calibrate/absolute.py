@@ -346,6 +346,74 @@ def _pushbroom_groups(model: PushbroomModel, points, band, ccd, interior_terms):
     return groups, bands, ccd_idx
 
 
+def _is_staring(model) -> bool:
+    from sensor_models.geo_staring import GeoStaringModel
+
+    return isinstance(model, GeoStaringModel)
+
+
+def _staring_groups(model, points, band, ccd, interior_terms):
+    """One group (the whole frame) for an area-array staring camera (20-coefficient interior)."""
+    n = points["row"].size
+    if ccd is not None and not all(str(v) in ("", "None", "nan", "-1") for v in np.atleast_1d(ccd)):
+        raise InputError("ccd does not apply to an area-array camera", field="ccd")
+    bands = _per_point(band, n, "band")
+    if bands is not None:
+        other = sorted(set(np.asarray(bands).astype(str)) - {model.band, "", "None"})
+        if other:
+            raise InputError(f"unknown band(s) {', '.join(other)}; the camera has {model.band}", field="band")
+    if isinstance(interior_terms, (int, np.integer)):
+        if interior_terms < 0:
+            raise InputError("must be >= 0", field="interior_terms")
+        interior = tuple(model.interior_parameter_names(min(int(interior_terms), 3)))
+    else:
+        interior = tuple(t if t.startswith("interior.") else f"interior.{t}" for t in interior_terms)
+        bad = [t for t in interior if t not in set(model.parameter_names())]
+        if bad:
+            raise InputError(f"unknown interior terms {', '.join(bad)}", field="interior_terms")
+    groups = [_Group(model.band, -1, "frame", np.arange(n), interior)]
+    return groups, np.full(n, model.band, dtype=object), np.full(n, -1, dtype=np.intp)
+
+
+def _check_estimable_staring(model, group, weight, points, min_points_factor, min_span_fraction):
+    """Whether the frame's interior can be estimated: enough points spread over the frame."""
+    used = group.idx[weight[group.idx] > 0.0]
+    n_unknown = len(group.interior)
+    needed = int(math.ceil(min_points_factor * n_unknown))
+    if used.size:
+        u, v = model.normalized(points["row"][used], points["col"][used])
+        span = float(min(np.ptp(u), np.ptp(v)) / 2.0)
+    else:
+        span = 0.0
+    record = {"band": group.band, "ccd": group.ccd_name, "n_points": int(used.size), "needed": needed, "span": span}
+    if n_unknown == 0:
+        return None
+    if used.size < needed:
+        record["reason"] = (f"{group.band}: {used.size} GCPs < {needed} needed ({min_points_factor:g} x "
+                            f"{n_unknown} unknowns); the interior is not estimated")
+        return record
+    needs_span = any(not (n.endswith("a00") or n.endswith("b00")) for n in group.interior)
+    if needs_span and span < min_span_fraction:
+        record["reason"] = (f"{group.band}: GCPs span {100 * span:.0f} % of the frame < "
+                            f"{100 * min_span_fraction:.0f} %; the interior is not estimated")
+        return record
+    group.estimable = True
+    return None
+
+
+def _staring_gauge_prior(model, free, gauge_sigma_px):
+    """Joint scheme of a staring camera: hold its mean look and in-plane rotation (the gauge)."""
+    rows, scale = model.gauge_rows()
+    names = list(model.parameter_names())
+    idx = [names.index(n) for n in free]
+    matrix = np.asarray(rows)[:, idx]
+    keep = np.any(matrix != 0.0, axis=1)
+    if not keep.any():
+        return None
+    x0 = model.parameters().values[idx]
+    return Prior(matrix[keep], matrix[keep] @ x0, gauge_sigma_px * np.asarray(scale)[keep])
+
+
 def _resolve_ccd(value: str, names, band) -> int:
     """CCD index of a name or an index given as text; -1 for a missing value."""
     if value in ("None", "", "nan"):
@@ -378,8 +446,9 @@ def _interior_names(band, look, terms, all_names):
     return tuple(names)
 
 
-def _check_estimable(model, group, weight, col, min_points_factor, min_span_fraction):
+def _check_estimable(model, group, weight, points, min_points_factor, min_span_fraction):
     """Decide whether a CCD's interior can be estimated; a skip record if not."""
+    col = points["col"]
     look = model.band_ccds(group.band)[group.ccd]
     used = group.idx[weight[group.idx] > 0.0]
     n_unknown = len(group.interior)
@@ -425,6 +494,7 @@ class _Problem:
         self.all_names = tuple(model.parameters().names)
         self.lookup = {n: i for i, n in enumerate(self.all_names)}
         self.pushbroom = isinstance(model, PushbroomModel)
+        self.staged = self.pushbroom or _is_staring(model)  # exterior + interior groups
         # yield order: first a strided sample of every group (the solver takes its provisional
         # robust scale from the first points it sees), then the rest in chunks
         n = sum(g.idx.size for g in groups)
@@ -456,8 +526,8 @@ class _Problem:
             if not active(g):
                 plan.append((g, (), np.zeros(0, dtype=np.intp), False))  # evaluated, not fitted
                 continue
-            names = [n for n in free if n in _EXTERIOR] if self.pushbroom else list(free)
-            if self.pushbroom and g.estimable:
+            names = [n for n in free if n in _EXTERIOR] if self.staged else list(free)
+            if self.staged and g.estimable:
                 names += [n for n in g.interior if n in position]
             cols = np.array([position[n] for n in names], dtype=np.intp)
             bounds = None
@@ -616,7 +686,10 @@ def calibrate_model(
     points, weight = _as_points(row, col, lon, lat, h, sigma_px, score)
     n = points["row"].size
     pushbroom = isinstance(model, PushbroomModel)
-    if not pushbroom:
+    staring = _is_staring(model)
+    if staring:
+        groups, bands, ccd_idx = _staring_groups(model, points, band, ccd, interior_terms)
+    elif not pushbroom:
         if scheme != "joint":
             raise InputError(
                 f"scheme {scheme!r} needs a push-broom model (installation and directional angles); "
@@ -632,15 +705,17 @@ def calibrate_model(
         ccd_idx = np.full(n, -1, dtype=np.intp)
     else:
         groups, bands, ccd_idx = _pushbroom_groups(model, points, band, ccd, interior_terms)
+    staged = pushbroom or staring
     if parameters is not None and scheme != "joint":
         raise InputError("parameters= applies to scheme='joint' only", field="parameters")
     if not np.any(weight > 0.0):
         raise InputError("every GCP has zero weight", field="score")
 
     skipped = []
-    if pushbroom:
+    if staged:
+        check = _check_estimable if pushbroom else _check_estimable_staring
         for g in groups:
-            rec = _check_estimable(model, g, weight, points["col"], min_points_factor, min_span_fraction)
+            rec = check(model, g, weight, points, min_points_factor, min_span_fraction)
             if rec is not None:
                 skipped.append(rec)
     problem = _Problem(model, points, weight, groups, chunk_points)
@@ -649,7 +724,7 @@ def calibrate_model(
     solve_kw = dict(robust=robust, max_iter=max_iter, tol=tol, max_condition=max_condition)
 
     unsettled = ""
-    exterior = list(_EXTERIOR) if pushbroom else []
+    exterior = list(_EXTERIOR) if staged else []
     interior = [n for g in groups if g.estimable for n in g.interior]
     runs: list[tuple[str, int, LsqResult, tuple]] = []
 
@@ -678,9 +753,12 @@ def calibrate_model(
                 raise InputError(f"unknown parameters {', '.join(unknown)}", field="parameters")
             free = [n for n in problem.all_names if n in set(parameters)]
         else:
-            free = exterior + interior if pushbroom else list(problem.all_names)
-        use_gauge = pushbroom and gauge
-        prior = _gauge_prior(model, groups, free, reference_ccd, gauge_sigma_px) if use_gauge else None
+            free = exterior + interior if staged else list(problem.all_names)
+        prior = None
+        if gauge and pushbroom:
+            prior = _gauge_prior(model, groups, free, reference_ccd, gauge_sigma_px)
+        elif gauge and staring:
+            prior = _staring_gauge_prior(model, free, gauge_sigma_px)
         run("joint", 0, free, every, prior)
     elif scheme == "exterior":
         run("exterior", 0, exterior, every)
