@@ -55,18 +55,18 @@ def points_of(table, model=None) -> dict:
 def apply_calibration(model, table, *, scheme="exterior-interior", robust="cauchy", band=None):
     """Calibrate ``model`` on the ``gcp`` points of ``table``; return ``(result, gcp points)``.
 
-    Push-broom models use the stepwise schemes of :func:`calibrate.absolute.calibrate_model`;
-    RPC models get an image-space bias compensation (:func:`calibrate.rpc_bias.compensate_rpc_bias`).
+    Push-broom and staring-camera models use the stepwise schemes of
+    :func:`calibrate.absolute.calibrate_model`; RPC models get an image-space bias compensation (:func:`calibrate.rpc_bias.compensate_rpc_bias`).
     """
     from calibrate.absolute import calibrate_model
-    from sensor_models.pushbroom import PushbroomModel
+    from sensor_models.rpc import RpcModel
 
     g = points_of(table.gcps())
     if g["row"].size == 0:
         raise InputError("the GCP table holds no point of kind 'gcp'")
     if band is not None:
         g["band"] = np.full(g["row"].size, band) if g["band"] is None else g["band"]
-    if isinstance(model, PushbroomModel):
+    if not isinstance(model, RpcModel):  # push-broom or staring camera: the rigorous model
         result = calibrate_model(model, g["row"], g["col"], g["lon"], g["lat"], g["h"], band=g["band"],
                                  ccd=g["ccd"], sigma_px=g["sigma_px"], score=g["score"], scheme=scheme, robust=robust)
     else:
@@ -158,6 +158,17 @@ def _write_model(calibrated, original, tmp: Path, out_dir: Path) -> str:
                    for b, r in (getattr(original, "rasters", None) or {}).items()}
         doc = manifest_to_dict(calibrated, rasters=rasters)
         doc["name"] = (getattr(original, "name", "") or "scene") + " (calibrated)"
+        (tmp / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        return "manifest.json"
+    from sensor_models.geo_staring import GeoStaringModel
+
+    if isinstance(calibrated, GeoStaringModel):
+        from sensor_models.readers.geo_manifest import geo_manifest_to_dict
+
+        ref = (getattr(original, "rasters", None) or {}).get(original.band)
+        raster = None if ref is None else {"path": os.path.relpath(ref["path"], out_dir.resolve()),
+                                            "index": ref.get("index", 1)}
+        doc = geo_manifest_to_dict(calibrated, raster=raster)
         (tmp / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         return "manifest.json"
     name = f"{Path(getattr(original, 'source', 'model') or 'model').stem}_RPC.TXT"

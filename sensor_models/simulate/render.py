@@ -36,7 +36,6 @@ import pyproj
 from affine import Affine
 
 from sensor_models.errors import InputError
-from sensor_models.pushbroom import PushbroomModel
 from sensor_models.terrain import Dem
 
 __all__ = ["MapGrid", "PixelGround", "catmull_rom_matrix", "locate_block"]
@@ -143,7 +142,7 @@ class _Projector:
 
 
 def locate_block(
-    model: PushbroomModel,
+    model,
     dem: Dem,
     grids,
     *,
@@ -161,7 +160,9 @@ def locate_block(
 
     Parameters
     ----------
-    model : PushbroomModel
+    model : PushbroomModel or GeoStaringModel
+        A push-broom model (one CCD's columns) or an area-array model (the whole frame;
+        ``ccd`` is ignored).
     dem : Dem
         Terrain (ellipsoidal heights), sampled bilinearly between nodes.
     grids : sequence of MapGrid
@@ -183,9 +184,15 @@ def locate_block(
     -------
     PixelGround
     """
-    ccd_look = model.band_ccds(band)[ccd]
-    col0 = ccd_look.first_col if col0 is None else int(col0)
-    col1 = ccd_look.first_col + ccd_look.n_detectors if col1 is None else int(col1)
+    if hasattr(model, "band_ccds"):  # push-broom: one CCD's columns
+        ccd_look = model.band_ccds(band)[ccd]
+        first, width = ccd_look.first_col, ccd_look.n_detectors
+        kw = {"band": band, "ccd": ccd}
+    else:  # an area array (staring camera): the whole frame
+        first, width = 0, model.image_shape[1]
+        kw = {"band": band}
+    col0 = first if col0 is None else int(col0)
+    col1 = first + width if col1 is None else int(col1)
     if not (row1 > row0 and col1 > col0):
         raise InputError(f"empty block rows {row0}..{row1}, cols {col0}..{col1}")
     n_lines, n_cols = row1 - row0, col1 - col0
@@ -204,7 +211,7 @@ def locate_block(
     own = [g for g in grids if not g.crs.equals(dem.crs)]
     projectors = [_Projector(dem_grid)] + [_Projector(g) for g in own]
     ground = [
-        model.image_to_ground(rr.ravel(), cc.ravel(), height=h, band=band, ccd=ccd)[:2]
+        model.image_to_ground(rr.ravel(), cc.ravel(), height=h, **kw)[:2]
         for h in (h_lo, h_hi)
     ]
     span = h_hi - h_lo

@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 
 from sensor_models.errors import InputError
-from sensor_models.pushbroom import PushbroomModel
 
 __all__ = ["truth_error"]
 
@@ -24,8 +23,8 @@ def _grid(n: int, step: float) -> np.ndarray:
 
 
 def truth_error(
-    true_model: PushbroomModel,
-    model: PushbroomModel,
+    true_model,
+    model,
     *,
     dem=None,
     heights_m=None,
@@ -36,8 +35,8 @@ def truth_error(
 
     Parameters
     ----------
-    true_model, model : PushbroomModel
-        Same image layout (bands, CCD columns, number of lines).
+    true_model, model : PushbroomModel or GeoStaringModel
+        Same image layout (bands, CCD columns, number of lines; or the same frame size).
     dem : Dem, optional
         Terrain on which the TRUE model localizes the grid pixels.
     heights_m : sequence of float, optional
@@ -59,31 +58,28 @@ def truth_error(
     """
     if dem is None and heights_m is None:
         heights_m = (0.0, 1000.0, 2000.0)
-    bands = tuple(true_model.bands) if bands is None else tuple(bands)
-    if true_model.n_rows != model.n_rows:
-        raise InputError(f"the models have different line counts ({true_model.n_rows} and {model.n_rows})")
+    if bands is None:
+        bands = tuple(true_model.bands) if hasattr(true_model, "bands") else (true_model.band,)
+    bands = tuple(bands)
+    if tuple(true_model.image_shape) != tuple(model.image_shape):
+        raise InputError(f"the models describe different images ({true_model.image_shape} and {model.image_shape})")
     per_ccd, all_dr, all_dc, missing = [], [], [], 0
-    rows = _grid(true_model.n_rows, step_px)
+    rows = _grid(true_model.image_shape[0], step_px)
     for band in bands:
-        if band not in model.bands:
-            raise InputError(f"band {band!r} is missing from the model under test")
-        true_ccds, ccds = true_model.band_ccds(band), model.band_ccds(band)
-        if [(c.first_col, c.n_detectors) for c in true_ccds] != [(c.first_col, c.n_detectors) for c in ccds]:
-            raise InputError(f"band {band!r}: the models have different CCD layouts")
-        for i, c in enumerate(true_ccds):
+        for i, c, kw in _arrays(true_model, model, band):
             cols = c.first_col + _grid(c.n_detectors, step_px)
             rr, cc = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
             if dem is not None:
-                lon, lat, h = true_model.image_to_ground(rr, cc, dem=dem, band=band, ccd=i)
+                lon, lat, h = true_model.image_to_ground(rr, cc, dem=dem, **kw)
                 r_obs, c_obs = rr, cc
             else:
                 hs = np.repeat(np.asarray(heights_m, dtype=np.float64), rr.size)
                 r_obs, c_obs = np.tile(rr, len(heights_m)), np.tile(cc, len(heights_m))
-                lon, lat, h = true_model.image_to_ground(r_obs, c_obs, height=hs, band=band, ccd=i)
+                lon, lat, h = true_model.image_to_ground(r_obs, c_obs, height=hs, **kw)
             ok = np.isfinite(lon)
             r_m, c_m = np.full(lon.shape, np.nan), np.full(lon.shape, np.nan)
             if ok.any():
-                r_m[ok], c_m[ok] = model.ground_to_image(lon[ok], lat[ok], h[ok], band=band, ccd=i)
+                r_m[ok], c_m[ok] = model.ground_to_image(lon[ok], lat[ok], h[ok], **kw)
             dr, dc = r_m - r_obs, c_m - c_obs
             good = np.isfinite(dr) & np.isfinite(dc)
             missing += int((~good).sum())
@@ -96,6 +92,25 @@ def truth_error(
     out["n_missing"] = missing
     out["per_ccd"] = per_ccd
     return out
+
+
+class _Frame:
+    """An area array seen as one detector array (staring cameras)."""
+
+    def __init__(self, n_cols):
+        self.first_col, self.n_detectors, self.name = 0, n_cols, "frame"
+
+
+def _arrays(true_model, model, band):
+    """(index, detector array, keyword arguments) of every CCD of a band (or the frame)."""
+    if not hasattr(true_model, "band_ccds"):
+        return [(0, _Frame(true_model.image_shape[1]), {"band": band})]
+    if band not in model.bands:
+        raise InputError(f"band {band!r} is missing from the model under test")
+    true_ccds, ccds = true_model.band_ccds(band), model.band_ccds(band)
+    if [(c.first_col, c.n_detectors) for c in true_ccds] != [(c.first_col, c.n_detectors) for c in ccds]:
+        raise InputError(f"band {band!r}: the models have different CCD layouts")
+    return [(i, c, {"band": band, "ccd": i}) for i, c in enumerate(true_ccds)]
 
 
 def _stats(dr, dc) -> dict:
