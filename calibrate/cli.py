@@ -484,7 +484,7 @@ def _register_commands() -> None:
     """Add the commands that live in their own modules (``calibrate.cli_*``, attribute ``command``)."""
     import importlib
 
-    for name in ("calibrate.cli_relative", "calibrate.cli_validate", "calibrate.cli_ortho"):
+    for name in ("calibrate.cli_relative", "calibrate.cli_validate", "calibrate.cli_ortho", "calibrate.cli_stars"):
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
@@ -492,6 +492,8 @@ def _register_commands() -> None:
                 continue
             raise
         cli.add_command(module.command)
+        if hasattr(module, "simulate_command"):  # a `gcpcal simulate ...` subcommand
+            simulate.add_command(module.simulate_command)
 
 
 _register_commands()
