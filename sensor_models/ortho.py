@@ -589,6 +589,18 @@ def _resample(source: _Source, geom: BlockGeometry, interpolation: int) -> np.nd
     return out
 
 
+def _check_nodata(nodata, dtype: np.dtype) -> None:
+    """``nodata`` must be a number the output data type holds exactly."""
+    try:
+        value = float(nodata)
+    except (TypeError, ValueError):
+        raise InputError(f"must be a number, got {nodata!r}", field="nodata") from None
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
+        if not (np.isfinite(value) and value == int(value) and info.min <= value <= info.max):
+            raise InputError(f"{nodata!r} is not a {dtype.name} value", field="nodata")
+
+
 def _to_dtype(values: np.ndarray, dtype: np.dtype, nodata) -> np.ndarray:
     ok = np.isfinite(values)
     if dtype.kind in "iu":
@@ -724,6 +736,7 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         out_dtype = np.dtype(dtype) if dtype is not None else source.dtype
         if out_dtype.kind == "f" and out_dtype.itemsize < 4:
             out_dtype = np.dtype(np.float32)
+        _check_nodata(nodata, out_dtype)
         step = _block_size(block, geometry.scale)
         n_rows, n_cols = grid.shape
         blocks = [(a, min(a + step, n_rows), b, min(b + step, n_cols))
