@@ -664,8 +664,8 @@ class Dem:
             if declared is None:
                 raise DemError(
                     f"{source}: the DEM does not declare its vertical datum; pass "
-                    "vertical_datum='egm96' (orthometric, e.g. SRTM) or 'ellipsoid' "
-                    "(heights above WGS84)"
+                    "vertical_datum='egm96' (orthometric, e.g. SRTM; on the command line "
+                    "--dem-datum egm96 --geoid GRID) or 'ellipsoid' (heights above WGS84)"
                 )
             datum = declared
         elif declared is not None and declared != datum:
