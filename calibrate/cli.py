@@ -479,6 +479,35 @@ def calibrate(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, image, 
     if not summary["success"]:
         ctx.exit(3)
 
+@cli.command("run")
+@click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
+@click.option("--dom", "dom_path", required=True, type=click.Path(dir_okay=False), help="Reference orthoimage.")
+@add_options(dem_options)
+@click.option("--star-frames", type=click.Path(), help="Star sequence (frames.json or its folder) for the fallback.")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--min-gcps", type=click.IntRange(min=1), default=60, show_default=True, help="GCPs needed to calibrate from the ground.")
+@click.option("--min-coverage", type=click.FloatRange(0.0, 1.0), default=0.5, show_default=True,
+              help="Share of a 4 x 4 partition of the image the GCPs must cover.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.pass_context
+def run_cmd(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, star_frames, out_dir, min_gcps, min_coverage, as_json):
+    """Calibrate SCENE from GCPs, or from star frames when clouds leave too few (says which and why)."""
+    from calibrate.fallback import run_scene
+
+    if dem_path is None:
+        raise InputError("--dem is required: GCPs need terrain heights")
+    quiet = ctx.obj.get("quiet", False) or as_json
+    summary = run_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_dir=out_dir, star_frames=star_frames,
+                        dem_datum=dem_datum, geoid=geoid, min_gcps=min_gcps, min_coverage=min_coverage,
+                        progress=None if quiet else (lambda m: click.echo(m, err=True)))
+    if as_json:
+        click.echo(json.dumps(summary, default=_json_default))
+    else:
+        click.echo(f"{out_dir}: path {summary['path']} ({summary['reason']}); "
+                   f"{'converged' if summary['success'] else 'FAILED'}: {summary['message']}")
+    if not summary["success"]:
+        ctx.exit(3)
+
 
 def _register_commands() -> None:
     """Add the commands that live in their own modules (``calibrate.cli_*``, attribute ``command``)."""
