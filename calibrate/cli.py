@@ -513,7 +513,8 @@ def _register_commands() -> None:
     """Add the commands that live in their own modules (``calibrate.cli_*``, attribute ``command``)."""
     import importlib
 
-    for name in ("calibrate.cli_relative", "calibrate.cli_validate", "calibrate.cli_ortho", "calibrate.cli_stars"):
+    for name in ("calibrate.cli_relative", "calibrate.cli_validate", "calibrate.cli_ortho", "calibrate.cli_stars",
+                 "calibrate.cli_compensate", "calibrate.cli_oalr", "calibrate.cli_thermal"):
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
