@@ -41,3 +41,21 @@ def test_bad_geo_configuration_is_one_line(tmp_path, capsys):
     assert main(["simulate", "geo-earth", "--out", str(tmp_path / "x"), "--config", str(cfg)]) == 1
     err = capsys.readouterr().err
     assert "image_pixels" in err and err.count("\n") == 1
+
+
+def test_seed000_camera_earth_view(tmp_path, capsys):
+    """Seed 000's camera (1250 mm, 25 um pixels: 716 m at nadir) over a 250 m reference."""
+    cfg = tmp_path / "seed000.json"
+    cfg.write_text(json.dumps({"pixel_size_mm": 0.025, "gsd_m": 715.7, "image_px": 384, "dom_resolution_m": 250,
+                               "dem_resolution_m": 500, "margin_m": 30000, "installation_arcsec": [40, -30, 60]}))
+    scene = tmp_path / "scene"
+    assert main(["-q", "simulate", "geo-earth", "--out", str(scene), "--config", str(cfg)]) == 0
+    ref = ["--dom", str(scene / "reference" / "dom.tif"), "--dem", str(scene / "reference" / "dem.tif")]
+    assert main(["-q", "match", str(scene / "manifest.json"), *ref, "--out", str(tmp_path / "g.csv"), "--spacing", "16"]) == 0
+    assert main(["-q", "calibrate", str(scene / "manifest.json"), "--gcps", str(tmp_path / "g.csv"),
+                 "--out", str(tmp_path / "cal"), "--no-report"]) == 0
+    capsys.readouterr()
+    assert main(["truth", "error", str(tmp_path / "cal" / "manifest.json"), "--truth", str(scene / "truth_manifest.json"),
+                 "--dem", str(scene / "reference" / "dem.tif"), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["rms_px"] <= 0.1
