@@ -1,0 +1,264 @@
+"""``gcpcal oalr``: camera changes from autocollimation cross marks (seed 004).
+
+Registered by :mod:`calibrate.cli` (module attribute ``command``).
+
+``gcpcal oalr MARKS.csv --out DIR [--reference I] [--focal-mm F] [--baseline-mm L] [--pixel-um D]
+[--sigma-k-px S] [--beta-deg B] [--alpha-deg A] [--ccd-size-px N] [--reproduce-table3] [--json]``
+
+``MARKS.csv`` has exactly the header columns ``time,ccd1_x_px,ccd1_y_px,ccd2_x_px,ccd2_y_px``
+(any order): the time of each epoch (seconds, strictly increasing) and the cross-mark positions on
+the two SMCCDs (x = column, y = row, pixels, first pixel centre at 0.5). Data row ``--reference``
+(0-based, default 0) holds the nominal positions. Writes ``DIR/oalr.json``
+(:func:`oalr_from_csv`).
+
+``MARKS.csv`` may instead list SMCCD frames, header ``time,ccd1_frame,ccd2_frame`` (TIFF paths
+relative to the CSV): the marks are then located in the frames first (:func:`marks_from_frames`).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+
+from sensor_models.errors import InputError
+
+__all__ = ["FRAME_COLUMNS", "MARK_COLUMNS", "command", "marks_from_frames", "oalr_from_csv", "read_marks_csv"]
+
+MARK_COLUMNS = ("time", "ccd1_x_px", "ccd1_y_px", "ccd2_x_px", "ccd2_y_px")
+FRAME_COLUMNS = ("time", "ccd1_frame", "ccd2_frame")
+
+
+def _header(path: Path) -> list[str]:
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            return [h.strip() for h in next(csv.reader(fh), [])]
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+
+
+def _read_frame(path: Path, *, listed_in: Path, line: int, column: str) -> np.ndarray:
+    """First band of a TIFF (or any raster GDAL reads) as float64, errors naming the list row."""
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                return ds.read(1).astype(np.float64)
+    except RasterioIOError as exc:
+        raise InputError(f"row {line}: cannot read frame {str(path)!r}: {exc}", path=str(listed_in),
+                         field=column) from None
+
+
+def marks_from_frames(path) -> dict[str, np.ndarray]:
+    """Locate the cross marks in the SMCCD frames listed by a CSV ``time,ccd1_frame,ccd2_frame``.
+
+    Frame paths are relative to the CSV's folder; each frame's mark is found by
+    :func:`calibrate.autocollimation.locate_cross` (row = y, column = x). Returns the same
+    columns as :func:`read_marks_csv`.
+    """
+    from calibrate.autocollimation import locate_cross
+
+    path = Path(path)
+    out = {c: [] for c in MARK_COLUMNS}
+    with path.open(newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        header = [h.strip() for h in (reader.fieldnames or [])]
+        for c in header:
+            if c not in FRAME_COLUMNS:
+                raise InputError(f"unknown column (expected {','.join(FRAME_COLUMNS)})", path=str(path), field=c)
+        for c in FRAME_COLUMNS:
+            if c not in header:
+                raise InputError("missing column", path=str(path), field=c)
+        for line, rec in enumerate(reader, start=2):
+            if any(rec.get(c) in (None, "") for c in FRAME_COLUMNS):
+                missing = next(c for c in FRAME_COLUMNS if rec.get(c) in (None, ""))
+                raise InputError(f"row {line}: empty value", path=str(path), field=missing)
+            try:
+                t = float(rec["time"])
+            except ValueError:
+                raise InputError(f"row {line}: not a number: {rec['time']!r}", path=str(path), field="time") from None
+            if not np.isfinite(t):
+                raise InputError(f"row {line}: value {rec['time']!r} is not finite", path=str(path), field="time")
+            out["time"].append(t)
+            for k in (1, 2):
+                col = f"ccd{k}_frame"
+                img = _read_frame(path.parent / rec[col].strip(), listed_in=path, line=line, column=col)
+                try:
+                    r, c = locate_cross(img)
+                except InputError as exc:
+                    raise InputError(f"row {line}: {rec[col].strip()}: {exc.reason}", path=str(path), field=col) from None
+                out[f"ccd{k}_x_px"].append(c)
+                out[f"ccd{k}_y_px"].append(r)
+    marks = {c: np.asarray(v, dtype=np.float64) for c, v in out.items()}
+    if marks["time"].size == 0:
+        raise InputError("no data rows", path=str(path))
+    bad = np.flatnonzero(np.diff(marks["time"]) <= 0.0)
+    if bad.size:
+        raise InputError(f"row {bad[0] + 3}: times must increase strictly", path=str(path), field="time")
+    return marks
+
+
+def read_marks_csv(path, *, ccd_size_px: float | None = None) -> dict[str, np.ndarray]:
+    """Read a marks CSV strictly; every error names the file, the column and, for values, the row.
+
+    Rows are numbered as lines of the file (the header is row 1). Refused: a missing, unknown or
+    repeated column, a row with too few or too many fields, a value that is not a finite number,
+    a position outside ``[0, ccd_size_px]`` when given, times not strictly increasing, and fewer
+    than one data row.
+
+    Returns
+    -------
+    dict
+        Column name -> float64 array of shape (N,).
+    """
+    path = Path(path)
+    try:
+        fh = path.open(newline="", encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+    with fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if not header:
+            raise InputError("empty file: expected header " + ",".join(MARK_COLUMNS), path=str(path))
+        header = [h.strip() for h in header]
+        for h in header:
+            if h not in MARK_COLUMNS:
+                raise InputError(f"unknown column (expected {','.join(MARK_COLUMNS)})", path=str(path), field=h)
+            if header.count(h) > 1:
+                raise InputError("repeated column", path=str(path), field=h)
+        for c in MARK_COLUMNS:
+            if c not in header:
+                raise InputError("missing column", path=str(path), field=c)
+        values = {c: [] for c in MARK_COLUMNS}
+        for line, rec in enumerate(reader, start=2):
+            if not rec or all(not v.strip() for v in rec):
+                continue
+            if len(rec) != len(header):
+                raise InputError(f"row {line}: {len(rec)} fields, the header has {len(header)}", path=str(path),
+                                 field=header[min(len(rec), len(header) - 1)])
+            for name, text in zip(header, rec):
+                try:
+                    v = float(text)
+                except ValueError:
+                    raise InputError(f"row {line}: not a number: {text.strip()!r}", path=str(path), field=name) from None
+                if not np.isfinite(v):
+                    raise InputError(f"row {line}: value {text.strip()!r} is not finite", path=str(path), field=name)
+                if name != "time" and (v < 0.0 or (ccd_size_px is not None and v > ccd_size_px)):
+                    raise InputError(f"row {line}: position {v} px lies outside the SMCCD "
+                                     f"[0, {ccd_size_px if ccd_size_px is not None else 'inf'}]",
+                                     path=str(path), field=name)
+                values[name].append(v)
+    out = {c: np.asarray(v, dtype=np.float64) for c, v in values.items()}
+    if out["time"].size == 0:
+        raise InputError("no data rows", path=str(path))
+    bad = np.flatnonzero(np.diff(out["time"]) <= 0.0)
+    if bad.size:
+        raise InputError(f"row {bad[0] + 3}: times must increase strictly", path=str(path), field="time")
+    return out
+
+
+def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0, baseline_mm: float = 669.0,
+                  pixel_um: float | None = None, sigma_k_px: float = 0.144, beta_deg: float = 0.0,
+                  alpha_deg: float = 0.0, ccd_size_px: float | None = None, table3: bool = False) -> dict:
+    """Stage action of ``gcpcal oalr``: read marks, apply seed 004 eq. 2-5, write ``oalr.json``.
+
+    ``sigma_k_px`` is the error of each displacement coordinate (table 2's ``sigma_k``; for a
+    displacement between two single locations, ``sqrt(2)`` times the location error).
+    Angles in the output are arcseconds (``rot_x`` = Delta beta about X, ``rot_y`` = Delta alpha
+    about Y, ``rot_z`` = Delta gamma about Z, camera frame); focal changes millimetres.
+    """
+    from calibrate._json import json_safe
+    from calibrate.autocollimation import (ARCSEC, DEFAULT_PIXEL_UM, OalrGeometry, changes_from_displacements,
+                                           reproduce_table3)
+    from sensor_models.atomic import atomic_write_text
+
+    path = Path(path)
+    if "ccd1_frame" in _header(path):
+        marks = marks_from_frames(path)
+    else:
+        marks = read_marks_csv(path, ccd_size_px=ccd_size_px)
+    n = marks["time"].size
+    if not 0 <= int(reference) < n:
+        raise InputError(f"reference row index {reference} is outside 0..{n - 1}", field="--reference")
+    geometry = OalrGeometry(focal_mm, baseline_mm, DEFAULT_PIXEL_UM if pixel_um is None else pixel_um,
+                            np.radians(beta_deg), np.radians(alpha_deg))
+    d = {c: marks[c] - marks[c][reference] for c in MARK_COLUMNS[1:]}
+    ch = changes_from_displacements(d["ccd1_x_px"], d["ccd1_y_px"], d["ccd2_x_px"], d["ccd2_y_px"], geometry,
+                                    sigma_k_px=sigma_k_px)
+    sig = {"sigma_f_mm": ch.sigma_f_mm, "sigma_rot_x_arcsec": ch.sigma_rot_x_rad / ARCSEC,
+           "sigma_rot_y_arcsec": ch.sigma_rot_y_rad / ARCSEC, "sigma_rot_z_arcsec": ch.sigma_rot_z_rad / ARCSEC}
+    epochs = [
+        {"time": marks["time"][i], "dx1_px": d["ccd1_x_px"][i], "dy1_px": d["ccd1_y_px"][i],
+         "dx2_px": d["ccd2_x_px"][i], "dy2_px": d["ccd2_y_px"][i], "delta_f_mm": ch.delta_f_mm[i],
+         "rot_x_arcsec": ch.rot_x_rad[i] / ARCSEC, "rot_y_arcsec": ch.rot_y_rad[i] / ARCSEC,
+         "rot_z_arcsec": ch.rot_z_rad[i] / ARCSEC} | sig
+        for i in range(n)
+    ]
+    doc = {
+        "format_version": 1,
+        "method": "seed 004 eq. 2-5 (OALR autocollimation), errors by table 2",
+        "inputs": {"marks": str(path)},
+        "geometry": {"focal_mm": geometry.focal_mm, "baseline_mm": geometry.baseline_mm,
+                     "pixel_um": geometry.pixel_um, "beta_deg": beta_deg, "alpha_deg": alpha_deg},
+        "sigma_k_px": sigma_k_px,
+        "reference": {"index": int(reference), "time": marks["time"][reference],
+                      **{c: marks[c][reference] for c in MARK_COLUMNS[1:]}},
+        "sigmas": sig,
+        "epochs": epochs,
+    }
+    if table3:
+        doc["table3"] = reproduce_table3(geometry)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out_dir / "oalr.json", json.dumps(json_safe(doc), indent=1, allow_nan=False) + "\n")
+    return doc
+
+
+@click.command("oalr")
+@click.argument("marks", metavar="MARKS.csv", type=click.Path(dir_okay=False))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--reference", type=int, default=0, show_default=True, help="Data row (0-based) of the nominal marks.")
+@click.option("--focal-mm", type=float, default=6550.0, show_default=True, help="Effective focal length f.")
+@click.option("--baseline-mm", type=float, default=669.0, show_default=True, help="Distance L between the SMCCDs.")
+@click.option("--pixel-um", type=float, default=None,
+              help="SMCCD pixel pitch (default: the pitch subtending 1 arcsec at f, 31.755 um at 6550 mm).")
+@click.option("--sigma-k-px", type=float, default=0.144, show_default=True,
+              help="Error of each mark displacement coordinate (seed 004: 0.430 lab, 0.144 flight).")
+@click.option("--beta-deg", type=float, default=0.0, show_default=True, help="SMCCD angle off axis in YOZ.")
+@click.option("--alpha-deg", type=float, default=0.0, show_default=True, help="SMCCD angle off axis in XOZ.")
+@click.option("--ccd-size-px", type=float, default=None, help="SMCCD size; positions beyond it are errors.")
+@click.option("--reproduce-table3", "table3", is_flag=True, help="Add seed 004 table 3, ours beside the paper's.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+def command(marks, out_dir, reference, focal_mm, baseline_mm, pixel_um, sigma_k_px, beta_deg, alpha_deg,
+            ccd_size_px, table3, as_json):
+    """Focal-length change and camera rotations from OALR cross marks in MARKS.csv (seed 004)."""
+    if pixel_um is None:
+        from calibrate.autocollimation import ARCSEC
+
+        pixel_um = focal_mm * ARCSEC * 1000.0
+    doc = oalr_from_csv(marks, out_dir, reference=reference, focal_mm=focal_mm, baseline_mm=baseline_mm,
+                        pixel_um=pixel_um, sigma_k_px=sigma_k_px, beta_deg=beta_deg, alpha_deg=alpha_deg,
+                        ccd_size_px=ccd_size_px, table3=table3)
+    last = doc["epochs"][-1]
+    summary = {"n_epochs": len(doc["epochs"]), "last": {k: last[k] for k in
+               ("time", "delta_f_mm", "rot_x_arcsec", "rot_y_arcsec", "rot_z_arcsec")}, "sigmas": doc["sigmas"]}
+    if as_json:
+        click.echo(json.dumps(summary))
+    else:
+        s = doc["sigmas"]
+        click.echo(f"{out_dir}/oalr.json: {summary['n_epochs']} epochs; last: df {last['delta_f_mm']:+.4f} mm "
+                   f"(+/- {s['sigma_f_mm']:.4f}), rot x {last['rot_x_arcsec']:+.3f}\" y {last['rot_y_arcsec']:+.3f}\" "
+                   f"z {last['rot_z_arcsec']:+.2f}\" (+/- {s['sigma_rot_x_arcsec']:.3f}, "
+                   f"{s['sigma_rot_y_arcsec']:.3f}, {s['sigma_rot_z_arcsec']:.2f})")
+        if table3:
+            for line in doc["table3"]["discrepancies"]:
+                click.echo(f"table 3: {line}")
