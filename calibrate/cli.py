@@ -355,6 +355,25 @@ def simulate_pushbroom_cmd(ctx, out_dir, seed, config_path, dom_path, dem_path, 
     )
 
 
+@simulate.command("series")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--scenes", type=click.IntRange(min=1), default=10, show_default=True, help="Validation scenes.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed of the series' draws.")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help="Sensor configuration (JSON, as simulate pushbroom).")
+@click.option("--clouds", default="0,0,0,0.3", show_default=True, help="Cloud covers cycled over the scenes.")
+@click.option("--calibration-scene", is_flag=True, help="Also render a scene to calibrate the sensor on.")
+@click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True)
+def simulate_series_cmd(out_dir, scenes, seed, config_path, clouds, calibration_scene, workers):
+    """Validation scenes of one sensor (dates, sites, attitude biases, clouds) and their sites file."""
+    from sensor_models.simulate.config import load_config
+    from sensor_models.simulate.series import simulate_series
+
+    paths = simulate_series(Path(out_dir), scenes, base_config=load_config(config_path), seed=seed,
+                            cloud_fractions=tuple(_float_list(clouds, "clouds")), calibration_scene=calibration_scene,
+                            workers=workers)
+    click.echo(f"{out_dir}: {len(paths)} scenes; sites file {Path(out_dir) / 'sites.yaml'}")
+
+
 @simulate.command("geo-earth")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--seed", type=click.IntRange(min=0), help="Random seed (overrides the configuration's).")
