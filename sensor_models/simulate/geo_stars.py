@@ -315,7 +315,7 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning
 
-    from gcpmatch.starfind import render_stars
+    from sensor_models.simulate.stars_render import render_stars
     from sensor_models.readers.geo_manifest import write_geo_manifest
     from sensor_models.stars import StarCatalog
 
