@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sensor_models.atomic import move_tree_into
 from sensor_models.errors import InputError
 
 __all__ = ["apply_calibration", "calibrate_scene", "points_of"]
@@ -142,7 +143,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, scheme="exterior-interior
             "seconds": time.perf_counter() - t0,
         }
         (tmp / "calibrate.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-        _move_into(tmp, out_dir)
+        move_tree_into(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return summary
@@ -174,11 +175,3 @@ def _write_model(calibrated, original, tmp: Path, out_dir: Path) -> str:
     name = f"{Path(getattr(original, 'source', 'model') or 'model').stem}_RPC.TXT"
     calibrated.write(tmp / name)
     return name
-
-
-def _move_into(tmp: Path, out_dir: Path) -> None:
-    for src in sorted(tmp.rglob("*")):
-        if src.is_file():
-            dst = out_dir / src.relative_to(tmp)
-            dst.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(src, dst)

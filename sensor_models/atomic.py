@@ -6,7 +6,7 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write_text", "temporary_beside"]
+__all__ = ["atomic_write_text", "move_tree_into", "temporary_beside"]
 
 
 def temporary_beside(path, suffix: str = ".tmp") -> Path:
@@ -34,3 +34,17 @@ def atomic_write_text(path, text: str) -> Path:
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def move_tree_into(tmp, out_dir) -> None:
+    """Move every file under folder ``tmp`` to the same relative path under ``out_dir``.
+
+    Each move is an atomic rename (``tmp`` lies inside ``out_dir``, on the same filesystem), done
+    only once everything has been written, so a failed stage never leaves partial files.
+    """
+    tmp, out_dir = Path(tmp), Path(out_dir)
+    for src in sorted(tmp.rglob("*")):
+        if src.is_file():
+            dst = out_dir / src.relative_to(tmp)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(src, dst)

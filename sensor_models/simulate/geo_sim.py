@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sensor_models.atomic import move_tree_into
 from sensor_models.errors import InputError
 
 __all__ = ["GeoSimConfig", "load_geo_config", "simulate_geo_earth"]
@@ -212,11 +213,7 @@ def simulate_geo_earth(out_dir, *, config: GeoSimConfig | None = None, dom=None,
             summary.update(render_seconds=render_s, seconds=time.perf_counter() - t0)
         (tmp / "truth.json").write_text(json.dumps(truth_doc, indent=1) + "\n", encoding="utf-8")
         (tmp / "summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-        for src in sorted(tmp.rglob("*")):
-            if src.is_file():
-                dst_path = out_dir / src.relative_to(tmp)
-                dst_path.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(src, dst_path)
+        move_tree_into(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return summary

@@ -72,6 +72,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from sensor_models.atomic import move_tree_into
 from sensor_models.errors import InputError
 from sensor_models.ephemeris import Attitude
 from sensor_models.geo_staring import (
@@ -399,11 +400,7 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
         if not out_dir.exists():
             os.replace(tmp, out_dir)
         else:
-            for src in sorted(tmp.rglob("*")):
-                if src.is_file():
-                    dst_path = out_dir / src.relative_to(tmp)
-                    dst_path.parent.mkdir(parents=True, exist_ok=True)
-                    os.replace(src, dst_path)
+            move_tree_into(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return summary

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 import pyproj
 
+from sensor_models.atomic import move_tree_into
 from sensor_models.errors import InputError
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.radiometry import MapImage, psf_sigma_dom_px, sample_map_image, smooth_field, to_dn
@@ -237,11 +238,7 @@ def simulate_pushbroom(
     try:
         summary = _simulate(cfg, out_dir, tmp, dom, dem, geoid, workers, block_lines, progress, t_start,
                             record_timings)
-        for src in sorted(tmp.rglob("*")):
-            if src.is_file():
-                dst = out_dir / src.relative_to(tmp)
-                dst.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(src, dst)
+        move_tree_into(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return summary
