@@ -223,3 +223,14 @@ def test_thermal_drift_of_the_installation_grows_with_time():
     expected = 2.0 * seconds / ifov_arcsec  # pitch drift in pixels at the last line
     assert shift[0] < 0.02
     assert 0.8 * expected < shift[1] < 1.2 * expected
+
+
+def test_acquisition_seed_changes_the_pass_not_the_camera():
+    cfg = small_config()
+    other = replace(cfg, scene=replace(cfg.scene, acquisition_seed=99))
+    a, b = build_models(cfg), build_models(other)
+    assert a.truth["true_camera"] == b.truth["true_camera"]  # same sensor
+    assert a.truth["jitter_phase_rad"] != b.truth["jitter_phase_rad"]  # another pass
+    qa = a.lab_model.attitude.quaternions_xyzw
+    qb = b.lab_model.attitude.quaternions_xyzw
+    assert not np.allclose(qa, qb)  # different measured-attitude noise

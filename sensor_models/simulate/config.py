@@ -31,6 +31,10 @@ class SceneConfig:
     altitude_m: float = 782_121.0
     gsd_m: float = 30.0
     inclination_deg: float = 98.5
+    #: seed of this acquisition's own draws (attitude and orbit noise, jitter phase, image noise,
+    #: seasonal change, clouds); -1: the sensor's ``seed``. The camera (its true errors, PRNU)
+    #: follows ``seed`` only, so scenes of one sensor share it.
+    acquisition_seed: int = -1
 
 
 @dataclass(frozen=True)
@@ -115,6 +119,11 @@ class SimConfig:
                 out[f.name] = {g.name: _jsonable(getattr(sec, g.name)) for g in fields(sec)}
         return out
 
+    @property
+    def pass_seed(self) -> int:
+        """Seed of the acquisition's own random draws (``scene.acquisition_seed`` or ``seed``)."""
+        return self.seed if self.scene.acquisition_seed < 0 else self.scene.acquisition_seed
+
     def with_seed(self, seed: int) -> "SimConfig":
         return replace(self, seed=int(seed))
 
@@ -134,6 +143,8 @@ class SimConfig:
                 raise bad(f"scene.{name}", "must be positive")
         if not 200_000 <= s.altitude_m <= 2_000_000:
             raise bad("scene.altitude_m", "must be a low Earth orbit (200 to 2000 km)")
+        if s.acquisition_seed < -1:
+            raise bad("scene.acquisition_seed", "must be -1 (the sensor's seed) or >= 0")
         if s.n_rows < 32:
             raise bad("scene.n_rows", "must be at least 32 lines")
         if c.n_cameras < 1 or c.ccds_per_camera < 1:

@@ -123,14 +123,14 @@ class _Renderer:
         shape = (n_rows // FIELD_FACTOR + 2, n_cols // FIELD_FACTOR + 2)
         res = dom.grid.resolution_m * FIELD_FACTOR
         self.seasonal = smooth_field(shape, cfg.radiometry.seasonal_scale_m / res,
-                                     np.random.SeedSequence([cfg.seed, 10]))
+                                     np.random.SeedSequence([cfg.pass_seed, 10]))
         self.clouds = None
         if cfg.clouds.cover > 0:
-            f = smooth_field(shape, cfg.clouds.scale_m / res, np.random.SeedSequence([cfg.seed, 11]))
+            f = smooth_field(shape, cfg.clouds.scale_m / res, np.random.SeedSequence([cfg.pass_seed, 11]))
             thr = float(np.quantile(f, 1.0 - cfg.clouds.cover)) if cfg.clouds.cover < 1 else -np.inf
             # soft edges: opacity ramps over 0.3 standard deviations of the field
             self.clouds = np.clip((f - thr) / 0.3 + 0.5, 0.0, 1.0).astype(np.float32)
-            self.cloud_texture = smooth_field(shape, 2.0, np.random.SeedSequence([cfg.seed, 12]))
+            self.cloud_texture = smooth_field(shape, 2.0, np.random.SeedSequence([cfg.pass_seed, 12]))
         self.band_index = {b: i for i, b in enumerate(cfg.camera.bands)}
 
     def task(self, band: str, ccd: int, row0: int, row1: int):
@@ -145,7 +145,7 @@ class _Renderer:
                                                  borderMode=cv2.BORDER_REPLICATE)
         n_det = u.shape[1]
         prnu = np.random.default_rng([cfg.seed, 5, b, ccd]).normal(1.0, r.prnu, n_det).astype(np.float32)
-        rng = np.random.default_rng([cfg.seed, 6, b, ccd, row0])
+        rng = np.random.default_rng([cfg.pass_seed, 6, b, ccd, row0])
         dn = to_dn(refl, gain=r.band_gain[b], offset_dn=r.band_offset_dn[b], gamma=r.band_gamma[b],
                    seasonal=seasonal, prnu_gain=prnu[None, :], snr=r.snr, bits=r.bits, rng=rng)
         alpha = None

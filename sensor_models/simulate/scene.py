@@ -159,7 +159,7 @@ def _attitude_quaternions(seconds, angles_rad):
 
 def _true_attitude(cfg: SimConfig, seconds) -> tuple[Attitude, dict]:
     e = cfg.errors
-    rng = _rng(cfg.seed, 2)
+    rng = _rng(cfg.pass_seed, 2)
     phase = rng.uniform(0.0, 2.0 * np.pi, 3)
     t = seconds[:, None]
     angles = (
@@ -175,13 +175,13 @@ def _true_attitude(cfg: SimConfig, seconds) -> tuple[Attitude, dict]:
 
 
 def _measured_attitude(cfg: SimConfig, seconds) -> Attitude:
-    rng = _rng(cfg.seed, 3)
+    rng = _rng(cfg.pass_seed, 3)
     angles = rng.normal(0.0, cfg.errors.attitude_noise_urad * 1e-6, (seconds.size, 3))
     return Attitude(seconds, _attitude_quaternions(seconds, angles), frame="orbital")
 
 
 def _measured_orbit(cfg: SimConfig, orbit: Orbit) -> Orbit:
-    rng = _rng(cfg.seed, 4)
+    rng = _rng(cfg.pass_seed, 4)
     sigma = cfg.errors.orbit_noise_m
     pos = orbit.position_m + rng.normal(0.0, sigma, orbit.position_m.shape)
     vel = orbit.velocity_m_s + rng.normal(0.0, sigma * 1e-3, orbit.velocity_m_s.shape)

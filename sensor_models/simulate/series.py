@@ -28,10 +28,9 @@ turns the image about its centre (``d_yaw`` times the half swath in pixels at th
 These predictions go into ``series.json`` per scene (``expected_offset_px``), the truth a
 validation run is checked against.
 
-Limitation: the simulator seeds the per-acquisition noise (attitude noise, orbit noise, jitter
-phase, radiometric noise, seasonal and cloud fields) from the same ``seed`` as the camera, so
-scenes of one series share those realisations (clouds and seasons still differ since they are
-drawn on each site's reference grid).
+Each scene has its own ``scene.acquisition_seed``: attitude and orbit noise, jitter phase,
+radiometric noise, seasonal change and clouds differ from scene to scene, while the camera (seeded
+by ``seed``) is the same.
 
 Outputs in ``out_dir``::
 
@@ -182,7 +181,8 @@ def plan_series(n_scenes: int, *, base_config: SimConfig | None = None, seed: in
         cfg = replace(
             base,
             scene=replace(base.scene, center_lon_deg=float(np.clip(lon + jitter[0], -180.0, 180.0)),
-                          center_lat_deg=float(lat + jitter[1]), epoch_utc=str(epoch)),
+                          center_lat_deg=float(lat + jitter[1]), epoch_utc=str(epoch),
+                          acquisition_seed=int(rng.integers(0, 2**31 - 1))),
             errors=replace(base.errors, attitude_bias_arcsec=tuple(float(b) for b in bias)),
             clouds=replace(base.clouds, cover=clouds[k % len(clouds)]),
         ).validate()
