@@ -20,7 +20,8 @@ from sensor_models.errors import GcpcalError, InputError, ManifestError
 from sensor_models.geo_staring import GeoStaringModel, PointingMirror, StaringInterior, StaringLab, fit_interior
 from sensor_models.pushbroom_types import Installation
 from sensor_models.readers._strict import Fields
-from sensor_models.readers.manifest import FORMAT_VERSION, RasterRef, _attitude, _epoch, _iso, _load_json, _orbit
+from sensor_models.readers.manifest import (FORMAT_VERSION, RasterRef, _attitude, _epoch, _iso, _load_json, _orbit,
+                                           exterior_to_dict)
 
 __all__ = ["SENSOR", "geo_manifest_to_dict", "geo_model_from_document", "read_geo_manifest", "write_geo_manifest"]
 
@@ -178,22 +179,7 @@ def geo_manifest_to_dict(model: GeoStaringModel, *, raster=None, base_dir=None) 
         "epoch_utc": _iso(model.epoch),
         "image": image,
         "frame": {"seconds": model.frame_seconds},
-        "orbit": {
-            "frame": model.orbit.frame,
-            "seconds": model.orbit.seconds.tolist(),
-            "position_m": model.orbit.position_m.tolist(),
-            "velocity_m_s": model.orbit.velocity_m_s.tolist(),
-        },
-        "attitude": {
-            "frame": model.attitude.frame,
-            "seconds": model.attitude.seconds.tolist(),
-            "quaternions_xyzw": model.attitude.quaternions_xyzw.tolist(),
-        },
-        "installation": {
-            "roll_rad": model.installation.roll,
-            "pitch_rad": model.installation.pitch,
-            "yaw_rad": model.installation.yaw,
-        },
+        **exterior_to_dict(model),
     }
     if model.mirror is not None:
         doc["mirror"] = {

@@ -190,6 +190,28 @@ def _iso(epoch) -> str:
     return str(np.datetime_as_string(np.datetime64(epoch, "ns"), unit="ns")) + "Z"
 
 
+def exterior_to_dict(model) -> dict:
+    """The ``orbit``, ``attitude`` and ``installation`` objects of a manifest (any model kind)."""
+    return {
+        "orbit": {
+            "frame": model.orbit.frame,
+            "seconds": model.orbit.seconds.tolist(),
+            "position_m": model.orbit.position_m.tolist(),
+            "velocity_m_s": model.orbit.velocity_m_s.tolist(),
+        },
+        "attitude": {
+            "frame": model.attitude.frame,
+            "seconds": model.attitude.seconds.tolist(),
+            "quaternions_xyzw": model.attitude.quaternions_xyzw.tolist(),
+        },
+        "installation": {
+            "roll_rad": model.installation.roll,
+            "pitch_rad": model.installation.pitch,
+            "yaw_rad": model.installation.yaw,
+        },
+    }
+
+
 def manifest_to_dict(model: PushbroomModel, *, rasters=None, base_dir=None) -> dict:
     """The manifest document of a push-broom model (``rasters``: band -> path or RasterRef)."""
     out_rasters = {}
@@ -213,22 +235,7 @@ def manifest_to_dict(model: PushbroomModel, *, rasters=None, base_dir=None) -> d
             "reference_seconds": model.line_timing.reference_seconds,
             "line_period_s": model.line_timing.line_period_s,
         },
-        "orbit": {
-            "frame": model.orbit.frame,
-            "seconds": model.orbit.seconds.tolist(),
-            "position_m": model.orbit.position_m.tolist(),
-            "velocity_m_s": model.orbit.velocity_m_s.tolist(),
-        },
-        "attitude": {
-            "frame": model.attitude.frame,
-            "seconds": model.attitude.seconds.tolist(),
-            "quaternions_xyzw": model.attitude.quaternions_xyzw.tolist(),
-        },
-        "installation": {
-            "roll_rad": model.installation.roll,
-            "pitch_rad": model.installation.pitch,
-            "yaw_rad": model.installation.yaw,
-        },
+        **exterior_to_dict(model),
         "interior": {
             "model": "directional_angles",
             "bands": {
