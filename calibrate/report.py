@@ -48,10 +48,8 @@ through ``pyplot``, so the caller's backend and global figure state are untouche
 from __future__ import annotations
 
 import dataclasses
-import html
 import json
 import math
-import os
 import re
 import shutil
 import tempfile
@@ -63,6 +61,8 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.absolute import CalibrationResult, parameter_unit
+from calibrate._html import CSS as _CSS, FIGURE_DPI, escape as _e, figure_html as _figure_html, fmt as _fmt
+from calibrate._html import move_into_place as _move_into_place, new_figure as _new_figure, save_figure as _save, table as _table
 from calibrate.accuracy import AccuracyReport
 from sensor_models.errors import GcpcalError, InputError
 from sensor_models.pushbroom import PushbroomModel
@@ -73,7 +73,6 @@ __all__ = ["write_report", "MAX_ARROWS", "FIGURE_DPI"]
 MAX_ARROWS = 1500
 #: most GCP positions drawn as background dots
 MAX_DOTS = 4000
-FIGURE_DPI = 100
 #: detectors sampled per CCD for the distortion curves
 CURVE_SAMPLES = 96
 #: detectors per CCD and rows localized for the calibrated-minus-truth curves
@@ -174,26 +173,6 @@ def write_report(
     return out_dir / "report.html"
 
 
-def _move_into_place(tmp: Path, out_dir: Path) -> None:
-    """Replace ``out_dir/figures`` then ``out_dir/report.html`` by the ones built in ``tmp``.
-
-    The old figures folder is moved into ``tmp`` (deleted with it); if installing the new one
-    fails, it is put back.
-    """
-    target = out_dir / "figures"
-    old = None
-    if target.exists():
-        old = tmp / "previous-figures"
-        os.replace(target, old)
-    try:
-        os.replace(tmp / "figures", target)
-    except BaseException:
-        if old is not None:
-            os.replace(old, target)
-        raise
-    os.replace(tmp / "report.html", out_dir / "report.html")
-
-
 # --------------------------------------------------------------------------- inputs
 def _unwrap(result) -> CalibrationResult:
     """The CalibrationResult itself, or the one a wrapper holds (with the wrapper's message)."""
@@ -284,27 +263,6 @@ def _calibrated_bands(result, model) -> list:
 
 
 # --------------------------------------------------------------------------- figures
-def _new_figure(width_in, height_in, *, left=0.8, right=0.25, bottom=0.6, top=0.45, wspace=0.8, hspace=0.75):
-    """A Figure on an Agg canvas with fixed margins in inches.
-
-    Fixed margins rather than a layout engine: constrained layout measures every text and
-    doubles the drawing time of figures with many CCD labels.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width_in, height_in), dpi=FIGURE_DPI)
-    FigureCanvasAgg(fig)
-    fig.subplots_adjust(left=left / width_in, right=1.0 - right / width_in, bottom=bottom / height_in,
-                        top=1.0 - top / height_in, wspace=wspace, hspace=hspace)
-    return fig
-
-
-def _save(fig, fig_dir: Path, name: str) -> str:
-    fig.savefig(fig_dir / name, dpi=FIGURE_DPI, format="png")
-    return f"figures/{name}"
-
-
 def _nice(value: float) -> float:
     """The 1-2-5 number nearest below ``value`` (arrow key lengths)."""
     if not (value > 0.0 and math.isfinite(value)):
@@ -593,56 +551,7 @@ def _figure_error_vs_count(rows, fig_dir: Path) -> dict | None:
 
 
 # --------------------------------------------------------------------------- HTML
-_CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1250px;color:#222;padding:0 1em}
-h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
-table{border-collapse:collapse;margin:.6em 0;font-size:.9em}
-th,td{border:1px solid #ccc;padding:.25em .55em;text-align:right}th{background:#f2f4f7}
-td.l,th.l{text-align:left}tr.total td{font-weight:600;background:#fafafa}
-.ok{color:#17733a;font-weight:600}.fail{color:#b3261e;font-weight:600}
-figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}figcaption{font-size:.88em;color:#444}
-.meta{color:#666;font-size:.85em}details{margin:.6em 0}summary{cursor:pointer}pre{margin:0;white-space:pre-wrap}
-nav a{margin-right:1em}
-"""
 
-
-def _e(text) -> str:
-    return html.escape(str(text), quote=True)
-
-
-def _fmt(value, digits: int = 4) -> str:
-    """A number with ``digits`` significant digits; ``–`` for None and non-finite values."""
-    if value is None:
-        return "–"
-    if isinstance(value, (bool, np.bool_)):
-        return "yes" if value else "no"
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        return _e(value)
-    if not math.isfinite(v):
-        return "–"
-    return f"{v:.{digits}g}"
-
-
-def _table(header, rows, *, left=1, row_classes=None) -> str:
-    """HTML table; ``rows`` hold already-escaped cell strings; the first ``left`` columns align left."""
-    head = "".join(f'<th class="l">{h}</th>' if j < left else f"<th>{h}</th>" for j, h in enumerate(header))
-    body = []
-    for i, row in enumerate(rows):
-        cls = f' class="{row_classes[i]}"' if row_classes and row_classes[i] else ""
-        cells = "".join(f'<td class="l">{c}</td>' if j < left else f"<td>{c}</td>" for j, c in enumerate(row))
-        body.append(f"<tr{cls}>{cells}</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
-
-
-def _figure_html(fig) -> str:
-    if not fig:
-        return ""
-    return (
-        f'<figure><img src="{_e(fig["src"])}" alt="{_e(fig["caption"])}">'
-        f"<figcaption>{_e(fig['caption'])}</figcaption></figure>"
-    )
 
 
 def _html(ctx: _Context, figures, error_vs_count, title, extra) -> str:
