@@ -37,7 +37,7 @@ import numpy as np
 
 from sensor_models.errors import InputError
 
-__all__ = ["DetectorArray", "ParameterVector", "SensorModel", "as_float_arrays"]
+__all__ = ["WHOLE_IMAGE", "DetectorArray", "ParameterVector", "SensorModel", "as_float_arrays"]
 
 #: name of the one detector array of a model whose image is not split into arrays
 WHOLE_IMAGE = ""

@@ -150,7 +150,20 @@ class StaringInterior:
 
     @classmethod
     def pinhole(cls, focal_length_mm: float, pixel_size_mm: float, image_shape) -> "StaringInterior":
-        """Ideal pinhole centred on the array: ``tan psi = (pixel offset) * pitch / f``."""
+        """Ideal pinhole centred on the array: ``tan psi = (pixel offset) * pitch / f``.
+
+        Parameters
+        ----------
+        focal_length_mm, pixel_size_mm : float
+            Focal length and pixel pitch, millimetres.
+        image_shape : (int, int)
+            ``(n_rows, n_cols)`` of the array.
+
+        Returns
+        -------
+        StaringInterior
+            Only ``a10`` and ``b01`` are non-zero.
+        """
         n_rows, n_cols = _check_shape(image_shape)
         ifov = float(pixel_size_mm) / float(focal_length_mm)
         ax = np.zeros(10)
@@ -160,7 +173,17 @@ class StaringInterior:
         return cls(ax, by)
 
     def tangents(self, u, v):
-        """``tan psi_x(u, v)``, ``tan psi_y(u, v)`` (arrays shaped like ``u``)."""
+        """The cubic directional angles at normalized coordinates (seed 000 eq. 4-5).
+
+        Parameters
+        ----------
+        u, v : ndarray
+            Normalized frame coordinates (module docstring), one shape.
+
+        Returns
+        -------
+        tan_psi_x, tan_psi_y : ndarray, shape of ``u``
+        """
         a, b = self.tan_psi_x, self.tan_psi_y
         uu, vv, uv = u * u, v * v, u * v
         tx = a[0] + a[1] * u + a[2] * v + a[3] * uv + a[4] * uu + a[5] * vv + a[6] * uu * v + a[7] * u * vv + a[8] * uu * u + a[9] * vv * v
@@ -168,7 +191,19 @@ class StaringInterior:
         return tx, ty
 
     def derivatives(self, u, v):
-        """``d tan psi_x / du, d tan psi_x / dv, d tan psi_y / du, d tan psi_y / dv``."""
+        """Partial derivatives of :meth:`tangents` in the normalized coordinates.
+
+        Parameters
+        ----------
+        u, v : ndarray
+            Normalized frame coordinates, one shape.
+
+        Returns
+        -------
+        dx_du, dx_dv, dy_du, dy_dv : ndarray, shape of ``u``
+            ``d tan psi_x / du``, ``d tan psi_x / dv``, ``d tan psi_y / du``,
+            ``d tan psi_y / dv``.
+        """
         a, b = self.tan_psi_x, self.tan_psi_y
         uu, vv, uv = u * u, v * v, u * v
         xu = a[1] + a[3] * v + 2.0 * a[4] * u + 2.0 * a[6] * uv + a[7] * vv + 3.0 * a[8] * uu
@@ -182,6 +217,13 @@ class StaringInterior:
 
         Starts from the ideal pinhole (constant and linear terms only). Solutions outside
         ``|u|, |v| <= 4`` (four half-frames from the centre) or not converged are NaN.
+
+        Parameters
+        ----------
+        tx_target, ty_target : array_like, shape (N,)
+            Wanted ``tan psi_x`` and ``tan psi_y`` (dimensionless).
+        max_iter : int
+            Newton iterations at most.
 
         Returns
         -------
@@ -292,7 +334,19 @@ class StaringLab:
         return self.pixel_size_mm / self.focal_length_mm
 
     def tangents(self, row, col, image_shape):
-        """Exact ``tan psi_x``, ``tan psi_y`` of pixels ``(row, col)`` from the physical model."""
+        """Exact directional angles of pixels from the physical (laboratory) model.
+
+        Parameters
+        ----------
+        row, col : array_like
+            Continuous image coordinates, one shape.
+        image_shape : (int, int)
+            ``(n_rows, n_cols)`` of the array.
+
+        Returns
+        -------
+        tan_psi_x, tan_psi_y : ndarray, shape of ``row``
+        """
         n_rows, n_cols = _check_shape(image_shape)
         row = np.asarray(row, dtype=np.float64)
         col = np.asarray(col, dtype=np.float64)
@@ -397,28 +451,73 @@ class PointingMirror:
             object.__setattr__(self, name, value)
 
     def normal(self) -> np.ndarray:
-        """Unit mirror normal in the camera frame, shape (3,)."""
+        """The mirror normal at this frame's angles.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            Unit vector in the camera frame.
+        """
         return rot_x(self.angle_x) @ rot_y(self.angle_y) @ np.asarray(self.normal_cam)
 
     def matrix(self) -> np.ndarray:
-        """Reflection ``R_ref = I - 2 n n^T``, shape (3, 3)."""
+        """The reflection ``R_ref = I - 2 n n^T``.
+
+        Returns
+        -------
+        ndarray, shape (3, 3)
+            Symmetric, determinant -1.
+        """
         n = self.normal()
         return np.eye(3) - 2.0 * np.outer(n, n)
 
     def with_angles(self, angle_x: float, angle_y: float) -> "PointingMirror":
+        """The same mirror at other angles.
+
+        Parameters
+        ----------
+        angle_x, angle_y : float
+            Mirror angles, radians.
+
+        Returns
+        -------
+        PointingMirror
+        """
         return PointingMirror(self.normal_cam, angle_x, angle_y)
 
 
 # --------------------------------------------------------------------------- stars
 def radec_to_vectors(ra_deg, dec_deg) -> np.ndarray:
-    """Unit vectors ``(cos d cos a, cos d sin a, sin d)`` (seed 000 eq. 3 left side), (..., 3)."""
+    """Unit vectors ``(cos d cos a, cos d sin a, sin d)`` (seed 000 eq. 3 left side).
+
+    Parameters
+    ----------
+    ra_deg, dec_deg : array_like
+        Right ascension ``a`` and declination ``d``, degrees (broadcast together).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+    """
     ra, dec = np.radians(np.asarray(ra_deg, dtype=np.float64)), np.radians(np.asarray(dec_deg, dtype=np.float64))
     cd = np.cos(dec)
     return np.stack(np.broadcast_arrays(cd * np.cos(ra), cd * np.sin(ra), np.sin(dec)), axis=-1)
 
 
 def vectors_to_radec(vectors):
-    """Right ascension in ``[0, 360)`` and declination (degrees) of vectors, shape (...)."""
+    """Right ascension and declination of direction vectors.
+
+    Parameters
+    ----------
+    vectors : array_like, shape (..., 3)
+        Directions (any length).
+
+    Returns
+    -------
+    ra_deg : ndarray, shape (...)
+        In ``[0, 360)``.
+    dec_deg : ndarray, shape (...)
+    """
     w = np.asarray(vectors, dtype=np.float64)
     ra = np.degrees(np.arctan2(w[..., 1], w[..., 0])) % 360.0
     dec = np.degrees(np.arctan2(w[..., 2], np.hypot(w[..., 0], w[..., 1])))
@@ -1147,6 +1246,22 @@ def geostationary_orbit(epoch, seconds, *, lon_deg: float = 105.0, radius_m: flo
 
     The ITRF position ``radius_m (cos lon, sin lon, 0)`` with zero ITRF velocity is rotated
     into GCRF at every sample (IAU 2006/2000A), so the satellite is exactly geostationary.
+
+    Parameters
+    ----------
+    epoch : str or numpy.datetime64
+        UTC epoch of ``seconds``.
+    seconds : array_like, shape (N,)
+        Sample times, SI seconds since ``epoch``.
+    lon_deg : float
+        Sub-satellite longitude, degrees.
+    radius_m : float
+        Orbit radius, metres.
+
+    Returns
+    -------
+    Orbit
+        GCRF state vectors at ``seconds``.
     """
     from sensor_models.frames import EarthRotation
 
@@ -1179,6 +1294,8 @@ def example_geo_staring_model(
         Seed 000 table 1 camera (1250 mm, 1024 x 1024 pixels of 25 um, about 716 m at nadir),
         a GF-4-like camera (10240 x 10240 pixels, 50 m at nadir) or a laboratory model (then
         ``image_shape`` is required). The interior is fitted to it (:meth:`GeoStaringModel.from_lab`).
+    image_shape : (int, int), optional
+        ``(n_rows, n_cols)``; default: the named camera's.
     epoch : str
         UTC epoch of the orbit and attitude samples.
     lon_deg : float
@@ -1193,6 +1310,12 @@ def example_geo_staring_model(
         jitter...). With zero attitude and installation the array centre looks at the
         geocentric nadir: the sub-satellite point ``(lon_deg, 0)``.
     mirror : PointingMirror, optional
+    name : str
+        Free text.
+
+    Returns
+    -------
+    GeoStaringModel
     """
     from sensor_models.synthetic import earth_pointing_attitude
 
