@@ -150,7 +150,20 @@ class StaringInterior:
 
     @classmethod
     def pinhole(cls, focal_length_mm: float, pixel_size_mm: float, image_shape) -> "StaringInterior":
-        """Ideal pinhole centred on the array: ``tan psi = (pixel offset) * pitch / f``."""
+        """Ideal pinhole centred on the array: ``tan psi = (pixel offset) * pitch / f``.
+
+        Parameters
+        ----------
+        focal_length_mm, pixel_size_mm : float
+            Focal length and pixel pitch, millimetres.
+        image_shape : (int, int)
+            ``(n_rows, n_cols)`` of the array.
+
+        Returns
+        -------
+        StaringInterior
+            Only ``a10`` and ``b01`` are non-zero.
+        """
         n_rows, n_cols = _check_shape(image_shape)
         ifov = float(pixel_size_mm) / float(focal_length_mm)
         ax = np.zeros(10)
@@ -160,7 +173,17 @@ class StaringInterior:
         return cls(ax, by)
 
     def tangents(self, u, v):
-        """``tan psi_x(u, v)``, ``tan psi_y(u, v)`` (arrays shaped like ``u``)."""
+        """The cubic directional angles at normalized coordinates (seed 000 eq. 4-5).
+
+        Parameters
+        ----------
+        u, v : ndarray
+            Normalized frame coordinates (module docstring), one shape.
+
+        Returns
+        -------
+        tan_psi_x, tan_psi_y : ndarray, shape of ``u``
+        """
         a, b = self.tan_psi_x, self.tan_psi_y
         uu, vv, uv = u * u, v * v, u * v
         tx = a[0] + a[1] * u + a[2] * v + a[3] * uv + a[4] * uu + a[5] * vv + a[6] * uu * v + a[7] * u * vv + a[8] * uu * u + a[9] * vv * v
@@ -168,7 +191,19 @@ class StaringInterior:
         return tx, ty
 
     def derivatives(self, u, v):
-        """``d tan psi_x / du, d tan psi_x / dv, d tan psi_y / du, d tan psi_y / dv``."""
+        """Partial derivatives of :meth:`tangents` in the normalized coordinates.
+
+        Parameters
+        ----------
+        u, v : ndarray
+            Normalized frame coordinates, one shape.
+
+        Returns
+        -------
+        dx_du, dx_dv, dy_du, dy_dv : ndarray, shape of ``u``
+            ``d tan psi_x / du``, ``d tan psi_x / dv``, ``d tan psi_y / du``,
+            ``d tan psi_y / dv``.
+        """
         a, b = self.tan_psi_x, self.tan_psi_y
         uu, vv, uv = u * u, v * v, u * v
         xu = a[1] + a[3] * v + 2.0 * a[4] * u + 2.0 * a[6] * uv + a[7] * vv + 3.0 * a[8] * uu
@@ -182,6 +217,13 @@ class StaringInterior:
 
         Starts from the ideal pinhole (constant and linear terms only). Solutions outside
         ``|u|, |v| <= 4`` (four half-frames from the centre) or not converged are NaN.
+
+        Parameters
+        ----------
+        tx_target, ty_target : array_like, shape (N,)
+            Wanted ``tan psi_x`` and ``tan psi_y`` (dimensionless).
+        max_iter : int
+            Newton iterations at most.
 
         Returns
         -------
@@ -292,7 +334,19 @@ class StaringLab:
         return self.pixel_size_mm / self.focal_length_mm
 
     def tangents(self, row, col, image_shape):
-        """Exact ``tan psi_x``, ``tan psi_y`` of pixels ``(row, col)`` from the physical model."""
+        """Exact directional angles of pixels from the physical (laboratory) model.
+
+        Parameters
+        ----------
+        row, col : array_like
+            Continuous image coordinates, one shape.
+        image_shape : (int, int)
+            ``(n_rows, n_cols)`` of the array.
+
+        Returns
+        -------
+        tan_psi_x, tan_psi_y : ndarray, shape of ``row``
+        """
         n_rows, n_cols = _check_shape(image_shape)
         row = np.asarray(row, dtype=np.float64)
         col = np.asarray(col, dtype=np.float64)
@@ -397,28 +451,73 @@ class PointingMirror:
             object.__setattr__(self, name, value)
 
     def normal(self) -> np.ndarray:
-        """Unit mirror normal in the camera frame, shape (3,)."""
+        """The mirror normal at this frame's angles.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            Unit vector in the camera frame.
+        """
         return rot_x(self.angle_x) @ rot_y(self.angle_y) @ np.asarray(self.normal_cam)
 
     def matrix(self) -> np.ndarray:
-        """Reflection ``R_ref = I - 2 n n^T``, shape (3, 3)."""
+        """The reflection ``R_ref = I - 2 n n^T``.
+
+        Returns
+        -------
+        ndarray, shape (3, 3)
+            Symmetric, determinant -1.
+        """
         n = self.normal()
         return np.eye(3) - 2.0 * np.outer(n, n)
 
     def with_angles(self, angle_x: float, angle_y: float) -> "PointingMirror":
+        """The same mirror at other angles.
+
+        Parameters
+        ----------
+        angle_x, angle_y : float
+            Mirror angles, radians.
+
+        Returns
+        -------
+        PointingMirror
+        """
         return PointingMirror(self.normal_cam, angle_x, angle_y)
 
 
 # --------------------------------------------------------------------------- stars
 def radec_to_vectors(ra_deg, dec_deg) -> np.ndarray:
-    """Unit vectors ``(cos d cos a, cos d sin a, sin d)`` (seed 000 eq. 3 left side), (..., 3)."""
+    """Unit vectors ``(cos d cos a, cos d sin a, sin d)`` (seed 000 eq. 3 left side).
+
+    Parameters
+    ----------
+    ra_deg, dec_deg : array_like
+        Right ascension ``a`` and declination ``d``, degrees (broadcast together).
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+    """
     ra, dec = np.radians(np.asarray(ra_deg, dtype=np.float64)), np.radians(np.asarray(dec_deg, dtype=np.float64))
     cd = np.cos(dec)
     return np.stack(np.broadcast_arrays(cd * np.cos(ra), cd * np.sin(ra), np.sin(dec)), axis=-1)
 
 
 def vectors_to_radec(vectors):
-    """Right ascension in ``[0, 360)`` and declination (degrees) of vectors, shape (...)."""
+    """Right ascension and declination of direction vectors.
+
+    Parameters
+    ----------
+    vectors : array_like, shape (..., 3)
+        Directions (any length).
+
+    Returns
+    -------
+    ra_deg : ndarray, shape (...)
+        In ``[0, 360)``.
+    dec_deg : ndarray, shape (...)
+    """
     w = np.asarray(vectors, dtype=np.float64)
     ra = np.degrees(np.arctan2(w[..., 1], w[..., 0])) % 360.0
     dec = np.degrees(np.arctan2(w[..., 2], np.hypot(w[..., 0], w[..., 1])))
@@ -475,9 +574,17 @@ class GeoStaringModel(SensorModel):
     gcrf_to_itrf : ndarray, shape (3, 3)
     lab, lab_fit_residual : StaringLab, dict or None
         Set by :meth:`from_lab`.
+
+    Notes
+    -----
+    In the :class:`~sensor_models.base.SensorModel` protocol the model has one band
+    (``bands == (band,)``) and one detector array covering the frame (named ``""``); its
+    parameter groups are ``"exterior"`` (``installation.roll|pitch|yaw``) and ``"interior"``
+    (the 20 coefficients ``interior.tan_psi_x.a<ij>``, ``interior.tan_psi_y.b<ij>``).
     """
 
     kind = "geo_staring"
+    is_rigorous = True
 
     def __init__(
         self,
@@ -562,8 +669,22 @@ class GeoStaringModel(SensorModel):
     def from_lab(cls, lab: StaringLab, *, image_shape, grid: int = 65, **kwargs) -> "GeoStaringModel":
         """A model whose interior is fitted to a laboratory camera (:func:`fit_interior`).
 
-        ``kwargs`` are those of the constructor (without ``interior``). The fit residual is in
-        ``model.lab_fit_residual`` (``max_px``, ``rms_px``, ``max_rad``).
+        The fit residual is in ``model.lab_fit_residual`` (``max_px``, ``rms_px``, ``max_rad``).
+
+        Parameters
+        ----------
+        lab : StaringLab
+            Laboratory camera parameters.
+        image_shape : (int, int)
+            ``(n_rows, n_cols)`` of the array.
+        grid : int
+            Grid points per axis of the fit.
+        **kwargs
+            The constructor's other keywords (without ``interior``).
+
+        Returns
+        -------
+        GeoStaringModel
         """
         interior, residual = fit_interior(lab, image_shape, grid=grid)
         model = cls(interior=interior, image_shape=image_shape, **kwargs)
@@ -572,9 +693,20 @@ class GeoStaringModel(SensorModel):
         return model
 
     def at_frame(self, frame_seconds: float, *, mirror_angles=None) -> "GeoStaringModel":
-        """The same camera at another frame instant (and mirror angles ``(x, y)`` if given).
+        """The same camera at another frame instant (and mirror angles if given).
 
         Everything else (orbit, attitude, interior, installation) is shared.
+
+        Parameters
+        ----------
+        frame_seconds : float
+            Exposure instant, SI seconds since the orbit's epoch.
+        mirror_angles : (float, float), optional
+            Pointing-mirror angles ``(x, y)``, radians (the model needs a mirror).
+
+        Returns
+        -------
+        GeoStaringModel
         """
         new = copy.copy(self)
         new.frame_seconds = float(frame_seconds)
@@ -592,6 +724,7 @@ class GeoStaringModel(SensorModel):
     # ------------------------------------------------------------------ basics
     @property
     def image_shape(self) -> tuple[int, int]:
+        """``(n_rows, n_cols)`` of the array."""
         return (self.n_rows, self.n_cols)
 
     @property
@@ -610,39 +743,100 @@ class GeoStaringModel(SensorModel):
             raise InputError(f"unknown band {band!r}; the model has {self.band!r}", field="band")
 
     def normalized(self, row, col):
-        """``(u, v)`` of image coordinates (module docstring)."""
+        """Normalized frame coordinates of image coordinates (module docstring).
+
+        Parameters
+        ----------
+        row, col : array_like
+            Continuous image coordinates.
+
+        Returns
+        -------
+        u, v : ndarray
+            ``u`` from the columns, ``v`` from the rows; -1 and 1 at the frame's edges.
+        """
         hc, hr = 0.5 * self.n_cols, 0.5 * self.n_rows
         return (np.asarray(col, dtype=np.float64) - hc) / hc, (np.asarray(row, dtype=np.float64) - hr) / hr
 
     def pixel(self, u, v):
-        """``(row, col)`` of normalized coordinates (the inverse of :meth:`normalized`)."""
+        """Image coordinates of normalized coordinates (the inverse of :meth:`normalized`).
+
+        Parameters
+        ----------
+        u, v : array_like
+            Normalized coordinates.
+
+        Returns
+        -------
+        row, col : ndarray
+        """
         hc, hr = 0.5 * self.n_cols, 0.5 * self.n_rows
         return hr * (1.0 + np.asarray(v)), hc * (1.0 + np.asarray(u))
 
     # ------------------------------------------------------------------ direct
     def look_cam(self, row, col) -> np.ndarray:
-        """Unit lines of sight in the camera frame, shape (N, 3) (seed 000 eq. 4)."""
+        """Unit lines of sight in the camera frame (seed 000 eq. 4).
+
+        Parameters
+        ----------
+        row, col : array_like, shape (N,)
+            Continuous image coordinates.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+        """
         u, v = self.normalized(np.reshape(row, -1), np.reshape(col, -1))
         tx, ty = self.interior.tangents(u, v)
         los = np.stack([tx, ty, np.ones_like(tx)], axis=-1)
         return los / np.linalg.norm(los, axis=1, keepdims=True)
 
     def rays_itrf(self, row, col):
-        """Ray origins (the satellite) and unit directions in ITRF, each shape (N, 3)."""
+        """Lines of sight of image points in ITRF.
+
+        Parameters
+        ----------
+        row, col : array_like, shape (N,)
+            Continuous image coordinates.
+
+        Returns
+        -------
+        origin_itrf_m : ndarray, shape (N, 3)
+            The satellite's position, metres.
+        direction_itrf : ndarray, shape (N, 3)
+            Unit directions.
+        """
         row, col = as_float_arrays(row, col, names=("row", "col"))
         direction = self.look_cam(row, col) @ self._cam_to_itrf.T
         origin = np.broadcast_to(self.position_itrf_m, direction.shape)
         return origin, direction
 
-    def image_to_ground(self, row, col, *, height=None, dem=None, band=None):
+    def image_to_ground(self, row, col, *, height=None, dem=None, band=None, array=None):
         """Direct localization (see :meth:`SensorModel.image_to_ground`).
 
-        Exactly one of ``height`` (ellipsoidal metres, scalar or per point) and ``dem`` is
-        required. Pixels whose line of sight misses the Earth (or the DEM) give NaN.
+        Pixels whose line of sight misses the Earth (or the DEM) give NaN.
+
+        Parameters
+        ----------
+        row, col : array_like
+            Continuous image coordinates.
+        height : float or array_like, optional
+            Ellipsoidal heights, metres (exactly one of ``height`` and ``dem``).
+        dem : sensor_models.terrain.Dem, optional
+            Terrain to intersect.
+        band : str, optional
+            None or the model's band.
+        array : str or int, optional
+            None, 0 or ``""`` (the frame is one detector array).
+
+        Returns
+        -------
+        lon_deg, lat_deg, h_m : ndarray, shape of the broadcast ``row, col``
         """
         from sensor_models.terrain import intersect_ellipsoid
 
         self._band(band)
+        self._check_array(band, array)
         if (height is None) == (dem is None):
             raise InputError("give exactly one of height= and dem=")
         shape = np.broadcast(np.asarray(row), np.asarray(col)).shape
@@ -662,15 +856,34 @@ class GeoStaringModel(SensorModel):
         return lon.reshape(shape), lat.reshape(shape), h.reshape(shape)
 
     def object_vector_gcrf(self, row, col) -> np.ndarray:
-        """Unit object vectors (apparent directions of what the pixels see) in GCRF, (N, 3).
+        """Unit object vectors (apparent directions of what the pixels see) in GCRF.
 
         Seed 000 eq. 7-9: ``R^gcrf_body R_inst R_ref (tan psi_x, tan psi_y, 1)^T`` normalized.
+
+        Parameters
+        ----------
+        row, col : array_like, shape (N,)
+            Continuous image coordinates.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
         """
         row, col = as_float_arrays(row, col, names=("row", "col"))
         return self.look_cam(row, col) @ self._cam_to_gcrf.T
 
     def object_radec(self, row, col):
-        """Right ascension and declination (degrees, GCRF) seen by pixels ``(row, col)``."""
+        """Right ascension and declination (GCRF) seen by pixels.
+
+        Parameters
+        ----------
+        row, col : array_like, shape (N,)
+            Continuous image coordinates.
+
+        Returns
+        -------
+        ra_deg, dec_deg : ndarray, shape (N,)
+        """
         return vectors_to_radec(self.object_vector_gcrf(row, col))
 
     # ------------------------------------------------------------------ inverse
@@ -698,14 +911,30 @@ class GeoStaringModel(SensorModel):
             u[idx], v[idx] = self.interior.solve(cam[idx, 0] / z, cam[idx, 1] / z)
         return u, v
 
-    def ground_to_image(self, lon, lat, h, *, band=None):
+    def ground_to_image(self, lon, lat, h, *, band=None, array=None):
         """Inverse localization (see :meth:`SensorModel.ground_to_image`).
 
         Points behind the Earth's limb, behind the camera, or whose solution lies more than
         four half-frames from the array centre give NaN. Points outside the frame but within
         that range get their (extrapolated) coordinates: filter with :attr:`image_shape`.
+
+        Parameters
+        ----------
+        lon, lat : array_like
+            WGS84 longitude and latitude, degrees.
+        h : array_like
+            Height above the ellipsoid, metres.
+        band : str, optional
+            None or the model's band.
+        array : str or int, optional
+            None, 0 or ``""``.
+
+        Returns
+        -------
+        row, col : ndarray, shape of the broadcast inputs
         """
         self._band(band)
+        self._check_array(band, array)
         lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
         shape = lon.shape
         lon, lat, h = lon.reshape(-1), lat.reshape(-1), h.reshape(-1)
@@ -754,25 +983,93 @@ class GeoStaringModel(SensorModel):
         return _as_vectors(vectors_gcrf)
 
     # ------------------------------------------------------------------ parameters
+    def parameter_groups(self) -> dict[str, tuple[str, ...]]:
+        """``"exterior"`` (installation angles) and ``"interior"`` (20 coefficients).
+
+        Returns
+        -------
+        dict of str to tuple of str
+            Ordered as :meth:`parameter_names`.
+        """
+        return {
+            "exterior": tuple(f"installation.{a}" for a in Installation.NAMES),
+            "interior": tuple([f"interior.tan_psi_x.a{s}" for s in _SUFFIXES]
+                              + [f"interior.tan_psi_y.b{s}" for s in _SUFFIXES]),
+        }
+
+    def interior_group(self, band=None, array=None) -> str:
+        """The group of the frame's interior coefficients.
+
+        Parameters
+        ----------
+        band : str, optional
+            None or the model's band.
+        array : str or int, optional
+            None, 0 or ``""``.
+
+        Returns
+        -------
+        str
+            ``"interior"``.
+        """
+        self._one_array(band, array)
+        return "interior"
+
     def parameter_names(self) -> tuple[str, ...]:
+        """Installation angles then interior coefficients.
+
+        Returns
+        -------
+        tuple of str
+            ``installation.roll|pitch|yaw`` (radians), ``interior.tan_psi_x.a<ij>`` and
+            ``interior.tan_psi_y.b<ij>`` (dimensionless), 23 names.
+        """
         names = [f"installation.{a}" for a in Installation.NAMES]
         names += [f"interior.tan_psi_x.a{s}" for s in _SUFFIXES]
         names += [f"interior.tan_psi_y.b{s}" for s in _SUFFIXES]
         return tuple(names)
 
     def interior_parameter_names(self, degree: int = 3) -> tuple[str, ...]:
-        """Interior names of the monomials of total degree ``<= degree`` (0..3)."""
+        """Interior names of the monomials of total degree ``<= degree``.
+
+        Parameters
+        ----------
+        degree : int
+            0 to 3.
+
+        Returns
+        -------
+        tuple of str
+            The ``tan_psi_x`` names, then the ``tan_psi_y`` ones.
+        """
         if not 0 <= int(degree) <= 3:
             raise InputError(f"must be 0..3, got {degree}", field="degree")
         keep = [s for (i, j), s in zip(MONOMIAL_POWERS, _SUFFIXES) if i + j <= int(degree)]
         return tuple([f"interior.tan_psi_x.a{s}" for s in keep] + [f"interior.tan_psi_y.b{s}" for s in keep])
 
     def parameters(self) -> ParameterVector:
+        """The installation angles and interior coefficients.
+
+        Returns
+        -------
+        ParameterVector
+            In the order of :meth:`parameter_names`.
+        """
         values = np.concatenate([self.installation.as_array(), self.interior.tan_psi_x, self.interior.tan_psi_y])
         return ParameterVector(self.parameter_names(), values)
 
     def with_parameters(self, values) -> "GeoStaringModel":
-        """A copy with new installation angles and interior coefficients (shares the exterior)."""
+        """A copy with new installation angles and interior coefficients (shares the exterior).
+
+        Parameters
+        ----------
+        values : array_like, shape (23,)
+            In the order of :meth:`parameter_names`; finite.
+
+        Returns
+        -------
+        GeoStaringModel
+        """
         values = np.asarray(values, dtype=np.float64).reshape(-1)
         if values.size != 23:
             raise InputError(f"expected 23 parameter values, got {values.size}")
@@ -851,8 +1148,19 @@ class GeoStaringModel(SensorModel):
         jac[:, 1] = 0.5 * self.n_cols * duv[:, 0]
         return jac
 
-    def image_jacobian(self, lon, lat, h, *, band=None, names=None):
+    def image_jacobian(self, lon, lat, h, *, band=None, names=None, array=None):
         """Analytic ``d(row, col)/d(parameters)`` at the projections of ground points.
+
+        Parameters
+        ----------
+        lon, lat, h : array_like, shape (N,)
+            Ground points: degrees, degrees, metres above the ellipsoid.
+        band : str, optional
+            None or the model's band.
+        names : sequence of str, optional
+            Parameters (default: all).
+        array : str or int, optional
+            None, 0 or ``""``.
 
         Returns
         -------
@@ -863,6 +1171,7 @@ class GeoStaringModel(SensorModel):
             imaged.
         """
         self._band(band)
+        self._check_array(band, array)
         names, positions = self._names(names)
         lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
         lon, lat, h = lon.reshape(-1), lat.reshape(-1), h.reshape(-1)
@@ -883,7 +1192,19 @@ class GeoStaringModel(SensorModel):
     def star_jacobian(self, vectors_gcrf=None, *, ra_deg=None, dec_deg=None, names=None):
         """Analytic ``d(row, col)/d(parameters)`` at the images of stars (fixed GCRF vectors).
 
-        Returns ``row, col`` (N,) and ``jac`` (N, 2, P) as :meth:`image_jacobian`.
+        Parameters
+        ----------
+        vectors_gcrf : array_like, shape (N, 3), optional
+            Directions towards the stars.
+        ra_deg, dec_deg : array_like, shape (N,), optional
+            Instead of ``vectors_gcrf``: right ascension and declination in degrees.
+        names : sequence of str, optional
+            Parameters (default: all).
+
+        Returns
+        -------
+        row, col : ndarray, shape (N,)
+        jac : ndarray, shape (N, 2, P)
         """
         names, positions = self._names(names)
         w = self._star_vectors(vectors_gcrf, ra_deg, dec_deg)
@@ -925,6 +1246,22 @@ def geostationary_orbit(epoch, seconds, *, lon_deg: float = 105.0, radius_m: flo
 
     The ITRF position ``radius_m (cos lon, sin lon, 0)`` with zero ITRF velocity is rotated
     into GCRF at every sample (IAU 2006/2000A), so the satellite is exactly geostationary.
+
+    Parameters
+    ----------
+    epoch : str or numpy.datetime64
+        UTC epoch of ``seconds``.
+    seconds : array_like, shape (N,)
+        Sample times, SI seconds since ``epoch``.
+    lon_deg : float
+        Sub-satellite longitude, degrees.
+    radius_m : float
+        Orbit radius, metres.
+
+    Returns
+    -------
+    Orbit
+        GCRF state vectors at ``seconds``.
     """
     from sensor_models.frames import EarthRotation
 
@@ -957,6 +1294,8 @@ def example_geo_staring_model(
         Seed 000 table 1 camera (1250 mm, 1024 x 1024 pixels of 25 um, about 716 m at nadir),
         a GF-4-like camera (10240 x 10240 pixels, 50 m at nadir) or a laboratory model (then
         ``image_shape`` is required). The interior is fitted to it (:meth:`GeoStaringModel.from_lab`).
+    image_shape : (int, int), optional
+        ``(n_rows, n_cols)``; default: the named camera's.
     epoch : str
         UTC epoch of the orbit and attitude samples.
     lon_deg : float
@@ -971,6 +1310,12 @@ def example_geo_staring_model(
         jitter...). With zero attitude and installation the array centre looks at the
         geocentric nadir: the sub-satellite point ``(lon_deg, 0)``.
     mirror : PointingMirror, optional
+    name : str
+        Free text.
+
+    Returns
+    -------
+    GeoStaringModel
     """
     from sensor_models.synthetic import earth_pointing_attitude
 

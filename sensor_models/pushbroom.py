@@ -39,10 +39,11 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping, Sequence
+from types import MappingProxyType
 
 import numpy as np
 
-from sensor_models.base import ParameterVector, SensorModel, as_float_arrays
+from sensor_models.base import DetectorArray, ParameterVector, SensorModel, as_float_arrays
 from sensor_models.ephemeris import Attitude, Orbit
 from sensor_models.errors import InputError, OutOfRangeError
 from sensor_models.geodesy import ecef_to_geodetic, geodetic_to_ecef
@@ -81,6 +82,15 @@ def _catmull_rom_weights(t):
         axis=-1,
     )
     return w, dw
+
+
+def _merge_array(ccd, array):
+    """The CCD forced by ``ccd=`` or by the protocol's ``array=`` (at most one of them)."""
+    if array is None:
+        return ccd
+    if ccd is not None:
+        raise InputError("give ccd= or array= (the same thing), not both", field="array")
+    return array
 
 
 def _chunk_of(ccd, a, b):
@@ -152,9 +162,15 @@ class PushbroomModel(SensorModel):
     (clipped to the orbit and attitude spans). ``image_to_ground`` raises
     :class:`OutOfRangeError` outside it; ``ground_to_image`` returns NaN for ground points
     not imaged within it.
+
+    In the :class:`~sensor_models.base.SensorModel` protocol the detector arrays are the CCDs
+    (:class:`CcdLook`), ``array=`` is the same as ``ccd=``, and the parameter groups are
+    ``"exterior"`` (``installation.roll|pitch|yaw``) then one ``"interior.<band>.<ccd>"`` per
+    CCD of each band (``<band>.<ccd>.tan_psi_x.c0`` ... ``<band>.<ccd>.tan_psi_y.c3``).
     """
 
     kind = "pushbroom"
+    is_rigorous = True
 
     def __init__(
         self,
@@ -181,12 +197,12 @@ class PushbroomModel(SensorModel):
         self.n_rows = int(n_rows)
         self.name = name
         self.epoch = orbit.epoch
-        self.bands = self._check_bands(bands)
+        self._looks = self._check_bands(bands)
         if reference_band is None:
-            reference_band = next(iter(self.bands))
-        if reference_band not in self.bands:
+            reference_band = next(iter(self._looks))
+        if reference_band not in self._looks:
             raise InputError(f"unknown band {reference_band!r}", field="reference_band")
-        self.reference_band = reference_band
+        self._reference_band = reference_band
         self.n_cols = max(ccd.last_col for ccds in self.bands.values() for ccd in ccds)
         self._table = self._build_table()
 
@@ -262,7 +278,21 @@ class PushbroomModel(SensorModel):
     # ------------------------------------------------------------------ basics
     @property
     def image_shape(self) -> tuple[int, int]:
+        """``(n_rows, n_cols)``: image lines and the columns of the widest band."""
         return (self.n_rows, self.n_cols)
+
+    @property
+    def bands(self) -> Mapping[str, tuple[CcdLook, ...]]:
+        """Read-only mapping band name -> its CCDs ordered by first column.
+
+        Its keys are the protocol's band names (iterate it, or ``tuple(model.bands)``).
+        """
+        return MappingProxyType(self._looks)
+
+    @property
+    def reference_band(self) -> str:
+        """The band used when a method gets ``band=None``."""
+        return self._reference_band
 
     @property
     def row_range(self) -> tuple[float, float]:
@@ -270,7 +300,67 @@ class PushbroomModel(SensorModel):
         return (self._table.row_min, self._table.row_max)
 
     def band_ccds(self, band: str | None = None) -> tuple[CcdLook, ...]:
-        return self.bands[self._band(band)]
+        """The CCDs of a band, ordered by first column.
+
+        Parameters
+        ----------
+        band : str, optional
+            Default: :attr:`reference_band`.
+
+        Returns
+        -------
+        tuple of CcdLook
+        """
+        return self._looks[self._band(band)]
+
+    def detector_arrays(self, band: str | None = None) -> tuple[CcdLook, ...]:
+        """The CCDs of a band (:meth:`SensorModel.detector_arrays`; same as :meth:`band_ccds`).
+
+        Parameters
+        ----------
+        band : str, optional
+            Default: :attr:`reference_band`.
+
+        Returns
+        -------
+        tuple of CcdLook
+            Each a :class:`~sensor_models.base.DetectorArray`.
+        """
+        return self.band_ccds(band)
+
+    def detector_index(self, col, *, band=None, array=None) -> np.ndarray:
+        """Index of the CCD that images each column (:meth:`ccd_index` with ``ccd=array``).
+
+        Parameters
+        ----------
+        col : array_like, shape (N,)
+            Continuous image columns.
+        band : str, optional
+            Default: :attr:`reference_band`.
+        array : str or int or array_like, optional
+            Forces the CCD (name or index, or one per point).
+
+        Returns
+        -------
+        ndarray of intp, shape of ``col``
+        """
+        return self.ccd_index(col, band=band, ccd=array)
+
+    def detector_view(self, band=None, array=None) -> "CcdView":
+        """One CCD of one band as a model of its own image (:meth:`ccd_view`).
+
+        Parameters
+        ----------
+        band : str, optional
+            Default: :attr:`reference_band`.
+        array : str or int, optional
+            CCD name or index; may be omitted when the band has one CCD.
+
+        Returns
+        -------
+        CcdView
+        """
+        return CcdView(self, band=self._band(band), ccd=self._one_array(band, array))
 
     def _band(self, band):
         if band is None:
@@ -283,8 +373,20 @@ class PushbroomModel(SensorModel):
         """Index (in ``band_ccds(band)``) of the CCD that images each column.
 
         A column inside a CCD's range belongs to it; a column outside every CCD belongs to the
-        nearest CCD (its polynomial is extrapolated). ``ccd`` (a name, an index, or an array of
-        names or indices) forces the choice.
+        nearest CCD (its polynomial is extrapolated).
+
+        Parameters
+        ----------
+        col : array_like, shape (N,)
+            Continuous image columns.
+        band : str, optional
+            Default: :attr:`reference_band`.
+        ccd : str or int or array_like, optional
+            Forces the choice: a name, an index, or an array of names or indices.
+
+        Returns
+        -------
+        ndarray of intp, shape of ``col``
         """
         ccds = self.band_ccds(band)
         col = np.asarray(col, dtype=np.float64)
@@ -322,7 +424,22 @@ class PushbroomModel(SensorModel):
             )
 
     def look_cam(self, col, *, band=None, ccd=None) -> np.ndarray:
-        """Unit lines of sight in the camera frame, shape (N, 3), for columns ``col``."""
+        """Unit lines of sight in the camera frame for image columns.
+
+        Parameters
+        ----------
+        col : array_like, shape (N,)
+            Continuous image columns.
+        band : str, optional
+            Default: :attr:`reference_band`.
+        ccd : str or int or array_like, optional
+            Forces the CCD (see :meth:`ccd_index`).
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            Unit vectors in the camera frame (seed 003 eq. 1).
+        """
         ccds = self.band_ccds(band)
         col = np.asarray(col, dtype=np.float64).reshape(-1)
         idx = self.ccd_index(col, band=band, ccd=ccd).reshape(-1)
@@ -337,7 +454,29 @@ class PushbroomModel(SensorModel):
         return los / np.linalg.norm(los, axis=1, keepdims=True)
 
     def rays_itrf(self, row, col, *, band=None, ccd=None):
-        """Ray origins (satellite positions) and unit directions in ITRF, each (N, 3)."""
+        """Lines of sight of image points in ITRF.
+
+        Parameters
+        ----------
+        row, col : array_like, shape (N,)
+            Continuous image coordinates.
+        band : str, optional
+            Default: :attr:`reference_band`.
+        ccd : str or int or array_like, optional
+            Forces the CCD (see :meth:`ccd_index`).
+
+        Returns
+        -------
+        origin_itrf_m : ndarray, shape (N, 3)
+            Satellite positions, metres.
+        direction_itrf : ndarray, shape (N, 3)
+            Unit directions.
+
+        Raises
+        ------
+        OutOfRangeError
+            A row lies outside :attr:`row_range`.
+        """
         row, col = as_float_arrays(row, col, names=("row", "col"))
         row, col = row.reshape(-1), col.reshape(-1)
         self._check_rows(row)
@@ -351,15 +490,29 @@ class PushbroomModel(SensorModel):
             direction[a:b] = np.einsum("nij,nj->ni", r, los_body[a:b])
         return origin, direction
 
-    def image_to_ground(self, row, col, *, height=None, dem=None, band=None, ccd=None):
+    def image_to_ground(self, row, col, *, height=None, dem=None, band=None, ccd=None, array=None):
         """Direct localization (see :meth:`SensorModel.image_to_ground`).
 
-        Exactly one of ``height`` (ellipsoidal metres, scalar or per point) and ``dem``
-        (:class:`sensor_models.terrain.Dem`) is required. ``ccd`` forces the CCD (see
-        :meth:`ccd_index`).
+        Parameters
+        ----------
+        row, col : array_like
+            Continuous image coordinates (first pixel centre at 0.5).
+        height : float or array_like, optional
+            Ellipsoidal heights, metres (exactly one of ``height`` and ``dem``).
+        dem : sensor_models.terrain.Dem, optional
+            Terrain to intersect.
+        band : str, optional
+            Default: :attr:`reference_band`.
+        ccd, array : str or int or array_like, optional
+            Force the CCD (see :meth:`ccd_index`); ``array`` is the protocol's name for ``ccd``.
+
+        Returns
+        -------
+        lon_deg, lat_deg, h_m : ndarray, shape of the broadcast ``row, col``
         """
         from sensor_models.terrain import intersect_ellipsoid
 
+        ccd = _merge_array(ccd, array)
         if (height is None) == (dem is None):
             raise InputError("give exactly one of height= and dem=")
         shape = np.broadcast(np.asarray(row), np.asarray(col)).shape
@@ -424,13 +577,30 @@ class PushbroomModel(SensorModel):
         s[edge] = np.nan
         return row, s
 
-    def ground_to_image(self, lon, lat, h, *, band=None, ccd=None):
+    def ground_to_image(self, lon, lat, h, *, band=None, ccd=None, array=None):
         """Inverse localization (see :meth:`SensorModel.ground_to_image`).
 
         With ``ccd=None`` each point goes to the CCD whose detectors see it (the first one on an
         overlap, the nearest one when none does); ``ccd`` (name or index) forces a CCD.
         Points not imaged within the rows the data cover get NaN.
+
+        Parameters
+        ----------
+        lon, lat : array_like
+            WGS84 longitude and latitude, degrees.
+        h : array_like
+            Height above the ellipsoid, metres.
+        band : str, optional
+            Default: :attr:`reference_band`.
+        ccd, array : str or int or array_like, optional
+            Force the CCD (a name or index, or one per point); ``array`` is the protocol's name
+            for ``ccd``.
+
+        Returns
+        -------
+        row, col : ndarray, shape of the broadcast inputs
         """
+        ccd = _merge_array(ccd, array)
         lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
         shape = lon.shape
         ground = geodetic_to_ecef(lon.reshape(-1), lat.reshape(-1), h.reshape(-1))
@@ -496,17 +666,64 @@ class PushbroomModel(SensorModel):
         return idx
 
     # ------------------------------------------------------------------ parameters
-    def parameter_names(self) -> tuple[str, ...]:
-        names = [f"installation.{a}" for a in Installation.NAMES]
-        for band, ccds in self.bands.items():
+    def parameter_groups(self) -> dict[str, tuple[str, ...]]:
+        """``"exterior"`` then one ``"interior.<band>.<ccd>"`` per CCD (class docstring).
+
+        Returns
+        -------
+        dict of str to tuple of str
+            Ordered as :meth:`parameter_names`; every CCD's group lists ``tan_psi_x``'s
+            coefficients ``c0..`` then ``tan_psi_y``'s.
+        """
+        groups = {"exterior": tuple(f"installation.{a}" for a in Installation.NAMES)}
+        for band, ccds in self._looks.items():
             for c in ccds:
+                names = []
                 for axis in ("tan_psi_x", "tan_psi_y"):
                     names += [f"{band}.{c.name}.{axis}.c{k}" for k in range(getattr(c, axis).size)]
-        return tuple(names)
+                groups[f"interior.{band}.{c.name}"] = tuple(names)
+        return groups
+
+    def interior_group(self, band=None, array=None) -> str:
+        """The group of one CCD's directional-angle coefficients.
+
+        Parameters
+        ----------
+        band : str, optional
+            Default: :attr:`reference_band`.
+        array : str or int, optional
+            CCD name or index; may be omitted when the band has one CCD.
+
+        Returns
+        -------
+        str
+            ``"interior.<band>.<ccd>"``.
+        """
+        band = self._band(band)
+        return f"interior.{band}.{self._looks[band][self._one_array(band, array)].name}"
+
+    def parameter_names(self) -> tuple[str, ...]:
+        """Installation angles, then per band and CCD the directional-angle coefficients.
+
+        Returns
+        -------
+        tuple of str
+            ``installation.roll|pitch|yaw`` (radians), then
+            ``<band>.<ccd>.tan_psi_x.c<k>`` and ``<band>.<ccd>.tan_psi_y.c<k>``
+            (dimensionless per detector**k).
+        """
+        return tuple(name for names in self.parameter_groups().values() for name in names)
 
     def parameters(self) -> ParameterVector:
+        """The installation angles and directional-angle coefficients.
+
+        Returns
+        -------
+        ParameterVector
+            In the order of :meth:`parameter_names`.
+        """
         values = [self.installation.as_array()]
-        for ccds in self.bands.values():
+        for ccds in self._looks.values():
             for c in ccds:
                 values += [c.tan_psi_x, c.tan_psi_y]
         return ParameterVector(self.parameter_names(), np.concatenate(values))
@@ -516,6 +733,15 @@ class PushbroomModel(SensorModel):
 
         The tabulated orbit and attitude are shared with this model (they do not depend on the
         parameters), so this is cheap.
+
+        Parameters
+        ----------
+        values : array_like, shape (P,)
+            In the order of :meth:`parameter_names`; finite.
+
+        Returns
+        -------
+        PushbroomModel
         """
         values = np.asarray(values, dtype=np.float64).reshape(-1)
         names = self.parameter_names()
@@ -527,7 +753,7 @@ class PushbroomModel(SensorModel):
         new.installation = Installation(*values[:3])
         pos = 3
         bands = {}
-        for band, ccds in self.bands.items():
+        for band, ccds in self._looks.items():
             out = []
             for c in ccds:
                 kx, ky = c.tan_psi_x.size, c.tan_psi_y.size
@@ -536,11 +762,22 @@ class PushbroomModel(SensorModel):
                 )
                 pos += kx + ky
             bands[band] = tuple(out)
-        new.bands = bands
+        new._looks = bands
         return new
 
-    def image_jacobian(self, lon, lat, h, *, band=None, names=None, ccd=None):
+    def image_jacobian(self, lon, lat, h, *, band=None, names=None, ccd=None, array=None):
         """Analytic ``d(row, col)/d(parameters)`` at the projections of ground points.
+
+        Parameters
+        ----------
+        lon, lat, h : array_like, shape (N,)
+            Ground points: degrees, degrees, metres above the ellipsoid.
+        band : str, optional
+            Default: :attr:`reference_band`.
+        names : sequence of str, optional
+            Parameters (default: all, in :meth:`parameter_names` order).
+        ccd, array : str or int or array_like, optional
+            Force the CCD as in :meth:`ground_to_image`.
 
         Returns
         -------
@@ -549,6 +786,7 @@ class PushbroomModel(SensorModel):
             For the parameters ``names`` (default: all, in :meth:`parameter_names` order).
             Interior coefficients of other bands or CCDs have zero derivatives.
         """
+        ccd = _merge_array(ccd, array)
         band = self._band(band)
         all_names = self.parameter_names()
         names = all_names if names is None else tuple(names)
@@ -602,6 +840,17 @@ class PushbroomModel(SensorModel):
 
         A stitched multi-CCD raster maps the ground discontinuously where CCDs overlap, so an
         RPC (or any smooth approximation) describes one CCD at a time.
+
+        Parameters
+        ----------
+        ccd : str or int
+            CCD name or index in :meth:`band_ccds`.
+        band : str, optional
+            Default: :attr:`reference_band`.
+
+        Returns
+        -------
+        CcdView
         """
         return CcdView(self, band=self._band(band), ccd=ccd)
 
@@ -613,11 +862,23 @@ class PushbroomModel(SensorModel):
 class CcdView(SensorModel):
     """A single CCD of a :class:`PushbroomModel` seen as an image of its own.
 
-    ``col_view = col_scene - ccd.first_col``; rows are unchanged. Parameters are those of the
-    parent model.
+    ``col_view = col_scene - ccd.first_col``; rows are unchanged. Parameters (and parameter
+    groups) are those of the parent model. Its one band is the CCD's band and its one detector
+    array is the CCD, starting at column 0; ``band=`` arguments of the localization methods
+    are ignored (the view's band is fixed).
+
+    Parameters
+    ----------
+    model : PushbroomModel
+        The parent model.
+    band : str
+        The band.
+    ccd : str or int
+        CCD name or index in ``model.band_ccds(band)``.
     """
 
     kind = "pushbroom_ccd"
+    is_rigorous = True
 
     def __init__(self, model: PushbroomModel, *, band: str, ccd):
         self.model = model
@@ -627,22 +888,149 @@ class CcdView(SensorModel):
 
     @property
     def image_shape(self) -> tuple[int, int]:
+        """``(n_rows, n_detectors)`` of the CCD."""
         return (self.model.n_rows, self.ccd.n_detectors)
 
-    def image_to_ground(self, row, col, *, height=None, dem=None, band=None):
-        col = np.asarray(col, dtype=np.float64) + self.ccd.first_col
-        return self.model.image_to_ground(row, col, height=height, dem=dem, band=self.band, ccd=self.index)
+    @property
+    def reference_band(self) -> str:
+        """The CCD's band."""
+        return self.band
 
-    def ground_to_image(self, lon, lat, h, *, band=None):
-        row, col = self.model.ground_to_image(lon, lat, h, band=self.band, ccd=self.index)
+    def detector_arrays(self, band=None) -> tuple[DetectorArray, ...]:
+        """The CCD, as one array starting at the view's column 0.
+
+        Parameters
+        ----------
+        band : str, optional
+            None or the view's band.
+
+        Returns
+        -------
+        tuple of DetectorArray
+            ``(DetectorArray(ccd.name, 0, ccd.n_detectors),)``.
+        """
+        self._protocol_band(band)
+        return (DetectorArray(self.ccd.name, 0, self.ccd.n_detectors),)
+
+    def parameter_groups(self) -> dict[str, tuple[str, ...]]:
+        """The parent model's groups (:meth:`PushbroomModel.parameter_groups`).
+
+        Returns
+        -------
+        dict of str to tuple of str
+        """
+        return self.model.parameter_groups()
+
+    def interior_group(self, band=None, array=None) -> str:
+        """The group of this CCD's directional-angle coefficients.
+
+        Parameters
+        ----------
+        band : str, optional
+            None or the view's band.
+        array : str or int, optional
+            None, 0 or the CCD's name.
+
+        Returns
+        -------
+        str
+            ``"interior.<band>.<ccd>"``.
+        """
+        self._one_array(band, array)
+        return self.model.interior_group(self.band, self.index)
+
+    def _parent_ccd(self, array):
+        self._check_array(None, array)
+        return self.index
+
+    def image_to_ground(self, row, col, *, height=None, dem=None, band=None, array=None):
+        """Direct localization in view coordinates (:meth:`PushbroomModel.image_to_ground`).
+
+        Parameters
+        ----------
+        row, col : array_like
+            View coordinates (``col = 0.5`` is the CCD's first detector centre).
+        height : float or array_like, optional
+            Ellipsoidal heights, metres (exactly one of ``height`` and ``dem``).
+        dem : sensor_models.terrain.Dem, optional
+            Terrain to intersect.
+        band : str, optional
+            Ignored: the view's band is fixed.
+        array : str or int, optional
+            None, 0 or the CCD's name.
+
+        Returns
+        -------
+        lon_deg, lat_deg, h_m : ndarray, shape of the broadcast ``row, col``
+        """
+        ccd = self._parent_ccd(array)
+        col = np.asarray(col, dtype=np.float64) + self.ccd.first_col
+        return self.model.image_to_ground(row, col, height=height, dem=dem, band=self.band, ccd=ccd)
+
+    def ground_to_image(self, lon, lat, h, *, band=None, array=None):
+        """Inverse localization into view coordinates (:meth:`PushbroomModel.ground_to_image`).
+
+        Parameters
+        ----------
+        lon, lat : array_like
+            WGS84 longitude and latitude, degrees.
+        h : array_like
+            Height above the ellipsoid, metres.
+        band : str, optional
+            Ignored: the view's band is fixed.
+        array : str or int, optional
+            None, 0 or the CCD's name.
+
+        Returns
+        -------
+        row, col : ndarray, shape of the broadcast inputs
+        """
+        row, col = self.model.ground_to_image(lon, lat, h, band=self.band, ccd=self._parent_ccd(array))
         return row, col - self.ccd.first_col
 
     def parameters(self) -> ParameterVector:
+        """The parent model's parameters.
+
+        Returns
+        -------
+        ParameterVector
+        """
         return self.model.parameters()
 
     def with_parameters(self, values) -> "CcdView":
+        """The same CCD of the parent model with new parameter values.
+
+        Parameters
+        ----------
+        values : array_like, shape (P,)
+            In the order of the parent's :meth:`PushbroomModel.parameter_names`.
+
+        Returns
+        -------
+        CcdView
+        """
         return CcdView(self.model.with_parameters(values), band=self.band, ccd=self.index)
 
-    def image_jacobian(self, lon, lat, h, *, band=None, names=None):
-        row, col, jac = self.model.image_jacobian(lon, lat, h, band=self.band, names=names, ccd=self.index)
+    def image_jacobian(self, lon, lat, h, *, band=None, names=None, array=None):
+        """``d(row, col)/d(parameters)`` in view coordinates (:meth:`PushbroomModel.image_jacobian`).
+
+        Parameters
+        ----------
+        lon, lat, h : array_like, shape (N,)
+            Ground points: degrees, degrees, metres above the ellipsoid.
+        band : str, optional
+            Ignored: the view's band is fixed.
+        names : sequence of str, optional
+            Parameters (default: all of the parent's).
+        array : str or int, optional
+            None, 0 or the CCD's name.
+
+        Returns
+        -------
+        row, col : ndarray, shape (N,)
+        jac : ndarray, shape (N, 2, P)
+        """
+        row, col, jac = self.model.image_jacobian(
+            lon, lat, h, band=self.band, names=names, ccd=self._parent_ccd(array)
+        )
         return row, col - self.ccd.first_col, jac

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sensor_models.base import DetectorArray
 from sensor_models.errors import InputError
 
 __all__ = ["CcdLook", "Installation", "LineTiming", "rot_x", "rot_y", "rot_z"]
@@ -110,8 +111,12 @@ class LineTiming:
 
 
 @dataclass(frozen=True)
-class CcdLook:
+class CcdLook(DetectorArray):
     """Directional-angle polynomials of one CCD in one band (seed 003 eq. 2).
+
+    A :class:`~sensor_models.base.DetectorArray` (what
+    :meth:`PushbroomModel.detector_arrays <sensor_models.pushbroom.PushbroomModel.detector_arrays>`
+    returns) with its look polynomials.
 
     Attributes
     ----------
@@ -127,9 +132,6 @@ class CcdLook:
         (K = 4: the cubic of seed 003).
     """
 
-    name: str
-    first_col: int
-    n_detectors: int
     tan_psi_x: np.ndarray
     tan_psi_y: np.ndarray
 
@@ -148,16 +150,34 @@ class CcdLook:
                 raise InputError("holds NaN or infinite values", field=f"ccd {self.name}.{attr}")
             object.__setattr__(self, attr, c)
 
-    @property
-    def last_col(self) -> int:
-        """One past the CCD's last column."""
-        return self.first_col + self.n_detectors
-
     def detector_index(self, col):
+        """Continuous detector coordinate ``s = col - first_col - 0.5`` of image columns.
+
+        Parameters
+        ----------
+        col : array_like
+            Continuous image columns (first pixel centre at 0.5).
+
+        Returns
+        -------
+        ndarray of float64, shape of ``col``
+            ``s = 0`` at the first detector's centre, ``n_detectors - 1`` at the last one's.
+        """
         return np.asarray(col, dtype=np.float64) - self.first_col - 0.5
 
     def look(self, s):
-        """``tan psi_x(s), tan psi_y(s)`` and their derivatives in ``s``."""
+        """``tan psi_x(s), tan psi_y(s)`` and their derivatives in ``s``.
+
+        Parameters
+        ----------
+        s : array_like
+            Detector coordinates (:meth:`detector_index`).
+
+        Returns
+        -------
+        tan_psi_x, tan_psi_y, dtan_psi_x_ds, dtan_psi_y_ds : ndarray, shape of ``s``
+            Dimensionless tangents and their derivatives per detector.
+        """
         s = np.asarray(s, dtype=np.float64)
         tx = np.polynomial.polynomial.polyval(s, self.tan_psi_x)
         ty = np.polynomial.polynomial.polyval(s, self.tan_psi_y)

@@ -206,9 +206,16 @@ class RpcModel(SensorModel):
     RpcError
         A coefficient vector does not have 20 finite values, or an offset or scale is not a
         finite number, or a scale is zero.
+
+    Notes
+    -----
+    In the :class:`~sensor_models.base.SensorModel` protocol an RPC has no named band
+    (``bands == (None,)``), one detector array covering the image (named ``""``), one parameter
+    group ``"bias"`` (:data:`BIAS_NAMES`), and ``is_rigorous`` is False.
     """
 
     kind = "rpc"
+    is_rigorous = False
 
     def __init__(
         self,
@@ -284,22 +291,27 @@ class RpcModel(SensorModel):
     # -- small accessors ----------------------------------------------------------------------
     @property
     def image_shape(self) -> tuple[int, int]:
+        """``(n_rows, n_cols)`` of the image."""
         return self._image_shape
 
     @property
     def line_num(self) -> np.ndarray:
+        """Line numerator coefficients, shape (20,), RPC00B order, read-only."""
         return self._coef[:, 0]
 
     @property
     def line_den(self) -> np.ndarray:
+        """Line denominator coefficients, shape (20,), read-only."""
         return self._coef[:, 1]
 
     @property
     def samp_num(self) -> np.ndarray:
+        """Sample numerator coefficients, shape (20,), read-only."""
         return self._coef[:, 2]
 
     @property
     def samp_den(self) -> np.ndarray:
+        """Sample denominator coefficients, shape (20,), read-only."""
         return self._coef[:, 3]
 
     @property
@@ -325,11 +337,37 @@ class RpcModel(SensorModel):
 
     # -- parameters ---------------------------------------------------------------------------
     def parameters(self) -> ParameterVector:
-        """The six bias-correction parameters (module docstring), a0/b0 in pixels."""
+        """The six bias-correction parameters (module docstring).
+
+        Returns
+        -------
+        ParameterVector
+            :data:`BIAS_NAMES`; ``a0, b0`` in pixels, the others in pixels per pixel.
+        """
         return ParameterVector(BIAS_NAMES, self._bias.copy())
 
+    def parameter_groups(self) -> dict[str, tuple[str, ...]]:
+        """One group, ``"bias"``: the six bias-correction parameters.
+
+        Returns
+        -------
+        dict of str to tuple of str
+            ``{"bias": BIAS_NAMES}``.
+        """
+        return {"bias": tuple(BIAS_NAMES)}
+
     def with_parameters(self, values) -> "RpcModel":
-        """A copy with new bias values, in the order of :meth:`parameters`."""
+        """A copy with new bias values.
+
+        Parameters
+        ----------
+        values : array_like, shape (6,)
+            In the order of :meth:`parameters`.
+
+        Returns
+        -------
+        RpcModel
+        """
         values = np.asarray(values, dtype=np.float64).reshape(-1)
         if values.shape != (6,):
             raise InputError(f"expected 6 parameter values {BIAS_NAMES}, got {values.size}")
@@ -343,7 +381,18 @@ class RpcModel(SensorModel):
         A crop pixel ``(r, c)`` is full-image pixel ``(r + row_off, c + col_off)``; the RPC
         offsets move by the same amounts and the bias is re-expressed in crop coordinates
         (``a0 += a1 * row_off + a2 * col_off``, likewise ``b0``), so both models give the same
-        ground point for corresponding pixels. ``shape`` defaults to the rest of the image.
+        ground point for corresponding pixels.
+
+        Parameters
+        ----------
+        row_off, col_off : int
+            Full-image pixel of the crop's first pixel.
+        shape : (int, int), optional
+            ``(n_rows, n_cols)`` of the crop; default: the rest of the image.
+
+        Returns
+        -------
+        RpcModel
         """
         row_off, col_off = float(row_off), float(col_off)
         if shape is None:
@@ -425,7 +474,7 @@ class RpcModel(SensorModel):
         return (m11 * r - m01 * c) / det, (m00 * c - m10 * r) / det
 
     # -- forward ------------------------------------------------------------------------------
-    def ground_to_image(self, lon, lat, h, *, band=None):
+    def ground_to_image(self, lon, lat, h, *, band=None, array=None):
         """Project ground points into the image (RPC, then the bias correction).
 
         Parameters
@@ -436,6 +485,8 @@ class RpcModel(SensorModel):
             Height above the WGS84 ellipsoid, metres.
         band : None
             RPC models have one band; anything else raises :class:`InputError`.
+        array : str or int, optional
+            None, 0 or ``""`` (the image is one detector array).
 
         Returns
         -------
@@ -443,17 +494,29 @@ class RpcModel(SensorModel):
             Continuous image coordinates, first pixel centre at (0.5, 0.5).
         """
         self._check_band(band)
+        self._check_array(band, array)
         lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
         shape = lon.shape
         row, col = self._rpc_rowcol(lon.reshape(-1), lat.reshape(-1), h.reshape(-1))
         row, col = self._apply_bias(row, col)
         return row.reshape(shape), col.reshape(shape)
 
-    def image_jacobian(self, lon, lat, h, *, band=None, names=None):
+    def image_jacobian(self, lon, lat, h, *, band=None, names=None, array=None):
         """Projections and their derivatives with respect to the bias parameters.
 
         ``d row / d(a0, a1, a2) = (1, row_rpc, col_rpc)``, ``d col / d(b0, b1, b2)`` likewise,
         the cross derivatives are zero.
+
+        Parameters
+        ----------
+        lon, lat, h : array_like, shape (N,)
+            Ground points: degrees, degrees, metres above the ellipsoid.
+        band : None
+            Must be None.
+        names : sequence of str, optional
+            Bias parameters (default: all six).
+        array : str or int, optional
+            None, 0 or ``""``.
 
         Returns
         -------
@@ -462,6 +525,7 @@ class RpcModel(SensorModel):
             For the parameters ``names`` (default: all six, in :data:`BIAS_NAMES` order).
         """
         self._check_band(band)
+        self._check_array(band, array)
         lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
         lon, lat, h = lon.reshape(-1), lat.reshape(-1), h.reshape(-1)
         row_rpc, col_rpc = self._rpc_rowcol(lon, lat, h)
@@ -534,7 +598,7 @@ class RpcModel(SensorModel):
     def _denormalize_lonlat(self, L, P):
         return L * self.lon_scale + self.lon_off, P * self.lat_scale + self.lat_off
 
-    def image_to_ground(self, row, col, *, height=None, dem=None, band=None):
+    def image_to_ground(self, row, col, *, height=None, dem=None, band=None, array=None):
         """Localize image points at given heights or on a DEM.
 
         At a given height, the RPC is inverted by Newton's method on normalized (lon, lat),
@@ -556,6 +620,8 @@ class RpcModel(SensorModel):
             outside) and ``height_range_m`` (``(min, max)``, attribute or method).
         band : None
             Must be None.
+        array : str or int, optional
+            None, 0 or ``""``.
 
         Returns
         -------
@@ -568,6 +634,7 @@ class RpcModel(SensorModel):
             Neither or both of ``height`` and ``dem`` given, or ``band`` is not None.
         """
         self._check_band(band)
+        self._check_array(band, array)
         if (height is None) == (dem is None):
             raise InputError("image_to_ground needs exactly one of height= or dem=")
         if dem is not None:
@@ -678,6 +745,11 @@ class RpcModel(SensorModel):
     def to_gdal_metadata(self) -> dict[str, str]:
         """GDAL ``RPC`` metadata domain (keys ``LINE_OFF`` ... ``SAMP_DEN_COEFF``), bias folded.
 
+        Returns
+        -------
+        dict of str to str
+            Numbers as text (coefficients space-separated), RPC pixel convention.
+
         Raises
         ------
         RpcError
@@ -694,7 +766,12 @@ class RpcModel(SensorModel):
         return md
 
     def to_rasterio(self):
-        """This RPC (bias folded, see :meth:`to_gdal_metadata`) as a ``rasterio.rpc.RPC``."""
+        """This RPC (bias folded, see :meth:`to_gdal_metadata`) as a rasterio object.
+
+        Returns
+        -------
+        rasterio.rpc.RPC
+        """
         from rasterio.rpc import RPC
 
         return RPC.from_gdal(self.to_gdal_metadata())
@@ -702,6 +779,19 @@ class RpcModel(SensorModel):
     @classmethod
     def from_gdal_metadata(cls, metadata, *, image_shape=None, source=None) -> "RpcModel":
         """Build a model from GDAL ``RPC``-domain metadata (``src.tags(ns="RPC")``), strictly.
+
+        Parameters
+        ----------
+        metadata : mapping of str to str
+            The RPC domain's keys (any case) and values.
+        image_shape : (int, int), optional
+            ``(n_rows, n_cols)``; default: from the offsets.
+        source : str, optional
+            Where the metadata come from (for messages).
+
+        Returns
+        -------
+        RpcModel
 
         Raises
         ------
@@ -727,7 +817,20 @@ class RpcModel(SensorModel):
 
     @classmethod
     def from_rasterio(cls, rpcs, *, image_shape=None, source=None) -> "RpcModel":
-        """Build a model from a ``rasterio.rpc.RPC`` (e.g. ``src.rpcs``)."""
+        """Build a model from a ``rasterio.rpc.RPC`` (e.g. ``src.rpcs``).
+
+        Parameters
+        ----------
+        rpcs : rasterio.rpc.RPC
+        image_shape : (int, int), optional
+            ``(n_rows, n_cols)``; default: from the offsets.
+        source : str, optional
+            Where the RPC comes from (for messages).
+
+        Returns
+        -------
+        RpcModel
+        """
         return cls.from_gdal_metadata(rpcs.to_gdal(), image_shape=image_shape, source=source)
 
     # -- readers ------------------------------------------------------------------------------
@@ -741,6 +844,17 @@ class RpcModel(SensorModel):
         raster, ``image_shape`` is the raster's; for a ``.geom`` it is ``number_lines``,
         ``number_samples`` when present; otherwise it is derived from the offsets. Pass
         ``image_shape=(n_rows, n_cols)`` to set it (for a raster it must match the raster).
+
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+        image_shape : (int, int), optional
+            ``(n_rows, n_cols)``.
+
+        Returns
+        -------
+        RpcModel
 
         Raises
         ------
