@@ -51,6 +51,15 @@ class MapGrid:
 
     Node-index coordinates ``(u, v)`` put the centre of pixel ``[j, i]`` at ``(i, j)``, the
     convention of ``cv2.remap`` and ``scipy.ndimage.map_coordinates``.
+
+    Attributes
+    ----------
+    transform : affine.Affine
+        Map coordinates of pixel corners (rasterio convention).
+    crs : pyproj.CRS
+        Coordinate reference system of the map coordinates.
+    shape : (int, int)
+        Number of rows and columns.
     """
 
     transform: Affine
@@ -69,7 +78,13 @@ class MapGrid:
 
     @property
     def resolution_m(self) -> float:
-        """Approximate pixel size in metres (geographic grids at 111.32 km per degree)."""
+        """Approximate pixel size in metres (geographic grids at 111.32 km per degree).
+
+        Returns
+        -------
+        float
+            Square root of the pixel area, metres.
+        """
         t = self.transform
         res = float(np.sqrt(abs(t.a * t.e - t.b * t.d)))
         return res * 111_320.0 if self.crs.is_geographic else res

@@ -26,6 +26,15 @@ class MapImage:
     """A single-band raster on a map grid, read by windows (float32, NaN for nodata).
 
     Build with :meth:`from_array` or :meth:`open`; ``grid`` describes it.
+
+    Attributes
+    ----------
+    grid : MapGrid
+        Transform, CRS and shape of the raster.
+    path : str or None
+        The file read by windows (None for an image held in memory).
+    nodata : float or None
+        The file's no-data value, read as NaN.
     """
 
     grid: MapGrid

@@ -20,6 +20,20 @@ def smooth_field(shape, scale_px: float, seed_seq) -> np.ndarray:
 
     White noise filtered in the Fourier domain by ``exp(-(k scale)^2 / 2)`` plus a weaker
     ``1/k``-like tail for detail; float32, deterministic for the given seed sequence.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Field size (rows, cols), in field pixels.
+    scale_px : float
+        Correlation length, field pixels.
+    seed_seq : numpy.random.SeedSequence or int
+        Seed of the white noise.
+
+    Returns
+    -------
+    ndarray of float32, shape ``shape``
+        Zero mean, unit standard deviation.
     """
     rng = np.random.default_rng(seed_seq)
     noise = rng.standard_normal(shape)
@@ -42,6 +56,28 @@ def to_dn(reflectance, *, gain: float, offset_dn: float, gamma: float, seasonal,
     ``sigma = (S_ref / snr) sqrt(0.5 + 0.5 L / S_ref)`` (read noise plus shot noise, SNR = ``snr``
     at the reference signal ``S_ref = 0.35 max_dn``), rounded and clipped to ``bits`` bits.
     NaN reflectance (no reference data) gives 0.
+
+    Parameters
+    ----------
+    reflectance : ndarray of float32
+        DOM-normalized reflectance, 0..1 (NaN: no reference data).
+    gain, offset_dn, gamma : float
+        Band response: relative gain, dark offset (DN) and gamma.
+    seasonal : ndarray or float
+        Relative seasonal change, broadcast against ``reflectance``.
+    prnu_gain : ndarray or float
+        Per-detector gain (photo-response non-uniformity), broadcast against ``reflectance``.
+    snr : float
+        Signal-to-noise ratio at the reference signal ``0.35 max_dn``.
+    bits : int
+        Significant bits of the digital numbers.
+    rng : numpy.random.Generator
+        Noise generator.
+
+    Returns
+    -------
+    ndarray of uint16, shape of ``reflectance``
+        Digital numbers in ``0 .. 2**bits - 1``.
     """
     max_dn = float(2**bits - 1)
     refl = np.clip(reflectance, 0.0, None)
