@@ -41,11 +41,11 @@ def model_difference(
         Same image layout (bands, CCD columns, number of lines; or the same frame size).
     dem : Dem, optional
         Terrain on which the reference model localizes the grid pixels.
-    heights_m : sequence of float, optional
-        Ellipsoidal heights at which to localize instead (every grid pixel at each height);
-        default ``(0, 1000, 2000)`` when no DEM is given.
     step_px : float
         Grid spacing in pixels along rows and columns.
+    heights_m : sequence of float, optional
+        Ellipsoidal heights (metres) at which to localize instead (every grid pixel at each
+        height); default ``(0, 1000, 2000)`` when no DEM is given.
     bands : sequence of str, optional
         Bands to compare (default: all bands of ``reference_model``).
 
@@ -54,9 +54,14 @@ def model_difference(
     dict
         ``{"rms_px", "max_px", "mean_row_px", "mean_col_px", "n_points", "per_ccd": [{"band",
         "ccd", "rms_px", "max_px", "mean_row_px", "mean_col_px", "rms_row_px", "rms_col_px",
-        "n_points"}, ...]}``; errors are ``model - reference``, in pixels. Grid points that either model cannot
-        see (off the DEM, behind the other model's CCD) are left out and counted in
-        ``"n_missing"``.
+        "n_points"}, ...]}``; errors are ``model - reference``, in pixels. Grid points that
+        either model cannot see (off the DEM, behind the other model's CCD) are left out and
+        counted in ``"n_missing"``.
+
+    Raises
+    ------
+    InputError
+        The models describe different images (size, bands or CCD layout).
     """
     if dem is None and heights_m is None:
         heights_m = (0.0, 1000.0, 2000.0)
@@ -70,22 +75,8 @@ def model_difference(
     for band in bands:
         for i, c, kw in _arrays(reference_model, model, band):
             cols = c.first_col + _grid(c.n_detectors, step_px)
-            rr, cc = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
-            if dem is not None:
-                lon, lat, h = reference_model.image_to_ground(rr, cc, dem=dem, **kw)
-                r_obs, c_obs = rr, cc
-            else:
-                hs = np.repeat(np.asarray(heights_m, dtype=np.float64), rr.size)
-                r_obs, c_obs = np.tile(rr, len(heights_m)), np.tile(cc, len(heights_m))
-                lon, lat, h = reference_model.image_to_ground(r_obs, c_obs, height=hs, **kw)
-            ok = np.isfinite(lon)
-            r_m, c_m = np.full(lon.shape, np.nan), np.full(lon.shape, np.nan)
-            if ok.any():
-                r_m[ok], c_m[ok] = model.ground_to_image(lon[ok], lat[ok], h[ok], **kw)
-            dr, dc = r_m - r_obs, c_m - c_obs
-            good = np.isfinite(dr) & np.isfinite(dc)
-            missing += int((~good).sum())
-            dr, dc = dr[good], dc[good]
+            dr, dc, n_missing = _array_difference(reference_model, model, rows, cols, kw, dem, heights_m)
+            missing += n_missing
             per_ccd.append(_stats(dr, dc) | {"band": band, "ccd": c.name})
             all_dr.append(dr)
             all_dc.append(dc)
@@ -94,6 +85,28 @@ def model_difference(
     out["n_missing"] = missing
     out["per_ccd"] = per_ccd
     return out
+
+
+def _array_difference(reference_model, model, rows, cols, kw, dem, heights_m):
+    """Row and column differences ``model - reference`` on the grid ``rows x cols`` of one array.
+
+    Returns the differences of the points both models see and the number of the others.
+    """
+    rr, cc = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
+    if dem is not None:
+        lon, lat, h = reference_model.image_to_ground(rr, cc, dem=dem, **kw)
+        r_obs, c_obs = rr, cc
+    else:
+        hs = np.repeat(np.asarray(heights_m, dtype=np.float64), rr.size)
+        r_obs, c_obs = np.tile(rr, len(heights_m)), np.tile(cc, len(heights_m))
+        lon, lat, h = reference_model.image_to_ground(r_obs, c_obs, height=hs, **kw)
+    ok = np.isfinite(lon)
+    r_m, c_m = np.full(lon.shape, np.nan), np.full(lon.shape, np.nan)
+    if ok.any():
+        r_m[ok], c_m[ok] = model.ground_to_image(lon[ok], lat[ok], h[ok], **kw)
+    dr, dc = r_m - r_obs, c_m - c_obs
+    good = np.isfinite(dr) & np.isfinite(dc)
+    return dr[good], dc[good], int((~good).sum())
 
 
 class _Frame:
