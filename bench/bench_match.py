@@ -38,7 +38,7 @@ def main():
     from sensor_models.readers import open_model
     from sensor_models.simulate.config import SimConfig
     from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
-    from sensor_models.simulate.radiometry import MapImage
+    from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
     scene = ROOT / "bench" / "results" / f"match_scene_{args.rows}x{args.detectors}"

@@ -306,7 +306,7 @@ def _validate(site: Site, calibration: Path, points_dir, spacing_px: int, out: d
     from calibrate.run import points_of
     from gcpmatch.extract import MatchOptions, extract_gcps, read_band
     from sensor_models.readers import open_model
-    from sensor_models.simulate.radiometry import MapImage
+    from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
     lab = open_model(site.scene)

@@ -412,12 +412,12 @@ def truth():
 def truth_error_cmd(model_path, truth_path, dem_path, dem_datum, geoid, heights, step, out_path, as_json):
     """Pixel error of MODEL against the TRUE model over a grid of every CCD and band."""
     from sensor_models.readers import open_model
-    from sensor_models.simulate.truth import truth_error
+    from sensor_models.compare import model_difference
 
     true_model = open_model(truth_path)
     model = open_model(model_path)
     dem = open_dem(dem_path, dem_datum, geoid) if dem_path else None
-    result = truth_error(true_model, model, dem=dem, step_px=step,
+    result = model_difference(true_model, model, dem=dem, step_px=step,
                          heights_m=None if heights is None else _float_list(heights, "heights"))
     if out_path:
         write_summary(Path(out_path), result)

@@ -42,9 +42,9 @@ def run_demo(out_dir: Path, *, fixture_dir: Path = FIXTURE_DIR, progress=None, s
     from gcpmatch.gcps import write_gcps_csv
     from sensor_models.atomic import atomic_write_text
     from sensor_models.readers import open_model
+    from sensor_models.compare import model_difference
+    from sensor_models.raster import MapImage
     from sensor_models.readers.manifest import write_manifest
-    from sensor_models.simulate.radiometry import MapImage
-    from sensor_models.simulate.truth import truth_error
     from sensor_models.terrain import Dem
 
     t_start = time.perf_counter()
@@ -97,8 +97,8 @@ def run_demo(out_dir: Path, *, fixture_dir: Path = FIXTURE_DIR, progress=None, s
                                       band=checks["band"], ccd=checks["ccd"])
     acc_after = check_point_accuracy(model, checks["row"], checks["col"], checks["lon"], checks["lat"], checks["h"],
                                      band=checks["band"], ccd=checks["ccd"])
-    t_err = truth_error(truth, model, dem=dem, step_px=8)
-    t_err_lab = truth_error(truth, lab, dem=dem, step_px=32)
+    t_err = model_difference(truth, model, dem=dem, step_px=8)
+    t_err_lab = model_difference(truth, lab, dem=dem, step_px=32)
     ref_checks = checks
     n_ref = int(ref_pts["row"].size)
     counts = sorted({c for c in (20, 50, 100, 200, 400, n_ref) if c <= n_ref})

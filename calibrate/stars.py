@@ -215,7 +215,7 @@ class _Predictions:
 
 def predict_catalog(models, catalog, *, margin_px: float = 60.0) -> _Predictions:
     """Apparent catalogue stars inside (or within ``margin_px`` of) every frame's model."""
-    from sensor_models.simulate.geo_stars import catalog_stars_in_frame
+    from sensor_models.stars import catalog_stars_in_frame
 
     unit = catalog.unit_vectors()
     parts = []

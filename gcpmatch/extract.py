@@ -312,7 +312,7 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
     from sensor_models.atomic import atomic_write_text
     from sensor_models.readers import open_model
-    from sensor_models.simulate.radiometry import MapImage
+    from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
     model = open_model(scene_path)

@@ -1,9 +1,9 @@
 """The reference orthoimage resampled into scene geometry, so matching compares like with like.
 
 For each CCD of a band, every scene pixel is intersected with the DEM through the current model
-(:func:`sensor_models.simulate.render.locate_block`: exact model on a node grid, per-pixel DEM
+(:func:`sensor_models.locate.locate_block`: exact model on a node grid, per-pixel DEM
 intersection) and the DOM is sampled there after a Gaussian blur that mimics what one scene
-pixel integrates (:func:`sensor_models.simulate.radiometry.psf_sigma_dom_px`). DOMs in any CRS
+pixel integrates (:func:`sensor_models.psf.psf_sigma_dom_px`). DOMs in any CRS
 and resolution work; DOM no-data and areas outside the DOM or the DEM become NaN.
 """
 
@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from sensor_models.simulate.radiometry import MapImage, psf_sigma_dom_px, sample_map_image
-from sensor_models.simulate.render import locate_block
+from sensor_models.locate import locate_block
+from sensor_models.psf import psf_sigma_dom_px
+from sensor_models.raster import MapImage, sample_map_image
 
 __all__ = ["grid_resolution_m", "reference_for_ccd", "reference_for_image", "scene_gsd_m"]
 
@@ -72,9 +73,9 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
 
     from concurrent.futures import ThreadPoolExecutor
 
-    from sensor_models.simulate.render import _dem_planes
+    from sensor_models.locate import dem_planes
 
-    _dem_planes(dem)  # shared sampling planes, built once before the threads
+    dem_planes(dem)  # shared sampling planes, built once before the threads
     starts = list(range(row0, row1, block_lines))
     if workers <= 1 or len(starts) == 1:
         for a in starts:
@@ -93,12 +94,12 @@ def reference_for_image(model, dem, dom: MapImage, *, band=None, psf_sigma_px: f
     ``image_to_ground(row, col, dem=dem)`` (exact, per pixel: meant for the small images of
     RPC products; push-broom scenes use the faster :func:`reference_for_ccd`).
     """
-    from sensor_models.simulate.render import _Projector
+    from sensor_models.locate import MapProjector
 
     n_rows, n_cols = model.image_shape
     sigma = psf_sigma_dom_px(scene_gsd_m(model, band=band, height_m=float(np.mean(dem.height_range_m))),
                              grid_resolution_m(dom.grid), psf_sigma_px)
-    project = _Projector(dom.grid)
+    project = MapProjector(dom.grid)
     out = np.empty((n_rows, n_cols), dtype=np.float32)
     cols = np.arange(n_cols) + 0.5
     for a in range(0, n_rows, block_lines):

@@ -23,7 +23,7 @@ the image position is a smooth function of ``(x, y, h)``, so for each block of o
    1 m for 1.5 km of relief at 20 degrees off nadir), which the quadratic term carries;
 3. ``a, b, c`` are interpolated to every pixel by separable uniform Catmull-Rom cubics written
    as matrix products ``W_r A W_c^T`` (the weights of
-   :func:`sensor_models.simulate.render.catmull_rom_matrix`), and evaluated at the pixel's own
+   :func:`sensor_models.locate.catmull_rom_matrix`), and evaluated at the pixel's own
    DEM height (bilinear between DEM nodes, like :meth:`Dem.height_m`).
 
 The interpolation error is measured, not assumed: :func:`orthorectify_to_file` compares the
@@ -179,7 +179,7 @@ def ortho_grid(model, dem, *, crs=None, resolution_m=None, band=None):
     MapGrid
         North-up grid whose corners lie on multiples of the resolution.
     """
-    from sensor_models.simulate.render import MapGrid
+    from sensor_models.locate import MapGrid
 
     lon, lat = _footprint_lonlat(model, dem, band)
     if crs is None:
@@ -333,7 +333,7 @@ class OrthoGeometry:
     # -- the block -----------------------------------------------------------------------
     def block(self, row0: int, row1: int, col0: int, col1: int) -> BlockGeometry:
         """Image positions of output pixels ``[row0:row1, col0:col1]`` (see :class:`BlockGeometry`)."""
-        from sensor_models.simulate.render import catmull_rom_matrix
+        from sensor_models.locate import catmull_rom_matrix
 
         nr, nc = row1 - row0, col1 - col0
         if not (nr > 0 and nc > 0):
@@ -635,7 +635,7 @@ def orthorectify(model, image: np.ndarray, dem, transform, crs, shape, *, band=N
     node_step_px : float
         Node spacing of the geometry grid in image pixels (:class:`OrthoGeometry`).
     """
-    from sensor_models.simulate.render import MapGrid
+    from sensor_models.locate import MapGrid
 
     if resampling not in RESAMPLING:
         raise InputError(f"resampling must be one of {', '.join(RESAMPLING)}, got {resampling!r}")

@@ -62,6 +62,8 @@ __all__ = [
     "HIPPARCOS_EPOCH_JYEAR",
     "StarCatalog",
     "apparent_directions",
+    "catalog_stars_in_frame",
+    "observer_state_gcrf",
     "radec_to_unit",
     "unit_to_radec",
 ]
@@ -434,3 +436,73 @@ def apparent_directions(
         bm1 = float(np.sqrt(1.0 - v_c @ v_c))
         p = erfa.ab(p, v_c, sun_distance_au, bm1)
     return np.ascontiguousarray(p)
+
+
+# --------------------------------------------------------------------------------------------
+# Catalogue stars in the frame of a staring camera
+# --------------------------------------------------------------------------------------------
+def observer_state_gcrf(model) -> tuple[np.ndarray, np.ndarray]:
+    """Position and velocity of a staring camera's satellite in GCRF at its frame instant.
+
+    Parameters
+    ----------
+    model : GeoStaringModel
+        The camera model; its orbit (GCRF or ITRF states) is evaluated at
+        ``model.frame_seconds``.
+
+    Returns
+    -------
+    position_gcrf_m : ndarray, shape (3,)
+        Satellite position, metres.
+    velocity_gcrf_m_s : ndarray, shape (3,)
+        Satellite velocity, metres per second.
+    """
+    from sensor_models.frames import EarthRotation
+
+    t = np.array([model.frame_seconds])
+    pos, vel = model.orbit.state(t)
+    if model.orbit.frame != "gcrf":
+        earth = EarthRotation(model.epoch, model.frame_seconds, model.frame_seconds)
+        pos, vel = earth.itrf_to_gcrf_state(t, pos, vel)
+    return pos[0], vel[0]
+
+
+def catalog_stars_in_frame(model, catalog: StarCatalog, unit_icrs, margin_px: float):
+    """Catalogue stars that a staring camera sees in (or near) its frame, and where.
+
+    Stars within a cone around the frame centre are moved to their apparent directions
+    (:func:`apparent_directions`, seen from the satellite at the frame instant) and projected
+    with :meth:`GeoStaringModel.star_to_image`.
+
+    Parameters
+    ----------
+    model : GeoStaringModel
+        The camera model at the frame instant.
+    catalog : StarCatalog
+        The catalogue.
+    unit_icrs : ndarray, shape (n_stars, 3)
+        ``catalog.unit_vectors()`` (passed in so that a sequence of frames computes it once).
+    margin_px : float
+        Stars up to this many pixels outside the frame are kept too.
+
+    Returns
+    -------
+    index : ndarray of int, shape (K,)
+        Catalogue rows of the stars kept.
+    vectors_gcrf : ndarray, shape (K, 3)
+        Their apparent unit directions in the GCRF axes.
+    row, col : ndarray of float, shape (K,)
+        Their image positions, pixels (project convention).
+    """
+    centre = model.object_vector_gcrf([0.5 * model.n_rows], [0.5 * model.n_cols])[0]
+    half_diag = 0.5 * np.hypot(model.n_rows, model.n_cols) * model.ifov_rad
+    near = np.flatnonzero(unit_icrs @ centre > np.cos(1.2 * half_diag + np.radians(0.05)))
+    if near.size == 0:
+        return near, np.zeros((0, 3)), np.zeros(0), np.zeros(0)
+    pos, vel = observer_state_gcrf(model)
+    vec = apparent_directions(catalog.select(near), model.epoch, seconds=model.frame_seconds,
+                              observer_position_gcrf_m=pos, observer_velocity_gcrf_m_s=vel)
+    row, col = model.star_to_image(vec)
+    keep = (np.isfinite(row) & (row > -margin_px) & (row < model.n_rows + margin_px)
+            & (col > -margin_px) & (col < model.n_cols + margin_px))
+    return near[keep], vec[keep], row[keep], col[keep]

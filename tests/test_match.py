@@ -16,7 +16,7 @@ from sensor_models.errors import GcpcalError, InputError
 from sensor_models.readers import open_model
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
-from sensor_models.simulate.radiometry import MapImage
+from sensor_models.raster import MapImage
 from sensor_models.simulate.truth import truth_error
 from sensor_models.terrain import Dem
 

@@ -20,7 +20,7 @@ from calibrate.rpc_bias import compensate_rpc_bias
 from gcpmatch.extract import MatchOptions, extract_gcps
 from sensor_models.ortho import orthorectify
 from sensor_models.rpc import RpcModel
-from sensor_models.simulate.radiometry import MapImage
+from sensor_models.raster import MapImage
 from sensor_models.terrain import Dem
 
 pytestmark = pytest.mark.shared_data

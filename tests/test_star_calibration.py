@@ -39,7 +39,7 @@ def test_simulation_matches_seed000_initial_errors(sequence):
     from calibrate.stars import _resolve_catalog
 
     cat = _resolve_catalog("hipparcos", 10.0)
-    from sensor_models.simulate.geo_stars import catalog_stars_in_frame
+    from sensor_models.stars import catalog_stars_in_frame
 
     m5 = truth_model.at_frame(truth["stars"][5]["seconds"])
     idx, vec, row, col = catalog_stars_in_frame(m5, cat, cat.unit_vectors(), 0.0)

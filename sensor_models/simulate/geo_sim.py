@@ -135,8 +135,10 @@ def simulate_geo_earth(out_dir, *, config: GeoSimConfig | None = None, dom=None,
 
     from sensor_models.readers.geo_manifest import write_geo_manifest
     from sensor_models.simulate.pushbroom_sim import _check_covers, _dom_scale, _utm_crs
-    from sensor_models.simulate.radiometry import MapImage, psf_sigma_dom_px, sample_map_image, to_dn
-    from sensor_models.simulate.render import MapGrid, _dem_planes, locate_block
+    from sensor_models.locate import MapGrid, dem_planes, locate_block
+    from sensor_models.psf import psf_sigma_dom_px
+    from sensor_models.raster import MapImage, sample_map_image
+    from sensor_models.simulate.radiometry import to_dn
     from sensor_models.simulate.truth import truth_error
     from sensor_models.terrain import Dem
 
@@ -175,7 +177,7 @@ def simulate_geo_earth(out_dir, *, config: GeoSimConfig | None = None, dom=None,
                                                       for h in (h_lo, h_hi))))
         _check_covers(dom_img.grid, lon, lat, what="DOM", path=dom_img.path)
         _check_covers(MapGrid.of_dem(dem_obj), lon, lat, what="DEM", path=dem_obj.source)
-        _dem_planes(dem_obj)
+        dem_planes(dem_obj)
         sigma = psf_sigma_dom_px(cfg.gsd_m, dom_img.grid.resolution_m, cfg.psf_sigma_px)
         scale = _dom_scale(dom_img)
         t_render = time.perf_counter()

@@ -30,7 +30,7 @@ Rendering
 Hipparcos stars (:class:`~sensor_models.stars.StarCatalog`) brighter than ``mag_limit`` are
 moved to their apparent directions at each frame instant (space motion, parallax, light
 deflection, aberration by the satellite's velocity), projected with the TRUE model, and drawn
-by :func:`gcpmatch.starfind.render_stars` (pixel-integrated Gaussian PSF, background, shot and
+by :func:`sensor_models.psf.render_stars` (pixel-integrated Gaussian PSF, background, shot and
 read noise), then quantized to uint16 with saturation. A crude SWIR-like magnitude
 ``m = V - swir_color_term * (B - V)`` (red stars are brighter in the short-wave infrared)
 scales the flux: ``flux = flux_ref_adu * 10^(-0.4 (m - ref_mag))``. This is a rendering
@@ -85,7 +85,7 @@ from sensor_models.geo_staring import (
 )
 from sensor_models.pushbroom_types import Installation
 
-__all__ = ["FOLD_NORMAL_CAM", "GeoStarsConfig", "catalog_stars_in_frame", "frame_models", "observer_state_gcrf", "simulate_geo_stars"]
+__all__ = ["FOLD_NORMAL_CAM", "GeoStarsConfig", "frame_models", "simulate_geo_stars"]
 
 ARCSEC = np.pi / (180.0 * 3600.0)
 #: 45-degree fold mirror: camera +Z folded onto camera +Y (seed 000 figure 2)
@@ -179,18 +179,6 @@ class GeoStarsConfig:
 
 
 # --------------------------------------------------------------------------- models
-def observer_state_gcrf(model: GeoStaringModel):
-    """Satellite position (m) and velocity (m/s) in GCRF at the model's frame instant."""
-    from sensor_models.frames import EarthRotation
-
-    t = np.array([model.frame_seconds])
-    pos, vel = model.orbit.state(t)
-    if model.orbit.frame != "gcrf":
-        earth = EarthRotation(model.epoch, model.frame_seconds, model.frame_seconds)
-        pos, vel = earth.itrf_to_gcrf_state(t, pos, vel)
-    return pos[0], vel[0]
-
-
 def frame_models(model: GeoStaringModel, seconds) -> list:
     """The model at each frame instant (:meth:`GeoStaringModel.at_frame`), a list."""
     return [model.at_frame(float(t)) for t in np.asarray(seconds, dtype=np.float64).reshape(-1)]
@@ -275,24 +263,6 @@ def _build_models(cfg: GeoStarsConfig, rng):
 
 
 # --------------------------------------------------------------------------- rendering
-def catalog_stars_in_frame(model: GeoStaringModel, catalog, unit_icrs, margin_px: float):
-    """Catalogue rows near the frame, their apparent GCRF directions and image positions."""
-    from sensor_models.stars import apparent_directions
-
-    centre = model.object_vector_gcrf([0.5 * model.n_rows], [0.5 * model.n_cols])[0]
-    half_diag = 0.5 * np.hypot(model.n_rows, model.n_cols) * model.ifov_rad
-    near = np.flatnonzero(unit_icrs @ centre > np.cos(1.2 * half_diag + np.radians(0.05)))
-    if near.size == 0:
-        return near, np.zeros((0, 3)), np.zeros(0), np.zeros(0)
-    pos, vel = observer_state_gcrf(model)
-    vec = apparent_directions(catalog.select(near), model.epoch, seconds=model.frame_seconds,
-                              observer_position_gcrf_m=pos, observer_velocity_gcrf_m_s=vel)
-    row, col = model.star_to_image(vec)
-    keep = (np.isfinite(row) & (row > -margin_px) & (row < model.n_rows + margin_px)
-            & (col > -margin_px) & (col < model.n_cols + margin_px))
-    return near[keep], vec[keep], row[keep], col[keep]
-
-
 def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frames: int | None = None,
                        frame_interval_s: float | None = None, seed: int | None = None,
                        mag_limit: float | None = None, image_shape=None) -> dict:
@@ -316,9 +286,9 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning
 
-    from sensor_models.simulate.stars_render import render_stars
+    from sensor_models.psf import render_stars
     from sensor_models.readers.geo_manifest import write_geo_manifest
-    from sensor_models.stars import StarCatalog
+    from sensor_models.stars import StarCatalog, catalog_stars_in_frame
 
     t_start = time.perf_counter()
     cfg = config or GeoStarsConfig()

@@ -34,9 +34,11 @@ import pyproj
 
 from sensor_models.atomic import move_tree_into
 from sensor_models.errors import InputError
+from sensor_models.locate import MapGrid, dem_planes, locate_block
+from sensor_models.psf import psf_sigma_dom_px
+from sensor_models.raster import MapImage, sample_map_image
 from sensor_models.simulate.config import SimConfig
-from sensor_models.simulate.radiometry import MapImage, psf_sigma_dom_px, sample_map_image, smooth_field, to_dn
-from sensor_models.simulate.render import MapGrid, locate_block
+from sensor_models.simulate.radiometry import smooth_field, to_dn
 from sensor_models.simulate.scene import SceneModels, build_models
 from sensor_models.terrain import Dem
 
@@ -266,9 +268,7 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
     _check_covers(MapGrid.of_dem(dem), lon, lat, what="DEM", path=dem.source)
 
     renderer = _Renderer(cfg, models, dem, dom)
-    from sensor_models.simulate.render import _dem_planes
-
-    _dem_planes(dem)  # build the shared sampling planes once, before the threads
+    dem_planes(dem)  # build the shared sampling planes once, before the threads
     n_rows, n_cols = model.image_shape
     bands = list(cfg.camera.bands)
     ref_band = cfg.camera.reference_band

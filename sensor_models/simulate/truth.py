@@ -1,47 +1,28 @@
-"""Compare a model with the TRUE model of a simulated scene, in pixels, over any image grid.
+"""Error of a model against the TRUE model of a simulated scene, in pixels (``gcpcal truth error``).
 
-``truth error`` answers: where does a model put the ground that a pixel really sees? For every
-node of a regular grid on every CCD and band, the TRUE model localizes the pixel centre on the
-terrain (or at given heights) and the model under test projects that ground point back; the
-difference ``model - truth`` in ``(row, col)`` is the error. Both models must describe the same
-image (same bands, CCDs and line count); their parameters, orbit and attitude may differ.
+The comparison itself is production code, :func:`sensor_models.compare.model_difference`; this
+module names its use with the simulator's TRUE model as the reference.
 """
 
 from __future__ import annotations
 
-import numpy as np
-
-from sensor_models.errors import InputError
+from sensor_models.compare import model_difference
 
 __all__ = ["truth_error"]
 
 
-def _grid(n: int, step: float) -> np.ndarray:
-    """Pixel centres ``0.5 .. n - 0.5`` every ``step`` pixels, both ends included."""
-    k = max(2, int(np.ceil((n - 1) / step)) + 1)
-    return np.linspace(0.5, n - 0.5, k)
-
-
-def truth_error(
-    true_model,
-    model,
-    *,
-    dem=None,
-    heights_m=None,
-    step_px: float = 16.0,
-    bands=None,
-) -> dict:
+def truth_error(true_model, model, *, dem=None, heights_m=None, step_px: float = 16.0, bands=None) -> dict:
     """Image-space error of ``model`` against ``true_model`` over a grid of every CCD and band.
 
     Parameters
     ----------
     true_model, model : PushbroomModel or GeoStaringModel
-        Same image layout (bands, CCD columns, number of lines; or the same frame size).
+        The TRUE model of a simulated scene and the model under test (same image layout).
     dem : Dem, optional
         Terrain on which the TRUE model localizes the grid pixels.
     heights_m : sequence of float, optional
-        Ellipsoidal heights at which to localize instead (every grid pixel at each height);
-        default ``(0, 1000, 2000)`` when no DEM is given.
+        Ellipsoidal heights (metres) at which to localize instead; default ``(0, 1000, 2000)``
+        when no DEM is given.
     step_px : float
         Grid spacing in pixels along rows and columns.
     bands : sequence of str, optional
@@ -50,80 +31,7 @@ def truth_error(
     Returns
     -------
     dict
-        ``{"rms_px", "max_px", "mean_row_px", "mean_col_px", "n_points", "per_ccd": [{"band",
-        "ccd", "rms_px", "max_px", "mean_row_px", "mean_col_px", "rms_row_px", "rms_col_px",
-        "n_points"}, ...]}``; errors are ``model - truth``. Grid points that either model cannot
-        see (off the DEM, behind the other model's CCD) are left out and counted in
-        ``"n_missing"``.
+        :func:`sensor_models.compare.model_difference`'s statistics; errors are
+        ``model - truth`` in pixels.
     """
-    if dem is None and heights_m is None:
-        heights_m = (0.0, 1000.0, 2000.0)
-    if bands is None:
-        bands = tuple(true_model.bands) if hasattr(true_model, "bands") else (true_model.band,)
-    bands = tuple(bands)
-    if tuple(true_model.image_shape) != tuple(model.image_shape):
-        raise InputError(f"the models describe different images ({true_model.image_shape} and {model.image_shape})")
-    per_ccd, all_dr, all_dc, missing = [], [], [], 0
-    rows = _grid(true_model.image_shape[0], step_px)
-    for band in bands:
-        for i, c, kw in _arrays(true_model, model, band):
-            cols = c.first_col + _grid(c.n_detectors, step_px)
-            rr, cc = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
-            if dem is not None:
-                lon, lat, h = true_model.image_to_ground(rr, cc, dem=dem, **kw)
-                r_obs, c_obs = rr, cc
-            else:
-                hs = np.repeat(np.asarray(heights_m, dtype=np.float64), rr.size)
-                r_obs, c_obs = np.tile(rr, len(heights_m)), np.tile(cc, len(heights_m))
-                lon, lat, h = true_model.image_to_ground(r_obs, c_obs, height=hs, **kw)
-            ok = np.isfinite(lon)
-            r_m, c_m = np.full(lon.shape, np.nan), np.full(lon.shape, np.nan)
-            if ok.any():
-                r_m[ok], c_m[ok] = model.ground_to_image(lon[ok], lat[ok], h[ok], **kw)
-            dr, dc = r_m - r_obs, c_m - c_obs
-            good = np.isfinite(dr) & np.isfinite(dc)
-            missing += int((~good).sum())
-            dr, dc = dr[good], dc[good]
-            per_ccd.append(_stats(dr, dc) | {"band": band, "ccd": c.name})
-            all_dr.append(dr)
-            all_dc.append(dc)
-    dr, dc = np.concatenate(all_dr), np.concatenate(all_dc)
-    out = _stats(dr, dc)
-    out["n_missing"] = missing
-    out["per_ccd"] = per_ccd
-    return out
-
-
-class _Frame:
-    """An area array seen as one detector array (staring cameras)."""
-
-    def __init__(self, n_cols):
-        self.first_col, self.n_detectors, self.name = 0, n_cols, "frame"
-
-
-def _arrays(true_model, model, band):
-    """(index, detector array, keyword arguments) of every CCD of a band (or the frame)."""
-    if not hasattr(true_model, "band_ccds"):
-        return [(0, _Frame(true_model.image_shape[1]), {"band": band})]
-    if band not in model.bands:
-        raise InputError(f"band {band!r} is missing from the model under test")
-    true_ccds, ccds = true_model.band_ccds(band), model.band_ccds(band)
-    if [(c.first_col, c.n_detectors) for c in true_ccds] != [(c.first_col, c.n_detectors) for c in ccds]:
-        raise InputError(f"band {band!r}: the models have different CCD layouts")
-    return [(i, c, {"band": band, "ccd": i}) for i, c in enumerate(true_ccds)]
-
-
-def _stats(dr, dc) -> dict:
-    if dr.size == 0:
-        return {"rms_px": None, "max_px": None, "mean_row_px": None, "mean_col_px": None,
-                "rms_row_px": None, "rms_col_px": None, "n_points": 0}
-    d = np.hypot(dr, dc)
-    return {
-        "rms_px": float(np.sqrt(np.mean(d * d))),
-        "max_px": float(d.max()),
-        "mean_row_px": float(dr.mean()),
-        "mean_col_px": float(dc.mean()),
-        "rms_row_px": float(np.sqrt(np.mean(dr * dr))),
-        "rms_col_px": float(np.sqrt(np.mean(dc * dc))),
-        "n_points": int(d.size),
-    }
+    return model_difference(true_model, model, dem=dem, step_px=step_px, heights_m=heights_m, bands=bands)

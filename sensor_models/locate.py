@@ -1,8 +1,8 @@
 """Where every pixel of a push-broom scene lands on a map grid, through a sensor model and a DEM.
 
-This is the geometric kernel of the scene simulator (render the DOM through the TRUE model)
-and of GCP matching (resample the DOM into scene geometry through the current model): for a
-block of lines of one CCD and band it returns, for every pixel centre, the node-index
+This is the geometric kernel shared by GCP matching (resample the DOM into scene geometry
+through the current model), orthorectification and the scene simulator (render the DOM through
+the TRUE model): for a block of lines of one CCD and band it returns, for every pixel centre, the node-index
 coordinates of its DEM intersection in any number of map grids (DOM, DEM, cloud field).
 
 Method (exact model on a sparse node grid, per-pixel terrain)
@@ -36,9 +36,10 @@ import pyproj
 from affine import Affine
 
 from sensor_models.errors import InputError
+from sensor_models.pushbroom import _catmull_rom_weights
 from sensor_models.terrain import Dem
 
-__all__ = ["MapGrid", "PixelGround", "catmull_rom_matrix", "locate_block"]
+__all__ = ["MapGrid", "MapProjector", "PixelGround", "catmull_rom_matrix", "dem_planes", "locate_block"]
 
 #: DEM intersection steps: two Newton then two chord steps (< 1 cm on the test terrains)
 NEWTON_ITERATIONS = 4
@@ -50,6 +51,15 @@ class MapGrid:
 
     Node-index coordinates ``(u, v)`` put the centre of pixel ``[j, i]`` at ``(i, j)``, the
     convention of ``cv2.remap`` and ``scipy.ndimage.map_coordinates``.
+
+    Attributes
+    ----------
+    transform : affine.Affine
+        Map coordinates of pixel corners (rasterio convention).
+    crs : pyproj.CRS
+        Coordinate reference system of the map coordinates.
+    shape : (int, int)
+        Number of rows and columns.
     """
 
     transform: Affine
@@ -57,18 +67,41 @@ class MapGrid:
     shape: tuple[int, int]
 
     def index_affine(self) -> Affine:
-        """Map coordinates ``(x, y)`` -> node indices ``(u, v)``."""
+        """The affine map from map coordinates ``(x, y)`` to node indices ``(u, v)``.
+
+        Returns
+        -------
+        affine.Affine
+            ``~transform`` followed by a shift of half a pixel (pixel centres on integers).
+        """
         return Affine.translation(-0.5, -0.5) @ ~self.transform
 
     @property
     def resolution_m(self) -> float:
-        """Approximate pixel size in metres (geographic grids at 111.32 km per degree)."""
+        """Approximate pixel size in metres (geographic grids at 111.32 km per degree).
+
+        Returns
+        -------
+        float
+            Square root of the pixel area, metres.
+        """
         t = self.transform
         res = float(np.sqrt(abs(t.a * t.e - t.b * t.d)))
         return res * 111_320.0 if self.crs.is_geographic else res
 
     @classmethod
     def of_dem(cls, dem: Dem) -> "MapGrid":
+        """The grid of a DEM's height raster.
+
+        Parameters
+        ----------
+        dem : Dem
+            Terrain whose ``transform``, ``crs`` and ``shape`` are taken.
+
+        Returns
+        -------
+        MapGrid
+        """
         return cls(dem.transform, dem.crs, dem.shape)
 
 
@@ -89,13 +122,23 @@ class PixelGround:
 
 
 def catmull_rom_matrix(positions, n_nodes: int) -> np.ndarray:
-    """Dense weights ``W`` (len(positions), n_nodes) of uniform Catmull-Rom interpolation.
+    """Dense weights ``W`` of uniform Catmull-Rom interpolation on ``n_nodes`` nodes.
 
-    ``positions`` are in node units (node ``k`` at ``k``) and must lie in ``[1, n_nodes - 2]``
-    so that the four neighbours exist; ``W @ values`` interpolates along the node axis.
+    ``W @ values`` interpolates ``values`` (n_nodes, ...) along the node axis.
+
+    Parameters
+    ----------
+    positions : array_like of float, shape (n,)
+        Positions in node units (node ``k`` at ``k``), within ``[1, n_nodes - 2]`` so that the
+        four neighbours exist.
+    n_nodes : int
+        Number of nodes (at least 4).
+
+    Returns
+    -------
+    ndarray of float64, shape (n, n_nodes)
+        Interpolation weights, four non-zero per row.
     """
-    from sensor_models.pushbroom import _catmull_rom_weights
-
     p = np.asarray(positions, dtype=np.float64)
     k = np.clip(np.floor(p).astype(np.intp), 1, n_nodes - 3)
     w, _ = _catmull_rom_weights(p - k)
@@ -108,8 +151,6 @@ def catmull_rom_matrix(positions, n_nodes: int) -> np.ndarray:
 
 def _catmull_rom_taps(positions, n_nodes: int):
     """First node index and the four Catmull-Rom weights (float32) of each position."""
-    from sensor_models.pushbroom import _catmull_rom_weights
-
     p = np.asarray(positions, dtype=np.float64)
     k = np.clip(np.floor(p).astype(np.intp), 1, n_nodes - 3)
     w, _ = _catmull_rom_weights(p - k)
@@ -125,8 +166,16 @@ def _interp_cols(a, taps) -> np.ndarray:
     return out
 
 
-class _Projector:
-    """WGS84 lon/lat -> node indices of one grid (PROJ once per grid, cached transformer)."""
+class MapProjector:
+    """WGS84 longitude and latitude -> node indices ``(u, v)`` of one map grid.
+
+    The PROJ transformer is built once per grid and reused for every call.
+
+    Parameters
+    ----------
+    grid : MapGrid
+        The target grid (any CRS PROJ knows).
+    """
 
     def __init__(self, grid: MapGrid):
         self.grid = grid
@@ -134,6 +183,18 @@ class _Projector:
         self.index = grid.index_affine()
 
     def __call__(self, lon, lat):
+        """Node indices of ground points.
+
+        Parameters
+        ----------
+        lon, lat : array_like of float, same shape
+            WGS84 longitude and latitude, degrees.
+
+        Returns
+        -------
+        u, v : ndarray of float64, shape of ``lon``
+            Column and row node indices in the grid (pixel ``[j, i]`` centre at ``(i, j)``).
+        """
         x, y = self.to_crs.transform(lon, lat)
         a = self.index
         x = np.asarray(x, dtype=np.float64)
@@ -169,6 +230,7 @@ def locate_block(
         Grids in which to return node indices (e.g. the DOM's); the DEM's own grid is used
         internally and need not be listed.
     band : str
+        Band name.
     ccd : int
         Index of the CCD in ``model.band_ccds(band)``.
     row0, row1 : int
@@ -178,49 +240,26 @@ def locate_block(
     node_step : int
         Spacing of the exactly localized nodes, in pixels.
     height_margin_m : float
-        Margin added to the DEM's height range for the two localization layers.
+        Margin added to the DEM's height range for the two localization layers, metres.
+    newton_iterations : int
+        Steps of the per-pixel DEM intersection (two Newton, then chord steps).
 
     Returns
     -------
     PixelGround
+        Heights and node indices, arrays of shape ``(row1 - row0, col1 - col0)``.
     """
-    if hasattr(model, "band_ccds"):  # push-broom: one CCD's columns
-        ccd_look = model.band_ccds(band)[ccd]
-        first, width = ccd_look.first_col, ccd_look.n_detectors
-        kw = {"band": band, "ccd": ccd}
-    else:  # an area array (staring camera): the whole frame
-        first, width = 0, model.image_shape[1]
-        kw = {"band": band}
+    first, width, kw = _block_columns(model, band, ccd)
     col0 = first if col0 is None else int(col0)
     col1 = first + width if col1 is None else int(col1)
     if not (row1 > row0 and col1 > col0):
         raise InputError(f"empty block rows {row0}..{row1}, cols {col0}..{col1}")
-    n_lines, n_cols = row1 - row0, col1 - col0
-    step = float(max(1, node_step))
-    # nodes: one before the first pixel centre and enough to pass the last one plus one
-    r_nodes = row0 + 0.5 + step * np.arange(-1, int(np.ceil((n_lines - 1) / step)) + 3)
-    c_nodes = col0 + 0.5 + step * np.arange(-1, int(np.ceil((n_cols - 1) / step)) + 3)
-    wr = catmull_rom_matrix(1.0 + np.arange(n_lines) / step, r_nodes.size).astype(np.float32)
-    col_taps = _catmull_rom_taps(1.0 + np.arange(n_cols) / step, c_nodes.size)
-
     h_min, h_max = dem.height_range_m
     h_lo, h_hi = h_min - height_margin_m, h_max + height_margin_m
-    rr, cc = np.meshgrid(r_nodes, c_nodes, indexing="ij")
-    dem_grid = MapGrid.of_dem(dem)
     # grids in the DEM's CRS follow from the DEM indices by an affine map; others need PROJ
     own = [g for g in grids if not g.crs.equals(dem.crs)]
-    projectors = [_Projector(dem_grid)] + [_Projector(g) for g in own]
-    ground = [
-        model.image_to_ground(rr.ravel(), cc.ravel(), height=h, **kw)[:2]
-        for h in (h_lo, h_hi)
-    ]
-    span = h_hi - h_lo
-    layers = []  # per projector: full-resolution u_lo, v_lo, du/dh, dv/dh (float32)
-    for proj in projectors:
-        u_lo, v_lo = proj(*ground[0])
-        u_hi, v_hi = proj(*ground[1])
-        nodes = (u_lo, v_lo, (u_hi - u_lo) / span, (v_hi - v_lo) / span)
-        layers.append([_interp_cols(wr @ a.reshape(rr.shape).astype(np.float32), col_taps) for a in nodes])
+    projectors = [MapProjector(MapGrid.of_dem(dem))] + [MapProjector(g) for g in own]
+    layers = _pixel_layers(model, kw, projectors, row0, row1, col0, col1, float(max(1, node_step)), h_lo, h_hi)
     h, u_dem, v_dem = _intersect_dem(dem, *layers[0], np.float32(h_lo), newton_iterations)
     dh = h - np.float32(h_lo)
     uv, k = [], 1
@@ -236,8 +275,59 @@ def locate_block(
     return PixelGround(h, uv)
 
 
-def _dem_planes(dem: Dem):
-    """Float32 stack (rows, cols, 3) of heights and their central-difference node gradients."""
+def _block_columns(model, band: str, ccd: int):
+    """First raster column, width and localization keywords of one CCD (or a whole frame)."""
+    if hasattr(model, "band_ccds"):  # push-broom: one CCD's columns
+        ccd_look = model.band_ccds(band)[ccd]
+        return ccd_look.first_col, ccd_look.n_detectors, {"band": band, "ccd": ccd}
+    return 0, model.image_shape[1], {"band": band}  # an area array (staring camera): the whole frame
+
+
+def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_hi):
+    """Per projector, full-resolution float32 ``u_lo, v_lo, du/dh, dv/dh`` of the block's pixels.
+
+    The model localizes a node grid (every ``step`` pixels, one node beyond each side) at the
+    heights ``h_lo`` and ``h_hi``; the node values are interpolated to every pixel centre by
+    separable Catmull-Rom cubics.
+    """
+    n_lines, n_cols = row1 - row0, col1 - col0
+    # nodes: one before the first pixel centre and enough to pass the last one plus one
+    r_nodes = row0 + 0.5 + step * np.arange(-1, int(np.ceil((n_lines - 1) / step)) + 3)
+    c_nodes = col0 + 0.5 + step * np.arange(-1, int(np.ceil((n_cols - 1) / step)) + 3)
+    wr = catmull_rom_matrix(1.0 + np.arange(n_lines) / step, r_nodes.size).astype(np.float32)
+    col_taps = _catmull_rom_taps(1.0 + np.arange(n_cols) / step, c_nodes.size)
+    rr, cc = np.meshgrid(r_nodes, c_nodes, indexing="ij")
+    ground = [
+        model.image_to_ground(rr.ravel(), cc.ravel(), height=h, **kw)[:2]
+        for h in (h_lo, h_hi)
+    ]
+    span = h_hi - h_lo
+    layers = []
+    for proj in projectors:
+        u_lo, v_lo = proj(*ground[0])
+        u_hi, v_hi = proj(*ground[1])
+        nodes = (u_lo, v_lo, (u_hi - u_lo) / span, (v_hi - v_lo) / span)
+        layers.append([_interp_cols(wr @ a.reshape(rr.shape).astype(np.float32), col_taps) for a in nodes])
+    return layers
+
+
+def dem_planes(dem: Dem) -> np.ndarray:
+    """Heights of a DEM and their node gradients, stacked for one-pass bilinear sampling.
+
+    Built on first use and cached on the DEM (derived data only); call it once before
+    sharing a DEM between threads so that they do not all build it.
+
+    Parameters
+    ----------
+    dem : Dem
+        Terrain (ellipsoidal heights in metres, NaN for no data).
+
+    Returns
+    -------
+    ndarray of float32, shape (n_rows, n_cols, 3), C-contiguous
+        ``[..., 0]`` the height (m), ``[..., 1]`` and ``[..., 2]`` its central-difference
+        derivatives along columns (``dh/du``) and rows (``dh/dv``), metres per node.
+    """
     cached = getattr(dem, "_render_planes", None)
     if cached is None:
         z = np.asarray(dem.heights_m, dtype=np.float64)
@@ -255,7 +345,7 @@ def _intersect_dem(dem: Dem, u_lo, v_lo, du, dv, h_lo, iterations: int):
     one single-channel sample per step). Returns ``h`` and the DEM node indices ``u, v`` of
     the solution (float32; NaN outside the DEM).
     """
-    planes = _dem_planes(dem)
+    planes = dem_planes(dem)
     heights = _dem_heights(dem)
     rows, cols = planes.shape[:2]
     h_min, h_max = dem.height_range_m
@@ -295,8 +385,9 @@ def _intersect_dem(dem: Dem, u_lo, v_lo, du, dv, h_lo, iterations: int):
 
 
 def _dem_heights(dem: Dem):
+    """The height plane of :func:`dem_planes` as its own contiguous float32 array (cached)."""
     cached = getattr(dem, "_render_heights", None)
     if cached is None:
-        cached = np.ascontiguousarray(_dem_planes(dem)[..., 0])
+        cached = np.ascontiguousarray(dem_planes(dem)[..., 0])
         dem._render_heights = cached
     return cached

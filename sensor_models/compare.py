@@ -1,0 +1,144 @@
+"""Compare two sensor models of the same image, in pixels, over a dense grid of every CCD and band.
+
+:func:`model_difference` answers: where does a model put the ground that a pixel of the
+reference model sees? For every node of a regular grid on every CCD and band, the reference
+model localizes the pixel centre on the terrain (or at given heights) and the model under test
+projects that ground point back; the difference ``model - reference`` in ``(row, col)`` is the
+error. Both models must describe the same image (same bands, CCDs and line count); their
+parameters, orbit and attitude may differ. With the TRUE model of a simulated scene as the
+reference this is ``gcpcal truth error`` (:func:`sensor_models.simulate.truth.truth_error`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sensor_models.errors import InputError
+
+__all__ = ["model_difference"]
+
+
+def _grid(n: int, step: float) -> np.ndarray:
+    """Pixel centres ``0.5 .. n - 0.5`` every ``step`` pixels, both ends included."""
+    k = max(2, int(np.ceil((n - 1) / step)) + 1)
+    return np.linspace(0.5, n - 0.5, k)
+
+
+def model_difference(
+    reference_model,
+    model,
+    *,
+    dem=None,
+    step_px: float = 16.0,
+    heights_m=None,
+    bands=None,
+) -> dict:
+    """Image-space difference of ``model`` from ``reference_model`` over every CCD and band.
+
+    Parameters
+    ----------
+    reference_model, model : PushbroomModel or GeoStaringModel
+        Same image layout (bands, CCD columns, number of lines; or the same frame size).
+    dem : Dem, optional
+        Terrain on which the reference model localizes the grid pixels.
+    step_px : float
+        Grid spacing in pixels along rows and columns.
+    heights_m : sequence of float, optional
+        Ellipsoidal heights (metres) at which to localize instead (every grid pixel at each
+        height); default ``(0, 1000, 2000)`` when no DEM is given.
+    bands : sequence of str, optional
+        Bands to compare (default: all bands of ``reference_model``).
+
+    Returns
+    -------
+    dict
+        ``{"rms_px", "max_px", "mean_row_px", "mean_col_px", "n_points", "per_ccd": [{"band",
+        "ccd", "rms_px", "max_px", "mean_row_px", "mean_col_px", "rms_row_px", "rms_col_px",
+        "n_points"}, ...]}``; errors are ``model - reference``, in pixels. Grid points that
+        either model cannot see (off the DEM, behind the other model's CCD) are left out and
+        counted in ``"n_missing"``.
+
+    Raises
+    ------
+    InputError
+        The models describe different images (size, bands or CCD layout).
+    """
+    if dem is None and heights_m is None:
+        heights_m = (0.0, 1000.0, 2000.0)
+    if bands is None:
+        bands = tuple(reference_model.bands) if hasattr(reference_model, "bands") else (reference_model.band,)
+    bands = tuple(bands)
+    if tuple(reference_model.image_shape) != tuple(model.image_shape):
+        raise InputError(f"the models describe different images ({reference_model.image_shape} and {model.image_shape})")
+    per_ccd, all_dr, all_dc, missing = [], [], [], 0
+    rows = _grid(reference_model.image_shape[0], step_px)
+    for band in bands:
+        for i, c, kw in _arrays(reference_model, model, band):
+            cols = c.first_col + _grid(c.n_detectors, step_px)
+            dr, dc, n_missing = _array_difference(reference_model, model, rows, cols, kw, dem, heights_m)
+            missing += n_missing
+            per_ccd.append(_stats(dr, dc) | {"band": band, "ccd": c.name})
+            all_dr.append(dr)
+            all_dc.append(dc)
+    dr, dc = np.concatenate(all_dr), np.concatenate(all_dc)
+    out = _stats(dr, dc)
+    out["n_missing"] = missing
+    out["per_ccd"] = per_ccd
+    return out
+
+
+def _array_difference(reference_model, model, rows, cols, kw, dem, heights_m):
+    """Row and column differences ``model - reference`` on the grid ``rows x cols`` of one array.
+
+    Returns the differences of the points both models see and the number of the others.
+    """
+    rr, cc = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
+    if dem is not None:
+        lon, lat, h = reference_model.image_to_ground(rr, cc, dem=dem, **kw)
+        r_obs, c_obs = rr, cc
+    else:
+        hs = np.repeat(np.asarray(heights_m, dtype=np.float64), rr.size)
+        r_obs, c_obs = np.tile(rr, len(heights_m)), np.tile(cc, len(heights_m))
+        lon, lat, h = reference_model.image_to_ground(r_obs, c_obs, height=hs, **kw)
+    ok = np.isfinite(lon)
+    r_m, c_m = np.full(lon.shape, np.nan), np.full(lon.shape, np.nan)
+    if ok.any():
+        r_m[ok], c_m[ok] = model.ground_to_image(lon[ok], lat[ok], h[ok], **kw)
+    dr, dc = r_m - r_obs, c_m - c_obs
+    good = np.isfinite(dr) & np.isfinite(dc)
+    return dr[good], dc[good], int((~good).sum())
+
+
+class _Frame:
+    """An area array seen as one detector array (staring cameras)."""
+
+    def __init__(self, n_cols):
+        self.first_col, self.n_detectors, self.name = 0, n_cols, "frame"
+
+
+def _arrays(reference_model, model, band):
+    """(index, detector array, keyword arguments) of every CCD of a band (or the frame)."""
+    if not hasattr(reference_model, "band_ccds"):
+        return [(0, _Frame(reference_model.image_shape[1]), {"band": band})]
+    if band not in model.bands:
+        raise InputError(f"band {band!r} is missing from the model under test")
+    ref_ccds, ccds = reference_model.band_ccds(band), model.band_ccds(band)
+    if [(c.first_col, c.n_detectors) for c in ref_ccds] != [(c.first_col, c.n_detectors) for c in ccds]:
+        raise InputError(f"band {band!r}: the models have different CCD layouts")
+    return [(i, c, {"band": band, "ccd": i}) for i, c in enumerate(ref_ccds)]
+
+
+def _stats(dr, dc) -> dict:
+    if dr.size == 0:
+        return {"rms_px": None, "max_px": None, "mean_row_px": None, "mean_col_px": None,
+                "rms_row_px": None, "rms_col_px": None, "n_points": 0}
+    d = np.hypot(dr, dc)
+    return {
+        "rms_px": float(np.sqrt(np.mean(d * d))),
+        "max_px": float(d.max()),
+        "mean_row_px": float(dr.mean()),
+        "mean_col_px": float(dc.mean()),
+        "rms_row_px": float(np.sqrt(np.mean(dr * dr))),
+        "rms_col_px": float(np.sqrt(np.mean(dc * dc))),
+        "n_points": int(d.size),
+    }
