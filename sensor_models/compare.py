@@ -66,7 +66,7 @@ def model_difference(
     if dem is None and heights_m is None:
         heights_m = (0.0, 1000.0, 2000.0)
     if bands is None:
-        bands = tuple(reference_model.bands) if hasattr(reference_model, "bands") else (reference_model.band,)
+        bands = tuple(reference_model.bands)
     bands = tuple(bands)
     if tuple(reference_model.image_shape) != tuple(model.image_shape):
         raise InputError(f"the models describe different images ({reference_model.image_shape} and {model.image_shape})")
@@ -109,23 +109,14 @@ def _array_difference(reference_model, model, rows, cols, kw, dem, heights_m):
     return dr[good], dc[good], int((~good).sum())
 
 
-class _Frame:
-    """An area array seen as one detector array (staring cameras)."""
-
-    def __init__(self, n_cols):
-        self.first_col, self.n_detectors, self.name = 0, n_cols, "frame"
-
-
 def _arrays(reference_model, model, band):
-    """(index, detector array, keyword arguments) of every CCD of a band (or the frame)."""
-    if not hasattr(reference_model, "band_ccds"):
-        return [(0, _Frame(reference_model.image_shape[1]), {"band": band})]
+    """(index, detector array, keyword arguments) of every detector array of a band."""
     if band not in model.bands:
         raise InputError(f"band {band!r} is missing from the model under test")
-    ref_ccds, ccds = reference_model.band_ccds(band), model.band_ccds(band)
-    if [(c.first_col, c.n_detectors) for c in ref_ccds] != [(c.first_col, c.n_detectors) for c in ccds]:
-        raise InputError(f"band {band!r}: the models have different CCD layouts")
-    return [(i, c, {"band": band, "ccd": i}) for i, c in enumerate(ref_ccds)]
+    ref_arrays, arrays = reference_model.detector_arrays(band), model.detector_arrays(band)
+    if [(a.first_col, a.n_detectors) for a in ref_arrays] != [(a.first_col, a.n_detectors) for a in arrays]:
+        raise InputError(f"band {band!r}: the models have different detector-array layouts")
+    return [(i, a, {"band": band, "array": i}) for i, a in enumerate(ref_arrays)]
 
 
 def _stats(dr, dc) -> dict:

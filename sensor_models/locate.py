@@ -277,10 +277,8 @@ def locate_block(
 
 def _block_columns(model, band: str, ccd: int):
     """First raster column, width and localization keywords of one CCD (or a whole frame)."""
-    if hasattr(model, "band_ccds"):  # push-broom: one CCD's columns
-        ccd_look = model.band_ccds(band)[ccd]
-        return ccd_look.first_col, ccd_look.n_detectors, {"band": band, "ccd": ccd}
-    return 0, model.image_shape[1], {"band": band}  # an area array (staring camera): the whole frame
+    array = model.detector_arrays(band)[ccd]  # a CCD, or the whole frame of an area array
+    return array.first_col, array.n_detectors, {"band": band, "array": ccd}
 
 
 def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_hi):
