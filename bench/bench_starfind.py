@@ -2,7 +2,7 @@
 
 Frames: 20-50 pixel-integrated Gaussian stars (sigma 1.2 px) at random sub-pixel positions,
 peak SNR 10-200, on a sloped background of 100 ADU with shot and 5 e- read noise, stored as
-uint16 like a camera's output. Per frame, :func:`gcpmatch.starfind.detect_stars` estimates the
+uint16 like a camera's output. Per frame, :func:`gcpmatch.stars.detect_stars` estimates the
 background, detects and centroids (``iwc``, ``gaussian`` and ``windowed``, side by side on the
 same frames); the centroid RMS error against the truth is reported with the speed.
 
@@ -50,14 +50,14 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gcpmatch.starfind import (  # noqa: E402
+from gcpmatch.stars import (  # noqa: E402
     CENTROID_METHODS,
     CameraPointing,
     StarPatternIndex,
     detect_stars,
     identify_stars,
-    render_stars,
 )
+from sensor_models.simulate.stars_render import render_stars  # noqa: E402
 from sensor_models.stars import StarCatalog  # noqa: E402
 
 cv2.setNumThreads(1)

@@ -1,4 +1,4 @@
-"""Star detection, centroids and identification (gcpmatch.starfind).
+"""Star detection, centroids and identification (gcpmatch.stars).
 
 Real data (``../shared/data/stars``): ``image.fits`` with its SExtractor catalogue
 ``image.cat`` (the sep project's test image), and ``tetra3_Alt60_Azi45.tiff`` (tetra3's test
@@ -15,7 +15,7 @@ import scipy.ndimage as ndi
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from gcpmatch.starfind import (
+from gcpmatch.stars import (
     CENTROID_METHODS,
     FLAG_EDGE,
     FLAG_SATURATED,
@@ -28,11 +28,11 @@ from gcpmatch.starfind import (
     identify_stars,
     read_fits_image,
     read_sextractor_catalog,
-    render_stars,
     rowcol_to_fits,
 )
-from gcpmatch import starfind
+from gcpmatch.stars import identify
 from sensor_models.errors import InputError
+from sensor_models.simulate.stars_render import render_stars
 from sensor_models.stars import StarCatalog, apparent_directions, radec_to_unit
 
 SIGMA_PX = 1.2
@@ -277,7 +277,7 @@ def test_triangle_enumeration_matches_brute_force():
     pts /= np.linalg.norm(pts, axis=1, keepdims=True)
     chord = 2 * np.sin(np.deg2rad(10.0) / 2)
     pairs = cKDTree(pts).query_pairs(chord, output_type="ndarray")
-    tri = starfind._triangles_from_pairs(pairs, 60)
+    tri = identify._triangles_from_pairs(pairs, 60)
     edges = {tuple(p) for p in pairs}
     brute = {t for t in combinations(range(60), 3)
              if (t[0], t[1]) in edges and (t[0], t[2]) in edges and (t[1], t[2]) in edges}

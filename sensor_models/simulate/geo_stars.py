@@ -30,7 +30,7 @@ Rendering
 Hipparcos stars (:class:`~sensor_models.stars.StarCatalog`) brighter than ``mag_limit`` are
 moved to their apparent directions at each frame instant (space motion, parallax, light
 deflection, aberration by the satellite's velocity), projected with the TRUE model, and drawn
-by :func:`gcpmatch.starfind.render_stars` (pixel-integrated Gaussian PSF, background, shot and
+by :func:`sensor_models.simulate.stars_render.render_stars` (pixel-integrated Gaussian PSF, background, shot and
 read noise), then quantized to uint16 with saturation. A crude SWIR-like magnitude
 ``m = V - swir_color_term * (B - V)`` (red stars are brighter in the short-wave infrared)
 scales the flux: ``flux = flux_ref_adu * 10^(-0.4 (m - ref_mag))``. This is a rendering

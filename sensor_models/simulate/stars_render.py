@@ -1,7 +1,7 @@
 """Rendering of point sources (stars, point-like targets) with a pixel-integrated Gaussian PSF.
 
 Shared by the star-field simulator (:mod:`sensor_models.simulate.geo_stars`) and the tests
-and benchmarks of star detection (:mod:`gcpmatch.starfind`, which re-exports both names).
+and benchmarks of star detection (:mod:`gcpmatch.stars`, which re-exports both names).
 """
 
 from __future__ import annotations
