@@ -13,7 +13,7 @@ Coordinates follow the project convention: ``(row, col)`` with the centre of the
 at ``(0.5, 0.5)``.
 """
 
-from gcpmatch.stars.background import Background, estimate_background
+from gcpmatch.stars.background import Background, estimate_background, estimate_background_sep
 from gcpmatch.stars.detect import (
     CENTROID_METHODS,
     FLAG_EDGE,
@@ -49,6 +49,7 @@ __all__ = [
     "centroid_stars",
     "detect_stars",
     "estimate_background",
+    "estimate_background_sep",
     "fits_to_rowcol",
     "identify_stars",
     "read_fits_image",

@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from scipy.special import erf
 
-from gcpmatch.stars.background import Background, _as_image, estimate_background
+from gcpmatch.stars.background import Background, _as_image, estimate_background_sep
 from sensor_models.errors import InputError
 from sensor_models.simulate.stars_render import pixel_integrals
 
@@ -133,7 +133,7 @@ def _resolve_background(img: np.ndarray, background, mesh_px: int) -> Background
         if background != "auto":
             raise InputError(f"unknown background {background!r}; use 'auto', a number, an "
                              "array or a Background", field="background")
-        return estimate_background(img, mesh_px=mesh_px)
+        return estimate_background_sep(img, mesh_px=mesh_px)
     level = np.broadcast_to(np.asarray(background, dtype=np.float32), img.shape)
     resid = (img - level)[::2, ::2]
     resid = resid[np.isfinite(resid)]
@@ -165,7 +165,8 @@ def detect_stars(
     image : array_like, shape (H, W)
         The frame, in ADU.
     background : "auto", float, array_like (H, W) or Background, optional
-        ``"auto"``: :func:`estimate_background` with ``mesh_px``. A number or an array: the
+        ``"auto"``: :func:`~gcpmatch.stars.background.estimate_background_sep` with
+        ``mesh_px`` (pass ``estimate_background(image)`` for ours). A number or an array: the
         level, with the noise estimated from the median absolute deviation of the residual.
     threshold_sigma : float, optional
         Detection threshold on the matched-filtered image, in units of *its* noise
