@@ -198,6 +198,33 @@ def detect_stars(
         Brightest first.
     """
     img = _as_image(image)
+    _check_detect_options(centroid, threshold_sigma, min_area, window_px, detect_sigma_px)
+    bkg = _resolve_background(img, background, mesh_px)
+    sub = img - bkg.level
+    valid = np.isfinite(sub)
+    if not valid.all():
+        sub = np.where(valid, sub, np.float32(0.0))
+    filtered, mask = _matched_filter_mask(sub, bkg.rms, detect_sigma_px, threshold_sigma)
+    peak_flat, obj_area = _segment_peaks(filtered, mask, min_area, max_stars)
+    if peak_flat.size == 0:
+        return _empty_table(centroid)
+    peak_r, peak_c = np.divmod(peak_flat, img.shape[1])
+    table = centroid_stars(sub, np.stack([peak_r, peak_c], axis=1), method=centroid,
+                           window_px=window_px, rms=bkg.rms, valid=valid,
+                           gain_e_per_adu=gain_e_per_adu)
+    flags = table.flags.copy()
+    if saturation is not None:
+        flags[_saturated(img, peak_r, peak_c, saturation)] |= FLAG_SATURATED
+    order = np.argsort(-table.flux, kind="stable")
+    out = StarTable(
+        row_px=table.row_px, col_px=table.col_px, flux=table.flux, peak=table.peak,
+        peak_snr=table.peak_snr, fwhm_px=table.fwhm_px, area_px=obj_area.astype(np.int64),
+        background=bkg.level[peak_r, peak_c].astype(np.float64), flags=flags, method=centroid,
+    )
+    return out.select(order)
+
+
+def _check_detect_options(centroid, threshold_sigma, min_area, window_px, detect_sigma_px):
     if centroid not in CENTROID_METHODS:
         raise InputError(f"unknown centroid method {centroid!r}; choose one of "
                          f"{CENTROID_METHODS}", field="centroid")
@@ -209,27 +236,36 @@ def detect_stars(
         raise InputError(f"must be an odd number >= 3, got {window_px}", field="window_px")
     if not (detect_sigma_px > 0):
         raise InputError("must be positive", field="detect_sigma_px")
-    bkg = _resolve_background(img, background, mesh_px)
-    sub = img - bkg.level
-    valid = np.isfinite(sub)
-    if not valid.all():
-        sub = np.where(valid, sub, np.float32(0.0))
-    ksize = 2 * int(np.ceil(3.0 * detect_sigma_px)) + 1
-    filtered = cv2.GaussianBlur(sub, (ksize, ksize), detect_sigma_px,
-                                borderType=cv2.BORDER_REFLECT)
+
+
+def _matched_filter_mask(sub: np.ndarray, rms: np.ndarray, sigma_px: float,
+                         threshold_sigma: float):
+    """Gaussian matched filter of ``sub`` and the pixels above ``threshold_sigma`` of its noise.
+
+    Returns the filtered image (float32, (H, W)) and the boolean mask (H, W).
+    """
+    ksize = 2 * int(np.ceil(3.0 * sigma_px)) + 1
+    filtered = cv2.GaussianBlur(sub, (ksize, ksize), sigma_px, borderType=cv2.BORDER_REFLECT)
     # noise of the filtered image: rms * sqrt(sum k^2); for the separable kernel k = k1 k1^T
     # sqrt(sum k^2) = sum k1^2 (~ 1 / (2 sqrt(pi) sigma) for sigma >~ 1 px)
-    k1 = cv2.getGaussianKernel(ksize, detect_sigma_px, ktype=cv2.CV_64F)
+    k1 = cv2.getGaussianKernel(ksize, sigma_px, ktype=cv2.CV_64F)
     noise_factor = np.float32(np.sum(k1 * k1))
-    mask = filtered > (np.float32(threshold_sigma) * noise_factor) * bkg.rms
-    # 8-connected components; OpenCV's labelling equals scipy.ndimage.label with a 3x3
-    # structure up to the label numbers, 5-7 times faster
+    return filtered, filtered > (np.float32(threshold_sigma) * noise_factor) * rms
+
+
+def _segment_peaks(filtered: np.ndarray, mask: np.ndarray, min_area: int, max_stars):
+    """8-connected components of ``mask``: flat index of each one's filtered peak and its area.
+
+    Components smaller than ``min_area`` are dropped; the rest are ranked by the filtered
+    peak (highest first) and cut at ``max_stars``. Returns two int arrays of shape (K,).
+    """
+    # OpenCV's labelling equals scipy.ndimage.label with a 3x3 structure up to the label
+    # numbers, 5-7 times faster
     n_labels, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=8,
                                                ltype=cv2.CV_32S)
     n_labels -= 1
-    empty = _empty_table(centroid)
     if n_labels == 0:
-        return empty
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
     flat = np.flatnonzero(mask)
     lab = labels.ravel()[flat]
     area = np.bincount(lab, minlength=n_labels + 1)
@@ -241,30 +277,19 @@ def detect_stars(
     obj_area = area[lab[order[first]]]
     keep = obj_area >= min_area
     peak_flat, peak_value, obj_area = peak_flat[keep], peak_value[keep], obj_area[keep]
-    if peak_flat.size == 0:
-        return empty
     rank = np.argsort(-peak_value, kind="stable")
     if max_stars is not None:
         rank = rank[:max(0, int(max_stars))]
-    peak_flat, obj_area = peak_flat[rank], obj_area[rank]
-    peak_r, peak_c = np.divmod(peak_flat, img.shape[1])
-    table = centroid_stars(sub, np.stack([peak_r, peak_c], axis=1), method=centroid,
-                           window_px=window_px, rms=bkg.rms, valid=valid,
-                           gain_e_per_adu=gain_e_per_adu)
-    flags = table.flags.copy()
-    if saturation is not None:
-        r0 = np.clip(peak_r[:, None] + np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1]), 0,
-                     img.shape[0] - 1)
-        c0 = np.clip(peak_c[:, None] + np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1]), 0,
-                     img.shape[1] - 1)
-        flags[np.nanmax(img[r0, c0], axis=1) >= saturation] |= FLAG_SATURATED
-    order = np.argsort(-table.flux, kind="stable")
-    out = StarTable(
-        row_px=table.row_px, col_px=table.col_px, flux=table.flux, peak=table.peak,
-        peak_snr=table.peak_snr, fwhm_px=table.fwhm_px, area_px=obj_area.astype(np.int64),
-        background=bkg.level[peak_r, peak_c].astype(np.float64), flags=flags, method=centroid,
-    )
-    return out.select(order)
+    return peak_flat[rank], obj_area[rank]
+
+
+def _saturated(img: np.ndarray, peak_r, peak_c, saturation: float) -> np.ndarray:
+    """Whether the 3 x 3 pixels around each peak reach ``saturation`` (raw values)."""
+    r0 = np.clip(peak_r[:, None] + np.array([-1, -1, -1, 0, 0, 0, 1, 1, 1]), 0,
+                 img.shape[0] - 1)
+    c0 = np.clip(peak_c[:, None] + np.array([-1, 0, 1, -1, 0, 1, -1, 0, 1]), 0,
+                 img.shape[1] - 1)
+    return np.nanmax(img[r0, c0], axis=1) >= saturation
 
 
 def _empty_table(method: str) -> StarTable:
@@ -342,7 +367,25 @@ def centroid_stars(
     vals, ok, rows, cols = _windows(sub, valid, peaks, half)
     flags = np.zeros(n, np.uint8)
     flags[~ok.all(axis=(1, 2))] |= FLAG_EDGE
-    # eq. (1): intensity-weighted centroid over the window
+    est = _intensity_weighted(vals, rows, cols, peaks, half)
+    if method == "gaussian":
+        est = _gaussian_refined(est, flags, vals, ok, rows, cols)
+    elif method == "windowed":
+        est = _windowed_refined(est, flags, sub, valid)
+    noise = _peak_noise(rms, sub.shape, peaks, est["peak"], gain_e_per_adu)
+    return StarTable(
+        row_px=np.asarray(est["row"], np.float64), col_px=np.asarray(est["col"], np.float64),
+        flux=np.asarray(est["flux"], np.float64), peak=np.asarray(est["peak"], np.float64),
+        peak_snr=est["peak"] / noise, fwhm_px=FWHM_PER_SIGMA * est["sigma"],
+        area_px=np.zeros(n, np.int64), background=np.zeros(n), flags=flags, method=method,
+    )
+
+
+def _intensity_weighted(vals, rows, cols, peaks, half: int) -> dict:
+    """Seed 000 eq. (1): intensity-weighted centroid over the window, moment sigma, peak, sum.
+
+    Stars whose window sums to <= 0 keep their peak pixel's centre.
+    """
     total = vals.sum(axis=(1, 2))
     safe = np.where(total > 0, total, 1.0)
     r_iwc = np.einsum("nij,ni->n", vals, rows) / safe
@@ -350,43 +393,47 @@ def centroid_stars(
     bad = total <= 0
     r_iwc[bad] = peaks[bad, 0] + 0.5
     c_iwc[bad] = peaks[bad, 1] + 0.5
-    sigma = _moment_sigma(vals, rows, cols, r_iwc, c_iwc)
-    peak = vals[:, half - 1:half + 2, half - 1:half + 2].max(axis=(1, 2))
-    flux = total
-    row, col = r_iwc, c_iwc
-    if method == "gaussian":
-        fit = _fit_gaussians(vals, ok, rows, cols, r_iwc, c_iwc, sigma, total)
-        good = fit["ok"]
-        row = np.where(good, fit["row"], r_iwc)
-        col = np.where(good, fit["col"], c_iwc)
-        sigma = np.where(good, fit["sigma"], sigma)
-        flux = np.where(good, fit["flux"], total)
-        peak = np.where(good, fit["amplitude"], peak)
-        flags[~good] |= FLAG_FIT_FAILED
-    elif method == "windowed":
-        r_half = _half_light_radius(sub, valid, r_iwc, c_iwc, np.maximum(3.0 * sigma, 3.0))
-        sigma = np.clip(r_half / np.sqrt(2.0 * np.log(2.0)), 0.3, 5.0)
-        win = _windowed_centroids(sub, valid, r_iwc, c_iwc, sigma)
-        good = win["ok"]
-        row = np.where(good, win["row"], r_iwc)
-        col = np.where(good, win["col"], c_iwc)
-        flags[~good] |= FLAG_FIT_FAILED
-        flags[win["edge"]] |= FLAG_EDGE
+    return {"row": r_iwc, "col": c_iwc, "sigma": _moment_sigma(vals, rows, cols, r_iwc, c_iwc),
+            "flux": total, "peak": vals[:, half - 1:half + 2, half - 1:half + 2].max(axis=(1, 2))}
+
+
+def _gaussian_refined(iwc: dict, flags, vals, ok, rows, cols) -> dict:
+    """Gaussian-fit estimates where the fit succeeds, ``iwc``'s (flagged) elsewhere."""
+    fit = _fit_gaussians(vals, ok, rows, cols, iwc["row"], iwc["col"], iwc["sigma"],
+                         iwc["flux"])
+    good = fit["ok"]
+    flags[~good] |= FLAG_FIT_FAILED
+    return {"row": np.where(good, fit["row"], iwc["row"]),
+            "col": np.where(good, fit["col"], iwc["col"]),
+            "sigma": np.where(good, fit["sigma"], iwc["sigma"]),
+            "flux": np.where(good, fit["flux"], iwc["flux"]),
+            "peak": np.where(good, fit["amplitude"], iwc["peak"])}
+
+
+def _windowed_refined(iwc: dict, flags, sub, valid) -> dict:
+    """Windowed (XWIN) centroids started from ``iwc``, with the half-light sigma."""
+    r_iwc, c_iwc = iwc["row"], iwc["col"]
+    r_half = _half_light_radius(sub, valid, r_iwc, c_iwc, np.maximum(3.0 * iwc["sigma"], 3.0))
+    sigma = np.clip(r_half / np.sqrt(2.0 * np.log(2.0)), 0.3, 5.0)
+    win = _windowed_centroids(sub, valid, r_iwc, c_iwc, sigma)
+    good = win["ok"]
+    flags[~good] |= FLAG_FIT_FAILED
+    flags[win["edge"]] |= FLAG_EDGE
+    return {"row": np.where(good, win["row"], r_iwc), "col": np.where(good, win["col"], c_iwc),
+            "sigma": sigma, "flux": iwc["flux"], "peak": iwc["peak"]}
+
+
+def _peak_noise(rms, shape, peaks, peak, gain_e_per_adu) -> np.ndarray:
+    """Noise at each peak pixel: the background's, plus the star's shot noise given a gain."""
     if rms is None:
-        noise = np.full(n, np.nan)
-    else:
-        rms_arr = np.broadcast_to(np.asarray(rms, dtype=np.float64), sub.shape)
-        noise = rms_arr[peaks[:, 0], peaks[:, 1]]
-        if gain_e_per_adu is not None:
-            if not gain_e_per_adu > 0:
-                raise InputError("must be positive", field="gain_e_per_adu")
-            noise = np.sqrt(noise ** 2 + np.maximum(peak, 0.0) / gain_e_per_adu)
-    return StarTable(
-        row_px=np.asarray(row, np.float64), col_px=np.asarray(col, np.float64),
-        flux=np.asarray(flux, np.float64), peak=np.asarray(peak, np.float64),
-        peak_snr=peak / noise, fwhm_px=FWHM_PER_SIGMA * sigma,
-        area_px=np.zeros(n, np.int64), background=np.zeros(n), flags=flags, method=method,
-    )
+        return np.full(peaks.shape[0], np.nan)
+    rms_arr = np.broadcast_to(np.asarray(rms, dtype=np.float64), shape)
+    noise = rms_arr[peaks[:, 0], peaks[:, 1]]
+    if gain_e_per_adu is not None:
+        if not gain_e_per_adu > 0:
+            raise InputError("must be positive", field="gain_e_per_adu")
+        noise = np.sqrt(noise ** 2 + np.maximum(peak, 0.0) / gain_e_per_adu)
+    return noise
 
 
 def _moment_sigma(vals, rows, cols, r0, c0) -> np.ndarray:
