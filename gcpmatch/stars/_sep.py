@@ -13,10 +13,21 @@ from sensor_models.errors import InputError
 
 
 def background_maps(image: np.ndarray, *, mesh_px: int, filter_size: int):
-    """SEP's spline-interpolated background level and noise maps of ``image`` (H, W).
+    """SEP's spline-interpolated background level and noise maps.
 
-    Non-finite pixels are masked (and set to 0 for SEP). Returns ``(level, rms)`` as float32
-    arrays of shape (H, W), in the image's units.
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        The frame (non-finite pixels are masked, and set to 0 for SEP).
+    mesh_px : int
+        Mesh cell side, pixels (SEP's ``bw = bh``).
+    filter_size : int
+        Median filter over the mesh, cells (SEP's ``fw = fh``).
+
+    Returns
+    -------
+    level, rms : ndarray of float32, shape (H, W)
+        Background level and noise, in the image's units.
     """
     data = np.ascontiguousarray(image, dtype=np.float32)
     bad = ~np.isfinite(data)

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 import scipy.ndimage as ndi
 
-from gcpmatch.stars import _sep
+from gcpmatch.stars._sep import background_maps
 from sensor_models.errors import InputError
 
 __all__ = ["Background", "estimate_background", "estimate_background_sep"]
@@ -198,7 +198,7 @@ def estimate_background_sep(image, *, mesh_px: int = 64, filter_size: int = 3) -
         raise InputError("must be at least 4", field="mesh_px")
     if filter_size < 1:
         raise InputError("must be at least 1", field="filter_size")
-    level, rms = _sep.background_maps(img, mesh_px=mesh_px, filter_size=filter_size)
+    level, rms = background_maps(img, mesh_px=mesh_px, filter_size=filter_size)
     h, w = img.shape
     rows = np.minimum((np.arange(-(-h // mesh_px)) + 0.5) * mesh_px, h - 0.5).astype(np.intp)
     cols = np.minimum((np.arange(-(-w // mesh_px)) + 0.5) * mesh_px, w - 0.5).astype(np.intp)

@@ -104,13 +104,30 @@ class StarTable:
         return np.stack([self.row_px, self.col_px], axis=-1)
 
     def select(self, index) -> StarTable:
-        """Rows picked by a boolean mask or an index array."""
+        """Rows picked by a boolean mask or an index array.
+
+        Parameters
+        ----------
+        index : array_like of bool, shape (N,), or of int, shape (K,)
+            Rows to keep, in the order given.
+
+        Returns
+        -------
+        StarTable
+            The selected rows (same ``method``).
+        """
         index = np.asarray(index)
         return StarTable(**{k: getattr(self, k)[index] for k in _TABLE_COLUMNS},
                          method=self.method)
 
     def to_dict(self) -> dict:
-        """Columns as lists (JSON-ready)."""
+        """Columns as lists (JSON-ready).
+
+        Returns
+        -------
+        dict
+            Column name -> list of N values, plus ``"method"``.
+        """
         out = {k: getattr(self, k).tolist() for k in _TABLE_COLUMNS}
         out["method"] = self.method
         return out

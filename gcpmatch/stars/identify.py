@@ -66,6 +66,21 @@ class CameraPointing:
         north through east; with roll 0, north is up and east left. Camera axes in GCRF:
         ``z = b`` (boresight), ``y = -up`` with ``up = cos(roll) n + sin(roll) e``,
         ``x = b x up`` (``n``, ``e``: north and east unit vectors at ``b``).
+
+        Parameters
+        ----------
+        ra_rad, dec_rad : float
+            Boresight right ascension and declination in GCRF, radians.
+        roll_rad : float
+            Position angle of the image's top, from north through east, radians.
+        focal_px : float
+            Focal length, pixels.
+        principal_point_px : (float, float)
+            ``(row, col)`` of the boresight, pixels (first pixel's centre at ``(0.5, 0.5)``).
+
+        Returns
+        -------
+        CameraPointing
         """
         ca, sa, cd, sd = np.cos(ra_rad), np.sin(ra_rad), np.cos(dec_rad), np.sin(dec_rad)
         bore = np.array([cd * ca, cd * sa, sd])
@@ -100,6 +115,7 @@ class CameraPointing:
         Parameters
         ----------
         vectors_gcrf : array_like, shape (N, 3)
+            Directions in GCRF (any length).
 
         Returns
         -------
@@ -116,7 +132,18 @@ class CameraPointing:
                          c0 + self.focal_px * cam[:, 0] / z], axis=1), in_front
 
     def rays(self, rowcol) -> np.ndarray:
-        """Unit GCRF directions seen by pixels ``(N, 2)`` -> ``(N, 3)``."""
+        """Unit GCRF directions seen by pixels.
+
+        Parameters
+        ----------
+        rowcol : array_like, shape (N, 2)
+            ``(row, col)`` in pixels, first pixel's centre at ``(0.5, 0.5)``.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            Unit vectors in GCRF.
+        """
         cam = _camera_rays(np.asarray(rowcol, np.float64).reshape(-1, 2), self.focal_px,
                            self.principal_point_px)
         return self.camera_to_gcrf.apply(cam) if cam.shape[0] else cam
@@ -183,6 +210,7 @@ class StarPatternIndex:
 
     @property
     def n_bins(self) -> int:
+        """Hash bins per ratio axis (``ceil(1 / bin_width) + 2``)."""
         return int(np.ceil(1.0 / self.bin_width)) + 2
 
     @classmethod
@@ -203,6 +231,10 @@ class StarPatternIndex:
             Longest triangle side kept (the frame's shorter angular side is a good choice).
         bin_width : float, optional
             Hash bin in ratio units; also the ratio tolerance of queries.
+
+        Returns
+        -------
+        StarPatternIndex
         """
         vec = np.asarray(catalog_vectors, dtype=np.float64).reshape(-1, 3)
         mag = np.asarray(magnitudes, dtype=np.float64).reshape(-1)
@@ -234,7 +266,27 @@ class StarPatternIndex:
     def for_camera(cls, catalog_vectors, magnitudes, *, image_shape, focal_px: float,
                    stars_per_fov: float = 12.0, bin_width: float = 0.01) -> StarPatternIndex:
         """An index sized for a frame: ``stars_per_fov`` pattern stars per frame on average
-        and triangles no longer than the frame's shorter angular side."""
+        and triangles no longer than the frame's shorter angular side.
+
+        Parameters
+        ----------
+        catalog_vectors : array_like, shape (M, 3)
+            Catalogue unit vectors (GCRF).
+        magnitudes : array_like, shape (M,)
+            Brightness for the selection (smaller is brighter).
+        image_shape : (int, int)
+            ``(H, W)`` of the frame, pixels.
+        focal_px : float
+            Approximate focal length, pixels.
+        stars_per_fov : float, optional
+            Mean number of pattern stars in a frame.
+        bin_width : float, optional
+            See :meth:`build`.
+
+        Returns
+        -------
+        StarPatternIndex
+        """
         h, w = image_shape
         fov_h = 2 * np.arctan(h / (2 * focal_px))
         fov_w = 2 * np.arctan(w / (2 * focal_px))
@@ -243,7 +295,20 @@ class StarPatternIndex:
                          max_side_deg=float(np.rad2deg(min(fov_h, fov_w))), bin_width=bin_width)
 
     def query(self, r1: float, r2: float, tolerance: float | None = None) -> np.ndarray:
-        """Indices of triangles with both ratios within ``tolerance`` (default one bin)."""
+        """Indices of triangles with both ratios within ``tolerance`` (default one bin).
+
+        Parameters
+        ----------
+        r1, r2 : float
+            Shortest / longest and middle / longest side ratios of the query triangle.
+        tolerance : float, optional
+            Largest difference of each ratio; default ``bin_width``.
+
+        Returns
+        -------
+        ndarray of int, shape (K,)
+            Rows of :attr:`triangles` (and of ``ratios``, ``long_side_rad``...).
+        """
         tol = self.bin_width if tolerance is None else tolerance
         nb = self.n_bins
         i1, i2 = int(np.floor(r1 / self.bin_width)), int(np.floor(r2 / self.bin_width))
@@ -367,7 +432,15 @@ class StarIdentification:
     details: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
-        """JSON-ready figures."""
+        """JSON-ready figures.
+
+        Returns
+        -------
+        dict
+            Success, message, method, match count, RMS residuals (px, arcsec), false-alarm
+            probability, hypotheses, and with a pointing its RA, Dec, roll (degrees) and
+            focal length (px).
+        """
         out = {"success": self.success, "message": self.message, "method": self.method,
                "n_matched": self.n_matched, "rms_px": self.rms_px,
                "rms_arcsec": self.rms_arcsec,
@@ -467,36 +540,11 @@ def identify_stars(
     if approximate_pointing is not None:
         if n < 3:
             return _failed(f"{n} detections; at least 3 are needed", n, "pointing")
-        # only the catalogue around the frame: a small tree instead of the whole sky's
-        ap = approximate_pointing
-        corner = np.hypot(max(ap.principal_point_px[0], h - ap.principal_point_px[0]),
-                          max(ap.principal_point_px[1], w - ap.principal_point_px[1]))
-        reach = np.arctan(corner / ap.focal_px) + np.deg2rad(pointing_uncertainty_deg) \
-            + 20.0 * match_tolerance_px / ap.focal_px
-        near = np.flatnonzero(cat @ ap.boresight_gcrf > np.cos(min(reach, np.pi)))
-        if near.size == 0:
-            return _failed("no catalogue star near the approximate pointing", n, "pointing")
-        result = _refine(rc, cat[near], cKDTree(cat[near]), ap, (h, w), match_tolerance_px,
-                         pointing_uncertainty_deg, refine_focal, min_matches, false_alarm,
-                         max_iterations, "pointing", 0)
-        known = result.catalog_index >= 0
-        result.catalog_index[known] = near[result.catalog_index[known]]
-        return result
+        return _identify_near(rc, cat, approximate_pointing, (h, w), match_tolerance_px,
+                              pointing_uncertainty_deg, refine_focal, min_matches, false_alarm,
+                              max_iterations)
     tree = cKDTree(cat)
-    scales = [x is not None for x in (fov_deg, focal_px, pixel_scale_arcsec)]
-    if sum(scales) != 1:
-        raise InputError("lost-in-space identification needs exactly one of fov_deg, "
-                         "focal_px, pixel_scale_arcsec (or give approximate_pointing)")
-    if fov_deg is not None:
-        if not (0 < fov_deg < 120):
-            raise InputError("must lie in (0, 120) degrees", field="fov_deg")
-        f0 = (w / 2.0) / np.tan(np.deg2rad(fov_deg) / 2.0)
-    elif focal_px is not None:
-        f0 = float(focal_px)
-    else:
-        f0 = ARCSEC_PER_RAD / float(pixel_scale_arcsec)
-    if not (f0 > 0 and np.isfinite(f0)):
-        raise InputError("the scale must be positive and finite")
+    f0 = _focal_from_scale((h, w), fov_deg, focal_px, pixel_scale_arcsec)
     if pattern_index is None:
         if catalog_magnitudes is None:
             raise InputError("lost in space needs catalog_magnitudes (or a pattern_index)",
@@ -508,6 +556,45 @@ def identify_stars(
     return _lost_in_space(rc, cat, tree, pattern_index, (h, w), pp, f0, match_tolerance_px,
                           fov_tolerance, refine_focal, n_pattern_stars, n_verify_stars,
                           min_matches, false_alarm, max_iterations)
+
+
+def _identify_near(rc, cat, ap: CameraPointing, shape, tol, uncertainty_deg, refine_focal,
+                   min_matches, false_alarm, max_iterations) -> StarIdentification:
+    """Method (a) on the catalogue stars around the approximate pointing only (a small tree
+    instead of the whole sky's); catalogue indices are mapped back to ``cat``'s rows."""
+    h, w = shape
+    corner = np.hypot(max(ap.principal_point_px[0], h - ap.principal_point_px[0]),
+                      max(ap.principal_point_px[1], w - ap.principal_point_px[1]))
+    reach = np.arctan(corner / ap.focal_px) + np.deg2rad(uncertainty_deg) \
+        + 20.0 * tol / ap.focal_px
+    near = np.flatnonzero(cat @ ap.boresight_gcrf > np.cos(min(reach, np.pi)))
+    if near.size == 0:
+        return _failed("no catalogue star near the approximate pointing", rc.shape[0],
+                       "pointing")
+    result = _refine(rc, cat[near], cKDTree(cat[near]), ap, shape, tol, uncertainty_deg,
+                     refine_focal, min_matches, false_alarm, max_iterations, "pointing", 0)
+    known = result.catalog_index >= 0
+    result.catalog_index[known] = near[result.catalog_index[known]]
+    return result
+
+
+def _focal_from_scale(shape, fov_deg, focal_px, pixel_scale_arcsec) -> float:
+    """Focal length in pixels from exactly one of the three scale options."""
+    scales = [x is not None for x in (fov_deg, focal_px, pixel_scale_arcsec)]
+    if sum(scales) != 1:
+        raise InputError("lost-in-space identification needs exactly one of fov_deg, "
+                         "focal_px, pixel_scale_arcsec (or give approximate_pointing)")
+    if fov_deg is not None:
+        if not (0 < fov_deg < 120):
+            raise InputError("must lie in (0, 120) degrees", field="fov_deg")
+        f0 = (shape[1] / 2.0) / np.tan(np.deg2rad(fov_deg) / 2.0)
+    elif focal_px is not None:
+        f0 = float(focal_px)
+    else:
+        f0 = ARCSEC_PER_RAD / float(pixel_scale_arcsec)
+    if not (f0 > 0 and np.isfinite(f0)):
+        raise InputError("the scale must be positive and finite")
+    return f0
 
 
 def _false_alarm(n_matched: int, n_det: int, n_cat_in_frame: int, tol_px: float,
