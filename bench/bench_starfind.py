@@ -35,9 +35,10 @@ library), one thread each, on
 
 Ours: :func:`detect_stars` at its defaults (SEP's background since this comparison) and, in
 the ``own_background`` row, with :func:`estimate_background`. SEP runs with our detection
-criteria (its matched filter with our sigma-1 px Gaussian kernel, 5 sigma, 3 pixels), and on ``image.fits`` also with SExtractor's (default 3x3 kernel,
-1.5 sigma per pixel, 5 pixels). SEP centroids: isophotal barycentre (``x, y``) and the windowed
-``sep.winpos`` with ``sigma = 2 FLUX_RADIUS(0.5) / 2.35`` as SExtractor's ``XWIN_IMAGE``.
+criteria (its matched filter with our sigma-1 px Gaussian kernel, 5 sigma, 3 pixels), and on
+``image.fits`` also with SExtractor's (default 3x3 kernel, 1.5 sigma per pixel, 5 pixels).
+SEP centroids: isophotal barycentre (``x, y``) and the windowed ``sep.winpos`` with
+``sigma = 2 FLUX_RADIUS(0.5) / 2.35`` as SExtractor's ``XWIN_IMAGE``.
 SEP positions are 0-based with the first pixel's centre at 0: ``row = y + 0.5``.
 
 .. [1] K. Barbary, "SEP: Source Extractor as a library", JOSS 1(6), 58 (2016).
@@ -221,7 +222,8 @@ def run_children(args, n_parallel: int, identify: bool) -> list[dict]:
 # versus SEP
 # --------------------------------------------------------------------------------------------
 DATA = ROOT.parent / "shared" / "data" / "stars"
-SEP_KERNEL_OURS = (lambda k: np.outer(k, k))(cv2.getGaussianKernel(7, 1.0, ktype=cv2.CV_64F)[:, 0])
+_K1 = cv2.getGaussianKernel(7, 1.0, ktype=cv2.CV_64F)[:, 0]
+SEP_KERNEL_OURS = np.outer(_K1, _K1)
 SEP_CONFIGS = {
     # our criteria: matched filter with our 7x7 sigma-1 Gaussian, 5 sigma, 3 pixels
     "sep": {"thresh": 5.0, "minarea": 3, "filter_kernel": SEP_KERNEL_OURS},
@@ -268,7 +270,8 @@ def sep_frames(n: int, seed: int, shape=(1024, 1024), n_stars: int = 60):
     out = []
     for _ in range(n):
         a, b = rng.uniform(-0.04, 0.04, 2)
-        level = 200.0 + a * (rows - 512) + b * (cols - 512) + 5e-5 * (cols - rng.uniform(0, 1024)) ** 2
+        level = 200.0 + a * (rows - 512) + b * (cols - 512) \
+            + 5e-5 * (cols - rng.uniform(0, 1024)) ** 2
         truth = rng.uniform(12, np.array(shape) - 12, (n_stars, 2))
         snr = np.exp(rng.uniform(np.log(3.0), np.log(300.0), n_stars))
         bg = 200.0 + 25.0

@@ -2,7 +2,7 @@
 
 Real data (``../shared/data/stars``): ``image.fits`` with its SExtractor catalogue
 ``image.cat`` (the sep project's test image), and ``tetra3_Alt60_Azi45.tiff`` (tetra3's test
-frame: 1024 x 768, about 11.4 deg across). astropy is used only as an independent FITS reader.
+frame: 1024 x 768, about 11.4 deg across). The SEP comparisons (at the end) skip without sep.
 """
 
 from __future__ import annotations

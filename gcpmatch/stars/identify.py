@@ -485,7 +485,8 @@ def identify_stars(
     Parameters
     ----------
     centroids_px : array_like, shape (N, 2)
-        ``(row, col)`` of the detections, brightest first (as :func:`detect_stars` returns).
+        ``(row, col)`` of the detections, brightest first (as
+        :func:`gcpmatch.stars.detect_stars` returns).
     catalog_vectors : array_like, shape (M, 3)
         Catalogue unit vectors in GCRF (e.g. :func:`sensor_models.stars.apparent_directions`).
     image_shape : (int, int)
