@@ -2,7 +2,7 @@
 
 Frames: 20-50 pixel-integrated Gaussian stars (sigma 1.2 px) at random sub-pixel positions,
 peak SNR 10-200, on a sloped background of 100 ADU with shot and 5 e- read noise, stored as
-uint16 like a camera's output. Per frame, :func:`gcpmatch.starfind.detect_stars` estimates the
+uint16 like a camera's output. Per frame, :func:`gcpmatch.stars.detect_stars` estimates the
 background, detects and centroids (``iwc``, ``gaussian`` and ``windowed``, side by side on the
 same frames); the centroid RMS error against the truth is reported with the speed.
 
@@ -18,6 +18,30 @@ Best of ``--repeat`` runs.
 
 Usage: ``python bench/bench_starfind.py [--frames 40] [--repeat 3] [--out FILE]``
 Writes ``bench/results/starfind.json``.
+
+Against SEP (``--versus-sep [--frames 8]``; writes ``bench/results/starfind_sep.json``): our
+background, detection and centroids side by side with SEP [1]_ (SExtractor's algorithms as a
+library), one thread each, on
+
+* simulated 1024 x 1024 frames with known truth: a curved background of 150-250 ADU with its
+  own shot noise and 5 e- read noise (gain 1), 60 stars of sigma 1.2 px at peak SNR 3-300
+  (log-uniform): background level and noise-map RMS error against the truth, completeness,
+  false detections and centroid RMS error (matches within 2 px);
+* ``../shared/data/stars/image.fits`` (256 x 256) against SExtractor's catalogue ``image.cat``:
+  completeness and extra detections (matches within 1.5 px of ``X_IMAGE``) and, for the 44
+  isolated ``FLAGS == 0`` objects, the distance to ``XWIN_IMAGE``;
+* ``tetra3_Alt60_Azi45.tiff`` (1024 x 768, no truth): detections, their overlap, and the
+  residual RMS of the identified Hipparcos stars (pinhole fit from the known pointing).
+
+Ours: :func:`detect_stars` at its defaults (SEP's background since this comparison) and, in
+the ``own_background`` row, with :func:`estimate_background`. SEP runs with our detection
+criteria (its matched filter with our sigma-1 px Gaussian kernel, 5 sigma, 3 pixels), and on
+``image.fits`` also with SExtractor's (default 3x3 kernel, 1.5 sigma per pixel, 5 pixels).
+SEP centroids: isophotal barycentre (``x, y``) and the windowed ``sep.winpos`` with
+``sigma = 2 FLUX_RADIUS(0.5) / 2.35`` as SExtractor's ``XWIN_IMAGE``.
+SEP positions are 0-based with the first pixel's centre at 0: ``row = y + 0.5``.
+
+.. [1] K. Barbary, "SEP: Source Extractor as a library", JOSS 1(6), 58 (2016).
 """
 
 from __future__ import annotations
@@ -44,21 +68,26 @@ from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+import sep  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gcpmatch.starfind import (  # noqa: E402
+from gcpmatch.stars import (  # noqa: E402
     CENTROID_METHODS,
     CameraPointing,
     StarPatternIndex,
     detect_stars,
+    estimate_background,
+    fits_to_rowcol,
     identify_stars,
-    render_stars,
+    read_fits_image,
+    read_sextractor_catalog,
 )
-from sensor_models.stars import StarCatalog  # noqa: E402
+from sensor_models.psf import render_stars  # noqa: E402
+from sensor_models.stars import StarCatalog, apparent_directions  # noqa: E402
 
 cv2.setNumThreads(1)
 SHAPE = (1024, 1024)
@@ -189,6 +218,279 @@ def run_children(args, n_parallel: int, identify: bool) -> list[dict]:
     return outs
 
 
+# --------------------------------------------------------------------------------------------
+# versus SEP
+# --------------------------------------------------------------------------------------------
+DATA = ROOT.parent / "shared" / "data" / "stars"
+_K1 = cv2.getGaussianKernel(7, 1.0, ktype=cv2.CV_64F)[:, 0]
+SEP_KERNEL_OURS = np.outer(_K1, _K1)
+SEP_CONFIGS = {
+    # our criteria: matched filter with our 7x7 sigma-1 Gaussian, 5 sigma, 3 pixels
+    "sep": {"thresh": 5.0, "minarea": 3, "filter_kernel": SEP_KERNEL_OURS},
+    # SExtractor's configuration for image.cat (sep's own test against it)
+    "sep_sextractor": {"thresh": 1.5, "minarea": 5, "global_rms": True},
+}
+
+
+def sep_background(image: np.ndarray, mesh_px: int = 64, filter_size: int = 3):
+    """SEP's background level, noise map and global noise, for a float32 image."""
+    bkg = sep.Background(image, bw=mesh_px, bh=mesh_px, fw=filter_size, fh=filter_size)
+    return bkg.back(), bkg.rms(), float(bkg.globalrms)
+
+
+def sep_detect(image: np.ndarray, config: dict) -> dict:
+    """SEP background, extraction and windowed positions; ``(row, col)`` arrays (N, 2)."""
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    back, rms, global_rms = sep_background(img)
+    sub = img - back
+    err = global_rms if config.get("global_rms") else rms
+    kwargs = {k: v for k, v in config.items() if k not in ("thresh", "global_rms")}
+    objs = sep.extract(sub, config["thresh"], err=err, **kwargs)
+    r_half, _ = sep.flux_radius(sub, objs["x"], objs["y"], 6.0 * objs["a"], 0.5,
+                                normflux=objs["flux"], subpix=5)
+    xw, yw, _ = sep.winpos(sub, objs["x"], objs["y"], 2.0 * r_half / 2.35)
+    order = np.argsort(-objs["flux"], kind="stable")
+    return {"isophotal": np.stack([objs["y"], objs["x"]], 1)[order] + 0.5,
+            "windowed": np.stack([yw, xw], 1)[order] + 0.5}
+
+
+def _best_time(fn, repeat: int):
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return out, best
+
+
+def sep_frames(n: int, seed: int, shape=(1024, 1024), n_stars: int = 60):
+    """Frames with a known background, noise map and star positions (see the module notes)."""
+    rng = np.random.default_rng(seed)
+    rows, cols = np.mgrid[0:shape[0], 0:shape[1]] + 0.5
+    out = []
+    for _ in range(n):
+        a, b = rng.uniform(-0.04, 0.04, 2)
+        level = 200.0 + a * (rows - 512) + b * (cols - 512) \
+            + 5e-5 * (cols - rng.uniform(0, 1024)) ** 2
+        truth = rng.uniform(12, np.array(shape) - 12, (n_stars, 2))
+        snr = np.exp(rng.uniform(np.log(3.0), np.log(300.0), n_stars))
+        bg = 200.0 + 25.0
+        peak = (snr ** 2 + np.sqrt(snr ** 4 + 4 * snr ** 2 * bg)) / 2
+        stars = render_stars(shape, truth, peak * 2 * np.pi * SIGMA_PX ** 2, sigma_px=SIGMA_PX)
+        img = level + stars + rng.standard_normal(shape) * np.sqrt(level + stars + 25.0)
+        out.append({"image": img.astype(np.float32), "level": level,
+                    "noise": np.sqrt(level + 25.0), "truth": truth, "snr": snr})
+    return out
+
+
+def _score(rc: np.ndarray, truth: np.ndarray, radius: float) -> dict:
+    if len(rc) == 0:
+        return {"found": 0, "false": 0, "errors": np.zeros((0, 2))}
+    d, j = cKDTree(truth).query(rc)
+    ok = d < radius
+    return {"found": len(np.unique(j[ok])), "false": int(np.sum(~ok)),
+            "errors": rc[ok] - truth[j[ok]]}
+
+
+def _rms(errors) -> float:
+    e = np.concatenate(errors)
+    return float(np.sqrt(np.mean(np.sum(e ** 2, axis=1)))) if len(e) else float("nan")
+
+
+def versus_sep_background(frames, repeat: int) -> dict:
+    """Background level and noise-map errors against the truth, inside the outer mesh centres."""
+    inner = np.s_[32:-32, 32:-32]
+    out = {}
+    for name in ("ours", "ours_all_pixels", "sep"):
+        level_err, rms_err, seconds = [], [], 0.0
+        for f in frames:
+            if name.startswith("ours"):
+                samples = 64 * 64 if name == "ours_all_pixels" else 256
+                bkg, dt = _best_time(lambda: estimate_background(
+                    f["image"], samples_per_mesh=samples), repeat)
+                level, rms = bkg.level, bkg.rms
+            else:
+                (level, rms, _), dt = _best_time(lambda: sep_background(f["image"]), repeat)
+            seconds += dt
+            level_err.append(((level - f["level"])[inner]).ravel())
+            rms_err.append(((rms - f["noise"])[inner]).ravel())
+        le, re = np.concatenate(level_err), np.concatenate(rms_err)
+        out[name] = {"level_rms_error_adu": float(np.sqrt(np.mean(le ** 2))),
+                     "level_max_error_adu": float(np.abs(le).max()),
+                     "noise_rms_error_adu": float(np.sqrt(np.mean(re ** 2))),
+                     "noise_bias_adu": float(re.mean()),
+                     "ms_per_frame": 1e3 * seconds / len(frames)}
+    return out
+
+
+def versus_sep_simulated(frames, repeat: int) -> dict:
+    """Completeness, false detections, centroid RMS error and time: ours vs SEP."""
+    runs = {f"ours_{m}": (lambda img, m=m: {"c": detect_stars(img, centroid=m).rowcol})
+            for m in CENTROID_METHODS}
+    runs["ours_windowed_own_background"] = lambda img: {"c": detect_stars(
+        img, centroid="windowed", background=estimate_background(img)).rowcol}
+    runs["sep"] = lambda img: sep_detect(img, SEP_CONFIGS["sep"])
+    n_true = sum(len(f["truth"]) for f in frames)
+    faint = np.concatenate([f["snr"] < 10 for f in frames])
+    out, all_results = {}, {}
+    for name, run in runs.items():
+        results, seconds = [], 0.0
+        for f in frames:
+            res, dt = _best_time(lambda: run(f["image"]), repeat)
+            results.append(res)
+            seconds += dt
+        all_results[name] = results
+        for key in results[0]:
+            scores = [_score(r[key], f["truth"], 2.0) for r, f in zip(results, frames)]
+            found = np.concatenate([_found_mask(r[key], f["truth"]) for r, f in
+                                    zip(results, frames)])
+            label = name if key == "c" else f"{name}_{key}"
+            out[label] = {"completeness": sum(s["found"] for s in scores) / n_true,
+                          "completeness_snr_below_10": float(found[faint].mean()),
+                          "false_per_frame": sum(s["false"] for s in scores) / len(frames),
+                          "centroid_rms_error_px": _rms([s["errors"] for s in scores]),
+                          "ms_per_frame": 1e3 * seconds / len(frames)}
+    _common_centroid_errors(out, all_results, frames)
+    return out
+
+
+def _common_centroid_errors(out: dict, all_results: dict, frames) -> None:
+    """Centroid RMS error over the stars that every method found (same stars for all)."""
+    common = [np.ones(len(f["truth"]), bool) for f in frames]
+    for results in all_results.values():
+        for k, (r, f) in enumerate(zip(results, frames)):
+            for rc in r.values():
+                common[k] &= _found_mask(rc, f["truth"])
+    for name, results in all_results.items():
+        for key in results[0]:
+            errors = []
+            for r, f, keep in zip(results, frames, common):
+                d, j = cKDTree(r[key]).query(f["truth"][keep])
+                errors.append(r[key][j] - f["truth"][keep])
+            label = name if key == "c" else f"{name}_{key}"
+            out[label]["centroid_rms_error_common_px"] = _rms(errors)
+            out[label]["n_common"] = int(sum(c.sum() for c in common))
+
+
+def _found_mask(rc: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    if len(rc) == 0:
+        return np.zeros(len(truth), bool)
+    d, _ = cKDTree(rc).query(truth)
+    return d < 2.0
+
+
+def versus_sep_sextractor(repeat: int) -> dict:
+    """image.fits against SExtractor's catalogue."""
+    image, _ = read_fits_image(DATA / "image.fits")
+    image = image.astype(np.float32)
+    cat = read_sextractor_catalog(DATA / "image.cat")
+    iso = fits_to_rowcol(cat["X_IMAGE"], cat["Y_IMAGE"])
+    xwin = fits_to_rowcol(cat["XWIN_IMAGE"], cat["YWIN_IMAGE"])
+    d, _ = cKDTree(xwin).query(xwin, k=2)
+    isolated = (d[:, 1] > 10) & (cat["FLAGS"] == 0)
+    runs = {f"ours_{m}": (lambda m=m: {"c": detect_stars(image, centroid=m).rowcol})
+            for m in CENTROID_METHODS}
+    for name, config in SEP_CONFIGS.items():
+        runs[name] = lambda config=config: sep_detect(image, config)
+    out = {"sextractor_objects": int(len(iso)), "isolated_flags0": int(isolated.sum())}
+    for name, run in runs.items():
+        res, dt = _best_time(run, repeat)
+        for key, rc in res.items():
+            s = _score(rc, iso, 1.5)
+            dist, _ = cKDTree(rc).query(xwin[isolated])
+            close = dist[dist < 1.5]
+            out[name if key == "c" else f"{name}_{key}"] = {
+                "detections": int(len(rc)), "completeness": s["found"] / len(iso),
+                "extra": s["false"], "isolated_found": int(close.size),
+                "xwin_median_px": float(np.median(close)),
+                "xwin_rms_px": float(np.sqrt(np.mean(close ** 2))), "ms": 1e3 * dt}
+    return out
+
+
+def versus_sep_tetra3(repeat: int) -> dict:
+    """tetra3's frame: detections, overlap and identified-star residuals (known pointing)."""
+    import rasterio
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with rasterio.open(DATA / "tetra3_Alt60_Azi45.tiff") as ds:
+            image = ds.read(1).astype(np.float32)
+    cat = StarCatalog.load(mag_limit=8.0)
+    vec = apparent_directions(cat, "2019-07-29T20:47:26")
+    start = CameraPointing.from_boresight(*np.deg2rad([314.706, 64.224, 270.63]),
+                                          focal_px=5118.4, principal_point_px=(384.0, 512.0))
+    runs = {f"ours_{m}": (lambda m=m: {"c": detect_stars(image, centroid=m,
+                                                         saturation=65535).rowcol})
+            for m in CENTROID_METHODS}
+    runs["sep"] = lambda: sep_detect(image, SEP_CONFIGS["sep"])
+    out, reference = {}, None
+    for name, run in runs.items():
+        res, dt = _best_time(run, repeat)
+        for key, rc in res.items():
+            label = name if key == "c" else f"{name}_{key}"
+            ident = identify_stars(rc, vec, image_shape=image.shape, approximate_pointing=start,
+                                   pointing_uncertainty_deg=0.1)
+            if reference is None:
+                reference = rc
+            d, _ = cKDTree(reference).query(rc)
+            out[label] = {"detections": int(len(rc)), "within_1px_of_ours_iwc": int(np.sum(d < 1)),
+                          "identified": ident.n_matched, "residual_rms_px": ident.rms_px,
+                          "ms": 1e3 * dt}
+    return out
+
+
+def run_versus_sep(n_frames: int, repeat: int, seed: int, out: Path) -> None:
+    """Run every comparison, print the tables and write ``out``."""
+    frames = sep_frames(n_frames, seed)
+    report = {"machine": {"python": platform.python_version(), "numpy": np.__version__,
+                          "opencv": cv2.__version__, "sep": sep.__version__, "threads": 1},
+              "frames": {"n": n_frames, "shape": [1024, 1024], "stars_per_frame": 60,
+                         "sigma_px": SIGMA_PX, "peak_snr": [3, 300], "repeat": repeat},
+              "background": versus_sep_background(frames, repeat),
+              "simulated": versus_sep_simulated(frames, repeat)}
+    if DATA.is_dir():
+        report["sextractor_image"] = versus_sep_sextractor(repeat)
+        report["tetra3"] = versus_sep_tetra3(repeat)
+    print_versus_sep(report)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=2))
+    print(f"wrote {out}")
+
+
+def _table(title: str, rows: dict, columns: list[tuple[str, str, str]]) -> None:
+    print(title)
+    print(f"{'':>24}" + "".join(f"{head:>14}" for head, _, _ in columns))
+    for name, row in rows.items():
+        if isinstance(row, dict):
+            print(f"{name:>24}" + "".join(f"{row[key]:>14{fmt}}" for _, key, fmt in columns))
+
+
+def print_versus_sep(report: dict) -> None:
+    """Print the comparison tables."""
+    _table("background vs truth (simulated, ADU):", report["background"],
+           [("level rms err", "level_rms_error_adu", ".3f"),
+            ("level max err", "level_max_error_adu", ".2f"),
+            ("noise rms err", "noise_rms_error_adu", ".3f"),
+            ("noise bias", "noise_bias_adu", ".3f"), ("ms/frame", "ms_per_frame", ".1f")])
+    _table("detection and centroids vs truth (simulated):", report["simulated"],
+           [("complete", "completeness", ".3f"), ("SNR<10", "completeness_snr_below_10", ".3f"),
+            ("false/frame", "false_per_frame", ".2f"),
+            ("rms err px", "centroid_rms_error_px", ".4f"),
+            ("common rms px", "centroid_rms_error_common_px", ".4f"),
+            ("ms/frame", "ms_per_frame", ".1f")])
+    if "sextractor_image" in report:
+        _table("image.fits vs SExtractor's image.cat:", report["sextractor_image"],
+               [("detections", "detections", "d"), ("complete", "completeness", ".3f"),
+                ("extra", "extra", "d"), ("isolated", "isolated_found", "d"),
+                ("XWIN median", "xwin_median_px", ".4f"), ("XWIN rms", "xwin_rms_px", ".4f"),
+                ("ms", "ms", ".1f")])
+        _table("tetra3 frame (identified Hipparcos stars, pinhole fit):", report["tetra3"],
+               [("detections", "detections", "d"), ("overlap", "within_1px_of_ours_iwc", "d"),
+                ("identified", "identified", "d"), ("resid rms px", "residual_rms_px", ".4f"),
+                ("ms", "ms", ".1f")])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=40)
@@ -197,9 +499,17 @@ def main() -> None:
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "starfind.json"))
     parser.add_argument("--child-out", help=argparse.SUPPRESS)
     parser.add_argument("--identify", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--versus-sep", action="store_true",
+                        help="compare with SEP instead (frames default 8)")
     args = parser.parse_args()
     if args.child_out:
         child(args)
+        return
+    if args.versus_sep:
+        out = args.out if args.out != parser.get_default("out") else \
+            str(ROOT / "bench" / "results" / "starfind_sep.json")
+        n = args.frames if args.frames != parser.get_default("frames") else 8
+        run_versus_sep(n, args.repeat, args.seed, Path(out))
         return
     one = run_children(args, 1, identify=True)[0]
     two = run_children(args, 2, identify=False)

@@ -7,7 +7,7 @@ gives many object vectors even with a single star per frame (seed 000 section 2.
 
 Pipeline (:func:`process_frames`)
 ---------------------------------
-1. **Detection** in every frame (:func:`gcpmatch.starfind.detect_stars`; seed 000 eq. 1 is the
+1. **Detection** in every frame (:func:`gcpmatch.stars.detect_stars`; seed 000 eq. 1 is the
    intensity-weighted centroid, ``centroid="iwc"``).
 2. **Prediction** of the catalogue stars in every frame with the approximate (LAB) model at the
    frame instant: apparent directions (:func:`sensor_models.stars.apparent_directions`, with
@@ -159,7 +159,7 @@ def load_frame(frame) -> np.ndarray:
     if not path.is_file():
         raise InputError("frame not found", path=str(path))
     if path.suffix.lower() in (".fits", ".fit", ".fts"):
-        from gcpmatch.starfind import read_fits_image
+        from gcpmatch.stars import read_fits_image
 
         return read_fits_image(path)[0].astype(np.float32)
     import rasterio
@@ -186,7 +186,7 @@ def detect_frames(frames, *, threshold_sigma: float = 5.0, centroid: str = "iwc"
         biases the centroid), as are saturated ones when ``saturation`` is given.
     shapes : list of (int, int)
     """
-    from gcpmatch.starfind import FLAG_SATURATED, detect_stars
+    from gcpmatch.stars import FLAG_SATURATED, detect_stars
 
     tables, shapes = [], []
     for frame in frames:
@@ -664,7 +664,7 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, catalog="hipparc
         cover every frame; the model of frame ``k`` is ``lab_model.at_frame(seconds[k])``.
     catalog : StarCatalog or str
         A loaded catalogue or a catalogue name (``"hipparcos"``) loaded with ``mag_limit``.
-    threshold_sigma, centroid : detection (:func:`gcpmatch.starfind.detect_stars`).
+    threshold_sigma, centroid : detection (:func:`gcpmatch.stars.detect_stars`).
     search_px, tolerance_px : identification (:func:`identify`).
     min_track_points : int
         Shorter tracks are not used.

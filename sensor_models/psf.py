@@ -2,7 +2,7 @@
 
 * :func:`pixel_integrals` and :func:`render_stars`: a circular Gaussian PSF integrated over
   unit pixels, and point sources (stars, point-like targets) drawn with it; used by star
-  detection (:mod:`gcpmatch.starfind`), the star-field simulator and their tests.
+  detection (:mod:`gcpmatch.stars`), the star-field simulator and their tests.
 * :func:`psf_sigma_dom_px`: the Gaussian equivalent of one scene pixel's response (detector
   box, line-time smear, optics) expressed in pixels of a reference map image, the blur that
   :func:`sensor_models.raster.sample_map_image` applies before resampling a DOM into scene

@@ -27,7 +27,6 @@ CLI_MODULES = ("calibrate.cli", "calibrate.__main__")  # and calibrate.cli.*, ca
 #: check and ``(check, "a <-> b")`` (sorted module names) for cycles.
 KNOWN_PENDING = {
     ("cycle", "sensor_models.readers.geo_manifest <-> sensor_models.readers.manifest"),
-    ("simulate", "gcpmatch.starfind"),  # -> sensor_models.psf once starfind.py is split
     ("simulate", "calibrate.cli"),  # the `simulate` command group, moving to calibrate/cli/simulate.py
     ("simulate", "calibrate.cli_stars"),  # `simulate geo-stars`, moving with the CLI split
     ("cli", "calibrate.fallback -> calibrate.cli_stars"),

@@ -1,8 +1,8 @@
-"""Star detection, centroids and identification (gcpmatch.starfind).
+"""Star detection, centroids and identification (gcpmatch.stars).
 
 Real data (``../shared/data/stars``): ``image.fits`` with its SExtractor catalogue
 ``image.cat`` (the sep project's test image), and ``tetra3_Alt60_Azi45.tiff`` (tetra3's test
-frame: 1024 x 768, about 11.4 deg across). astropy is used only as an independent FITS reader.
+frame: 1024 x 768, about 11.4 deg across). The SEP comparisons (at the end) skip without sep.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import scipy.ndimage as ndi
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from gcpmatch.starfind import (
+from gcpmatch.stars import (
     CENTROID_METHODS,
     FLAG_EDGE,
     FLAG_SATURATED,
@@ -24,15 +24,16 @@ from gcpmatch.starfind import (
     centroid_stars,
     detect_stars,
     estimate_background,
+    estimate_background_sep,
     fits_to_rowcol,
     identify_stars,
     read_fits_image,
     read_sextractor_catalog,
-    render_stars,
     rowcol_to_fits,
 )
-from gcpmatch import starfind
+from gcpmatch.stars import identify
 from sensor_models.errors import InputError
+from sensor_models.psf import render_stars
 from sensor_models.stars import StarCatalog, apparent_directions, radec_to_unit
 
 SIGMA_PX = 1.2
@@ -103,6 +104,34 @@ def test_fits_reader_rejects_bad_files(tmp_path):
         read_fits_image(bad)
     with pytest.raises(InputError, match="not found"):
         read_fits_image(tmp_path / "missing.fits")
+
+
+def test_fits_reader_errors_name_file_and_problem(tmp_path):
+    """One-line InputErrors naming the file: not FITS, no image HDU, truncated; an image in an
+    extension (empty primary HDU) is read."""
+    from astropy.io import fits
+
+    text = tmp_path / "notes.fits"
+    text.write_text("hello\n" * 500)
+    with pytest.raises(InputError, match="notes.fits.*not a readable FITS file"):
+        read_fits_image(text)
+    table = tmp_path / "table.fits"
+    fits.HDUList([fits.PrimaryHDU(), fits.BinTableHDU.from_columns(
+        [fits.Column(name="a", format="E", array=np.ones(3))])]).writeto(table)
+    with pytest.raises(InputError, match="table.fits.*no 2-D image HDU.*BinTableHDU"):
+        read_fits_image(table)
+    good = tmp_path / "ext.fits"
+    pixels = np.arange(30, dtype=np.float32).reshape(5, 6)
+    fits.HDUList([fits.PrimaryHDU(), fits.ImageHDU(pixels)]).writeto(good)
+    image, header = read_fits_image(good)
+    np.testing.assert_array_equal(image, pixels)
+    assert header["NAXIS1"] == 6 and header["XTENSION"] == "IMAGE"
+    cut = tmp_path / "cut.fits"
+    raw = good.read_bytes()
+    cut.write_bytes(raw[:len(raw) - 2880])
+    with pytest.raises(InputError, match="cut.fits.*truncated FITS data") as info:
+        read_fits_image(cut)
+    assert "\n" not in str(info.value)
 
 
 @pytest.fixture(scope="module")
@@ -277,7 +306,7 @@ def test_triangle_enumeration_matches_brute_force():
     pts /= np.linalg.norm(pts, axis=1, keepdims=True)
     chord = 2 * np.sin(np.deg2rad(10.0) / 2)
     pairs = cKDTree(pts).query_pairs(chord, output_type="ndarray")
-    tri = starfind._triangles_from_pairs(pairs, 60)
+    tri = identify._triangles_from_pairs(pairs, 60)
     edges = {tuple(p) for p in pairs}
     brute = {t for t in combinations(range(60), 3)
              if (t[0], t[1]) in edges and (t[0], t[2]) in edges and (t[1], t[2]) in edges}
@@ -409,3 +438,123 @@ def test_tetra3_frame_lost_in_space(shared_data, catalog8):
                            approximate_pointing=start, pointing_uncertainty_deg=0.6)
     assert res_a.success
     assert np.array_equal(res_a.catalog_index, res.catalog_index)
+
+
+# --------------------------------------------------------------------------------------------
+# against SEP (Source Extractor as a library): bench/bench_starfind.py --versus-sep in small
+# --------------------------------------------------------------------------------------------
+def _sep_module():
+    return pytest.importorskip("sep", reason="sep is not installed")
+
+
+def _curved_background_frame(seed=21, shape=(512, 512), n=40):
+    """Stars (sigma 1.2 px, peak SNR 3-300 log-uniform) on a curved 150-250 ADU background with
+    its own shot noise and 5 e- read noise (gain 1): the image, true level, noise and stars."""
+    rng = np.random.default_rng(seed)
+    rows, cols = np.mgrid[0:shape[0], 0:shape[1]] + 0.5
+    level = 200.0 + 0.06 * (rows - 256) - 0.04 * (cols - 256) + 2e-4 * (cols - 150) ** 2 - 10
+    truth = rng.uniform(12, np.array(shape) - 12, (n, 2))
+    snr = np.exp(rng.uniform(np.log(3.0), np.log(300.0), n))
+    peak = (snr ** 2 + np.sqrt(snr ** 4 + 4 * snr ** 2 * 225.0)) / 2
+    stars = render_stars(shape, truth, peak * 2 * np.pi * SIGMA_PX ** 2, sigma_px=SIGMA_PX)
+    img = level + stars + rng.standard_normal(shape) * np.sqrt(level + stars + 25.0)
+    return img.astype(np.float32), level, np.sqrt(level + 25.0), truth
+
+
+def _sep_windowed(sep, image, *, thresh, minarea, kernel=None, global_rms=False):
+    """SEP background, extraction and XWIN-like positions, as ``(row, col)`` (N, 2)."""
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    bkg = sep.Background(img, bw=64, bh=64, fw=3, fh=3)
+    sub = img - bkg.back()
+    err = bkg.globalrms if global_rms else bkg.rms()
+    kwargs = {} if kernel is None else {"filter_kernel": kernel}
+    objs = sep.extract(sub, thresh, err=err, minarea=minarea, **kwargs)
+    r_half, _ = sep.flux_radius(sub, objs["x"], objs["y"], 6.0 * objs["a"], 0.5,
+                                normflux=objs["flux"], subpix=5)
+    x, y, _ = sep.winpos(sub, objs["x"], objs["y"], 2.0 * r_half / 2.35)
+    return np.stack([y, x], axis=1) + 0.5  # SEP: first pixel's centre at 0
+
+
+def test_sep_background_adapter_equals_sep():
+    sep = _sep_module()
+    img, _, _, _ = _curved_background_frame()
+    img[100:103, 200:204] = np.nan
+    ours = estimate_background_sep(img)
+    clean = np.where(np.isfinite(img), img, 0).astype(np.float32)
+    ref = sep.Background(clean, mask=~np.isfinite(img), bw=64, bh=64, fw=3, fh=3)
+    np.testing.assert_array_equal(ours.level, ref.back(dtype=np.float32))
+    assert ours.mesh_level.shape == (8, 8)
+    # detect_stars(background="auto") subtracts exactly this level
+    table = detect_stars(img)
+    r, c = np.floor(table.rowcol).astype(int).T
+    np.testing.assert_array_equal(table.background, ours.level[r, c].astype(np.float64))
+
+
+def test_background_against_sep_and_truth():
+    """Level and noise maps against the truth inside the outer mesh centres. Measured (ADU,
+    noise about 15): level RMS error ours (256 samples a cell) 1.26, SEP (every pixel) 0.53;
+    noise map 0.28 and 0.13. Hence detect_stars' default background is SEP's."""
+    _sep_module()
+    img, level, noise, _ = _curved_background_frame()
+    inner = np.s_[32:-32, 32:-32]
+    ours = estimate_background(img)
+    theirs = estimate_background_sep(img)
+    err = {name: np.sqrt(np.mean((b.level - level)[inner] ** 2))
+           for name, b in (("ours", ours), ("sep", theirs))}
+    nerr = {name: np.sqrt(np.mean((b.rms - noise)[inner] ** 2))
+            for name, b in (("ours", ours), ("sep", theirs))}
+    assert 0.8 < err["ours"] < 1.8 and 0.3 < err["sep"] < 0.8
+    assert 1.8 < err["ours"] / err["sep"] < 4.0
+    assert 0.15 < nerr["ours"] < 0.45 and 0.07 < nerr["sep"] < 0.25
+
+
+def test_detection_and_centroids_against_sep_and_truth():
+    """Same detection criteria (matched filter of a sigma-1 px Gaussian, 5 sigma, 3 pixels).
+    Measured on 40 stars: ours finds 39 (SEP 37), neither a false one; on the 36 both find,
+    the centroid RMS error is 0.085 px (ours, windowed) and 0.080 px (SEP winpos)."""
+    sep = _sep_module()
+    img, _, _, truth = _curved_background_frame(seed=22)
+    kernel = np.outer(*(2 * [np.exp(-0.5 * np.arange(-3, 4) ** 2)]))
+    theirs = _sep_windowed(sep, img, thresh=5.0, minarea=3, kernel=kernel)
+    ours = detect_stars(img, centroid="windowed").rowcol
+    found = {}
+    for name, rc in (("ours", ours), ("sep", theirs)):
+        d, j = cKDTree(truth).query(rc)
+        found[name] = (len(np.unique(j[d < 2])), int(np.sum(d >= 2)))
+    d_o, j_o = cKDTree(ours).query(truth)
+    d_s, j_s = cKDTree(theirs).query(truth)
+    both = (d_o < 2) & (d_s < 2)
+    rms = {name: np.sqrt(np.mean(np.sum((rc[j[both]] - truth[both]) ** 2, axis=1)))
+           for name, rc, j in (("ours", ours, j_o), ("sep", theirs, j_s))}
+    assert 38 <= found["ours"][0] <= 40 and 35 <= found["sep"][0] <= 39
+    assert found["ours"][0] >= found["sep"][0]
+    assert found["ours"][1] <= 1 and found["sep"][1] <= 1
+    assert both.sum() >= 34
+    assert 0.05 < rms["ours"] < 0.12 and 0.05 < rms["sep"] < 0.12
+    assert 0.7 < rms["ours"] / rms["sep"] < 1.4
+
+
+def test_real_image_against_sep_and_sextractor(sep_data):
+    """image.fits: SEP with SExtractor's settings (3x3 kernel, 1.5 sigma, 5 pixels) against
+    SExtractor's own catalogue (65 objects), ours at its defaults. Measured: both find 63 of
+    them; 17 (ours) and 6 (SEP) detections are not in it; median distance to XWIN over the 44
+    isolated FLAGS == 0 objects: 0.020 px (ours, windowed), 0.044 px (SEP winpos)."""
+    sep = _sep_module()
+    image, cat = sep_data
+    iso = fits_to_rowcol(cat["X_IMAGE"], cat["Y_IMAGE"])
+    xwin = fits_to_rowcol(cat["XWIN_IMAGE"], cat["YWIN_IMAGE"])
+    d, _ = cKDTree(xwin).query(xwin, k=2)
+    isolated = (d[:, 1] > 10) & (cat["FLAGS"] == 0)
+    theirs = _sep_windowed(sep, image, thresh=1.5, minarea=5, global_rms=True)
+    ours = detect_stars(image, centroid="windowed").rowcol
+    out = {}
+    for name, rc in (("ours", ours), ("sep", theirs)):
+        dist, _ = cKDTree(rc).query(iso)
+        extra = cKDTree(iso).query(rc)[0] >= 1.5
+        dx, _ = cKDTree(rc).query(xwin[isolated])
+        out[name] = (int(np.sum(dist < 1.5)), int(extra.sum()), float(np.median(dx[dx < 1.5])),
+                     int(np.sum(dx < 1.5)))
+    assert 62 <= out["ours"][0] <= 65 and 62 <= out["sep"][0] <= 65
+    assert 10 <= out["ours"][1] <= 25 and 2 <= out["sep"][1] <= 10
+    assert 0.01 < out["ours"][2] < 0.035 and 0.025 < out["sep"][2] < 0.07
+    assert out["ours"][3] == 44 and out["sep"][3] >= 42
