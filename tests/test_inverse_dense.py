@@ -64,3 +64,24 @@ def test_random_batches_round_trip(k, seed, n, height):
     r2, c2 = model.ground_to_image(lon, lat, hh)
     assert np.all(np.isfinite(r2)) and np.all(np.isfinite(c2))
     assert np.hypot(r2 - row, c2 - col).max() <= 1e-6
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 5000), height=st.floats(-400.0, 4000.0))
+def test_staring_camera_random_batches_round_trip(seed, n, height):
+    """The geostationary staring camera (seed 000 geometry with seed 002 lens terms) too."""
+    from sensor_models.geo_staring import StaringLab, example_geo_staring_model
+    from sensor_models.pushbroom_types import Installation
+
+    arcsec = np.radians(1.0 / 3600.0)
+    lab = StaringLab(focal_length_mm=1251.0, pixel_size_mm=0.025, principal_point_px=(511.9985, 511.9985),
+                     radial_k=(4e-8, 0.0), decentering_p=(6e-7, -3e-7), tilt_rad=(-8 * arcsec, -8 * arcsec),
+                     rotation_rad=-8 * arcsec)
+    model = example_geo_staring_model(camera=lab, image_shape=(1024, 1024),
+                                      installation=Installation(72 * arcsec, -72 * arcsec, 72 * arcsec))
+    rng = np.random.default_rng(seed)
+    row, col = rng.uniform(0.5, 1023.5, n), rng.uniform(0.5, 1023.5, n)
+    lon, lat, h = model.image_to_ground(row, col, height=height + rng.normal(0.0, 300.0, n))
+    r2, c2 = model.ground_to_image(lon, lat, h)
+    assert np.all(np.isfinite(r2)) and np.all(np.isfinite(c2))
+    assert np.hypot(r2 - row, c2 - col).max() <= 1e-6
