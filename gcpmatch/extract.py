@@ -31,44 +31,18 @@ from numpy.lib.stride_tricks import sliding_window_view
 from gcpmatch.clouds import cloud_pixels, low_texture
 from gcpmatch.coarse import coarse_match
 from gcpmatch.gcps import GcpTable
+from gcpmatch.options import MatchOptions
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.phase import Reject, phase_correlate
 from gcpmatch.reference import reference_for_ccd, reference_for_image
 from sensor_models.errors import InputError
 
-__all__ = ["MatchOptions", "extract_gcps", "match_scene"]
+__all__ = ["extract_gcps", "match_scene"]
 
 REASONS = ("no_reference", "no_data", "cloud", "no_texture", "flat", "not_finite", "out_of_range",
            "low_score", "low_peak_ratio", "inconsistent", "model_residual")
 _PHASE_REASON = {Reject.FLAT: "flat", Reject.NOT_FINITE: "not_finite", Reject.OUT_OF_RANGE: "out_of_range",
                  Reject.LOW_SCORE: "low_score", Reject.LOW_PEAK_RATIO: "low_peak_ratio"}
-
-
-@dataclass(frozen=True)
-class MatchOptions:
-    """Settings of :func:`extract_gcps` (all have working defaults)."""
-
-    window_px: int = 64
-    spacing_px: int = 32
-    max_offset_px: float = 1000.0
-    check_fraction: float = 0.2
-    backend: str = "cpu"
-    cloud_window_fraction: float = 0.1
-    texture_fraction: float = 0.2
-    psf_sigma_px: float = 0.45
-    seed: int = 0
-    batch: int = 2048
-
-    def validate(self) -> "MatchOptions":
-        if self.window_px < 16 or self.window_px % 2:
-            raise InputError(f"window must be an even number of pixels >= 16, got {self.window_px}", field="window_px")
-        if self.spacing_px < 1:
-            raise InputError("spacing must be >= 1 pixel", field="spacing_px")
-        if not 0.0 <= self.check_fraction < 1.0:
-            raise InputError(f"check fraction must lie in [0, 1), got {self.check_fraction}", field="check_fraction")
-        if self.backend not in ("cpu", "gpu", "torch"):
-            raise InputError(f"backend must be cpu or gpu, got {self.backend!r}", field="backend")
-        return self
 
 
 @dataclass(frozen=True)
