@@ -1152,14 +1152,29 @@ def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None
     -------
     Path
         ``path``.
-    """
-    import rasterio
-    from rasterio.control import GroundControlPoint
-    from rasterio.crs import CRS
-    from rasterio.errors import NotGeoreferencedWarning, RasterioError
-    from rasterio.windows import Window
 
+    Raises
+    ------
+    InputError
+        Too many points, points outside the image, an unreadable or mis-shaped
+        ``source_raster``, or GDAL could not write the file.
+    """
     path = _check_output(table, path)
+    image_shape = _check_geotiff_table(table, path, image_shape)
+    src = _open_source_raster(source_raster, path)
+    try:
+        if src is not None and (src.height, src.width) != image_shape:
+            raise InputError(f"raster shape {(src.height, src.width)} differs from image_shape "
+                             f"{image_shape}", path=str(source_raster))  # fmt: skip
+        _write_geotiff_atomically(table, path, image_shape, src)
+    finally:
+        if src is not None:
+            src.close()
+    return path
+
+
+def _check_geotiff_table(table: GcpTable, path: Path, image_shape) -> tuple[int, int]:
+    """The checked ``(n_rows, n_cols)``, after checking the table fits a GeoTIFF and the image."""
     image_shape = _check_image_shape(image_shape)
     if image_shape is None:
         raise InputError("image_shape (n_rows, n_cols) is required", path=str(path))
@@ -1169,63 +1184,87 @@ def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None
                          "table", path=str(path))  # fmt: skip
     _validate(table.as_dict(), where=lambda i: f"point {i} (id {str(table.id[i])!r})",
               path=str(path), image_shape=image_shape)  # fmt: skip
-    n_rows, n_cols = image_shape
-    src = None
-    if source_raster is not None:
-        source_raster = Path(source_raster)
-        if source_raster.resolve() == path.resolve():
-            raise InputError("the output would replace source_raster; write elsewhere",
-                             path=str(path))  # fmt: skip
-        try:
-            src = rasterio.open(source_raster)
-        except (RasterioError, OSError) as exc:
-            raise InputError(f"cannot open as a raster: {exc}", path=str(source_raster)) from None
+    return image_shape
+
+
+def _open_source_raster(source_raster, path: Path):
+    """The open rasterio dataset of ``source_raster`` (None if not given); never ``path`` itself."""
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    if source_raster is None:
+        return None
+    source_raster = Path(source_raster)
+    if source_raster.resolve() == path.resolve():
+        raise InputError("the output would replace source_raster; write elsewhere",
+                         path=str(path))  # fmt: skip
     try:
-        if src is not None and (src.height, src.width) != image_shape:
-            raise InputError(f"raster shape {(src.height, src.width)} differs from image_shape "
-                             f"{image_shape}", path=str(source_raster))  # fmt: skip
-        gcps = [GroundControlPoint(row=r, col=c, x=x, y=y, z=z, id=i, info=k)
-                for r, c, x, y, z, i, k in zip(table.row.tolist(), table.col.tolist(),
-                                               table.lon.tolist(), table.lat.tolist(),
-                                               table.h.tolist(), table.id.tolist(),
-                                               table.kind.tolist())]  # fmt: skip
-        profile = dict(driver="GTiff", width=n_cols, height=n_rows, tiled=True,
-                       compress="deflate", BIGTIFF="IF_SAFER")  # fmt: skip
-        if src is None:
-            profile.update(count=1, dtype="uint8", sparse_ok=True)
-        else:
-            profile.update(count=src.count, dtype=src.dtypes[0], nodata=src.nodata)
-        tmp = temporary_beside(path, ".tif")
-        try:
-            with warnings.catch_warnings(), rasterio.Env(GDAL_PAM_ENABLED="NO"):
-                # the new dataset has no georeferencing until its GCPs are set just below
-                warnings.simplefilter("ignore", NotGeoreferencedWarning)
-                dst = rasterio.open(tmp, "w", **profile)
-            with rasterio.Env(GDAL_PAM_ENABLED="NO"), dst:
-                if src is not None:
-                    row_bytes = n_cols * src.count * np.dtype(src.dtypes[0]).itemsize
-                    step = max(1, 2**24 // row_bytes)  # ~16 MiB of pixels at a time
-                    for r0 in range(0, n_rows, step):
-                        win = Window(0, r0, n_cols, min(step, n_rows - r0))
-                        dst.write(src.read(window=win), window=win)
-                    for band, text in enumerate(src.descriptions, start=1):
-                        if text:
-                            dst.set_band_description(band, text)
-                dst.gcps = (gcps, CRS.from_epsg(4326))
-                dst.update_tags(ns=_TIFF_DOMAIN, **{_TIFF_ITEM: "".join(_csv_chunks(table))})
-            with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(tmp) as check:
-                n_written = len(check.gcps[0])
-            if n_written != len(table):  # never leave a file with GCPs silently dropped
-                raise InputError(f"GDAL kept {n_written} of {len(table)} GCPs in the GeoTIFF",
-                                 path=str(path))  # fmt: skip
-            os.replace(tmp, path)
-        except RasterioError as exc:
-            tmp.unlink(missing_ok=True)
-            raise InputError(f"GDAL could not write the GeoTIFF: {exc}", path=str(path)) from None
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-    finally:
+        return rasterio.open(source_raster)
+    except (RasterioError, OSError) as exc:
+        raise InputError(f"cannot open as a raster: {exc}", path=str(source_raster)) from None
+
+
+def _write_geotiff_atomically(table: GcpTable, path: Path, image_shape, src) -> None:
+    """Write the GeoTIFF to a temporary file beside ``path``, check it, rename it onto ``path``."""
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    tmp = temporary_beside(path, ".tif")
+    try:
+        _write_geotiff(table, tmp, image_shape, src)
+        with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(tmp) as check:
+            n_written = len(check.gcps[0])
+        if n_written != len(table):  # never leave a file with GCPs silently dropped
+            raise InputError(f"GDAL kept {n_written} of {len(table)} GCPs in the GeoTIFF",
+                             path=str(path))  # fmt: skip
+        os.replace(tmp, path)
+    except RasterioError as exc:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"GDAL could not write the GeoTIFF: {exc}", path=str(path)) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _write_geotiff(table: GcpTable, tmp: Path, image_shape, src) -> None:
+    """The GeoTIFF itself: pixels (copied from ``src`` or sparse zeros), GCPs, table metadata."""
+    import rasterio
+    from rasterio.control import GroundControlPoint
+    from rasterio.crs import CRS
+    from rasterio.errors import NotGeoreferencedWarning
+
+    n_rows, n_cols = image_shape
+    gcps = [GroundControlPoint(row=r, col=c, x=x, y=y, z=z, id=i, info=k)
+            for r, c, x, y, z, i, k in zip(table.row.tolist(), table.col.tolist(),
+                                           table.lon.tolist(), table.lat.tolist(),
+                                           table.h.tolist(), table.id.tolist(),
+                                           table.kind.tolist())]  # fmt: skip
+    profile = dict(driver="GTiff", width=n_cols, height=n_rows, tiled=True,
+                   compress="deflate", BIGTIFF="IF_SAFER")  # fmt: skip
+    if src is None:
+        profile.update(count=1, dtype="uint8", sparse_ok=True)
+    else:
+        profile.update(count=src.count, dtype=src.dtypes[0], nodata=src.nodata)
+    with warnings.catch_warnings(), rasterio.Env(GDAL_PAM_ENABLED="NO"):
+        # the new dataset has no georeferencing until its GCPs are set just below
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        dst = rasterio.open(tmp, "w", **profile)
+    with rasterio.Env(GDAL_PAM_ENABLED="NO"), dst:
         if src is not None:
-            src.close()
-    return path
+            _copy_pixels(src, dst, n_rows, n_cols)
+        dst.gcps = (gcps, CRS.from_epsg(4326))
+        dst.update_tags(ns=_TIFF_DOMAIN, **{_TIFF_ITEM: "".join(_csv_chunks(table))})
+
+
+def _copy_pixels(src, dst, n_rows: int, n_cols: int) -> None:
+    """Copy every band of ``src`` into ``dst`` in row blocks of ~16 MiB, with band descriptions."""
+    from rasterio.windows import Window
+
+    row_bytes = n_cols * src.count * np.dtype(src.dtypes[0]).itemsize
+    step = max(1, 2**24 // row_bytes)  # ~16 MiB of pixels at a time
+    for r0 in range(0, n_rows, step):
+        win = Window(0, r0, n_cols, min(step, n_rows - r0))
+        dst.write(src.read(window=win), window=win)
+    for band, text in enumerate(src.descriptions, start=1):
+        if text:
+            dst.set_band_description(band, text)

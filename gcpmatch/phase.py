@@ -192,27 +192,12 @@ class _Plan:
         return np.dtype(np.complex64 if self.dtype == np.float32 else np.complex128)
 
 
-def phase_correlate(
-    reference,
-    moving,
-    *,
-    upsample: int = 100,
-    window: str | np.ndarray | None = "hann",
-    tukey_alpha: float = 0.5,
-    lowpass: float | None = None,
-    eps: float = 0.5,
-    follow: int = 1,
-    min_score: float | None = None,
-    min_peak_ratio: float = 2.0,
-    max_shift_px=None,
-    exclusion_px: int | None = None,
-    stage1_upsample: int | None = None,
-    dtype: str = "float32",
-    backend: str = "cpu",
-    device: str | None = None,
-    batch: int | None = None,
-    workers: int | None = None,
-) -> PhaseMatches:
+def phase_correlate(reference, moving, *, upsample: int = 100, window: str | np.ndarray | None = "hann",
+                    tukey_alpha: float = 0.5, lowpass: float | None = None, eps: float = 0.5, follow: int = 1,
+                    min_score: float | None = None, min_peak_ratio: float = 2.0, max_shift_px=None,
+                    exclusion_px: int | None = None, stage1_upsample: int | None = None, dtype: str = "float32",
+                    backend: str = "cpu", device: str | None = None, batch: int | None = None,
+                    workers: int | None = None) -> PhaseMatches:
     """Sub-pixel phase correlation of window pairs, batched (see the module docstring).
 
     Parameters
@@ -278,32 +263,42 @@ def phase_correlate(
         invalid options.
     """
     ref, mov = _validate_pairs(reference, moving)
-    n_pairs, height, width = ref.shape
-    options = _validate_options(
-        upsample=upsample, min_score=min_score, min_peak_ratio=min_peak_ratio, lowpass=lowpass,
-        exclusion_px=exclusion_px, stage1_upsample=stage1_upsample, follow=follow, eps=eps,
-        dtype=dtype, backend=backend, device=device, batch=batch, tukey_alpha=tukey_alpha,
-        workers=workers,
-    )
+    _, height, width = ref.shape
+    options = _validate_options(upsample=upsample, min_score=min_score, min_peak_ratio=min_peak_ratio,
+                                lowpass=lowpass, exclusion_px=exclusion_px, stage1_upsample=stage1_upsample,
+                                follow=follow, eps=eps, dtype=dtype, backend=backend, device=device, batch=batch,
+                                tukey_alpha=tukey_alpha, workers=workers)
     max_shift = _validate_max_shift(max_shift_px, height, width)
-    plan = make_plan(
-        (height, width), upsample=upsample, window=window, tukey_alpha=tukey_alpha,
-        lowpass=lowpass, eps=eps, follow=follow, exclusion_px=exclusion_px,
-        stage1_upsample=stage1_upsample, dtype=options["dtype"],
-    )
+    plan = make_plan((height, width), upsample=upsample, window=window, tukey_alpha=tukey_alpha, lowpass=lowpass,
+                     eps=eps, follow=follow, exclusion_px=exclusion_px, stage1_upsample=stage1_upsample,
+                     dtype=options["dtype"])
+    outputs = _run_batches(_make_kernel(plan, options, workers), ref, mov, batch)
+    return _assess(*outputs, min_score, min_peak_ratio, max_shift)
+
+
+def _make_kernel(plan, options: dict, workers):
+    """The batch kernel of the validated backend: numpy + scipy.fft, or torch (lazy import)."""
+    if options["backend"] == "numpy":
+        return NumpyKernel(plan, workers=-1 if workers is None else workers)
+    from gcpmatch import _phase_torch  # lazy: torch is an optional dependency
+
+    return _phase_torch.TorchKernel(plan, device=options["device"])
+
+
+def _run_batches(kernel, ref: np.ndarray, mov: np.ndarray, batch):
+    """Run ``kernel`` over the (N, H, W) pairs ``batch`` at a time (None: 2**19 px worth).
+
+    Returns
+    -------
+    tuple of ndarray
+        The kernel's six outputs (shift, peak, quality mean and variance, secondary peak, first
+        quality mean), each concatenated over the batches along the first axis (N).
+    """
+    n_pairs, height, width = ref.shape
     if batch is None:
         batch = max(1, _BATCH_PIXELS // (height * width))
-
-    if options["backend"] == "numpy":
-        kernel = NumpyKernel(plan, workers=-1 if workers is None else workers)
-    else:
-        from gcpmatch import _phase_torch  # lazy: torch is an optional dependency
-
-        kernel = _phase_torch.TorchKernel(plan, device=options["device"])
-
     parts = [kernel(ref[i:i + batch], mov[i:i + batch]) for i in range(0, n_pairs, batch)]
-    shift, peak, q_mean, q_var, second, first_q_mean = (np.concatenate(p) for p in zip(*parts))
-    return _assess(shift, peak, q_mean, q_var, second, first_q_mean, min_score, min_peak_ratio, max_shift)
+    return tuple(np.concatenate(p) for p in zip(*parts))
 
 
 # --------------------------------------------------------------------------- plan
