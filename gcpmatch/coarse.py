@@ -37,6 +37,31 @@ class CoarseMatchError(GcpcalError, RuntimeError):
 
 @dataclass
 class CoarseResult:
+    """Outcome of :func:`coarse_match`.
+
+    Attributes
+    ----------
+    model : SensorModel
+        The pre-corrected model.
+    n_keypoints_scene, n_keypoints_dom : int
+        SIFT keypoints detected in the warped, reduced scene and in the reduced DOM.
+    n_matches : int
+        Matches passing Lowe's ratio test.
+    n_ransac_inliers : int
+        Matches consistent with the RANSAC map.
+    n_inliers : int
+        Matches kept after re-screening against the corrected model.
+    rms_m : float
+        Ground-space RMS of the kept matches about the corrected model, metres.
+    factor : int
+        Scene reduction factor of the coarse stage.
+    ccd_offsets_px : dict
+        Per-CCD offsets removed, pixels (empty for models without CCDs).
+    points : dict of ndarray, shape (n_inliers,)
+        ``row, col`` (continuous scene pixels, first pixel's centre at (0.5, 0.5)), ``lon,
+        lat`` (degrees) and ``h`` (metres above the ellipsoid) of the kept matches.
+    """
+
     model: object
     n_keypoints_scene: int
     n_keypoints_dom: int
@@ -49,6 +74,14 @@ class CoarseResult:
     points: dict = field(default_factory=dict)  # row, col, lon, lat, h of the final inliers
 
     def summary(self) -> dict:
+        """The counts and fit figures as a JSON-ready dict (no model, no points).
+
+        Returns
+        -------
+        dict
+            Keypoints, ratio matches, RANSAC inliers, kept inliers, ``rms_m``, ``factor`` and
+            ``ccd_offsets_px`` (keys as strings).
+        """
         return {
             "keypoints_scene": self.n_keypoints_scene, "keypoints_dom": self.n_keypoints_dom,
             "ratio_matches": self.n_matches, "ransac_inliers": self.n_ransac_inliers,
@@ -58,7 +91,20 @@ class CoarseResult:
 
 
 def to_uint8(img: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-    """Stretch the 1-99 % range of the valid pixels to 0..255 (invalid -> 0)."""
+    """Stretch the 1-99 % range of the valid pixels to 0..255 (invalid -> 0).
+
+    Parameters
+    ----------
+    img : ndarray, shape (H, W)
+        Image, any real dtype.
+    valid : ndarray of bool, shape (H, W), optional
+        Pixels to use and keep; default: the finite ones.
+
+    Returns
+    -------
+    ndarray of uint8, shape (H, W)
+        The stretched image, 0 where not valid (all 0 when nothing is valid).
+    """
     valid = np.isfinite(img) if valid is None else valid
     if not valid.any():
         return np.zeros(img.shape, np.uint8)
@@ -82,6 +128,22 @@ def scene_height_m(model, dem, *, band=None, iterations: int = 3) -> float:
 
     A DEM tile can span kilometres of relief around a scene; localizing at its mid-range would
     displace the predicted footprint of an oblique view by hundreds of metres.
+
+    Parameters
+    ----------
+    model : SensorModel
+        Model of the scene, localized at 9 x 9 pixel centres over the image.
+    dem : Dem
+        Terrain heights above the ellipsoid, metres.
+    band : str, optional
+        Band of ``model`` (default: the model's reference band).
+    iterations : int
+        Fixed-point iterations (localize at ``h``, take the median DEM height there).
+
+    Returns
+    -------
+    float
+        Height above the ellipsoid, metres (mid-range of the DEM if the footprint misses it).
     """
     h_lo, h_hi = dem.height_range_m
     h = 0.5 * (h_lo + h_hi)

@@ -332,7 +332,27 @@ def _coverage(row, col, shape, cells: int = 8) -> float:
 
 
 def read_band(model, band: str, image=None) -> np.ndarray:
-    """The pixels of ``band`` (float32): ``image`` if given, else the manifest's raster."""
+    """The pixels of ``band`` (float32): ``image`` if given, else the manifest's raster.
+
+    Parameters
+    ----------
+    model : SensorModel
+        Model opened from a manifest; its ``rasters`` map band -> ``{"path", "index"}``.
+    band : str
+        Band to read.
+    image : str or Path, optional
+        A raster to read instead (its first band).
+
+    Returns
+    -------
+    ndarray of float32, shape (n_rows, n_cols)
+        The pixels, NaN where the raster is masked (nodata).
+
+    Raises
+    ------
+    InputError
+        No raster for the band, or the raster cannot be read.
+    """
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning, RasterioError
     import warnings

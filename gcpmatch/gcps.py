@@ -225,11 +225,28 @@ class GcpTable:
         return f"GcpTable({len(self)} points: {len(self) - n_check} gcp, {n_check} check)"
 
     def as_dict(self) -> dict[str, np.ndarray]:
-        """The columns, in :data:`COLUMNS` order, as a ``{name: (N,) array}`` dict."""
+        """The columns, in :data:`COLUMNS` order, as a ``{name: (N,) array}`` dict.
+
+        Returns
+        -------
+        dict of str to ndarray, each shape (N,)
+            The table's own read-only arrays (no copy).
+        """
         return {name: getattr(self, name) for name in COLUMNS}
 
     def select(self, which) -> GcpTable:
-        """The points picked by a boolean mask of shape (N,) or by integer indices."""
+        """The points picked by a boolean mask of shape (N,) or by integer indices.
+
+        Parameters
+        ----------
+        which : array_like of bool, shape (N,), or of int, shape (M,)
+            Mask or indices (indices may repeat only if the ids stay unique).
+
+        Returns
+        -------
+        GcpTable
+            The picked points, in mask order or index order.
+        """
         which = np.asarray(which)
         if which.dtype == bool:
             if which.shape != (len(self),):
@@ -241,16 +258,36 @@ class GcpTable:
         return GcpTable(**{k: v[which] for k, v in self.as_dict().items()})  # ids checked unique
 
     def gcps(self) -> GcpTable:
-        """The points of kind "gcp" (the ones a fit may use)."""
+        """The points of kind "gcp" (the ones a fit may use).
+
+        Returns
+        -------
+        GcpTable
+        """
         return self.select(self.kind == "gcp")
 
     def checks(self) -> GcpTable:
-        """The points of kind "check" (independent check points)."""
+        """The points of kind "check" (independent check points).
+
+        Returns
+        -------
+        GcpTable
+        """
         return self.select(self.kind == "check")
 
     @classmethod
     def concatenate(cls, tables) -> GcpTable:
-        """One table holding the points of ``tables`` in order; ids must stay unique."""
+        """One table holding the points of ``tables`` in order; ids must stay unique.
+
+        Parameters
+        ----------
+        tables : iterable of GcpTable
+            At least one table.
+
+        Returns
+        -------
+        GcpTable
+        """
         tables = list(tables)
         if not tables:
             raise InputError("concatenate() needs at least one table")
