@@ -104,7 +104,7 @@ _FLOAT_COLUMNS = frozenset(("row", "col", "lon", "lat", "h", "sigma_px", "score"
 _DEFAULTS = {"sigma_px": 1.0, "band": "", "ccd": "", "score": 1.0, "kind": "gcp"}
 KINDS = ("gcp", "check")
 
-_CHUNK_ROWS = 65536  # rows formatted / inserted at a time by the writers
+_CHUNK_ROWS = 65536  # rows formatted at a time by the CSV writer
 _GPKG_APPLICATION_IDS = (0x47504B47, 0x47503130, 0x47503131)  # 'GPKG', 'GP10', 'GP11'
 _TIFF_DOMAIN, _TIFF_ITEM = "gcpcal", "GCP_TABLE_CSV"
 # GDAL writes at most 10922 GCPs into the GeoTIFF tie-point tag (6 doubles each, a uint16
@@ -765,12 +765,13 @@ def _read_gpkg(path: Path, image_shape, layer) -> GcpTable:
     if not path.is_file():
         raise InputError("cannot read: no such file", path=source)
     _check_gpkg_header(path, source)
+    gdal_errors = _pyogrio_errors()
     try:
         layer = _pick_gpkg_layer(path, source, layer)
         names, fid_column = _gpkg_layer_schema(path, source, layer)
         _check_gpkg_value_types(path, source, layer, names, fid_column)
         fids, geometry, cols = _read_gpkg_columns(path, source, layer, names)
-    except _pyogrio_errors() as exc:
+    except gdal_errors as exc:
         raise InputError(f"not a readable GeoPackage: {exc}", path=source) from None
 
     def where(i):
@@ -1126,12 +1127,13 @@ def write_gcps_gpkg(table: GcpTable, path, *, layer: str = "gcps") -> Path:
         raise InputError(f"layer name {layer!r} must be letters, digits and underscores, not "
                          "starting with a digit, gpkg_, rtree_ or sqlite_",
                          path=str(path))  # fmt: skip
+    gdal_errors = _pyogrio_errors()
     tmp = temporary_beside(path, ".gpkg")
     try:
         tmp.unlink()  # GDAL creates the file itself; the unique name stays reserved to us
         _write_gpkg_layer(tmp, table, layer)
         os.replace(tmp, path)
-    except _pyogrio_errors() as exc:
+    except gdal_errors as exc:
         _remove_sqlite_files(tmp)
         raise InputError(f"GDAL could not write the GeoPackage: {exc}", path=str(path)) from None
     except BaseException:
