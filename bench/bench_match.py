@@ -34,7 +34,8 @@ def main():
     ap.add_argument("--backend", default="cpu")
     args = ap.parse_args()
 
-    from gcpmatch.extract import MatchOptions, extract_gcps, read_band
+    from gcpmatch.extract import extract_gcps, read_band
+    from gcpmatch.options import MatchOptions
     from sensor_models.readers import open_model
     from sensor_models.simulate.config import SimConfig
     from sensor_models.simulate.pushbroom_sim import simulate_pushbroom

@@ -304,7 +304,8 @@ def _validate(site: Site, calibration: Path, points_dir, spacing_px: int, out: d
     """Fill ``out`` (a row) step by step, so a failure keeps what was learnt before it."""
     from calibrate.accuracy import check_point_accuracy
     from calibrate.run import points_of
-    from gcpmatch.extract import MatchOptions, extract_gcps, read_band
+    from gcpmatch.extract import extract_gcps, read_band
+    from gcpmatch.options import MatchOptions
     from sensor_models.readers import open_model
     from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem

@@ -450,7 +450,8 @@ def truth_error_cmd(model_path, truth_path, dem_path, dem_datum, geoid, heights,
 def match(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_path, geotiff_path, band, image, mask_path,
           check_fraction, window, spacing, max_offset, backend, as_json):
     """Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation)."""
-    from gcpmatch.extract import MatchOptions, match_scene
+    from gcpmatch.extract import match_scene
+    from gcpmatch.options import MatchOptions
 
     if dem_path is None:
         raise InputError("--dem is required: GCPs need terrain heights")

@@ -9,7 +9,7 @@ setting fails before any computation.
 =====================  ======================================  =================================
 class                  used by                                  defined in
 =====================  ======================================  =================================
-``MatchOptions``       dense GCP extraction (``gcpcal match``)  :mod:`gcpmatch.extract` (matching
+``MatchOptions``       dense GCP extraction (``gcpcal match``)  :mod:`gcpmatch.options` (matching
                                                                 is below ``calibrate`` in the
                                                                 layers; re-exported here)
 ``CalibrationOptions`` :func:`calibrate.absolute.calibrate_model`  here
@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
-from gcpmatch.extract import MatchOptions
+from gcpmatch.options import MatchOptions
 from sensor_models.errors import InputError
 
 __all__ = [

@@ -38,7 +38,8 @@ def run_demo(out_dir: Path, *, fixture_dir: Path = FIXTURE_DIR, progress=None, s
     from calibrate.accuracy import check_point_accuracy, error_versus_gcp_count
     from calibrate.relative import relative_calibration
     from calibrate.run import points_of
-    from gcpmatch.extract import MatchOptions, extract_gcps, read_band
+    from gcpmatch.extract import extract_gcps, read_band
+    from gcpmatch.options import MatchOptions
     from gcpmatch.gcps import write_gcps_csv
     from sensor_models.atomic import atomic_write_text
     from sensor_models.readers import open_model

@@ -42,7 +42,8 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
               min_gcps: int = 60, min_coverage: float = 0.5, spacing_px: int = 16, progress=None) -> dict:
     """Match, decide, calibrate (see the module docstring); return the summary."""
     from calibrate.run import calibrate_scene
-    from gcpmatch.extract import MatchOptions, match_scene
+    from gcpmatch.extract import match_scene
+    from gcpmatch.options import MatchOptions
     from sensor_models.atomic import atomic_write_text
     from sensor_models.readers import open_model
 

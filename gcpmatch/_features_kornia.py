@@ -35,6 +35,19 @@ def sift_matches(img_a: np.ndarray, mask_a: np.ndarray, img_b: np.ndarray, mask_
                  n_features: int = 8000, ratio: float = 0.8, device=None):
     """SIFT keypoints of two uint8 images and their ratio-test matches.
 
+    Parameters
+    ----------
+    img_a, img_b : ndarray of uint8, shape (H_a, W_a) and (H_b, W_b)
+        The two images.
+    mask_a, mask_b : ndarray of bool, same shapes
+        True where keypoints may be detected.
+    n_features : int
+        Most keypoints kept per image.
+    ratio : float
+        Lowe's ratio-test threshold (distance to the best over the second-best descriptor).
+    device : str or torch.device, optional
+        Torch device; None or ``"auto"``: CUDA when available, else the CPU.
+
     Returns
     -------
     pts_a, pts_b : ndarray (M, 2) float32
@@ -67,7 +80,24 @@ def sift_matches(img_a: np.ndarray, mask_a: np.ndarray, img_b: np.ndarray, mask_
 
 
 def ransac_inliers(pts_a: np.ndarray, pts_b: np.ndarray, *, threshold_px: float, seed: int = 0, device=None) -> np.ndarray:
-    """Inlier flags (M,) of a homography RANSAC between matched points."""
+    """Inlier flags of a homography RANSAC between matched points.
+
+    Parameters
+    ----------
+    pts_a, pts_b : ndarray of float32, shape (M, 2)
+        Matched ``(x, y)`` positions, OpenCV pixel convention (centre of pixel [0, 0] at (0, 0)).
+    threshold_px : float
+        Inlier threshold, pixels.
+    seed : int
+        Seed of the random draws.
+    device : str or torch.device, optional
+        Torch device; None or ``"auto"``: CUDA when available, else the CPU.
+
+    Returns
+    -------
+    ndarray of bool, shape (M,)
+        True for inliers (all False with fewer than 8 matches).
+    """
     torch, _ = _torch()
     from kornia.geometry.ransac import RANSAC
 

@@ -81,7 +81,20 @@ class TorchKernel:
     # ---------------------------------------------------------------- steps
 
     def spectrum(self, windows, window):
-        """Half spectrum (B, H, Wh) of the apodized windows minus their weighted mean."""
+        """Half spectrum (B, H, Wh) of the apodized windows minus their weighted mean.
+
+        Parameters
+        ----------
+        windows : tensor, shape (B, H, W)
+            Windows in the plan's working precision, pixels indexed (row, col).
+        window : tensor, shape (H, W), or (row, col) profiles of shapes (H,) and (W,) or (B, H) and (B, W)
+            Apodization weights (the plan's, or the following windows of each pair).
+
+        Returns
+        -------
+        tensor of complex, shape (B, H, W // 2 + 1)
+            ``rfft2`` of ``window * (windows - weighted mean)``.
+        """
         if isinstance(window, tuple):
             row, col = window
             if row.ndim == 1:
@@ -95,6 +108,24 @@ class TorchKernel:
         return torch.fft.rfft2(prepared)
 
     def cross_power(self, spec_ref_conj, spec_mov):
+        """Weighted normalized cross-power, as :meth:`gcpmatch.phase.NumpyKernel.cross_power`.
+
+        Parameters
+        ----------
+        spec_ref_conj : tensor of complex, shape (B, H, W // 2 + 1)
+            Conjugated half spectrum of the reference windows.
+        spec_mov : tensor of complex, shape (B, H, W // 2 + 1)
+            Half spectrum of the moving windows.
+
+        Returns
+        -------
+        cross : tensor of complex, shape (B, H, W // 2 + 1)
+            The weighted normalized cross-power ``Q``.
+        q_mean : tensor of float64, shape (B,)
+            ``sum|Q| / (H W)`` over the full spectrum: the ideal height of the surface peak.
+        q_var : tensor of float64, shape (B,)
+            ``sum|Q|^2 / (H W)^2``: the variance of the correlation surface.
+        """
         height, width = self.plan.shape
         cross = spec_mov * spec_ref_conj
         mag = torch.abs(cross)
@@ -108,6 +139,20 @@ class TorchKernel:
         return cross, q_mean, q_var
 
     def coarse_peak(self, cross):
+        """Integer-grid peak and secondary maximum, as :meth:`gcpmatch.phase.NumpyKernel.coarse_peak`.
+
+        Parameters
+        ----------
+        cross : tensor of complex, shape (B, H, W // 2 + 1)
+            Cross-power spectrum.
+
+        Returns
+        -------
+        centre : tensor of float64, shape (B, 2)
+            Signed (row, col) shift of the moving window, pixels, in [-H/2, H/2) x [-W/2, W/2).
+        second : tensor of float64, shape (B,)
+            Maximum of the integer-grid surface outside the exclusion box around the peak.
+        """
         height, width = self.plan.shape
         n = cross.shape[0]
         surface = torch.fft.irfft2(cross, s=(height, width))
@@ -130,6 +175,24 @@ class TorchKernel:
         return centre, second
 
     def refine(self, cross, centre, stages):
+        """DFT refinement around ``centre``, as :meth:`gcpmatch.phase.NumpyKernel.refine`.
+
+        Parameters
+        ----------
+        cross : tensor of complex, shape (B, H, W // 2 + 1)
+            Cross-power spectrum.
+        centre : tensor of float64, shape (B, 2)
+            Current (row, col) shift estimate, pixels.
+        stages : sequence of stage plans
+            Upsampling stages (DFT kernels along rows and columns, grid offsets in pixels).
+
+        Returns
+        -------
+        centre : tensor of float64, shape (B, 2)
+            Refined (row, col) shift, pixels.
+        peak : tensor, shape (B,)
+            Surface maximum at the refined shift, normalized by ``H W``.
+        """
         height, width = self.plan.shape
         peak = None
         for kernel_row, kernel_col, offsets_px in stages:
@@ -144,7 +207,18 @@ class TorchKernel:
         return centre, peak
 
     def following_windows(self, shift_px):
-        """Torch version of :func:`gcpmatch.phase.following_windows`."""
+        """Torch version of :func:`gcpmatch.phase.following_windows`.
+
+        Parameters
+        ----------
+        shift_px : tensor of float64, shape (B, 2)
+            Current (row, col) shift of each pair, pixels.
+
+        Returns
+        -------
+        row, col : tensor, shapes (B, H) and (B, W)
+            Window profiles centred on the shifted content, in the working precision.
+        """
         profiles = []
         for axis, n in enumerate(self.plan.shape):
             s = torch.clamp(shift_px[:, axis], -n / 2.0, n / 2.0)[:, None]

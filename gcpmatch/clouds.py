@@ -43,6 +43,26 @@ def cloud_pixels(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, nc
     3. Pixels whose residual exceeds ``k`` robust standard deviations on the bright side, after
        a morphological opening of ``min_size_px`` (clouds are extended, noise is not), are
        flagged. NaN reference pixels are never flagged.
+
+    Parameters
+    ----------
+    scene : ndarray, shape (n_rows, n_cols)
+        Scene pixels of one CCD (0 or NaN = no data).
+    reference : ndarray, shape (n_rows, n_cols)
+        The reference resampled into the same scene geometry (NaN = no data).
+    k : float
+        Threshold on the bright-side residual, robust standard deviations.
+    ncc_land : float
+        Local normalized cross-correlation above which a pixel counts as land.
+    box_px : int
+        Side of the box of the local cross-correlation, pixels.
+    min_size_px : int
+        Diameter of the elliptical opening that removes specks, pixels.
+
+    Returns
+    -------
+    ndarray of bool, shape (n_rows, n_cols)
+        True on cloud pixels.
     """
     import cv2
 
@@ -72,7 +92,22 @@ def cloud_pixels(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, nc
 
 
 def bright_outliers(mean_scene: np.ndarray, mean_ref: np.ndarray, *, k: float = 4.0) -> np.ndarray:
-    """Flags of windows far brighter than the linear prediction from the reference (clouds)."""
+    """Flags of windows far brighter than the linear prediction from the reference (clouds).
+
+    The window means are regressed robustly (``m_s ~ a m_r + b``, IRLS with Huber weights).
+
+    Parameters
+    ----------
+    mean_scene, mean_ref : ndarray, shape (N,)
+        Mean of each scene window and of its reference window (NaN = unusable).
+    k : float
+        Threshold on the bright-side residual, robust (1.4826 MAD) standard deviations.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+        True for cloudy windows (always False with fewer than 10 usable windows).
+    """
     ok = np.isfinite(mean_scene) & np.isfinite(mean_ref)
     out = np.zeros(mean_scene.shape, bool)
     if ok.sum() < 10:
@@ -90,7 +125,20 @@ def bright_outliers(mean_scene: np.ndarray, mean_ref: np.ndarray, *, k: float = 
 
 
 def low_texture(std_ref: np.ndarray, *, texture_fraction: float = 0.2) -> np.ndarray:
-    """Flags of windows whose reference has (almost) no texture (water, haze, uniform fields)."""
+    """Flags of windows whose reference has (almost) no texture (water, haze, uniform fields).
+
+    Parameters
+    ----------
+    std_ref : ndarray, shape (N,)
+        Standard deviation of each reference window (NaN = no reference).
+    texture_fraction : float
+        A window is featureless below this fraction of the median over the finite ``std_ref``.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+        True for featureless windows and for NaN ``std_ref``.
+    """
     ok = np.isfinite(std_ref)
     out = ~ok
     if ok.any():

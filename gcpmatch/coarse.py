@@ -37,6 +37,31 @@ class CoarseMatchError(GcpcalError, RuntimeError):
 
 @dataclass
 class CoarseResult:
+    """Outcome of :func:`coarse_match`.
+
+    Attributes
+    ----------
+    model : SensorModel
+        The pre-corrected model.
+    n_keypoints_scene, n_keypoints_dom : int
+        SIFT keypoints detected in the warped, reduced scene and in the reduced DOM.
+    n_matches : int
+        Matches passing Lowe's ratio test.
+    n_ransac_inliers : int
+        Matches consistent with the RANSAC map.
+    n_inliers : int
+        Matches kept after re-screening against the corrected model.
+    rms_m : float
+        Ground-space RMS of the kept matches about the corrected model, metres.
+    factor : int
+        Scene reduction factor of the coarse stage.
+    ccd_offsets_px : dict
+        Per-CCD offsets removed, pixels (empty for models without CCDs).
+    points : dict of ndarray, shape (n_inliers,)
+        ``row, col`` (continuous scene pixels, first pixel's centre at (0.5, 0.5)), ``lon,
+        lat`` (degrees) and ``h`` (metres above the ellipsoid) of the kept matches.
+    """
+
     model: object
     n_keypoints_scene: int
     n_keypoints_dom: int
@@ -49,6 +74,14 @@ class CoarseResult:
     points: dict = field(default_factory=dict)  # row, col, lon, lat, h of the final inliers
 
     def summary(self) -> dict:
+        """The counts and fit figures as a JSON-ready dict (no model, no points).
+
+        Returns
+        -------
+        dict
+            Keypoints, ratio matches, RANSAC inliers, kept inliers, ``rms_m``, ``factor`` and
+            ``ccd_offsets_px`` (keys as strings).
+        """
         return {
             "keypoints_scene": self.n_keypoints_scene, "keypoints_dom": self.n_keypoints_dom,
             "ratio_matches": self.n_matches, "ransac_inliers": self.n_ransac_inliers,
@@ -58,7 +91,20 @@ class CoarseResult:
 
 
 def to_uint8(img: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-    """Stretch the 1-99 % range of the valid pixels to 0..255 (invalid -> 0)."""
+    """Stretch the 1-99 % range of the valid pixels to 0..255 (invalid -> 0).
+
+    Parameters
+    ----------
+    img : ndarray, shape (H, W)
+        Image, any real dtype.
+    valid : ndarray of bool, shape (H, W), optional
+        Pixels to use and keep; default: the finite ones.
+
+    Returns
+    -------
+    ndarray of uint8, shape (H, W)
+        The stretched image, 0 where not valid (all 0 when nothing is valid).
+    """
     valid = np.isfinite(img) if valid is None else valid
     if not valid.any():
         return np.zeros(img.shape, np.uint8)
@@ -82,6 +128,22 @@ def scene_height_m(model, dem, *, band=None, iterations: int = 3) -> float:
 
     A DEM tile can span kilometres of relief around a scene; localizing at its mid-range would
     displace the predicted footprint of an oblique view by hundreds of metres.
+
+    Parameters
+    ----------
+    model : SensorModel
+        Model of the scene, localized at 9 x 9 pixel centres over the image.
+    dem : Dem
+        Terrain heights above the ellipsoid, metres.
+    band : str, optional
+        Band of ``model`` (default: the model's reference band).
+    iterations : int
+        Fixed-point iterations (localize at ``h``, take the median DEM height there).
+
+    Returns
+    -------
+    float
+        Height above the ellipsoid, metres (mid-range of the DEM if the footprint misses it).
     """
     h_lo, h_hi = dem.height_range_m
     h = 0.5 * (h_lo + h_hi)
@@ -117,18 +179,38 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
 
     Parameters
     ----------
-    scene : ndarray (n_rows, n_cols)
+    scene : ndarray, shape (n_rows, n_cols)
         The scene band (NaN or 0 = no data are ignored).
     model : SensorModel
         Current model of the scene (e.g. the LAB model).
     dem : Dem
+        Terrain heights above the ellipsoid, metres: the height of the matched ground points.
     dom : MapImage
+        Reference orthoimage (any projected or geographic CRS).
     band : str, optional
+        Band of ``model`` the scene belongs to (default: the model's reference band).
     max_offset_px : float
         Largest expected error of the model, in scene pixels (the DOM search margin).
+    target_px : int
+        The scene is averaged down by an integer factor until its longest side is at most
+        this many pixels.
+    ransac_px : float
+        RANSAC inlier threshold, reduced-scene pixels.
+    n_features : int
+        Most SIFT keypoints kept per image.
+    seed : int
+        Seed of the RANSAC draws.
     backend : {"cpu", "torch"}
         OpenCV SIFT, brute-force matching and affine RANSAC, or kornia's SIFT, ratio-test
         matching and homography RANSAC on the torch ``device`` (``None``: CUDA if available).
+    device : str or torch.device, optional
+        Torch device of the ``"torch"`` backend.
+
+    Returns
+    -------
+    CoarseResult
+        The pre-corrected model, match counts, the ground-space RMS (metres) and the final
+        inliers (``row, col`` continuous scene pixels, first pixel's centre at (0.5, 0.5)).
 
     Raises
     ------
@@ -136,24 +218,90 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         Too few consistent matches (no texture, wrong area, all clouds).
     """
     n_rows, n_cols = scene.shape
+    small, small_valid, f = _reduce_scene(scene, target_px)
+    h_mid = scene_height_m(model, dem, band=band)
+    gsd = scene_gsd_m(model, band=band, height_m=h_mid)
+    coarse_res = gsd * f  # metres per reduced pixel
+    win = _dom_window(model, dom, band=band, h_mid=h_mid, gsd=gsd, coarse_res=coarse_res,
+                      max_offset_px=max_offset_px)
+    a_pred = _predicted_affine(model, band, h_mid, scene.shape, f, win)
+    warped, warped_valid = _warp_to_dom(small, small_valid, a_pred)
+    ps, pd, n_kp_s, n_kp_d, ransac_in = _sift_ransac(warped, warped_valid, win.dom_small, n_features=n_features,
+                                                     ransac_px=ransac_px, seed=seed, backend=backend, device=device)
+    row, col, glon, glat, gh = _matches_on_ground(ps, pd, a_pred, f, win, dem)
+    inside = (row > 0) & (row < n_rows) & (col > 0) & (col < n_cols) & np.isfinite(gh)
+    sel = ransac_in & inside
+    if sel.sum() < 6:
+        raise CoarseMatchError("too few RANSAC inliers inside the scene and the DEM")
+    corrected, keep, rms_m, offsets = _precorrect(model, band, row, col, glon, glat, gh, sel=sel, inside=inside,
+                                                  min_scale_m=0.5 * coarse_res)
+    return CoarseResult(
+        model=corrected, n_keypoints_scene=n_kp_s, n_keypoints_dom=n_kp_d, n_matches=len(ps),
+        n_ransac_inliers=int(ransac_in.sum()), n_inliers=int(keep.size), rms_m=rms_m, factor=f,
+        ccd_offsets_px=offsets,
+        points={"row": row[keep], "col": col[keep], "lon": glon[keep], "lat": glat[keep], "h": gh[keep]},
+    )
+
+
+def _reduce_scene(scene: np.ndarray, target_px: int):
+    """The scene averaged down by the integer factor ``f`` (longest side <= ``target_px``).
+
+    Returns
+    -------
+    small : ndarray of float32, shape (n_rows // f, n_cols // f)
+        Block means, no-data as 0.
+    small_valid : ndarray of bool, same shape
+        Blocks that hold valid pixels only.
+    f : int
+        The reduction factor.
+    """
+    n_rows, n_cols = scene.shape
     f = max(1, int(np.ceil(max(n_rows, n_cols) / target_px)))
     valid = np.isfinite(scene) & (scene > 0)
     small = cv2.resize(np.where(valid, scene, 0).astype(np.float32), (n_cols // f, n_rows // f), interpolation=cv2.INTER_AREA)
     small_valid = cv2.resize(valid.astype(np.float32), (n_cols // f, n_rows // f), interpolation=cv2.INTER_AREA) > 0.99
-    h_mid = scene_height_m(model, dem, band=band)
-    gsd = scene_gsd_m(model, band=band, height_m=h_mid)
-    coarse_res = gsd * f  # metres per reduced pixel
+    return small, small_valid, f
+
+
+@dataclass
+class _DomWindow:
+    """The DOM read over the scene's predicted footprint plus margin, decimated to the coarse scale.
+
+    ``(r0, c0)`` is the window's first DOM pixel; ``sy, sx`` are DOM pixels per reduced pixel.
+    """
+
+    dom_small: np.ndarray
+    r0: int
+    c0: int
+    sy: float
+    sx: float
+    index: object  # Affine: map (x, y) -> DOM (col, row) index
+    to_map: pyproj.Transformer
+    from_map: pyproj.Transformer
+
+    def small_to_index(self, px, py):
+        """DOM (col, row) indices of reduced-DOM pixel coordinates (OpenCV: centre of [0, 0] at 0)."""
+        return self.c0 + (px + 0.5) * self.sx - 0.5, self.r0 + (py + 0.5) * self.sy - 0.5
+
+    def ground_to_index(self, lon, lat):
+        """DOM (col, row) indices of WGS84 ``lon, lat`` (degrees)."""
+        x, y = self.to_map.transform(lon, lat)
+        index = self.index
+        u = index.a * np.asarray(x) + index.b * np.asarray(y) + index.c
+        v = index.d * np.asarray(x) + index.e * np.asarray(y) + index.f
+        return u, v
+
+
+def _dom_window(model, dom, *, band, h_mid, gsd, coarse_res, max_offset_px) -> _DomWindow:
+    """Read the DOM over the predicted footprint plus ``max_offset_px`` scene pixels of margin."""
     dom_res = grid_resolution_m(dom.grid)
     to_map = pyproj.Transformer.from_crs("EPSG:4326", dom.grid.crs, always_xy=True)
     from_map = pyproj.Transformer.from_crs(dom.grid.crs, "EPSG:4326", always_xy=True)
-    index = dom.grid.index_affine()
-
+    win = _DomWindow(None, 0, 0, 1.0, 1.0, dom.grid.index_affine(), to_map, from_map)
     # predicted footprint in DOM indices, plus the search margin
     br, bc = _border(model, band)
     lon, lat, _ = model.image_to_ground(br, bc, height=h_mid, band=band)
-    x, y = to_map.transform(lon, lat)
-    u = index.a * np.asarray(x) + index.b * np.asarray(y) + index.c
-    v = index.d * np.asarray(x) + index.e * np.asarray(y) + index.f
+    u, v = win.ground_to_index(lon, lat)
     margin = max_offset_px * gsd / dom_res
     dr, dc = dom.grid.shape
     r0, r1 = max(0, int(np.nanmin(v) - margin)), min(dr, int(np.nanmax(v) + margin) + 1)
@@ -162,23 +310,32 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         raise CoarseMatchError("the DOM does not overlap the scene's predicted footprint")
     k = coarse_res / dom_res  # DOM pixels per reduced pixel
     out_shape = (max(8, int(round((r1 - r0) / k))), max(8, int(round((c1 - c0) / k))))
-    dom_small = dom.read_decimated(r0, r1, c0, c1, out_shape)
-    sy, sx = (r1 - r0) / out_shape[0], (c1 - c0) / out_shape[1]  # DOM px per reduced DOM px
+    win.dom_small = dom.read_decimated(r0, r1, c0, c1, out_shape)
+    win.r0, win.c0 = r0, c0
+    win.sy, win.sx = (r1 - r0) / out_shape[0], (c1 - c0) / out_shape[1]  # DOM px per reduced DOM px
+    return win
 
-    def dom_small_to_index(px, py):  # reduced DOM pixel coords (OpenCV: centre of [0,0] at 0)
-        return c0 + (px + 0.5) * sx - 0.5, r0 + (py + 0.5) * sy - 0.5
 
-    # affine: reduced scene -> reduced DOM, as the model predicts
+def _predicted_affine(model, band, h_mid, shape, f, win: _DomWindow) -> np.ndarray:
+    """(2, 3) affine map reduced scene -> reduced DOM as the model predicts, re-positioned.
+
+    It keeps the predicted mirror, rotation and scale but not the position: the model may be
+    off by more than the scene's size, so the warped scene gets a canvas of its own.
+    """
+    n_rows, n_cols = shape
     gr, gc = np.meshgrid(np.linspace(0.5, n_rows - 0.5, 12), np.linspace(0.5, n_cols - 0.5, 12), indexing="ij")
     lon, lat, _ = model.image_to_ground(gr.ravel(), gc.ravel(), height=h_mid, band=band)
-    x, y = to_map.transform(lon, lat)
-    uu = index.a * np.asarray(x) + index.b * np.asarray(y) + index.c
-    vv = index.d * np.asarray(x) + index.e * np.asarray(y) + index.f
+    uu, vv = win.ground_to_index(lon, lat)
     src = np.stack([gc.ravel() / f - 0.5, gr.ravel() / f - 0.5], axis=-1)
-    dst = np.stack([(uu - c0 + 0.5) / sx - 0.5, (vv - r0 + 0.5) / sy - 0.5], axis=-1)
-    a_pred = np.linalg.lstsq(np.c_[src, np.ones(len(src))], dst, rcond=None)[0].T  # (2, 3)
-    # keep the predicted mirror, rotation and scale but not the position: the model may be off
-    # by more than the scene's size, so the warped scene gets a canvas of its own
+    dst = np.stack([(uu - win.c0 + 0.5) / win.sx - 0.5, (vv - win.r0 + 0.5) / win.sy - 0.5], axis=-1)
+    return np.linalg.lstsq(np.c_[src, np.ones(len(src))], dst, rcond=None)[0].T  # (2, 3)
+
+
+def _warp_to_dom(small, small_valid, a_pred):
+    """Warp the reduced scene (uint8) and its validity with ``a_pred`` onto a canvas that holds it.
+
+    ``a_pred``'s translation is set in place so that the warped scene starts at (0, 0).
+    """
     h_s, w_s = small.shape
     corners = np.array([[0, 0], [w_s, 0], [0, h_s], [w_s, h_s]], dtype=np.float64) - 0.5
     moved = corners @ a_pred[:, :2].T
@@ -186,6 +343,21 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     canvas = tuple(int(np.ceil(v)) + 1 for v in (moved.max(axis=0) - moved.min(axis=0)))
     warped = cv2.warpAffine(to_uint8(small, small_valid), a_pred, canvas, flags=cv2.INTER_LINEAR)
     warped_valid = cv2.warpAffine(small_valid.astype(np.uint8), a_pred, canvas, flags=cv2.INTER_NEAREST)
+    return warped, warped_valid
+
+
+def _sift_ransac(warped, warped_valid, dom_small, *, n_features, ransac_px, seed, backend, device):
+    """SIFT matches (ratio test) between the warped scene and the DOM, and their RANSAC inliers.
+
+    Returns
+    -------
+    ps, pd : ndarray of float32, shape (m, 2)
+        Matched (x, y) positions in the warped scene and in the reduced DOM (OpenCV pixels).
+    n_kp_s, n_kp_d : int
+        Keypoints found in each image.
+    ransac_in : ndarray of bool, shape (m,)
+        Matches consistent with one affine (OpenCV) or homography (kornia) map.
+    """
     dom_valid = np.isfinite(dom_small)
     if backend == "cpu":
         ps, pd, n_kp_s, n_kp_d = _sift_matches_opencv(warped, warped_valid > 0, to_uint8(dom_small, dom_valid),
@@ -208,37 +380,50 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         ransac_in = ransac_inliers(ps, pd, threshold_px=ransac_px, seed=seed, device=device)
     if ransac_in.sum() < 6:
         raise CoarseMatchError("RANSAC found no consistent set of SIFT matches")
-    # scene coordinates of all ratio-test matches (undo the warp) and their ground points
+    return ps, pd, n_kp_s, n_kp_d, ransac_in
+
+
+def _matches_on_ground(ps, pd, a_pred, f, win: _DomWindow, dem):
+    """Scene ``row, col`` (continuous pixels, the warp undone) and DOM ground ``lon, lat, h``
+    of every ratio-test match (``h`` from the DEM, metres above the ellipsoid)."""
     inv = cv2.invertAffineTransform(a_pred)
     sc = ps @ inv[:, :2].T + inv[:, 2]
     col = (sc[:, 0] + 0.5) * f
     row = (sc[:, 1] + 0.5) * f
-    ui, vi = dom_small_to_index(pd[:, 0].astype(np.float64), pd[:, 1].astype(np.float64))
-    inv_index = ~index
+    ui, vi = win.small_to_index(pd[:, 0].astype(np.float64), pd[:, 1].astype(np.float64))
+    inv_index = ~win.index
     xm = inv_index.a * ui + inv_index.b * vi + inv_index.c
     ym = inv_index.d * ui + inv_index.e * vi + inv_index.f
-    glon, glat = from_map.transform(xm, ym)
+    glon, glat = win.from_map.transform(xm, ym)
     glon, glat = np.asarray(glon), np.asarray(glat)
     gh = dem.height_m(glon, glat)
-    inside = (row > 0) & (row < n_rows) & (col > 0) & (col < n_cols) & np.isfinite(gh)
-    sel = ransac_in & inside
-    if sel.sum() < 6:
-        raise CoarseMatchError("too few RANSAC inliers inside the scene and the DEM")
+    return row, col, glon, glat, gh
+
+
+def _precorrect(model, band, row, col, glon, glat, gh, *, sel, inside, min_scale_m):
+    """Fit the exterior to the RANSAC inliers, re-screen all matches, remove CCD offsets.
+
+    Returns
+    -------
+    corrected : SensorModel
+        The pre-corrected model.
+    keep : ndarray of intp
+        Indices of the matches kept by the re-screening.
+    rms_m : float
+        Ground-space RMS of the re-screened fit, metres.
+    offsets : dict
+        Per-CCD offsets removed, pixels (empty for models without CCDs).
+    """
     ccd = model.ccd_index(col, band=band) if hasattr(model, "ccd_index") else None
     fit = fit_exterior_in_ground(model, row[sel], col[sel], glon[sel], glat[sel], gh[sel], band=band,
-                                 ccd=None if ccd is None else ccd[sel], min_scale_m=0.5 * coarse_res)
+                                 ccd=None if ccd is None else ccd[sel], min_scale_m=min_scale_m)
     # re-screen every ratio-test match against the corrected model
     fit2 = fit_exterior_in_ground(fit.model, row[inside], col[inside], glon[inside], glat[inside], gh[inside],
-                                  band=band, ccd=None if ccd is None else ccd[inside], min_scale_m=0.5 * coarse_res)
+                                  band=band, ccd=None if ccd is None else ccd[inside], min_scale_m=min_scale_m)
     keep = np.flatnonzero(inside)[fit2.inlier]
     corrected = fit2.model
     offsets = {}
     if ccd is not None and hasattr(corrected, "band_ccds"):
         corrected, offsets = fit_ccd_offsets(corrected, row[keep], col[keep], glon[keep], glat[keep], gh[keep],
                                              ccd[keep], band=band or corrected.reference_band)
-    return CoarseResult(
-        model=corrected, n_keypoints_scene=n_kp_s, n_keypoints_dom=n_kp_d, n_matches=len(ps),
-        n_ransac_inliers=int(ransac_in.sum()), n_inliers=int(keep.size), rms_m=fit2.rms_m, factor=f,
-        ccd_offsets_px=offsets,
-        points={"row": row[keep], "col": col[keep], "lon": glon[keep], "lat": glat[keep], "h": gh[keep]},
-    )
+    return corrected, keep, fit2.rms_m, offsets

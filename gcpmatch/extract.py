@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,44 +31,18 @@ from numpy.lib.stride_tricks import sliding_window_view
 from gcpmatch.clouds import cloud_pixels, low_texture
 from gcpmatch.coarse import coarse_match
 from gcpmatch.gcps import GcpTable
+from gcpmatch.options import MatchOptions
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.phase import Reject, phase_correlate
 from gcpmatch.reference import reference_for_ccd, reference_for_image
 from sensor_models.errors import InputError
 
-__all__ = ["MatchOptions", "extract_gcps", "match_scene"]
+__all__ = ["extract_gcps", "match_scene"]
 
 REASONS = ("no_reference", "no_data", "cloud", "no_texture", "flat", "not_finite", "out_of_range",
            "low_score", "low_peak_ratio", "inconsistent", "model_residual")
 _PHASE_REASON = {Reject.FLAT: "flat", Reject.NOT_FINITE: "not_finite", Reject.OUT_OF_RANGE: "out_of_range",
                  Reject.LOW_SCORE: "low_score", Reject.LOW_PEAK_RATIO: "low_peak_ratio"}
-
-
-@dataclass(frozen=True)
-class MatchOptions:
-    """Settings of :func:`extract_gcps` (all have working defaults)."""
-
-    window_px: int = 64
-    spacing_px: int = 32
-    max_offset_px: float = 1000.0
-    check_fraction: float = 0.2
-    backend: str = "cpu"
-    cloud_window_fraction: float = 0.1
-    texture_fraction: float = 0.2
-    psf_sigma_px: float = 0.45
-    seed: int = 0
-    batch: int = 2048
-
-    def validate(self) -> "MatchOptions":
-        if self.window_px < 16 or self.window_px % 2:
-            raise InputError(f"window must be an even number of pixels >= 16, got {self.window_px}", field="window_px")
-        if self.spacing_px < 1:
-            raise InputError("spacing must be >= 1 pixel", field="spacing_px")
-        if not 0.0 <= self.check_fraction < 1.0:
-            raise InputError(f"check fraction must lie in [0, 1), got {self.check_fraction}", field="check_fraction")
-        if self.backend not in ("cpu", "gpu", "torch"):
-            raise InputError(f"backend must be cpu or gpu, got {self.backend!r}", field="backend")
-        return self
 
 
 @dataclass(frozen=True)
@@ -94,145 +68,237 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
 
     Parameters
     ----------
-    model : PushbroomModel
-        Current model (e.g. the LAB model, hundreds of pixels off).
-    scene : ndarray (n_rows, n_cols)
-        The band's pixels (0 or NaN = no data).
+    model : SensorModel
+        Current model (e.g. the LAB model, hundreds of pixels off): a push-broom model with
+        CCDs (``band_ccds``) or any model seen as one detector array (e.g. RPC).
+    scene : ndarray, shape (n_rows, n_cols)
+        The band's pixels, ``model.image_shape``; 0 or NaN = no data.
     dem : Dem
+        Terrain heights (ellipsoidal after the DEM's datum conversion), for the reference
+        chips and the GCP heights.
     dom : MapImage
+        Reference orthoimage, resampled into scene geometry.
     band : str
-    mask : ndarray (n_rows, n_cols) of bool, optional
-        True where the scene is cloudy or invalid; default: the detector of :mod:`gcpmatch.clouds`.
+        Band of ``model`` the scene belongs to.
+    mask : ndarray of bool, shape (n_rows, n_cols), optional
+        True where the scene is cloudy or invalid; default: the detector of
+        :mod:`gcpmatch.clouds` (scene much brighter than the reference predicts).
+    options : MatchOptions
+        Window size and spacing, coarse search range, backend, check share, seed, ...
+    progress : callable(str), optional
+        Called with one line after the coarse stage and after each CCD.
 
     Returns
     -------
-    table : GcpTable
+    table : GcpTable or None
+        The GCPs (``row, col`` in continuous pixel coordinates of the whole scene, first pixel's
+        centre at (0.5, 0.5); ``lon, lat`` degrees, ``h`` metres above the ellipsoid; a
+        stratified ``check_fraction`` of kind "check"); None when no window survived.
     summary : dict
+        JSON-ready report: counts, rejection reasons, per-CCD figures, coarse stage, options,
+        timings (seconds); ``message`` says why when there is no GCP.
     """
     opt = options.validate()
-    timings = {}
     t0 = time.perf_counter()
+    scene = _checked_scene(model, scene, mask)
+    coarse = _coarse_stage(scene, model, dem, dom, band, opt)
+    timings = {"coarse_s": time.perf_counter() - t0}
+    model_pc = coarse.model
+    if progress:
+        progress(f"coarse stage: {coarse.n_inliers} SIFT matches, model pre-corrected")
+    tally = _Tally()
+    pushbroom = hasattr(model_pc, "band_ccds")
+    looks = model_pc.band_ccds(band) if pushbroom else [_WholeImage(model_pc.image_shape[1])]
+    for i, look in enumerate(looks):
+        _match_ccd(tally, model_pc, scene, mask, dem, dom, band=band, ccd=i if pushbroom else None,
+                   look=look, opt=opt, progress=progress)
+    timings["reference_s"] = tally.t_ref
+    timings["phase_s"] = tally.t_phase
+    table = _gcp_table(tally.tables, opt)
+    timings["total_s"] = time.perf_counter() - t0
+    return table, _summary(band, table, tally, coarse, opt, timings, n_cols=scene.shape[1])
+
+
+@dataclass
+class _Tally:
+    """What the per-CCD passes add up: rejection counts, per-CCD reports, GCP columns, seconds."""
+
+    reasons: dict = field(default_factory=lambda: {r: 0 for r in REASONS})
+    per_ccd: list = field(default_factory=list)
+    tables: list = field(default_factory=list)
+    cloud_sum: float = 0.0
+    n_windows: int = 0
+    t_ref: float = 0.0
+    t_phase: float = 0.0
+
+
+def _checked_scene(model, scene, mask) -> np.ndarray:
+    """The scene as float32, after checking its shape (and the mask's) against the model."""
     scene = np.asarray(scene, dtype=np.float32)
     if scene.shape != model.image_shape:
         raise InputError(f"the scene raster is {scene.shape}, the model describes {model.image_shape}")
     if mask is not None and mask.shape != scene.shape:
         raise InputError(f"the mask is {mask.shape}, the scene {scene.shape}")
+    return scene
+
+
+def _coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
+    """Coarse SIFT matching and model pre-correction, on the options' backend."""
     torch_backend = opt.backend in ("gpu", "torch")
     device = "cuda" if opt.backend == "gpu" else ("cpu" if torch_backend else None)
-    coarse = coarse_match(scene, model, dem, dom, band=band, max_offset_px=opt.max_offset_px, seed=opt.seed,
-                          backend="torch" if torch_backend else "cpu", device=device)
-    timings["coarse_s"] = time.perf_counter() - t0
-    model_pc = coarse.model
+    return coarse_match(scene, model, dem, dom, band=band, max_offset_px=opt.max_offset_px, seed=opt.seed,
+                        backend="torch" if torch_backend else "cpu", device=device)
+
+
+def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, look, opt: MatchOptions,
+               progress) -> None:
+    """Match the windows of one CCD (``ccd`` None: the whole image) and add them to ``tally``."""
+    t1 = time.perf_counter()
+    if ccd is not None:
+        ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=ccd, psf_sigma_px=opt.psf_sigma_px)
+    else:
+        ref = reference_for_image(model_pc, dem, dom, band=band, psf_sigma_px=opt.psf_sigma_px)
+    tally.t_ref += time.perf_counter() - t1
+    cols = slice(look.first_col, look.first_col + look.n_detectors)
+    img = scene[:, cols]
+    msk = cloud_pixels(img, ref) if mask is None else mask[:, cols]  # detector: brighter than predicted
+    cloud_px = float(msk.mean())
+    rs = _grid_starts(img.shape[0], opt.window_px, opt.spacing_px)
+    cs = _grid_starts(img.shape[1], opt.window_px, opt.spacing_px)
+    if rs.size == 0 or cs.size == 0:
+        tally.per_ccd.append({"ccd": look.name, "windows": 0, "gcps": 0})
+        return
+    rr, cc = (a.ravel() for a in np.meshgrid(rs, cs, indexing="ij"))
+    n = rr.size
+    tally.n_windows += n
+    t1 = time.perf_counter()
+    status, std_r, shift, score = _correlate_windows(img, ref, msk, rr, cc, opt)
+    tally.t_phase += time.perf_counter() - t1
+    keep, r_c, c_c, sigma = _reject_outliers(status, std_r, shift, rr, cc, (rs.size, cs.size), look.first_col, opt)
+    for r in REASONS:
+        tally.reasons[r] += int(np.sum(status == r))
+    if keep.size:
+        kw = {"ccd": ccd} if ccd is not None else {}
+        tally.tables.append(_ccd_gcps(model_pc, dem, band, look, r_c, c_c, shift[keep], score[keep], sigma, kw))
+    tally.cloud_sum += cloud_px * look.n_detectors
+    tally.per_ccd.append({
+        "ccd": look.name, "windows": int(n), "gcps": int(keep.size),
+        "usable_fraction": float(keep.size / n),
+        "cloud_fraction": cloud_px,
+        "cloud_windows": int(np.sum(status == "cloud")),
+        "no_texture_fraction": float(np.mean(status == "no_texture")),
+        "sigma_px": None if not np.isfinite(sigma) else sigma,
+        "coverage": _coverage(r_c, c_c - look.first_col, img.shape),
+    })
     if progress:
-        progress(f"coarse stage: {coarse.n_inliers} SIFT matches, model pre-corrected")
-    w, half = opt.window_px, opt.window_px // 2
-    reasons = {r: 0 for r in REASONS}
-    per_ccd, tables, cloud_sum = [], [], 0.0
-    t_ref = t_phase = 0.0
-    n_windows = 0
-    pushbroom = hasattr(model_pc, "band_ccds")
-    looks = model_pc.band_ccds(band) if pushbroom else [_WholeImage(model_pc.image_shape[1])]
-    for i, look in enumerate(looks):
-        t1 = time.perf_counter()
-        if pushbroom:
-            ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=i, psf_sigma_px=opt.psf_sigma_px)
-        else:
-            ref = reference_for_image(model_pc, dem, dom, band=band, psf_sigma_px=opt.psf_sigma_px)
-        t_ref += time.perf_counter() - t1
-        img = scene[:, look.first_col : look.first_col + look.n_detectors]
-        if mask is None:  # detector: much brighter than the reference predicts
-            msk = cloud_pixels(img, ref)
-        else:
-            msk = mask[:, look.first_col : look.first_col + look.n_detectors]
-        cloud_px = float(msk.mean())
-        rs = _grid_starts(img.shape[0], w, opt.spacing_px)
-        cs = _grid_starts(img.shape[1], w, opt.spacing_px)
-        if rs.size == 0 or cs.size == 0:
-            per_ccd.append({"ccd": look.name, "windows": 0, "gcps": 0})
+        progress(f"CCD {look.name}: {keep.size} GCPs from {n} windows")
+
+
+def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
+    """Screen and phase-correlate the windows at upper-left corners ``(rr, cc)``, in batches.
+
+    Returns
+    -------
+    status : ndarray of object (str), shape (n,)
+        ``""`` for a match, else the rejection reason.
+    std_r : ndarray of float64, shape (n,)
+        Standard deviation of each reference window (NaN where it has no data).
+    shift : ndarray of float64, shape (n, 2)
+        Scene minus reference shift (row, col), pixels; NaN where not correlated.
+    score : ndarray of float64, shape (n,)
+        Phase-correlation score; NaN where not correlated.
+    """
+    w, n = opt.window_px, rr.size
+    win_s = sliding_window_view(img, (w, w))
+    win_r = sliding_window_view(ref, (w, w))
+    status = np.full(n, "", dtype=object)
+    std_r = np.full(n, np.nan)
+    shift = np.full((n, 2), np.nan)
+    score = np.full(n, np.nan)
+    for a in range(0, n, opt.batch):
+        b = min(n, a + opt.batch)
+        ws = win_s[rr[a:b], cc[a:b]]
+        wr = win_r[rr[a:b], cc[a:b]]
+        bad_ref = ~np.isfinite(wr).all(axis=(1, 2))
+        bad_s = ~(np.isfinite(ws).all(axis=(1, 2)) & (ws > 0).all(axis=(1, 2)))
+        status[a:b][bad_ref] = "no_reference"
+        status[a:b][~bad_ref & bad_s] = "no_data"
+        with np.errstate(invalid="ignore"):
+            std_r[a:b] = wr.std(axis=(1, 2))
+        cloudy = sliding_window_view(msk, (w, w))[rr[a:b], cc[a:b]].mean(axis=(1, 2)) > opt.cloud_window_fraction
+        status[a:b][(status[a:b] == "") & cloudy] = "cloud"
+        go = np.flatnonzero(status[a:b] == "")
+        if go.size == 0:
             continue
-        rr, cc = (a.ravel() for a in np.meshgrid(rs, cs, indexing="ij"))
-        n = rr.size
-        n_windows += n
-        win_s = sliding_window_view(img, (w, w))
-        win_r = sliding_window_view(ref, (w, w))
-        status = np.full(n, "", dtype=object)
-        std_r = np.full(n, np.nan)
-        shift = np.full((n, 2), np.nan)
-        score = np.full(n, np.nan)
-        t1 = time.perf_counter()
-        for a in range(0, n, opt.batch):
-            b = min(n, a + opt.batch)
-            ws = win_s[rr[a:b], cc[a:b]]
-            wr = win_r[rr[a:b], cc[a:b]]
-            bad_ref = ~np.isfinite(wr).all(axis=(1, 2))
-            bad_s = ~(np.isfinite(ws).all(axis=(1, 2)) & (ws > 0).all(axis=(1, 2)))
-            status[a:b][bad_ref] = "no_reference"
-            status[a:b][~bad_ref & bad_s] = "no_data"
-            with np.errstate(invalid="ignore"):
-                std_r[a:b] = wr.std(axis=(1, 2))
-            cloudy = sliding_window_view(msk, (w, w))[rr[a:b], cc[a:b]].mean(axis=(1, 2)) > opt.cloud_window_fraction
-            status[a:b][(status[a:b] == "") & cloudy] = "cloud"
-            go = np.flatnonzero(status[a:b] == "")
-            if go.size == 0:
-                continue
-            pm = phase_correlate(wr[go], ws[go], max_shift_px=w / 4.0,
-                                 backend="torch" if opt.backend in ("gpu", "torch") else "cpu",
-                                 device="cuda" if opt.backend == "gpu" else None)
-            shift[a + go, 0] = pm.shift_row_px
-            shift[a + go, 1] = pm.shift_col_px
-            score[a + go] = pm.score
-            for code, name in _PHASE_REASON.items():
-                status[a + go[pm.reason == code]] = name
-        t_phase += time.perf_counter() - t1
-        # water and other featureless ground, judged on the whole CCD
-        texture_ok = np.isfinite(std_r)
-        status[(status == "") & texture_ok & low_texture(std_r, texture_fraction=opt.texture_fraction)] = "no_texture"
-        # local consistency on the window grid
-        grid = np.where((status == "")[:, None], shift, np.nan).reshape(rs.size, cs.size, 2)
-        consistent = local_consistency(grid).reshape(-1)
-        status[(status == "") & ~consistent] = "inconsistent"
-        keep = np.flatnonzero(status == "")
-        r_c = rr[keep] + half  # window centres (continuous coordinates)
-        c_c = cc[keep] + half + look.first_col
-        sigma = float("nan")
-        if keep.size:
-            inl, sigma, _ = smooth_residuals(r_c, c_c, shift[keep, 0], shift[keep, 1])
-            status[keep[~inl]] = "model_residual"
-            keep, r_c, c_c = keep[inl], r_c[inl], c_c[inl]
-        for r in REASONS:
-            reasons[r] += int(np.sum(status == r))
-        if keep.size:
-            kw = {"ccd": i} if pushbroom else {}
-            lon, lat, h = model_pc.image_to_ground(r_c.astype(np.float64), c_c.astype(np.float64), dem=dem,
-                                                   band=band, **kw)
-            ok = np.isfinite(lon)
-            sig = np.full(ok.sum(), max(sigma, 0.01) if np.isfinite(sigma) else 0.1)
-            tables.append({
-                "row": r_c[ok] + shift[keep[ok], 0], "col": c_c[ok] + shift[keep[ok], 1],
-                "lon": lon[ok], "lat": lat[ok], "h": h[ok], "sigma_px": sig,
-                "band": np.full(ok.sum(), band or "", dtype=object), "ccd": np.full(ok.sum(), look.name, dtype=object),
-                "score": score[keep[ok]],
-            })
-        cloud_sum += cloud_px * look.n_detectors
-        per_ccd.append({
-            "ccd": look.name, "windows": int(n), "gcps": int(keep.size),
-            "usable_fraction": float(keep.size / n),
-            "cloud_fraction": cloud_px,
-            "cloud_windows": int(np.sum(status == "cloud")),
-            "no_texture_fraction": float(np.mean(status == "no_texture")),
-            "sigma_px": None if not np.isfinite(sigma) else sigma,
-            "coverage": _coverage(r_c, c_c - look.first_col, img.shape),
-        })
-        if progress:
-            progress(f"CCD {look.name}: {keep.size} GCPs from {n} windows")
-    timings["reference_s"] = t_ref
-    timings["phase_s"] = t_phase
-    table = None
-    if tables:
-        table = GcpTable.from_arrays(**{k: np.concatenate([t[k] for t in tables]) for k in tables[0]})
-        if opt.check_fraction > 0 and len(table) > 1:
-            table = table.split_check(opt.check_fraction, seed=opt.seed)
-    timings["total_s"] = time.perf_counter() - t0
+        pm = phase_correlate(wr[go], ws[go], max_shift_px=w / 4.0,
+                             backend="torch" if opt.backend in ("gpu", "torch") else "cpu",
+                             device="cuda" if opt.backend == "gpu" else None)
+        shift[a + go, 0] = pm.shift_row_px
+        shift[a + go, 1] = pm.shift_col_px
+        score[a + go] = pm.score
+        for code, name in _PHASE_REASON.items():
+            status[a + go[pm.reason == code]] = name
+    return status, std_r, shift, score
+
+
+def _reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, opt: MatchOptions):
+    """Mark featureless, locally inconsistent and model-residual outliers in ``status`` (in place).
+
+    Returns
+    -------
+    keep : ndarray of intp
+        Indices of the kept windows.
+    r_c, c_c : ndarray, shape (len(keep),)
+        Their centres in whole-scene continuous pixel coordinates.
+    sigma : float
+        Robust spread of the residuals about a smooth per-CCD correction, pixels (NaN if none).
+    """
+    half = opt.window_px // 2
+    # water and other featureless ground, judged on the whole CCD
+    texture_ok = np.isfinite(std_r)
+    status[(status == "") & texture_ok & low_texture(std_r, texture_fraction=opt.texture_fraction)] = "no_texture"
+    # local consistency on the window grid
+    grid = np.where((status == "")[:, None], shift, np.nan).reshape(*grid_shape, 2)
+    consistent = local_consistency(grid).reshape(-1)
+    status[(status == "") & ~consistent] = "inconsistent"
+    keep = np.flatnonzero(status == "")
+    r_c = rr[keep] + half  # window centres (continuous coordinates)
+    c_c = cc[keep] + half + first_col
+    sigma = float("nan")
+    if keep.size:
+        inl, sigma, _ = smooth_residuals(r_c, c_c, shift[keep, 0], shift[keep, 1])
+        status[keep[~inl]] = "model_residual"
+        keep, r_c, c_c = keep[inl], r_c[inl], c_c[inl]
+    return keep, r_c, c_c, sigma
+
+
+def _ccd_gcps(model_pc, dem, band, look, r_c, c_c, shift, score, sigma, ccd_kw) -> dict:
+    """GCP columns of one CCD: the ground seen at each window centre, observed at centre + shift."""
+    lon, lat, h = model_pc.image_to_ground(r_c.astype(np.float64), c_c.astype(np.float64), dem=dem,
+                                           band=band, **ccd_kw)
+    ok = np.isfinite(lon)
+    sig = np.full(ok.sum(), max(sigma, 0.01) if np.isfinite(sigma) else 0.1)
+    return {
+        "row": r_c[ok] + shift[ok, 0], "col": c_c[ok] + shift[ok, 1],
+        "lon": lon[ok], "lat": lat[ok], "h": h[ok], "sigma_px": sig,
+        "band": np.full(ok.sum(), band or "", dtype=object), "ccd": np.full(ok.sum(), look.name, dtype=object),
+        "score": score[ok],
+    }
+
+
+def _gcp_table(tables: list, opt: MatchOptions):
+    """One GcpTable from the per-CCD columns, a share marked as check points; None if empty."""
+    if not tables:
+        return None
+    table = GcpTable.from_arrays(**{k: np.concatenate([t[k] for t in tables]) for k in tables[0]})
+    if opt.check_fraction > 0 and len(table) > 1:
+        table = table.split_check(opt.check_fraction, seed=opt.seed)
+    return table
+
+
+def _summary(band, table, tally: _Tally, coarse, opt: MatchOptions, timings: dict, *, n_cols: int) -> dict:
+    """The JSON-ready report of :func:`extract_gcps`."""
+    reasons, n_windows = tally.reasons, tally.n_windows
     n_gcp = 0 if table is None else len(table)
     summary = {
         "kind": "gcpcal.match",
@@ -241,19 +307,19 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
         "check_points": int(0 if table is None else np.sum(table.kind == "check")),
         "windows": n_windows,
         "usable_fraction": n_gcp / max(n_windows, 1),
-        "cloud_fraction": cloud_sum / scene.shape[1],
+        "cloud_fraction": tally.cloud_sum / n_cols,
         "cloud_window_fraction": reasons["cloud"] / max(n_windows, 1),
         "rejected": reasons,
-        "per_ccd": per_ccd,
+        "per_ccd": tally.per_ccd,
         "coarse": coarse.summary(),
         "options": asdict(opt),
         "timings": timings,
         "matches_per_second": (n_windows - reasons["no_reference"] - reasons["no_data"] - reasons["cloud"])
-        / max(t_phase, 1e-9),
+        / max(tally.t_phase, 1e-9),
     }
     if n_gcp == 0:
         summary["message"] = "no GCP: " + ", ".join(f"{k} {v}" for k, v in reasons.items() if v)
-    return table, summary
+    return summary
 
 
 def _coverage(row, col, shape, cells: int = 8) -> float:
@@ -266,7 +332,27 @@ def _coverage(row, col, shape, cells: int = 8) -> float:
 
 
 def read_band(model, band: str, image=None) -> np.ndarray:
-    """The pixels of ``band`` (float32): ``image`` if given, else the manifest's raster."""
+    """The pixels of ``band`` (float32): ``image`` if given, else the manifest's raster.
+
+    Parameters
+    ----------
+    model : SensorModel
+        Model opened from a manifest; its ``rasters`` map band -> ``{"path", "index"}``.
+    band : str
+        Band to read.
+    image : str or Path, optional
+        A raster to read instead (its first band).
+
+    Returns
+    -------
+    ndarray of float32, shape (n_rows, n_cols)
+        The pixels, NaN where the raster is masked (nodata).
+
+    Raises
+    ------
+    InputError
+        No raster for the band, or the raster cannot be read.
+    """
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning, RasterioError
     import warnings

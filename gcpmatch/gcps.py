@@ -30,10 +30,13 @@ CSV (``*.csv``)
     (RFC 4180). Written with every column, floats in their shortest repr-exact form (reading
     them back gives the same float64 bit for bit) and ``\\n`` line ends.
 GeoPackage (``*.gpkg``)
-    OGC GeoPackage 1.3 [1]_ written with :mod:`sqlite3`: one features layer (default name
-    ``gcps``) in EPSG:4326 whose ``POINT Z`` geometry holds ``(lon, lat, h)`` and whose
-    attribute columns hold every field above. On reading, the attributes are authoritative and
-    the geometry must agree with them (1e-9 degree, 1e-6 m).
+    OGC GeoPackage 1.3 [1]_ written and read by GDAL through :mod:`pyogrio` (its ``raw``
+    numpy-array API: no pandas): one features layer (default name ``gcps``) in EPSG:4326 whose
+    ``POINT Z`` geometry holds ``(lon, lat, h)`` and whose attribute columns hold every field
+    above. On reading, the file must carry a GeoPackage ``application_id``, the attributes are
+    authoritative and the geometry must agree with them (1e-9 degree, 1e-6 m); one SQL scan
+    (run by GDAL) rejects NULLs and values of the wrong SQLite storage class, which GDAL would
+    otherwise convert silently.
 GeoTIFF (``*.tif``, ``*.tiff``)
     GDAL ground control points (GeoTIFF tie points) in EPSG:4326, readable by any GIS. GDAL's GCP
     ``(pixel, line)`` use the corner convention (``(0, 0)`` is the upper-left corner of the
@@ -71,7 +74,6 @@ import csv
 import io
 import os
 import re
-import sqlite3
 import warnings
 from dataclasses import dataclass
 from operator import itemgetter
@@ -102,9 +104,8 @@ _FLOAT_COLUMNS = frozenset(("row", "col", "lon", "lat", "h", "sigma_px", "score"
 _DEFAULTS = {"sigma_px": 1.0, "band": "", "ccd": "", "score": 1.0, "kind": "gcp"}
 KINDS = ("gcp", "check")
 
-_CHUNK_ROWS = 65536  # rows formatted / inserted at a time by the writers
+_CHUNK_ROWS = 65536  # rows formatted at a time by the CSV writer
 _GPKG_APPLICATION_IDS = (0x47504B47, 0x47503130, 0x47503131)  # 'GPKG', 'GP10', 'GP11'
-_GPKG_USER_VERSION = 10300
 _TIFF_DOMAIN, _TIFF_ITEM = "gcpcal", "GCP_TABLE_CSV"
 # GDAL writes at most 10922 GCPs into the GeoTIFF tie-point tag (6 doubles each, a uint16
 # count: GDAL issue #10164, pull request #10166); beyond that it falls back to a .aux.xml file.
@@ -224,11 +225,28 @@ class GcpTable:
         return f"GcpTable({len(self)} points: {len(self) - n_check} gcp, {n_check} check)"
 
     def as_dict(self) -> dict[str, np.ndarray]:
-        """The columns, in :data:`COLUMNS` order, as a ``{name: (N,) array}`` dict."""
+        """The columns, in :data:`COLUMNS` order, as a ``{name: (N,) array}`` dict.
+
+        Returns
+        -------
+        dict of str to ndarray, each shape (N,)
+            The table's own read-only arrays (no copy).
+        """
         return {name: getattr(self, name) for name in COLUMNS}
 
     def select(self, which) -> GcpTable:
-        """The points picked by a boolean mask of shape (N,) or by integer indices."""
+        """The points picked by a boolean mask of shape (N,) or by integer indices.
+
+        Parameters
+        ----------
+        which : array_like of bool, shape (N,), or of int, shape (M,)
+            Mask or indices (indices may repeat only if the ids stay unique).
+
+        Returns
+        -------
+        GcpTable
+            The picked points, in mask order or index order.
+        """
         which = np.asarray(which)
         if which.dtype == bool:
             if which.shape != (len(self),):
@@ -240,16 +258,36 @@ class GcpTable:
         return GcpTable(**{k: v[which] for k, v in self.as_dict().items()})  # ids checked unique
 
     def gcps(self) -> GcpTable:
-        """The points of kind "gcp" (the ones a fit may use)."""
+        """The points of kind "gcp" (the ones a fit may use).
+
+        Returns
+        -------
+        GcpTable
+        """
         return self.select(self.kind == "gcp")
 
     def checks(self) -> GcpTable:
-        """The points of kind "check" (independent check points)."""
+        """The points of kind "check" (independent check points).
+
+        Returns
+        -------
+        GcpTable
+        """
         return self.select(self.kind == "check")
 
     @classmethod
     def concatenate(cls, tables) -> GcpTable:
-        """One table holding the points of ``tables`` in order; ids must stay unique."""
+        """One table holding the points of ``tables`` in order; ids must stay unique.
+
+        Parameters
+        ----------
+        tables : iterable of GcpTable
+            At least one table.
+
+        Returns
+        -------
+        GcpTable
+        """
         tables = list(tables)
         if not tables:
             raise InputError("concatenate() needs at least one table")
@@ -699,20 +737,22 @@ def _first_unparsable(a: np.ndarray) -> int:
 
 
 # -- GeoPackage -------------------------------------------------------------------------------
-def _read_gpkg(path: Path, image_shape, layer) -> GcpTable:
-    source = str(path)
-    if not path.is_file():
-        raise InputError("cannot read: no such file", path=source)
-    try:
-        con = sqlite3.connect(path.resolve().as_uri() + "?mode=ro", uri=True)
-    except sqlite3.Error as exc:
-        raise InputError(f"cannot open as SQLite: {exc}", path=source) from None
-    try:
-        return _read_gpkg_db(con, source, image_shape, layer)
-    except sqlite3.Error as exc:
-        raise InputError(f"not a readable GeoPackage: {exc}", path=source) from None
-    finally:
-        con.close()
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+# ISO WKB POINT Z, little-endian: byte order, geometry type, x, y, z (29 bytes)
+_WKB_POINT_Z = np.dtype([("order", "u1"), ("type", "<u4"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
+assert _WKB_POINT_Z.itemsize == 29
+_WKB_POINT_DIMS = {1: 2, 1001: 3, 0x80000001: 3, 2001: 3, 3001: 4}  # 2D, Z (ISO, 2.5D), M, ZM
+_WKB_HAS_Z = frozenset((1001, 0x80000001, 3001))
+_OGR_NUMBER = frozenset(("OFTReal", "OFTInteger", "OFTInteger64"))
+_OGR_TEXT = frozenset(("OFTString", "OFTInteger", "OFTInteger64"))
+
+
+def _pyogrio_errors() -> tuple:
+    """The exception types pyogrio raises for unreadable or unwritable data sources."""
+    from pyogrio import errors
+
+    return (errors.DataSourceError, errors.DataLayerError, errors.FieldError, errors.FeatureError,
+            errors.GeometryError, errors.CRSError)  # fmt: skip
 
 
 def _q(name: str) -> str:
@@ -720,136 +760,199 @@ def _q(name: str) -> str:
     return '"' + name.replace('"', '""') + '"'
 
 
-def _read_gpkg_db(con, source, image_shape, layer) -> GcpTable:
-    app_id = con.execute("PRAGMA application_id").fetchone()[0]
-    if app_id not in _GPKG_APPLICATION_IDS:
-        raise InputError(f"not a GeoPackage (SQLite application_id {app_id:#x}, expected "
-                         "0x47504b47 'GPKG')", path=source)  # fmt: skip
-    layers = [r[0] for r in con.execute(
-        "SELECT table_name FROM gpkg_contents WHERE data_type = 'features' ORDER BY table_name")]
-    if layer is None:
-        if len(layers) == 1 or "gcps" in layers:
-            layer = layers[0] if len(layers) == 1 else "gcps"
-        else:
-            raise InputError(f"has {len(layers)} feature layers ({', '.join(layers) or 'none'}); "
-                             "choose one with layer=", path=source)  # fmt: skip
-    elif layer not in layers:
-        raise InputError(f"no features layer {layer!r}; layers: {', '.join(layers) or 'none'}",
-                         path=source)  # fmt: skip
-    geom = con.execute("SELECT column_name, srs_id FROM gpkg_geometry_columns WHERE table_name = ?",
-                       (layer,)).fetchone()  # fmt: skip
-    info = con.execute(f"PRAGMA table_info({_q(layer)})").fetchall()
-    pk = [r[1] for r in info if r[5] == 1]
-    if geom is None or len(pk) != 1:
-        raise InputError(f"layer {layer!r} has no geometry column or no single integer primary "
-                         "key", path=source)  # fmt: skip
-    geom_col, srs_id = geom
-    if srs_id != 4326:
-        raise InputError(f"layer {layer!r} is in srs_id {srs_id}; GCP tables are in EPSG:4326 "
-                         "(WGS84 lon/lat)", path=source)  # fmt: skip
-    names = [r[1] for r in info if r[1] not in (pk[0], geom_col)]
-    for name in names:
-        if name not in COLUMNS:
-            raise InputError(f"layer {layer!r}: unknown column {name!r}; columns are "
-                             f"{', '.join(COLUMNS)}", path=source, field=name)  # fmt: skip
-    for name in REQUIRED_COLUMNS:
-        if name not in names:
-            raise InputError(f"layer {layer!r}: missing required column {name!r}", path=source,
-                             field=name)  # fmt: skip
-    order_by = f"FROM {_q(layer)} ORDER BY {_q(pk[0])}"
-    fids = np.fromiter(map(itemgetter(0), con.execute(f"SELECT {_q(pk[0])} {order_by}")),
-                       dtype=np.int64)  # fmt: skip
-    n = fids.size
-    if n == 0:
-        raise InputError(f"layer {layer!r} has no features", path=source)
+def _read_gpkg(path: Path, image_shape, layer) -> GcpTable:
+    source = str(path)
+    if not path.is_file():
+        raise InputError("cannot read: no such file", path=source)
+    _check_gpkg_header(path, source)
+    gdal_errors = _pyogrio_errors()
+    try:
+        layer = _pick_gpkg_layer(path, source, layer)
+        names, fid_column = _gpkg_layer_schema(path, source, layer)
+        _check_gpkg_value_types(path, source, layer, names, fid_column)
+        fids, geometry, cols = _read_gpkg_columns(path, source, layer, names)
+    except gdal_errors as exc:
+        raise InputError(f"not a readable GeoPackage: {exc}", path=source) from None
 
     def where(i):
         return f"feature fid {fids[i]}"
 
-    # the first bad value, found by one scan in SQL, so the bulk reads below meet none
-    bad = []
-    for name in names:
-        allowed = ("'real', 'integer'" if name in _FLOAT_COLUMNS else
-                   "'text', 'integer', 'null'" if name in ("band", "ccd") else "'text', 'integer'")
-        bad.append(f"typeof({_q(name)}) NOT IN ({allowed})")  # band/ccd NULL: ""
-    found = con.execute(f"SELECT {_q(pk[0])}, {', '.join(map(_q, names))} FROM {_q(layer)} "
-                        f"WHERE {' OR '.join(bad)} ORDER BY {_q(pk[0])} LIMIT 1").fetchone()
-    if found is not None:
-        for name, value in zip(names, found[1:]):
-            ok = (isinstance(value, (int, float)) if name in _FLOAT_COLUMNS
-                  else isinstance(value, (str, int)) or (value is None and name in ("band", "ccd")))
-            if not ok:
-                what = "NULL" if value is None else f"{value!r} is not a " + (
-                    "number" if name in _FLOAT_COLUMNS else "text")  # fmt: skip
-                raise InputError(f"feature fid {found[0]}: {what}", path=source, field=name)
-    floats = [name for name in names if name in _FLOAT_COLUMNS]
-    texts = [name for name in names if name not in _FLOAT_COLUMNS]
-    values = np.array(con.execute(f"SELECT {', '.join(map(_q, floats))} {order_by}").fetchall(),
-                      dtype=np.float64).reshape(n, len(floats))  # fmt: skip
-    cols = {name: np.ascontiguousarray(values[:, j]) for j, name in enumerate(floats)}
-    del values
-    text_sql = ", ".join(f"ifnull({_q(name)}, '')" for name in texts)
-    rows = con.execute(f"SELECT {text_sql} {order_by}").fetchall()
-    for name, column in zip(texts, zip(*rows)):
-        column = np.array(column)
-        cols[name] = np.char.strip(column if column.dtype.kind == "U" else column.astype(str))
-    del rows
-    for name in COLUMNS:
-        if name not in names:
-            cols[name] = _default_column(name, n)
-    cols = {name: cols[name] for name in COLUMNS}
-    blobs = list(map(itemgetter(0), con.execute(f"SELECT {_q(geom_col)} {order_by}")))
-    _check_geometry(blobs, cols, where, source)
+    _check_geometry(geometry, cols, where, source)
     _validate(cols, where=where, path=source, image_shape=image_shape)
     return GcpTable._trusted(cols)
 
 
-_ENVELOPE_DOUBLES = {0: 0, 1: 4, 2: 6, 3: 6, 4: 8}
+def _check_gpkg_header(path: Path, source: str) -> None:
+    """Require an SQLite 3 file whose header carries a GeoPackage ``application_id``."""
+    try:
+        with open(path, "rb") as fh:
+            header = fh.read(100)
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path=source) from None
+    if len(header) < 100 or not header.startswith(_SQLITE_MAGIC):
+        raise InputError("not a GeoPackage (not an SQLite 3 database file)", path=source)
+    app_id = int.from_bytes(header[68:72], "big")
+    if app_id not in _GPKG_APPLICATION_IDS:
+        raise InputError(f"not a GeoPackage (SQLite application_id {app_id:#x}, expected "
+                         "0x47504b47 'GPKG')", path=source)  # fmt: skip
 
 
-def _parse_gpkg_point(blob) -> tuple[float, float, float]:
-    """(x, y, z or NaN) of a GeoPackageBinary point; raises ValueError when not one."""
-    if not isinstance(blob, bytes) or len(blob) < 8 or blob[:2] != b"GP":
-        raise ValueError("not a GeoPackageBinary geometry")
-    flags = blob[3]
-    if flags & 0x10:
-        raise ValueError("empty geometry")
-    n_env = _ENVELOPE_DOUBLES.get((flags >> 1) & 0x07)
-    if n_env is None:
-        raise ValueError("invalid envelope code")
-    wkb = blob[8 + 8 * n_env:]
+def _pick_gpkg_layer(path: Path, source: str, layer) -> str:
+    """The features layer to read: ``layer``, else the only one, else ``"gcps"``."""
+    import pyogrio
+
+    layers = sorted(str(name) for name, geometry_type in pyogrio.list_layers(path)
+                    if geometry_type is not None)  # fmt: skip
+    if layer is None:
+        if len(layers) == 1 or "gcps" in layers:
+            return layers[0] if len(layers) == 1 else "gcps"
+        raise InputError(f"has {len(layers)} feature layers ({', '.join(layers) or 'none'}); "
+                         "choose one with layer=", path=source)  # fmt: skip
+    if layer not in layers:
+        raise InputError(f"no features layer {layer!r}; layers: {', '.join(layers) or 'none'}",
+                         path=source)  # fmt: skip
+    return layer
+
+
+def _gpkg_layer_schema(path: Path, source: str, layer: str) -> tuple[list[str], str]:
+    """The layer's attribute column names and its FID column, after checking both."""
+    import pyogrio
+
+    info = pyogrio.read_info(path, layer=layer)
+    if not info.get("fid_column") or not info.get("geometry_name"):
+        raise InputError(f"layer {layer!r} has no geometry column or no single integer primary "
+                         "key", path=source)  # fmt: skip
+    if info["crs"] != "EPSG:4326":
+        raise InputError(f"layer {layer!r} is in {info['crs']}; GCP tables are in EPSG:4326 "
+                         "(WGS84 lon/lat)", path=source)  # fmt: skip
+    names = [str(name) for name in info["fields"]]
+    for name, ogr_type in zip(names, info["ogr_types"]):
+        if name not in COLUMNS:
+            raise InputError(f"layer {layer!r}: unknown column {name!r}; columns are "
+                             f"{', '.join(COLUMNS)}", path=source, field=name)  # fmt: skip
+        allowed = _OGR_NUMBER if name in _FLOAT_COLUMNS else _OGR_TEXT
+        if ogr_type not in allowed:
+            what = "a number" if name in _FLOAT_COLUMNS else "text"
+            raise InputError(f"layer {layer!r}: column {name!r} has GDAL type {ogr_type}; it must "
+                             f"hold {what}", path=source, field=name)  # fmt: skip
+    for name in REQUIRED_COLUMNS:
+        if name not in names:
+            raise InputError(f"layer {layer!r}: missing required column {name!r}", path=source,
+                             field=name)  # fmt: skip
+    return names, str(info["fid_column"])
+
+
+def _check_gpkg_value_types(path: Path, source: str, layer: str, names, fid_column: str) -> None:
+    """Raise on the first feature (by fid) holding a value of the wrong SQLite storage class.
+
+    SQLite columns are dynamically typed and GDAL converts silently (text in a REAL column reads
+    as 0), so one SQL scan run by GDAL finds NULLs and wrong types before the bulk read.
+    """
+    import pyogrio.raw
+
+    bad, shown = [], []
+    for j, name in enumerate(names):
+        allowed = ("'real', 'integer'" if name in _FLOAT_COLUMNS else
+                   "'text', 'integer', 'null'" if name in ("band", "ccd") else "'text', 'integer'")
+        bad.append(f"typeof({_q(name)}) NOT IN ({allowed})")  # band/ccd NULL: ""
+        shown.append(f"typeof({_q(name)}) AS t{j}, CAST({_q(name)} AS TEXT) AS v{j}")
+    sql = (f"SELECT {_q(fid_column)}, {', '.join(shown)} FROM {_q(layer)} "
+           f"WHERE {' OR '.join(bad)} ORDER BY {_q(fid_column)} LIMIT 1")  # fmt: skip
+    _, fids, _, values = pyogrio.raw.read(path, sql=sql, read_geometry=False, return_fids=True)
+    if fids is None or len(fids) == 0:
+        return
+    for j, name in enumerate(names):
+        storage, text = values[2 * j][0], values[2 * j + 1][0]
+        ok = (storage in ("real", "integer") if name in _FLOAT_COLUMNS
+              else storage in ("text", "integer") or (storage == "null" and name in ("band", "ccd")))
+        if not ok:
+            what = "NULL" if storage == "null" else f"{text!r} is not a " + (
+                "number" if name in _FLOAT_COLUMNS else "text")  # fmt: skip
+            raise InputError(f"feature fid {int(fids[0])}: {what}", path=source, field=name)
+
+
+def _read_gpkg_columns(path: Path, source: str, layer: str, names):
+    """Fids, WKB geometries and typed columns (defaults filled) of every feature, in fid order."""
+    import pyogrio.raw
+
+    _, fids, geometry, values = pyogrio.raw.read(path, layer=layer, columns=names,
+                                                 return_fids=True)  # fmt: skip
+    if len(fids) == 0:
+        raise InputError(f"layer {layer!r} has no features", path=source)
+    order = np.argsort(fids, kind="stable") if np.any(np.diff(fids) < 0) else slice(None)
+    fids, geometry = np.asarray(fids)[order], np.asarray(geometry, dtype=object)[order]
+    cols = {}
+    for name, column in zip(names, values):
+        column = np.asarray(column)[order]
+        if name in _FLOAT_COLUMNS:
+            cols[name] = np.ascontiguousarray(column, dtype=np.float64)
+        else:
+            cols[name] = np.char.strip(_text_column(column))
+    for name in COLUMNS:
+        if name not in cols:
+            cols[name] = _default_column(name, fids.size)
+    return fids, geometry, {name: cols[name] for name in COLUMNS}
+
+
+def _text_column(column: np.ndarray) -> np.ndarray:
+    """A numpy unicode array from what GDAL returns for a text column (NULL, allowed only in
+    ``band``/``ccd``, becomes ``""``; integers become their decimal text)."""
+    if column.dtype.kind == "f":  # an INTEGER column holding NULLs comes back as float + NaN
+        null = np.isnan(column)
+        return np.where(null, "", np.where(null, 0, column).astype(np.int64).astype(str))
+    if column.dtype.kind in "iu":
+        return column.astype(str)
+    values = column.tolist()
+    if None in values:
+        values = ["" if v is None else v for v in values]
+    return np.array(values, dtype=str) if values else np.zeros(0, dtype="U1")
+
+
+def _parse_wkb_point(wkb) -> tuple[float, float, float]:
+    """(x, y, z or NaN) of a WKB point (ISO or 2.5D, either byte order); ValueError if not one."""
+    if wkb is None:
+        raise ValueError("no geometry (NULL)")
+    if not isinstance(wkb, bytes) or len(wkb) < 5:
+        raise ValueError("not a WKB geometry")
     endian = "<" if wkb[:1] == b"\x01" else ">"
     gtype = int(np.frombuffer(wkb[1:5], dtype=endian + "u4")[0])
-    dims = {1: 2, 1001: 3, 0x80000001: 3, 2001: 3, 3001: 4}.get(gtype)
+    dims = _WKB_POINT_DIMS.get(gtype)
     if dims is None:
         raise ValueError(f"WKB geometry type {gtype} is not a point")
+    if len(wkb) < 5 + 8 * dims:
+        raise ValueError("truncated WKB point")
     xyz = np.frombuffer(wkb[5:5 + 8 * dims], dtype=endian + "f8")
-    z = xyz[2] if gtype in (1001, 0x80000001, 3001) else np.nan
+    if np.isnan(xyz[0]) and np.isnan(xyz[1]):
+        raise ValueError("empty geometry")
+    z = xyz[2] if gtype in _WKB_HAS_Z else np.nan
     return float(xyz[0]), float(xyz[1]), float(z)
 
 
-def _check_geometry(blobs, cols, where, source) -> None:
-    """Require every feature's point geometry to agree with its lon/lat/h attributes."""
-    n = len(blobs)
-    xyz = None
+def _geometry_xyz(geometry, where, source) -> np.ndarray:
+    """(N, 3) lon, lat, h of the WKB points (h NaN for 2D points); one vectorized pass when
+    every point is a little-endian POINT Z, the layout GDAL returns for this module's files."""
+    n = len(geometry)
     try:
-        joined = b"".join(blobs)  # TypeError on NULL geometries
-        same_size = len(joined) == 37 * n and all(map((37).__eq__, map(len, blobs)))
+        joined = b"".join(geometry)  # TypeError on NULL geometries
+        same_size = len(joined) == _WKB_POINT_Z.itemsize * n
     except TypeError:
         same_size = False
-    if same_size:  # the layout this module writes: no envelope, little-endian ISO POINT Z
-        raw = np.frombuffer(joined, dtype=_GPKG_POINT_Z)
-        if (np.all(raw["magic"] == b"GP") and np.all(raw["flags"] == 1)
-                and np.all(raw["srs_id"] == 4326) and np.all(raw["wkb_order"] == 1)
-                and np.all(raw["wkb_type"] == 1001)):  # fmt: skip
-            xyz = np.stack([raw["x"], raw["y"], raw["z"]], axis=1)
-    if xyz is None:  # any other layout: one blob at a time
-        xyz = np.empty((n, 3))
-        for i, blob in enumerate(blobs):
-            try:
-                xyz[i] = _parse_gpkg_point(blob)
-            except ValueError as exc:
-                raise InputError(f"{where(i)}: geometry: {exc}", path=source) from None
+    if same_size:
+        raw = np.frombuffer(joined, dtype=_WKB_POINT_Z)
+        if np.all(raw["order"] == 1) and np.all(np.isin(raw["type"], (1001, 0x80000001))):
+            return np.stack([raw["x"], raw["y"], raw["z"]], axis=1)
+    xyz = np.empty((n, 3))
+    for i, wkb in enumerate(geometry):  # any other layout: one geometry at a time
+        try:
+            xyz[i] = _parse_wkb_point(wkb)
+        except ValueError as exc:
+            raise InputError(f"{where(i)}: geometry: {exc}", path=source) from None
+    return xyz
+
+
+def _check_geometry(geometry, cols, where, source) -> None:
+    """Require every feature's point geometry to agree with its lon/lat/h attributes."""
+    xyz = _geometry_xyz(geometry, where, source)
     for k, name, tol in ((0, "lon", 1e-9), (1, "lat", 1e-9), (2, "h", 1e-6)):
         v = cols[name]
         off = np.abs(xyz[:, k] - v) > tol
@@ -863,13 +966,6 @@ def _check_geometry(blobs, cols, where, source) -> None:
                              "features); the attributes define the GCPs: edit them, not the "
                              "geometry",
                              path=source, field=name)  # fmt: skip
-
-
-_GPKG_POINT_Z = np.dtype([
-    ("magic", "S2"), ("version", "u1"), ("flags", "u1"), ("srs_id", "<i4"),
-    ("wkb_order", "u1"), ("wkb_type", "<u4"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"),
-])  # fmt: skip
-assert _GPKG_POINT_Z.itemsize == 37
 
 
 # -- GeoTIFF ----------------------------------------------------------------------------------
@@ -989,82 +1085,41 @@ def write_gcps_csv(table: GcpTable, path) -> Path:
     return path
 
 
-_WKT_4326 = (
-    'GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563,'
-    'AUTHORITY["EPSG","7030"]],AUTHORITY["EPSG","6326"]],PRIMEM["Greenwich",0,'
-    'AUTHORITY["EPSG","8901"]],UNIT["degree",0.0174532925199433,AUTHORITY["EPSG","9122"]],'
-    'AXIS["Latitude",NORTH],AXIS["Longitude",EAST],AUTHORITY["EPSG","4326"]]'
-)
-
-_GPKG_DDL = """
-CREATE TABLE gpkg_spatial_ref_sys (
-  srs_name TEXT NOT NULL,
-  srs_id INTEGER NOT NULL PRIMARY KEY,
-  organization TEXT NOT NULL,
-  organization_coordsys_id INTEGER NOT NULL,
-  definition TEXT NOT NULL,
-  description TEXT
-);
-CREATE TABLE gpkg_contents (
-  table_name TEXT NOT NULL PRIMARY KEY,
-  data_type TEXT NOT NULL,
-  identifier TEXT UNIQUE,
-  description TEXT DEFAULT '',
-  last_change DATETIME NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')),
-  min_x DOUBLE, min_y DOUBLE, max_x DOUBLE, max_y DOUBLE,
-  srs_id INTEGER,
-  CONSTRAINT fk_gc_r_srs_id FOREIGN KEY (srs_id) REFERENCES gpkg_spatial_ref_sys(srs_id)
-);
-CREATE TABLE gpkg_geometry_columns (
-  table_name TEXT NOT NULL,
-  column_name TEXT NOT NULL,
-  geometry_type_name TEXT NOT NULL,
-  srs_id INTEGER NOT NULL,
-  z TINYINT NOT NULL,
-  m TINYINT NOT NULL,
-  CONSTRAINT pk_geom_cols PRIMARY KEY (table_name, column_name),
-  CONSTRAINT uk_gc_table_name UNIQUE (table_name),
-  CONSTRAINT fk_gc_tn FOREIGN KEY (table_name) REFERENCES gpkg_contents(table_name),
-  CONSTRAINT fk_gc_srs FOREIGN KEY (srs_id) REFERENCES gpkg_spatial_ref_sys (srs_id)
-);
-"""
-
-_SRS_ROWS = (
-    ("Undefined cartesian SRS", -1, "NONE", -1, "undefined",
-     "undefined cartesian coordinate reference system"),
-    ("Undefined geographic SRS", 0, "NONE", 0, "undefined",
-     "undefined geographic coordinate reference system"),
-    ("WGS 84 geodetic", 4326, "EPSG", 4326, _WKT_4326,
-     "longitude/latitude coordinates in decimal degrees on the WGS 84 spheroid"),
-)  # fmt: skip
-
 _LAYER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+_GPKG_DESCRIPTION = ("gcpcal ground control points (lon, lat, h above the WGS84 ellipsoid; row, "
+                     "col with the first pixel's centre at 0.5, 0.5)")  # fmt: skip
 
 
 def write_gcps_gpkg(table: GcpTable, path, *, layer: str = "gcps") -> Path:
     """Write ``table`` as an OGC GeoPackage 1.3 features layer (EPSG:4326 POINT Z); atomically.
 
-    The file holds the mandatory ``gpkg_spatial_ref_sys`` (rows -1, 0 and 4326),
-    ``gpkg_contents`` and ``gpkg_geometry_columns`` tables and the layer: ``fid`` (integer
-    primary key), ``geom`` (GeoPackageBinary [1]_: magic ``GP``, version 0, flags 0x01 =
-    little-endian with no envelope, srs_id 4326, then a little-endian ISO WKB POINT Z (type 1001)
-    holding lon, lat, h), and one column per GCP field (TEXT or DOUBLE, in :data:`COLUMNS`
-    order), rows in table order. No spatial index (optional in the standard; GIS tools build
-    one on demand).
+    Written by GDAL through :func:`pyogrio.raw.write`: the mandatory GeoPackage tables (spatial
+    reference systems -1, 0 and 4326, contents with the layer's extent, geometry columns) and
+    the layer: ``fid`` (integer primary key), ``geom`` (a ``POINT`` with Z holding lon, lat, h;
+    GDAL stores points as GeoPackageBinary with no envelope [1]_) and one column per GCP field
+    (TEXT or REAL, in :data:`COLUMNS` order), features in table order (fid 1, 2, ...). No
+    spatial index (optional in the standard; GIS tools build one on demand).
 
     Parameters
     ----------
     table : GcpTable
         At least one point.
     path : str or Path
-        Destination (``*.gpkg``); its folder must exist. Replaced atomically.
+        Destination (``*.gpkg``); its folder must exist. Written to a temporary file beside it,
+        then renamed: on any error nothing is left and an existing file is untouched.
     layer : str
-        Layer (table) name: letters, digits and underscores, not starting with ``gpkg_``.
+        Layer (table) name: letters, digits and underscores, not starting with a digit,
+        ``gpkg_``, ``rtree_`` or ``sqlite_``.
 
     Returns
     -------
     Path
         ``path``.
+
+    Raises
+    ------
+    InputError
+        Bad table, folder or layer name, or GDAL could not write the file.
     """
     path = _check_output(table, path)
     if not (isinstance(layer, str) and _LAYER_NAME.match(layer)
@@ -1072,58 +1127,42 @@ def write_gcps_gpkg(table: GcpTable, path, *, layer: str = "gcps") -> Path:
         raise InputError(f"layer name {layer!r} must be letters, digits and underscores, not "
                          "starting with a digit, gpkg_, rtree_ or sqlite_",
                          path=str(path))  # fmt: skip
+    gdal_errors = _pyogrio_errors()
     tmp = temporary_beside(path, ".gpkg")
     try:
-        con = sqlite3.connect(tmp)
-        try:
-            _write_gpkg_db(con, table, layer)
-        finally:
-            con.close()
+        tmp.unlink()  # GDAL creates the file itself; the unique name stays reserved to us
+        _write_gpkg_layer(tmp, table, layer)
         os.replace(tmp, path)
+    except gdal_errors as exc:
+        _remove_sqlite_files(tmp)
+        raise InputError(f"GDAL could not write the GeoPackage: {exc}", path=str(path)) from None
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        _remove_sqlite_files(tmp)
         raise
     return path
 
 
-def _write_gpkg_db(con, table: GcpTable, layer: str) -> None:
-    con.execute("PRAGMA journal_mode = OFF")  # a private temporary file: no rollback journal
-    con.execute("PRAGMA synchronous = OFF")
-    con.execute(f"PRAGMA application_id = {0x47504B47}")
-    con.execute(f"PRAGMA user_version = {_GPKG_USER_VERSION}")
-    con.executescript(_GPKG_DDL)
-    attr = ", ".join(f"{_q(name)} {'DOUBLE' if name in _FLOAT_COLUMNS else 'TEXT'} NOT NULL"
-                     + (" UNIQUE" if name == "id" else "") for name in COLUMNS)  # fmt: skip
-    con.execute(f"CREATE TABLE {_q(layer)} (fid INTEGER PRIMARY KEY AUTOINCREMENT NOT NULL, "
-                f"geom POINT, {attr})")  # fmt: skip
-    with con:
-        con.executemany("INSERT INTO gpkg_spatial_ref_sys VALUES (?, ?, ?, ?, ?, ?)", _SRS_ROWS)
-        con.execute(
-            "INSERT INTO gpkg_contents (table_name, data_type, identifier, description, min_x, "
-            "min_y, max_x, max_y, srs_id) VALUES (?, 'features', ?, ?, ?, ?, ?, ?, 4326)",
-            (layer, layer, "gcpcal ground control points (lon, lat, h above the WGS84 "
-             "ellipsoid; row, col with the first pixel's centre at 0.5, 0.5)",
-             float(table.lon.min()), float(table.lat.min()), float(table.lon.max()),
-             float(table.lat.max())),
-        )  # fmt: skip
-        con.execute("INSERT INTO gpkg_geometry_columns VALUES (?, 'geom', 'POINT', 4326, 1, 0)",
-                    (layer,))  # fmt: skip
-        names = ", ".join(["geom"] + [_q(name) for name in COLUMNS])
-        sql = f"INSERT INTO {_q(layer)} ({names}) VALUES ({', '.join('?' * (len(COLUMNS) + 1))})"
-        cols = list(table.as_dict().values())
-        for lo in range(0, len(table), _CHUNK_ROWS):
-            sl = slice(lo, lo + _CHUNK_ROWS)
-            con.executemany(sql, zip(_gpkg_points(table.lon[sl], table.lat[sl], table.h[sl]),
-                                     *(a[sl].tolist() for a in cols)))  # fmt: skip
+def _write_gpkg_layer(tmp: Path, table: GcpTable, layer: str) -> None:
+    """One GDAL call writing the whole table (GDAL batches the inserts in transactions)."""
+    import pyogrio.raw
+
+    points = np.zeros(len(table), dtype=_WKB_POINT_Z)
+    points["order"], points["type"] = 1, 1001
+    points["x"], points["y"], points["z"] = table.lon, table.lat, table.h
+    geometry = np.array(points.view(f"V{_WKB_POINT_Z.itemsize}").tolist(), dtype=object)
+    # text as Python str objects: a numpy "U<w>" column would become a TEXT(<w>) field
+    fields = [a.astype(object) if a.dtype.kind == "U" else a for a in table.as_dict().values()]
+    pyogrio.raw.write(tmp, geometry, fields, fields=list(COLUMNS), layer=layer, driver="GPKG",
+                      crs="EPSG:4326", geometry_type="Point Z",
+                      dataset_options={"VERSION": "1.3"},
+                      layer_options={"SPATIAL_INDEX": "NO", "FID": "fid", "GEOMETRY_NAME": "geom",
+                                     "DESCRIPTION": _GPKG_DESCRIPTION})  # fmt: skip
 
 
-def _gpkg_points(lon, lat, h) -> list[bytes]:
-    """GeoPackageBinary POINT Z blobs (37 bytes each), built in one vectorized pass."""
-    rec = np.zeros(lon.shape, dtype=_GPKG_POINT_Z)
-    rec["magic"], rec["flags"], rec["srs_id"] = b"GP", 1, 4326
-    rec["wkb_order"], rec["wkb_type"] = 1, 1001
-    rec["x"], rec["y"], rec["z"] = lon, lat, h
-    return rec.view("V37").tolist()
+def _remove_sqlite_files(tmp: Path) -> None:
+    """Remove a temporary database and any journal SQLite left beside it."""
+    for suffix in ("", "-journal", "-wal", "-shm"):
+        Path(str(tmp) + suffix).unlink(missing_ok=True)
 
 
 def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None) -> Path:
@@ -1152,14 +1191,29 @@ def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None
     -------
     Path
         ``path``.
-    """
-    import rasterio
-    from rasterio.control import GroundControlPoint
-    from rasterio.crs import CRS
-    from rasterio.errors import NotGeoreferencedWarning, RasterioError
-    from rasterio.windows import Window
 
+    Raises
+    ------
+    InputError
+        Too many points, points outside the image, an unreadable or mis-shaped
+        ``source_raster``, or GDAL could not write the file.
+    """
     path = _check_output(table, path)
+    image_shape = _check_geotiff_table(table, path, image_shape)
+    src = _open_source_raster(source_raster, path)
+    try:
+        if src is not None and (src.height, src.width) != image_shape:
+            raise InputError(f"raster shape {(src.height, src.width)} differs from image_shape "
+                             f"{image_shape}", path=str(source_raster))  # fmt: skip
+        _write_geotiff_atomically(table, path, image_shape, src)
+    finally:
+        if src is not None:
+            src.close()
+    return path
+
+
+def _check_geotiff_table(table: GcpTable, path: Path, image_shape) -> tuple[int, int]:
+    """The checked ``(n_rows, n_cols)``, after checking the table fits a GeoTIFF and the image."""
     image_shape = _check_image_shape(image_shape)
     if image_shape is None:
         raise InputError("image_shape (n_rows, n_cols) is required", path=str(path))
@@ -1169,63 +1223,87 @@ def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None
                          "table", path=str(path))  # fmt: skip
     _validate(table.as_dict(), where=lambda i: f"point {i} (id {str(table.id[i])!r})",
               path=str(path), image_shape=image_shape)  # fmt: skip
-    n_rows, n_cols = image_shape
-    src = None
-    if source_raster is not None:
-        source_raster = Path(source_raster)
-        if source_raster.resolve() == path.resolve():
-            raise InputError("the output would replace source_raster; write elsewhere",
-                             path=str(path))  # fmt: skip
-        try:
-            src = rasterio.open(source_raster)
-        except (RasterioError, OSError) as exc:
-            raise InputError(f"cannot open as a raster: {exc}", path=str(source_raster)) from None
+    return image_shape
+
+
+def _open_source_raster(source_raster, path: Path):
+    """The open rasterio dataset of ``source_raster`` (None if not given); never ``path`` itself."""
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    if source_raster is None:
+        return None
+    source_raster = Path(source_raster)
+    if source_raster.resolve() == path.resolve():
+        raise InputError("the output would replace source_raster; write elsewhere",
+                         path=str(path))  # fmt: skip
     try:
-        if src is not None and (src.height, src.width) != image_shape:
-            raise InputError(f"raster shape {(src.height, src.width)} differs from image_shape "
-                             f"{image_shape}", path=str(source_raster))  # fmt: skip
-        gcps = [GroundControlPoint(row=r, col=c, x=x, y=y, z=z, id=i, info=k)
-                for r, c, x, y, z, i, k in zip(table.row.tolist(), table.col.tolist(),
-                                               table.lon.tolist(), table.lat.tolist(),
-                                               table.h.tolist(), table.id.tolist(),
-                                               table.kind.tolist())]  # fmt: skip
-        profile = dict(driver="GTiff", width=n_cols, height=n_rows, tiled=True,
-                       compress="deflate", BIGTIFF="IF_SAFER")  # fmt: skip
-        if src is None:
-            profile.update(count=1, dtype="uint8", sparse_ok=True)
-        else:
-            profile.update(count=src.count, dtype=src.dtypes[0], nodata=src.nodata)
-        tmp = temporary_beside(path, ".tif")
-        try:
-            with warnings.catch_warnings(), rasterio.Env(GDAL_PAM_ENABLED="NO"):
-                # the new dataset has no georeferencing until its GCPs are set just below
-                warnings.simplefilter("ignore", NotGeoreferencedWarning)
-                dst = rasterio.open(tmp, "w", **profile)
-            with rasterio.Env(GDAL_PAM_ENABLED="NO"), dst:
-                if src is not None:
-                    row_bytes = n_cols * src.count * np.dtype(src.dtypes[0]).itemsize
-                    step = max(1, 2**24 // row_bytes)  # ~16 MiB of pixels at a time
-                    for r0 in range(0, n_rows, step):
-                        win = Window(0, r0, n_cols, min(step, n_rows - r0))
-                        dst.write(src.read(window=win), window=win)
-                    for band, text in enumerate(src.descriptions, start=1):
-                        if text:
-                            dst.set_band_description(band, text)
-                dst.gcps = (gcps, CRS.from_epsg(4326))
-                dst.update_tags(ns=_TIFF_DOMAIN, **{_TIFF_ITEM: "".join(_csv_chunks(table))})
-            with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(tmp) as check:
-                n_written = len(check.gcps[0])
-            if n_written != len(table):  # never leave a file with GCPs silently dropped
-                raise InputError(f"GDAL kept {n_written} of {len(table)} GCPs in the GeoTIFF",
-                                 path=str(path))  # fmt: skip
-            os.replace(tmp, path)
-        except RasterioError as exc:
-            tmp.unlink(missing_ok=True)
-            raise InputError(f"GDAL could not write the GeoTIFF: {exc}", path=str(path)) from None
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-    finally:
+        return rasterio.open(source_raster)
+    except (RasterioError, OSError) as exc:
+        raise InputError(f"cannot open as a raster: {exc}", path=str(source_raster)) from None
+
+
+def _write_geotiff_atomically(table: GcpTable, path: Path, image_shape, src) -> None:
+    """Write the GeoTIFF to a temporary file beside ``path``, check it, rename it onto ``path``."""
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    tmp = temporary_beside(path, ".tif")
+    try:
+        _write_geotiff(table, tmp, image_shape, src)
+        with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(tmp) as check:
+            n_written = len(check.gcps[0])
+        if n_written != len(table):  # never leave a file with GCPs silently dropped
+            raise InputError(f"GDAL kept {n_written} of {len(table)} GCPs in the GeoTIFF",
+                             path=str(path))  # fmt: skip
+        os.replace(tmp, path)
+    except RasterioError as exc:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"GDAL could not write the GeoTIFF: {exc}", path=str(path)) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _write_geotiff(table: GcpTable, tmp: Path, image_shape, src) -> None:
+    """The GeoTIFF itself: pixels (copied from ``src`` or sparse zeros), GCPs, table metadata."""
+    import rasterio
+    from rasterio.control import GroundControlPoint
+    from rasterio.crs import CRS
+    from rasterio.errors import NotGeoreferencedWarning
+
+    n_rows, n_cols = image_shape
+    gcps = [GroundControlPoint(row=r, col=c, x=x, y=y, z=z, id=i, info=k)
+            for r, c, x, y, z, i, k in zip(table.row.tolist(), table.col.tolist(),
+                                           table.lon.tolist(), table.lat.tolist(),
+                                           table.h.tolist(), table.id.tolist(),
+                                           table.kind.tolist())]  # fmt: skip
+    profile = dict(driver="GTiff", width=n_cols, height=n_rows, tiled=True,
+                   compress="deflate", BIGTIFF="IF_SAFER")  # fmt: skip
+    if src is None:
+        profile.update(count=1, dtype="uint8", sparse_ok=True)
+    else:
+        profile.update(count=src.count, dtype=src.dtypes[0], nodata=src.nodata)
+    with warnings.catch_warnings(), rasterio.Env(GDAL_PAM_ENABLED="NO"):
+        # the new dataset has no georeferencing until its GCPs are set just below
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        dst = rasterio.open(tmp, "w", **profile)
+    with rasterio.Env(GDAL_PAM_ENABLED="NO"), dst:
         if src is not None:
-            src.close()
-    return path
+            _copy_pixels(src, dst, n_rows, n_cols)
+        dst.gcps = (gcps, CRS.from_epsg(4326))
+        dst.update_tags(ns=_TIFF_DOMAIN, **{_TIFF_ITEM: "".join(_csv_chunks(table))})
+
+
+def _copy_pixels(src, dst, n_rows: int, n_cols: int) -> None:
+    """Copy every band of ``src`` into ``dst`` in row blocks of ~16 MiB, with band descriptions."""
+    from rasterio.windows import Window
+
+    row_bytes = n_cols * src.count * np.dtype(src.dtypes[0]).itemsize
+    step = max(1, 2**24 // row_bytes)  # ~16 MiB of pixels at a time
+    for r0 in range(0, n_rows, step):
+        win = Window(0, r0, n_cols, min(step, n_rows - r0))
+        dst.write(src.read(window=win), window=win)
+    for band, text in enumerate(src.descriptions, start=1):
+        if text:
+            dst.set_band_description(band, text)

@@ -30,6 +30,17 @@ def local_consistency(shift_grid: np.ndarray, *, radius: int = 2, k: float = 4.0
         Shifts on the window grid; NaN where there is no valid match.
     radius : int
         Neighbourhood half-size in grid cells.
+    k : float
+        Threshold in robust (1.4826 MAD) standard deviations of the deviations from the
+        neighbours' median.
+    floor_px : float
+        Smallest threshold, pixels.
+
+    Returns
+    -------
+    ndarray of bool, shape (n_r, n_c)
+        True where the match is valid and within the threshold of its neighbours' median (or
+        has fewer than 2 valid neighbours: left to the model-residual test).
     """
     n_r, n_c, _ = shift_grid.shape
     pad = np.pad(shift_grid, ((radius, radius), (radius, radius), (0, 0)), constant_values=np.nan)
@@ -66,16 +77,25 @@ def smooth_residuals(row, col, d_row, d_col, *, k: float = 4.0, floor_px: float 
     Parameters
     ----------
     row, col : ndarray (N,)
-        Match positions (pixels).
+        Match positions: continuous scene pixels (first pixel's centre at (0.5, 0.5)).
     d_row, d_col : ndarray (N,)
         Measured shifts (pixels).
+    k : float
+        Rejection threshold in robust standard deviations of the residual distance.
+    floor_px : float
+        Smallest rejection threshold, pixels.
+    iterations : int
+        IRLS iterations (Huber weights).
 
     Returns
     -------
     inlier : ndarray (N,) bool
+        True for matches within the threshold (all True with fewer than 10 matches).
     sigma_px : float
-        Robust standard deviation of the residuals (per axis, MAD-based) of the inliers.
+        Robust standard deviation of the residuals (per axis, MAD-based) of the inliers;
+        NaN with fewer than 10 matches.
     residual : ndarray (N, 2)
+        Measured minus fitted (d_row, d_col), pixels.
     """
     n = row.size
     if n < 10:

@@ -155,7 +155,13 @@ class PhaseMatches:
 
     @property
     def shift_px(self) -> np.ndarray:
-        """Shifts as one array of shape (N, 2): ``(row, col)`` in pixels."""
+        """Shifts as one array: ``(row, col)`` in pixels, moving minus reference.
+
+        Returns
+        -------
+        ndarray of float64, shape (N, 2)
+            ``shift_row_px`` and ``shift_col_px`` side by side.
+        """
         return np.stack([self.shift_row_px, self.shift_col_px], axis=-1)
 
 
@@ -192,27 +198,12 @@ class _Plan:
         return np.dtype(np.complex64 if self.dtype == np.float32 else np.complex128)
 
 
-def phase_correlate(
-    reference,
-    moving,
-    *,
-    upsample: int = 100,
-    window: str | np.ndarray | None = "hann",
-    tukey_alpha: float = 0.5,
-    lowpass: float | None = None,
-    eps: float = 0.5,
-    follow: int = 1,
-    min_score: float | None = None,
-    min_peak_ratio: float = 2.0,
-    max_shift_px=None,
-    exclusion_px: int | None = None,
-    stage1_upsample: int | None = None,
-    dtype: str = "float32",
-    backend: str = "cpu",
-    device: str | None = None,
-    batch: int | None = None,
-    workers: int | None = None,
-) -> PhaseMatches:
+def phase_correlate(reference, moving, *, upsample: int = 100, window: str | np.ndarray | None = "hann",
+                    tukey_alpha: float = 0.5, lowpass: float | None = None, eps: float = 0.5, follow: int = 1,
+                    min_score: float | None = None, min_peak_ratio: float = 2.0, max_shift_px=None,
+                    exclusion_px: int | None = None, stage1_upsample: int | None = None, dtype: str = "float32",
+                    backend: str = "cpu", device: str | None = None, batch: int | None = None,
+                    workers: int | None = None) -> PhaseMatches:
     """Sub-pixel phase correlation of window pairs, batched (see the module docstring).
 
     Parameters
@@ -278,32 +269,42 @@ def phase_correlate(
         invalid options.
     """
     ref, mov = _validate_pairs(reference, moving)
-    n_pairs, height, width = ref.shape
-    options = _validate_options(
-        upsample=upsample, min_score=min_score, min_peak_ratio=min_peak_ratio, lowpass=lowpass,
-        exclusion_px=exclusion_px, stage1_upsample=stage1_upsample, follow=follow, eps=eps,
-        dtype=dtype, backend=backend, device=device, batch=batch, tukey_alpha=tukey_alpha,
-        workers=workers,
-    )
+    _, height, width = ref.shape
+    options = _validate_options(upsample=upsample, min_score=min_score, min_peak_ratio=min_peak_ratio,
+                                lowpass=lowpass, exclusion_px=exclusion_px, stage1_upsample=stage1_upsample,
+                                follow=follow, eps=eps, dtype=dtype, backend=backend, device=device, batch=batch,
+                                tukey_alpha=tukey_alpha, workers=workers)
     max_shift = _validate_max_shift(max_shift_px, height, width)
-    plan = make_plan(
-        (height, width), upsample=upsample, window=window, tukey_alpha=tukey_alpha,
-        lowpass=lowpass, eps=eps, follow=follow, exclusion_px=exclusion_px,
-        stage1_upsample=stage1_upsample, dtype=options["dtype"],
-    )
+    plan = make_plan((height, width), upsample=upsample, window=window, tukey_alpha=tukey_alpha, lowpass=lowpass,
+                     eps=eps, follow=follow, exclusion_px=exclusion_px, stage1_upsample=stage1_upsample,
+                     dtype=options["dtype"])
+    outputs = _run_batches(_make_kernel(plan, options, workers), ref, mov, batch)
+    return _assess(*outputs, min_score, min_peak_ratio, max_shift)
+
+
+def _make_kernel(plan, options: dict, workers):
+    """The batch kernel of the validated backend: numpy + scipy.fft, or torch (lazy import)."""
+    if options["backend"] == "numpy":
+        return NumpyKernel(plan, workers=-1 if workers is None else workers)
+    from gcpmatch import _phase_torch  # lazy: torch is an optional dependency
+
+    return _phase_torch.TorchKernel(plan, device=options["device"])
+
+
+def _run_batches(kernel, ref: np.ndarray, mov: np.ndarray, batch):
+    """Run ``kernel`` over the (N, H, W) pairs ``batch`` at a time (None: 2**19 px worth).
+
+    Returns
+    -------
+    tuple of ndarray
+        The kernel's six outputs (shift, peak, quality mean and variance, secondary peak, first
+        quality mean), each concatenated over the batches along the first axis (N).
+    """
+    n_pairs, height, width = ref.shape
     if batch is None:
         batch = max(1, _BATCH_PIXELS // (height * width))
-
-    if options["backend"] == "numpy":
-        kernel = NumpyKernel(plan, workers=-1 if workers is None else workers)
-    else:
-        from gcpmatch import _phase_torch  # lazy: torch is an optional dependency
-
-        kernel = _phase_torch.TorchKernel(plan, device=options["device"])
-
     parts = [kernel(ref[i:i + batch], mov[i:i + batch]) for i in range(0, n_pairs, batch)]
-    shift, peak, q_mean, q_var, second, first_q_mean = (np.concatenate(p) for p in zip(*parts))
-    return _assess(shift, peak, q_mean, q_var, second, first_q_mean, min_score, min_peak_ratio, max_shift)
+    return tuple(np.concatenate(p) for p in zip(*parts))
 
 
 # --------------------------------------------------------------------------- plan
@@ -322,7 +323,22 @@ def make_plan(
     stage1_upsample: int | None = None,
     dtype=np.float32,
 ) -> _Plan:
-    """Constants of the algorithm for windows of ``shape`` = (H, W) (see :func:`phase_correlate`)."""
+    """Constants of the algorithm for windows of ``shape`` = (H, W) (see :func:`phase_correlate`).
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Window size ``(H, W)``, pixels (rows, columns).
+    upsample, window, tukey_alpha, lowpass, eps, follow, exclusion_px, stage1_upsample
+        As in :func:`phase_correlate` (an array ``window`` has shape (H, W)).
+    dtype : numpy dtype
+        Working precision, float32 or float64.
+
+    Returns
+    -------
+    _Plan
+        Apodization, spectral weights, bin multiplicities, refinement stages and exclusion box.
+    """
     height, width = shape
     dtype = np.dtype(dtype)
     if follow and isinstance(window, np.ndarray):
@@ -394,6 +410,21 @@ def window_profile(name: str, u, tukey_alpha: float = 0.5):
 
     Hann: ``sin^2(pi u)``; Tukey: cosine tapers over ``alpha / 2`` of the support at both ends;
     none: a box. Zero outside ``[0, 1]``.
+
+    Parameters
+    ----------
+    name : {"hann", "tukey", "none"}
+        Profile shape.
+    u : ndarray, any shape
+        Positions in units of the support length (pixel centres of an ``n``-pixel window:
+        ``(i + 0.5) / n``).
+    tukey_alpha : float
+        Taper fraction of the Tukey profile (0 = box, 1 = Hann).
+
+    Returns
+    -------
+    ndarray of float64, shape of ``u``
+        Weights in [0, 1].
     """
     inside = (u >= 0.0) & (u <= 1.0)
     if name == "hann":
@@ -419,6 +450,7 @@ def following_windows(plan: _Plan, shift_px: np.ndarray) -> tuple[np.ndarray, np
     Parameters
     ----------
     plan : _Plan
+        Constants of :func:`make_plan` (window shape, profile name, working dtype).
     shift_px : ndarray, shape (B, 2)
         Current (row, col) estimates, px.
 
@@ -469,13 +501,42 @@ class NumpyKernel:
         return centre, peak, q_mean, q_var, second, first_q_mean
 
     def spectrum(self, windows, window):
-        """Half spectrum (B, H, Wh) of the apodized, mean-removed windows."""
+        """Half spectrum (B, H, Wh) of the apodized, mean-removed windows.
+
+        Parameters
+        ----------
+        windows : ndarray, shape (B, H, W)
+            Windows in the plan's working precision, pixels indexed (row, col).
+        window : ndarray, shape (H, W), or (row, col) profiles of shapes (H,) and (W,) or (B, H) and (B, W)
+            Apodization weights (the plan's, or the following windows of each pair).
+
+        Returns
+        -------
+        ndarray of complex, shape (B, H, W // 2 + 1)
+            ``rfft2`` of ``window * (windows - weighted mean)``.
+        """
         return scipy.fft.rfft2(_apodize(windows, window), workers=self.workers)
 
     def cross_power(self, spec_ref_conj, spec_mov):
         """Weighted normalized cross-power ``Q`` (B, H, Wh), ``sum|Q|/(HW)``, ``sum|Q|^2/(HW)^2``.
 
         ``spec_mov`` is overwritten.
+
+        Parameters
+        ----------
+        spec_ref_conj : ndarray of complex, shape (B, H, W // 2 + 1)
+            Conjugated half spectrum of the reference windows.
+        spec_mov : ndarray of complex, shape (B, H, W // 2 + 1)
+            Half spectrum of the moving windows.
+
+        Returns
+        -------
+        cross : ndarray of complex, shape (B, H, W // 2 + 1)
+            The weighted normalized cross-power ``Q``.
+        q_mean : ndarray of float64, shape (B,)
+            ``sum|Q| / (H W)`` over the full spectrum: the ideal height of the surface peak.
+        q_var : ndarray of float64, shape (B,)
+            ``sum|Q|^2 / (H W)^2``: the variance of the correlation surface.
         """
         plan = self.plan
         height, width = plan.shape
@@ -494,7 +555,20 @@ class NumpyKernel:
 
     def coarse_peak(self, cross):
         """Peak of the integer-grid surface with a 3-point parabolic offset per axis (B, 2),
-        as signed shifts, and the secondary maximum outside the exclusion box (B,)."""
+        as signed shifts, and the secondary maximum outside the exclusion box (B,).
+
+        Parameters
+        ----------
+        cross : ndarray of complex, shape (B, H, W // 2 + 1)
+            Cross-power spectrum.
+
+        Returns
+        -------
+        centre : ndarray of float64, shape (B, 2)
+            Signed (row, col) shift of the moving window, pixels, in [-H/2, H/2) x [-W/2, W/2).
+        second : ndarray of float64, shape (B,)
+            Maximum of the integer-grid surface outside the exclusion box around the peak.
+        """
         height, width = self.plan.shape
         n = cross.shape[0]
         surface = scipy.fft.irfft2(cross, s=(height, width), workers=self.workers)
@@ -515,7 +589,24 @@ class NumpyKernel:
         return centre, second
 
     def refine(self, cross, centre, stages):
-        """Matrix-multiply DFT refinement around ``centre`` (B, 2): new centre and peak value."""
+        """Matrix-multiply DFT refinement around ``centre`` (B, 2): new centre and peak value.
+
+        Parameters
+        ----------
+        cross : ndarray of complex, shape (B, H, W // 2 + 1)
+            Cross-power spectrum.
+        centre : ndarray of float64, shape (B, 2)
+            Current (row, col) shift estimate, pixels.
+        stages : sequence of stage plans
+            Upsampling stages (DFT kernels along rows and columns, grid offsets in pixels).
+
+        Returns
+        -------
+        centre : ndarray of float64, shape (B, 2)
+            Refined (row, col) shift, pixels.
+        peak : ndarray, shape (B,)
+            Surface maximum at the refined shift, normalized by ``H W``.
+        """
         plan = self.plan
         height, width = plan.shape
         peak = None

@@ -37,6 +37,23 @@ class PrecorrectResult:
 
 
 def exterior_names(model) -> tuple[str, ...]:
+    """The exterior parameters the coarse stage fits for ``model``'s kind.
+
+    Parameters
+    ----------
+    model : SensorModel
+        A push-broom model (installation angles) or an RPC model with a bias (row, col offsets).
+
+    Returns
+    -------
+    tuple of str
+        ``installation.roll, .pitch, .yaw`` (radians) or ``bias.row.a0, bias.col.b0`` (pixels).
+
+    Raises
+    ------
+    ValueError
+        The model has neither.
+    """
     names = model.parameters().names
     if "installation.roll" in names:
         return ("installation.roll", "installation.pitch", "installation.yaw")
@@ -65,17 +82,22 @@ def fit_exterior_in_ground(model, row, col, lon, lat, h, *, band=None, ccd=None,
     Parameters
     ----------
     model : SensorModel
+        The model to correct.
     row, col : ndarray (N,)
-        Observed scene coordinates of the matches.
+        Observed scene coordinates of the matches, continuous pixels (first pixel's centre at
+        (0.5, 0.5)).
     lon, lat, h : ndarray (N,)
-        Their ground points (DEM heights).
+        Their ground points: WGS84 degrees, metres above the ellipsoid (DEM heights).
     band : str, optional
+        Band of ``model`` (default: the model's reference band).
     ccd : ndarray (N,) of int, optional
         CCD of each match (push-broom); default: the model's choice.
     names : sequence of str, optional
         Parameters to fit (default :func:`exterior_names`).
+    max_iter : int
+        Most Gauss-Newton / IRLS iterations.
     min_scale_m : float
-        Floor of the robust residual scale.
+        Floor of the robust residual scale, metres.
 
     Returns
     -------
@@ -133,7 +155,31 @@ def fit_ccd_offsets(model, row, col, lon, lat, h, ccd, *, band: str, min_points:
     squares on the analytic Jacobian of ``tan_psi_x/y.c0`` (and ``.c1`` with >= 4 ``min_points``
     matches spread over the CCD), which absorbs camera-to-camera rotations, CCD placement and
     the linear part of the distortion. CCDs with fewer than ``min_points`` matches are left
-    alone. Returns the corrected model and a dict CCD index -> median (d_row, d_col) removed.
+    alone.
+
+    Parameters
+    ----------
+    model : PushbroomModel
+        The model to correct (directional-angle coefficients per band and CCD).
+    row, col : ndarray, shape (N,)
+        Observed scene coordinates of the matches, continuous pixels (first pixel's centre at
+        (0.5, 0.5)).
+    lon, lat, h : ndarray, shape (N,)
+        Their ground points: WGS84 degrees, metres above the ellipsoid.
+    ccd : ndarray of int, shape (N,)
+        CCD index of each match, in ``model.band_ccds(band)`` order.
+    band : str
+        The band whose coefficients are corrected.
+    min_points : int
+        Fewest matches a CCD needs to be corrected (4 x as many, spread over more than half
+        the CCD, to fit the scale too).
+
+    Returns
+    -------
+    model : PushbroomModel
+        The corrected model.
+    removed : dict of int to (float, float)
+        CCD index -> median (d_row, d_col) residual before the correction, pixels.
     """
     pv = model.parameters()
     x = pv.values.copy()

@@ -19,12 +19,38 @@ __all__ = ["grid_resolution_m", "reference_for_ccd", "reference_for_image", "sce
 
 
 def grid_resolution_m(grid) -> float:
-    """Approximate pixel size of a map grid in metres (:attr:`MapGrid.resolution_m`)."""
+    """Approximate pixel size of a map grid in metres (:attr:`MapGrid.resolution_m`).
+
+    Parameters
+    ----------
+    grid : MapGrid
+        The DOM's grid (any CRS).
+
+    Returns
+    -------
+    float
+        Pixel size, metres.
+    """
     return grid.resolution_m
 
 
 def scene_gsd_m(model, *, band=None, height_m: float = 0.0) -> float:
-    """Ground distance (m) between the centre pixel and its row and column neighbours (mean)."""
+    """Ground distance (m) between the centre pixel and its row and column neighbours (mean).
+
+    Parameters
+    ----------
+    model : SensorModel
+        Model of the scene; a push-broom model is sampled inside its middle CCD.
+    band : str, optional
+        Band of ``model`` (default: the model's reference band).
+    height_m : float
+        Height above the ellipsoid of the localization, metres.
+
+    Returns
+    -------
+    float
+        Ground sample distance, metres.
+    """
     from sensor_models.geodesy import geodetic_to_ecef
 
     n_rows, n_cols = model.image_shape
@@ -47,9 +73,13 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
     Parameters
     ----------
     model : PushbroomModel
+        The current model of the scene.
     dem : sensor_models.terrain.Dem
+        Terrain heights above the ellipsoid, metres.
     dom : MapImage
+        Reference orthoimage (any CRS and resolution).
     band : str
+        Band of ``model``.
     ccd : int
         CCD index in ``model.band_ccds(band)``.
     row0, row1 : int
@@ -58,6 +88,12 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
         Optical PSF sigma in scene pixels added to the pixel's box response.
     block_lines, workers : int
         Lines per block and threads rendering blocks.
+
+    Returns
+    -------
+    ndarray of float32, shape (row1 - row0, n_detectors)
+        The reference in the CCD's geometry: element ``[i, j]`` is the pixel whose centre is
+        at ``(row0 + i + 0.5, j + 0.5)`` in CCD coordinates; NaN outside the DOM or the DEM.
     """
     n_rows = model.n_rows
     row1 = n_rows if row1 is None else int(row1)
@@ -93,6 +129,26 @@ def reference_for_image(model, dem, dom: MapImage, *, band=None, psf_sigma_px: f
     Every pixel centre is intersected with the DEM by the model's own
     ``image_to_ground(row, col, dem=dem)`` (exact, per pixel: meant for the small images of
     RPC products; push-broom scenes use the faster :func:`reference_for_ccd`).
+
+    Parameters
+    ----------
+    model : SensorModel
+        The current model of the scene.
+    dem : sensor_models.terrain.Dem
+        Terrain heights above the ellipsoid, metres.
+    dom : MapImage
+        Reference orthoimage (any CRS and resolution).
+    band : str, optional
+        Band of ``model``.
+    psf_sigma_px : float
+        Optical PSF sigma in scene pixels added to the pixel's box response.
+    block_lines : int
+        Lines localized at a time (bounds the memory).
+
+    Returns
+    -------
+    ndarray of float32, shape ``model.image_shape``
+        The reference at every pixel centre ``(i + 0.5, j + 0.5)``; NaN outside the DOM or DEM.
     """
     from sensor_models.locate import MapProjector
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from gcpmatch.coarse import CoarseMatchError, coarse_match
-from gcpmatch.extract import MatchOptions, extract_gcps, read_band
+from gcpmatch.extract import extract_gcps, read_band
+from gcpmatch.options import MatchOptions
 from gcpmatch.gcps import read_gcps
 from calibrate.cli import main
 from sensor_models.errors import GcpcalError, InputError

@@ -17,7 +17,8 @@ import rasterio
 from affine import Affine
 
 from calibrate.rpc_bias import compensate_rpc_bias
-from gcpmatch.extract import MatchOptions, extract_gcps
+from gcpmatch.extract import extract_gcps
+from gcpmatch.options import MatchOptions
 from sensor_models.ortho import orthorectify
 from sensor_models.rpc import RpcModel
 from sensor_models.raster import MapImage
