@@ -414,7 +414,9 @@ def _precorrect(model, band, row, col, glon, glat, gh, *, sel, inside, min_scale
     offsets : dict
         Per-CCD offsets removed, pixels (empty for models without CCDs).
     """
-    ccd = model.ccd_index(col, band=band) if hasattr(model, "ccd_index") else None
+    # models whose detector arrays carry their own interior (push-broom CCDs) get CCD offsets
+    per_array = any(g.startswith("interior.") for g in model.parameter_groups())
+    ccd = model.detector_index(col, band=band) if per_array else None
     fit = fit_exterior_in_ground(model, row[sel], col[sel], glon[sel], glat[sel], gh[sel], band=band,
                                  ccd=None if ccd is None else ccd[sel], min_scale_m=min_scale_m)
     # re-screen every ratio-test match against the corrected model
@@ -423,7 +425,7 @@ def _precorrect(model, band, row, col, glon, glat, gh, *, sel, inside, min_scale
     keep = np.flatnonzero(inside)[fit2.inlier]
     corrected = fit2.model
     offsets = {}
-    if ccd is not None and hasattr(corrected, "band_ccds"):
+    if ccd is not None:
         corrected, offsets = fit_ccd_offsets(corrected, row[keep], col[keep], glon[keep], glat[keep], gh[keep],
                                              ccd[keep], band=band or corrected.reference_band)
     return corrected, keep, fit2.rms_m, offsets

@@ -45,15 +45,6 @@ _PHASE_REASON = {Reject.FLAT: "flat", Reject.NOT_FINITE: "not_finite", Reject.OU
                  Reject.LOW_SCORE: "low_score", Reject.LOW_PEAK_RATIO: "low_peak_ratio"}
 
 
-@dataclass(frozen=True)
-class _WholeImage:
-    """The whole image as one detector array (models without CCDs, e.g. RPC products)."""
-
-    n_detectors: int
-    first_col: int = 0
-    name: str = ""
-
-
 def _grid_starts(n: int, window: int, spacing: int) -> np.ndarray:
     if n < window:
         return np.zeros(0, dtype=np.intp)
@@ -107,10 +98,10 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
     if progress:
         progress(f"coarse stage: {coarse.n_inliers} SIFT matches, model pre-corrected")
     tally = _Tally()
-    pushbroom = hasattr(model_pc, "band_ccds")
-    looks = model_pc.band_ccds(band) if pushbroom else [_WholeImage(model_pc.image_shape[1])]
-    for i, look in enumerate(looks):
-        _match_ccd(tally, model_pc, scene, mask, dem, dom, band=band, ccd=i if pushbroom else None,
+    for i, look in enumerate(model_pc.detector_arrays(band)):
+        # an array that is a model of its own (a CCD) is rendered alone; a whole image at once
+        split = model_pc.detector_view(band, i) is not model_pc
+        _match_ccd(tally, model_pc, scene, mask, dem, dom, band=band, ccd=i if split else None,
                    look=look, opt=opt, progress=progress)
     timings["reference_s"] = tally.t_ref
     timings["phase_s"] = tally.t_phase
@@ -178,7 +169,7 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
     for r in REASONS:
         tally.reasons[r] += int(np.sum(status == r))
     if keep.size:
-        kw = {"ccd": ccd} if ccd is not None else {}
+        kw = {"array": ccd} if ccd is not None else {}
         tally.tables.append(_ccd_gcps(model_pc, dem, band, look, r_c, c_c, shift[keep], score[keep], sigma, kw))
     tally.cloud_sum += cloud_px * look.n_detectors
     tally.per_ccd.append({

@@ -167,7 +167,7 @@ def fit_ccd_offsets(model, row, col, lon, lat, h, ccd, *, band: str, min_points:
     lon, lat, h : ndarray, shape (N,)
         Their ground points: WGS84 degrees, metres above the ellipsoid.
     ccd : ndarray of int, shape (N,)
-        CCD index of each match, in ``model.band_ccds(band)`` order.
+        CCD index of each match, in ``model.detector_arrays(band)`` order.
     band : str
         The band whose coefficients are corrected.
     min_points : int
@@ -184,7 +184,7 @@ def fit_ccd_offsets(model, row, col, lon, lat, h, ccd, *, band: str, min_points:
     pv = model.parameters()
     x = pv.values.copy()
     removed = {}
-    for i, look in enumerate(model.band_ccds(band)):
+    for i, look in enumerate(model.detector_arrays(band)):
         sel = ccd == i
         if sel.sum() < min_points:
             continue
@@ -192,7 +192,7 @@ def fit_ccd_offsets(model, row, col, lon, lat, h, ccd, *, band: str, min_points:
         s_span = np.ptp(col[sel]) / max(look.n_detectors, 1)
         if sel.sum() >= 4 * min_points and s_span > 0.5:
             names += [f"{band}.{look.name}.tan_psi_x.c1", f"{band}.{look.name}.tan_psi_y.c1"]
-        rr, cc, jac = model.image_jacobian(lon[sel], lat[sel], h[sel], band=band, names=names, ccd=i)
+        rr, cc, jac = model.image_jacobian(lon[sel], lat[sel], h[sel], band=band, names=names, array=i)
         res = np.stack([row[sel] - rr, col[sel] - cc], axis=-1)
         ok = np.all(np.isfinite(res), axis=1)
         if ok.sum() < min_points:

@@ -53,12 +53,10 @@ def scene_gsd_m(model, *, band=None, height_m: float = 0.0) -> float:
     """
     from sensor_models.geodesy import geodetic_to_ecef
 
-    n_rows, n_cols = model.image_shape
-    c_mid = n_cols / 2.0
-    if hasattr(model, "band_ccds"):  # stay inside one CCD: stitched CCDs jump at their edges
-        looks = model.band_ccds(band)
-        look = looks[len(looks) // 2]
-        c_mid = look.first_col + look.n_detectors / 2.0
+    n_rows = model.image_shape[0]
+    arrays = model.detector_arrays(band)  # stay inside one CCD: stitched CCDs jump at their edges
+    middle = arrays[len(arrays) // 2]
+    c_mid = middle.first_col + middle.n_detectors / 2.0
     r = n_rows / 2.0 + np.array([0.0, 1.0, 0.0])
     c = c_mid + np.array([0.0, 0.0, 1.0])
     lon, lat, h = model.image_to_ground(r, c, height=height_m, band=band)
@@ -81,7 +79,7 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
     band : str
         Band of ``model``.
     ccd : int
-        CCD index in ``model.band_ccds(band)``.
+        Index of the CCD in ``model.detector_arrays(band)``.
     row0, row1 : int
         Lines to render (default: all).
     psf_sigma_px : float
@@ -95,9 +93,9 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
         The reference in the CCD's geometry: element ``[i, j]`` is the pixel whose centre is
         at ``(row0 + i + 0.5, j + 0.5)`` in CCD coordinates; NaN outside the DOM or the DEM.
     """
-    n_rows = model.n_rows
+    n_rows = model.image_shape[0]
     row1 = n_rows if row1 is None else int(row1)
-    look = model.band_ccds(band)[ccd]
+    look = model.detector_arrays(band)[ccd]
     sigma = psf_sigma_dom_px(scene_gsd_m(model, band=band), grid_resolution_m(dom.grid), psf_sigma_px)
     out = np.empty((row1 - row0, look.n_detectors), dtype=np.float32)
 
