@@ -34,6 +34,8 @@ import numpy as np
 from scipy import stats
 
 from calibrate._json import json_safe
+from calibrate.config import CalibrationOptions
+from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
 from sensor_models.geodesy import geodetic_to_ecef
 from sensor_models.pushbroom import PushbroomModel
@@ -531,7 +533,7 @@ def error_versus_gcp_count(
     *,
     repeats: int = 3,
     seed: int = 0,
-    **calibrate_kwargs,
+    options: CalibrationOptions = CalibrationOptions(),
 ) -> list[dict]:
     """Check-point error of calibrations from random GCP subsets of increasing size.
 
@@ -550,8 +552,8 @@ def error_versus_gcp_count(
         Random subsets per size.
     seed : int
         Of the subset draws.
-    **calibrate_kwargs
-        Passed to :func:`~calibrate.absolute.calibrate_model` (e.g. ``scheme``).
+    options : CalibrationOptions
+        Of every :func:`~calibrate.absolute.calibrate_model` run (e.g. ``scheme``).
 
     Returns
     -------
@@ -578,7 +580,8 @@ def error_versus_gcp_count(
             idx = np.sort(rng.choice(n, size=count, replace=False))
             sub = _subset(gcps, idx)
             extra = {k: sub[k] for k in ("band", "ccd", "sigma_px", "score") if sub.get(k) is not None}
-            result = calibrate_model(model, *(sub[k] for k in _POINT_KEYS), **extra, **calibrate_kwargs)
+            table = GcpTable.from_arrays(*(sub[k] for k in _POINT_KEYS), **extra)
+            result = calibrate_model(model, table, options=options)
             if not result.success:
                 continue
             ok += 1

@@ -29,6 +29,7 @@ __all__ = ["command", "simulate_command", "stars_sequence"]
 def stars_sequence(frames_path, out_dir, *, manifest=None, catalog="hipparcos", mag_limit=10.5,
                    scheme="exterior-interior", centroid="iwc", versus_points=(10, 15, 20, 25), seed=0) -> dict:
     """Stage action of ``gcpcal stars``: read, calibrate, write ``stars.json`` and the manifest."""
+    from calibrate.config import StarOptions
     from calibrate.stars import process_frames, read_frame_list
     from sensor_models.atomic import atomic_write_text
     from sensor_models.readers.geo_manifest import read_geo_manifest, write_geo_manifest
@@ -39,8 +40,8 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, catalog="hipparcos", 
     if manifest is None:
         raise InputError("the frame list names no manifest; give --manifest", path=str(frames_path))
     lab = read_geo_manifest(manifest)
-    result = process_frames(frames, seconds, lab, catalog, mag_limit=mag_limit, scheme=scheme, centroid=centroid,
-                            versus_points=versus_points, seed=seed)
+    options = StarOptions(catalog=catalog, mag_limit=mag_limit, scheme=scheme, centroid=centroid, seed=seed)
+    result = process_frames(frames, seconds, lab, options=options, versus_points=versus_points)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = result.to_dict(points=True)

@@ -84,6 +84,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibrate.absolute import calibrate_model
+from calibrate.config import CalibrationOptions
+from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
 
 __all__ = [
@@ -338,10 +340,9 @@ def pointing_difference_px(model, truth, row, col):
 
 
 # --------------------------------------------------------------------------- schemes
-def _gauge_interior(model, vcp, kw):
-    names = list(model.interior_parameter_names(3))
-    return calibrate_model(model, vcp.row, vcp.col, vcp.lon, vcp.lat, vcp.h, scheme="joint", parameters=names,
-                           gauge=True, **kw)
+def _gauge_interior(model, table, options):
+    names = tuple(model.interior_parameter_names(3))
+    return calibrate_model(model, table, options=options.replace(scheme="joint", parameters=names, gauge=True))
 
 
 def compensate(lab_model, vcp: VirtualControlPoints, *, schemes=None, robust: str = "none", sigma_px=None) -> dict:
@@ -373,16 +374,17 @@ def compensate(lab_model, vcp: VirtualControlPoints, *, schemes=None, robust: st
     if unknown:
         raise InputError(f"unknown schemes {', '.join(unknown)}; choose from {', '.join(SCHEMES)}", field="schemes")
     sigma = sigma_px if sigma_px is not None else (vcp.noise_px if vcp.noise_px > 0 else 1.0)
-    kw = dict(robust=robust, sigma_px=sigma)
+    table = GcpTable.from_arrays(vcp.row, vcp.col, vcp.lon, vcp.lat, vcp.h, sigma_px=sigma)
+    options = CalibrationOptions(robust=robust)
     out = {}
     for name in names:
         kind = SCHEMES[name][0]
         t0 = time.perf_counter()
         rounds = 1
         if kind == "gauge-interior":
-            res = _gauge_interior(lab_model, vcp, kw)
+            res = _gauge_interior(lab_model, table, options)
         else:
-            res = calibrate_model(lab_model, vcp.row, vcp.col, vcp.lon, vcp.lat, vcp.h, scheme=kind, **kw)
+            res = calibrate_model(lab_model, table, options=options.replace(scheme=kind))
             rounds = len({s.get("outer", 0) for s in res.steps}) if res.steps else 1
         out[name] = {"result": res, "model": res.model, "seconds": time.perf_counter() - t0, "rounds": rounds}
     return out

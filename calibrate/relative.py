@@ -54,6 +54,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from calibrate._json import json_safe
 from calibrate.absolute import CalibrationResult, calibrate_model, residual_statistics
+from calibrate.config import CalibrationOptions
+from gcpmatch.gcps import GcpTable
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.phase import Reject, phase_correlate
 from sensor_models.errors import InputError
@@ -117,6 +119,18 @@ class TiePoints:
 
     def __len__(self) -> int:
         return int(self.row.size)
+
+    def as_gcp_table(self) -> GcpTable:
+        """The tie points as control points of ``band`` (kind "gcp").
+
+        Returns
+        -------
+        GcpTable
+            ``row, col, lon, lat, h, sigma_px, score`` of the tie points, ``band`` and the CCD
+            index (as text) of each.
+        """
+        return GcpTable.from_arrays(self.row, self.col, self.lon, self.lat, self.h, band=self.band,
+                                    ccd=self.ccd, sigma_px=self.sigma_px, score=self.score)
 
 
 @dataclass
@@ -512,7 +526,8 @@ def _check_image(image, model: PushbroomModel, band: str) -> np.ndarray:
 # --------------------------------------------------------------------------- calibration
 def relative_calibration(model: PushbroomModel, images: Mapping[str, np.ndarray], dem, *, reference_band=None,
                          bands: Sequence[str] | None = None, window_px=64, spacing_px: int = 24, rows=None,
-                         robust: str = "cauchy", interior_terms: int = 3, passes: int = 1, coarse: bool = True,
+                         robust: str = CalibrationOptions.robust,
+                         interior_terms: int = CalibrationOptions.interior_terms, passes: int = 1, coarse: bool = True,
                          progress=None) -> RelativeResult:
     """Calibrate every other band's interior against the reference band (module docstring).
 
@@ -608,9 +623,9 @@ def relative_calibration(model: PushbroomModel, images: Mapping[str, np.ndarray]
                 break
             say(f"band {band}: {len(ties)} tie points; solving its interior")
             # every pass solves from the input model: 'before' always describes the input
-            cal = calibrate_model(current, ties.row, ties.col, ties.lon, ties.lat, ties.h, band=band, ccd=ties.ccd,
-                                  sigma_px=ties.sigma_px, score=ties.score, scheme="interior", robust=robust,
-                                  interior_terms=interior_terms)
+            cal = calibrate_model(current, ties.as_gcp_table(),
+                                  options=CalibrationOptions(scheme="interior", robust=robust,
+                                                             interior_terms=interior_terms))
             if not cal.success:
                 break
             band_model = cal.model
@@ -786,7 +801,7 @@ class _LazyBands(Mapping):
 
 
 def relative_scene(scene_manifest, calibrated_manifest, dem_path, out_dir, *, reference_band=None, dem_datum=None,
-                   geoid=None, window_px=64, spacing_px: int = 24, rows=None, robust: str = "cauchy",
+                   geoid=None, window_px=64, spacing_px: int = 24, rows=None, robust: str = CalibrationOptions.robust,
                    progress=None) -> dict:
     """``gcpcal relative``: files in, calibrated manifest and reports out; returns the summary.
 

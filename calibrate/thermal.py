@@ -386,8 +386,11 @@ def simulate_thermal_series(lab, times_s, drift: ThermalDrift = ThermalDrift(), 
             est[i], sig[i], rms[i], ok[i] = fit.angles, fit.sigma, fit.rms_px, fit.success
         else:
             from calibrate.absolute import calibrate_model
+            from calibrate.config import CalibrationOptions
+            from gcpmatch.gcps import GcpTable
 
-            res = calibrate_model(lab, r_obs, c_obs, lon, lat, h, sigma_px=sigma_px, scheme="exterior")
+            table = GcpTable.from_arrays(r_obs, c_obs, lon, lat, h, sigma_px=sigma_px)
+            res = calibrate_model(lab, table, options=CalibrationOptions(scheme="exterior"))
             pos = [list(res.names).index(n) for n in _EXTERIOR]
             est[i], sig[i] = res.values[pos], res.sigma[pos]
             rms[i], ok[i] = res.statistics("after").get("rms_px", np.nan), res.success

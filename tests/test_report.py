@@ -19,6 +19,7 @@ from matplotlib import image as mpimg
 
 from calibrate import report as report_module
 from calibrate.absolute import calibrate_model
+from gcpmatch.gcps import GcpTable
 from calibrate.accuracy import check_point_accuracy, error_versus_gcp_count
 from calibrate.report import write_report
 from sensor_models.errors import InputError
@@ -68,7 +69,8 @@ def case(lab, truth):
          "band": np.full(n_gcps, "B2"), "ccd": names[:n_gcps]}
     c = {"row": row[n_gcps:], "col": col[n_gcps:], "lon": lon[n_gcps:], "lat": lat[n_gcps:], "h": h[n_gcps:],
          "band": "B2", "ccd": ccd[n_gcps:]}
-    result = calibrate_model(lab, g["row"], g["col"], g["lon"], g["lat"], g["h"], band=g["band"], ccd=g["ccd"])
+    result = calibrate_model(lab, GcpTable.from_arrays(g["row"], g["col"], g["lon"], g["lat"], g["h"], band=g["band"],
+                                                       ccd=g["ccd"]))
     assert result.success, result.message
     kw = {"band": "B2", "ccd": c["ccd"]}
     before = check_point_accuracy(lab, c["row"], c["col"], c["lon"], c["lat"], c["h"], **kw)

@@ -25,7 +25,7 @@ def run(tmp_path_factory):
     sim = tmp_path_factory.mktemp("star_report") / "sim"
     simulate_geo_stars(sim, n_frames=40, seed=0)
     frames, seconds, manifest = read_frame_list(sim)
-    result = process_frames(frames, seconds, read_geo_manifest(manifest), "hipparcos", versus_points=(10, 20))
+    result = process_frames(frames, seconds, read_geo_manifest(manifest), versus_points=(10, 20))
     assert result.success
     doc = json.loads(json.dumps(result.to_dict(points=True), allow_nan=False))  # as stars.json holds it
     return result, doc
