@@ -10,7 +10,7 @@ Registered by :mod:`calibrate.cli` (module attributes ``command`` and ``simulate
     or the folder holding it; the frame times come from it and the model from the manifest it
     names (``--manifest`` overrides). Writes ``DIR/stars.json`` (tracks, calibration, accuracy,
     track points), ``DIR/manifest.json`` (the calibrated model of frame 0) and ``DIR/report.html``
-    with ``DIR/figures/*.png`` (:func:`calibrate.star_report.write_star_report`).
+    with ``DIR/figures/*.png`` (:func:`calibrate.report.stars.write_star_report`).
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, catalog="hipparcos", 
         doc["calibrated_manifest"] = "manifest.json"
     doc["timings"]["command_s"] = time.perf_counter() - t0
     atomic_write_text(out_dir / "stars.json", json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    from calibrate.star_report import write_star_report
+    from calibrate.report.stars import write_star_report
 
     write_star_report(out_dir, doc, result=result)
     return doc

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from matplotlib import image as mpimg
 
-from calibrate import report as report_module
+from calibrate.report import calibration as report_module
 from calibrate.absolute import calibrate_model
 from gcpmatch.gcps import GcpTable
 from calibrate.accuracy import check_point_accuracy, error_versus_gcp_count

@@ -1,4 +1,4 @@
-"""Star-track calibration report (calibrate.star_report): figures, numbers, atomic output."""
+"""Star-track calibration report (calibrate.report.stars): figures, numbers, atomic output."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import re
 import numpy as np
 import pytest
 
-from calibrate.star_report import SEED_000, held_out_errors, write_star_report
+from calibrate.report.stars import SEED_000, held_out_errors, write_star_report
 from sensor_models.errors import InputError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from calibrate.thermal import (ARCSEC, DAY_S, ThermalDrift, ThermalModel, evaluate_positioning, fit_installation,
+from calibrate.schemes.thermal import (ARCSEC, DAY_S, ThermalDrift, ThermalModel, evaluate_positioning, fit_installation,
                                plot_positioning, plot_thermal_angles, simulate_thermal_series, with_installation)
 from sensor_models.errors import InputError
 from sensor_models.geo_staring import example_geo_staring_model

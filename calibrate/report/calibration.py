@@ -61,8 +61,8 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.absolute import CalibrationResult, parameter_unit
-from calibrate._html import CSS as _CSS, FIGURE_DPI, escape as _e, figure_html as _figure_html, fmt as _fmt
-from calibrate._html import move_into_place as _move_into_place, new_figure as _new_figure, save_figure as _save, table as _table
+from calibrate.report._html import CSS as _CSS, FIGURE_DPI, escape as _e, figure_html as _figure_html, fmt as _fmt
+from calibrate.report._html import move_into_place as _move_into_place, new_figure as _new_figure, save_figure as _save, table as _table
 from calibrate.accuracy import AccuracyReport
 from sensor_models.errors import GcpcalError, InputError
 from sensor_models.pushbroom import PushbroomModel
