@@ -444,56 +444,14 @@ def check_point_accuracy(
     residuals, ccd_index = check_residuals(model, row, col, lon, lat, h, band=band, ccd=ccd)
     residuals_m = vectors_m = None
     if gsd_m is not None:
-        g = np.asarray(gsd_m, dtype=np.float64)
-        if g.ndim == 0:
-            g = np.full((n, 2), float(g))
-        elif g.shape == (n,):
-            g = np.repeat(g[:, None], 2, axis=1)
-        elif g.shape != (n, 2):
-            raise InputError(f"needs a scalar, ({n},) or ({n}, 2) values, got shape {g.shape}", field="gsd_m")
-        if not np.all(np.isfinite(g)) or np.any(g <= 0.0):
-            raise InputError("must be positive and finite", field="gsd_m")
-        along = residuals[:, 0] * g[:, 0]
-        across = residuals[:, 1] * g[:, 1]
-        residuals_m = np.stack([along, across, np.hypot(along, across)], axis=-1)
+        residuals_m = _metres_from_gsd(residuals, gsd_m)
     elif metres:
-        per_point_ccd = ccd_index if isinstance(model, PushbroomModel) else None
-        g_row, g_col = ground_steps(model, row, col, h, band=band, ccd=per_point_ccd)
-        vectors_m = residuals[:, 0:1] * g_row + residuals[:, 1:2] * g_col
-        residuals_m = np.stack(
-            [
-                residuals[:, 0] * np.linalg.norm(g_row, axis=1),
-                residuals[:, 1] * np.linalg.norm(g_col, axis=1),
-                np.linalg.norm(vectors_m, axis=1),
-            ],
-            axis=-1,
-        )
+        residuals_m, vectors_m = _metres_from_model(model, residuals, row, col, h, band, ccd_index)
     finite = np.all(np.isfinite(residuals), axis=1)
     if not np.any(finite):
         raise InputError("the model projects none of the check points")
-    if reference_index is None:
-        centre = np.array([np.mean(row[finite]), np.mean(col[finite])])
-        d = np.hypot(row - centre[0], col - centre[1])
-        d[~finite] = np.inf
-        reference_index = int(np.argmin(d))
-    elif not 0 <= int(reference_index) < n or not finite[int(reference_index)]:
-        raise InputError("must index a check point with a finite residual", field="reference_index")
-    reference_index = int(reference_index)
+    reference_index = _reference_point(row, col, finite, reference_index)
     rel_px, rel_m = _relative(residuals, residuals_m, vectors_m, reference_index)
-    absolute = summarize_residuals(residuals, residuals_m)
-    relative = summarize_residuals(rel_px, rel_m)
-    groups = {}
-    if isinstance(model, PushbroomModel):
-        if band is None or isinstance(band, str):
-            bands = np.full(n, model.reference_band if band is None else band, dtype=object)
-        else:
-            bands = np.asarray(band, dtype=object).reshape(-1)
-        for b in dict.fromkeys(bands):
-            in_band = bands == b
-            groups[str(b)] = _summary_of(residuals, residuals_m, in_band)
-            names = [c.name for c in model.band_ccds(b)]
-            for k in np.unique(ccd_index[in_band]):
-                groups[f"{b}.{names[k]}"] = _summary_of(residuals, residuals_m, in_band & (ccd_index == k))
     histograms = {}
     if int(finite.sum()) >= 2:
         histograms = {
@@ -501,14 +459,78 @@ def check_point_accuracy(
             "col": fit_normal(residuals[finite, 1], confidence=confidence, bins=bins),
         }
     return AccuracyReport(
-        absolute=absolute,
-        relative=relative,
+        absolute=summarize_residuals(residuals, residuals_m),
+        relative=summarize_residuals(rel_px, rel_m),
         reference_index=reference_index,
-        groups=groups,
+        groups=_group_summaries(model, residuals, residuals_m, band, ccd_index),
         histograms=histograms,
         residuals_px=residuals,
         residuals_m=residuals_m,
     )
+
+
+def _metres_from_gsd(residuals, gsd_m):
+    """Residuals in metres (along, across, planar), shape (N, 3), from given sampling distances."""
+    n = residuals.shape[0]
+    g = np.asarray(gsd_m, dtype=np.float64)
+    if g.ndim == 0:
+        g = np.full((n, 2), float(g))
+    elif g.shape == (n,):
+        g = np.repeat(g[:, None], 2, axis=1)
+    elif g.shape != (n, 2):
+        raise InputError(f"needs a scalar, ({n},) or ({n}, 2) values, got shape {g.shape}", field="gsd_m")
+    if not np.all(np.isfinite(g)) or np.any(g <= 0.0):
+        raise InputError("must be positive and finite", field="gsd_m")
+    along = residuals[:, 0] * g[:, 0]
+    across = residuals[:, 1] * g[:, 1]
+    return np.stack([along, across, np.hypot(along, across)], axis=-1)
+
+
+def _metres_from_model(model, residuals, row, col, h, band, ccd_index):
+    """Residuals in metres, shape (N, 3), and as ground vectors, from the model's ground steps."""
+    per_point_ccd = ccd_index if isinstance(model, PushbroomModel) else None
+    g_row, g_col = ground_steps(model, row, col, h, band=band, ccd=per_point_ccd)
+    vectors_m = residuals[:, 0:1] * g_row + residuals[:, 1:2] * g_col
+    residuals_m = np.stack(
+        [
+            residuals[:, 0] * np.linalg.norm(g_row, axis=1),
+            residuals[:, 1] * np.linalg.norm(g_col, axis=1),
+            np.linalg.norm(vectors_m, axis=1),
+        ],
+        axis=-1,
+    )
+    return residuals_m, vectors_m
+
+
+def _reference_point(row, col, finite, reference_index) -> int:
+    """The given reference point (checked), or the check point nearest the centroid."""
+    if reference_index is None:
+        centre = np.array([np.mean(row[finite]), np.mean(col[finite])])
+        d = np.hypot(row - centre[0], col - centre[1])
+        d[~finite] = np.inf
+        return int(np.argmin(d))
+    if not 0 <= int(reference_index) < row.size or not finite[int(reference_index)]:
+        raise InputError("must index a check point with a finite residual", field="reference_index")
+    return int(reference_index)
+
+
+def _group_summaries(model, residuals, residuals_m, band, ccd_index) -> dict:
+    """Per band and per CCD summaries of a push-broom model (empty for other models)."""
+    groups = {}
+    if not isinstance(model, PushbroomModel):
+        return groups
+    n = residuals.shape[0]
+    if band is None or isinstance(band, str):
+        bands = np.full(n, model.reference_band if band is None else band, dtype=object)
+    else:
+        bands = np.asarray(band, dtype=object).reshape(-1)
+    for b in dict.fromkeys(bands):
+        in_band = bands == b
+        groups[str(b)] = _summary_of(residuals, residuals_m, in_band)
+        names = [c.name for c in model.band_ccds(b)]
+        for k in np.unique(ccd_index[in_band]):
+            groups[f"{b}.{names[k]}"] = _summary_of(residuals, residuals_m, in_band & (ccd_index == k))
+    return groups
 
 
 # --------------------------------------------------------------------------- versus GCP count

@@ -433,6 +433,59 @@ def _folds(t, period_s, k_fold):
     return [idx % k_fold == j for j in range(k_fold)], f"{k_fold}-fold interleaved"
 
 
+def _checked_series(times, angles, sigmas, temperatures):
+    """Epochs (s), angles and sigmas (N, 3) and temperatures (N, M) or None, validated."""
+    t = _as_seconds(times)
+    _check_increasing(t)
+    n = t.size
+    y = _as_angles(angles, n, "angles")
+    if sigmas is None:
+        s = np.ones((n, 3))
+    else:
+        s = _as_angles(sigmas, n, "sigmas")
+        if not np.all(s > 0):
+            raise InputError("must be positive", field="sigmas")
+    temps = None if temperatures is None else _as_temperatures(temperatures, n)
+    return t, y, s, temps
+
+
+def _cv_scores(design, y, w_all, folds, variants, max_order):
+    """Cross-validated weighted RMS (arcsec), shape (variants, max_order + 1, 3); inf if infeasible."""
+    scores = np.full((len(variants), max_order + 1, 3), np.inf)
+    for vi, use_t in enumerate(variants):
+        for order in range(max_order + 1):
+            a = design(order, use_t)
+            sse = np.zeros(3)
+            wsum = np.zeros(3)
+            feasible = True
+            for test in folds:
+                train = ~test
+                if train.sum() < a.shape[1] + 1 or not test.any():
+                    feasible = False
+                    break
+                for j in range(3):
+                    coef, _ = _wls(a[train], y[train, j], w_all[train, j])
+                    r = y[test, j] - a[test] @ coef
+                    sse[j] += np.sum(w_all[test, j] * r * r)
+                    wsum[j] += np.sum(w_all[test, j])
+            if feasible:
+                scores[vi, order] = np.sqrt(sse / wsum) / ARCSEC
+    return scores
+
+
+def _chosen_order(scores_axis, variants, max_order, trend_degree, n_temp, tie_tolerance):
+    """``(order, variant)``: the simplest candidate whose CV score is within the tolerance of the best."""
+    best = np.min(scores_axis)
+    if not np.isfinite(best):
+        raise InputError("no harmonic order could be cross-validated: too few epochs per fold", field="times")
+    # fewest parameters first
+    cands = sorted((_n_params(o, trend_degree, n_temp if variants[v] else 0), o, v)
+                   for v in range(len(variants)) for o in range(max_order + 1)
+                   if scores_axis[v, o] <= best * (1.0 + tie_tolerance))
+    _, o, v = cands[0]
+    return o, v
+
+
 @dataclass
 class ThermalModel:
     """Installation angles against time of day (harmonics + trend [+ temperature]).
@@ -493,23 +546,14 @@ class ThermalModel:
             Times not strictly increasing, NaN or mis-shaped angles/sigmas/temperatures, or
             fewer epochs than ``parameters(max_order) + 2``.
         """
-        t = _as_seconds(times)
-        _check_increasing(t)
+        t, y, s, temps = _checked_series(times, angles, sigmas, temperatures)
         n = t.size
-        y = _as_angles(angles, n, "angles")
-        if sigmas is None:
-            s = np.ones((n, 3))
-        else:
-            s = _as_angles(sigmas, n, "sigmas")
-            if not np.all(s > 0):
-                raise InputError("must be positive", field="sigmas")
         max_order = int(max_order)
         trend_degree = int(trend_degree)
         if max_order < 0 or trend_degree < 0:
             raise InputError("max_order and trend_degree must be >= 0", field="max_order")
         if not (np.isfinite(period_s) and period_s > 0):
             raise InputError("must be positive", field="period_s")
-        temps = None if temperatures is None else _as_temperatures(temperatures, n)
         n_temp = 0 if temps is None else temps.shape[1]
         needed = _n_params(max_order, trend_degree, n_temp) + 2
         if n < needed:
@@ -521,25 +565,11 @@ class ThermalModel:
         folds, scheme = _folds(t, period_s, int(k_fold))
         variants = [False] if temps is None else [False, True]
         w_all = 1.0 / s ** 2
-        scores = np.full((len(variants), max_order + 1, 3), np.inf)
-        for vi, use_t in enumerate(variants):
-            for order in range(max_order + 1):
-                a = _design(t, t_ref, period_s, order, trend_degree, temps if use_t else None, temp_mean, temp_scale)
-                sse = np.zeros(3)
-                wsum = np.zeros(3)
-                feasible = True
-                for test in folds:
-                    train = ~test
-                    if train.sum() < a.shape[1] + 1 or not test.any():
-                        feasible = False
-                        break
-                    for j in range(3):
-                        coef, _ = _wls(a[train], y[train, j], w_all[train, j])
-                        r = y[test, j] - a[test] @ coef
-                        sse[j] += np.sum(w_all[test, j] * r * r)
-                        wsum[j] += np.sum(w_all[test, j])
-                if feasible:
-                    scores[vi, order] = np.sqrt(sse / wsum) / ARCSEC
+
+        def design(order, use_t):
+            return _design(t, t_ref, period_s, order, trend_degree, temps if use_t else None, temp_mean, temp_scale)
+
+        scores = _cv_scores(design, y, w_all, folds, variants, max_order)
         orders = np.zeros(3, dtype=int)
         use_temp = np.zeros(3, dtype=bool)
         coefs, covs = [], []
@@ -547,18 +577,11 @@ class ThermalModel:
         sigma0 = np.zeros(3)
         notes = []
         for j in range(3):
-            best = np.min(scores[:, :, j])
-            if not np.isfinite(best):
-                raise InputError("no harmonic order could be cross-validated: too few epochs per fold", field="times")
-            # the simplest candidate within the tolerance: fewest parameters first
-            cands = sorted((_n_params(o, trend_degree, n_temp if variants[v] else 0), o, v)
-                           for v in range(len(variants)) for o in range(max_order + 1)
-                           if scores[v, o, j] <= best * (1.0 + tie_tolerance))
-            _, o, v = cands[0]
+            o, v = _chosen_order(scores[:, :, j], variants, max_order, trend_degree, n_temp, tie_tolerance)
             orders[j], use_temp[j] = o, variants[v]
             if o == max_order and max_order > 0:
                 notes.append(f"{_AXES[j]}: chosen order is max_order={max_order}; try a larger max_order")
-            a = _design(t, t_ref, period_s, o, trend_degree, temps if variants[v] else None, temp_mean, temp_scale)
+            a = design(o, variants[v])
             coef, cov = _wls(a, y[:, j], w_all[:, j])
             r = y[:, j] - a @ coef
             dof = max(n - a.shape[1], 1)
