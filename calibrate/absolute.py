@@ -130,13 +130,30 @@ class CalibrationResult:
 
     @property
     def sigma(self) -> np.ndarray | None:
-        """Standard deviations of ``values``, shape (P,), or None."""
+        """Standard deviations of ``values``, shape (P,), or None.
+
+        Returns
+        -------
+        ndarray, shape (P,), or None
+            Square roots of the covariance diagonal (parameter units); None without a covariance.
+        """
         if self.covariance is None:
             return None
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
     def statistics(self, which: str = "after") -> dict:
-        """RMS residuals (px) of all valid points and of the inliers, ``which`` in before/after."""
+        """RMS residuals (px) of all valid points and of the inliers, ``which`` in before/after.
+
+        Parameters
+        ----------
+        which : {"after", "before"}
+            Residuals at the solution or under the initial model.
+
+        Returns
+        -------
+        dict
+            :func:`residual_statistics` of those residuals with the result's inlier flags (pixels).
+        """
         res = self.residuals_after if which == "after" else self.residuals_before
         return residual_statistics(res, self.inlier)
 
@@ -147,6 +164,16 @@ class CalibrationResult:
         deviations (angles also in arcseconds); then the covariance and correlation with their
         names, condition numbers, the per-step convergence log, residual statistics and, with
         ``points=True``, the per-point residuals before and after, weights and inlier flags.
+
+        Parameters
+        ----------
+        points : bool
+            Include the per-point arrays (residuals in pixels, weights, inlier flags, band, CCD).
+
+        Returns
+        -------
+        dict
+            Strict-JSON-ready mapping (format ``gcpcal.calibration``, version 1).
         """
         sigma = self.sigma
         params = []
@@ -204,6 +231,13 @@ class CalibrationResult:
 def residual_statistics(residuals, inlier=None) -> dict:
     """RMS of (row, col) residuals in pixels over valid points and over inliers.
 
+    Parameters
+    ----------
+    residuals : array_like, shape (N, 2)
+        Row and column residuals, pixels; rows with a non-finite value are not valid.
+    inlier : array_like of bool, shape (N,), optional
+        Inlier flags; default: every valid point.
+
     Returns
     -------
     dict
@@ -231,7 +265,18 @@ def residual_statistics(residuals, inlier=None) -> dict:
 
 
 def parameter_unit(name: str) -> str:
-    """Unit of a model parameter from its name (``rad``, ``px``, ``1``, ``detector^-k``)."""
+    """Unit of a model parameter from its name (``rad``, ``px``, ``1``, ``detector^-k``).
+
+    Parameters
+    ----------
+    name : str
+        Model parameter name (e.g. ``installation.roll``, ``B2.ccd1.tan_psi_y.c3``).
+
+    Returns
+    -------
+    str
+        ``"rad"``, ``"px"``, ``"px/px"``, ``"1"``, ``"detector^-k"``, or ``""`` when unknown.
+    """
     if name.startswith("installation."):
         return "rad"
     if name.startswith("interior.tan_psi_"):  # staring camera: coefficients of normalized u^i v^j

@@ -84,6 +84,13 @@ class AccuracySummary:
     rmse_m: float | None = None
 
     def to_dict(self) -> dict:
+        """JSON-safe mapping of the fields.
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping of the fields (NaN becomes None).
+        """
         return _json_safe(asdict(self))
 
 
@@ -122,6 +129,13 @@ class NormalFit:
     normal_counts: np.ndarray
 
     def to_dict(self) -> dict:
+        """JSON-safe mapping of the fields.
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping of the fields (NaN becomes None).
+        """
         return _json_safe(asdict(self))
 
 
@@ -154,6 +168,18 @@ class AccuracyReport:
     residuals_m: np.ndarray | None = None
 
     def to_dict(self, *, points: bool = False) -> dict:
+        """JSON-safe summary.
+
+        Parameters
+        ----------
+        points : bool
+            Include the per-point residuals (pixels and metres).
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping: absolute and relative summaries, groups, normal fits.
+        """
         out = {
             "absolute": self.absolute.to_dict(),
             "relative": self.relative.to_dict(),
@@ -180,6 +206,11 @@ def summarize_residuals(residuals_px, residuals_m=None) -> AccuracySummary:
         Row and column residuals in pixels (non-finite rows are ignored).
     residuals_m : array_like, shape (N, 3), optional
         Along-track, across-track and planar errors in metres.
+
+    Returns
+    -------
+    AccuracySummary
+        Counts, RMSE, bias and maximum in pixels (and metres when ``residuals_m`` is given).
     """
     e = np.asarray(residuals_px, dtype=np.float64).reshape(-1, 2)
     ok = np.all(np.isfinite(e), axis=1)
@@ -246,6 +277,11 @@ def fit_normal(
         In (0, 1).
     bins : int, sequence or str
         Passed to :func:`numpy.histogram`.
+
+    Returns
+    -------
+    NormalFit
+        Mean, standard deviation, their intervals, 2-sigma bounds and the histogram.
     """
     x = np.asarray(residuals, dtype=np.float64).reshape(-1)
     x = x[np.isfinite(x)]
@@ -353,6 +389,19 @@ def ground_steps(model, row, col, h, *, band=None, ccd=None):
 
     Central differences of ``model.image_to_ground`` at height ``h``, projected on the local
     east-north plane.
+
+    Parameters
+    ----------
+    model : SensorModel
+        Model whose ``image_to_ground`` is differenced.
+    row, col : array_like, shape (N,)
+        Image positions, pixels.
+    h : array_like, shape (N,)
+        Heights above the ellipsoid, metres.
+    band : str, optional
+        Band of the points (push-broom models).
+    ccd : array_like of int, shape (N,), optional
+        CCD index of each point (push-broom models).
 
     Returns
     -------

@@ -174,7 +174,22 @@ class Prior:
 
     @classmethod
     def fixed(cls, index, value, sigma, n_par: int) -> "Prior":
-        """Pseudo-observations of single parameters: ``x[index] = value +- sigma``."""
+        """Pseudo-observations of single parameters: ``x[index] = value +- sigma``.
+
+        Parameters
+        ----------
+        index : int or array_like of int, shape (M,)
+            Positions of the held parameters in the parameter vector.
+        value, sigma : float or array_like, shape (M,)
+            Held values and their standard deviations (parameter units).
+        n_par : int
+            Number of parameters P.
+
+        Returns
+        -------
+        Prior
+            ``M`` pseudo-observations with a (M, P) selection matrix.
+        """
         index = np.asarray(index, dtype=np.intp).reshape(-1)
         if np.any((index < 0) | (index >= n_par)):
             raise InputError("prior index outside the parameter vector")
@@ -259,7 +274,13 @@ class LsqResult:
 
     @property
     def sigma(self) -> np.ndarray | None:
-        """Standard deviations of the parameters, shape (P,), or None."""
+        """Standard deviations of the parameters, shape (P,), or None.
+
+        Returns
+        -------
+        ndarray, shape (P,), or None
+            Square roots of the covariance diagonal (parameter units); None without a covariance.
+        """
         if self.covariance is None:
             return None
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
@@ -272,7 +293,22 @@ def _check_rule(robust):
 
 
 def robust_weights(u, robust: str, c: float | None = None) -> np.ndarray:
-    """IRLS weights ``w(u) = psi(u) / u`` (table in the module docstring), shape of ``u``."""
+    """IRLS weights ``w(u) = psi(u) / u`` (table in the module docstring), shape of ``u``.
+
+    Parameters
+    ----------
+    u : ndarray
+        Normalized residual norms (residual / scale), >= 0.
+    robust : {"huber", "cauchy", "none"}
+        Loss.
+    c : float, optional
+        Tuning constant (default: the loss's, module docstring).
+
+    Returns
+    -------
+    ndarray
+        Weights in [0, 1], shape of ``u``.
+    """
     _check_rule(robust)
     u = np.asarray(u, dtype=np.float64)
     c = _TUNING[robust] if c is None else float(c)
@@ -307,6 +343,18 @@ def robust_scale(norms, k: int) -> float:
     ``s = median(||r~||) / sqrt(chi2_k.ppf(0.5))`` (``1.4826 median |r~|`` for ``k = 1``);
     falls back to the RMS when more than half the residuals are exactly zero, and to 1 when
     all are.
+
+    Parameters
+    ----------
+    norms : array_like, shape (N,)
+        Norms of the weighted residual k-vectors (non-finite values are ignored).
+    k : int
+        Components per residual vector (2 for an image point).
+
+    Returns
+    -------
+    float
+        The scale ``s`` (> 0), in the residuals' unit.
     """
     norms = np.asarray(norms, dtype=np.float64)
     norms = norms[np.isfinite(norms)]
@@ -325,6 +373,20 @@ def summarize_names(names: Sequence[str], universe: Sequence[str] | None = None,
 
     Names sharing a dotted prefix are written ``prefix.*`` when every name of ``universe``
     (default: ``names``) with that prefix is in ``names``, e.g. ``B3.ccd2.*``.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Names to list.
+    universe : sequence of str, optional
+        Every name that could appear (decides when ``prefix.*`` is exact); default ``names``.
+    limit : int
+        Most items written; the rest are counted (``and 3 more``).
+
+    Returns
+    -------
+    str
+        Comma-separated list.
     """
     names = list(dict.fromkeys(names))
     universe = list(universe) if universe is not None else names

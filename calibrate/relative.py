@@ -174,7 +174,13 @@ class BandResult:
     coarse_offsets: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        """JSON-safe summary (tie statistics, rejections and the solve without per-point data)."""
+        """JSON-safe summary (tie statistics, rejections and the solve without per-point data).
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping (statistics in pixels).
+        """
         return json_safe({
             "band": self.band,
             "success": self.success,
@@ -215,14 +221,34 @@ class RelativeResult:
 
     @property
     def success(self) -> bool:
+        """Every band was calibrated.
+
+        Returns
+        -------
+        bool
+            True when every band's interior solve converged.
+        """
         return bool(self.bands) and all(b.success for b in self.bands.values())
 
     @property
     def message(self) -> str:
+        """One message per band, joined.
+
+        Returns
+        -------
+        str
+            ``"band: message"`` per band, joined by ``"; "``.
+        """
         return "; ".join(f"{b}: {r.message}" for b, r in self.bands.items())
 
     def to_dict(self) -> dict:
-        """JSON-safe summary: per band tie statistics before/after, per CCD (``relative.json``)."""
+        """JSON-safe summary: per band tie statistics before/after, per CCD (``relative.json``).
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping (statistics in pixels).
+        """
         return json_safe({
             "format": "gcpcal.relative",
             "format_version": 1,
@@ -873,6 +899,32 @@ def relative_scene(scene_manifest, calibrated_manifest, dem_path, out_dir, *, re
     ``manifest.json`` (every band calibrated, raster paths relative to ``out_dir``),
     ``relative.json`` (:meth:`RelativeResult.to_dict`) and ``relative.summary.json``; all of
     them through a temporary folder inside ``out_dir``, so a failure leaves no partial output.
+
+    Parameters
+    ----------
+    scene_manifest : path
+        LAB manifest of the scene (every band's raster).
+    calibrated_manifest : path
+        ``manifest.json`` of ``gcpcal calibrate`` (reference band calibrated) or its folder.
+    dem_path : path
+        DEM of the scene.
+    out_dir : path
+        Output folder (created if needed).
+    reference_band : str, optional
+        Default: the calibrated model's reference band.
+    dem_datum : str, optional
+        Vertical datum of the DEM (:data:`sensor_models.terrain.VERTICAL_DATUMS`) when its file does not declare it.
+    geoid : path, optional
+        Geoid grid for an orthometric DEM.
+    window_px, spacing_px, rows, robust
+        As in :func:`relative_calibration` (pixels).
+    progress : callable, optional
+        Called with a one-line message per step.
+
+    Returns
+    -------
+    dict
+        The summary written to ``relative.summary.json``.
 
     Raises
     ------

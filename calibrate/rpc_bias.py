@@ -86,7 +86,18 @@ class RpcBiasResult:
     calibration: CalibrationResult
 
     def to_dict(self, *, points: bool = False) -> dict:
-        """JSON-safe summary (the calibration's own ``to_dict`` under ``"calibration"``)."""
+        """JSON-safe summary (the calibration's own ``to_dict`` under ``"calibration"``).
+
+        Parameters
+        ----------
+        points : bool
+            Include the calibration's per-point arrays.
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping (bias terms in pixels, RMS before and after in pixels).
+        """
         return {
             "success": self.success,
             "message": self.message,

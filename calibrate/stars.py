@@ -99,6 +99,11 @@ def read_frame_list(path):
     Paths are relative to the list's folder; seconds count from the manifest's epoch and must
     increase strictly. ``path`` may also be the folder holding ``frames.json``.
 
+    Parameters
+    ----------
+    path : path
+        ``frames.json`` or the folder holding it.
+
     Returns
     -------
     frames : list of Path
@@ -149,7 +154,18 @@ def _check_seconds(seconds, n_frames: int) -> np.ndarray:
 
 
 def load_frame(frame) -> np.ndarray:
-    """A frame as a float32 array (H, W): an array, a FITS file or any raster rasterio reads."""
+    """A frame as a float32 array (H, W): an array, a FITS file or any raster rasterio reads.
+
+    Parameters
+    ----------
+    frame : ndarray (H, W) or path
+        An image already in memory, a FITS file or a raster file.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+        Pixel values (counts).
+    """
     if isinstance(frame, np.ndarray):
         if frame.ndim != 2:
             raise InputError(f"a frame must be 2-D, got shape {frame.shape}")
@@ -177,6 +193,22 @@ def load_frame(frame) -> np.ndarray:
 def detect_frames(frames, *, threshold_sigma: float = 5.0, centroid: str = "iwc", border_px: float = 4.0,
                   saturation: float | None = None, max_stars: int | None = 200):
     """Detect and centroid stars in every frame.
+
+    Parameters
+    ----------
+    frames : sequence of ndarray (H, W) or path
+        Frames in time order (:func:`load_frame`).
+    threshold_sigma : float
+        Detection threshold above the local background, noise sigmas.
+    centroid : {"iwc", "gaussian", "windowed"}
+        Centroid estimator (:func:`gcpmatch.starfind.detect_stars`).
+    border_px : float
+        Detections closer than this to the frame edge are dropped, pixels.
+    saturation : float, optional
+        Saturation level in counts (:func:`gcpmatch.starfind.detect_stars`); detections it
+        flags as saturated are dropped.
+    max_stars : int, optional
+        Most detections per frame (:func:`gcpmatch.starfind.detect_stars`); None: all.
 
     Returns
     -------
@@ -213,7 +245,23 @@ class _Predictions:
 
 
 def predict_catalog(models, catalog, *, margin_px: float = 60.0) -> _Predictions:
-    """Apparent catalogue stars inside (or within ``margin_px`` of) every frame's model."""
+    """Apparent catalogue stars inside (or within ``margin_px`` of) every frame's model.
+
+    Parameters
+    ----------
+    models : sequence of GeoStaringModel
+        The model of every frame (``lab_model.at_frame(t_k)``).
+    catalog : StarCatalog
+        Loaded catalogue.
+    margin_px : float
+        Stars projected up to this far outside a frame are kept, pixels.
+
+    Returns
+    -------
+    _Predictions
+        All frames stacked (M,): frame index, catalogue row, apparent GCRF direction (M, 3)
+        at the frame instant and the projected ``row, col`` in pixels.
+    """
     from sensor_models.simulate.geo_stars import catalog_stars_in_frame
 
     unit = catalog.unit_vectors()
@@ -228,6 +276,19 @@ def predict_catalog(models, catalog, *, margin_px: float = 60.0) -> _Predictions
 def identify(detections, pred: _Predictions, *, search_px: float = 120.0, tolerance_px: float = 4.0,
              bin_px: float = 2.0):
     """Match detections to predicted catalogue stars (global offset vote, then nearest neighbours).
+
+    Parameters
+    ----------
+    detections : sequence of StarTable
+        Detections per frame (``row_px, col_px``).
+    pred : _Predictions
+        Of :func:`predict_catalog`.
+    search_px : float
+        Largest detection-minus-prediction distance voted on, pixels.
+    tolerance_px : float
+        Largest distance of a match after the voted offset, pixels.
+    bin_px : float
+        Bin of the offset vote, pixels.
 
     Returns
     -------
@@ -311,9 +372,28 @@ class StarObservations:
 
     @property
     def calibration(self) -> np.ndarray:
+        """Points used in the fit: not held out, not rejected, smoothed.
+
+        Returns
+        -------
+        ndarray of bool, shape (N,)
+            True for the points the calibration uses.
+        """
         return ~self.check & ~self.rejected & np.isfinite(self.row_smooth)
 
     def select(self, index) -> "StarObservations":
+        """The observations picked by index.
+
+        Parameters
+        ----------
+        index : array_like of int or bool
+            Points to keep.
+
+        Returns
+        -------
+        StarObservations
+            Those points, every array indexed alike.
+        """
         return StarObservations(**{k: getattr(self, k)[index] for k in self.__dataclass_fields__})
 
 
@@ -624,6 +704,18 @@ class StarCalibrationResult:
     timings: dict = field(default_factory=dict)
 
     def to_dict(self, *, points: bool = False) -> dict:
+        """JSON-safe summary (the CLI's stars.json).
+
+        Parameters
+        ----------
+        points : bool
+            Include the per-point observations and held-out errors (pixels).
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping (angles in radians and arcseconds, errors in pixels).
+        """
         corr = (self.parameters - self.initial)
         d = {
             "success": self.success,
@@ -832,6 +924,28 @@ def error_versus_track_points(model0, obs: StarObservations, body_to_gcrf_frames
     (tracks with fewer keep all), the model is recalibrated and evaluated on the same held-out
     points. Returns a list of ``{"points_per_track", "n_points", "ra_mean_abs_px",
     "de_mean_abs_px", "ra_two_sigma_px", "de_two_sigma_px"}``.
+
+    Parameters
+    ----------
+    model0 : GeoStaringModel
+        Initial model at frame 0.
+    obs : StarObservations
+        Tracks after smoothing (held-out points marked in ``check``).
+    body_to_gcrf_frames : ndarray, shape (F, 3, 3)
+        Body-to-GCRF rotation of every frame.
+    counts : sequence of int
+        Calibration points per track.
+    scheme : {"exterior-interior", "exterior", "joint"}
+        Of :func:`calibrate_tracks`.
+    seed : int
+        Seeds the draws (``seed + 1``).
+    **kw
+        Further keywords of :func:`calibrate_tracks`.
+
+    Returns
+    -------
+    list of dict
+        One row per count (errors in pixels).
     """
     rng = np.random.default_rng(seed + 1)
     cal = np.flatnonzero(obs.calibration)
