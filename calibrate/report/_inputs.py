@@ -15,7 +15,18 @@ __all__ = ["ReportContext", "check_result", "point_columns", "unwrap_result"]
 
 
 def unwrap_result(result) -> CalibrationResult:
-    """The CalibrationResult itself, or the one a wrapper holds (with the wrapper's message)."""
+    """The CalibrationResult itself, or the one a wrapper holds (with the wrapper's message).
+
+    Parameters
+    ----------
+    result : CalibrationResult or object
+        A result, or one with a ``calibration`` attribute (e.g. ``RpcBiasResult``).
+
+    Returns
+    -------
+    CalibrationResult
+        The result.
+    """
     if isinstance(result, CalibrationResult):
         return result
     inner = getattr(result, "calibration", None)
@@ -26,7 +37,20 @@ def unwrap_result(result) -> CalibrationResult:
 
 
 def point_columns(points, name) -> dict:
-    """``row, col`` (float arrays), ``h`` (or None) and per-point ``band``/``ccd`` (or None)."""
+    """``row, col`` (float arrays), ``h`` (or None) and per-point ``band``/``ccd`` (or None).
+
+    Parameters
+    ----------
+    points : mapping of str to array_like
+        ``row``, ``col`` (pixels, shape (N,)) and optionally ``h`` (metres), ``band``, ``ccd``.
+    name : str
+        Field named in errors (``"gcps"`` or ``"checks"``).
+
+    Returns
+    -------
+    dict
+        The columns as arrays of shape (N,) (absent ones None).
+    """
     if not isinstance(points, Mapping):
         raise InputError(f"must be a mapping of arrays, got {type(points).__name__}", field=name)
     out = {}
@@ -52,6 +76,15 @@ def point_columns(points, name) -> dict:
 
 
 def check_result(result: CalibrationResult, n_gcps: int) -> None:
+    """Check that the per-point arrays of ``result`` hold one entry per GCP.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        Result to check.
+    n_gcps : int
+        Number of GCPs of the report.
+    """
     p = len(result.names)
     for attr in ("values", "initial_values"):
         if np.asarray(getattr(result, attr)).shape != (p,):

@@ -51,7 +51,20 @@ def _subset(n: int, limit: int, seed: int = 0) -> np.ndarray:
 
 
 def figure_vectors(ctx: ReportContext, fig_dir: Path) -> dict:
-    """Check residual vectors before and after calibration (arrows in image coordinates)."""
+    """Check residual vectors before and after calibration (arrows in image coordinates).
+
+    Parameters
+    ----------
+    ctx : ReportContext
+        Report inputs.
+    fig_dir : Path
+        Folder of the PNG.
+
+    Returns
+    -------
+    dict
+        ``{"src", "caption"}``.
+    """
     n_rows, n_cols = ctx.n_rows, ctx.n_cols
     extent = max(n_rows, n_cols)
     ratio = n_rows / max(n_cols, 1.0)
@@ -112,6 +125,15 @@ def image_difference_px(model, truth, band, height_m: float = 0.0) -> dict:
     with ``model`` on the same CCD, and ``(row, col)_model - (row, col)_truth`` is averaged over
     the rows. CCDs are matched by name.
 
+    Parameters
+    ----------
+    model, truth : PushbroomModel
+        Compared models.
+    band : str
+        Band drawn.
+    height_m : float
+        Height of the localized points above the ellipsoid, metres.
+
     Returns
     -------
     dict of int to (detector, d_row_px, d_col_px)
@@ -162,6 +184,13 @@ def look_difference_px(initial, other, band) -> dict:
     with the IFOV of each CCD ``|c1|`` of its initial ``tan psi_y`` (the median over the band
     where that is zero). CCDs are matched by name.
 
+    Parameters
+    ----------
+    initial, other : PushbroomModel
+        Compared models.
+    band : str
+        Band drawn.
+
     Returns
     -------
     dict of int to (detector, d_along_px, d_across_px)
@@ -186,7 +215,22 @@ def look_difference_px(initial, other, band) -> dict:
 
 
 def figure_distortion(ctx: ReportContext, band, fig_dir: Path) -> dict:
-    """Per-CCD look differences of one band (seed 003 fig. 6)."""
+    """Per-CCD look differences of one band (seed 003 fig. 6).
+
+    Parameters
+    ----------
+    ctx : ReportContext
+        Report inputs.
+    band : str
+        Band drawn.
+    fig_dir : Path
+        Folder of the PNG.
+
+    Returns
+    -------
+    dict
+        ``{"src", "caption", "band"}``.
+    """
     ccds_init = ctx.initial.band_ccds(band)
     truth_interior = look_difference_px(ctx.initial, ctx.truth, band)
     truth_image = {}
@@ -254,7 +298,20 @@ def figure_distortion(ctx: ReportContext, band, fig_dir: Path) -> dict:
 
 
 def figure_histograms(ctx: ReportContext, fig_dir: Path) -> dict | None:
-    """Row and column residual histograms after calibration with the fitted normal curve."""
+    """Row and column residual histograms after calibration with the fitted normal curve.
+
+    Parameters
+    ----------
+    ctx : ReportContext
+        Report inputs.
+    fig_dir : Path
+        Folder of the PNG.
+
+    Returns
+    -------
+    dict or None
+        ``{"src", "caption"}``; None when the check points have no normal fit.
+    """
     hists = ctx.after.histograms or {}
     keys = [k for k in ("row", "col") if k in hists]
     if not keys:
@@ -292,7 +349,20 @@ def figure_histograms(ctx: ReportContext, fig_dir: Path) -> dict | None:
 
 
 def figure_error_vs_count(rows, fig_dir: Path) -> dict | None:
-    """Check RMSE versus the number of GCPs (seed 000 fig. 8)."""
+    """Check RMSE versus the number of GCPs (seed 000 fig. 8).
+
+    Parameters
+    ----------
+    rows : list of dict
+        Of :func:`calibrate.accuracy.error_versus_gcp_count`.
+    fig_dir : Path
+        Folder of the PNG.
+
+    Returns
+    -------
+    dict or None
+        ``{"src", "caption"}``; None when no row has a result.
+    """
     ok = [r for r in rows if r.get("rmse_px_mean") is not None and r.get("n_gcps")]
     if not ok:
         return None

@@ -138,7 +138,20 @@ def _installation_positions(model):
 
 
 def with_installation(model, angles_rad):
-    """A copy of ``model`` with installation angles ``(roll, pitch, yaw)`` (radians, shape (3,))."""
+    """A copy of ``model`` with installation angles ``(roll, pitch, yaw)`` (radians, shape (3,)).
+
+    Parameters
+    ----------
+    model : GeoStaringModel
+        Model to copy.
+    angles_rad : array_like, shape (3,)
+        Installation roll, pitch, yaw, radians.
+
+    Returns
+    -------
+    GeoStaringModel
+        The copy.
+    """
     angles = np.asarray(angles_rad, dtype=np.float64).reshape(-1)
     if angles.size != 3 or not np.all(np.isfinite(angles)):
         raise InputError("needs 3 finite angles (radians)", field="installation")
@@ -148,7 +161,22 @@ def with_installation(model, angles_rad):
 
 
 def frame_grid(image_shape, n: int = 21, margin_px: float = 4.0):
-    """Pixel grid over the frame, ``row, col`` each shape (n*n,), pixel centres convention."""
+    """Pixel grid over the frame, ``row, col`` each shape (n*n,), pixel centres convention.
+
+    Parameters
+    ----------
+    image_shape : (int, int)
+        Frame shape (rows, cols).
+    n : int
+        Points per axis.
+    margin_px : float
+        Distance of the outer points from the frame edges, pixels.
+
+    Returns
+    -------
+    row, col : ndarray, shape (n * n,)
+        Pixel coordinates.
+    """
     n_rows, n_cols = image_shape
     r = np.linspace(margin_px, n_rows - margin_px, n)
     c = np.linspace(margin_px, n_cols - margin_px, n)
@@ -283,7 +311,18 @@ class ThermalDrift:
     period_s: float = DAY_S
 
     def smooth_angles(self, times_s) -> np.ndarray:
-        """The deterministic part of the angles, radians, shape (N, 3)."""
+        """The deterministic part of the angles, radians, shape (N, 3).
+
+        Parameters
+        ----------
+        times_s : array_like, shape (N,)
+            Epochs, seconds.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            Roll, pitch, yaw, radians.
+        """
         t = _as_seconds(times_s)
         amp = np.asarray(self.amplitude_arcsec, dtype=np.float64).reshape(3, -1)
         phase = np.asarray(self.phase_rad, dtype=np.float64).reshape(3, -1)
@@ -294,7 +333,20 @@ class ThermalDrift:
         return (np.asarray(self.offset_arcsec, dtype=np.float64) + trend + harm) * ARCSEC
 
     def temperature(self, times_s, rng=None) -> np.ndarray:
-        """Telemetry temperature, degrees Celsius, shape (N,) (noisy when ``rng`` is given)."""
+        """Telemetry temperature, degrees Celsius, shape (N,) (noisy when ``rng`` is given).
+
+        Parameters
+        ----------
+        times_s : array_like, shape (N,)
+            Epochs, seconds.
+        rng : numpy.random.Generator, optional
+            Adds Gaussian noise of ``temperature_noise_c``.
+
+        Returns
+        -------
+        ndarray, shape (N,)
+            Degrees Celsius.
+        """
         t = _as_seconds(times_s)
         phase = float(np.asarray(self.phase_rad, dtype=np.float64).reshape(3, -1)[0, 0])
         temp = self.temperature_c + self.temperature_amplitude_c * np.cos(
@@ -336,7 +388,13 @@ class ThermalSeries:
     sigma_px: float
 
     def recovery_arcsec(self) -> np.ndarray:
-        """RMS of ``angles - true_angles`` per angle, arcsec, shape (3,)."""
+        """RMS of ``angles - true_angles`` per angle, arcsec, shape (3,).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            Arcseconds.
+        """
         return np.sqrt(np.mean((self.angles - self.true_angles) ** 2, axis=0)) / ARCSEC
 
 
@@ -358,6 +416,12 @@ def simulate_thermal_series(lab, times_s, drift: ThermalDrift = ThermalDrift(), 
         Epochs, seconds (``t = 0`` is midnight of the first day for the drift's harmonics).
     solver : {"direct", "calibrate_model"}
         :func:`fit_installation` or ``calibrate.absolute.calibrate_model(scheme="exterior")``.
+
+    Returns
+    -------
+    ThermalSeries
+        True, smooth and estimated angles (rad), their sigmas, temperatures, fit RMS (px) and
+        success per epoch.
     """
     t = _as_seconds(times_s)
     _check_increasing(t)
@@ -540,6 +604,11 @@ class ThermalModel:
         tie_tolerance : float
             The lowest order whose CV score is within this fraction of the best is chosen.
 
+        Returns
+        -------
+        ThermalModel
+            Chosen orders and temperature use per angle, coefficients, covariances and CV scores.
+
         Raises
         ------
         InputError
@@ -611,6 +680,22 @@ class ThermalModel:
         """Installation angles at ``times``, radians, shape (N, 3) (and their sigmas (N, 3)).
 
         Temperatures are required when the model uses them (``use_temperature``).
+
+        Parameters
+        ----------
+        times : array_like, shape (N,)
+            Epochs: float seconds or datetime64, as in :meth:`fit`.
+        temperatures : array_like, shape (N,) or (N, M), optional
+            Telemetry, degrees Celsius.
+        return_sigma : bool
+            Also return the standard deviations.
+
+        Returns
+        -------
+        angles : ndarray, shape (N, 3)
+            Roll, pitch, yaw, radians.
+        sigma : ndarray, shape (N, 3)
+            Their standard deviations, radians (only with ``return_sigma``).
         """
         designs = self._designs(times, temperatures)
         out = np.stack([designs[j] @ self.coefficients[j] for j in range(3)], axis=1)
@@ -621,7 +706,13 @@ class ThermalModel:
         return out, sig
 
     def to_dict(self) -> dict:
-        """A JSON-ready summary (angles in arcsec)."""
+        """A JSON-ready summary (angles in arcsec).
+
+        Returns
+        -------
+        dict
+            Orders, coefficients and statistics per angle.
+        """
         return {
             "orders": {a: int(o) for a, o in zip(_AXES, self.orders)},
             "use_temperature": {a: bool(u) for a, u in zip(_AXES, self.use_temperature)},
@@ -695,6 +786,24 @@ def plot_thermal_angles(path, series: ThermalSeries, model: ThermalModel, *, tra
     Left column: per-epoch solutions (error bars) of the training and held-out epochs, the
     fitted/predicted curve and (with ``drift``) the injected smooth truth, arcsec against
     hours. Right column: per-epoch solution minus curve. Writes a PNG at ``path``.
+
+    Parameters
+    ----------
+    path : path
+        PNG file to write.
+    series : ThermalSeries
+        Per-epoch solutions.
+    model : ThermalModel
+        Fitted time model.
+    train : array_like of bool, shape (N,), optional
+        Epochs used in the fit (the others are drawn as held out); default all.
+    drift : ThermalDrift, optional
+        Injected drift (its smooth part is drawn).
+
+    Returns
+    -------
+    path
+        ``path``.
     """
     t = series.times_s
     train = np.ones(t.size, dtype=bool) if train is None else np.asarray(train, dtype=bool)
@@ -738,7 +847,24 @@ def plot_thermal_angles(path, series: ThermalSeries, model: ThermalModel, *, tra
 
 
 def plot_positioning(path, times_s, errors: dict, *, names=("constant", "predicted")):
-    """Positioning error over the frame per epoch (log scale), one line per candidate. PNG."""
+    """Positioning error over the frame per epoch (log scale), one line per candidate. PNG.
+
+    Parameters
+    ----------
+    path : path
+        PNG file to write.
+    times_s : array_like, shape (N,)
+        Epochs, seconds.
+    errors : dict of str to array_like, shape (N,)
+        Positioning error per candidate model, pixels.
+    names : sequence of str
+        Candidates drawn, keys of ``errors``.
+
+    Returns
+    -------
+    path
+        ``path``.
+    """
     fig = _figure(9.0, 3.8)
     ax = fig.add_subplot(1, 1, 1)
     for name in names:
