@@ -31,6 +31,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calibrate.absolute import calibrate_model  # noqa: E402
+from calibrate.config import CalibrationOptions  # noqa: E402
+from gcpmatch.gcps import GcpTable  # noqa: E402
 from sensor_models.synthetic import CameraDesign, example_pushbroom_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,14 +128,16 @@ def main(argv=None):
     for n in sizes:
         gcps = simulate_gcps(true, n)
         row, col, lon, lat, h, band = gcps
+        table = GcpTable.from_arrays(row, col, lon, lat, h, band=band)
+        options = CalibrationOptions(scheme="exterior-interior")
         t0, c0 = time.perf_counter(), time.process_time()
-        result = calibrate_model(lab, row, col, lon, lat, h, band=band, scheme="exterior-interior")
+        result = calibrate_model(lab, table, options=options)
         seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - c0
         rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
         peak = float("nan")
         if args.traced:  # tracemalloc slows allocation down: a separate, untimed run
             tracemalloc.start()
-            calibrate_model(lab, row, col, lon, lat, h, band=band, scheme="exterior-interior")
+            calibrate_model(lab, table, options=options)
             peak = tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
         passes = sum(len(s["log"]) for s in result.steps)

@@ -72,6 +72,7 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
 
+    from calibrate.config import StarOptions
     from calibrate.stars import calibrate_tracks, load_frame, process_frames, read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
     from sensor_models.simulate.geo_stars import simulate_geo_stars
@@ -126,8 +127,9 @@ def main(argv=None) -> dict:
     # ---- calibration and accuracy, iwc vs gaussian centroids
     for centroid in ("iwc", "gaussian"):
         t_c, tabs = _best(lambda: _detect(frames, centroid), 1)
-        r = process_frames(frames, seconds, lab, catalog, detections=tabs, compare_joint=True,
-                           versus_points=(10, 15, 20, 25))
+        # the catalogue process_frames loads from these options is the one loaded above
+        r = process_frames(frames, seconds, lab, options=StarOptions(mag_limit=10.5, compare_joint=True),
+                           detections=tabs, versus_points=(10, 15, 20, 25))
         obs = r.observations
         cal = obs.calibration
         t_step, _ = _best(lambda: calibrate_tracks(models[0], obs.virtual_gcrf[cal], obs.row_smooth[cal],

@@ -11,7 +11,18 @@ __all__ = ["json_default", "json_safe"]
 
 
 def json_safe(value):
-    """``value`` with numpy types unwrapped, tuples as lists and NaN/infinity as None (recursive)."""
+    """``value`` with numpy types unwrapped, tuples as lists and NaN/infinity as None (recursive).
+
+    Parameters
+    ----------
+    value : object
+        Nested dicts, lists, tuples, numpy arrays and scalars.
+
+    Returns
+    -------
+    object
+        The same structure of plain Python values, ready for strict JSON.
+    """
     if isinstance(value, dict):
         return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -29,7 +40,18 @@ def json_safe(value):
 
 
 def json_default(value):
-    """``default=`` hook of :func:`json.dumps` for numpy values and paths."""
+    """``default=`` hook of :func:`json.dumps` for numpy values and paths.
+
+    Parameters
+    ----------
+    value : object
+        A value :mod:`json` cannot write (numpy scalar or array, path...).
+
+    Returns
+    -------
+    object
+        A plain Python equivalent (``str(value)`` as a last resort).
+    """
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):

@@ -43,22 +43,20 @@ over ``parameters`` (default: all of the model's parameters).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from calibrate._json import json_safe
+from calibrate.config import CalibrationOptions
 from calibrate.lsq import PROBE_POINTS, Chunk, LsqResult, Prior, robust_weights, solve
+from gcpmatch.gcps import GcpTable
 from sensor_models.base import SensorModel
 from sensor_models.errors import InputError
 from sensor_models.pushbroom import PushbroomModel
 
-__all__ = ["SCHEMES", "CalibrationResult", "calibrate_model", "parameter_unit"]
+__all__ = ["CalibrationResult", "calibrate_model", "parameter_unit", "residual_statistics"]
 
-SCHEMES = ("exterior-interior", "exterior", "interior", "interior-exterior", "joint")
-#: points per chunk of the normal-equation accumulation
-CHUNK_POINTS = 50_000
 _EXTERIOR = ("installation.roll", "installation.pitch", "installation.yaw")
 _ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
 
@@ -132,13 +130,30 @@ class CalibrationResult:
 
     @property
     def sigma(self) -> np.ndarray | None:
-        """Standard deviations of ``values``, shape (P,), or None."""
+        """Standard deviations of ``values``, shape (P,), or None.
+
+        Returns
+        -------
+        ndarray, shape (P,), or None
+            Square roots of the covariance diagonal (parameter units); None without a covariance.
+        """
         if self.covariance is None:
             return None
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
     def statistics(self, which: str = "after") -> dict:
-        """RMS residuals (px) of all valid points and of the inliers, ``which`` in before/after."""
+        """RMS residuals (px) of all valid points and of the inliers, ``which`` in before/after.
+
+        Parameters
+        ----------
+        which : {"after", "before"}
+            Residuals at the solution or under the initial model.
+
+        Returns
+        -------
+        dict
+            :func:`residual_statistics` of those residuals with the result's inlier flags (pixels).
+        """
         res = self.residuals_after if which == "after" else self.residuals_before
         return residual_statistics(res, self.inlier)
 
@@ -149,6 +164,16 @@ class CalibrationResult:
         deviations (angles also in arcseconds); then the covariance and correlation with their
         names, condition numbers, the per-step convergence log, residual statistics and, with
         ``points=True``, the per-point residuals before and after, weights and inlier flags.
+
+        Parameters
+        ----------
+        points : bool
+            Include the per-point arrays (residuals in pixels, weights, inlier flags, band, CCD).
+
+        Returns
+        -------
+        dict
+            Strict-JSON-ready mapping (format ``gcpcal.calibration``, version 1).
         """
         sigma = self.sigma
         params = []
@@ -206,6 +231,13 @@ class CalibrationResult:
 def residual_statistics(residuals, inlier=None) -> dict:
     """RMS of (row, col) residuals in pixels over valid points and over inliers.
 
+    Parameters
+    ----------
+    residuals : array_like, shape (N, 2)
+        Row and column residuals, pixels; rows with a non-finite value are not valid.
+    inlier : array_like of bool, shape (N,), optional
+        Inlier flags; default: every valid point.
+
     Returns
     -------
     dict
@@ -233,7 +265,18 @@ def residual_statistics(residuals, inlier=None) -> dict:
 
 
 def parameter_unit(name: str) -> str:
-    """Unit of a model parameter from its name (``rad``, ``px``, ``1``, ``detector^-k``)."""
+    """Unit of a model parameter from its name (``rad``, ``px``, ``1``, ``detector^-k``).
+
+    Parameters
+    ----------
+    name : str
+        Model parameter name (e.g. ``installation.roll``, ``B2.ccd1.tan_psi_y.c3``).
+
+    Returns
+    -------
+    str
+        ``"rad"``, ``"px"``, ``"px/px"``, ``"1"``, ``"detector^-k"``, or ``""`` when unknown.
+    """
     if name.startswith("installation."):
         return "rad"
     if name.startswith("interior.tan_psi_"):  # staring camera: coefficients of normalized u^i v^j
@@ -576,99 +619,37 @@ class _Problem:
 # --------------------------------------------------------------------------- entry point
 def calibrate_model(
     model: SensorModel,
-    row,
-    col,
-    lon,
-    lat,
-    h,
+    gcps: GcpTable,
     *,
-    band=None,
-    ccd=None,
-    sigma_px=None,
-    score=None,
-    scheme: str = "exterior-interior",
-    robust: str = "cauchy",
-    interior_terms: int | Sequence[str] = 3,
-    parameters: Sequence[str] | None = None,
-    max_outer: int = 10,
-    outer_tol: float = 0.1,
-    max_iter: int = 20,
-    tol: float = 0.1,
-    reference_ccd: tuple[str, str] | None = None,
-    gauge_sigma_px: float = 1e-3,
-    gauge: bool = True,
-    min_points_factor: float = 3.0,
-    min_span_fraction: float = 0.5,
-    max_condition: float = 1e10,
-    outlier_threshold: float = 3.0,
-    max_extrapolation: float = 0.1,
-    chunk_points: int = CHUNK_POINTS,
+    options: CalibrationOptions = CalibrationOptions(),
 ) -> CalibrationResult:
-    """Calibrate a sensor model from GCPs.
+    """Calibrate a sensor model from ground control points.
+
+    Only the points of kind ``"gcp"`` are fitted: the function takes ``gcps.gcps()`` itself,
+    so check points in the table never enter the fit. Every per-point array of the result
+    (residuals, weights, inlier flags, band, CCD) follows the order of ``gcps.gcps()``.
 
     Parameters
     ----------
     model : SensorModel
-        Initial (e.g. laboratory) model; :class:`~sensor_models.pushbroom.PushbroomModel` for
-        the exterior/interior schemes, any model for ``scheme="joint"``.
-    row, col : array_like, shape (N,)
-        Observed image coordinates in pixels (first pixel centre at 0.5).
-    lon, lat, h : array_like, shape (N,)
-        Ground coordinates (WGS84 degrees, metres above the ellipsoid).
-    band : str or array_like of str, optional
-        Band of every point or per point (push-broom default: the model's reference band).
-    ccd : int, str or array_like, optional
-        CCD index or name per point (push-broom default, and for entries None, "" or NaN:
-        the CCD whose columns hold ``col``).
-    sigma_px : float or array_like, optional
-        Standard deviation of each point's row and column, pixels (weight ``1 / sigma^2``).
-    score : array_like, optional
-        Non-negative relative weights multiplying ``1 / sigma^2`` (0 drops a point).
-    scheme : str
-        One of :data:`SCHEMES` (module docstring).
-    robust : {"cauchy", "huber", "none"}
-        Robust loss (:mod:`calibrate.lsq`). The default Cauchy loss starts with Huber
-        iterations and is as efficient on clean data; with 40 % gross mismatches it keeps the
-        accuracy of a clean fit where Huber loses a factor of about five (tests).
-    interior_terms : int or sequence of str
-        Degree of the estimated directional-angle polynomials (3: cubic, every coefficient
-        up to ``c3``), or explicit suffixes such as ``("tan_psi_y.c0", "tan_psi_y.c1")``.
-    parameters : sequence of str, optional
-        Joint scheme only: the parameters to estimate (default: exterior + estimable
-        interior for a push-broom model, every parameter otherwise).
-    max_outer, outer_tol : int, float
-        Stepwise schemes stop when a step of the exterior moves every angle by less than
+        Initial (e.g. laboratory) model; :class:`~sensor_models.pushbroom.PushbroomModel` or a
+        staring camera for the exterior/interior schemes, any model for ``scheme="joint"``.
+    gcps : GcpTable
+        Observed image coordinates ``row, col`` (pixels, first pixel centre at 0.5) of ground
+        points ``lon, lat`` (WGS84 degrees) and ``h`` (metres above the ellipsoid), shape (N,)
+        each. ``sigma_px`` (pixels) and ``score`` weight each point by ``score / sigma_px**2``
+        (a score of 0 drops it). ``band``: an empty string means the model's reference band
+        (push-broom) or no band. ``ccd``: a CCD name or index; an empty string means the CCD
+        whose columns hold ``col``. Points of kind ``"check"`` are left out.
+    options : CalibrationOptions
+        Scheme, robust loss, estimated terms, stopping rules and gauge
+        (:class:`calibrate.config.CalibrationOptions` documents each field). The stepwise
+        schemes stop when a step of the exterior moves every angle by less than
         ``outer_tol`` of its standard deviation; still moving after ``max_outer`` rounds is a
-        failure (``success=False``), except with ``max_outer=1``: a single exterior, interior
-        pass as in seed 003.
-    max_iter, tol : int, float
-        Per step, passed to :func:`calibrate.lsq.solve`: a step ends when an iteration would
-        move every parameter by less than ``tol`` of its standard deviation.
-    reference_ccd : (band, ccd name), optional
-        Joint scheme gauge: default the estimable CCD with the most GCPs in the reference band.
-    gauge_sigma_px : float
-        Joint scheme: standard deviation of the gauge pseudo-observations (the reference
-        CCD's mean look in both directions and its along-track tilt), in pixels (at the CCD's
-        ends for the tilt).
-    gauge : bool
-        Joint scheme: add the gauge pseudo-observations (without them the installation
-        angles and the interior are nearly dependent and the solve reports it).
-    min_points_factor, min_span_fraction : float
-        A CCD's interior is estimated only with at least ``min_points_factor`` times its
-        unknowns in GCPs covering at least ``min_span_fraction`` of its detectors.
-    max_condition : float
-        Largest acceptable condition number of the equilibrated normal matrix.
-    outlier_threshold : float
-        Points whose normalized residual exceeds this many robust standard deviations are
-        flagged as outliers (``inlier=False``); they still enter the fit with their weights.
-    max_extrapolation : float
-        A point whose projection on its CCD (corrected by the median column residual of its
-        chunk) falls more than this fraction of the CCD's detectors outside them is left out
-        of that iteration: the cubic's Jacobian would give it unbounded leverage, and a point
-        observed on one CCD but projected far beyond it is a mismatch (e.g. an outlier moved
-        across a CCD junction). ``inf`` disables the test.
-    chunk_points : int
-        Points per chunk of the normal-equation accumulation (bounds the memory).
+        failure, except with ``max_outer=1`` (a single pass, as in seed 003). The default
+        Cauchy loss starts with Huber iterations and is as efficient on clean data; with 40 %
+        gross mismatches it keeps the accuracy of a clean fit where Huber loses a factor of
+        about five (tests).
 
     Returns
     -------
@@ -679,127 +660,192 @@ def calibrate_model(
     Raises
     ------
     InputError
-        Malformed inputs (lengths, NaN, unknown band/CCD/scheme/parameters).
+        Malformed inputs (no point of kind "gcp", unknown band/CCD/parameters, a scheme the
+        model does not support).
     """
-    if scheme not in SCHEMES:
-        raise InputError(f"scheme must be one of {', '.join(SCHEMES)}, got {scheme!r}", field="scheme")
-    points, weight = _as_points(row, col, lon, lat, h, sigma_px, score)
-    n = points["row"].size
-    pushbroom = isinstance(model, PushbroomModel)
-    staring = _is_staring(model)
-    if staring:
-        groups, bands, ccd_idx = _staring_groups(model, points, band, ccd, interior_terms)
-    elif not pushbroom:
-        if scheme != "joint":
-            raise InputError(
-                f"scheme {scheme!r} needs a push-broom model (installation and directional angles); "
-                f"use scheme='joint' for a {getattr(model, 'kind', type(model).__name__)} model",
-                field="scheme",
-            )
-        if ccd is not None:
-            raise InputError("ccd applies to push-broom models only", field="ccd")
-        if band is not None and not (isinstance(band, str) or np.ndim(band) == 0):
-            raise InputError("a single band for this model", field="band")
-        groups = [_Group(band, -1, "", np.arange(n))]
-        bands = np.full(n, band, dtype=object)
-        ccd_idx = np.full(n, -1, dtype=np.intp)
-    else:
-        groups, bands, ccd_idx = _pushbroom_groups(model, points, band, ccd, interior_terms)
-    staged = pushbroom or staring
-    if parameters is not None and scheme != "joint":
-        raise InputError("parameters= applies to scheme='joint' only", field="parameters")
+    if not isinstance(gcps, GcpTable):
+        raise InputError(f"gcps must be a GcpTable, got {type(gcps).__name__}", field="gcps")
+    if not isinstance(options, CalibrationOptions):
+        raise InputError(f"options must be a CalibrationOptions, got {type(options).__name__}", field="options")
+    fitted = gcps.gcps()
+    if len(fitted) == 0:
+        raise InputError("no GCPs given (no point of kind 'gcp')")
+    points, weight = _as_points(fitted.row, fitted.col, fitted.lon, fitted.lat, fitted.h, fitted.sigma_px,
+                                fitted.score)  # fmt: skip
+    groups, bands, ccd_idx = _group_points(model, points, fitted, options)
     if not np.any(weight > 0.0):
         raise InputError("every GCP has zero weight", field="score")
+    skipped = _mark_estimable(model, groups, weight, points, options)
+    problem = _Problem(model, points, weight, groups, options.chunk_points)
+    stepper = _Stepper(problem, options)
+    unsettled = _run_scheme(stepper, model, groups, options)
+    return _assemble(model, problem, stepper, skipped, options, bands, ccd_idx, unsettled)
 
+
+def _blank_to_none(column: np.ndarray):
+    """A text column of the table, or None when every entry is empty."""
+    return None if np.all(column == "") else column
+
+
+def _group_points(model, points, table, options):
+    """Groups of points (band, CCD) by model kind; per-point band names and CCD indices."""
+    band, ccd = _blank_to_none(table.band), _blank_to_none(table.ccd)
+    scheme = options.scheme
+    if _is_staring(model):
+        groups, bands, ccd_idx = _staring_groups(model, points, band, ccd, options.interior_terms)
+    elif isinstance(model, PushbroomModel):
+        if band is not None:
+            band = np.where(band == "", model.reference_band, band)
+        groups, bands, ccd_idx = _pushbroom_groups(model, points, band, ccd, options.interior_terms)
+    else:
+        groups, bands, ccd_idx = _single_group(model, points, band, ccd, scheme)
+    if options.parameters is not None and scheme != "joint":
+        raise InputError("parameters= applies to scheme='joint' only", field="parameters")
+    return groups, bands, ccd_idx
+
+
+def _single_group(model, points, band, ccd, scheme):
+    """One group for a model without CCDs (RPC...): joint scheme only, one band at most."""
+    n = points["row"].size
+    if scheme != "joint":
+        raise InputError(
+            f"scheme {scheme!r} needs a push-broom model (installation and directional angles); "
+            f"use scheme='joint' for a {getattr(model, 'kind', type(model).__name__)} model",
+            field="scheme",
+        )
+    if ccd is not None:
+        raise InputError("ccd applies to push-broom models only", field="ccd")
+    if band is not None:
+        names = set(np.unique(band)) - {""}
+        if len(names) > 1:
+            raise InputError("a single band for this model", field="band")
+        band = names.pop() if names else None
+    groups = [_Group(band, -1, "", np.arange(n))]
+    return groups, np.full(n, band, dtype=object), np.full(n, -1, dtype=np.intp)
+
+
+def _mark_estimable(model, groups, weight, points, options):
+    """Flag the groups whose interior can be estimated; skip records of the others."""
+    if isinstance(model, PushbroomModel):
+        check = _check_estimable
+    elif _is_staring(model):
+        check = _check_estimable_staring
+    else:
+        return []
     skipped = []
-    if staged:
-        check = _check_estimable if pushbroom else _check_estimable_staring
-        for g in groups:
-            rec = check(model, g, weight, points, min_points_factor, min_span_fraction)
-            if rec is not None:
-                skipped.append(rec)
-    problem = _Problem(model, points, weight, groups, chunk_points)
-    theta0 = model.parameters().values.copy()
-    theta = theta0.copy()
-    solve_kw = dict(robust=robust, max_iter=max_iter, tol=tol, max_condition=max_condition)
+    for g in groups:
+        rec = check(model, g, weight, points, options.min_points_factor, options.min_span_fraction)
+        if rec is not None:
+            skipped.append(rec)
+    return skipped
 
-    unsettled = ""
-    exterior = list(_EXTERIOR) if staged else []
-    interior = [n for g in groups if g.estimable for n in g.interior]
-    runs: list[tuple[str, int, LsqResult, tuple]] = []
 
-    def run(step, outer, free, active, prior=None):
-        nonlocal theta
+def _every(_group):
+    return True
+
+
+def _estimable(group):
+    return group.estimable
+
+
+class _Stepper:
+    """Runs the solver step after step on one problem, keeping the parameter vector and log."""
+
+    def __init__(self, problem, options):
+        self.problem = problem
+        self.options = options
+        self.theta0 = problem.model.parameters().values.copy()
+        self.theta = self.theta0.copy()
+        self.runs: list[tuple[str, int, LsqResult, tuple]] = []
+
+    def run(self, step, outer, free, active, prior=None):
+        """Solve for the ``free`` names on the groups ``active`` selects; update ``theta``."""
+        opt = self.options
         free = tuple(free)
-        idx = np.array([problem.lookup[n] for n in free], dtype=np.intp)
-        chunks = problem.chunks_for(theta, free, active, max_extrapolation)
+        idx = np.array([self.problem.lookup[n] for n in free], dtype=np.intp)
+        chunks = self.problem.chunks_for(self.theta, free, active, opt.max_extrapolation)
         # after the first step the model is close: a redescending loss can start at once
-        result = solve(chunks, theta[idx], names=free, prior=prior, warm_start=bool(runs), **solve_kw)
-        theta = theta.copy()
-        theta[idx] = result.x
-        runs.append((step, outer, result, free))
+        result = solve(chunks, self.theta[idx], names=free, prior=prior, warm_start=bool(self.runs),
+                       robust=opt.robust, max_iter=opt.max_iter, tol=opt.tol,
+                       max_condition=opt.max_condition)  # fmt: skip
+        self.theta = self.theta.copy()
+        self.theta[idx] = result.x
+        self.runs.append((step, outer, result, free))
         return result
 
-    def every(_g):
-        return True
+    def values_of(self, names):
+        """Current values of ``names``."""
+        return self.theta[[self.problem.lookup[n] for n in names]].copy()
 
-    def estimable(g):
-        return g.estimable
 
+def _run_scheme(stepper, model, groups, options):
+    """Run the steps of ``options.scheme``; a message when the stepwise schemes did not settle."""
+    problem = stepper.problem
+    staged = problem.staged
+    exterior = list(_EXTERIOR) if staged else []
+    interior = [n for g in groups if g.estimable for n in g.interior]
+    scheme = options.scheme
     if scheme == "joint":
-        if parameters is not None:
-            unknown = [p for p in parameters if p not in problem.lookup]
-            if unknown:
-                raise InputError(f"unknown parameters {', '.join(unknown)}", field="parameters")
-            free = [n for n in problem.all_names if n in set(parameters)]
-        else:
-            free = exterior + interior if staged else list(problem.all_names)
+        free = _joint_free(problem, exterior, interior, options.parameters)
         prior = None
-        if gauge and pushbroom:
-            prior = _gauge_prior(model, groups, free, reference_ccd, gauge_sigma_px)
-        elif gauge and staring:
-            prior = _staring_gauge_prior(model, free, gauge_sigma_px)
-        run("joint", 0, free, every, prior)
+        if options.gauge and problem.pushbroom:
+            prior = _gauge_prior(model, groups, free, options.reference_ccd, options.gauge_sigma_px)
+        elif options.gauge and staged:
+            prior = _staring_gauge_prior(model, free, options.gauge_sigma_px)
+        stepper.run("joint", 0, free, _every, prior)
     elif scheme == "exterior":
-        run("exterior", 0, exterior, every)
+        stepper.run("exterior", 0, exterior, _every)
     elif scheme == "interior":
         if interior:
-            run("interior", 0, interior, estimable)
+            stepper.run("interior", 0, interior, _estimable)
     else:
-        order = ("exterior", "interior") if scheme == "exterior-interior" else ("interior", "exterior")
-        moved = np.inf
-        for outer in range(max(1, int(max_outer))):
-            stop = False
-            for step in order:
-                if step == "interior":
-                    if not interior:
-                        continue
-                    result = run("interior", outer, interior, estimable)
-                else:
-                    # the first exterior step uses every GCP; later ones only those of CCDs
-                    # whose interior is estimated: a CCD holding its laboratory interior would
-                    # drag the frame towards it, a little more each round
-                    before = theta[[problem.lookup[n] for n in exterior]].copy()
-                    result = run("exterior", outer, exterior, every if outer == 0 else estimable)
-                    moved = _moved_sigmas(before, result)
-                    # the exterior no longer moves: the interior, fitted in this frame, holds
-                    if moved < outer_tol and (outer > 0 or order[0] == "interior" or not interior):
-                        stop = True
-                if not result.success or stop:
-                    break
-            if stop or not runs[-1][2].success:
+        return _alternate(stepper, exterior, interior, options)
+    return ""
+
+
+def _joint_free(problem, exterior, interior, parameters):
+    """Names estimated by the joint scheme (``parameters`` or exterior + estimable interior)."""
+    if parameters is None:
+        return exterior + interior if problem.staged else list(problem.all_names)
+    unknown = [p for p in parameters if p not in problem.lookup]
+    if unknown:
+        raise InputError(f"unknown parameters {', '.join(unknown)}", field="parameters")
+    return [n for n in problem.all_names if n in set(parameters)]
+
+
+def _alternate(stepper, exterior, interior, options):
+    """Stepwise schemes: exterior and interior in turn until the exterior no longer moves."""
+    scheme, max_outer = options.scheme, options.max_outer
+    order = ("exterior", "interior") if scheme == "exterior-interior" else ("interior", "exterior")
+    moved = np.inf
+    for outer in range(max(1, int(max_outer))):
+        stop = False
+        for step in order:
+            if step == "interior":
+                if not interior:
+                    continue
+                result = stepper.run("interior", outer, interior, _estimable)
+            else:
+                # the first exterior step uses every GCP; later ones only those of CCDs
+                # whose interior is estimated: a CCD holding its laboratory interior would
+                # drag the frame towards it, a little more each round
+                before = stepper.values_of(exterior)
+                result = stepper.run("exterior", outer, exterior, _every if outer == 0 else _estimable)
+                moved = _moved_sigmas(before, result)
+                # the exterior no longer moves: the interior, fitted in this frame, holds
+                if moved < options.outer_tol and (outer > 0 or order[0] == "interior" or not interior):
+                    stop = True
+            if not result.success or stop:
                 break
-        else:
-            if interior and max_outer > 1:  # one round (seed 003's single pass) was asked for
-                unsettled = (
-                    f"{scheme}: the exterior still moved {moved:.3g} standard deviations in round "
-                    f"{max_outer} (max_outer); alternating steps converge slowly when the groups "
-                    "conflict (e.g. a CCD whose interior is not estimated); try scheme='joint'"
-                )
-    return _assemble(
-        model, problem, theta0, theta, runs, skipped, scheme, robust, bands, ccd_idx,
-        outlier_threshold, unsettled,
-    )  # fmt: skip
+        if stop or not stepper.runs[-1][2].success:
+            return ""
+    if interior and max_outer > 1:  # one round (seed 003's single pass) was asked for
+        return (
+            f"{scheme}: the exterior still moved {moved:.3g} standard deviations in round "
+            f"{max_outer} (max_outer); alternating steps converge slowly when the groups "
+            "conflict (e.g. a CCD whose interior is not estimated); try scheme='joint'"
+        )
+    return ""
 
 
 def _median_or_zero(values):
@@ -871,16 +917,49 @@ def _gauge_prior(model, groups, free, reference_ccd, gauge_sigma_px):
     return Prior(matrix, matrix @ x0, np.array(sigmas))
 
 
-def _assemble(
-    model, problem, theta0, theta, runs, skipped, scheme, robust, bands, ccd_idx, threshold, unsettled=""
-):
-    n = problem.order.size
-    names_all = problem.all_names
-    # the last run of each step kind defines that group's values and covariance
-    last = {}
+def _assemble(model, problem, stepper, skipped, options, bands, ccd_idx, unsettled=""):
+    """The :class:`CalibrationResult` of the steps ``stepper`` ran."""
+    runs, theta0, theta = stepper.runs, stepper.theta0, stepper.theta
+    scheme = options.scheme
+    last = {}  # the last run of each step kind defines that group's values and covariance
     for step, _outer, result, free in runs:
         last[step] = (result, free)
-    estimated = [nm for nm in names_all if any(nm in free for _r, free in last.values())]
+    estimated = [nm for nm in problem.all_names if any(nm in free for _r, free in last.values())]
+    covariance, correlation = _block_covariance(estimated, last)
+    idx = np.array([problem.lookup[nm] for nm in estimated], dtype=np.intp)
+    before, after, scale, sigma0 = _residuals_before_after(model, problem, runs)
+    weights, inlier = _final_weights(problem, after, scale, options)
+    success = bool(runs) and all(r.success for _s, _o, r, _f in runs) and not unsettled
+    message = _summary_message(runs, success, unsettled, skipped, scheme, after, inlier, problem.order.size,
+                               estimated, correlation)  # fmt: skip
+    return CalibrationResult(
+        success=success,
+        message=message,
+        scheme=scheme,
+        model=model.with_parameters(theta),
+        names=tuple(estimated),
+        values=theta[idx].copy(),
+        initial_values=theta0[idx].copy(),
+        covariance=covariance,
+        correlation=correlation,
+        covariance_kind="joint" if scheme in ("joint", "exterior", "interior") else "conditional-blocks",
+        condition_numbers={f"{s_}": float(r.condition_number) for s_, (r, _f) in last.items()},
+        steps=_step_log(problem, runs, inlier),
+        residuals_before=before,
+        residuals_after=after,
+        weights=weights,
+        inlier=inlier,
+        band=bands,
+        ccd=ccd_idx,
+        skipped=skipped,
+        sigma0=float(sigma0),
+        scale=float(scale),
+        robust=options.robust,
+    )
+
+
+def _block_covariance(estimated, last):
+    """Covariance of ``estimated`` from each step kind's last run (zero cross blocks), correlation."""
     pos = {nm: j for j, nm in enumerate(estimated)}
     covariance = np.zeros((len(estimated), len(estimated))) if estimated else None
     for result, free in last.values():
@@ -895,23 +974,33 @@ def _assemble(
         with np.errstate(invalid="ignore", divide="ignore"):
             correlation = covariance / np.outer(sd, sd)
         np.fill_diagonal(correlation, 1.0)
-    idx = np.array([problem.lookup[nm] for nm in estimated], dtype=np.intp)
+    return covariance, correlation
 
+
+def _residuals_before_after(model, problem, runs):
+    """Residuals (input order) before the first and after the last run, scale and sigma0."""
     if runs:
         first, final = runs[0][2], runs[-1][2]
         before = problem.to_input_order(first.initial_residuals)
         after = problem.to_input_order(final.residuals)
-        scale, sigma0 = final.scale, final.sigma0
-    else:  # nothing estimable: evaluate the model once
-        before = after = _project_all(model, problem)
-        scale, sigma0 = float("nan"), float("nan")
+        return before, after, final.scale, final.sigma0
+    before = _project_all(model, problem)  # nothing estimable: evaluate the model once
+    return before, before, float("nan"), float("nan")
+
+
+def _final_weights(problem, after, scale, options):
+    """Robust weights and inlier flags of every point at the solution."""
     norms = np.sqrt(problem.weight) * np.hypot(after[:, 0], after[:, 1])
     s = scale if np.isfinite(scale) else 1.0
     u = norms / (np.sqrt(2.0) * s)
     valid = np.isfinite(u) & (problem.weight > 0.0)
-    weights = np.where(valid, robust_weights(np.where(valid, u, 0.0), robust), 0.0)
-    inlier = valid & (u <= threshold)
+    weights = np.where(valid, robust_weights(np.where(valid, u, 0.0), options.robust), 0.0)
+    inlier = valid & (u <= options.outlier_threshold)
+    return weights, inlier
 
+
+def _step_log(problem, runs, inlier):
+    """One record per run: convergence, cost, scale and residual statistics."""
     steps = []
     for step, outer, result, free in runs:
         res = problem.to_input_order(result.residuals)
@@ -933,12 +1022,15 @@ def _assemble(
                 "log": result.log,
             }
         )
-    success = bool(runs) and all(r.success for _s, _o, r, _f in runs) and not unsettled
+    return steps
+
+
+def _summary_message(runs, success, unsettled, skipped, scheme, after, inlier, n, estimated, correlation):
+    """The result's one-line message: failures, convergence, warnings, skipped CCDs."""
     messages = [unsettled]
     if not runs:
         messages.append("nothing to estimate")
-    failed = [f"{s_} step (round {o_ + 1}): {r.message}" for s_, o_, r, _f in runs if not r.success]
-    messages += failed
+    messages += [f"{s_} step (round {o_ + 1}): {r.message}" for s_, o_, r, _f in runs if not r.success]
     if success:
         stats = residual_statistics(after, inlier)
         messages.append(
@@ -951,30 +1043,7 @@ def _assemble(
     if scheme == "joint" and success and correlation is not None:
         messages.append(_max_correlation_note(estimated, correlation))
     messages += [rec["reason"] for rec in skipped]
-    return CalibrationResult(
-        success=success,
-        message="; ".join(m for m in messages if m),
-        scheme=scheme,
-        model=model.with_parameters(theta),
-        names=tuple(estimated),
-        values=theta[idx].copy(),
-        initial_values=theta0[idx].copy(),
-        covariance=covariance,
-        correlation=correlation,
-        covariance_kind="joint" if scheme in ("joint", "exterior", "interior") else "conditional-blocks",
-        condition_numbers={f"{s_}": float(r.condition_number) for s_, (r, _f) in last.items()},
-        steps=steps,
-        residuals_before=before,
-        residuals_after=after,
-        weights=weights,
-        inlier=inlier,
-        band=bands,
-        ccd=ccd_idx,
-        skipped=skipped,
-        sigma0=float(sigma0),
-        scale=float(scale),
-        robust=robust,
-    )
+    return "; ".join(m for m in messages if m)
 
 
 def _project_all(model, problem):

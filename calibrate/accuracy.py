@@ -34,6 +34,8 @@ import numpy as np
 from scipy import stats
 
 from calibrate._json import json_safe
+from calibrate.config import CalibrationOptions
+from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
 from sensor_models.geodesy import geodetic_to_ecef
 from sensor_models.pushbroom import PushbroomModel
@@ -82,6 +84,13 @@ class AccuracySummary:
     rmse_m: float | None = None
 
     def to_dict(self) -> dict:
+        """JSON-safe mapping of the fields.
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping of the fields (NaN becomes None).
+        """
         return _json_safe(asdict(self))
 
 
@@ -120,6 +129,13 @@ class NormalFit:
     normal_counts: np.ndarray
 
     def to_dict(self) -> dict:
+        """JSON-safe mapping of the fields.
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping of the fields (NaN becomes None).
+        """
         return _json_safe(asdict(self))
 
 
@@ -152,6 +168,18 @@ class AccuracyReport:
     residuals_m: np.ndarray | None = None
 
     def to_dict(self, *, points: bool = False) -> dict:
+        """JSON-safe summary.
+
+        Parameters
+        ----------
+        points : bool
+            Include the per-point residuals (pixels and metres).
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping: absolute and relative summaries, groups, normal fits.
+        """
         out = {
             "absolute": self.absolute.to_dict(),
             "relative": self.relative.to_dict(),
@@ -178,6 +206,11 @@ def summarize_residuals(residuals_px, residuals_m=None) -> AccuracySummary:
         Row and column residuals in pixels (non-finite rows are ignored).
     residuals_m : array_like, shape (N, 3), optional
         Along-track, across-track and planar errors in metres.
+
+    Returns
+    -------
+    AccuracySummary
+        Counts, RMSE, bias and maximum in pixels (and metres when ``residuals_m`` is given).
     """
     e = np.asarray(residuals_px, dtype=np.float64).reshape(-1, 2)
     ok = np.all(np.isfinite(e), axis=1)
@@ -244,6 +277,11 @@ def fit_normal(
         In (0, 1).
     bins : int, sequence or str
         Passed to :func:`numpy.histogram`.
+
+    Returns
+    -------
+    NormalFit
+        Mean, standard deviation, their intervals, 2-sigma bounds and the histogram.
     """
     x = np.asarray(residuals, dtype=np.float64).reshape(-1)
     x = x[np.isfinite(x)]
@@ -352,6 +390,19 @@ def ground_steps(model, row, col, h, *, band=None, ccd=None):
     Central differences of ``model.image_to_ground`` at height ``h``, projected on the local
     east-north plane.
 
+    Parameters
+    ----------
+    model : SensorModel
+        Model whose ``image_to_ground`` is differenced.
+    row, col : array_like, shape (N,)
+        Image positions, pixels.
+    h : array_like, shape (N,)
+        Heights above the ellipsoid, metres.
+    band : str, optional
+        Band of the points (push-broom models).
+    ccd : array_like of int, shape (N,), optional
+        CCD index of each point (push-broom models).
+
     Returns
     -------
     g_row, g_col : ndarray, shape (N, 2)
@@ -442,56 +493,14 @@ def check_point_accuracy(
     residuals, ccd_index = check_residuals(model, row, col, lon, lat, h, band=band, ccd=ccd)
     residuals_m = vectors_m = None
     if gsd_m is not None:
-        g = np.asarray(gsd_m, dtype=np.float64)
-        if g.ndim == 0:
-            g = np.full((n, 2), float(g))
-        elif g.shape == (n,):
-            g = np.repeat(g[:, None], 2, axis=1)
-        elif g.shape != (n, 2):
-            raise InputError(f"needs a scalar, ({n},) or ({n}, 2) values, got shape {g.shape}", field="gsd_m")
-        if not np.all(np.isfinite(g)) or np.any(g <= 0.0):
-            raise InputError("must be positive and finite", field="gsd_m")
-        along = residuals[:, 0] * g[:, 0]
-        across = residuals[:, 1] * g[:, 1]
-        residuals_m = np.stack([along, across, np.hypot(along, across)], axis=-1)
+        residuals_m = _metres_from_gsd(residuals, gsd_m)
     elif metres:
-        per_point_ccd = ccd_index if isinstance(model, PushbroomModel) else None
-        g_row, g_col = ground_steps(model, row, col, h, band=band, ccd=per_point_ccd)
-        vectors_m = residuals[:, 0:1] * g_row + residuals[:, 1:2] * g_col
-        residuals_m = np.stack(
-            [
-                residuals[:, 0] * np.linalg.norm(g_row, axis=1),
-                residuals[:, 1] * np.linalg.norm(g_col, axis=1),
-                np.linalg.norm(vectors_m, axis=1),
-            ],
-            axis=-1,
-        )
+        residuals_m, vectors_m = _metres_from_model(model, residuals, row, col, h, band, ccd_index)
     finite = np.all(np.isfinite(residuals), axis=1)
     if not np.any(finite):
         raise InputError("the model projects none of the check points")
-    if reference_index is None:
-        centre = np.array([np.mean(row[finite]), np.mean(col[finite])])
-        d = np.hypot(row - centre[0], col - centre[1])
-        d[~finite] = np.inf
-        reference_index = int(np.argmin(d))
-    elif not 0 <= int(reference_index) < n or not finite[int(reference_index)]:
-        raise InputError("must index a check point with a finite residual", field="reference_index")
-    reference_index = int(reference_index)
+    reference_index = _reference_point(row, col, finite, reference_index)
     rel_px, rel_m = _relative(residuals, residuals_m, vectors_m, reference_index)
-    absolute = summarize_residuals(residuals, residuals_m)
-    relative = summarize_residuals(rel_px, rel_m)
-    groups = {}
-    if isinstance(model, PushbroomModel):
-        if band is None or isinstance(band, str):
-            bands = np.full(n, model.reference_band if band is None else band, dtype=object)
-        else:
-            bands = np.asarray(band, dtype=object).reshape(-1)
-        for b in dict.fromkeys(bands):
-            in_band = bands == b
-            groups[str(b)] = _summary_of(residuals, residuals_m, in_band)
-            names = [c.name for c in model.band_ccds(b)]
-            for k in np.unique(ccd_index[in_band]):
-                groups[f"{b}.{names[k]}"] = _summary_of(residuals, residuals_m, in_band & (ccd_index == k))
     histograms = {}
     if int(finite.sum()) >= 2:
         histograms = {
@@ -499,14 +508,78 @@ def check_point_accuracy(
             "col": fit_normal(residuals[finite, 1], confidence=confidence, bins=bins),
         }
     return AccuracyReport(
-        absolute=absolute,
-        relative=relative,
+        absolute=summarize_residuals(residuals, residuals_m),
+        relative=summarize_residuals(rel_px, rel_m),
         reference_index=reference_index,
-        groups=groups,
+        groups=_group_summaries(model, residuals, residuals_m, band, ccd_index),
         histograms=histograms,
         residuals_px=residuals,
         residuals_m=residuals_m,
     )
+
+
+def _metres_from_gsd(residuals, gsd_m):
+    """Residuals in metres (along, across, planar), shape (N, 3), from given sampling distances."""
+    n = residuals.shape[0]
+    g = np.asarray(gsd_m, dtype=np.float64)
+    if g.ndim == 0:
+        g = np.full((n, 2), float(g))
+    elif g.shape == (n,):
+        g = np.repeat(g[:, None], 2, axis=1)
+    elif g.shape != (n, 2):
+        raise InputError(f"needs a scalar, ({n},) or ({n}, 2) values, got shape {g.shape}", field="gsd_m")
+    if not np.all(np.isfinite(g)) or np.any(g <= 0.0):
+        raise InputError("must be positive and finite", field="gsd_m")
+    along = residuals[:, 0] * g[:, 0]
+    across = residuals[:, 1] * g[:, 1]
+    return np.stack([along, across, np.hypot(along, across)], axis=-1)
+
+
+def _metres_from_model(model, residuals, row, col, h, band, ccd_index):
+    """Residuals in metres, shape (N, 3), and as ground vectors, from the model's ground steps."""
+    per_point_ccd = ccd_index if isinstance(model, PushbroomModel) else None
+    g_row, g_col = ground_steps(model, row, col, h, band=band, ccd=per_point_ccd)
+    vectors_m = residuals[:, 0:1] * g_row + residuals[:, 1:2] * g_col
+    residuals_m = np.stack(
+        [
+            residuals[:, 0] * np.linalg.norm(g_row, axis=1),
+            residuals[:, 1] * np.linalg.norm(g_col, axis=1),
+            np.linalg.norm(vectors_m, axis=1),
+        ],
+        axis=-1,
+    )
+    return residuals_m, vectors_m
+
+
+def _reference_point(row, col, finite, reference_index) -> int:
+    """The given reference point (checked), or the check point nearest the centroid."""
+    if reference_index is None:
+        centre = np.array([np.mean(row[finite]), np.mean(col[finite])])
+        d = np.hypot(row - centre[0], col - centre[1])
+        d[~finite] = np.inf
+        return int(np.argmin(d))
+    if not 0 <= int(reference_index) < row.size or not finite[int(reference_index)]:
+        raise InputError("must index a check point with a finite residual", field="reference_index")
+    return int(reference_index)
+
+
+def _group_summaries(model, residuals, residuals_m, band, ccd_index) -> dict:
+    """Per band and per CCD summaries of a push-broom model (empty for other models)."""
+    groups = {}
+    if not isinstance(model, PushbroomModel):
+        return groups
+    n = residuals.shape[0]
+    if band is None or isinstance(band, str):
+        bands = np.full(n, model.reference_band if band is None else band, dtype=object)
+    else:
+        bands = np.asarray(band, dtype=object).reshape(-1)
+    for b in dict.fromkeys(bands):
+        in_band = bands == b
+        groups[str(b)] = _summary_of(residuals, residuals_m, in_band)
+        names = [c.name for c in model.band_ccds(b)]
+        for k in np.unique(ccd_index[in_band]):
+            groups[f"{b}.{names[k]}"] = _summary_of(residuals, residuals_m, in_band & (ccd_index == k))
+    return groups
 
 
 # --------------------------------------------------------------------------- versus GCP count
@@ -531,7 +604,7 @@ def error_versus_gcp_count(
     *,
     repeats: int = 3,
     seed: int = 0,
-    **calibrate_kwargs,
+    options: CalibrationOptions = CalibrationOptions(),
 ) -> list[dict]:
     """Check-point error of calibrations from random GCP subsets of increasing size.
 
@@ -550,8 +623,8 @@ def error_versus_gcp_count(
         Random subsets per size.
     seed : int
         Of the subset draws.
-    **calibrate_kwargs
-        Passed to :func:`~calibrate.absolute.calibrate_model` (e.g. ``scheme``).
+    options : CalibrationOptions
+        Of every :func:`~calibrate.absolute.calibrate_model` run (e.g. ``scheme``).
 
     Returns
     -------
@@ -578,7 +651,8 @@ def error_versus_gcp_count(
             idx = np.sort(rng.choice(n, size=count, replace=False))
             sub = _subset(gcps, idx)
             extra = {k: sub[k] for k in ("band", "ccd", "sigma_px", "score") if sub.get(k) is not None}
-            result = calibrate_model(model, *(sub[k] for k in _POINT_KEYS), **extra, **calibrate_kwargs)
+            table = GcpTable.from_arrays(*(sub[k] for k in _POINT_KEYS), **extra)
+            result = calibrate_model(model, table, options=options)
             if not result.success:
                 continue
             ok += 1

@@ -118,6 +118,16 @@ def read_sites(path) -> list[Site]:
     Relative paths are taken relative to the sites file's folder. Referenced files are not
     opened here: a missing DOM fails its scene's row, not the whole run.
 
+    Parameters
+    ----------
+    path : path
+        A ``.yaml``/``.yml`` or ``.csv`` sites file.
+
+    Returns
+    -------
+    list of Site
+        One per scene, paths resolved.
+
     Raises
     ------
     InputError
@@ -212,7 +222,18 @@ def _csv_entries(text: str, path: Path) -> list[tuple[str, dict]]:
 
 
 def calibration_manifest(path) -> Path:
-    """The calibrated manifest: ``path`` itself, or ``path/manifest.json`` for a folder."""
+    """The calibrated manifest: ``path`` itself, or ``path/manifest.json`` for a folder.
+
+    Parameters
+    ----------
+    path : path
+        A manifest file or a folder holding ``manifest.json``.
+
+    Returns
+    -------
+    Path
+        The manifest file.
+    """
     path = Path(path)
     if path.is_dir():
         path = path / "manifest.json"
@@ -495,7 +516,19 @@ def _run_tasks(sites, calib: str, points_dir: str, rows: list, *, scheduler, wor
 
 
 def summarize_rows(rows) -> dict:
-    """Counts and column means over the rows that succeeded (seed 003 table 5's mean row)."""
+    """Counts and column means over the rows that succeeded (seed 003 table 5's mean row).
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        Per-scene rows of the validation table (errors in pixels and metres).
+
+    Returns
+    -------
+    dict
+        ``scenes``, ``ok``, ``failed``, the ``mean`` of the error columns over the successful
+        rows, summed task wall and CPU seconds, and the reason of every failure by scene.
+    """
     ok = [r for r in rows if r["status"] == "ok"]
 
     def mean(key):
@@ -520,6 +553,17 @@ def write_outputs(out_dir, rows, summary, *, title: str | None = None) -> dict:
 
     Everything is written into a temporary folder inside ``out_dir`` and renamed into place, so
     an interrupted run leaves the previous files (or none), never half of them.
+
+    Parameters
+    ----------
+    out_dir : path
+        Output folder (created if needed).
+    rows : sequence of dict
+        Per-scene rows.
+    summary : dict
+        Of :func:`summarize_rows`.
+    title : str, optional
+        Title of the HTML page.
 
     Returns
     -------

@@ -4,10 +4,10 @@ Registered by :mod:`calibrate.cli` (module attribute ``command``).
 
 ``gcpcal compensate --out DIR [--step 100] [--start 0] [--stop 10000] [--noise-px 0] [--seed 0]
 [--scheme NAME ...] [--no-figures] [--json]``
-    runs :func:`calibrate.compensate.run_seed002` (GF-4-like 10240 x 10240 camera, seed 002
+    runs :func:`calibrate.schemes.compensate.run_seed002` (GF-4-like 10240 x 10240 camera, seed 002
     table 1 distortion, table 2 installation errors) and writes ``DIR/table.json``,
     ``DIR/table.csv``, ``DIR/summary.md`` and ``DIR/figures/*.png`` atomically
-    (:func:`calibrate.compensate.write_study`). Prints the table (or, with ``--json``, the rows
+    (:func:`calibrate.schemes.compensate.write_study`). Prints the table (or, with ``--json``, the rows
     as one JSON line). Exit code 3 when a scheme fails.
 """
 
@@ -39,7 +39,7 @@ __all__ = ["command"]
 @click.pass_context
 def command(ctx, out_dir, step_px, start_px, stop_px, noise_px, seed, schemes, no_figures, as_json):
     """Seed 002 simulation: ICO, ECO, ECBIC, ICBEC and joint compensation from virtual control points."""
-    from calibrate.compensate import run_seed002, write_study
+    from calibrate.schemes.compensate import run_seed002, write_study
 
     study = run_seed002(step_px=step_px, start_px=start_px, stop_px=stop_px, noise_px=noise_px, seed=seed,
                         schemes=list(schemes) or None)

@@ -61,10 +61,10 @@ def marks_from_frames(path) -> dict[str, np.ndarray]:
     """Locate the cross marks in the SMCCD frames listed by a CSV ``time,ccd1_frame,ccd2_frame``.
 
     Frame paths are relative to the CSV's folder; each frame's mark is found by
-    :func:`calibrate.autocollimation.locate_cross` (row = y, column = x). Returns the same
+    :func:`calibrate.schemes.autocollimation.locate_cross` (row = y, column = x). Returns the same
     columns as :func:`read_marks_csv`.
     """
-    from calibrate.autocollimation import locate_cross
+    from calibrate.schemes.autocollimation import locate_cross
 
     path = Path(path)
     out = {c: [] for c in MARK_COLUMNS}
@@ -177,7 +177,7 @@ def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0
     about Y, ``rot_z`` = Delta gamma about Z, camera frame); focal changes millimetres.
     """
     from calibrate._json import json_safe
-    from calibrate.autocollimation import (ARCSEC, DEFAULT_PIXEL_UM, OalrGeometry, changes_from_displacements,
+    from calibrate.schemes.autocollimation import (ARCSEC, DEFAULT_PIXEL_UM, OalrGeometry, changes_from_displacements,
                                            reproduce_table3)
     from sensor_models.atomic import atomic_write_text
 
@@ -242,7 +242,7 @@ def command(marks, out_dir, reference, focal_mm, baseline_mm, pixel_um, sigma_k_
             ccd_size_px, table3, as_json):
     """Focal-length change and camera rotations from OALR cross marks in MARKS.csv (seed 004)."""
     if pixel_um is None:
-        from calibrate.autocollimation import ARCSEC
+        from calibrate.schemes.autocollimation import ARCSEC
 
         pixel_um = focal_mm * ARCSEC * 1000.0
     doc = oalr_from_csv(marks, out_dir, reference=reference, focal_mm=focal_mm, baseline_mm=baseline_mm,

@@ -10,7 +10,7 @@ Registered by :mod:`calibrate.cli` (module attributes ``command`` and ``simulate
     or the folder holding it; the frame times come from it and the model from the manifest it
     names (``--manifest`` overrides). Writes ``DIR/stars.json`` (tracks, calibration, accuracy,
     track points), ``DIR/manifest.json`` (the calibrated model of frame 0) and ``DIR/report.html``
-    with ``DIR/figures/*.png`` (:func:`calibrate.star_report.write_star_report`).
+    with ``DIR/figures/*.png`` (:func:`calibrate.report.stars.write_star_report`).
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ __all__ = ["command", "simulate_command", "stars_sequence"]
 def stars_sequence(frames_path, out_dir, *, manifest=None, catalog="hipparcos", mag_limit=10.5,
                    scheme="exterior-interior", centroid="iwc", versus_points=(10, 15, 20, 25), seed=0) -> dict:
     """Stage action of ``gcpcal stars``: read, calibrate, write ``stars.json`` and the manifest."""
+    from calibrate.config import StarOptions
     from calibrate.stars import process_frames, read_frame_list
     from sensor_models.atomic import atomic_write_text
     from sensor_models.readers.geo_manifest import read_geo_manifest, write_geo_manifest
@@ -39,8 +40,8 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, catalog="hipparcos", 
     if manifest is None:
         raise InputError("the frame list names no manifest; give --manifest", path=str(frames_path))
     lab = read_geo_manifest(manifest)
-    result = process_frames(frames, seconds, lab, catalog, mag_limit=mag_limit, scheme=scheme, centroid=centroid,
-                            versus_points=versus_points, seed=seed)
+    options = StarOptions(catalog=catalog, mag_limit=mag_limit, scheme=scheme, centroid=centroid, seed=seed)
+    result = process_frames(frames, seconds, lab, options=options, versus_points=versus_points)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = result.to_dict(points=True)
@@ -51,7 +52,7 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, catalog="hipparcos", 
         doc["calibrated_manifest"] = "manifest.json"
     doc["timings"]["command_s"] = time.perf_counter() - t0
     atomic_write_text(out_dir / "stars.json", json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    from calibrate.star_report import write_star_report
+    from calibrate.report.stars import write_star_report
 
     write_star_report(out_dir, doc, result=result)
     return doc

@@ -4,7 +4,7 @@ Registered by :mod:`calibrate.cli` (module attribute ``command``).
 
 ``gcpcal thermal --out DIR [--days 5] [--interval-min 30] [--holdout-days 1] [--max-order 4]
 [--points 400] [--sigma-px 0.1] [--temperature] [--seed 0]``
-    simulates a series of epochs with an injected drift (:class:`calibrate.thermal.ThermalDrift`),
+    simulates a series of epochs with an injected drift (:class:`calibrate.schemes.thermal.ThermalDrift`),
     solves the exterior at each epoch from virtual control points, fits the angles against the
     time of day on all days but the last ``--holdout-days``, predicts the held-out epochs and
     compares the positioning error of a constant installation with the predicted one. Writes
@@ -31,7 +31,7 @@ def thermal_experiment(out_dir, *, days: float = 5.0, interval_min: float = 30.0
                        seed: int = 0) -> dict:
     """Stage action of ``gcpcal thermal``: simulate, fit, predict, evaluate, write JSON and PNGs."""
     from calibrate._json import json_safe
-    from calibrate.thermal import (ARCSEC, DAY_S, ThermalDrift, ThermalModel, evaluate_positioning,
+    from calibrate.schemes.thermal import (ARCSEC, DAY_S, ThermalDrift, ThermalModel, evaluate_positioning,
                                    plot_positioning, plot_thermal_angles, simulate_thermal_series)
     from sensor_models.atomic import atomic_write_text
     from sensor_models.geo_staring import example_geo_staring_model

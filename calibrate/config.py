@@ -270,5 +270,11 @@ class OrthoOptions(_Options):
             raise InputError(f"check_points must be >= 0, got {self.check_points}", field="check_points")
 
     def to_kwargs(self) -> dict:
-        """Keyword arguments of :func:`sensor_models.ortho.orthorectify_to_file`."""
+        """Keyword arguments of :func:`sensor_models.ortho.orthorectify_to_file`.
+
+        Returns
+        -------
+        dict
+            Field name -> value.
+        """
         return self.as_dict()

@@ -35,6 +35,7 @@ FIXTURE_DIR = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
 def run_demo(out_dir: Path, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing_px: int = 16) -> dict:
     """Run the demo and return its summary (also written to ``out_dir/summary.json``)."""
     from calibrate.absolute import calibrate_model
+    from calibrate.config import CalibrationOptions
     from calibrate.accuracy import check_point_accuracy, error_versus_gcp_count
     from calibrate.relative import relative_calibration
     from calibrate.run import points_of
@@ -75,9 +76,7 @@ def run_demo(out_dir: Path, *, fixture_dir: Path = FIXTURE_DIR, progress=None, s
     # 2. calibrate the reference band absolutely: exterior then interior (seed 003 2.2.1)
     step(f"calibrating {reference_band}: exterior then interior")
     ref_pts = points_of(merged.gcps())
-    result = calibrate_model(lab, ref_pts["row"], ref_pts["col"], ref_pts["lon"], ref_pts["lat"], ref_pts["h"],
-                             band=reference_band, ccd=ref_pts["ccd"], sigma_px=ref_pts["sigma_px"],
-                             score=ref_pts["score"], scheme="exterior-interior")
+    result = calibrate_model(lab, merged.gcps(), options=CalibrationOptions(scheme="exterior-interior"))
     band_results = {reference_band: {"success": bool(result.success), "message": result.message}}
 
     # 3. every other band against the calibrated reference band (seed 003 2.2.2)

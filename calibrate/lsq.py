@@ -174,7 +174,22 @@ class Prior:
 
     @classmethod
     def fixed(cls, index, value, sigma, n_par: int) -> "Prior":
-        """Pseudo-observations of single parameters: ``x[index] = value +- sigma``."""
+        """Pseudo-observations of single parameters: ``x[index] = value +- sigma``.
+
+        Parameters
+        ----------
+        index : int or array_like of int, shape (M,)
+            Positions of the held parameters in the parameter vector.
+        value, sigma : float or array_like, shape (M,)
+            Held values and their standard deviations (parameter units).
+        n_par : int
+            Number of parameters P.
+
+        Returns
+        -------
+        Prior
+            ``M`` pseudo-observations with a (M, P) selection matrix.
+        """
         index = np.asarray(index, dtype=np.intp).reshape(-1)
         if np.any((index < 0) | (index >= n_par)):
             raise InputError("prior index outside the parameter vector")
@@ -259,7 +274,13 @@ class LsqResult:
 
     @property
     def sigma(self) -> np.ndarray | None:
-        """Standard deviations of the parameters, shape (P,), or None."""
+        """Standard deviations of the parameters, shape (P,), or None.
+
+        Returns
+        -------
+        ndarray, shape (P,), or None
+            Square roots of the covariance diagonal (parameter units); None without a covariance.
+        """
         if self.covariance is None:
             return None
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
@@ -272,7 +293,22 @@ def _check_rule(robust):
 
 
 def robust_weights(u, robust: str, c: float | None = None) -> np.ndarray:
-    """IRLS weights ``w(u) = psi(u) / u`` (table in the module docstring), shape of ``u``."""
+    """IRLS weights ``w(u) = psi(u) / u`` (table in the module docstring), shape of ``u``.
+
+    Parameters
+    ----------
+    u : ndarray
+        Normalized residual norms (residual / scale), >= 0.
+    robust : {"huber", "cauchy", "none"}
+        Loss.
+    c : float, optional
+        Tuning constant (default: the loss's, module docstring).
+
+    Returns
+    -------
+    ndarray
+        Weights in [0, 1], shape of ``u``.
+    """
     _check_rule(robust)
     u = np.asarray(u, dtype=np.float64)
     c = _TUNING[robust] if c is None else float(c)
@@ -307,6 +343,18 @@ def robust_scale(norms, k: int) -> float:
     ``s = median(||r~||) / sqrt(chi2_k.ppf(0.5))`` (``1.4826 median |r~|`` for ``k = 1``);
     falls back to the RMS when more than half the residuals are exactly zero, and to 1 when
     all are.
+
+    Parameters
+    ----------
+    norms : array_like, shape (N,)
+        Norms of the weighted residual k-vectors (non-finite values are ignored).
+    k : int
+        Components per residual vector (2 for an image point).
+
+    Returns
+    -------
+    float
+        The scale ``s`` (> 0), in the residuals' unit.
     """
     norms = np.asarray(norms, dtype=np.float64)
     norms = norms[np.isfinite(norms)]
@@ -325,6 +373,20 @@ def summarize_names(names: Sequence[str], universe: Sequence[str] | None = None,
 
     Names sharing a dotted prefix are written ``prefix.*`` when every name of ``universe``
     (default: ``names``) with that prefix is in ``names``, e.g. ``B3.ccd2.*``.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Names to list.
+    universe : sequence of str, optional
+        Every name that could appear (decides when ``prefix.*`` is exact); default ``names``.
+    limit : int
+        Most items written; the rest are counted (``and 3 more``).
+
+    Returns
+    -------
+    str
+        Comma-separated list.
     """
     names = list(dict.fromkeys(names))
     universe = list(universe) if universe is not None else names
@@ -626,6 +688,33 @@ def solve(
     InputError
         For malformed arguments or chunks (a programming or user error, not numerics).
     """
+    x, names = _checked_start(x0, names, robust, scale, max_iter, prior)
+    n_par = x.size
+    c_huber = HUBER_C if (tuning is None or robust != "huber") else float(tuning)
+    c_final = _TUNING[robust] if tuning is None else float(tuning)
+    rule = "huber" if (robust == "cauchy" and not warm_start) else robust
+    c = c_huber if rule == "huber" else c_final
+
+    ev = _evaluate(residual_and_jacobian_chunks, x, rule, c, scale)
+    initial_residuals = ev.residuals.copy()
+    # the scale follows the residuals until the iterations are near the solution, then it is
+    # frozen (and the loss becomes the final one): the last iterations minimize a fixed function
+    # (without a robust loss the weights do not depend on the scale, but the convergence test
+    # does: a scale frozen at a far start's residuals would declare convergence too early)
+    s = scale if scale is not None else robust_scale(ev.norms, ev.k)
+    state = _Irls(chunks=residual_and_jacobian_chunks, names=names, robust=robust, fixed_scale=scale, prior=prior,
+                  c_final=c_final, k=ev.k, ev=ev, rule=rule, c=c, s=s, frozen=scale is not None,
+                  mu=float(damping))  # fmt: skip
+    cost = _robust_cost(ev.norms, ev.k, ev.weight_scale, rule, c) + _prior_cost(x, prior)
+    state.log.append(_log_entry(0, cost, ev.weight_scale, np.nan, np.nan, damping, True, ev, rule))
+    n_prior = 0 if prior is None else len(prior)
+    success, message = _iterate(state, n_par, n_prior, max_iter, tol, max_condition)
+    return _finish(state.ev, state.dec, success, message, names, state.s, prior, state.iterations, state.log,
+                   initial_residuals)  # fmt: skip
+
+
+def _checked_start(x0, names, robust, scale, max_iter, prior):
+    """Validated starting values and parameter names of :func:`solve`."""
     _check_rule(robust)
     x = np.asarray(x0, dtype=np.float64).reshape(-1).copy()
     n_par = x.size
@@ -642,97 +731,119 @@ def solve(
         raise InputError("must be >= 1", field="max_iter")
     if prior is not None and prior.matrix.shape[1] != n_par:
         raise InputError(f"prior matrix has {prior.matrix.shape[1]} columns for {n_par} parameters")
-    c_huber = HUBER_C if (tuning is None or robust != "huber") else float(tuning)
-    c_final = _TUNING[robust] if tuning is None else float(tuning)
-    rule = "huber" if (robust == "cauchy" and not warm_start) else robust
-    c = c_huber if rule == "huber" else c_final
-    n_prior = 0 if prior is None else len(prior)
+    return x, names
 
-    log = []
-    ev = _evaluate(residual_and_jacobian_chunks, x, rule, c, scale)
-    k = ev.k
-    initial_residuals = ev.residuals.copy()
-    # the scale follows the residuals until the iterations are near the solution, then it is
-    # frozen (and the loss becomes the final one): the last iterations minimize a fixed function
-    # (without a robust loss the weights do not depend on the scale, but the convergence test
-    # does: a scale frozen at a far start's residuals would declare convergence too early)
-    frozen = scale is not None
-    s = scale if scale is not None else robust_scale(ev.norms, k)
-    s_previous = np.inf
-    cost = _robust_cost(ev.norms, k, ev.weight_scale, rule, c) + _prior_cost(x, prior)
-    log.append(_log_entry(0, cost, ev.weight_scale, np.nan, np.nan, damping, True, ev, rule))
-    mu = float(damping)
-    dec = None
-    iterations = 0
-    success, message = False, ""
-    rejections = 0
-    last_step = np.inf
+
+@dataclass
+class _Irls:
+    """State of the iterations of :func:`solve` (current evaluation, scale, loss, damping, log)."""
+
+    chunks: Callable
+    names: tuple
+    robust: str
+    fixed_scale: float | None
+    prior: Prior | None
+    c_final: float
+    k: int
+    ev: _Evaluation
+    rule: str
+    c: float
+    s: float
+    frozen: bool
+    mu: float
+    s_previous: float = np.inf
+    dec: _Decomposition | None = None
+    iterations: int = 0
+    rejections: int = 0
+    last_step: float = np.inf
+    log: list = field(default_factory=list)
+
+
+def _iterate(st: _Irls, n_par, n_prior, max_iter, tol, max_condition):
+    """Gauss-Newton / Levenberg-Marquardt iterations until a stop; ``(success, message)``."""
     while True:
+        ev = st.ev
         n_valid = int(np.sum(np.isfinite(ev.norms)))
-        if n_valid * k + n_prior <= n_par:
-            message = f"too few observations: {n_valid} valid points x {k} components for {n_par} parameters"
-            break
-        normal, rhs = _with_prior(ev.normal, ev.rhs, ev.x, prior)
-        dec = _decompose(normal, names, max_condition)
-        if not dec.ok:
-            message = dec.message
-            break
-        if iterations >= max_iter:
-            message = f"no convergence after {max_iter} iterations (last step {last_step:.3g} sigma)"
-            break
-        dx = _step(dec, rhs, mu)
-        # convergence is judged on the undamped Gauss-Newton step
-        sd = np.sqrt(_inverse_diag(dec)) * s
-        step_sigma = float(np.max(np.abs(_step(dec, rhs, 0.0) if mu > 0.0 else dx) / sd))
+        if n_valid * st.k + n_prior <= n_par:
+            return False, f"too few observations: {n_valid} valid points x {st.k} components for {n_par} parameters"
+        normal, rhs = _with_prior(ev.normal, ev.rhs, ev.x, st.prior)
+        st.dec = _decompose(normal, st.names, max_condition)
+        if not st.dec.ok:
+            return False, st.dec.message
+        if st.iterations >= max_iter:
+            return False, f"no convergence after {max_iter} iterations (last step {st.last_step:.3g} sigma)"
+        dx, step_sigma = _gauss_newton_step(st, rhs)
         if not np.all(np.isfinite(dx)):
-            message = "the step is not finite"
-            break
-        last_step = step_sigma
-        # converged: a negligible step from weights of the final loss and scale (the frozen
-        # one, or one within 1 % of the current residuals' scale)
-        if frozen:
-            final_scale = scale is not None or ev.weight_scale == s
-        else:
-            final_scale = abs(ev.weight_scale / s - 1.0) < 0.01
-        if step_sigma < tol and ev.rule == robust and final_scale:
-            success, message = True, f"converged after {iterations} iterations"
-            break
+            return False, "the step is not finite"
+        st.last_step = step_sigma
+        if _converged(st, step_sigma, tol):
+            return True, f"converged after {st.iterations} iterations"
         # RMS change of the residuals the step will make (from the normal equations)
-        predicted = float(np.sqrt(max(dx @ normal @ dx, 0.0) / max(n_valid * k, 1)))
-        stable = abs(s_previous / s - 1.0) < 0.02  # between the last two accepted evaluations
-        if not frozen and stable and (step_sigma < 1.0 or predicted < 0.1 * s):
-            # near the solution: the scale has settled and the residuals no longer move on the
-            # scale of their spread
-            frozen = True
-            rule, c = robust, c_final
-        iterations += 1
-        mu_used = mu
-        x_new = ev.x + dx
-        # far from the solution, when the step changes the residuals by more than half their
-        # scale, the previous scale is stale: take it from the first points instead
-        s_next = None if (not frozen and predicted > 0.5 * s) else s
-        ev_new = _evaluate(residual_and_jacobian_chunks, x_new, rule, c, s_next)
-        # the IRLS step minimizes a majorizer of F(.; s_w) at ev.x: compare with that scale
-        s_w, rule_w, c_w = ev.weight_scale, ev.rule, ev.c
-        both = np.isfinite(ev_new.norms) & np.isfinite(ev.norms)
-        old = _robust_cost(ev.norms, k, s_w, rule_w, c_w, both) + _prior_cost(ev.x, prior)
-        new = _robust_cost(ev_new.norms, k, s_w, rule_w, c_w, both) + _prior_cost(x_new, prior)
-        accepted = bool(np.any(both) and np.isfinite(new) and new <= old * (1.0 + 1e-12) + 1e-300)
-        if accepted:
-            ev = ev_new
-            if not frozen:
-                s_previous, s = s, robust_scale(ev.norms, k)
-            mu = 0.0 if mu < 1e-7 else mu / 10.0
-            rejections = 0
-        else:
-            mu = max(1e-3, 10.0 * mu)
-            rejections += 1
-        step_norm = float(np.linalg.norm(dx * dec.d))
-        log.append(_log_entry(iterations, new, s_w, step_sigma, step_norm, mu_used, accepted, ev_new, rule_w))
-        if rejections >= 12:
-            message = "the cost could not be reduced (12 rejected steps)"
-            break
-    return _finish(ev, dec, success, message, names, s, prior, iterations, log, initial_residuals)
+        predicted = float(np.sqrt(max(dx @ normal @ dx, 0.0) / max(n_valid * st.k, 1)))
+        _maybe_freeze(st, step_sigma, predicted)
+        st.iterations += 1
+        _try_step(st, dx, step_sigma, predicted)
+        if st.rejections >= 12:
+            return False, "the cost could not be reduced (12 rejected steps)"
+
+
+def _gauss_newton_step(st: _Irls, rhs):
+    """The damped step and the undamped one's largest size in standard deviations."""
+    dx = _step(st.dec, rhs, st.mu)
+    # convergence is judged on the undamped Gauss-Newton step
+    sd = np.sqrt(_inverse_diag(st.dec)) * st.s
+    step_sigma = float(np.max(np.abs(_step(st.dec, rhs, 0.0) if st.mu > 0.0 else dx) / sd))
+    return dx, step_sigma
+
+
+def _converged(st: _Irls, step_sigma, tol) -> bool:
+    """A negligible step from weights of the final loss and scale.
+
+    The final scale is the frozen one, or one within 1 % of the current residuals' scale.
+    """
+    ev = st.ev
+    if st.frozen:
+        final_scale = st.fixed_scale is not None or ev.weight_scale == st.s
+    else:
+        final_scale = abs(ev.weight_scale / st.s - 1.0) < 0.01
+    return step_sigma < tol and ev.rule == st.robust and final_scale
+
+
+def _maybe_freeze(st: _Irls, step_sigma, predicted):
+    """Near the solution the scale has settled: freeze it and switch to the final loss."""
+    stable = abs(st.s_previous / st.s - 1.0) < 0.02  # between the last two accepted evaluations
+    if not st.frozen and stable and (step_sigma < 1.0 or predicted < 0.1 * st.s):
+        # the residuals no longer move on the scale of their spread
+        st.frozen = True
+        st.rule, st.c = st.robust, st.c_final
+
+
+def _try_step(st: _Irls, dx, step_sigma, predicted):
+    """Evaluate ``x + dx``; accept it if the robust cost does not rise, else raise the damping."""
+    ev = st.ev
+    mu_used = st.mu
+    x_new = ev.x + dx
+    # far from the solution, when the step changes the residuals by more than half their
+    # scale, the previous scale is stale: take it from the first points instead
+    s_next = None if (not st.frozen and predicted > 0.5 * st.s) else st.s
+    ev_new = _evaluate(st.chunks, x_new, st.rule, st.c, s_next)
+    # the IRLS step minimizes a majorizer of F(.; s_w) at ev.x: compare with that scale
+    s_w, rule_w, c_w = ev.weight_scale, ev.rule, ev.c
+    both = np.isfinite(ev_new.norms) & np.isfinite(ev.norms)
+    old = _robust_cost(ev.norms, st.k, s_w, rule_w, c_w, both) + _prior_cost(ev.x, st.prior)
+    new = _robust_cost(ev_new.norms, st.k, s_w, rule_w, c_w, both) + _prior_cost(x_new, st.prior)
+    accepted = bool(np.any(both) and np.isfinite(new) and new <= old * (1.0 + 1e-12) + 1e-300)
+    if accepted:
+        st.ev = ev_new
+        if not st.frozen:
+            st.s_previous, st.s = st.s, robust_scale(ev_new.norms, st.k)
+        st.mu = 0.0 if st.mu < 1e-7 else st.mu / 10.0
+        st.rejections = 0
+    else:
+        st.mu = max(1e-3, 10.0 * st.mu)
+        st.rejections += 1
+    step_norm = float(np.linalg.norm(dx * st.dec.d))
+    st.log.append(_log_entry(st.iterations, new, s_w, step_sigma, step_norm, mu_used, accepted, ev_new, rule_w))
 
 
 def _log_entry(iteration, cost, scale, step_sigma, step_norm, damping, accepted, ev, rule):

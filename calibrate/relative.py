@@ -54,6 +54,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from calibrate._json import json_safe
 from calibrate.absolute import CalibrationResult, calibrate_model, residual_statistics
+from calibrate.config import CalibrationOptions
+from gcpmatch.gcps import GcpTable
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.phase import Reject, phase_correlate
 from sensor_models.errors import InputError
@@ -118,6 +120,18 @@ class TiePoints:
     def __len__(self) -> int:
         return int(self.row.size)
 
+    def as_gcp_table(self) -> GcpTable:
+        """The tie points as control points of ``band`` (kind "gcp").
+
+        Returns
+        -------
+        GcpTable
+            ``row, col, lon, lat, h, sigma_px, score`` of the tie points, ``band`` and the CCD
+            index (as text) of each.
+        """
+        return GcpTable.from_arrays(self.row, self.col, self.lon, self.lat, self.h, band=self.band,
+                                    ccd=self.ccd, sigma_px=self.sigma_px, score=self.score)
+
 
 @dataclass
 class BandResult:
@@ -160,7 +174,13 @@ class BandResult:
     coarse_offsets: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        """JSON-safe summary (tie statistics, rejections and the solve without per-point data)."""
+        """JSON-safe summary (tie statistics, rejections and the solve without per-point data).
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping (statistics in pixels).
+        """
         return json_safe({
             "band": self.band,
             "success": self.success,
@@ -201,14 +221,34 @@ class RelativeResult:
 
     @property
     def success(self) -> bool:
+        """Every band was calibrated.
+
+        Returns
+        -------
+        bool
+            True when every band's interior solve converged.
+        """
         return bool(self.bands) and all(b.success for b in self.bands.values())
 
     @property
     def message(self) -> str:
+        """One message per band, joined.
+
+        Returns
+        -------
+        str
+            ``"band: message"`` per band, joined by ``"; "``.
+        """
         return "; ".join(f"{b}: {r.message}" for b, r in self.bands.items())
 
     def to_dict(self) -> dict:
-        """JSON-safe summary: per band tie statistics before/after, per CCD (``relative.json``)."""
+        """JSON-safe summary: per band tie statistics before/after, per CCD (``relative.json``).
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping (statistics in pixels).
+        """
         return json_safe({
             "format": "gcpcal.relative",
             "format_version": 1,
@@ -331,102 +371,152 @@ def match_band(model: PushbroomModel, reference_image, image, dem, *, band: str,
     """
     reference_band = reference_band or model.reference_band
     window = _window_shape(window_px)
-    wh, ww = window
-    hr, hc = wh // 2, ww // 2
     rows = _check_rows(rows, model.n_rows)
     ref_img = _check_image(reference_image, model, reference_band)
     img = _check_image(image, model, band)
     grids = _grids if _grids is not None else _reference_grid(model, dem, reference_band, rows, window, int(spacing_px))
-    view_ref = sliding_window_view(ref_img, window)
-    view_img = sliding_window_view(img, window)
-    looks = model.band_ccds(band)
+    setup = _MatchSetup(model, dem, band, reference_band, window, rows, ref_img, img,
+                        sliding_window_view(ref_img, window), sliding_window_view(img, window), int(batch))
     rejected = {r: 0 for r in REASONS}
     parts, n_windows, coarse_offsets = [], 0, []
     for g in grids:
-        n = g.r0.size
-        n_windows += n
-        if n == 0:
+        n_windows += g.r0.size
+        if g.r0.size == 0:
             continue
-        status = np.full(n, "", dtype=object)
-        r0, c0, row_c, col_c = g.r0.copy(), g.c0.copy(), g.row_c.copy(), g.col_c.copy()
-        lon, lat, h = g.lon.copy(), g.lat.copy(), g.h.copy()
-        j = _target_ccd(model, band, reference_band, g.ccd)
-        pr, pc = _predict(model, lon, lat, h, band, j)
-        ccd_b = model.ccd_index(np.where(np.isfinite(pc), pc, 0.0), band=band, ccd=j).reshape(-1)
         offset = np.zeros(2)
         if coarse:
+            j = _target_ccd(model, band, reference_band, g.ccd)
             offset = _coarse_offset(model, dem, ref_img, img, band, reference_band, g.ccd, j, rows, max(window))
             coarse_offsets.append({"ccd": g.name, "row_px": float(offset[0]), "col_px": float(offset[1])})
-        with np.errstate(invalid="ignore"):
-            rb = np.where(np.isfinite(pr), np.rint(pr + offset[0] - hr), -1).astype(np.intp)
-            cb = np.where(np.isfinite(pc), np.rint(pc + offset[1] - hc), -1).astype(np.intp)
-        # a band window that overhangs the image or its CCD is moved inside, and the reference
-        # window with it (by at most a quarter of the window): the CCD ends and the first and
-        # last lines keep their tie points
-        first = np.array([c.first_col for c in looks])[ccd_b]
-        last = np.array([c.last_col for c in looks])[ccd_b]
-        k_r = np.clip(rb, 0, model.n_rows - wh) - rb
-        k_c = np.clip(cb, first, np.maximum(last - ww, first)) - cb
-        ref_look = model.band_ccds(reference_band)[g.ccd]
-        fits = ((np.abs(k_r) <= wh // 4) & (np.abs(k_c) <= ww // 4) & (r0 + k_r >= 0) & (r0 + k_r <= model.n_rows - wh)
-                & (c0 + k_c >= ref_look.first_col) & (c0 + k_c <= ref_look.last_col - ww) & (last - first >= ww))
-        moved = np.flatnonzero(fits & ((k_r != 0) | (k_c != 0)) & np.isfinite(pr) & np.isfinite(pc))
-        if moved.size:
-            r0[moved] += k_r[moved]
-            c0[moved] += k_c[moved]
-            rb[moved] += k_r[moved]
-            cb[moved] += k_c[moved]
-            row_c[moved], col_c[moved] = r0[moved] + wh / 2.0, c0[moved] + ww / 2.0
-            lon[moved], lat[moved], h[moved] = model.image_to_ground(row_c[moved], col_c[moved], dem=dem,
-                                                                     band=reference_band, ccd=g.ccd)
-            pr[moved], pc[moved] = _predict(model, lon[moved], lat[moved], h[moved], band, j)
-        status[~np.isfinite(lon)] = "no_ground"
-        inside = (fits | ((k_r == 0) & (k_c == 0) & (last - first >= ww))) & np.isfinite(pr) & np.isfinite(pc)
-        status[(status == "") & ~inside] = "outside"
-        shift = np.full((n, 2), np.nan)
-        score = np.full(n, np.nan)
-        todo = np.flatnonzero(status == "")
-        for a in range(0, todo.size, batch):
-            k = todo[a:a + batch]
-            wr = view_ref[r0[k], c0[k]]
-            wb = view_img[rb[k], cb[k]]
-            good = _valid_windows(wr) & _valid_windows(wb)
-            status[k[~good]] = "no_data"
-            k, wr, wb = k[good], wr[good], wb[good]
-            if k.size == 0:
-                continue
-            pm = phase_correlate(wr, wb, max_shift_px=(wh / 4.0, ww / 4.0))
-            shift[k, 0], shift[k, 1] = pm.shift_row_px, pm.shift_col_px
-            score[k] = pm.score
-            for code, name in _PHASE_REASON.items():
-                status[k[pm.reason == code]] = name
-        # measured position of the reference window centre in the band, and its residual
-        q_row, q_col = rb + hr + shift[:, 0], cb + hc + shift[:, 1]
-        resid = np.stack([q_row - pr, q_col - pc], axis=-1)
-        grid = np.where((status == "")[:, None], resid, np.nan).reshape(g.n_r, g.n_c, 2)
-        consistent = local_consistency(grid).reshape(-1)
-        status[(status == "") & ~consistent] = "inconsistent"
-        keep = np.flatnonzero(status == "")
-        sigma = float("nan")
-        if keep.size:
-            inl, sigma, _ = smooth_residuals(row_c[keep], col_c[keep], resid[keep, 0], resid[keep, 1])
-            status[keep[~inl]] = "model_residual"
-            keep = keep[inl]
-        for r in REASONS:
-            rejected[r] += int(np.sum(status == r))
-        sig = max(sigma, SIGMA_FLOOR_PX) if np.isfinite(sigma) else 0.1
-        parts.append({
-            "row_ref": row_c[keep], "col_ref": col_c[keep], "ccd_ref": np.full(keep.size, g.ccd, dtype=np.intp),
-            "lon": lon[keep], "lat": lat[keep], "h": h[keep], "row": q_row[keep], "col": q_col[keep],
-            "ccd": ccd_b[keep].astype(np.intp), "predicted_row": pr[keep], "predicted_col": pc[keep],
-            "score": score[keep], "sigma_px": np.full(keep.size, sig),
-        })
+        w = _place_windows(setup, g, offset)
+        _correlate_windows(setup, w)
+        parts.append(_screen_ties(setup, g, w, rejected))
     if parts:
         cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     else:
         cols = {k: np.zeros(0, dtype=np.intp if k in ("ccd", "ccd_ref") else np.float64)
                 for k in TiePoints.__dataclass_fields__ if k != "band"}
     return TiePoints(band=band, **cols), n_windows, rejected, coarse_offsets
+
+
+@dataclass(frozen=True)
+class _MatchSetup:
+    """What every reference CCD's windows share in :func:`match_band`."""
+
+    model: PushbroomModel
+    dem: object
+    band: str
+    reference_band: str
+    window: tuple
+    rows: tuple
+    ref_img: np.ndarray
+    img: np.ndarray
+    view_ref: np.ndarray
+    view_img: np.ndarray
+    batch: int
+
+
+def _place_windows(setup: _MatchSetup, g, offset) -> dict:
+    """Windows of one reference CCD's grid in both bands, moved inside the band's CCDs.
+
+    A band window that overhangs the image or its CCD is moved inside, and the reference
+    window with it (by at most a quarter of the window): the CCD ends and the first and last
+    lines keep their tie points. Returns the window corners (``r0, c0`` reference, ``rb, cb``
+    band), centres, ground, predicted band positions, band CCD and a status per window
+    (``""``, ``"no_ground"`` or ``"outside"``).
+    """
+    model, band, reference_band = setup.model, setup.band, setup.reference_band
+    wh, ww = setup.window
+    hr, hc = wh // 2, ww // 2
+    looks = model.band_ccds(band)
+    n = g.r0.size
+    status = np.full(n, "", dtype=object)
+    r0, c0, row_c, col_c = g.r0.copy(), g.c0.copy(), g.row_c.copy(), g.col_c.copy()
+    lon, lat, h = g.lon.copy(), g.lat.copy(), g.h.copy()
+    j = _target_ccd(model, band, reference_band, g.ccd)
+    pr, pc = _predict(model, lon, lat, h, band, j)
+    ccd_b = model.ccd_index(np.where(np.isfinite(pc), pc, 0.0), band=band, ccd=j).reshape(-1)
+    with np.errstate(invalid="ignore"):
+        rb = np.where(np.isfinite(pr), np.rint(pr + offset[0] - hr), -1).astype(np.intp)
+        cb = np.where(np.isfinite(pc), np.rint(pc + offset[1] - hc), -1).astype(np.intp)
+    first = np.array([c.first_col for c in looks])[ccd_b]
+    last = np.array([c.last_col for c in looks])[ccd_b]
+    k_r = np.clip(rb, 0, model.n_rows - wh) - rb
+    k_c = np.clip(cb, first, np.maximum(last - ww, first)) - cb
+    ref_look = model.band_ccds(reference_band)[g.ccd]
+    fits = ((np.abs(k_r) <= wh // 4) & (np.abs(k_c) <= ww // 4) & (r0 + k_r >= 0) & (r0 + k_r <= model.n_rows - wh)
+            & (c0 + k_c >= ref_look.first_col) & (c0 + k_c <= ref_look.last_col - ww) & (last - first >= ww))
+    moved = np.flatnonzero(fits & ((k_r != 0) | (k_c != 0)) & np.isfinite(pr) & np.isfinite(pc))
+    if moved.size:
+        r0[moved] += k_r[moved]
+        c0[moved] += k_c[moved]
+        rb[moved] += k_r[moved]
+        cb[moved] += k_c[moved]
+        row_c[moved], col_c[moved] = r0[moved] + wh / 2.0, c0[moved] + ww / 2.0
+        lon[moved], lat[moved], h[moved] = model.image_to_ground(row_c[moved], col_c[moved], dem=setup.dem,
+                                                                 band=reference_band, ccd=g.ccd)
+        pr[moved], pc[moved] = _predict(model, lon[moved], lat[moved], h[moved], band, j)
+    status[~np.isfinite(lon)] = "no_ground"
+    inside = (fits | ((k_r == 0) & (k_c == 0) & (last - first >= ww))) & np.isfinite(pr) & np.isfinite(pc)
+    status[(status == "") & ~inside] = "outside"
+    return {"status": status, "r0": r0, "c0": c0, "rb": rb, "cb": cb, "row_c": row_c, "col_c": col_c,
+            "lon": lon, "lat": lat, "h": h, "pr": pr, "pc": pc, "ccd_b": ccd_b}
+
+
+def _correlate_windows(setup: _MatchSetup, w: dict) -> None:
+    """Phase correlation of the windows still in play; adds ``shift`` (N, 2) and ``score`` to ``w``."""
+    wh, ww = setup.window
+    status, r0, c0, rb, cb = w["status"], w["r0"], w["c0"], w["rb"], w["cb"]
+    n = status.size
+    shift = np.full((n, 2), np.nan)
+    score = np.full(n, np.nan)
+    todo = np.flatnonzero(status == "")
+    for a in range(0, todo.size, setup.batch):
+        k = todo[a:a + setup.batch]
+        wr = setup.view_ref[r0[k], c0[k]]
+        wb = setup.view_img[rb[k], cb[k]]
+        good = _valid_windows(wr) & _valid_windows(wb)
+        status[k[~good]] = "no_data"
+        k, wr, wb = k[good], wr[good], wb[good]
+        if k.size == 0:
+            continue
+        pm = phase_correlate(wr, wb, max_shift_px=(wh / 4.0, ww / 4.0))
+        shift[k, 0], shift[k, 1] = pm.shift_row_px, pm.shift_col_px
+        score[k] = pm.score
+        for code, name in _PHASE_REASON.items():
+            status[k[pm.reason == code]] = name
+    w["shift"], w["score"] = shift, score
+
+
+def _screen_ties(setup: _MatchSetup, g, w: dict, rejected: dict) -> dict:
+    """Tie points of one grid that pass the local-consistency and smooth-residual tests.
+
+    Counts every window's reason into ``rejected``; returns the TiePoints columns.
+    """
+    wh, ww = setup.window
+    status, shift, pr, pc = w["status"], w["shift"], w["pr"], w["pc"]
+    row_c, col_c = w["row_c"], w["col_c"]
+    # measured position of the reference window centre in the band, and its residual
+    q_row, q_col = w["rb"] + wh // 2 + shift[:, 0], w["cb"] + ww // 2 + shift[:, 1]
+    resid = np.stack([q_row - pr, q_col - pc], axis=-1)
+    grid = np.where((status == "")[:, None], resid, np.nan).reshape(g.n_r, g.n_c, 2)
+    consistent = local_consistency(grid).reshape(-1)
+    status[(status == "") & ~consistent] = "inconsistent"
+    keep = np.flatnonzero(status == "")
+    sigma = float("nan")
+    if keep.size:
+        inl, sigma, _ = smooth_residuals(row_c[keep], col_c[keep], resid[keep, 0], resid[keep, 1])
+        status[keep[~inl]] = "model_residual"
+        keep = keep[inl]
+    for r in REASONS:
+        rejected[r] += int(np.sum(status == r))
+    sig = max(sigma, SIGMA_FLOOR_PX) if np.isfinite(sigma) else 0.1
+    return {
+        "row_ref": row_c[keep], "col_ref": col_c[keep], "ccd_ref": np.full(keep.size, g.ccd, dtype=np.intp),
+        "lon": w["lon"][keep], "lat": w["lat"][keep], "h": w["h"][keep], "row": q_row[keep], "col": q_col[keep],
+        "ccd": w["ccd_b"][keep].astype(np.intp), "predicted_row": pr[keep], "predicted_col": pc[keep],
+        "score": w["score"][keep], "sigma_px": np.full(keep.size, sig),
+    }
 
 
 def _predict(model, lon, lat, h, band, ccd):
@@ -512,7 +602,8 @@ def _check_image(image, model: PushbroomModel, band: str) -> np.ndarray:
 # --------------------------------------------------------------------------- calibration
 def relative_calibration(model: PushbroomModel, images: Mapping[str, np.ndarray], dem, *, reference_band=None,
                          bands: Sequence[str] | None = None, window_px=64, spacing_px: int = 24, rows=None,
-                         robust: str = "cauchy", interior_terms: int = 3, passes: int = 1, coarse: bool = True,
+                         robust: str = CalibrationOptions.robust,
+                         interior_terms: int = CalibrationOptions.interior_terms, passes: int = 1, coarse: bool = True,
                          progress=None) -> RelativeResult:
     """Calibrate every other band's interior against the reference band (module docstring).
 
@@ -563,6 +654,33 @@ def relative_calibration(model: PushbroomModel, images: Mapping[str, np.ndarray]
         Not a push-broom model, unknown bands, missing or mis-sized rasters, bad options.
     """
     t0 = time.perf_counter()
+    reference_band, bands = _checked_bands(model, images, reference_band, bands)
+    window = _window_shape(window_px)
+    if int(spacing_px) < 1:
+        raise InputError(f"spacing must be >= 1 pixel, got {spacing_px}", field="spacing_px")
+    if int(passes) < 1:
+        raise InputError(f"passes must be >= 1, got {passes}", field="passes")
+    rows = _check_rows(rows, model.n_rows)
+    if rows[1] - rows[0] < window[0]:
+        raise InputError(f"rows {rows[0]}:{rows[1]} hold fewer lines than one window ({window[0]} lines)", field="rows")
+    say = progress or (lambda message: None)
+    ref_img = _check_image(images[reference_band], model, reference_band)
+    grids = _reference_grid(model, dem, reference_band, rows, window, int(spacing_px))
+    options = CalibrationOptions(scheme="interior", robust=robust, interior_terms=interior_terms)
+    results, current = {}, model
+    for band in bands:
+        img = _check_image(images[band], model, band)
+        results[band], cal = _calibrate_band(current, ref_img, img, dem, band, reference_band, window, rows, grids,
+                                             options, int(passes), coarse, say)  # fmt: skip
+        if results[band].success:
+            current = cal.model
+    summary = {"window_px": list(window), "spacing_px": int(spacing_px), "rows": list(rows), "robust": robust,
+               "interior_terms": interior_terms, "passes": int(passes), "coarse": bool(coarse)}
+    return RelativeResult(current, reference_band, results, summary, time.perf_counter() - t0)
+
+
+def _checked_bands(model, images, reference_band, bands):
+    """The reference band and the bands to calibrate, checked against the model and rasters."""
     if not isinstance(model, PushbroomModel):
         raise InputError(f"relative calibration needs a push-broom model, got {getattr(model, 'kind', type(model).__name__)}")
     reference_band = reference_band or model.reference_band
@@ -582,44 +700,29 @@ def relative_calibration(model: PushbroomModel, images: Mapping[str, np.ndarray]
     missing = [b for b in [reference_band] + bands if b not in images]
     if missing:
         raise InputError(f"no raster given for band(s) {', '.join(missing)}", field="images")
-    window = _window_shape(window_px)
-    if int(spacing_px) < 1:
-        raise InputError(f"spacing must be >= 1 pixel, got {spacing_px}", field="spacing_px")
-    if int(passes) < 1:
-        raise InputError(f"passes must be >= 1, got {passes}", field="passes")
-    rows = _check_rows(rows, model.n_rows)
-    if rows[1] - rows[0] < window[0]:
-        raise InputError(f"rows {rows[0]}:{rows[1]} hold fewer lines than one window ({window[0]} lines)", field="rows")
-    say = progress or (lambda message: None)
-    ref_img = _check_image(images[reference_band], model, reference_band)
-    grids = _reference_grid(model, dem, reference_band, rows, window, int(spacing_px))
-    results, current = {}, model
-    for band in bands:
-        img = _check_image(images[band], model, band)
-        band_model, cal, first_offsets = current, None, None
-        for p in range(int(passes)):
-            say(f"band {band}: matching against {reference_band} (pass {p + 1}/{passes})")
-            ties, n_win, rejected, offsets = match_band(band_model, ref_img, img, dem, band=band,
-                                                        reference_band=reference_band, window_px=window,
-                                                        rows=rows, coarse=coarse, _grids=grids)
-            first_offsets = offsets if first_offsets is None else first_offsets
-            if len(ties) == 0:
-                cal = None
-                break
-            say(f"band {band}: {len(ties)} tie points; solving its interior")
-            # every pass solves from the input model: 'before' always describes the input
-            cal = calibrate_model(current, ties.row, ties.col, ties.lon, ties.lat, ties.h, band=band, ccd=ties.ccd,
-                                  sigma_px=ties.sigma_px, score=ties.score, scheme="interior", robust=robust,
-                                  interior_terms=interior_terms)
-            if not cal.success:
-                break
-            band_model = cal.model
-        results[band] = _band_result(band, current, ties, n_win, rejected, cal, first_offsets, window, coarse)
-        if results[band].success:
-            current = cal.model
-    options = {"window_px": list(window), "spacing_px": int(spacing_px), "rows": list(rows), "robust": robust,
-               "interior_terms": interior_terms, "passes": int(passes), "coarse": bool(coarse)}
-    return RelativeResult(current, reference_band, results, options, time.perf_counter() - t0)
+    return reference_band, bands
+
+
+def _calibrate_band(current, ref_img, img, dem, band, reference_band, window, rows, grids, options, passes, coarse,
+                    say):
+    """Match and solve one band's interior ``passes`` times; its BandResult and last calibration."""
+    band_model, cal, first_offsets = current, None, None
+    for p in range(passes):
+        say(f"band {band}: matching against {reference_band} (pass {p + 1}/{passes})")
+        ties, n_win, rejected, offsets = match_band(band_model, ref_img, img, dem, band=band,
+                                                    reference_band=reference_band, window_px=window,
+                                                    rows=rows, coarse=coarse, _grids=grids)
+        first_offsets = offsets if first_offsets is None else first_offsets
+        if len(ties) == 0:
+            cal = None
+            break
+        say(f"band {band}: {len(ties)} tie points; solving its interior")
+        # every pass solves from the input model: 'before' always describes the input
+        cal = calibrate_model(current, ties.as_gcp_table(), options=options)
+        if not cal.success:
+            break
+        band_model = cal.model
+    return _band_result(band, current, ties, n_win, rejected, cal, first_offsets, window, coarse), cal
 
 
 def _band_result(band, model, ties, n_windows, rejected, cal, offsets, window, coarse) -> BandResult:
@@ -786,7 +889,7 @@ class _LazyBands(Mapping):
 
 
 def relative_scene(scene_manifest, calibrated_manifest, dem_path, out_dir, *, reference_band=None, dem_datum=None,
-                   geoid=None, window_px=64, spacing_px: int = 24, rows=None, robust: str = "cauchy",
+                   geoid=None, window_px=64, spacing_px: int = 24, rows=None, robust: str = CalibrationOptions.robust,
                    progress=None) -> dict:
     """``gcpcal relative``: files in, calibrated manifest and reports out; returns the summary.
 
@@ -796,6 +899,32 @@ def relative_scene(scene_manifest, calibrated_manifest, dem_path, out_dir, *, re
     ``manifest.json`` (every band calibrated, raster paths relative to ``out_dir``),
     ``relative.json`` (:meth:`RelativeResult.to_dict`) and ``relative.summary.json``; all of
     them through a temporary folder inside ``out_dir``, so a failure leaves no partial output.
+
+    Parameters
+    ----------
+    scene_manifest : path
+        LAB manifest of the scene (every band's raster).
+    calibrated_manifest : path
+        ``manifest.json`` of ``gcpcal calibrate`` (reference band calibrated) or its folder.
+    dem_path : path
+        DEM of the scene.
+    out_dir : path
+        Output folder (created if needed).
+    reference_band : str, optional
+        Default: the calibrated model's reference band.
+    dem_datum : str, optional
+        Vertical datum of the DEM (:data:`sensor_models.terrain.VERTICAL_DATUMS`) when its file does not declare it.
+    geoid : path, optional
+        Geoid grid for an orthometric DEM.
+    window_px, spacing_px, rows, robust
+        As in :func:`relative_calibration` (pixels).
+    progress : callable, optional
+        Called with a one-line message per step.
+
+    Returns
+    -------
+    dict
+        The summary written to ``relative.summary.json``.
 
     Raises
     ------

@@ -36,6 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibrate.absolute import CalibrationResult, calibrate_model
+from calibrate.config import CalibrationOptions
+from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
 from sensor_models.rpc import BIAS_NAMES, RpcModel
 
@@ -84,7 +86,18 @@ class RpcBiasResult:
     calibration: CalibrationResult
 
     def to_dict(self, *, points: bool = False) -> dict:
-        """JSON-safe summary (the calibration's own ``to_dict`` under ``"calibration"``)."""
+        """JSON-safe summary (the calibration's own ``to_dict`` under ``"calibration"``).
+
+        Parameters
+        ----------
+        points : bool
+            Include the calibration's per-point arrays.
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping (bias terms in pixels, RMS before and after in pixels).
+        """
         return {
             "success": self.success,
             "message": self.message,
@@ -114,8 +127,8 @@ def compensate_rpc_bias(
     terms: str = "offset",
     sigma_px=None,
     score=None,
-    robust: str = "cauchy",
-    max_iter: int = 20,
+    robust: str = CalibrationOptions.robust,
+    max_iter: int = CalibrationOptions.max_iter,
 ) -> RpcBiasResult:
     """Estimate the image-space bias correction of an RPC from GCPs.
 
@@ -147,20 +160,9 @@ def compensate_rpc_bias(
     if terms not in BIAS_TERMS:
         raise InputError(f"terms must be one of {', '.join(BIAS_TERMS)}, got {terms!r}", field="terms")
     names = BIAS_TERMS[terms]
-    result = calibrate_model(
-        rpc,
-        row,
-        col,
-        lon,
-        lat,
-        h,
-        sigma_px=sigma_px,
-        score=score,
-        scheme="joint",
-        parameters=names,
-        robust=robust,
-        max_iter=max_iter,
-    )
+    table = GcpTable.from_arrays(row, col, lon, lat, h, sigma_px=sigma_px, score=score)
+    options = CalibrationOptions(scheme="joint", parameters=names, robust=robust, max_iter=max_iter)
+    result = calibrate_model(rpc, table, options=options)
     model = result.model
     bias = dict(zip(BIAS_NAMES, (float(v) for v in model.bias)))
     sd = result.sigma

@@ -60,6 +60,8 @@ def apply_calibration(model, table, *, scheme="exterior-interior", robust="cauch
     :func:`calibrate.absolute.calibrate_model`; RPC models get an image-space bias compensation (:func:`calibrate.rpc_bias.compensate_rpc_bias`).
     """
     from calibrate.absolute import calibrate_model
+    from calibrate.config import CalibrationOptions
+    from gcpmatch.gcps import GcpTable
     from sensor_models.rpc import RpcModel
 
     g = points_of(table.gcps())
@@ -68,8 +70,10 @@ def apply_calibration(model, table, *, scheme="exterior-interior", robust="cauch
     if band is not None:
         g["band"] = np.full(g["row"].size, band) if g["band"] is None else g["band"]
     if not isinstance(model, RpcModel):  # push-broom or staring camera: the rigorous model
-        result = calibrate_model(model, g["row"], g["col"], g["lon"], g["lat"], g["h"], band=g["band"],
-                                 ccd=g["ccd"], sigma_px=g["sigma_px"], score=g["score"], scheme=scheme, robust=robust)
+        gcps = table.gcps()
+        if band is not None and g["band"] is None:
+            gcps = GcpTable.from_arrays(**{**gcps.as_dict(), "band": band})
+        result = calibrate_model(model, gcps, options=CalibrationOptions(scheme=scheme, robust=robust))
     else:
         from calibrate.rpc_bias import compensate_rpc_bias
 

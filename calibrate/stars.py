@@ -63,12 +63,12 @@ import numpy as np
 from scipy.interpolate import make_smoothing_spline
 from scipy.spatial import cKDTree
 
+from calibrate.config import STAR_SCHEMES, StarOptions
 from calibrate.lsq import Chunk, Prior, solve
 from sensor_models.errors import InputError
 from sensor_models.geo_staring import GeoStaringModel, vectors_to_radec
 
 __all__ = [
-    "SCHEMES",
     "StarCalibrationResult",
     "StarObservations",
     "calibrate_tracks",
@@ -82,7 +82,6 @@ __all__ = [
     "read_frame_list",
 ]
 
-SCHEMES = ("exterior-interior", "exterior", "joint")
 _EXTERIOR = ("installation.roll", "installation.pitch", "installation.yaw")
 ARCSEC = np.pi / (180.0 * 3600.0)
 
@@ -99,6 +98,11 @@ def read_frame_list(path):
 
     Paths are relative to the list's folder; seconds count from the manifest's epoch and must
     increase strictly. ``path`` may also be the folder holding ``frames.json``.
+
+    Parameters
+    ----------
+    path : path
+        ``frames.json`` or the folder holding it.
 
     Returns
     -------
@@ -150,7 +154,18 @@ def _check_seconds(seconds, n_frames: int) -> np.ndarray:
 
 
 def load_frame(frame) -> np.ndarray:
-    """A frame as a float32 array (H, W): an array, a FITS file or any raster rasterio reads."""
+    """A frame as a float32 array (H, W): an array, a FITS file or any raster rasterio reads.
+
+    Parameters
+    ----------
+    frame : ndarray (H, W) or path
+        An image already in memory, a FITS file or a raster file.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+        Pixel values (counts).
+    """
     if isinstance(frame, np.ndarray):
         if frame.ndim != 2:
             raise InputError(f"a frame must be 2-D, got shape {frame.shape}")
@@ -178,6 +193,22 @@ def load_frame(frame) -> np.ndarray:
 def detect_frames(frames, *, threshold_sigma: float = 5.0, centroid: str = "iwc", border_px: float = 4.0,
                   saturation: float | None = None, max_stars: int | None = 200):
     """Detect and centroid stars in every frame.
+
+    Parameters
+    ----------
+    frames : sequence of ndarray (H, W) or path
+        Frames in time order (:func:`load_frame`).
+    threshold_sigma : float
+        Detection threshold above the local background, noise sigmas.
+    centroid : {"iwc", "gaussian", "windowed"}
+        Centroid estimator (:func:`gcpmatch.stars.detect_stars`).
+    border_px : float
+        Detections closer than this to the frame edge are dropped, pixels.
+    saturation : float, optional
+        Saturation level in counts (:func:`gcpmatch.stars.detect_stars`); detections it
+        flags as saturated are dropped.
+    max_stars : int, optional
+        Most detections per frame (:func:`gcpmatch.stars.detect_stars`); None: all.
 
     Returns
     -------
@@ -214,7 +245,23 @@ class _Predictions:
 
 
 def predict_catalog(models, catalog, *, margin_px: float = 60.0) -> _Predictions:
-    """Apparent catalogue stars inside (or within ``margin_px`` of) every frame's model."""
+    """Apparent catalogue stars inside (or within ``margin_px`` of) every frame's model.
+
+    Parameters
+    ----------
+    models : sequence of GeoStaringModel
+        The model of every frame (``lab_model.at_frame(t_k)``).
+    catalog : StarCatalog
+        Loaded catalogue.
+    margin_px : float
+        Stars projected up to this far outside a frame are kept, pixels.
+
+    Returns
+    -------
+    _Predictions
+        All frames stacked (M,): frame index, catalogue row, apparent GCRF direction (M, 3)
+        at the frame instant and the projected ``row, col`` in pixels.
+    """
     from sensor_models.stars import catalog_stars_in_frame
 
     unit = catalog.unit_vectors()
@@ -229,6 +276,19 @@ def predict_catalog(models, catalog, *, margin_px: float = 60.0) -> _Predictions
 def identify(detections, pred: _Predictions, *, search_px: float = 120.0, tolerance_px: float = 4.0,
              bin_px: float = 2.0):
     """Match detections to predicted catalogue stars (global offset vote, then nearest neighbours).
+
+    Parameters
+    ----------
+    detections : sequence of StarTable
+        Detections per frame (``row_px, col_px``).
+    pred : _Predictions
+        Of :func:`predict_catalog`.
+    search_px : float
+        Largest detection-minus-prediction distance voted on, pixels.
+    tolerance_px : float
+        Largest distance of a match after the voted offset, pixels.
+    bin_px : float
+        Bin of the offset vote, pixels.
 
     Returns
     -------
@@ -312,9 +372,28 @@ class StarObservations:
 
     @property
     def calibration(self) -> np.ndarray:
+        """Points used in the fit: not held out, not rejected, smoothed.
+
+        Returns
+        -------
+        ndarray of bool, shape (N,)
+            True for the points the calibration uses.
+        """
         return ~self.check & ~self.rejected & np.isfinite(self.row_smooth)
 
     def select(self, index) -> "StarObservations":
+        """The observations picked by index.
+
+        Parameters
+        ----------
+        index : array_like of int or bool
+            Points to keep.
+
+        Returns
+        -------
+        StarObservations
+            Those points, every array indexed alike.
+        """
         return StarObservations(**{k: getattr(self, k)[index] for k in self.__dataclass_fields__})
 
 
@@ -417,8 +496,9 @@ def _prior(model: GeoStaringModel, free, *, interior_prior_px: float | None, gau
     return Prior(np.vstack(mats), np.concatenate(vals), np.concatenate(sigs))
 
 
-def calibrate_tracks(model0: GeoStaringModel, virtual_gcrf, row, col, *, scheme: str = "exterior-interior",
-                     interior_degree: int = 3, robust: str = "huber", interior_prior_px: float | None = 20.0,
+def calibrate_tracks(model0: GeoStaringModel, virtual_gcrf, row, col, *, scheme: str = StarOptions.scheme,
+                     interior_degree: int = StarOptions.interior_degree, robust: str = StarOptions.robust,
+                     interior_prior_px: float | None = StarOptions.interior_prior_px,
                      gauge_sigma_px: float = 1e-3, max_outer: int = 5, outer_tol: float = 0.05,
                      max_iter: int = 20, tol: float = 0.01):
     """Stepwise (or joint) least squares of the frame-0 model from virtual star vectors.
@@ -436,9 +516,18 @@ def calibrate_tracks(model0: GeoStaringModel, virtual_gcrf, row, col, *, scheme:
         parameters at once with the gauge pseudo-observations.
     interior_degree : int
         Degree of the estimated interior polynomials (3: the 20 coefficients).
+    robust : {"huber", "cauchy", "none"}
+        Robust loss of :func:`calibrate.lsq.solve`.
     interior_prior_px : float or None
         Standard deviation (pixels at the frame edge) of a pseudo-observation holding every
         interior coefficient at its initial value; None: no prior.
+    gauge_sigma_px : float
+        Joint scheme: standard deviation of the gauge pseudo-observations, pixels.
+    max_outer, outer_tol : int, float
+        Stepwise scheme: rounds, and the stop when an exterior step moves every angle by less
+        than ``outer_tol`` of its standard deviation.
+    max_iter, tol : int, float
+        Per step, passed to :func:`calibrate.lsq.solve`.
 
     Returns
     -------
@@ -450,20 +539,48 @@ def calibrate_tracks(model0: GeoStaringModel, virtual_gcrf, row, col, *, scheme:
     result : LsqResult
         Of the last step.
     """
-    if scheme not in SCHEMES:
-        raise InputError(f"must be one of {', '.join(SCHEMES)}, got {scheme!r}", field="scheme")
+    if scheme not in STAR_SCHEMES:
+        raise InputError(f"must be one of {', '.join(STAR_SCHEMES)}, got {scheme!r}", field="scheme")
     w = np.asarray(virtual_gcrf, dtype=np.float64).reshape(-1, 3)
     obs = np.stack([np.asarray(row, dtype=np.float64), np.asarray(col, dtype=np.float64)], -1)
     if obs.shape[0] != w.shape[0] or obs.shape[0] == 0:
         raise InputError(f"{obs.shape[0]} points for {w.shape[0]} vectors", field="row")
-    names = list(model0.parameter_names())
     interior = list(model0.interior_parameter_names(interior_degree))
-    theta = model0.parameters().values.copy()
-    runs, last = [], None
+    stepper = _TrackStepper(model0, w, obs, robust=robust, max_iter=max_iter, tol=tol)
+    no_prior = dict(interior_prior_px=None, gauge_sigma_px=None)
+    if scheme == "exterior":
+        stepper.step(list(_EXTERIOR), "exterior", 0, no_prior)
+    elif scheme == "joint":
+        stepper.step(list(_EXTERIOR) + interior, "joint", 0,
+                     dict(interior_prior_px=interior_prior_px, gauge_sigma_px=gauge_sigma_px))
+    else:
+        for rnd in range(max(1, int(max_outer))):
+            res, moved = stepper.step(list(_EXTERIOR), "exterior", rnd, no_prior)
+            if not res.success or (rnd > 0 and moved < outer_tol):
+                break
+            res, _ = stepper.step(interior, "interior", rnd,
+                                  dict(interior_prior_px=interior_prior_px, gauge_sigma_px=None))
+            if not res.success:
+                break
+    return stepper.theta, stepper.runs, stepper.last
 
-    def step(free, label, rnd, prior_kw):
-        nonlocal theta, last
-        idx = np.array([names.index(n) for n in free])
+
+class _TrackStepper:
+    """One least-squares step after another on the frame-0 model; keeps the values and log."""
+
+    def __init__(self, model0, virtual_gcrf, observed, *, robust, max_iter, tol):
+        self.model0 = model0
+        self.w = virtual_gcrf
+        self.obs = observed
+        self.solve_kw = dict(robust=robust, max_iter=max_iter, tol=tol)
+        self.names = list(model0.parameter_names())
+        self.theta = model0.parameters().values.copy()
+        self.runs, self.last = [], None
+
+    def step(self, free, label, rnd, prior_kw):
+        """Solve for ``free``; the result and how far it moved them, in standard deviations."""
+        idx = np.array([self.names.index(n) for n in free])
+        theta, model0, w, obs = self.theta, self.model0, self.w, self.obs
 
         def chunks(x):
             full = theta.copy()
@@ -472,36 +589,18 @@ def calibrate_tracks(model0: GeoStaringModel, virtual_gcrf, row, col, *, scheme:
             return [Chunk(obs - np.stack([r, c], -1), jac)]
 
         prior = _prior(model0.with_parameters(theta), free, **prior_kw)
-        res = solve(chunks, theta[idx], names=free, robust=robust, prior=prior, max_iter=max_iter, tol=tol,
-                    warm_start=bool(runs))
-        runs.append({"step": label, "round": rnd, "success": bool(res.success), "message": res.message,
-                     "iterations": int(res.iterations), "sigma0": float(res.sigma0),
-                     "condition_number": float(res.condition_number)})
-        if res.success:
-            moved = np.abs(res.x - theta[idx])
-            sig = res.sigma
-            theta = theta.copy()
-            theta[idx] = res.x
-            last = res
-            return res, (float(np.max(moved / sig)) if sig is not None and np.all(sig > 0) else np.inf)
-        last = res
-        return res, np.inf
-
-    no_prior = dict(interior_prior_px=None, gauge_sigma_px=None)
-    if scheme == "exterior":
-        step(list(_EXTERIOR), "exterior", 0, no_prior)
-    elif scheme == "joint":
-        step(list(_EXTERIOR) + interior, "joint", 0,
-             dict(interior_prior_px=interior_prior_px, gauge_sigma_px=gauge_sigma_px))
-    else:
-        for rnd in range(max(1, int(max_outer))):
-            res, moved = step(list(_EXTERIOR), "exterior", rnd, no_prior)
-            if not res.success or (rnd > 0 and moved < outer_tol):
-                break
-            res, _ = step(interior, "interior", rnd, dict(interior_prior_px=interior_prior_px, gauge_sigma_px=None))
-            if not res.success:
-                break
-    return theta, runs, last
+        res = solve(chunks, theta[idx], names=free, prior=prior, warm_start=bool(self.runs), **self.solve_kw)
+        self.runs.append({"step": label, "round": rnd, "success": bool(res.success), "message": res.message,
+                          "iterations": int(res.iterations), "sigma0": float(res.sigma0),
+                          "condition_number": float(res.condition_number)})
+        self.last = res
+        if not res.success:
+            return res, np.inf
+        moved = np.abs(res.x - theta[idx])
+        sig = res.sigma
+        self.theta = theta.copy()
+        self.theta[idx] = res.x
+        return res, (float(np.max(moved / sig)) if sig is not None and np.all(sig > 0) else np.inf)
 
 
 # --------------------------------------------------------------------------- accuracy
@@ -605,6 +704,18 @@ class StarCalibrationResult:
     timings: dict = field(default_factory=dict)
 
     def to_dict(self, *, points: bool = False) -> dict:
+        """JSON-safe summary (the CLI's stars.json).
+
+        Parameters
+        ----------
+        points : bool
+            Include the per-point observations and held-out errors (pixels).
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping (angles in radians and arcseconds, errors in pixels).
+        """
         corr = (self.parameters - self.initial)
         d = {
             "success": self.success,
@@ -644,13 +755,8 @@ def _resolve_catalog(catalog, mag_limit):
     raise InputError(f"expected a StarCatalog or a catalogue name, got {type(catalog).__name__}", field="catalog")
 
 
-def process_frames(frames, seconds, lab_model: GeoStaringModel, catalog="hipparcos", *,
-                   mag_limit: float | None = 10.5, threshold_sigma: float = 5.0, centroid: str = "iwc",
-                   search_px: float = 120.0, tolerance_px: float = 4.0, min_track_points: int = 12,
-                   n_check: int = 5, smooth: bool = True, reject_px: float = 0.5, reject_sigma: float = 4.0,
-                   scheme: str = "exterior-interior", compare_joint: bool = True, interior_degree: int = 3,
-                   interior_prior_px: float | None = 20.0, robust: str = "huber",
-                   versus_points=None, seed: int = 0, detections=None) -> StarCalibrationResult:
+def process_frames(frames, seconds, lab_model: GeoStaringModel, *, options: StarOptions = StarOptions(),
+                   versus_points=None, detections=None) -> StarCalibrationResult:
     """Star-track calibration of a staring camera from a frame sequence (module docstring).
 
     Parameters
@@ -662,24 +768,18 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, catalog="hipparc
     lab_model : GeoStaringModel
         Approximate model (laboratory interior, nominal installation) whose orbit and attitude
         cover every frame; the model of frame ``k`` is ``lab_model.at_frame(seconds[k])``.
-    catalog : StarCatalog or str
-        A loaded catalogue or a catalogue name (``"hipparcos"``) loaded with ``mag_limit``.
-    threshold_sigma, centroid : detection (:func:`gcpmatch.stars.detect_stars`).
-    search_px, tolerance_px : identification (:func:`identify`).
-    min_track_points : int
-        Shorter tracks are not used.
-    n_check : int
-        Points held out per track for the accuracy (seed 000: five).
-    smooth, reject_px, reject_sigma : the smoothing spline (eq. 2) and its outlier test
-        (residual above ``max(reject_px, reject_sigma * robust sigma)``).
-    scheme : {"exterior-interior", "exterior", "joint"}
-    compare_joint : bool
-        Also run the joint scheme and report its accuracy (``accuracy["joint_after"]``).
-    interior_degree, interior_prior_px, robust : see :func:`calibrate_tracks`.
+    options : StarOptions
+        Catalogue (``catalog``, ``mag_limit``), detection (``threshold_sigma``, ``centroid``:
+        :func:`gcpmatch.stars.detect_stars`), identification (``search_px``,
+        ``tolerance_px``: :func:`identify`), tracks (``min_track_points``, ``n_check`` points
+        held out per track, seed 000: five; ``smooth``, ``reject_px``, ``reject_sigma``: the
+        smoothing spline of eq. 2 and its outlier test, residual above
+        ``max(reject_px, reject_sigma * robust sigma)``), calibration (``scheme``,
+        ``interior_degree``, ``interior_prior_px``, ``robust``: :func:`calibrate_tracks`;
+        ``compare_joint``: also run the joint scheme and report its accuracy in
+        ``accuracy["joint_after"]``) and ``seed`` (of the held-out points).
     versus_points : sequence of int, optional
         Calibration points per track for the figure 8 study (e.g. ``(10, 15, 20, 25)``).
-    seed : int
-        Seeds the choice of held-out points.
     detections : list of StarTable, optional
         Precomputed detections (skips step 1).
 
@@ -697,15 +797,49 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, catalog="hipparc
     t0 = time.perf_counter()
     if not isinstance(lab_model, GeoStaringModel):
         raise InputError(f"expected a GeoStaringModel, got {type(lab_model).__name__}", field="lab_model")
+    if not isinstance(options, StarOptions):
+        raise InputError(f"options must be a StarOptions, got {type(options).__name__}", field="options")
     frames = list(frames)
     t = _check_seconds(seconds, len(frames))
-    cat = _resolve_catalog(catalog, mag_limit)
+    cat = _resolve_catalog(options.catalog, options.mag_limit)
     models = [lab_model.at_frame(float(s)) for s in t]
     timings["models_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
+    detections, n_det, empty = _detect_all(frames, lab_model, detections, options)
+    timings["detection_s"] = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    obs, offset = _identify_all(detections, n_det, models, cat, t, options)
+    timings["identification_s"] = time.perf_counter() - t2
+
+    t3 = time.perf_counter()
+    n = obs.hip.size
+    rng = np.random.default_rng(options.seed)
+    obs, tracks = _smooth_tracks(obs, rng, n_check=options.n_check, min_points=options.min_track_points,
+                                 reject_px=options.reject_px, reject_sigma=options.reject_sigma,
+                                 smooth=options.smooth)  # fmt: skip
+    timings["tracks_s"] = time.perf_counter() - t3
+    frame_info = {"n_frames": len(frames), "n_detections": int(n_det.sum()), "n_identified": int(n),
+                  "frames_without_stars": empty.tolist(), "offset_px": offset.tolist(),
+                  "n_tracks": int(np.unique(obs.hip).size), "n_points": int(obs.hip.size),
+                  "n_calibration_points": int(obs.calibration.sum()), "n_check_points": int(obs.check.sum())}
+    model0 = models[0]
+    base = dict(success=False, scheme=options.scheme, parameter_names=model0.parameter_names(),
+                initial=model0.parameters().values, sigma=None, sigma_names=(), tracks=tracks, frames=frame_info,
+                observations=obs, timings=timings)
+    if obs.calibration.sum() < 5:
+        return StarCalibrationResult(message=f"only {int(obs.calibration.sum())} usable track points "
+                                             f"(tracks of >= {options.min_track_points} points needed)",
+                                     parameters=model0.parameters().values, accuracy={}, model=model0, **base)
+    return _calibrate_and_score(obs, models, base, options, versus_points, t0)
+
+
+def _detect_all(frames, lab_model, detections, options):
+    """Step 1: detections of every frame (unless given), their counts and the empty frames."""
     if detections is None:
-        detections, shapes = detect_frames(frames, threshold_sigma=threshold_sigma, centroid=centroid)
+        detections, shapes = detect_frames(frames, threshold_sigma=options.threshold_sigma,
+                                           centroid=options.centroid)
         bad = [k for k, s in enumerate(shapes) if tuple(s) != lab_model.image_shape]
         if bad:
             raise InputError(f"frame {bad[0]} has shape {shapes[bad[0]]}, the model {lab_model.image_shape}",
@@ -714,11 +848,13 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, catalog="hipparc
     empty = np.flatnonzero(n_det == 0)
     if empty.size == len(frames):
         raise InputError(f"no stars detected in any of the {len(frames)} frames")
-    timings["detection_s"] = time.perf_counter() - t1
+    return detections, n_det, empty
 
-    t2 = time.perf_counter()
-    pred = predict_catalog(models, cat, margin_px=search_px)
-    pairs, offset = identify(detections, pred, search_px=search_px, tolerance_px=tolerance_px)
+
+def _identify_all(detections, n_det, models, cat, t, options):
+    """Steps 2, 3 and 5: predicted stars matched to detections, with their virtual vectors."""
+    pred = predict_catalog(models, cat, margin_px=options.search_px)
+    pairs, offset = identify(detections, pred, search_px=options.search_px, tolerance_px=options.tolerance_px)
     if pairs.shape[0] == 0:
         raise InputError("no detected star matches a catalogue star; check the manifest's attitude and times")
     k, di, pi = pairs.T
@@ -736,31 +872,20 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, catalog="hipparc
         hip=cat.hip[pred.star[pi]].astype(np.int64), frame=k, seconds=t[k], row=det_row[flat], col=det_col[flat],
         row_smooth=np.full(n, np.nan), col_smooth=np.full(n, np.nan), vectors_gcrf=vec, virtual_gcrf=virtual,
         check=np.zeros(n, bool), rejected=np.zeros(n, bool), flux=det_flux[flat])
-    timings["identification_s"] = time.perf_counter() - t2
+    return obs, offset
 
-    t3 = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    obs, tracks = _smooth_tracks(obs, rng, n_check=n_check, min_points=min_track_points, reject_px=reject_px,
-                                 reject_sigma=reject_sigma, smooth=smooth)
-    timings["tracks_s"] = time.perf_counter() - t3
-    frame_info = {"n_frames": len(frames), "n_detections": int(n_det.sum()), "n_identified": int(n),
-                  "frames_without_stars": empty.tolist(), "offset_px": offset.tolist(),
-                  "n_tracks": int(np.unique(obs.hip).size), "n_points": int(obs.hip.size),
-                  "n_calibration_points": int(obs.calibration.sum()), "n_check_points": int(obs.check.sum())}
+
+def _calibrate_and_score(obs, models, base, options, versus_points, t0):
+    """Step 6 and the accuracy: calibrate frame 0's model, score it on the held-out points."""
+    timings = base["timings"]
     model0 = models[0]
-    base = dict(success=False, scheme=scheme, parameter_names=model0.parameter_names(),
-                initial=model0.parameters().values, sigma=None, sigma_names=(), tracks=tracks, frames=frame_info,
-                observations=obs, timings=timings)
-    if obs.calibration.sum() < 5:
-        return StarCalibrationResult(message=f"only {int(obs.calibration.sum())} usable track points "
-                                             f"(tracks of >= {min_track_points} points needed)",
-                                     parameters=model0.parameters().values, accuracy={}, model=model0, **base)
-
+    b_all = np.stack([m.body_to_gcrf for m in models])
     cal = obs.calibration
-    kw = dict(interior_degree=interior_degree, interior_prior_px=interior_prior_px, robust=robust)
+    kw = dict(interior_degree=options.interior_degree, interior_prior_px=options.interior_prior_px,
+              robust=options.robust)
     t4 = time.perf_counter()
     theta, runs, last = calibrate_tracks(model0, obs.virtual_gcrf[cal], obs.row_smooth[cal], obs.col_smooth[cal],
-                                         scheme=scheme, **kw)
+                                         scheme=options.scheme, **kw)
     timings["calibration_s"] = time.perf_counter() - t4
     calibrated = model0.with_parameters(theta)
     chk = obs.check
@@ -769,7 +894,7 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, catalog="hipparc
     before = radec_errors_px(model0, b_chk, obs.row[chk], obs.col[chk], obs.vectors_gcrf[chk], pixel_rad=pixel)
     after = radec_errors_px(calibrated, b_chk, obs.row[chk], obs.col[chk], obs.vectors_gcrf[chk], pixel_rad=pixel)
     accuracy = {"before": _accuracy(before[0], before[1]), "after": _accuracy(after[0], after[1])}
-    if compare_joint and scheme != "joint":
+    if options.compare_joint and options.scheme != "joint":
         t5 = time.perf_counter()
         theta_j, runs_j, last_j = calibrate_tracks(model0, obs.virtual_gcrf[cal], obs.row_smooth[cal],
                                                    obs.col_smooth[cal], scheme="joint", **kw)
@@ -780,7 +905,8 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, catalog="hipparc
         timings["joint_s"] = time.perf_counter() - t5
     versus = []
     if versus_points:
-        versus = error_versus_track_points(model0, obs, b_all, versus_points, scheme=scheme, seed=seed, **kw)
+        versus = error_versus_track_points(model0, obs, b_all, versus_points, scheme=options.scheme,
+                                           seed=options.seed, **kw)
     success = all(r["success"] for r in runs)
     msg = "calibrated" if success else f"a {runs[-1]['step']} step failed: {runs[-1]['message']}"
     base.update(success=success, sigma=last.sigma if last is not None else None,
@@ -798,6 +924,28 @@ def error_versus_track_points(model0, obs: StarObservations, body_to_gcrf_frames
     (tracks with fewer keep all), the model is recalibrated and evaluated on the same held-out
     points. Returns a list of ``{"points_per_track", "n_points", "ra_mean_abs_px",
     "de_mean_abs_px", "ra_two_sigma_px", "de_two_sigma_px"}``.
+
+    Parameters
+    ----------
+    model0 : GeoStaringModel
+        Initial model at frame 0.
+    obs : StarObservations
+        Tracks after smoothing (held-out points marked in ``check``).
+    body_to_gcrf_frames : ndarray, shape (F, 3, 3)
+        Body-to-GCRF rotation of every frame.
+    counts : sequence of int
+        Calibration points per track.
+    scheme : {"exterior-interior", "exterior", "joint"}
+        Of :func:`calibrate_tracks`.
+    seed : int
+        Seeds the draws (``seed + 1``).
+    **kw
+        Further keywords of :func:`calibrate_tracks`.
+
+    Returns
+    -------
+    list of dict
+        One row per count (errors in pixels).
     """
     rng = np.random.default_rng(seed + 1)
     cal = np.flatnonzero(obs.calibration)

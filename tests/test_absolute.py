@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 from calibrate.absolute import calibrate_model, parameter_unit
+from calibrate.config import CalibrationOptions
+from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
 from sensor_models.synthetic import CameraDesign, example_pushbroom_model
 
@@ -59,6 +61,12 @@ def perturbed(lab, *, installation=True, interior=True, gauge_free=None, seed=0,
     return lab.with_parameters(v)
 
 
+def fit(model, row, col, lon, lat, h, *, band=None, ccd=None, sigma_px=None, score=None, kind=None, **options):
+    """``calibrate_model`` on a table of these columns with these options."""
+    table = GcpTable.from_arrays(row, col, lon, lat, h, band=band, ccd=ccd, sigma_px=sigma_px, score=score, kind=kind)
+    return calibrate_model(model, table, options=CalibrationOptions(**options))
+
+
 def height(row, col):
     return 400.0 + 300.0 * np.sin(row / 700.0) * np.cos(col / 500.0)
 
@@ -101,7 +109,7 @@ def gcps(true):
 
 @pytest.fixture(scope="module")
 def stepwise(lab, gcps):
-    return calibrate_model(lab, *gcps, band="B2")
+    return fit(lab, *gcps, band="B2")
 
 
 # --------------------------------------------------------------------------- accuracy
@@ -127,7 +135,7 @@ def test_exterior_interior_reproduces_the_true_model(lab, true, stepwise):
 
 
 def test_a_single_round_is_the_seed_003_pass(lab, true, gcps):
-    result = calibrate_model(lab, *gcps, band="B2", max_outer=1)
+    result = fit(lab, *gcps, band="B2", max_outer=1)
     assert result.success, result.message
     assert [s["step"] for s in result.steps] == ["exterior", "interior"]
     assert 0.01 < grid_rms(true, result.model) < 0.1
@@ -135,7 +143,7 @@ def test_a_single_round_is_the_seed_003_pass(lab, true, gcps):
 
 @pytest.mark.parametrize("scheme", ["interior-exterior", "joint", "interior"])
 def test_other_complete_schemes_also_reproduce_the_true_model(lab, true, gcps, scheme):
-    result = calibrate_model(lab, *gcps, band="B2", scheme=scheme)
+    result = fit(lab, *gcps, band="B2", scheme=scheme)
     assert result.success, result.message
     assert 0.01 < grid_rms(true, result.model) < 0.1
     if scheme == "joint":
@@ -144,7 +152,7 @@ def test_other_complete_schemes_also_reproduce_the_true_model(lab, true, gcps, s
 
 
 def test_exterior_only_leaves_the_interior_errors(lab, true, gcps):
-    result = calibrate_model(lab, *gcps, band="B2", scheme="exterior")
+    result = fit(lab, *gcps, band="B2", scheme="exterior")
     assert result.success, result.message
     assert result.names == ("installation.roll", "installation.pitch", "installation.yaw")
     assert 0.5 < grid_rms(true, result.model) < 10.0  # the CCD offsets and distortion remain
@@ -152,7 +160,7 @@ def test_exterior_only_leaves_the_interior_errors(lab, true, gcps):
 
 def test_installation_angles_within_three_sigma_with_the_true_interior(lab):
     true = perturbed(lab, interior=False)
-    result = calibrate_model(lab, *simulate(true, 2000, seed=3), band="B2", scheme="exterior")
+    result = fit(lab, *simulate(true, 2000, seed=3), band="B2", scheme="exterior")
     assert result.success, result.message
     truth = true.parameters().values[:3]
     z = (result.values - truth) / result.sigma
@@ -163,7 +171,7 @@ def test_installation_angles_within_three_sigma_with_the_true_interior(lab):
 
 def test_joint_gauge_recovers_installation_and_interior(lab):
     true = perturbed(lab, gauge_free=("B2", "ccd2"), scale_deg=0.2)
-    result = calibrate_model(lab, *simulate(true, 3000, seed=4), band="B2", scheme="joint", reference_ccd=("B2", "ccd2"))
+    result = fit(lab, *simulate(true, 3000, seed=4), band="B2", scheme="joint", reference_ccd=("B2", "ccd2"))
     assert result.success, result.message
     truth = true.parameters().as_dict()
     z = np.array([(v - truth[n]) / s for n, v, s in zip(result.names, result.values, result.sigma)])
@@ -182,9 +190,9 @@ def test_forty_percent_gross_outliers(lab, true, gcps):
     row_bad, col_bad = row.copy(), col.copy()
     row_bad[bad] += size * np.sin(angle)
     col_bad[bad] += size * np.cos(angle)
-    clean_all = grid_rms(true, calibrate_model(lab, row, col, lon, lat, h, band="B2").model)
-    clean_inliers = grid_rms(true, calibrate_model(lab, row[~bad], col[~bad], lon[~bad], lat[~bad], h[~bad], band="B2").model)
-    result = calibrate_model(lab, row_bad, col_bad, lon, lat, h, band="B2")  # Cauchy (default)
+    clean_all = grid_rms(true, fit(lab, row, col, lon, lat, h, band="B2").model)
+    clean_inliers = grid_rms(true, fit(lab, row[~bad], col[~bad], lon[~bad], lat[~bad], h[~bad], band="B2").model)
+    result = fit(lab, row_bad, col_bad, lon, lat, h, band="B2")  # Cauchy (default)
     assert result.success, result.message
     rms = grid_rms(true, result.model)
     # as good as a clean fit of the same inliers; the lost 40 % cost at most 1/sqrt(0.6)
@@ -194,7 +202,7 @@ def test_forty_percent_gross_outliers(lab, true, gcps):
     assert (~result.inlier[~bad]).mean() < 0.01
     assert np.median(result.weights[bad]) < 0.01 and result.weights[bad].max() < 0.15
     # Huber bounds the damage but loses accuracy: why Cauchy is the default
-    huber = calibrate_model(lab, row_bad, col_bad, lon, lat, h, band="B2", robust="huber")
+    huber = fit(lab, row_bad, col_bad, lon, lat, h, band="B2", robust="huber")
     assert rms < grid_rms(true, huber.model) < 0.5
 
 
@@ -203,7 +211,7 @@ def test_a_ccd_with_five_points_keeps_its_interior(lab, true, gcps):
     row, col, lon, lat, h = gcps
     on_ccd2 = col >= 512.0
     keep = ~on_ccd2 | (np.cumsum(on_ccd2) <= 5)
-    result = calibrate_model(lab, row[keep], col[keep], lon[keep], lat[keep], h[keep], band="B2")
+    result = fit(lab, row[keep], col[keep], lon[keep], lat[keep], h[keep], band="B2")
     assert result.success, result.message
     assert "B2.ccd2: 5 GCPs < 24 needed (3 x 8 unknowns); its interior is not estimated" in result.message
     assert [s["ccd"] for s in result.skipped] == ["ccd2"]
@@ -219,26 +227,26 @@ def test_gcps_on_one_detector_column_do_not_fit_a_polynomial(lab, true):
     row2, col2, lon2, lat2, h2 = simulate(true, 2000, seed=7)
     on_ccd2 = col2 >= 512.0
     args = [np.concatenate([a, b[on_ccd2]]) for a, b in zip((row, col, lon, lat, h), (row2, col2, lon2, lat2, h2))]
-    result = calibrate_model(lab, *args, band="B2")
+    result = fit(lab, *args, band="B2")
     assert result.success, result.message
     assert "B2.ccd1: GCPs span 0 % of its detectors < 50 %; its interior is not estimated" in result.message
     assert not any(n.startswith("B2.ccd1.") for n in result.names)
     assert 0.01 < grid_rms(true, result.model, ccds=[1]) < 0.15
     # jointly, one detector column cannot fix the rotation about its own line of sight
-    joint = calibrate_model(lab, *args, band="B2", scheme="joint")
+    joint = fit(lab, *args, band="B2", scheme="joint")
     assert not joint.success
     assert "nearly dependent" in joint.message and "installation.yaw" in joint.message
 
 
 def test_gcps_on_one_image_line_suffice_for_this_model(lab, true):
     """No parameter depends on time: one line still determines installation and interior."""
-    result = calibrate_model(lab, *simulate(true, 3000, row=1500.0, seed=8), band="B2")
+    result = fit(lab, *simulate(true, 3000, row=1500.0, seed=8), band="B2")
     assert result.success, result.message
     assert 0.01 < grid_rms(true, result.model) < 0.1
 
 
 def test_joint_without_gauge_is_reported_as_nearly_dependent(lab, gcps):
-    result = calibrate_model(lab, *gcps, band="B2", scheme="joint", gauge=False)
+    result = fit(lab, *gcps, band="B2", scheme="joint", gauge=False)
     assert not result.success
     assert "ill-conditioned" in result.message and "nearly dependent" in result.message
     assert "installation" in result.message and "tan_psi_y.c0" in result.message
@@ -247,32 +255,32 @@ def test_joint_without_gauge_is_reported_as_nearly_dependent(lab, gcps):
 
 def test_too_few_gcps_for_the_exterior_is_a_reported_failure(lab, true):
     row, col, lon, lat, h = simulate(true, 1, seed=9)
-    result = calibrate_model(lab, row, col, lon, lat, h, band="B2", scheme="exterior")
+    result = fit(lab, row, col, lon, lat, h, band="B2", scheme="exterior")
     assert not result.success
     assert "too few observations" in result.message
 
 
 # --------------------------------------------------------------------------- mechanics
 def test_chunk_size_does_not_change_the_answer(lab, gcps):
-    a = calibrate_model(lab, *gcps, band="B2", tol=1e-3, max_iter=60)
-    b = calibrate_model(lab, *gcps, band="B2", tol=1e-3, max_iter=60, chunk_points=257)
+    a = fit(lab, *gcps, band="B2", tol=1e-3, max_iter=60)
+    b = fit(lab, *gcps, band="B2", tol=1e-3, max_iter=60, chunk_points=257)
     assert a.success and b.success
     assert np.all(np.abs(a.values - b.values) < 1e-2 * a.sigma)
 
 
 def test_weights_from_sigma_and_score(lab, true, gcps):
     row, col, lon, lat, h = gcps
-    base = calibrate_model(lab, row, col, lon, lat, h, band="B2", scheme="exterior", robust="none")
+    base = fit(lab, row, col, lon, lat, h, band="B2", scheme="exterior", robust="none")
     # a uniform sigma changes the weights' unit, not the estimate or its covariance
-    scaled = calibrate_model(lab, row, col, lon, lat, h, band="B2", scheme="exterior", robust="none", sigma_px=0.3)
+    scaled = fit(lab, row, col, lon, lat, h, band="B2", scheme="exterior", robust="none", sigma_px=0.3)
     np.testing.assert_allclose(scaled.values, base.values, atol=1e-3 * base.sigma.min())
     np.testing.assert_allclose(scaled.sigma, base.sigma, rtol=1e-6)
     assert scaled.sigma0 == pytest.approx(base.sigma0 / 0.3, rel=1e-6)
     # zero-score points do not count, even with absurd coordinates
     junk = np.arange(row.size) % 5 == 0
     row_j = np.where(junk, row + 500.0, row)
-    dropped = calibrate_model(lab, row_j, col, lon, lat, h, band="B2", scheme="exterior", robust="none", score=np.where(junk, 0.0, 1.0))
-    ref = calibrate_model(lab, row[~junk], col[~junk], lon[~junk], lat[~junk], h[~junk], band="B2", scheme="exterior", robust="none")
+    dropped = fit(lab, row_j, col, lon, lat, h, band="B2", scheme="exterior", robust="none", score=np.where(junk, 0.0, 1.0))
+    ref = fit(lab, row[~junk], col[~junk], lon[~junk], lat[~junk], h[~junk], band="B2", scheme="exterior", robust="none")
     np.testing.assert_allclose(dropped.values, ref.values, atol=1e-3 * ref.sigma.min())
     assert not dropped.inlier[junk].any() and np.all(dropped.weights[junk] == 0.0)
     assert np.all(np.abs(dropped.residuals_after[junk, 0]) > 100.0)  # still reported
@@ -283,7 +291,7 @@ def test_several_bands_share_the_exterior(lab, true):
     b3 = simulate(true, 1500, band="B3", seed=11)
     args = [np.concatenate([a, b]) for a, b in zip(b1, b3)]
     band = np.array(["B1"] * 1500 + ["B3"] * 1500)
-    result = calibrate_model(lab, *args, band=band)
+    result = fit(lab, *args, band=band)
     assert result.success, result.message
     assert {n.split(".")[0] for n in result.names} == {"installation", "B1", "B3"}
     assert 0.01 < grid_rms(true, result.model, band="B1") < 0.15
@@ -311,28 +319,43 @@ def test_ccd_per_point_as_names_indices_or_missing(lab, gcps):
     row, col, lon, lat, h = gcps
     ccd = np.where(col < 512.0, "ccd1", None).astype(object)
     ccd[::3] = (col[::3] >= 512.0).astype(float)  # indices, as read from a CSV column
-    a = calibrate_model(lab, *gcps, band="B2", ccd=ccd, scheme="exterior")
-    b = calibrate_model(lab, *gcps, band="B2", scheme="exterior")
+    a = fit(lab, *gcps, band="B2", ccd=ccd, scheme="exterior")
+    b = fit(lab, *gcps, band="B2", scheme="exterior")
     np.testing.assert_array_equal(a.ccd, b.ccd)
     np.testing.assert_array_equal(a.values, b.values)
     with pytest.raises(InputError, match="out of range"):
-        calibrate_model(lab, *gcps, band="B2", ccd=np.full(row.size, 2.5))
+        fit(lab, *gcps, band="B2", ccd=np.full(row.size, "2.5"))
 
 
 def test_input_errors(lab, gcps):
     row, col, lon, lat, h = gcps
     with pytest.raises(InputError, match="col"):
-        calibrate_model(lab, row, col[:-1], lon, lat, h)
+        fit(lab, row, col[:-1], lon, lat, h)
     with pytest.raises(InputError, match="unknown band"):
-        calibrate_model(lab, row, col, lon, lat, h, band="B9")
+        fit(lab, row, col, lon, lat, h, band="B9")
     with pytest.raises(InputError, match="scheme"):
-        calibrate_model(lab, row, col, lon, lat, h, scheme="both")
+        fit(lab, row, col, lon, lat, h, scheme="both")
     with pytest.raises(InputError, match="sigma_px"):
-        calibrate_model(lab, row, col, lon, lat, h, sigma_px=-1.0)
+        fit(lab, row, col, lon, lat, h, sigma_px=-1.0)
     with pytest.raises(InputError, match="NaN"):
-        calibrate_model(lab, np.where(row > 100, row, np.nan), col, lon, lat, h)
+        fit(lab, np.where(row > 100, row, np.nan), col, lon, lat, h)
     with pytest.raises(InputError, match="unknown CCD"):
-        calibrate_model(lab, row, col, lon, lat, h, ccd="ccd7")
+        fit(lab, row, col, lon, lat, h, ccd="ccd7")
+
+
+def test_check_points_are_never_fitted(lab, gcps):
+    row, col, lon, lat, h = gcps
+    kind = np.where(np.arange(row.size) % 4 == 0, "check", "gcp")
+    fitted = kind == "gcp"
+    row_c = np.where(fitted, row, row + 300.0)  # check points this far off would spoil a fit
+    with_checks = fit(lab, row_c, col, lon, lat, h, band="B2", kind=kind, scheme="exterior")
+    alone = fit(lab, *(a[fitted] for a in gcps), band="B2", scheme="exterior")
+    np.testing.assert_array_equal(with_checks.values, alone.values)
+    assert with_checks.residuals_after.shape == (int(fitted.sum()), 2)
+    with pytest.raises(InputError, match="kind 'gcp'"):
+        fit(lab, row, col, lon, lat, h, kind="check")
+    with pytest.raises(InputError, match="GcpTable"):
+        calibrate_model(lab, gcps)
 
 
 # --------------------------------------------------------------------------- covariance
@@ -340,7 +363,7 @@ def _z_scores(lab, true, runs, *, scheme, seed0, n_points, **kw):
     truth = true.parameters().as_dict()
     z = []
     for i in range(runs):
-        result = calibrate_model(lab, *simulate(true, n_points, seed=seed0 + i), band="B2", scheme=scheme, **kw)
+        result = fit(lab, *simulate(true, n_points, seed=seed0 + i), band="B2", scheme=scheme, **kw)
         assert result.success, result.message
         z.append([(v - truth[n]) / s for n, v, s in zip(result.names, result.values, result.sigma)])
     return np.array(z)
@@ -434,4 +457,4 @@ def test_rpc_models_need_the_joint_scheme(shared_data):
     good, _ = _pleiades(shared_data)
     row, col, lon, lat, h = _rpc_gcps(good, 10, seed=24)
     with pytest.raises(InputError, match="scheme='joint'"):
-        calibrate_model(good, row, col, lon, lat, h)
+        fit(good, row, col, lon, lat, h)

@@ -9,6 +9,7 @@ import pytest
 from scipy import stats
 
 from calibrate.absolute import calibrate_model
+from gcpmatch.gcps import GcpTable
 from calibrate.accuracy import (
     check_point_accuracy,
     check_residuals,
@@ -203,7 +204,8 @@ def test_calibration_improves_check_point_accuracy(model):
     true = model.with_parameters(v)
     rng = np.random.default_rng(14)
     row, col, lon, lat, h = points(true, 1500, seed=15)
-    result = calibrate_model(model, row + rng.normal(0, 0.3, row.size), col + rng.normal(0, 0.3, row.size), lon, lat, h, band="B2")
+    gcps = GcpTable.from_arrays(row + rng.normal(0, 0.3, row.size), col + rng.normal(0, 0.3, row.size), lon, lat, h, band="B2")
+    result = calibrate_model(model, gcps)
     crow, ccol, clon, clat, ch = points(true, 400, seed=16)
     before = check_point_accuracy(model, crow, ccol, clon, clat, ch, band="B2")
     after = check_point_accuracy(result.model, crow, ccol, clon, clat, ch, band="B2")

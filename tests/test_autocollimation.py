@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from calibrate.autocollimation import (
+from calibrate.schemes.autocollimation import (
     ARCSEC,
     DEFAULT_PIXEL_UM,
     OalrChanges,

@@ -1,4 +1,4 @@
-"""Seed 002 virtual control points and compensation schemes (calibrate.compensate, gcpcal compensate)."""
+"""Seed 002 virtual control points and compensation schemes (calibrate.schemes.compensate, gcpcal compensate)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from calibrate.cli_compensate import command
-from calibrate.compensate import (
+from calibrate.schemes.compensate import (
     SCHEMES,
     SEED002_TABLE3,
     check_grid,

@@ -95,8 +95,9 @@ def test_forty_percent_gross_outliers_barely_move_the_calibration(demo_run):
     from pathlib import Path
 
     from calibrate.absolute import calibrate_model
+    from calibrate.config import CalibrationOptions
     from calibrate.run import points_of
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcps import GcpTable, read_gcps
     from sensor_models.readers import open_model
     from sensor_models.simulate.truth import truth_error
     from sensor_models.terrain import Dem
@@ -116,7 +117,8 @@ def test_forty_percent_gross_outliers_barely_move_the_calibration(demo_run):
     col[bad] += size * np.cos(angle)
     errors = {}
     for name, (r, c) in {"clean": (g["row"], g["col"]), "outliers": (row, col)}.items():
-        res = calibrate_model(lab, r, c, g["lon"], g["lat"], g["h"], band="B2", ccd=g["ccd"], scheme="exterior-interior")
+        gcps = GcpTable.from_arrays(r, c, g["lon"], g["lat"], g["h"], band="B2", ccd=g["ccd"])
+        res = calibrate_model(lab, gcps, options=CalibrationOptions(scheme="exterior-interior"))
         assert res.success
         errors[name] = truth_error(truth, res.model, dem=dem, step_px=16, bands=["B2"])["rms_px"]
     print(f"40 % outliers: truth rms {errors['outliers']:.4f} px vs clean {errors['clean']:.4f} px")

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from calibrate.absolute import calibrate_model
+from calibrate.config import CalibrationOptions
+from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
 from sensor_models.geo_staring import StaringLab, example_geo_staring_model
 from sensor_models.pushbroom_types import Installation
@@ -30,6 +32,12 @@ def case():
     return truth, lab, noisy, (lon, lat, h), (gr.ravel(), gc.ravel(), grid)
 
 
+def fit(model, row, col, lon, lat, h, *, ccd=None, **options):
+    """``calibrate_model`` on a table of these columns with these options."""
+    table = GcpTable.from_arrays(row, col, lon, lat, h, ccd=ccd)
+    return calibrate_model(model, table, options=CalibrationOptions(**options))
+
+
 def _truth_rms(model, grid):
     rows, cols, (lon, lat, h) = grid
     r, c = model.ground_to_image(lon, lat, h)
@@ -40,7 +48,7 @@ def _truth_rms(model, grid):
 def test_full_schemes_reach_a_hundredth_of_a_pixel(case, scheme):
     truth, lab, (r, c), (lon, lat, h), grid = case
     before = _truth_rms(lab, grid)
-    res = calibrate_model(lab, r, c, lon, lat, h, scheme=scheme)
+    res = fit(lab, r, c, lon, lat, h, scheme=scheme)
     after = _truth_rms(res.model, grid)
     print(f"{scheme}: {before:.2f} -> {after:.4f} px")
     assert res.success
@@ -50,14 +58,14 @@ def test_full_schemes_reach_a_hundredth_of_a_pixel(case, scheme):
 
 def test_exterior_only_leaves_the_lens_distortion(case):
     truth, lab, (r, c), (lon, lat, h), grid = case
-    res = calibrate_model(lab, r, c, lon, lat, h, scheme="exterior")
+    res = fit(lab, r, c, lon, lat, h, scheme="exterior")
     assert 0.1 < _truth_rms(res.model, grid) < 2.0
 
 
 def test_points_in_one_corner_do_not_estimate_the_interior(case):
     truth, lab, (r, c), (lon, lat, h), grid = case
     corner = (r < 200) & (c < 200)
-    res = calibrate_model(lab, r[corner], c[corner], lon[corner], lat[corner], h[corner], scheme="exterior-interior")
+    res = fit(lab, r[corner], c[corner], lon[corner], lat[corner], h[corner], scheme="exterior-interior")
     assert res.skipped and "span" in res.skipped[0]["reason"]
     with pytest.raises(InputError):
-        calibrate_model(lab, r, c, lon, lat, h, ccd="ccd1")
+        fit(lab, r, c, lon, lat, h, ccd="ccd1")

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from calibrate.absolute import calibrate_model
+from gcpmatch.gcps import GcpTable
 from calibrate.cli import main
 from calibrate.relative import match_band, registration_error, relative_calibration
 from gcpmatch.extract import read_band
@@ -48,7 +49,7 @@ def scene():
     row, col, ccd = (np.concatenate(a) for a in (rows, cols, ccds))
     lon, lat, h = truth.image_to_ground(row, col, dem=dem, band="B2", ccd=ccd)
     noisy_row, noisy_col = row + rng.normal(0, 0.05, row.size), col + rng.normal(0, 0.05, col.size)
-    ref = calibrate_model(lab, noisy_row, noisy_col, lon, lat, h, band="B2", ccd=ccd, sigma_px=0.05)
+    ref = calibrate_model(lab, GcpTable.from_arrays(noisy_row, noisy_col, lon, lat, h, band="B2", ccd=ccd, sigma_px=0.05))
     assert ref.success, ref.message
     return {"lab": lab, "truth": truth, "dem": dem, "images": images, "calibrated": ref.model}
 

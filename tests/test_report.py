@@ -1,4 +1,4 @@
-"""calibrate.report: the HTML report and its figures for a calibrated synthetic scene.
+"""calibrate.report.write_report: the HTML report and its figures for a calibrated synthetic scene.
 
 The case: a two-CCD, two-band LAB push-broom model; a TRUE model with installation errors of
 tenths of a degree and directional-angle errors of a few pixels on band B2; GCPs and check
@@ -17,10 +17,12 @@ import numpy as np
 import pytest
 from matplotlib import image as mpimg
 
-from calibrate import report as report_module
 from calibrate.absolute import calibrate_model
 from calibrate.accuracy import check_point_accuracy, error_versus_gcp_count
+from calibrate.report import calibration as report_module
 from calibrate.report import write_report
+from calibrate.report.calibration_figures import image_difference_px, look_difference_px
+from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
 from sensor_models.synthetic import CameraDesign, example_pushbroom_model
 
@@ -68,7 +70,8 @@ def case(lab, truth):
          "band": np.full(n_gcps, "B2"), "ccd": names[:n_gcps]}
     c = {"row": row[n_gcps:], "col": col[n_gcps:], "lon": lon[n_gcps:], "lat": lat[n_gcps:], "h": h[n_gcps:],
          "band": "B2", "ccd": ccd[n_gcps:]}
-    result = calibrate_model(lab, g["row"], g["col"], g["lon"], g["lat"], g["h"], band=g["band"], ccd=g["ccd"])
+    result = calibrate_model(lab, GcpTable.from_arrays(g["row"], g["col"], g["lon"], g["lat"], g["h"], band=g["band"],
+                                                       ccd=g["ccd"]))
     assert result.success, result.message
     kw = {"band": "B2", "ccd": c["ccd"]}
     before = check_point_accuracy(lab, c["row"], c["col"], c["lon"], c["lat"], c["h"], **kw)
@@ -160,7 +163,7 @@ def test_look_difference_curves_measure_a_known_shift(lab):
     ifov = abs(look.tan_psi_y[1])
     v[list(p.names).index(f"B2.{look.name}.tan_psi_y.c0")] += 1.5 * ifov
     shifted = lab.with_parameters(v)
-    curves = report_module._look_difference_px(lab, shifted, "B2")
+    curves = look_difference_px(lab, shifted, "B2")
     x, along, across = curves[1]
     assert x[0] == look.first_col and x[-1] == look.first_col + look.n_detectors - 1
     np.testing.assert_allclose(across, 1.5, atol=1e-9)
@@ -168,7 +171,7 @@ def test_look_difference_curves_measure_a_known_shift(lab):
     np.testing.assert_allclose(curves[0][1:], 0.0, atol=1e-12)
     # detector s of the shifted model looks where detector s + 1.5 of the other one does: a
     # point the other model images at column c, the shifted one images 1.5 px to the left
-    image = report_module._image_difference_px(shifted, lab, "B2", 300.0)
+    image = image_difference_px(shifted, lab, "B2", 300.0)
     det, d_row, d_col = image[1]
     # exactly: 1.5 IFOV over the local slope of tan psi_y (the cubic distortion bends it)
     slope = look.look(det - look.first_col - 0.75)[3]
@@ -179,8 +182,8 @@ def test_look_difference_curves_measure_a_known_shift(lab):
 
 
 def test_calibrated_minus_truth_is_small_and_initial_minus_truth_is_not(case, lab, truth):
-    calibrated = report_module._image_difference_px(case["result"].model, truth, "B2", 400.0)
-    initial = report_module._image_difference_px(lab, truth, "B2", 400.0)
+    calibrated = image_difference_px(case["result"].model, truth, "B2", 400.0)
+    initial = image_difference_px(lab, truth, "B2", 400.0)
     err = np.concatenate([np.hypot(d_row, d_col) for _, d_row, d_col in calibrated.values()])
     err0 = np.concatenate([np.hypot(d_row, d_col) for _, d_row, d_col in initial.values()])
     assert 0.005 < np.sqrt(np.mean(err**2)) < 0.3

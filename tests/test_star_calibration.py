@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from calibrate.config import StarOptions
 from calibrate.stars import _smooth_track, process_frames, radec_errors_px, read_frame_list
 from sensor_models.errors import InputError
 from sensor_models.readers.geo_manifest import read_geo_manifest
@@ -91,7 +92,7 @@ def test_single_star_per_frame(tmp_path):
     cfg = GeoStarsConfig(n_frames=40, only_hip=(ONE_STAR,), seed=1)
     simulate_geo_stars(tmp_path / "one", config=cfg)
     frames, seconds, manifest = read_frame_list(tmp_path / "one" / "frames.json")
-    r = process_frames(frames, seconds, read_geo_manifest(manifest), compare_joint=False)
+    r = process_frames(frames, seconds, read_geo_manifest(manifest), options=StarOptions(compare_joint=False))
     assert r.frames["n_tracks"] == 1
     assert r.frames["n_detections"] <= len(frames)
     assert r.success, r.message
@@ -122,7 +123,7 @@ def test_bad_inputs(sequence, tmp_path):
     with pytest.raises(InputError, match="no stars detected"):
         process_frames(blank, seconds[:3], lab)
     with pytest.raises(InputError, match="unknown star catalogue"):
-        process_frames(frames[:3], seconds[:3], lab, "tycho")
+        process_frames(frames[:3], seconds[:3], lab, options=StarOptions(catalog="tycho"))
     with pytest.raises(InputError, match="2 times for 3 frames"):
         process_frames(frames[:3], seconds[:2], lab)
 

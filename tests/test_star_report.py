@@ -1,4 +1,4 @@
-"""Star-track calibration report (calibrate.star_report): figures, numbers, atomic output."""
+"""Star-track calibration report (calibrate.report.stars): figures, numbers, atomic output."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import re
 import numpy as np
 import pytest
 
-from calibrate.star_report import SEED_000, held_out_errors, write_star_report
+from calibrate.report.stars import SEED_000, held_out_errors, write_star_report
 from sensor_models.errors import InputError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -25,7 +25,7 @@ def run(tmp_path_factory):
     sim = tmp_path_factory.mktemp("star_report") / "sim"
     simulate_geo_stars(sim, n_frames=40, seed=0)
     frames, seconds, manifest = read_frame_list(sim)
-    result = process_frames(frames, seconds, read_geo_manifest(manifest), "hipparcos", versus_points=(10, 20))
+    result = process_frames(frames, seconds, read_geo_manifest(manifest), versus_points=(10, 20))
     assert result.success
     doc = json.loads(json.dumps(result.to_dict(points=True), allow_nan=False))  # as stars.json holds it
     return result, doc

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from calibrate.thermal import (ARCSEC, DAY_S, ThermalDrift, ThermalModel, evaluate_positioning, fit_installation,
+from calibrate.schemes.thermal import (ARCSEC, DAY_S, ThermalDrift, ThermalModel, evaluate_positioning, fit_installation,
                                plot_positioning, plot_thermal_angles, simulate_thermal_series, with_installation)
 from sensor_models.errors import InputError
 from sensor_models.geo_staring import example_geo_staring_model
@@ -46,6 +46,8 @@ def test_per_epoch_exterior_recovers_the_injected_angles(experiment):
 
 def test_direct_fit_matches_calibrate_model_exterior(lab):
     from calibrate.absolute import calibrate_model
+    from calibrate.config import CalibrationOptions
+    from gcpmatch.gcps import GcpTable
 
     truth = with_installation(lab, np.array([40.0, -30.0, 60.0]) * ARCSEC)
     rng = np.random.default_rng(5)
@@ -53,7 +55,8 @@ def test_direct_fit_matches_calibrate_model_exterior(lab):
     lon, lat, h = truth.image_to_ground(r, c, height=0.0)
     r_obs, c_obs = r + rng.normal(0, 0.1, r.size), c + rng.normal(0, 0.1, c.size)
     fit = fit_installation(lab, r_obs, c_obs, lon, lat, h, sigma_px=0.1)
-    res = calibrate_model(lab, r_obs, c_obs, lon, lat, h, sigma_px=0.1, scheme="exterior")
+    gcps = GcpTable.from_arrays(r_obs, c_obs, lon, lat, h, sigma_px=0.1)
+    res = calibrate_model(lab, gcps, options=CalibrationOptions(scheme="exterior"))
     assert fit.success and res.success and fit.iterations <= 4
     assert np.all(np.abs(fit.angles - res.values[:3]) < 0.5 * fit.sigma)
     assert np.allclose(fit.sigma, res.sigma[:3], rtol=0.1)

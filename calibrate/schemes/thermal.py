@@ -138,7 +138,20 @@ def _installation_positions(model):
 
 
 def with_installation(model, angles_rad):
-    """A copy of ``model`` with installation angles ``(roll, pitch, yaw)`` (radians, shape (3,))."""
+    """A copy of ``model`` with installation angles ``(roll, pitch, yaw)`` (radians, shape (3,)).
+
+    Parameters
+    ----------
+    model : GeoStaringModel
+        Model to copy.
+    angles_rad : array_like, shape (3,)
+        Installation roll, pitch, yaw, radians.
+
+    Returns
+    -------
+    GeoStaringModel
+        The copy.
+    """
     angles = np.asarray(angles_rad, dtype=np.float64).reshape(-1)
     if angles.size != 3 or not np.all(np.isfinite(angles)):
         raise InputError("needs 3 finite angles (radians)", field="installation")
@@ -148,7 +161,22 @@ def with_installation(model, angles_rad):
 
 
 def frame_grid(image_shape, n: int = 21, margin_px: float = 4.0):
-    """Pixel grid over the frame, ``row, col`` each shape (n*n,), pixel centres convention."""
+    """Pixel grid over the frame, ``row, col`` each shape (n*n,), pixel centres convention.
+
+    Parameters
+    ----------
+    image_shape : (int, int)
+        Frame shape (rows, cols).
+    n : int
+        Points per axis.
+    margin_px : float
+        Distance of the outer points from the frame edges, pixels.
+
+    Returns
+    -------
+    row, col : ndarray, shape (n * n,)
+        Pixel coordinates.
+    """
     n_rows, n_cols = image_shape
     r = np.linspace(margin_px, n_rows - margin_px, n)
     c = np.linspace(margin_px, n_cols - margin_px, n)
@@ -283,7 +311,18 @@ class ThermalDrift:
     period_s: float = DAY_S
 
     def smooth_angles(self, times_s) -> np.ndarray:
-        """The deterministic part of the angles, radians, shape (N, 3)."""
+        """The deterministic part of the angles, radians, shape (N, 3).
+
+        Parameters
+        ----------
+        times_s : array_like, shape (N,)
+            Epochs, seconds.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            Roll, pitch, yaw, radians.
+        """
         t = _as_seconds(times_s)
         amp = np.asarray(self.amplitude_arcsec, dtype=np.float64).reshape(3, -1)
         phase = np.asarray(self.phase_rad, dtype=np.float64).reshape(3, -1)
@@ -294,7 +333,20 @@ class ThermalDrift:
         return (np.asarray(self.offset_arcsec, dtype=np.float64) + trend + harm) * ARCSEC
 
     def temperature(self, times_s, rng=None) -> np.ndarray:
-        """Telemetry temperature, degrees Celsius, shape (N,) (noisy when ``rng`` is given)."""
+        """Telemetry temperature, degrees Celsius, shape (N,) (noisy when ``rng`` is given).
+
+        Parameters
+        ----------
+        times_s : array_like, shape (N,)
+            Epochs, seconds.
+        rng : numpy.random.Generator, optional
+            Adds Gaussian noise of ``temperature_noise_c``.
+
+        Returns
+        -------
+        ndarray, shape (N,)
+            Degrees Celsius.
+        """
         t = _as_seconds(times_s)
         phase = float(np.asarray(self.phase_rad, dtype=np.float64).reshape(3, -1)[0, 0])
         temp = self.temperature_c + self.temperature_amplitude_c * np.cos(
@@ -336,7 +388,13 @@ class ThermalSeries:
     sigma_px: float
 
     def recovery_arcsec(self) -> np.ndarray:
-        """RMS of ``angles - true_angles`` per angle, arcsec, shape (3,)."""
+        """RMS of ``angles - true_angles`` per angle, arcsec, shape (3,).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            Arcseconds.
+        """
         return np.sqrt(np.mean((self.angles - self.true_angles) ** 2, axis=0)) / ARCSEC
 
 
@@ -358,6 +416,12 @@ def simulate_thermal_series(lab, times_s, drift: ThermalDrift = ThermalDrift(), 
         Epochs, seconds (``t = 0`` is midnight of the first day for the drift's harmonics).
     solver : {"direct", "calibrate_model"}
         :func:`fit_installation` or ``calibrate.absolute.calibrate_model(scheme="exterior")``.
+
+    Returns
+    -------
+    ThermalSeries
+        True, smooth and estimated angles (rad), their sigmas, temperatures, fit RMS (px) and
+        success per epoch.
     """
     t = _as_seconds(times_s)
     _check_increasing(t)
@@ -386,8 +450,11 @@ def simulate_thermal_series(lab, times_s, drift: ThermalDrift = ThermalDrift(), 
             est[i], sig[i], rms[i], ok[i] = fit.angles, fit.sigma, fit.rms_px, fit.success
         else:
             from calibrate.absolute import calibrate_model
+            from calibrate.config import CalibrationOptions
+            from gcpmatch.gcps import GcpTable
 
-            res = calibrate_model(lab, r_obs, c_obs, lon, lat, h, sigma_px=sigma_px, scheme="exterior")
+            table = GcpTable.from_arrays(r_obs, c_obs, lon, lat, h, sigma_px=sigma_px)
+            res = calibrate_model(lab, table, options=CalibrationOptions(scheme="exterior"))
             pos = [list(res.names).index(n) for n in _EXTERIOR]
             est[i], sig[i] = res.values[pos], res.sigma[pos]
             rms[i], ok[i] = res.statistics("after").get("rms_px", np.nan), res.success
@@ -428,6 +495,59 @@ def _folds(t, period_s, k_fold):
         return [day == d for d in days], "leave-one-day-out"
     idx = np.arange(t.size)
     return [idx % k_fold == j for j in range(k_fold)], f"{k_fold}-fold interleaved"
+
+
+def _checked_series(times, angles, sigmas, temperatures):
+    """Epochs (s), angles and sigmas (N, 3) and temperatures (N, M) or None, validated."""
+    t = _as_seconds(times)
+    _check_increasing(t)
+    n = t.size
+    y = _as_angles(angles, n, "angles")
+    if sigmas is None:
+        s = np.ones((n, 3))
+    else:
+        s = _as_angles(sigmas, n, "sigmas")
+        if not np.all(s > 0):
+            raise InputError("must be positive", field="sigmas")
+    temps = None if temperatures is None else _as_temperatures(temperatures, n)
+    return t, y, s, temps
+
+
+def _cv_scores(design, y, w_all, folds, variants, max_order):
+    """Cross-validated weighted RMS (arcsec), shape (variants, max_order + 1, 3); inf if infeasible."""
+    scores = np.full((len(variants), max_order + 1, 3), np.inf)
+    for vi, use_t in enumerate(variants):
+        for order in range(max_order + 1):
+            a = design(order, use_t)
+            sse = np.zeros(3)
+            wsum = np.zeros(3)
+            feasible = True
+            for test in folds:
+                train = ~test
+                if train.sum() < a.shape[1] + 1 or not test.any():
+                    feasible = False
+                    break
+                for j in range(3):
+                    coef, _ = _wls(a[train], y[train, j], w_all[train, j])
+                    r = y[test, j] - a[test] @ coef
+                    sse[j] += np.sum(w_all[test, j] * r * r)
+                    wsum[j] += np.sum(w_all[test, j])
+            if feasible:
+                scores[vi, order] = np.sqrt(sse / wsum) / ARCSEC
+    return scores
+
+
+def _chosen_order(scores_axis, variants, max_order, trend_degree, n_temp, tie_tolerance):
+    """``(order, variant)``: the simplest candidate whose CV score is within the tolerance of the best."""
+    best = np.min(scores_axis)
+    if not np.isfinite(best):
+        raise InputError("no harmonic order could be cross-validated: too few epochs per fold", field="times")
+    # fewest parameters first
+    cands = sorted((_n_params(o, trend_degree, n_temp if variants[v] else 0), o, v)
+                   for v in range(len(variants)) for o in range(max_order + 1)
+                   if scores_axis[v, o] <= best * (1.0 + tie_tolerance))
+    _, o, v = cands[0]
+    return o, v
 
 
 @dataclass
@@ -484,29 +604,25 @@ class ThermalModel:
         tie_tolerance : float
             The lowest order whose CV score is within this fraction of the best is chosen.
 
+        Returns
+        -------
+        ThermalModel
+            Chosen orders and temperature use per angle, coefficients, covariances and CV scores.
+
         Raises
         ------
         InputError
             Times not strictly increasing, NaN or mis-shaped angles/sigmas/temperatures, or
             fewer epochs than ``parameters(max_order) + 2``.
         """
-        t = _as_seconds(times)
-        _check_increasing(t)
+        t, y, s, temps = _checked_series(times, angles, sigmas, temperatures)
         n = t.size
-        y = _as_angles(angles, n, "angles")
-        if sigmas is None:
-            s = np.ones((n, 3))
-        else:
-            s = _as_angles(sigmas, n, "sigmas")
-            if not np.all(s > 0):
-                raise InputError("must be positive", field="sigmas")
         max_order = int(max_order)
         trend_degree = int(trend_degree)
         if max_order < 0 or trend_degree < 0:
             raise InputError("max_order and trend_degree must be >= 0", field="max_order")
         if not (np.isfinite(period_s) and period_s > 0):
             raise InputError("must be positive", field="period_s")
-        temps = None if temperatures is None else _as_temperatures(temperatures, n)
         n_temp = 0 if temps is None else temps.shape[1]
         needed = _n_params(max_order, trend_degree, n_temp) + 2
         if n < needed:
@@ -518,25 +634,11 @@ class ThermalModel:
         folds, scheme = _folds(t, period_s, int(k_fold))
         variants = [False] if temps is None else [False, True]
         w_all = 1.0 / s ** 2
-        scores = np.full((len(variants), max_order + 1, 3), np.inf)
-        for vi, use_t in enumerate(variants):
-            for order in range(max_order + 1):
-                a = _design(t, t_ref, period_s, order, trend_degree, temps if use_t else None, temp_mean, temp_scale)
-                sse = np.zeros(3)
-                wsum = np.zeros(3)
-                feasible = True
-                for test in folds:
-                    train = ~test
-                    if train.sum() < a.shape[1] + 1 or not test.any():
-                        feasible = False
-                        break
-                    for j in range(3):
-                        coef, _ = _wls(a[train], y[train, j], w_all[train, j])
-                        r = y[test, j] - a[test] @ coef
-                        sse[j] += np.sum(w_all[test, j] * r * r)
-                        wsum[j] += np.sum(w_all[test, j])
-                if feasible:
-                    scores[vi, order] = np.sqrt(sse / wsum) / ARCSEC
+
+        def design(order, use_t):
+            return _design(t, t_ref, period_s, order, trend_degree, temps if use_t else None, temp_mean, temp_scale)
+
+        scores = _cv_scores(design, y, w_all, folds, variants, max_order)
         orders = np.zeros(3, dtype=int)
         use_temp = np.zeros(3, dtype=bool)
         coefs, covs = [], []
@@ -544,18 +646,11 @@ class ThermalModel:
         sigma0 = np.zeros(3)
         notes = []
         for j in range(3):
-            best = np.min(scores[:, :, j])
-            if not np.isfinite(best):
-                raise InputError("no harmonic order could be cross-validated: too few epochs per fold", field="times")
-            # the simplest candidate within the tolerance: fewest parameters first
-            cands = sorted((_n_params(o, trend_degree, n_temp if variants[v] else 0), o, v)
-                           for v in range(len(variants)) for o in range(max_order + 1)
-                           if scores[v, o, j] <= best * (1.0 + tie_tolerance))
-            _, o, v = cands[0]
+            o, v = _chosen_order(scores[:, :, j], variants, max_order, trend_degree, n_temp, tie_tolerance)
             orders[j], use_temp[j] = o, variants[v]
             if o == max_order and max_order > 0:
                 notes.append(f"{_AXES[j]}: chosen order is max_order={max_order}; try a larger max_order")
-            a = _design(t, t_ref, period_s, o, trend_degree, temps if variants[v] else None, temp_mean, temp_scale)
+            a = design(o, variants[v])
             coef, cov = _wls(a, y[:, j], w_all[:, j])
             r = y[:, j] - a @ coef
             dof = max(n - a.shape[1], 1)
@@ -585,6 +680,22 @@ class ThermalModel:
         """Installation angles at ``times``, radians, shape (N, 3) (and their sigmas (N, 3)).
 
         Temperatures are required when the model uses them (``use_temperature``).
+
+        Parameters
+        ----------
+        times : array_like, shape (N,)
+            Epochs: float seconds or datetime64, as in :meth:`fit`.
+        temperatures : array_like, shape (N,) or (N, M), optional
+            Telemetry, degrees Celsius.
+        return_sigma : bool
+            Also return the standard deviations.
+
+        Returns
+        -------
+        angles : ndarray, shape (N, 3)
+            Roll, pitch, yaw, radians.
+        sigma : ndarray, shape (N, 3)
+            Their standard deviations, radians (only with ``return_sigma``).
         """
         designs = self._designs(times, temperatures)
         out = np.stack([designs[j] @ self.coefficients[j] for j in range(3)], axis=1)
@@ -595,7 +706,13 @@ class ThermalModel:
         return out, sig
 
     def to_dict(self) -> dict:
-        """A JSON-ready summary (angles in arcsec)."""
+        """A JSON-ready summary (angles in arcsec).
+
+        Returns
+        -------
+        dict
+            Orders, coefficients and statistics per angle.
+        """
         return {
             "orders": {a: int(o) for a, o in zip(_AXES, self.orders)},
             "use_temperature": {a: bool(u) for a, u in zip(_AXES, self.use_temperature)},
@@ -669,6 +786,24 @@ def plot_thermal_angles(path, series: ThermalSeries, model: ThermalModel, *, tra
     Left column: per-epoch solutions (error bars) of the training and held-out epochs, the
     fitted/predicted curve and (with ``drift``) the injected smooth truth, arcsec against
     hours. Right column: per-epoch solution minus curve. Writes a PNG at ``path``.
+
+    Parameters
+    ----------
+    path : path
+        PNG file to write.
+    series : ThermalSeries
+        Per-epoch solutions.
+    model : ThermalModel
+        Fitted time model.
+    train : array_like of bool, shape (N,), optional
+        Epochs used in the fit (the others are drawn as held out); default all.
+    drift : ThermalDrift, optional
+        Injected drift (its smooth part is drawn).
+
+    Returns
+    -------
+    path
+        ``path``.
     """
     t = series.times_s
     train = np.ones(t.size, dtype=bool) if train is None else np.asarray(train, dtype=bool)
@@ -712,7 +847,24 @@ def plot_thermal_angles(path, series: ThermalSeries, model: ThermalModel, *, tra
 
 
 def plot_positioning(path, times_s, errors: dict, *, names=("constant", "predicted")):
-    """Positioning error over the frame per epoch (log scale), one line per candidate. PNG."""
+    """Positioning error over the frame per epoch (log scale), one line per candidate. PNG.
+
+    Parameters
+    ----------
+    path : path
+        PNG file to write.
+    times_s : array_like, shape (N,)
+        Epochs, seconds.
+    errors : dict of str to array_like, shape (N,)
+        Positioning error per candidate model, pixels.
+    names : sequence of str
+        Candidates drawn, keys of ``errors``.
+
+    Returns
+    -------
+    path
+        ``path``.
+    """
     fig = _figure(9.0, 3.8)
     ax = fig.add_subplot(1, 1, 1)
     for name in names:

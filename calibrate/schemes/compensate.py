@@ -84,6 +84,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibrate.absolute import calibrate_model
+from calibrate.config import CalibrationOptions
+from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
 
 __all__ = [
@@ -193,6 +195,13 @@ class VirtualControlPoints:
 
     @property
     def n_points(self) -> int:
+        """Number of points.
+
+        Returns
+        -------
+        int
+            ``row.size``.
+        """
         return int(self.row.size)
 
 
@@ -273,7 +282,22 @@ def virtual_control_points(model, *, step_px: float = 100.0, start_px: float = 0
 
 def check_grid(model, *, step_px: float = 100.0, start_px: float = 0.0, stop_px: float | None = None,
                height_m: float = 0.0) -> VirtualControlPoints:
-    """Independent check points: the VCP grid offset by half a step (never used in a fit)."""
+    """Independent check points: the VCP grid offset by half a step (never used in a fit).
+
+    Parameters
+    ----------
+    model : GeoStaringModel
+        The TRUE model (localizes the grid).
+    step_px, start_px, stop_px : float
+        Grid of :func:`virtual_control_points`, pixels (shifted by ``step_px / 2``).
+    height_m : float
+        Ground height above the ellipsoid, metres.
+
+    Returns
+    -------
+    VirtualControlPoints
+        Ground check points.
+    """
     n = min(model.image_shape)
     stop = float(n - 1) if stop_px is None else float(stop_px)
     return virtual_control_points(model, step_px=step_px, start_px=float(start_px) + 0.5 * float(step_px),
@@ -286,6 +310,13 @@ def positioning_errors(model, check: VirtualControlPoints) -> dict:
 
     The ground point of each check pixel (from the TRUE model) is projected by ``model``;
     ``error = projected - true pixel``; X is the column, Y the row.
+
+    Parameters
+    ----------
+    model : GeoStaringModel
+        Model to score.
+    check : VirtualControlPoints
+        Ground check points of the TRUE model.
 
     Returns
     -------
@@ -321,6 +352,13 @@ def pointing_difference_px(model, truth, row, col):
     1)`` gives the two pointing angles ``atan(b_x / b_z)``, ``atan(b_y / b_z)``; the
     differences are divided by the truth's IFOV (one pixel = ``truth.ifov_rad`` radians).
 
+    Parameters
+    ----------
+    model, truth : GeoStaringModel
+        Compared models.
+    row, col : array_like, shape (N,)
+        Pixels, first pixel's centre at 0.5.
+
     Returns
     -------
     dx_px, dy_px : ndarray, shape (N,)
@@ -338,10 +376,9 @@ def pointing_difference_px(model, truth, row, col):
 
 
 # --------------------------------------------------------------------------- schemes
-def _gauge_interior(model, vcp, kw):
-    names = list(model.interior_parameter_names(3))
-    return calibrate_model(model, vcp.row, vcp.col, vcp.lon, vcp.lat, vcp.h, scheme="joint", parameters=names,
-                           gauge=True, **kw)
+def _gauge_interior(model, table, options):
+    names = tuple(model.interior_parameter_names(3))
+    return calibrate_model(model, table, options=options.replace(scheme="joint", parameters=names, gauge=True))
 
 
 def compensate(lab_model, vcp: VirtualControlPoints, *, schemes=None, robust: str = "none", sigma_px=None) -> dict:
@@ -373,16 +410,17 @@ def compensate(lab_model, vcp: VirtualControlPoints, *, schemes=None, robust: st
     if unknown:
         raise InputError(f"unknown schemes {', '.join(unknown)}; choose from {', '.join(SCHEMES)}", field="schemes")
     sigma = sigma_px if sigma_px is not None else (vcp.noise_px if vcp.noise_px > 0 else 1.0)
-    kw = dict(robust=robust, sigma_px=sigma)
+    table = GcpTable.from_arrays(vcp.row, vcp.col, vcp.lon, vcp.lat, vcp.h, sigma_px=sigma)
+    options = CalibrationOptions(robust=robust)
     out = {}
     for name in names:
         kind = SCHEMES[name][0]
         t0 = time.perf_counter()
         rounds = 1
         if kind == "gauge-interior":
-            res = _gauge_interior(lab_model, vcp, kw)
+            res = _gauge_interior(lab_model, table, options)
         else:
-            res = calibrate_model(lab_model, vcp.row, vcp.col, vcp.lon, vcp.lat, vcp.h, scheme=kind, **kw)
+            res = calibrate_model(lab_model, table, options=options.replace(scheme=kind))
             rounds = len({s.get("outer", 0) for s in res.steps}) if res.steps else 1
         out[name] = {"result": res, "model": res.model, "seconds": time.perf_counter() - t0, "rounds": rounds}
     return out
@@ -393,6 +431,18 @@ def seed002_true_lab(base=None, image_shape=(10240, 10240)):
     """The TRUE laboratory camera: ``base`` (default GF-4-like) with seed 002 table 1 errors.
 
     See the module docstring for the mapping of table 1 onto :class:`StaringLab`.
+
+    Parameters
+    ----------
+    base : StaringLab, optional
+        Laboratory camera to perturb (default: the GF-4-like one).
+    image_shape : (int, int)
+        Frame shape (rows, cols).
+
+    Returns
+    -------
+    StaringLab
+        The TRUE laboratory parameters.
     """
     from sensor_models.geo_staring import GF4_LIKE_CAMERA, StaringLab
 
@@ -442,6 +492,13 @@ class CompensationStudy:
     best: str = ""
 
     def to_dict(self) -> dict:
+        """JSON-safe summary of the study.
+
+        Returns
+        -------
+        dict
+            JSON-ready mapping (errors in pixels, angles in arcseconds).
+        """
         from calibrate._json import json_safe
 
         return json_safe({
@@ -486,6 +543,27 @@ def run_seed002(*, step_px: float = 100.0, start_px: float = 0.0, stop_px: float
     (seed 002: 0 .. 10 000 every 100 px), with optional Gaussian noise ``noise_px``; check grid
     offset by half a step. Also the figure 4 and 5 cases of section 3.1 (distortion alone,
     interior fit without installation error) as pointing-angle maps.
+
+    Parameters
+    ----------
+    step_px, start_px, stop_px : float
+        VCP grid (pixels); ``stop_px=None``: the frame's last pixel.
+    noise_px : float
+        Standard deviation of the Gaussian noise added to the VCP image coordinates, pixels.
+    seed : int
+        Of that noise.
+    schemes : sequence of str, optional
+        Keys of :data:`SCHEMES` (default: all).
+    robust : {"none", "huber", "cauchy"}
+        Loss of the fits.
+    image_shape : (int, int)
+        Frame shape (rows, cols).
+
+    Returns
+    -------
+    CompensationStudy
+        The table rows (errors in pixels), models, VCPs, check points, pointing maps, settings
+        and timings.
     """
     from sensor_models.geo_staring import GF4_LIKE_CAMERA, example_geo_staring_model
     from sensor_models.pushbroom_types import Installation
@@ -611,7 +689,18 @@ def _csv_rows(rows):
 
 
 def summary_markdown(study: CompensationStudy) -> str:
-    """Markdown table (ours beside seed 002 table 3) with the reason for each scheme's result."""
+    """Markdown table (ours beside seed 002 table 3) with the reason for each scheme's result.
+
+    Parameters
+    ----------
+    study : CompensationStudy
+        Of :func:`run_seed002`.
+
+    Returns
+    -------
+    str
+        Markdown text.
+    """
     s = study.settings
     lines = [
         "# Seed 002 compensation schemes on a GF-4-like staring camera",
@@ -647,6 +736,15 @@ def write_study(study: CompensationStudy, out_dir, *, figures: bool = True) -> d
     Everything is built in a temporary folder beside ``out_dir`` and moved into place with
     :func:`os.replace` (an existing ``out_dir`` is replaced as a whole), so a failure leaves
     the previous outputs and no partial folder.
+
+    Parameters
+    ----------
+    study : CompensationStudy
+        Of :func:`run_seed002`.
+    out_dir : path
+        Output folder (replaced as a whole).
+    figures : bool
+        Also draw the PNG figures.
 
     Returns
     -------

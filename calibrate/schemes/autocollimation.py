@@ -118,6 +118,13 @@ class OalrGeometry:
 
     @property
     def pixel_mm(self) -> float:
+        """Detector pitch, millimetres.
+
+        Returns
+        -------
+        float
+            ``pixel_um / 1000``.
+        """
         return self.pixel_um * 1e-3
 
 
@@ -140,7 +147,18 @@ class OalrChanges:
     sigma_rot_z_rad: float | None = None
 
     def at(self, i) -> "OalrChanges":
-        """The changes of epoch ``i`` (scalars)."""
+        """The changes of epoch ``i`` (scalars).
+
+        Parameters
+        ----------
+        i : int
+            Epoch index.
+
+        Returns
+        -------
+        OalrChanges
+            Scalars of that epoch (the sigmas are kept).
+        """
         return OalrChanges(*(float(np.asarray(getattr(self, n))[i]) for n in
                              ("delta_f_mm", "rot_x_rad", "rot_y_rad", "rot_z_rad")),
                            self.sigma_f_mm, self.sigma_rot_x_rad, self.sigma_rot_y_rad, self.sigma_rot_z_rad)
@@ -159,6 +177,12 @@ def changes_from_displacements(dx1_px, dy1_px, dx2_px, dy2_px, geometry: OalrGeo
     sigma_k_px : float, optional
         Mark location error per coordinate (pixels); when given, the sigmas of table 2 are
         attached (:func:`measurement_sigmas`).
+
+    Returns
+    -------
+    OalrChanges
+        Focal-length change (mm) and rotations (rad), shape (N,), with table 2 sigmas when
+        ``sigma_k_px`` is given.
     """
     d = [np.asarray(a, dtype=np.float64) for a in (dx1_px, dy1_px, dx2_px, dy2_px)]
     if not all(np.all(np.isfinite(a)) for a in d):
@@ -180,6 +204,18 @@ def displacements_from_changes(changes: OalrChanges, geometry: OalrGeometry = Oa
     The exact algebraic inverse of eq. 2-5 (the forward model of the simulations): with
     ``p = 2 f / (delta cos^2)``, ``dy_{1,2} = p_beta Delta beta +/- Delta f L / (f delta)`` and
     ``dx_{1,2} = p_alpha Delta alpha +/- Delta gamma L / (2 delta)``.
+
+    Parameters
+    ----------
+    changes : OalrChanges
+        Focal-length change (mm) and rotations (rad), scalars or shape (N,).
+    geometry : OalrGeometry
+        Instrument geometry (focal length, mark separation, pitch).
+
+    Returns
+    -------
+    dx1, dy1, dx2, dy2 : ndarray or float
+        Displacements of the channel 1 and channel 2 marks, pixels.
     """
     g = geometry
     half_dy = np.asarray(changes.delta_f_mm) * g.baseline_mm / (g.focal_mm * g.pixel_mm)
@@ -195,6 +231,13 @@ def measurement_sigmas(sigma_k_px: float, geometry: OalrGeometry = OalrGeometry(
     Returns ``{"sigma_f_mm", "sigma_rot_x_rad", "sigma_rot_y_rad", "sigma_rot_z_rad"}``. The
     confidence level is that of ``sigma_k_px`` (a 3-sigma ``sigma_k`` gives 3-sigma results).
     Table 2's ``arctg`` is kept; it differs from the linear value by < 1e-12 relative here.
+
+    Parameters
+    ----------
+    sigma_k_px : float
+        Mark location error per coordinate, pixels.
+    geometry : OalrGeometry
+        Instrument geometry.
     """
     sk = float(sigma_k_px)
     if not (np.isfinite(sk) and sk >= 0.0):
@@ -217,6 +260,11 @@ def _table_rows(sigma_k_px: float, geometry: OalrGeometry) -> dict:
 
 def reproduce_table3(geometry: OalrGeometry = OalrGeometry()) -> dict:
     """Seed 004 table 3 recomputed from table 2 with ``L``, ``f``, ``sigma_k`` and ``geometry.pixel_um``.
+
+    Parameters
+    ----------
+    geometry : OalrGeometry
+        Instrument geometry (``L``, ``f``, ``pixel_um``).
 
     Returns
     -------
@@ -312,6 +360,26 @@ def render_cross(shape, centre_rowcol, *, bar_width_px: float = 2.0, arm_half_le
     ``background + amplitude * cross``, then Poisson shot noise and Gaussian read noise when
     ``rng`` is given (noise-free otherwise). Peak SNR ~ ``amplitude / sqrt(amplitude + background
     + read_noise^2)``.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Frame shape (rows, cols).
+    centre_rowcol : (float, float)
+        Cross centre, pixels (first pixel's centre at 0.5).
+    bar_width_px, arm_half_length_px : float
+        Bar width and half length, pixels.
+    psf_sigma_px : float
+        Standard deviation of the Gaussian PSF, pixels.
+    amplitude_e, background_e, read_noise_e : float
+        Peak signal, background and read noise, electrons.
+    rng : numpy.random.Generator, optional
+        Noise source; None: a noise-free frame.
+
+    Returns
+    -------
+    ndarray of float64, shape ``shape``
+        Electrons per pixel.
     """
     n_rows, n_cols = int(shape[0]), int(shape[1])
     r0, c0 = float(centre_rowcol[0]), float(centre_rowcol[1])
@@ -410,6 +478,11 @@ def apply_to_pushbroom(model, changes: OalrChanges, *, focal_mm: float):
         Scalars (use :meth:`OalrChanges.at` for one epoch of a series).
     focal_mm : float
         Nominal focal length ``f0`` that the model's coefficients correspond to.
+
+    Returns
+    -------
+    PushbroomModel
+        The model with scaled directional angles and rotated installation.
     """
     d = [float(np.asarray(getattr(changes, n)).reshape(-1)[0]) if np.size(getattr(changes, n)) == 1 else None
          for n in ("delta_f_mm", "rot_x_rad", "rot_y_rad", "rot_z_rad")]

@@ -1,5 +1,5 @@
 """HTML and figure helpers shared by the calibration reports (:mod:`calibrate.report`,
-:mod:`calibrate.star_report`): page style, escaping, number formatting, tables, Agg figures
+:mod:`calibrate.report.stars`): page style, escaping, number formatting, tables, Agg figures
 embedded as PNG files, and the atomic move of a finished report into place.
 """
 
@@ -34,6 +34,13 @@ def move_into_place(tmp: Path, out_dir: Path) -> None:
 
     The old figures folder is moved into ``tmp`` (deleted with it); if installing the new one
     fails, it is put back.
+
+    Parameters
+    ----------
+    tmp : Path
+        Folder holding the new ``report.html`` and ``figures/``.
+    out_dir : Path
+        Destination folder.
     """
     target = out_dir / "figures"
     old = None
@@ -54,6 +61,20 @@ def new_figure(width_in, height_in, *, left=0.8, right=0.25, bottom=0.6, top=0.4
 
     Fixed margins rather than a layout engine: constrained layout measures every text and
     doubles the drawing time of figures with many CCD labels.
+
+    Parameters
+    ----------
+    width_in, height_in : float
+        Figure size, inches.
+    left, right, bottom, top : float
+        Margins, inches.
+    wspace, hspace : float
+        Spacing between subplots, inches.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        A figure with an Agg canvas.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -66,16 +87,57 @@ def new_figure(width_in, height_in, *, left=0.8, right=0.25, bottom=0.6, top=0.4
 
 
 def save_figure(fig, fig_dir: Path, name: str) -> str:
+    """Save ``fig`` as a PNG in ``fig_dir``; its path relative to the report.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        Figure to save.
+    fig_dir : Path
+        The report's ``figures/`` folder.
+    name : str
+        File name.
+
+    Returns
+    -------
+    str
+        ``"figures/<name>"``.
+    """
     fig.savefig(fig_dir / name, dpi=FIGURE_DPI, format="png")
     return f"figures/{name}"
 
 
 def escape(text) -> str:
+    """HTML-escaped text (quotes included).
+
+    Parameters
+    ----------
+    text : object
+        Converted with ``str``.
+
+    Returns
+    -------
+    str
+        Escaped text.
+    """
     return html.escape(str(text), quote=True)
 
 
 def fmt(value, digits: int = 4) -> str:
-    """A number with ``digits`` significant digits; ``–`` for None and non-finite values."""
+    """A number with ``digits`` significant digits; ``–`` for None and non-finite values.
+
+    Parameters
+    ----------
+    value : float, int, bool or None
+        Number to write (booleans become ``yes``/``no``).
+    digits : int
+        Significant digits.
+
+    Returns
+    -------
+    str
+        The text.
+    """
     if value is None:
         return "–"
     if isinstance(value, (bool, np.bool_)):
@@ -90,7 +152,24 @@ def fmt(value, digits: int = 4) -> str:
 
 
 def table(header, rows, *, left=1, row_classes=None) -> str:
-    """HTML table; ``rows`` hold already-escaped cell strings; the first ``left`` columns align left."""
+    """HTML table; ``rows`` hold already-escaped cell strings; the first ``left`` columns align left.
+
+    Parameters
+    ----------
+    header : sequence of str
+        Column titles (escaped here).
+    rows : sequence of sequence of str
+        Escaped cell HTML.
+    left : int
+        Leading columns aligned left.
+    row_classes : sequence of str, optional
+        CSS class of each row.
+
+    Returns
+    -------
+    str
+        HTML.
+    """
     head = "".join(f'<th class="l">{h}</th>' if j < left else f"<th>{h}</th>" for j, h in enumerate(header))
     body = []
     for i, row in enumerate(rows):
@@ -101,6 +180,18 @@ def table(header, rows, *, left=1, row_classes=None) -> str:
 
 
 def figure_html(fig) -> str:
+    """The HTML of a figure record (image and caption); empty for None.
+
+    Parameters
+    ----------
+    fig : dict or None
+        ``{"src", "caption"}``.
+
+    Returns
+    -------
+    str
+        HTML.
+    """
     if not fig:
         return ""
     return (

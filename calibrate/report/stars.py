@@ -50,8 +50,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate._html import CSS as _CSS, escape as _e, figure_html as _figure_html, fmt as _fmt
-from calibrate._html import move_into_place as _move_into_place, new_figure as _new_figure, save_figure as _save, table as _table
+from calibrate.report._html import CSS as _CSS, escape as _e, figure_html as _figure_html, fmt as _fmt
+from calibrate.report._html import move_into_place as _move_into_place, new_figure as _new_figure, save_figure as _save, table as _table
 from sensor_models.errors import InputError
 
 __all__ = ["SEED_000", "held_out_errors", "write_star_report"]
