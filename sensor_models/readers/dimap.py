@@ -400,29 +400,9 @@ def _angles(x: _Xml, parent, rel: str, where: str, epoch, *, minimum: int) -> Di
     return DimapAngles(seconds, np.array(yaw), np.array(pitch), np.array(roll), np.array(oor, dtype=bool), where)
 
 
-def parse_dimap(path) -> DimapMetadata:
-    """Parse the geometry of a SPOT 1-5 level-1A DIMAP metadata file, strictly.
-
-    Parameters
-    ----------
-    path : str or Path
-        The ``METADATA.DIM`` file.
-
-    Returns
-    -------
-    DimapMetadata
-
-    Raises
-    ------
-    ManifestError
-        A needed field is missing, empty, not a number, not finite, or a time list does not
-        increase strictly; the error names the file and the XML path of the field.
-    """
-    path = Path(path)
-    x = _Xml(path)
-    r = x.root
-    R = _ROOT
-
+def _source(x: _Xml) -> dict:
+    """Format check, mission, instrument, raster dimensions and pixel origin."""
+    r, R = x.root, _ROOT
     fmt = x.node(r, "Metadata_Id/METADATA_FORMAT", f"{R}/Metadata_Id/METADATA_FORMAT")
     if (fmt.text or "").strip() != "DIMAP":
         raise x.error(f"{R}/Metadata_Id/METADATA_FORMAT", f"must be 'DIMAP', got {fmt.text!r}")
@@ -447,19 +427,34 @@ def parse_dimap(path) -> DimapMetadata:
     origin = x.integer(r, "Raster_CS/PIXEL_ORIGIN", f"{R}/Raster_CS/PIXEL_ORIGIN", optional=True)
     if origin not in (None, 1):
         raise x.error(f"{R}/Raster_CS/PIXEL_ORIGIN", f"only PIXEL_ORIGIN 1 is supported, got {origin}")
+    return dict(
+        mission=mission,
+        instrument=instrument,
+        sensor_code=sensor_code,
+        incidence_angle_deg=incidence,
+        viewing_angle_deg=viewing,
+        n_rows=n_rows,
+        n_cols=n_cols,
+        n_bands=n_bands,
+    )
 
-    # ---- line timing
-    ts = f"{R}/Data_Strip/Sensor_Configuration/Time_Stamp"
-    tnode = x.node(r, "Data_Strip/Sensor_Configuration/Time_Stamp", ts)
+
+def _line_timing(x: _Xml) -> dict:
+    """Line period, scene epoch (``SCENE_CENTER_TIME``) and its line, converted to 0.5-based rows."""
+    ts = f"{_ROOT}/Data_Strip/Sensor_Configuration/Time_Stamp"
+    tnode = x.node(x.root, "Data_Strip/Sensor_Configuration/Time_Stamp", ts)
     line_period = x.number(tnode, "LINE_PERIOD", f"{ts}/LINE_PERIOD")
     if not line_period > 0.0:
         raise x.error(f"{ts}/LINE_PERIOD", f"must be positive, got {line_period}")
     epoch = x.time(tnode, "SCENE_CENTER_TIME", f"{ts}/SCENE_CENTER_TIME")
     center_line = x.number(tnode, "SCENE_CENTER_LINE", f"{ts}/SCENE_CENTER_LINE")
+    return dict(epoch=epoch, line_period_s=line_period, reference_row=float(dimap_to_pixel(center_line)))
 
-    # ---- ephemeris
-    eph = f"{R}/Data_Strip/Ephemeris"
-    enode = x.node(r, "Data_Strip/Ephemeris", eph)
+
+def _ephemeris(x: _Xml, epoch) -> dict:
+    """ITRF state vectors, their seconds since ``epoch`` and the kind of velocity."""
+    eph = f"{_ROOT}/Data_Strip/Ephemeris"
+    enode = x.node(x.root, "Data_Strip/Ephemeris", eph)
     points = x.nodes(enode, "Points/Point", f"{eph}/Points/Point", minimum=4)
     times, pos, vel = [], [], []
     for p in points:
@@ -476,10 +471,19 @@ def parse_dimap(path) -> DimapMetadata:
     doris = x.flag(enode, "DORIS_USED", f"{eph}/DORIS_USED", optional=True) or False
     velocity = np.array(vel)
     velocity_kind = _velocity_kind(x, eph_seconds, position, velocity, f"{eph}/Points/Point/Velocity")
+    return dict(
+        ephemeris_seconds=eph_seconds,
+        position_m=position,
+        velocity_m_s=velocity,
+        velocity_kind=velocity_kind,
+        doris_used=doris,
+    )
 
-    # ---- attitude
-    att = f"{R}/Data_Strip/Satellite_Attitudes"
-    anode = x.node(r, "Data_Strip/Satellite_Attitudes", att)
+
+def _attitudes(x: _Xml, epoch, mission: int) -> dict:
+    """Raw AOCS angles, angular speeds (SPOT 1-4) and corrected angles (SPOT 5)."""
+    att = f"{_ROOT}/Data_Strip/Satellite_Attitudes"
+    anode = x.node(x.root, "Data_Strip/Satellite_Attitudes", att)
     aocs = f"{att}/Raw_Attitudes/Aocs_Attitude"
     aocs_node = x.node(anode, "Raw_Attitudes/Aocs_Attitude", aocs)
     raw = _angles(x, aocs_node, "Angles_List/Angles", f"{aocs}/Angles_List/Angles", epoch, minimum=1)
@@ -499,10 +503,13 @@ def parse_dimap(path) -> DimapMetadata:
         corrected = _angles(
             x, cnode, "Corrected_Attitude/Angles", f"{cw}/Corrected_Attitude/Angles", epoch, minimum=4
         )
+    return dict(raw_angles=raw, angular_speeds=speeds, corrected_angles=corrected, star_tracker_used=star_tracker)
 
-    # ---- look angles
-    sc = f"{R}/Data_Strip/Sensor_Configuration"
-    snode = x.node(r, "Data_Strip/Sensor_Configuration", sc)
+
+def _look_angles(x: _Xml, n_cols: int) -> dict:
+    """Detector look angles of every band and the mirror step count."""
+    sc = f"{_ROOT}/Data_Strip/Sensor_Configuration"
+    snode = x.node(x.root, "Data_Strip/Sensor_Configuration", sc)
     lw = f"{sc}/Instrument_Look_Angles_List/Instrument_Look_Angles"
     looks = []
     for il in x.nodes(snode, "Instrument_Look_Angles_List/Instrument_Look_Angles", lw):
@@ -520,9 +527,13 @@ def parse_dimap(path) -> DimapMetadata:
             raise x.error(f"{la}/DETECTOR_ID", f"detector {ids[-1]} lies beyond NCOLS = {n_cols}")
         looks.append(DimapLookAngles(band, ids, np.array(px), np.array(py)))
     mirror_step = x.integer(snode, "Mirror_Position/STEP_COUNT", f"{sc}/Mirror_Position/STEP_COUNT", optional=True)
+    return dict(look_angles=tuple(looks), mirror_step=mirror_step)
 
-    # ---- frame: vertices and scene centre (DIMAP 1-based -> ours)
-    fw = f"{R}/Dataset_Frame"
+
+def _frame(x: _Xml) -> dict:
+    """Frame vertices and scene centre (DIMAP 1-based -> ours) with the tie-point heights."""
+    r = x.root
+    fw = f"{_ROOT}/Dataset_Frame"
     fnode = x.node(r, "Dataset_Frame", fw)
     vrow, vcol, vlon, vlat = [], [], [], []
     for v in x.nodes(fnode, "Vertex", f"{fw}/Vertex", minimum=4):
@@ -540,7 +551,7 @@ def parse_dimap(path) -> DimapMetadata:
 
     # heights the ground segment used: the tie point at the same pixel (CRS_Z)
     vh = np.full(len(vrow), np.nan)
-    tw = f"{R}/Geoposition/Geoposition_Points/Tie_Point"
+    tw = f"{_ROOT}/Geoposition/Geoposition_Points/Tie_Point"
     for tp in r.findall("Geoposition/Geoposition_Points/Tie_Point"):
         tx = x.number(tp, "TIE_POINT_DATA_X", f"{tw}/TIE_POINT_DATA_X")
         ty = x.number(tp, "TIE_POINT_DATA_Y", f"{tw}/TIE_POINT_DATA_Y")
@@ -548,31 +559,7 @@ def parse_dimap(path) -> DimapMetadata:
         for i, (rr, cc) in enumerate(zip(vrow, vcol)):
             if tz is not None and rr == ty and cc == tx:
                 vh[i] = tz
-
-    return DimapMetadata(
-        path=str(path),
-        mission=mission,
-        instrument=instrument,
-        sensor_code=sensor_code,
-        n_rows=n_rows,
-        n_cols=n_cols,
-        n_bands=n_bands,
-        epoch=epoch,
-        line_period_s=line_period,
-        reference_row=float(dimap_to_pixel(center_line)),
-        ephemeris_seconds=eph_seconds,
-        position_m=position,
-        velocity_m_s=velocity,
-        velocity_kind=velocity_kind,
-        doris_used=doris,
-        raw_angles=raw,
-        angular_speeds=speeds,
-        corrected_angles=corrected,
-        star_tracker_used=star_tracker,
-        look_angles=tuple(looks),
-        mirror_step=mirror_step,
-        incidence_angle_deg=incidence,
-        viewing_angle_deg=viewing,
+    return dict(
         vertex_row=dimap_to_pixel(vrow),
         vertex_col=dimap_to_pixel(vcol),
         vertex_lon=np.array(vlon),
@@ -583,6 +570,37 @@ def parse_dimap(path) -> DimapMetadata:
         center_lon=c_lon,
         center_lat=c_lat,
     )
+
+
+def parse_dimap(path) -> DimapMetadata:
+    """Parse the geometry of a SPOT 1-5 level-1A DIMAP metadata file, strictly.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``METADATA.DIM`` file.
+
+    Returns
+    -------
+    DimapMetadata
+        Image coordinates converted from DIMAP's 1-based pixel centres to gcpcal's
+        (first pixel centre at 0.5); times in SI seconds since ``SCENE_CENTER_TIME`` (UTC).
+
+    Raises
+    ------
+    ManifestError
+        A needed field is missing, empty, not a number, not finite, or a time list does not
+        increase strictly; the error names the file and the XML path of the field.
+    """
+    path = Path(path)
+    x = _Xml(path)
+    source = _source(x)
+    timing = _line_timing(x)
+    ephemeris = _ephemeris(x, timing["epoch"])
+    attitudes = _attitudes(x, timing["epoch"], source["mission"])
+    looks = _look_angles(x, source["n_cols"])
+    frame = _frame(x)
+    return DimapMetadata(path=str(path), **source, **timing, **ephemeris, **attitudes, **looks, **frame)
 
 
 # ---------------------------------------------------------------------------------------------
