@@ -99,7 +99,17 @@ MIN_NODE_STEP = 8
 
 # ---------------------------------------------------------------- grid of the orthoimage
 def utm_crs(lon_deg: float, lat_deg: float) -> pyproj.CRS:
-    """The WGS84 UTM zone CRS (EPSG:326zz north, 327zz south) containing ``(lon, lat)``."""
+    """The WGS84 UTM zone CRS (EPSG:326zz north, 327zz south) containing ``(lon, lat)``.
+
+    Parameters
+    ----------
+    lon_deg, lat_deg : float
+        WGS84 longitude and latitude, degrees.
+
+    Returns
+    -------
+    pyproj.CRS
+    """
     zone = int(np.floor((float(lon_deg) + 180.0) / 6.0)) % 60 + 1
     return pyproj.CRS.from_epsg((32600 if lat_deg >= 0.0 else 32700) + zone)
 
@@ -122,6 +132,21 @@ def scene_gsd_m(model, *, band=None, height_m: float = 0.0) -> float:
 
     ``d_row`` and ``d_col`` are the ground distances between the centre pixel and its
     neighbours one line and one column away, localized at ``height_m`` (ellipsoidal).
+
+    Parameters
+    ----------
+    model : SensorModel
+        Any model with ``image_shape`` and ``image_to_ground``; push-broom models are measured
+        in the middle of their central CCD.
+    band : str, optional
+        Band of the geometry.
+    height_m : float
+        Ellipsoidal height of the localization, metres.
+
+    Returns
+    -------
+    float
+        GSD in metres.
     """
     from sensor_models.geodesy import geodetic_to_ecef
 
@@ -332,7 +357,18 @@ class OrthoGeometry:
 
     # -- the block -----------------------------------------------------------------------
     def block(self, row0: int, row1: int, col0: int, col1: int) -> BlockGeometry:
-        """Image positions of output pixels ``[row0:row1, col0:col1]`` (see :class:`BlockGeometry`)."""
+        """Image positions of output pixels ``[row0:row1, col0:col1]``.
+
+        Parameters
+        ----------
+        row0, row1, col0, col1 : int
+            The output window (end exclusive), in output-grid pixels.
+
+        Returns
+        -------
+        BlockGeometry
+            Arrays of shape ``(row1 - row0, col1 - col0)``.
+        """
         from sensor_models.simulate.render import catmull_rom_matrix
 
         nr, nc = row1 - row0, col1 - col0
@@ -634,6 +670,11 @@ def orthorectify(model, image: np.ndarray, dem, transform, crs, shape, *, band=N
     resampling : {"nearest", "bilinear", "cubic"}
     node_step_px : float
         Node spacing of the geometry grid in image pixels (:class:`OrthoGeometry`).
+
+    Returns
+    -------
+    ndarray of float32, shape ``shape``
+        The orthoimage; NaN off the image or the DEM.
     """
     from sensor_models.simulate.render import MapGrid
 

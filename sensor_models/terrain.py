@@ -217,6 +217,15 @@ class Geoid:
     def open(cls, path) -> "Geoid":
         """Read a geoid grid (PROJ GTX, GeoTIFF, or any raster GDAL reads) in WGS84 degrees.
 
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The grid file (e.g. ``egm96_15.gtx``): undulations in metres on a geographic grid.
+
+        Returns
+        -------
+        Geoid
+
         Raises
         ------
         GeoidGridMissingError
@@ -690,8 +699,15 @@ class Dem:
         crs : pyproj.CRS or anything pyproj accepts
             CRS of the grid; a compound CRS's vertical part must agree with ``vertical_datum``.
         vertical_datum : {"ellipsoid", "egm96"}
+            Datum of ``heights_m``: ellipsoidal heights, or EGM96 orthometric heights converted
+            with ``geoid``.
         geoid : str, os.PathLike or Geoid, optional
             Required when ``vertical_datum="egm96"``.
+
+        Returns
+        -------
+        Dem
+            Holding ellipsoidal heights.
         """
         datum = _check_datum_name(vertical_datum)
         if datum is None:

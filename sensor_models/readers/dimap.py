@@ -89,12 +89,34 @@ _TIME_RE = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(\.\d{1,9})?Z?$")
 
 
 def dimap_to_pixel(dimap_row_or_col):
-    """DIMAP 1-based pixel-centre coordinates -> gcpcal's (first pixel centre at 0.5)."""
+    """DIMAP 1-based pixel-centre coordinates -> gcpcal's (first pixel centre at 0.5).
+
+    Parameters
+    ----------
+    dimap_row_or_col : array_like
+        Rows or columns as DIMAP counts them (the first pixel's centre is 1).
+
+    Returns
+    -------
+    ndarray of float64
+        The same positions in gcpcal's convention (``value - 0.5``), same shape.
+    """
     return np.asarray(dimap_row_or_col, dtype=np.float64) - 0.5
 
 
 def pixel_to_dimap(row_or_col):
-    """gcpcal pixel coordinates -> DIMAP 1-based pixel-centre coordinates."""
+    """gcpcal pixel coordinates -> DIMAP 1-based pixel-centre coordinates.
+
+    Parameters
+    ----------
+    row_or_col : array_like
+        Rows or columns in gcpcal's convention (the first pixel's centre is 0.5).
+
+    Returns
+    -------
+    ndarray of float64
+        The same positions as DIMAP counts them (``value + 0.5``), same shape.
+    """
     return np.asarray(row_or_col, dtype=np.float64) + 0.5
 
 
@@ -244,7 +266,18 @@ class DimapMetadata:
         return self.velocity_m_s - np.cross([0.0, 0.0, EARTH_ROTATION_RAD_S], self.position_m)
 
     def seconds(self, row):
-        """Imaging time (s since ``epoch``) of continuous row ``row``."""
+        """Imaging time of continuous rows.
+
+        Parameters
+        ----------
+        row : array_like
+            Continuous row coordinates (gcpcal convention, first line centre 0.5).
+
+        Returns
+        -------
+        ndarray of float64
+            SI seconds since ``epoch``, same shape: ``(row - reference_row) * line_period_s``.
+        """
         return (np.asarray(row, dtype=np.float64) - self.reference_row) * self.line_period_s
 
 
@@ -612,6 +645,18 @@ def spot_orbital_to_itrf_mat(position_m, velocity_m_s) -> np.ndarray:
 
     ``Z = P/|P|``, ``X = V x Z / |V x Z|``, ``Y = Z x X`` with the ITRF position and the
     Earth-relative velocity (SPOT Geometry Handbook; as OSSIM's ``ossimSpot5Model``).
+
+    Parameters
+    ----------
+    position_m : array_like, shape (N, 3) or (3,)
+        ITRF positions, metres.
+    velocity_m_s : array_like, shape (N, 3) or (3,)
+        Earth-relative ITRF velocities, m/s.
+
+    Returns
+    -------
+    ndarray, shape (N, 3, 3)
+        Rotation matrices orbital -> ITRF.
     """
     p = np.atleast_2d(np.asarray(position_m, dtype=np.float64))
     v = np.atleast_2d(np.asarray(velocity_m_s, dtype=np.float64))
@@ -627,6 +672,16 @@ def spot_satellite_to_orbital_mat(yaw, pitch, roll) -> np.ndarray:
 
     ``Rx(-pitch) @ Ry(-roll) @ Rz(yaw)`` (active rotations): the file's roll and pitch are
     given about the reversed (-X, -Y) axes (SPOT Geometry Handbook).
+
+    Parameters
+    ----------
+    yaw, pitch, roll : array_like, shape (N,) or scalar
+        Attitude angles as the DIMAP file gives them (SPOT convention), radians.
+
+    Returns
+    -------
+    ndarray, shape (N, 3, 3)
+        Rotation matrices satellite -> local orbital frame.
     """
     yaw, pitch, roll = (np.atleast_1d(np.asarray(a, dtype=np.float64)) for a in (yaw, pitch, roll))
     angles = np.stack([-pitch, -roll, yaw], axis=-1)
@@ -638,6 +693,16 @@ def spot_look_to_camera(psi_x, psi_y):
 
     The SPOT direction ``(-tan PSI_Y, tan PSI_X, -1)`` is, in the camera frame
     (``CAMERA_TO_SPOT``), ``(tan PSI_X, -tan PSI_Y, 1)``.
+
+    Parameters
+    ----------
+    psi_x, psi_y : array_like
+        ``PSI_X`` (along track) and ``PSI_Y`` (across track) look angles, radians.
+
+    Returns
+    -------
+    tan_psi_x, tan_psi_y : ndarray of float64
+        Camera-frame direction tangents, same shape as the inputs.
     """
     return np.tan(np.asarray(psi_x, dtype=np.float64)), -np.tan(np.asarray(psi_y, dtype=np.float64))
 
@@ -669,6 +734,23 @@ def attitude_angles(meta: DimapMetadata, seconds) -> np.ndarray:
 
     SPOT 5: the corrected (absolute) angles, interpolated linearly. SPOT 1-4: the first
     valid absolute AOCS sample plus the integral of the angular speeds from its time.
+
+    Parameters
+    ----------
+    meta : DimapMetadata
+        The parsed file.
+    seconds : array_like, shape (N,) or scalar
+        SI seconds since ``meta.epoch``.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Yaw, pitch, roll in radians (not yet converted to gcpcal's frames).
+
+    Raises
+    ------
+    ManifestError
+        Fewer than two valid corrected-attitude or angular-speed samples.
     """
     t = np.atleast_1d(np.asarray(seconds, dtype=np.float64))
     if meta.corrected_angles is not None:
@@ -703,7 +785,19 @@ def _attitude_seconds(meta: DimapMetadata) -> np.ndarray:
 
 
 def dimap_orbit(meta: DimapMetadata):
-    """The ITRF :class:`~sensor_models.ephemeris.Orbit` (Earth-relative velocities)."""
+    """The ITRF orbit of a DIMAP file.
+
+    Parameters
+    ----------
+    meta : DimapMetadata
+        The parsed file.
+
+    Returns
+    -------
+    Orbit
+        Frame ``"itrf"``, seconds since ``meta.epoch``, positions in metres and Earth-relative
+        velocities in m/s (inertial file velocities are converted).
+    """
     from sensor_models.ephemeris import Orbit
 
     return Orbit(meta.epoch, meta.ephemeris_seconds, meta.position_m, meta.earth_relative_velocity_m_s, frame="itrf")
@@ -718,9 +812,20 @@ def body_to_itrf(meta: DimapMetadata, seconds, orbit=None, *, attitude: str = "m
 
     Parameters
     ----------
+    meta : DimapMetadata
+        The parsed file.
+    seconds : array_like, shape (N,) or scalar
+        SI seconds since ``meta.epoch``.
+    orbit : Orbit, optional
+        The ITRF orbit (default :func:`dimap_orbit`).
     attitude : {"measured", "nominal"}
         ``"measured"``: the file's attitude (see :func:`attitude_angles`); ``"nominal"``: zero
         yaw, pitch and roll (the satellite frame on the local orbital frame).
+
+    Returns
+    -------
+    ndarray, shape (N, 3, 3)
+        Rotation matrices body -> ITRF (body = camera, ``CAMERA_TO_SPOT`` included).
     """
     if attitude not in ATTITUDE_MODES:
         raise InputError(f"must be one of {ATTITUDE_MODES}, got {attitude!r}", field="attitude")
@@ -802,6 +907,21 @@ def fit_look_polynomials(look: DimapLookAngles, n_cols: int, *, max_residual_px:
     ``max_residual_px`` detector IFOVs (the IFOV being the median across-track step between
     neighbouring detectors). The fit is done in a scaled variable for conditioning, then
     converted to powers of ``s``.
+
+    Parameters
+    ----------
+    look : DimapLookAngles
+        The band's detector look angles.
+    n_cols : int
+        Detectors (image columns) of the band.
+    max_residual_px : float
+        Target largest residual, in detector IFOVs (about pixels).
+
+    Returns
+    -------
+    LookFit
+        Coefficients of ``tan psi_x`` and ``tan psi_y`` in powers of the 0-based detector index
+        ``s`` (detector ``s`` images column ``s + 0.5``), the degree and the residuals in IFOVs.
     """
     s, tx, ty = _detector_tans(look, n_cols)
     if s.size >= 2:
@@ -844,6 +964,8 @@ def read_dimap(path, *, band: int | None = None, attitude: str = "measured"):
     band : int, optional
         ``BAND_INDEX`` whose look angles are used (default: every band in the file, each as
         a model band named ``"B<index>"``; the first is the reference band).
+    attitude : {"measured", "nominal"}
+        The file's attitude or the nominal one (see :func:`body_to_itrf`).
 
     Returns
     -------
