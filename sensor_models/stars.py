@@ -109,7 +109,20 @@ def radec_to_unit(ra_rad, dec_rad) -> np.ndarray:
 
 
 def unit_to_radec(vectors) -> tuple[np.ndarray, np.ndarray]:
-    """Right ascension in ``[0, 2 pi)`` and declination of vectors of shape ``(..., 3)``."""
+    """Right ascension and declination of direction vectors (inverse of :func:`radec_to_unit`).
+
+    Parameters
+    ----------
+    vectors : array_like, shape (..., 3)
+        Direction vectors (any length).
+
+    Returns
+    -------
+    ra_rad : ndarray, shape (...)
+        Right ascension in ``[0, 2 pi)``, radians.
+    dec_rad : ndarray, shape (...)
+        Declination in ``[-pi/2, pi/2]``, radians.
+    """
     v = np.asarray(vectors, dtype=np.float64)
     ra = np.mod(np.arctan2(v[..., 1], v[..., 0]), 2.0 * np.pi)
     dec = np.arctan2(v[..., 2], np.hypot(v[..., 0], v[..., 1]))
@@ -283,7 +296,18 @@ class StarCatalog:
         return int(self.hip.size)
 
     def select(self, index) -> StarCatalog:
-        """A catalogue of the rows picked by a boolean mask or an integer index array."""
+        """A catalogue of some of the stars.
+
+        Parameters
+        ----------
+        index : array_like of bool, shape (N,), or of int
+            Boolean mask or integer indices of the stars to keep.
+
+        Returns
+        -------
+        StarCatalog
+            Same epoch and source.
+        """
         index = np.asarray(index)
         pick = {name: getattr(self, name)[index] for name in (
             "hip", "ra_rad", "dec_rad", "pm_ra_cosdec_mas_yr", "pm_dec_mas_yr",
@@ -291,7 +315,13 @@ class StarCatalog:
         return StarCatalog(**pick, epoch_jyear=self.epoch_jyear, source=self.source)
 
     def unit_vectors(self) -> np.ndarray:
-        """ICRS unit vectors at the catalogue epoch, shape ``(N, 3)``."""
+        """Catalogue directions as unit vectors.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            ICRS unit vectors at the catalogue epoch (no space motion applied).
+        """
         return radec_to_unit(self.ra_rad, self.dec_rad)
 
 

@@ -59,6 +59,23 @@ class GeoSimConfig:
     margin_m: float = 3000.0
 
     def validate(self, source=None) -> "GeoSimConfig":
+        """Check the ranges of the settings.
+
+        Parameters
+        ----------
+        source : str, optional
+            The configuration file, named in errors.
+
+        Returns
+        -------
+        GeoSimConfig
+            ``self``.
+
+        Raises
+        ------
+        InputError
+            Naming the first bad field.
+        """
         def bad(name, why):
             return InputError(why, path=source, field=name)
 
@@ -79,7 +96,22 @@ class GeoSimConfig:
 
 
 def load_geo_config(path=None) -> GeoSimConfig:
-    """A validated configuration from a JSON file with any subset of the keys (strict)."""
+    """A validated configuration from a JSON file with any subset of the keys (strict).
+
+    Parameters
+    ----------
+    path : str or os.PathLike, optional
+        JSON object whose keys are :class:`GeoSimConfig` fields; default: the defaults.
+
+    Returns
+    -------
+    GeoSimConfig
+
+    Raises
+    ------
+    InputError
+        Unreadable file, invalid JSON, unknown key or bad value (naming it).
+    """
     from sensor_models.simulate.config import _coerce
 
     if path is None:

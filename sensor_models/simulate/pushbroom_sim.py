@@ -47,7 +47,22 @@ FIELD_FACTOR = 8
 
 
 def footprint_lonlat(model, heights_m, *, step_px: int = 32):
-    """Lon/lat of the image border of every band at each height: arrays (N,)."""
+    """Lon/lat of the image border of every band at each height.
+
+    Parameters
+    ----------
+    model : PushbroomModel
+        The scene model (its ``bands`` and ``image_shape``).
+    heights_m : iterable of float
+        Ellipsoidal heights of the localization, metres.
+    step_px : int
+        Spacing of the border points, pixels (pixel centres, corners included).
+
+    Returns
+    -------
+    lon_deg, lat_deg : ndarray, shape (N,)
+        WGS84 degrees, every band and height concatenated (NaN where localization fails).
+    """
     n_rows, n_cols = model.image_shape
     rows = np.linspace(0.5, n_rows - 0.5, max(2, n_rows // step_px + 1))
     cols = np.linspace(0.5, n_cols - 0.5, max(2, n_cols // step_px + 1))
