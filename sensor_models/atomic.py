@@ -13,6 +13,18 @@ def temporary_beside(path, suffix: str = ".tmp") -> Path:
     """An empty temporary file in ``path``'s folder (created if needed); rename it onto ``path``.
 
     Same filesystem as the target, so :func:`os.replace` is atomic. Mode 0644.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The final file; its folder is created when missing.
+    suffix : str
+        Ending of the temporary name (it starts with ``.<name>.``, a hidden file).
+
+    Returns
+    -------
+    Path
+        The empty temporary file; the caller renames it onto ``path`` or deletes it.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -23,7 +35,20 @@ def temporary_beside(path, suffix: str = ".tmp") -> Path:
 
 
 def atomic_write_text(path, text: str) -> Path:
-    """Write ``text`` (UTF-8) to ``path`` through a temporary file and a rename."""
+    """Write ``text`` (UTF-8) to ``path`` through a temporary file and a rename.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write (replaced if present; its folder is created).
+    text : str
+        The content, written as is (no newline translation).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     path = Path(path)
     tmp = temporary_beside(path)
     try:
@@ -41,6 +66,13 @@ def move_tree_into(tmp, out_dir) -> None:
 
     Each move is an atomic rename (``tmp`` lies inside ``out_dir``, on the same filesystem), done
     only once everything has been written, so a failed stage never leaves partial files.
+
+    Parameters
+    ----------
+    tmp : str or os.PathLike
+        The staging folder (inside ``out_dir``); it is left empty of files, not removed.
+    out_dir : str or os.PathLike
+        The destination folder; existing files of the same names are replaced.
     """
     tmp, out_dir = Path(tmp), Path(out_dir)
     for src in sorted(tmp.rglob("*")):

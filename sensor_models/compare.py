@@ -6,7 +6,7 @@ model localizes the pixel centre on the terrain (or at given heights) and the mo
 projects that ground point back; the difference ``model - reference`` in ``(row, col)`` is the
 error. Both models must describe the same image (same bands, CCDs and line count); their
 parameters, orbit and attitude may differ. With the TRUE model of a simulated scene as the
-reference this is ``gcpcal truth error`` (:func:`sensor_models.simulate.truth.truth_error`).
+reference this is ``gcpcal truth error`` (:func:`sensor_models.simulate.truth.truth_error`, a thin wrapper).
 """
 
 from __future__ import annotations

@@ -27,7 +27,26 @@ ATTITUDE_FRAMES = ("gcrf", "itrf", "orbital")
 
 
 def check_times(seconds, *, what: str, minimum: int = 2) -> np.ndarray:
-    """Validate a sample-time vector: finite, strictly increasing, at least ``minimum`` long."""
+    """Validate a sample-time vector: finite, strictly increasing, at least ``minimum`` long.
+
+    Parameters
+    ----------
+    seconds : array_like, shape (N,)
+        Sample times, SI seconds since an epoch.
+    what : str
+        Field name used in the error message.
+    minimum : int
+        Fewest samples accepted.
+
+    Returns
+    -------
+    ndarray of float64, shape (N,)
+
+    Raises
+    ------
+    InputError
+        Naming ``what`` and the first offending sample.
+    """
     t = np.asarray(seconds, dtype=np.float64)
     if t.ndim != 1 or t.shape[0] < minimum:
         raise InputError(f"needs at least {minimum} samples, got {t.size}", field=what)
@@ -106,18 +125,52 @@ class Orbit:
 
     @property
     def span(self) -> tuple[float, float]:
+        """First and last sample times, SI seconds since ``epoch``."""
         return float(self.seconds[0]), float(self.seconds[-1])
 
     def position(self, seconds) -> np.ndarray:
-        """Interpolated positions, shape ``seconds.shape + (3,)``."""
+        """Interpolated positions (cubic Hermite through positions and velocities).
+
+        Parameters
+        ----------
+        seconds : array_like of float
+            SI seconds since the epoch, inside :attr:`span` (never extrapolated).
+
+        Returns
+        -------
+        ndarray, shape ``seconds.shape + (3,)``
+            Positions in ``frame``, metres.
+        """
         return self._spline(_check_within(seconds, self.span, "orbit"))
 
     def velocity(self, seconds) -> np.ndarray:
-        """Interpolated velocities (the derivative of the position interpolant)."""
+        """Interpolated velocities (the derivative of the position interpolant).
+
+        Parameters
+        ----------
+        seconds : array_like of float
+            SI seconds since the epoch, inside :attr:`span` (never extrapolated).
+
+        Returns
+        -------
+        ndarray, shape ``seconds.shape + (3,)``
+            Velocities in ``frame``, m/s.
+        """
         return self._spline(_check_within(seconds, self.span, "orbit"), 1)
 
     def state(self, seconds):
-        """``(position_m, velocity_m_s)`` at ``seconds``."""
+        """Interpolated state vectors.
+
+        Parameters
+        ----------
+        seconds : array_like of float
+            SI seconds since the epoch, inside :attr:`span` (never extrapolated).
+
+        Returns
+        -------
+        position_m, velocity_m_s : ndarray, shape ``seconds.shape + (3,)``
+            In ``frame``; metres and m/s.
+        """
         t = _check_within(seconds, self.span, "orbit")
         return self._spline(t), self._spline(t, 1)
 
@@ -172,13 +225,35 @@ class Attitude:
 
     @property
     def span(self) -> tuple[float, float]:
+        """First and last sample times, SI seconds since the scene epoch."""
         return float(self.seconds[0]), float(self.seconds[-1])
 
     def rotation(self, seconds) -> Rotation:
-        """Interpolated body -> reference rotations at ``seconds`` (shape (N,))."""
+        """Interpolated body -> reference rotations (``scipy`` rotation spline).
+
+        Parameters
+        ----------
+        seconds : array_like of float
+            SI seconds since the epoch, inside :attr:`span` (never extrapolated).
+
+        Returns
+        -------
+        scipy.spatial.transform.Rotation
+            ``N`` rotations (``seconds`` flattened to at least 1-D).
+        """
         t = _check_within(np.atleast_1d(seconds), self.span, "attitude")
         return self._spline(t)
 
     def matrix(self, seconds) -> np.ndarray:
-        """Interpolated body -> reference rotation matrices, shape (N, 3, 3)."""
+        """Interpolated body -> reference rotation matrices, ``v_ref = R @ v_body``.
+
+        Parameters
+        ----------
+        seconds : array_like of float
+            SI seconds since the epoch, inside :attr:`span` (never extrapolated).
+
+        Returns
+        -------
+        ndarray, shape (N, 3, 3)
+        """
         return self.rotation(seconds).as_matrix()

@@ -131,7 +131,22 @@ def gcrf_to_itrf_mat(epoch, seconds, *, eop: EarthOrientation | None = None) -> 
 
 
 def itrf_to_gcrf_mat(epoch, seconds, *, eop: EarthOrientation | None = None) -> np.ndarray:
-    """ITRF -> GCRF rotation matrices: the transpose of :func:`gcrf_to_itrf_mat`."""
+    """ITRF -> GCRF rotation matrices: the transpose of :func:`gcrf_to_itrf_mat`.
+
+    Parameters
+    ----------
+    epoch : str, datetime or numpy.datetime64
+        UTC scene epoch (see :func:`sensor_models.timescales.parse_utc`).
+    seconds : array_like of float, shape (...)
+        Elapsed SI seconds since ``epoch``.
+    eop : EarthOrientation, optional
+        IERS Earth orientation tables; default :func:`sensor_models.timescales.default_eop`.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rotation matrices ITRF -> GCRF, ``v_gcrf = M @ v_itrf``.
+    """
     return np.swapaxes(gcrf_to_itrf_mat(epoch, seconds, eop=eop), -1, -2)
 
 
@@ -337,11 +352,35 @@ class EarthRotation:
         return self._combine(k, basis).reshape(shape + (3, 3))
 
     def itrf_to_gcrf_mat(self, seconds) -> np.ndarray:
-        """ITRF -> GCRF rotation matrices (the transpose), shape ``seconds.shape + (3, 3)``."""
+        """ITRF -> GCRF rotation matrices (the transpose of :meth:`gcrf_to_itrf_mat`).
+
+        Parameters
+        ----------
+        seconds : array_like of float, shape (...)
+            Elapsed SI seconds since the epoch, inside the span.
+
+        Returns
+        -------
+        ndarray, shape (..., 3, 3)
+            ``v_gcrf = M @ v_itrf``.
+        """
         return np.swapaxes(self.gcrf_to_itrf_mat(seconds), -1, -2)
 
     def gcrf_to_itrf_mat_and_rate(self, seconds):
-        """``M`` and its time derivative ``dM/dt`` (1/s), each ``seconds.shape + (3, 3)``."""
+        """The GCRF -> ITRF matrix and its time derivative.
+
+        Parameters
+        ----------
+        seconds : array_like of float, shape (...)
+            Elapsed SI seconds since the epoch, inside the span.
+
+        Returns
+        -------
+        m : ndarray, shape (..., 3, 3)
+            GCRF -> ITRF rotation matrices.
+        m_dot : ndarray, shape (..., 3, 3)
+            ``dM/dt`` in 1/s.
+        """
         shape = np.shape(seconds)
         k, basis, dbasis = self._basis(seconds, derivative=True)
         m = self._combine(k, basis).reshape(shape + (3, 3))
@@ -376,7 +415,17 @@ class EarthRotation:
         """ITRF state vectors to GCRF: ``r_g = M^T r_i``, ``v_g = M^T v_i + (dM/dt)^T r_i``.
 
         The exact inverse of :meth:`gcrf_to_itrf_state` (the derivative of ``M^T r_i``).
-        Shapes as :meth:`gcrf_to_itrf_state`.
+
+        Parameters
+        ----------
+        seconds : array_like, shape (N,)
+            Elapsed SI seconds since the epoch.
+        pos_m, vel_m_s : array_like, shape (N, 3)
+            ITRF positions (m) and Earth-relative velocities (m/s).
+
+        Returns
+        -------
+        pos_gcrf_m, vel_gcrf_m_s : ndarray, shape (N, 3)
         """
         r, v = _states(seconds, pos_m, vel_m_s)
         m, m_dot = self.gcrf_to_itrf_mat_and_rate(seconds)

@@ -96,6 +96,11 @@ def ecef_to_geodetic(xyz_m):
 def enu_basis(lon_deg, lat_deg):
     """East, north and up unit vectors in ECEF at geodetic positions.
 
+    Parameters
+    ----------
+    lon_deg, lat_deg : array_like, shape (...)
+        WGS84 geodetic longitude and latitude, degrees (broadcast together).
+
     Returns
     -------
     east, north, up : ndarray, shape (..., 3)

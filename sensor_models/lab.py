@@ -82,7 +82,28 @@ class LabCamera:
 
 
 def detector_angles(camera: LabCamera, band: LabBand, ccd: LabCcd, s):
-    """``tan psi_x(s)``, ``tan psi_y(s)`` of detectors ``s`` (arrays), exactly from the lab model."""
+    """``tan psi_x(s)``, ``tan psi_y(s)`` of detectors ``s``, exactly from the lab model.
+
+    The detector's focal-plane position (CCD position + band offset + ``s`` pixel pitches along
+    the array), turned by the array rotation and tilt, relative to the principal point, with
+    radial (k1, k2, k3) and decentering (p1, p2) distortion removed, over the focal length.
+
+    Parameters
+    ----------
+    camera : LabCamera
+        Focal length, pixel size, principal point, distortion, tilt and rotation (mm, rad).
+    band : LabBand
+        The band (its focal-plane offset in mm).
+    ccd : LabCcd
+        The CCD (its first detector's position in mm).
+    s : array_like
+        Detector indices (0 at the first detector's centre).
+
+    Returns
+    -------
+    tan_psi_x, tan_psi_y : ndarray
+        Camera-frame direction tangents, shape of ``s``.
+    """
     s = np.asarray(s, dtype=np.float64)
     x = ccd.x_mm + band.offset_mm[0] + 0.0 * s
     y = ccd.y_mm + band.offset_mm[1] + s * camera.pixel_size_mm
@@ -103,6 +124,12 @@ def detector_angles(camera: LabCamera, band: LabBand, ccd: LabCcd, s):
 
 def lab_to_directional_angles(camera: LabCamera):
     """Fit directional-angle polynomials to every CCD and band of a lab camera.
+
+    Parameters
+    ----------
+    camera : LabCamera
+        The lab model; ``camera.polynomial_degree`` is the fitted degree (at most
+        ``n_detectors - 1``).
 
     Returns
     -------
@@ -135,7 +162,16 @@ def lab_to_directional_angles(camera: LabCamera):
 def lab_from_fields(f):
     """Read the ``interior`` object of a manifest with ``model = "lab"`` (strict).
 
-    Returns the directional-angle bands (``dict`` of ``CcdLook`` tuples).
+    Parameters
+    ----------
+    f : sensor_models.readers._strict.Fields
+        The ``interior`` object (``docs/manifest.md``): focal length and pixel size in mm,
+        principal point in mm, distortion, tilt and rotation in radians, bands of CCDs.
+
+    Returns
+    -------
+    dict of str to tuple of CcdLook
+        Band name -> directional-angle polynomials per CCD (:func:`lab_to_directional_angles`).
     """
     from sensor_models.readers._strict import Fields
 

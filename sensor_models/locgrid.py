@@ -71,6 +71,7 @@ class InverseLocalizationGrid:
 
     @property
     def shape(self) -> tuple[int, int, int]:
+        """Node counts ``(n_heights, n_lat, n_lon)``."""
         return (self.h.size, self.lat.size, self.lon.size)
 
     def _index(self, values, axis):
@@ -79,8 +80,21 @@ class InverseLocalizationGrid:
     def ground_to_image(self, lon, lat, h, *, ccd=None):
         """Interpolated ``(row, col)``; NaN outside the grid or where nodes were not imaged.
 
-        ``ccd`` (an index or an array of indices into the band's CCDs) forces the CCD, as in
-        :meth:`PushbroomModel.ground_to_image`.
+        Parameters
+        ----------
+        lon, lat : array_like
+            WGS84 longitude and latitude, degrees (broadcast together with ``h``).
+        h : array_like
+            Ellipsoidal heights, metres.
+        ccd : int or array_like of int, optional
+            Forces the CCD (index into the band's CCDs), as in
+            :meth:`PushbroomModel.ground_to_image`; default: the CCD whose columns contain the
+            point, else the nearest.
+
+        Returns
+        -------
+        row, col : ndarray
+            Continuous image coordinates (first pixel's centre at 0.5), the broadcast shape.
         """
         lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
         shape = lon.shape

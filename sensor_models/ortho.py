@@ -99,7 +99,17 @@ MIN_NODE_STEP = 8
 
 # ---------------------------------------------------------------- grid of the orthoimage
 def utm_crs(lon_deg: float, lat_deg: float) -> pyproj.CRS:
-    """The WGS84 UTM zone CRS (EPSG:326zz north, 327zz south) containing ``(lon, lat)``."""
+    """The WGS84 UTM zone CRS (EPSG:326zz north, 327zz south) containing ``(lon, lat)``.
+
+    Parameters
+    ----------
+    lon_deg, lat_deg : float
+        WGS84 longitude and latitude, degrees.
+
+    Returns
+    -------
+    pyproj.CRS
+    """
     zone = int(np.floor((float(lon_deg) + 180.0) / 6.0)) % 60 + 1
     return pyproj.CRS.from_epsg((32600 if lat_deg >= 0.0 else 32700) + zone)
 
@@ -122,6 +132,21 @@ def scene_gsd_m(model, *, band=None, height_m: float = 0.0) -> float:
 
     ``d_row`` and ``d_col`` are the ground distances between the centre pixel and its
     neighbours one line and one column away, localized at ``height_m`` (ellipsoidal).
+
+    Parameters
+    ----------
+    model : SensorModel
+        Any model with ``image_shape`` and ``image_to_ground``; push-broom models are measured
+        in the middle of their central CCD.
+    band : str, optional
+        Band of the geometry.
+    height_m : float
+        Ellipsoidal height of the localization, metres.
+
+    Returns
+    -------
+    float
+        GSD in metres.
     """
     from sensor_models.geodesy import geodetic_to_ecef
 
@@ -332,7 +357,18 @@ class OrthoGeometry:
 
     # -- the block -----------------------------------------------------------------------
     def block(self, row0: int, row1: int, col0: int, col1: int) -> BlockGeometry:
-        """Image positions of output pixels ``[row0:row1, col0:col1]`` (see :class:`BlockGeometry`)."""
+        """Image positions of output pixels ``[row0:row1, col0:col1]``.
+
+        Parameters
+        ----------
+        row0, row1, col0, col1 : int
+            The output window (end exclusive), in output-grid pixels.
+
+        Returns
+        -------
+        BlockGeometry
+            Arrays of shape ``(row1 - row0, col1 - col0)``.
+        """
         from sensor_models.locate import catmull_rom_matrix
 
         nr, nc = row1 - row0, col1 - col0
@@ -634,6 +670,11 @@ def orthorectify(model, image: np.ndarray, dem, transform, crs, shape, *, band=N
     resampling : {"nearest", "bilinear", "cubic"}
     node_step_px : float
         Node spacing of the geometry grid in image pixels (:class:`OrthoGeometry`).
+
+    Returns
+    -------
+    ndarray of float32, shape ``shape``
+        The orthoimage; NaN off the image or the DEM.
     """
     from sensor_models.locate import MapGrid
 
@@ -712,13 +753,6 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         Unreadable image, image shape different from the model's, bad options, or no output
         pixel on both the image and the DEM.
     """
-    import rasterio
-    import rasterio.shutil
-    from rasterio.crs import CRS as RioCRS
-    from rasterio.windows import Window
-
-    from sensor_models.atomic import temporary_beside
-
     t_start = time.perf_counter()
     if resampling not in RESAMPLING:
         raise InputError(f"resampling must be one of {', '.join(RESAMPLING)}, got {resampling!r}", field="resampling")
@@ -738,52 +772,23 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
             out_dtype = np.dtype(np.float32)
         _check_nodata(nodata, out_dtype)
         step = _block_size(block, geometry.scale)
-        n_rows, n_cols = grid.shape
-        blocks = [(a, min(a + step, n_rows), b, min(b + step, n_cols))
-                  for a in range(0, n_rows, step) for b in range(0, n_cols, step)]
-        per_block = max(2, int(np.ceil(check_points / len(blocks))))
-        rng = np.random.default_rng(seed)
-        checks = []
-        n_valid = 0
-        tile = 512 if min(grid.shape) >= 512 else 256
-        profile = dict(driver="GTiff", width=n_cols, height=n_rows, count=1, dtype=out_dtype.name,
-                       crs=RioCRS.from_wkt(grid.crs.to_wkt()), transform=grid.transform, nodata=nodata,
-                       tiled=True, blockxsize=tile, blockysize=tile, sparse_ok=True, BIGTIFF="IF_SAFER")
-        tmp = temporary_beside(out_path, ".tif")
-        cog = temporary_beside(out_path, ".cog.tif")
-        try:
-            with rasterio.Env(GDAL_CACHEMAX=64, GDAL_PAM_ENABLED="NO"):
-                with rasterio.open(tmp, "w", **profile) as dst:
-                    dst.set_band_description(1, str(band) if band is not None else "image")
-                    dst.update_tags(GCPCAL_ORTHO_MODEL=getattr(model, "name", "") or model.kind,
-                                    GCPCAL_ORTHO_BAND=str(band), GCPCAL_ORTHO_RESAMPLING=resampling)
-                    for k, (a, b, c, d) in enumerate(blocks):
-                        geom = geometry.block(a, b, c, d)
-                        if geom.valid.any():
-                            values = _resample(source, geom, RESAMPLING[resampling])
-                            good = geom.valid & np.isfinite(values)
-                            n_valid += int(np.count_nonzero(good))
-                            dst.write(_to_dtype(values, out_dtype, nodata), 1, window=Window(c, a, d - c, b - a))
-                            checks.append(_draw_checks(geom, a, c, per_block, rng))
-                        if progress is not None:
-                            progress(k + 1, len(blocks))
-                if n_valid == 0:
-                    raise InputError("no output pixel lies on both the image and the DEM: does the DEM cover the "
-                                     "scene, and is the model right?", path=str(out_path))
-                t_cog = time.perf_counter()
-                cog.unlink(missing_ok=True)
-                rasterio.shutil.copy(tmp, cog, driver="COG", COMPRESS="DEFLATE",
-                                     PREDICTOR="YES", BLOCKSIZE=tile, OVERVIEW_RESAMPLING="AVERAGE",
-                                     BIGTIFF="IF_SAFER")
-            os.replace(cog, out_path)
-            t_cog = time.perf_counter() - t_cog
-        finally:
-            tmp.unlink(missing_ok=True)
-            cog.unlink(missing_ok=True)
+        plan = _BlockPlan(geometry, source, step, RESAMPLING[resampling], out_dtype, nodata, check_points, seed)
+        t_cog = _write_cog(plan, out_path, model=model, band=band, resampling=resampling, progress=progress)
     finally:
         source.close()
-    err = _check_geometry(geometry, checks)
+    summary = _summary(plan, out_path, band=band, resampling=resampling, step=step)
     seconds = time.perf_counter() - t_start
+    summary.update(seconds=round(seconds, 3), cog_seconds=round(t_cog, 3),
+                   pixels_per_s=grid.shape[0] * grid.shape[1] / max(seconds, 1e-9))
+    return summary
+
+
+def _summary(plan: "_BlockPlan", out_path: Path, *, band, resampling, step) -> dict:
+    """The JSON-ready summary of a written orthoimage, timings left out."""
+    geometry = plan.geometry
+    grid = geometry.grid
+    err = _check_geometry(geometry, plan.checks)
+    n_rows, n_cols = grid.shape
     epsg = grid.crs.to_epsg()
     return {
         "output": str(out_path),
@@ -793,20 +798,96 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         "shape": [int(n_rows), int(n_cols)],
         "transform": list(grid.transform)[:6],
         "band": band,
-        "dtype": out_dtype.name,
-        "nodata": nodata,
+        "dtype": plan.out_dtype.name,
+        "nodata": plan.nodata,
         "resampling": resampling,
-        "valid_fraction": n_valid / float(n_rows * n_cols),
+        "valid_fraction": plan.n_valid / float(n_rows * n_cols),
         "block_px": step,
         "node_step_out_px": geometry.node_step,
         "image_px_per_output_px": geometry.scale,
         "geometry_check_points": err["n"],
         "geometry_check_max_px": err["max"],
         "geometry_check_rms_px": err["rms"],
-        "seconds": round(seconds, 3),
-        "cog_seconds": round(t_cog, 3),
-        "pixels_per_s": n_rows * n_cols / max(seconds, 1e-9),
     }
+
+
+class _BlockPlan:
+    """The output blocks of :func:`orthorectify_to_file` and what writing them gathers.
+
+    ``blocks`` are ``(row0, row1, col0, col1)`` output windows of side ``step``; writing a block
+    adds its valid pixels to ``n_valid`` and about ``check_points / len(blocks)`` drawn pixels
+    (seeded) to ``checks``.
+    """
+
+    def __init__(self, geometry, source, step, interpolation, out_dtype, nodata, check_points, seed):
+        self.geometry = geometry
+        self.source = source
+        self.interpolation = interpolation
+        self.out_dtype = out_dtype
+        self.nodata = nodata
+        n_rows, n_cols = geometry.grid.shape
+        self.blocks = [(a, min(a + step, n_rows), b, min(b + step, n_cols))
+                       for a in range(0, n_rows, step) for b in range(0, n_cols, step)]
+        self.per_block = max(2, int(np.ceil(check_points / len(self.blocks))))
+        self.rng = np.random.default_rng(seed)
+        self.checks = []
+        self.n_valid = 0
+
+    def write(self, dst, progress=None) -> None:
+        """Resample every block into band 1 of the open dataset ``dst``."""
+        from rasterio.windows import Window
+
+        for k, (a, b, c, d) in enumerate(self.blocks):
+            geom = self.geometry.block(a, b, c, d)
+            if geom.valid.any():
+                values = _resample(self.source, geom, self.interpolation)
+                good = geom.valid & np.isfinite(values)
+                self.n_valid += int(np.count_nonzero(good))
+                dst.write(_to_dtype(values, self.out_dtype, self.nodata), 1, window=Window(c, a, d - c, b - a))
+                self.checks.append(_draw_checks(geom, a, c, self.per_block, self.rng))
+            if progress is not None:
+                progress(k + 1, len(self.blocks))
+
+
+def _write_cog(plan: _BlockPlan, out_path: Path, *, model, band, resampling, progress) -> float:
+    """Write the blocks into a tiled GeoTIFF, copy it to a COG and move that into place.
+
+    Returns the seconds the COG copy took.
+    """
+    import rasterio
+    import rasterio.shutil
+    from rasterio.crs import CRS as RioCRS
+
+    from sensor_models.atomic import temporary_beside
+
+    grid = plan.geometry.grid
+    n_rows, n_cols = grid.shape
+    tile = 512 if min(grid.shape) >= 512 else 256
+    profile = dict(driver="GTiff", width=n_cols, height=n_rows, count=1, dtype=plan.out_dtype.name,
+                   crs=RioCRS.from_wkt(grid.crs.to_wkt()), transform=grid.transform, nodata=plan.nodata,
+                   tiled=True, blockxsize=tile, blockysize=tile, sparse_ok=True, BIGTIFF="IF_SAFER")
+    tmp = temporary_beside(out_path, ".tif")
+    cog = temporary_beside(out_path, ".cog.tif")
+    try:
+        with rasterio.Env(GDAL_CACHEMAX=64, GDAL_PAM_ENABLED="NO"):
+            with rasterio.open(tmp, "w", **profile) as dst:
+                dst.set_band_description(1, str(band) if band is not None else "image")
+                dst.update_tags(GCPCAL_ORTHO_MODEL=getattr(model, "name", "") or model.kind,
+                                GCPCAL_ORTHO_BAND=str(band), GCPCAL_ORTHO_RESAMPLING=resampling)
+                plan.write(dst, progress)
+            if plan.n_valid == 0:
+                raise InputError("no output pixel lies on both the image and the DEM: does the DEM cover the "
+                                 "scene, and is the model right?", path=str(out_path))
+            t_cog = time.perf_counter()
+            cog.unlink(missing_ok=True)
+            rasterio.shutil.copy(tmp, cog, driver="COG", COMPRESS="DEFLATE",
+                                 PREDICTOR="YES", BLOCKSIZE=tile, OVERVIEW_RESAMPLING="AVERAGE",
+                                 BIGTIFF="IF_SAFER")
+        os.replace(cog, out_path)
+        return time.perf_counter() - t_cog
+    finally:
+        tmp.unlink(missing_ok=True)
+        cog.unlink(missing_ok=True)
 
 
 def _draw_checks(geom: BlockGeometry, row0: int, col0: int, n: int, rng):

@@ -21,21 +21,54 @@ __all__ = ["CcdLook", "Installation", "LineTiming", "rot_x", "rot_y", "rot_z"]
 
 
 def rot_x(angle):
-    """Active rotation matrices about X, shape ``angle.shape + (3, 3)``."""
+    """Active rotation matrices about X.
+
+    Parameters
+    ----------
+    angle : array_like or float
+        Rotation angles, radians (counter-clockwise seen from +X).
+
+    Returns
+    -------
+    ndarray, shape ``angle.shape + (3, 3)``
+        ``R @ v`` rotates a vector ``v`` by ``angle`` about X.
+    """
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([o, z, z, z, c, -s, z, s, c], axis=-1).reshape(np.shape(c) + (3, 3))
 
 
 def rot_y(angle):
-    """Active rotation matrices about Y, shape ``angle.shape + (3, 3)``."""
+    """Active rotation matrices about Y.
+
+    Parameters
+    ----------
+    angle : array_like or float
+        Rotation angles, radians (counter-clockwise seen from +Y).
+
+    Returns
+    -------
+    ndarray, shape ``angle.shape + (3, 3)``
+        ``R @ v`` rotates a vector ``v`` by ``angle`` about Y.
+    """
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([c, z, s, z, o, z, -s, z, c], axis=-1).reshape(np.shape(c) + (3, 3))
 
 
 def rot_z(angle):
-    """Active rotation matrices about Z, shape ``angle.shape + (3, 3)``."""
+    """Active rotation matrices about Z.
+
+    Parameters
+    ----------
+    angle : array_like or float
+        Rotation angles, radians (counter-clockwise seen from +Z).
+
+    Returns
+    -------
+    ndarray, shape ``angle.shape + (3, 3)``
+        ``R @ v`` rotates a vector ``v`` by ``angle`` about Z.
+    """
     c, s = np.cos(angle), np.sin(angle)
     o, z = np.ones_like(c), np.zeros_like(c)
     return np.stack([c, -s, z, s, c, z, z, z, o], axis=-1).reshape(np.shape(c) + (3, 3))
@@ -68,17 +101,36 @@ class Installation:
             object.__setattr__(self, name, value)
 
     def matrix(self) -> np.ndarray:
-        """``R_cam_to_body``, shape (3, 3)."""
+        """The camera -> body rotation.
+
+        Returns
+        -------
+        ndarray, shape (3, 3)
+            ``R_cam_to_body = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
+        """
         return rot_z(self.yaw) @ rot_y(self.pitch) @ rot_x(self.roll)
 
     def matrix_derivatives(self) -> np.ndarray:
-        """``d R_cam_to_body / d(roll, pitch, yaw)``, shape (3, 3, 3) (first axis: angle)."""
+        """Derivatives of the camera -> body rotation in the three angles.
+
+        Returns
+        -------
+        ndarray, shape (3, 3, 3)
+            ``d R_cam_to_body / d(roll, pitch, yaw)`` per radian; the first axis is the angle.
+        """
         rx, ry, rz = rot_x(self.roll), rot_y(self.pitch), rot_z(self.yaw)
         return np.stack(
             [rz @ ry @ rx @ _GEN_X, rz @ ry @ _GEN_Y @ rx, rz @ _GEN_Z @ ry @ rx]
         )
 
     def as_array(self) -> np.ndarray:
+        """The angles as an array.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            ``[roll, pitch, yaw]``, radians.
+        """
         return np.array([self.roll, self.pitch, self.yaw])
 
 
@@ -104,9 +156,33 @@ class LineTiming:
             raise InputError("must be positive", field="line_timing.line_period_s")
 
     def seconds(self, row):
+        """Imaging time of continuous rows.
+
+        Parameters
+        ----------
+        row : array_like
+            Continuous image rows (first line's centre at 0.5).
+
+        Returns
+        -------
+        ndarray of float64
+            SI seconds since the scene epoch, same shape.
+        """
         return self.reference_seconds + (np.asarray(row, dtype=np.float64) - self.reference_row) * self.line_period_s
 
     def row(self, seconds):
+        """Continuous row imaged at given times (inverse of :meth:`seconds`).
+
+        Parameters
+        ----------
+        seconds : array_like
+            SI seconds since the scene epoch.
+
+        Returns
+        -------
+        ndarray of float64
+            Continuous rows (first line's centre at 0.5), same shape.
+        """
         return self.reference_row + (np.asarray(seconds, dtype=np.float64) - self.reference_seconds) / self.line_period_s
 
 
@@ -151,32 +227,32 @@ class CcdLook(DetectorArray):
             object.__setattr__(self, attr, c)
 
     def detector_index(self, col):
-        """Continuous detector coordinate ``s = col - first_col - 0.5`` of image columns.
+        """Detector index of raster columns.
 
         Parameters
         ----------
         col : array_like
-            Continuous image columns (first pixel centre at 0.5).
+            Continuous raster columns (first column's centre at 0.5).
 
         Returns
         -------
-        ndarray of float64, shape of ``col``
-            ``s = 0`` at the first detector's centre, ``n_detectors - 1`` at the last one's.
+        ndarray of float64
+            ``s = col - first_col - 0.5`` (0 at the first detector's centre), same shape.
         """
         return np.asarray(col, dtype=np.float64) - self.first_col - 0.5
 
     def look(self, s):
-        """``tan psi_x(s), tan psi_y(s)`` and their derivatives in ``s``.
+        """Look-direction tangents and their derivatives at detector indices.
 
         Parameters
         ----------
         s : array_like
-            Detector coordinates (:meth:`detector_index`).
+            Detector indices (see :meth:`detector_index`).
 
         Returns
         -------
-        tan_psi_x, tan_psi_y, dtan_psi_x_ds, dtan_psi_y_ds : ndarray, shape of ``s``
-            Dimensionless tangents and their derivatives per detector.
+        tan_psi_x, tan_psi_y, d_tan_psi_x_ds, d_tan_psi_y_ds : ndarray
+            The polynomials and their derivatives per unit of ``s``, each of the shape of ``s``.
         """
         s = np.asarray(s, dtype=np.float64)
         tx = np.polynomial.polynomial.polyval(s, self.tan_psi_x)

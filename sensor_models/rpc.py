@@ -1190,6 +1190,108 @@ def _fit_ratio(T, y, lam, max_iterations):
     return best[1], best[2], best[3], history
 
 
+def _check_fit_options(height_range_m, grid_shape, check_grid_shape, regularization, max_iterations):
+    """Validate :func:`fit_rpc`'s options: ``(h_lo, h_hi, grid_shape, check_grid_shape)``."""
+    try:
+        h_lo, h_hi = (float(x) for x in height_range_m)
+    except (TypeError, ValueError):
+        raise InputError(f"height_range_m must be (min, max), got {height_range_m!r}") from None
+    if not (math.isfinite(h_lo) and math.isfinite(h_hi) and h_lo <= h_hi):
+        raise InputError(f"height_range_m must be finite with min <= max, got {height_range_m!r}")
+    grid_shape = tuple(int(n) for n in grid_shape)
+    if len(grid_shape) != 3 or min(grid_shape[:2]) < 4 or grid_shape[2] < 1:
+        raise InputError(f"grid_shape must be (rows >= 4, cols >= 4, heights >= 1), "
+                         f"got {grid_shape!r}")  # fmt: skip
+    if h_hi > h_lo and grid_shape[2] < 4:
+        raise InputError("grid_shape needs >= 4 heights to determine cubic height terms")
+    if check_grid_shape is None:
+        check_grid_shape = tuple(max(1, 2 * (n - 1)) for n in grid_shape)
+    check_grid_shape = tuple(int(n) for n in check_grid_shape)
+    if len(check_grid_shape) != 3 or min(check_grid_shape) < 1:
+        raise InputError(f"check_grid_shape must be 3 positive integers, got {check_grid_shape!r}")
+    if not (regularization >= 0.0 and math.isfinite(regularization)):
+        raise InputError(f"regularization must be finite and >= 0, got {regularization!r}")
+    if int(max_iterations) < 1:
+        raise InputError(f"max_iterations must be >= 1, got {max_iterations!r}")
+    return h_lo, h_hi, grid_shape, check_grid_shape
+
+
+def _centre_scale(v, minimum):
+    lo, hi = float(np.min(v)), float(np.max(v))
+    return (lo + hi) / 2.0, max((hi - lo) / 2.0, minimum)
+
+
+def _normalization(lon, lat, h_lo, h_hi, n_rows, n_cols) -> dict:
+    """RPC offsets and scales: centres and half-spans of the ground and image extents."""
+    lon_off, lon_scale = _centre_scale(lon, 1e-9)
+    lat_off, lat_scale = _centre_scale(lat, 1e-9)
+    height_off, height_scale = (h_lo + h_hi) / 2.0, max((h_hi - h_lo) / 2.0, 1.0)
+    return dict(
+        line_off=n_rows / 2.0 - 0.5, samp_off=n_cols / 2.0 - 0.5,
+        line_scale=n_rows / 2.0, samp_scale=n_cols / 2.0,
+        lat_off=lat_off, lon_off=lon_off, height_off=height_off,
+        lat_scale=lat_scale, lon_scale=lon_scale, height_scale=height_scale,
+    )  # fmt: skip
+
+
+def _fit_rational(T, y_line, y_samp, lam, max_iterations):
+    """Line and sample ratios fitted by :func:`_fit_ratio`, checked finite.
+
+    Returns ``((line_num, line_den, samp_num, samp_den), (iterations line, sample),
+    (max-error histories line, sample))``.
+    """
+    line_num, line_den, it_line, hist_line = _fit_ratio(T, y_line, lam, max_iterations)
+    samp_num, samp_den, it_samp, hist_samp = _fit_ratio(T, y_samp, lam, max_iterations)
+    if not np.all(np.isfinite(np.concatenate([line_num, line_den, samp_num, samp_den]))):
+        raise RpcError("the RPC fit produced non-finite coefficients; check the grid and "
+                       "height range, or raise regularization")  # fmt: skip
+    return (line_num, line_den, samp_num, samp_den), (it_line, it_samp), (hist_line, hist_samp)
+
+
+def _candidates(T, y_line, y_samp, lam, rational, norm, image_shape):
+    """``[("rational", RpcModel), ("polynomial", RpcModel)]``: the two forms :func:`fit_rpc` weighs.
+
+    The polynomial is the cubic with denominators = 1, ridge-regularized like the rational fit.
+    Rational terms can chase what a cubic cannot represent (attitude jitter) and blow up between
+    the fit nodes; the independent check grid decides.
+    """
+    unit = np.zeros(20)
+    unit[0] = 1.0
+    normal = T.T @ T
+    ridge = lam * np.mean(np.diag(normal)) * np.eye(20)
+    poly_line = np.linalg.solve(normal + ridge, T.T @ y_line)
+    poly_samp = np.linalg.solve(normal + ridge, T.T @ y_samp)
+    forms = [("rational", rational), ("polynomial", (poly_line, unit, poly_samp, unit))]
+    return [
+        (form, RpcModel(line_num=ln, line_den=ld, samp_num=sn, samp_den=sd, image_shape=image_shape, **norm))
+        for form, (ln, ld, sn, sd) in forms
+    ]
+
+
+def _grid_errors(rpc, R, C, lon, lat, h):
+    """``(max, rms, max row, max col)`` image errors (pixels) and the least ``|denominator|``."""
+    r, c = rpc.ground_to_image(lon, lat, h)
+    dr, dc = r - R, c - C
+    d = np.hypot(dr, dc)
+    v = rpc._coef.T @ _terms(*rpc._normalize(lon, lat, h))
+    min_den = float(np.min(np.abs(v[[1, 3]]))) if v.size else float("nan")
+    return (float(np.max(d)), float(np.sqrt(np.mean(d * d))), float(np.max(np.abs(dr))),
+            float(np.max(np.abs(dc))), min_den)  # fmt: skip
+
+
+def _error_report(fit, check) -> dict:
+    return {
+        "fit_max_px": fit[0],
+        "fit_rms_px": fit[1],
+        "fit_max_row_px": fit[2],
+        "fit_max_col_px": fit[3],
+        "check_max_px": check[0],
+        "check_rms_px": check[1],
+        "check_max_row_px": check[2],
+        "check_max_col_px": check[3],
+    }
+
+
 def fit_rpc(
     model,
     *,
@@ -1244,28 +1346,9 @@ def fit_rpc(
     InputError
         Invalid options.
     """
-    try:
-        h_lo, h_hi = (float(x) for x in height_range_m)
-    except (TypeError, ValueError):
-        raise InputError(f"height_range_m must be (min, max), got {height_range_m!r}") from None
-    if not (math.isfinite(h_lo) and math.isfinite(h_hi) and h_lo <= h_hi):
-        raise InputError(f"height_range_m must be finite with min <= max, got {height_range_m!r}")
-    grid_shape = tuple(int(n) for n in grid_shape)
-    if len(grid_shape) != 3 or min(grid_shape[:2]) < 4 or grid_shape[2] < 1:
-        raise InputError(f"grid_shape must be (rows >= 4, cols >= 4, heights >= 1), "
-                         f"got {grid_shape!r}")  # fmt: skip
-    if h_hi > h_lo and grid_shape[2] < 4:
-        raise InputError("grid_shape needs >= 4 heights to determine cubic height terms")
-    if check_grid_shape is None:
-        check_grid_shape = tuple(max(1, 2 * (n - 1)) for n in grid_shape)
-    check_grid_shape = tuple(int(n) for n in check_grid_shape)
-    if len(check_grid_shape) != 3 or min(check_grid_shape) < 1:
-        raise InputError(f"check_grid_shape must be 3 positive integers, got {check_grid_shape!r}")
-    if not (regularization >= 0.0 and math.isfinite(regularization)):
-        raise InputError(f"regularization must be finite and >= 0, got {regularization!r}")
-    if int(max_iterations) < 1:
-        raise InputError(f"max_iterations must be >= 1, got {max_iterations!r}")
-
+    h_lo, h_hi, grid_shape, check_grid_shape = _check_fit_options(
+        height_range_m, grid_shape, check_grid_shape, regularization, max_iterations
+    )
     n_rows, n_cols = (int(n) for n in model.image_shape)
     R, C, lon, lat, h, dropped = _localize_grid(
         model, band, n_rows, n_cols, h_lo, h_hi, grid_shape, offset=False
@@ -1273,76 +1356,26 @@ def fit_rpc(
     if R.size < 2 * 39:
         raise RpcError(f"only {R.size} of {np.prod(grid_shape)} grid points could be localized; "
                        "need at least 78")  # fmt: skip
-
-    def centre_scale(v, minimum):
-        lo, hi = float(np.min(v)), float(np.max(v))
-        return (lo + hi) / 2.0, max((hi - lo) / 2.0, minimum)
-
-    lon_off, lon_scale = centre_scale(lon, 1e-9)
-    lat_off, lat_scale = centre_scale(lat, 1e-9)
-    height_off, height_scale = (h_lo + h_hi) / 2.0, max((h_hi - h_lo) / 2.0, 1.0)
-    norm = dict(
-        line_off=n_rows / 2.0 - 0.5, samp_off=n_cols / 2.0 - 0.5,
-        line_scale=n_rows / 2.0, samp_scale=n_cols / 2.0,
-        lat_off=lat_off, lon_off=lon_off, height_off=height_off,
-        lat_scale=lat_scale, lon_scale=lon_scale, height_scale=height_scale,
-    )  # fmt: skip
-    L = (lon - lon_off) / lon_scale
-    P = (lat - lat_off) / lat_scale
-    H = (h - height_off) / height_scale
-    T = _terms(L, P, H).T  # (N, 20)
+    norm = _normalization(lon, lat, h_lo, h_hi, n_rows, n_cols)
+    T = _terms((lon - norm["lon_off"]) / norm["lon_scale"], (lat - norm["lat_off"]) / norm["lat_scale"],
+               (h - norm["height_off"]) / norm["height_scale"]).T  # (N, 20)  # fmt: skip
     y_line = (R - 0.5 - norm["line_off"]) / norm["line_scale"]
     y_samp = (C - 0.5 - norm["samp_off"]) / norm["samp_scale"]
     lam = float(regularization)
-    line_num, line_den, it_line, hist_line = _fit_ratio(T, y_line, lam, int(max_iterations))
-    samp_num, samp_den, it_samp, hist_samp = _fit_ratio(T, y_samp, lam, int(max_iterations))
-    coefs = np.concatenate([line_num, line_den, samp_num, samp_den])
-    if not np.all(np.isfinite(coefs)):
-        raise RpcError("the RPC fit produced non-finite coefficients; check the grid and "
-                       "height range, or raise regularization")  # fmt: skip
-    def build(ln, ld, sn, sd):
-        return RpcModel(
-            line_num=ln, line_den=ld, samp_num=sn, samp_den=sd, image_shape=(n_rows, n_cols), **norm,
-        )  # fmt: skip
-
-    def errors(rpc_, R_, C_, lon_, lat_, h_):
-        r, c = rpc_.ground_to_image(lon_, lat_, h_)
-        dr, dc = r - R_, c - C_
-        d = np.hypot(dr, dc)
-        v = rpc_._coef.T @ _terms(*rpc_._normalize(lon_, lat_, h_))
-        min_den = float(np.min(np.abs(v[[1, 3]]))) if v.size else float("nan")
-        return (float(np.max(d)), float(np.sqrt(np.mean(d * d))), float(np.max(np.abs(dr))),
-                float(np.max(np.abs(dc))), min_den)  # fmt: skip
-
+    rational, (it_line, it_samp), (hist_line, hist_samp) = _fit_rational(T, y_line, y_samp, lam, int(max_iterations))
     Rc, Cc, lonc, latc, hc, dropped_c = _localize_grid(
         model, band, n_rows, n_cols, h_lo, h_hi, check_grid_shape, offset=True
     )
     if Rc.size == 0:
         raise RpcError("no check-grid point could be localized")
-    # Candidates: the rational fit and the cubic polynomial (denominators = 1). Rational terms
-    # can chase what a cubic cannot represent (attitude jitter) and blow up between the fit
-    # nodes; the independent check grid decides.
-    unit = np.zeros(20)
-    unit[0] = 1.0
-    normal = T.T @ T
-    ridge = lam * np.mean(np.diag(normal)) * np.eye(20)
-    poly_line = np.linalg.solve(normal + ridge, T.T @ y_line)
-    poly_samp = np.linalg.solve(normal + ridge, T.T @ y_samp)
-    candidates = [("rational", build(line_num, line_den, samp_num, samp_den)), ("polynomial", build(poly_line, unit, poly_samp, unit))]
-    scored = [(errors(m_, Rc, Cc, lonc, latc, hc), form, m_) for form, m_ in candidates]
-    (chk_max, chk_rms, chk_max_r, chk_max_c, den_chk), form, rpc = min(scored, key=lambda item: item[0][0])
-    fit_max, fit_rms, fit_max_r, fit_max_c, den_fit = errors(rpc, R, C, lon, lat, h)
+    candidates = _candidates(T, y_line, y_samp, lam, rational, norm, (n_rows, n_cols))
+    scored = [(_grid_errors(m_, Rc, Cc, lonc, latc, hc), form, m_) for form, m_ in candidates]
+    check, form, rpc = min(scored, key=lambda item: item[0][0])
+    fit = _grid_errors(rpc, R, C, lon, lat, h)
     report = {
         "form": form,
         "check_max_px_rational": scored[0][0][0],
-        "fit_max_px": fit_max,
-        "fit_rms_px": fit_rms,
-        "fit_max_row_px": fit_max_r,
-        "fit_max_col_px": fit_max_c,
-        "check_max_px": chk_max,
-        "check_rms_px": chk_rms,
-        "check_max_row_px": chk_max_r,
-        "check_max_col_px": chk_max_c,
+        **_error_report(fit, check),
         "n_fit": int(R.size),
         "n_check": int(Rc.size),
         "n_fit_dropped": dropped,
@@ -1351,10 +1384,10 @@ def fit_rpc(
         "iterations_samp": it_samp,
         "max_error_history_line_px": [e * norm["line_scale"] for e in hist_line],
         "max_error_history_samp_px": [e * norm["samp_scale"] for e in hist_samp],
-        "min_abs_denominator": min(den_fit, den_chk),
+        "min_abs_denominator": min(fit[4], check[4]),
         "grid_shape": list(grid_shape),
         "check_grid_shape": list(check_grid_shape),
         "height_range_m": [h_lo, h_hi],
         "regularization": lam,
-    }
+    }  # fmt: skip
     return rpc, report

@@ -111,7 +111,20 @@ def radec_to_unit(ra_rad, dec_rad) -> np.ndarray:
 
 
 def unit_to_radec(vectors) -> tuple[np.ndarray, np.ndarray]:
-    """Right ascension in ``[0, 2 pi)`` and declination of vectors of shape ``(..., 3)``."""
+    """Right ascension and declination of direction vectors (inverse of :func:`radec_to_unit`).
+
+    Parameters
+    ----------
+    vectors : array_like, shape (..., 3)
+        Direction vectors (any length).
+
+    Returns
+    -------
+    ra_rad : ndarray, shape (...)
+        Right ascension in ``[0, 2 pi)``, radians.
+    dec_rad : ndarray, shape (...)
+        Declination in ``[-pi/2, pi/2]``, radians.
+    """
     v = np.asarray(vectors, dtype=np.float64)
     ra = np.mod(np.arctan2(v[..., 1], v[..., 0]), 2.0 * np.pi)
     dec = np.arctan2(v[..., 2], np.hypot(v[..., 0], v[..., 1]))
@@ -285,7 +298,18 @@ class StarCatalog:
         return int(self.hip.size)
 
     def select(self, index) -> StarCatalog:
-        """A catalogue of the rows picked by a boolean mask or an integer index array."""
+        """A catalogue of some of the stars.
+
+        Parameters
+        ----------
+        index : array_like of bool, shape (N,), or of int
+            Boolean mask or integer indices of the stars to keep.
+
+        Returns
+        -------
+        StarCatalog
+            Same epoch and source.
+        """
         index = np.asarray(index)
         pick = {name: getattr(self, name)[index] for name in (
             "hip", "ra_rad", "dec_rad", "pm_ra_cosdec_mas_yr", "pm_dec_mas_yr",
@@ -293,7 +317,13 @@ class StarCatalog:
         return StarCatalog(**pick, epoch_jyear=self.epoch_jyear, source=self.source)
 
     def unit_vectors(self) -> np.ndarray:
-        """ICRS unit vectors at the catalogue epoch, shape ``(N, 3)``."""
+        """Catalogue directions as unit vectors.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            ICRS unit vectors at the catalogue epoch (no space motion applied).
+        """
         return radec_to_unit(self.ra_rad, self.dec_rad)
 
 
@@ -397,13 +427,41 @@ def apparent_directions(
     if not np.isfinite(seconds):
         raise InputError("must be finite", field="seconds")
 
-    # TT, then TDB (dtdb takes TDB~TT; the topocentric terms vanish with u = v = 0)
+    tdb1, tdb2 = _tdb_jd(epoch_utc, seconds)
+    # 1. space motion from the catalogue epoch (TDB Julian year) to the date
+    u, px_arcsec = _space_motion(catalog, tdb1, tdb2)
+    # 2. parallax from the observer's barycentric position
+    earth_helio_au, earth_bary_au, earth_bary_au_d = _earth_pv(tdb1, tdb2)
+    observer_au = position_m / AU_M
+    px_rad = np.where(catalog.parallax_mas > 0.0, px_arcsec, 0.0) * (MAS_TO_RAD * 1000.0)
+    p = u - px_rad[:, None] * (earth_bary_au + observer_au)
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    # 3. light deflection by the Sun
+    observer_helio_au = earth_helio_au + observer_au
+    sun_distance_au = float(np.linalg.norm(observer_helio_au))
+    if light_deflection:
+        p = erfa.ldsun(p, observer_helio_au / sun_distance_au, sun_distance_au)
+    # 4. aberration by the observer's barycentric velocity (in units of c)
+    if aberration:
+        v_c = earth_bary_au_d * (LIGHT_TIME_AU_S / DAY_S) + velocity_m_s / erfa.CMPS
+        bm1 = float(np.sqrt(1.0 - v_c @ v_c))
+        p = erfa.ab(p, v_c, sun_distance_au, bm1)
+    return np.ascontiguousarray(p)
+
+
+def _tdb_jd(epoch_utc, seconds: float):
+    """TDB two-part Julian date of ``epoch_utc + seconds``: UTC -> TT, then TDB = TT + dtdb.
+
+    dtdb takes TDB ~ TT; its topocentric terms vanish with u = v = 0 (geocentric, < 1.7 ms).
+    """
     tt1, tt2 = tt_jd(epoch_utc, float(seconds))
     tt1, tt2 = float(tt1), float(tt2)
     tdb2 = tt2 + erfa.dtdb(tt1, tt2, 0.0, 0.0, 0.0, 0.0) / DAY_S
-    tdb1 = tt1
+    return tt1, tdb2
 
-    # 1. space motion from the catalogue epoch (TDB Julian year) to the date
+
+def _space_motion(catalog: StarCatalog, tdb1: float, tdb2: float):
+    """``erfa.pmsafe`` from the catalogue epoch to the date: unit vectors (N, 3), parallax (N,) arcsec."""
     ep1a, ep1b = erfa.epj2jd(catalog.epoch_jyear)
     cos_dec = np.cos(catalog.dec_rad)
     pm_ra_rad_yr = catalog.pm_ra_cosdec_mas_yr * MAS_TO_RAD / cos_dec  # d(alpha)/dt
@@ -414,33 +472,9 @@ def apparent_directions(
         parallax_arcsec, catalog.radial_velocity_km_s, ep1a, ep1b, tdb1, tdb2,
         what="space motion (pmsafe)",
     )
-    u = radec_to_unit(ra, dec)
-
-    # 2. parallax from the observer's barycentric position
-    earth_helio_au, earth_bary_au, earth_bary_au_d = _earth_pv(tdb1, tdb2)
-    observer_au = position_m / AU_M
-    observer_bary_au = earth_bary_au + observer_au
-    px_rad = np.where(catalog.parallax_mas > 0.0, px_arcsec, 0.0) * (MAS_TO_RAD * 1000.0)
-    p = u - px_rad[:, None] * observer_bary_au
-    p /= np.linalg.norm(p, axis=1, keepdims=True)
-
-    # 3. light deflection by the Sun
-    observer_helio_au = earth_helio_au + observer_au
-    sun_distance_au = float(np.linalg.norm(observer_helio_au))
-    if light_deflection:
-        p = erfa.ldsun(p, observer_helio_au / sun_distance_au, sun_distance_au)
-
-    # 4. aberration by the observer's barycentric velocity (in units of c)
-    if aberration:
-        v_c = earth_bary_au_d * (LIGHT_TIME_AU_S / DAY_S) + velocity_m_s / erfa.CMPS
-        bm1 = float(np.sqrt(1.0 - v_c @ v_c))
-        p = erfa.ab(p, v_c, sun_distance_au, bm1)
-    return np.ascontiguousarray(p)
+    return radec_to_unit(ra, dec), px_arcsec
 
 
-# --------------------------------------------------------------------------------------------
-# Catalogue stars in the frame of a staring camera
-# --------------------------------------------------------------------------------------------
 def observer_state_gcrf(model) -> tuple[np.ndarray, np.ndarray]:
     """Position and velocity of a staring camera's satellite in GCRF at its frame instant.
 

@@ -42,6 +42,23 @@ def circular_orbit(
 
     ``r(t) = a (cos u, sin u, 0)`` rotated by the inclination about X and the right ascension of
     the ascending node about Z, with ``u = u0 + n t`` and ``n = sqrt(GM / a^3)``.
+
+    Parameters
+    ----------
+    epoch : numpy.datetime64 or str
+        UTC epoch of the sample times.
+    seconds : array_like, shape (N,)
+        Sample times, SI seconds since ``epoch`` (strictly increasing).
+    altitude_m : float
+        Height of the circle above the equatorial radius (6 378 137 m), metres.
+    inclination_deg, raan_deg, argument_of_latitude_deg : float
+        Inclination, right ascension of the ascending node and argument of latitude at
+        ``t = 0``, degrees.
+
+    Returns
+    -------
+    Orbit
+        Frame ``"gcrf"``; positions in metres, velocities in m/s, shape (N, 3).
     """
     t = np.asarray(seconds, dtype=np.float64)
     a = 6_378_137.0 + altitude_m
@@ -68,6 +85,24 @@ def earth_pointing_attitude(
 
     Angles ``a(t) = bias + drift t + A sin(2 pi f t + phase) + noise``; the rotation is
     ``Rz(yaw) Ry(pitch) Rx(roll)`` (same composition as :class:`Installation`).
+
+    Parameters
+    ----------
+    seconds : array_like, shape (N,)
+        Sample times, SI seconds since the scene epoch.
+    bias_rad, drift_rad_s, jitter_amplitude_rad : (float, float, float)
+        Roll, pitch, yaw bias (rad), drift (rad/s) and jitter amplitude (rad).
+    jitter_frequency_hz : float
+        Jitter frequency; the three phases are drawn from ``seed``.
+    noise_rad : float
+        Standard deviation of white noise added per sample, radians.
+    seed : int, optional
+        Seed of ``numpy.random.default_rng`` (phases and noise).
+
+    Returns
+    -------
+    Attitude
+        Frame ``"orbital"``, quaternions scalar-last, shape (N, 4).
     """
     t = np.asarray(seconds, dtype=np.float64)
     rng = np.random.default_rng(seed)
@@ -115,7 +150,18 @@ class CameraDesign:
 
 
 def hy1c_like_bands(design: CameraDesign = CameraDesign()) -> dict[str, tuple[CcdLook, ...]]:
-    """Directional-angle polynomials of every CCD and band of a design (cubic in ``s``)."""
+    """Directional-angle polynomials of every CCD and band of a design (cubic in ``s``).
+
+    Parameters
+    ----------
+    design : CameraDesign
+        CCD count and size, IFOV, boresight and band offsets, distortion.
+
+    Returns
+    -------
+    dict of str to tuple of CcdLook
+        Band name -> CCDs; CCD ``k`` starts at raster column ``k * detectors_per_ccd``.
+    """
     n = design.detectors_per_ccd
     step = n - design.ccd_overlap_detectors
     total = step * (design.n_ccds - 1) + n
@@ -157,6 +203,28 @@ def example_pushbroom_model(
     N44E005 under the Ventoux test data). Line period = ground sampling distance / ground speed,
     so pixels are roughly square. Ephemeris is sampled every 1 s and attitude every 0.25 s,
     covering the image plus 20 s on each side.
+
+    Parameters
+    ----------
+    n_rows : int
+        Image lines.
+    design : CameraDesign
+        Camera geometry (:func:`hy1c_like_bands`).
+    epoch : str
+        UTC scene epoch.
+    installation : Installation
+        Camera -> body angles, radians.
+    attitude_kwargs : dict, optional
+        Passed to :func:`earth_pointing_attitude` (bias, drift, jitter, noise, seed).
+    center_lon_deg, center_lat_deg : float
+        WGS84 position of the image centre at zero height, degrees.
+    name : str
+        Model name.
+
+    Returns
+    -------
+    PushbroomModel
+        Reference band: the second band of the design (the first if there is one).
     """
     kwargs = dict(n_rows=n_rows, design=design, epoch=epoch, installation=installation, attitude_kwargs=attitude_kwargs, name=name)
     raan, arg_lat = center_lon_deg, center_lat_deg / np.sin(np.radians(98.5))

@@ -217,6 +217,15 @@ class Geoid:
     def open(cls, path) -> "Geoid":
         """Read a geoid grid (PROJ GTX, GeoTIFF, or any raster GDAL reads) in WGS84 degrees.
 
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The grid file (e.g. ``egm96_15.gtx``): undulations in metres on a geographic grid.
+
+        Returns
+        -------
+        Geoid
+
         Raises
         ------
         GeoidGridMissingError
@@ -690,8 +699,15 @@ class Dem:
         crs : pyproj.CRS or anything pyproj accepts
             CRS of the grid; a compound CRS's vertical part must agree with ``vertical_datum``.
         vertical_datum : {"ellipsoid", "egm96"}
+            Datum of ``heights_m``: ellipsoidal heights, or EGM96 orthometric heights converted
+            with ``geoid``.
         geoid : str, os.PathLike or Geoid, optional
             Required when ``vertical_datum="egm96"``.
+
+        Returns
+        -------
+        Dem
+            Holding ellipsoidal heights.
         """
         datum = _check_datum_name(vertical_datum)
         if datum is None:
@@ -928,6 +944,40 @@ class Dem:
         geo = np.full((n, 3), np.nan)
 
         # 1. Bracket between the DEM's top and bottom heights (padded).
+        t_top, t_bot = self._bracket(o, d, status)
+        idx = np.nonzero(status == _PENDING)[0]
+        if idx.size == 0:
+            return t_hit, status, geo
+        o_a, d_a, t0, t1 = o[idx], d[idx], t_top[idx], t_bot[idx]
+
+        # 2. Cubic model of (h, col, row) along the bracket from 4 exact points; an origin
+        # inside the bracket may already be under the surface.
+        coef, under = self._ray_model(o_a, d_a, t0, t1)
+        status[idx[under]] = _UNDERGROUND
+
+        # 3. Narrow the bracket to where the ray may meet the surface.
+        s0, ds, n_steps = self._narrow(coef, under)
+
+        # 4. March: skip steps that stay above the local DEM maximum; solve the others.
+        s_hit = self._march(coef, s0, ds, n_steps, under, status, idx)
+
+        # 5. Exact check and polish on the true geometry.
+        hit = np.nonzero(status[idx] == _HIT)[0]
+        t_root = t0[hit] + s_hit[hit] * (t1[hit] - t0[hit])
+        t_root, geo_root = self._polish(o_a[hit], d_a[hit], t_root,
+                                        (t1[hit] - t0[hit]) * ds[hit] / n_steps[hit])
+        t_hit[idx[hit]] = t_root
+        geo[idx[hit]] = geo_root
+        lost = ~np.isfinite(t_root)
+        status[idx[hit[lost]]] = _LEFT_DEM
+        return t_hit, status, geo
+
+    def _bracket(self, o, d, status):
+        """Ray parameters ``(t_top, t_bot)`` (n,) at the padded highest and lowest DEM heights.
+
+        Marks rays starting under the lowest height ``_UNDERGROUND`` and rays that never reach
+        the height range ``_MISSED`` in ``status`` (n,), in place.
+        """
         top = _scaled_ellipsoid(o, d, self._h_max + _BRACKET_PAD_M)
         t_top = np.where(top[2] <= 0.0, 0.0, _first_root_t(*top))
         bot = _scaled_ellipsoid(o, d, self._h_min - _BRACKET_PAD_M)
@@ -937,29 +987,32 @@ class Dem:
         t_bot = np.where(np.isnan(t_bot) & (bot[3] < 0.0), vertex, t_bot)
         status[bot[2] <= 0.0] = _UNDERGROUND
         status[(status == _PENDING) & ~(np.isfinite(t_top) & (t_bot > t_top))] = _MISSED
+        return t_top, t_bot
 
-        idx = np.nonzero(status == _PENDING)[0]
-        if idx.size == 0:
-            return t_hit, status, geo
-        o_a, d_a, t0, t1 = o[idx], d[idx], t_top[idx], t_bot[idx]
+    def _ray_model(self, o_a, d_a, t0, t1):
+        """Cubic model in ``s`` of (h, col, row) on ``[t0, t1]`` and the rays starting underground.
 
-        # 2. Cubic model of (h, col, row) along the bracket from 4 exact points.
+        Returns ``coef`` (m, 3, 4), monomial coefficients in ``s = (t - t0) / (t1 - t0)``, and
+        ``under`` (m,) bool: the ray's first node lies on or under the surface.
+        """
         t_nodes = t0[:, None] + _MODEL_S[None, :] * (t1 - t0)[:, None]
         p_nodes = o_a[:, None, :] + t_nodes[:, :, None] * d_a[:, None, :]
         lon, lat, h = ecef_to_geodetic(p_nodes)
         col, row = self._lonlat_to_index(lon.reshape(-1), lat.reshape(-1))
         values = np.stack([h, col.reshape(h.shape), row.reshape(h.shape)], axis=1)  # (m, 3, 4)
         coef = values @ _MODEL_VINV.T  # monomial coefficients in s, (m, 3, 4)
-
-        # An origin inside the bracket may already be under the surface.
         f_start = h[:, 0] - self._bilinear(values[:, 1, 0], values[:, 2, 0])
-        under = f_start <= 0.0
-        status[idx[under]] = _UNDERGROUND
+        return coef, f_start <= 0.0
 
-        # 3. Narrow the bracket: the ray cannot meet the surface while it is above the
-        # highest node under its remaining path, and has met it once below the lowest one.
-        s0 = np.zeros(idx.size)
-        s1 = np.ones(idx.size)
+    def _narrow(self, coef, under):
+        """Narrow ``[0, 1]`` in ``s`` and cut it into march steps.
+
+        The ray cannot meet the surface while it is above the highest node under its remaining
+        path, and has met it once below the lowest one. Returns ``s0`` (m,), ``ds`` (m,) and
+        ``n_steps`` (m,) int: steps under ``_MAX_STEP_NODES`` DEM nodes each.
+        """
+        s0 = np.zeros(coef.shape[0])
+        s1 = np.ones(coef.shape[0])
         for _ in range(_NARROWING_ROUNDS):
             _, c01, r01 = _eval_model(coef, np.stack([s0, s1], axis=1))
             top_m, bottom_m = self._pyramid.range_over_box(c01, r01)
@@ -971,27 +1024,24 @@ class Dem:
         _, c01, r01 = _eval_model(coef, np.stack([s0, s1], axis=1))
         variation = np.maximum(np.abs(c01[:, 1] - c01[:, 0]), np.abs(r01[:, 1] - r01[:, 0]))
         n_steps = np.maximum(1, np.ceil(variation / _MAX_STEP_NODES)).astype(np.int64)
-        ds = s1 - s0
+        return s0, s1 - s0, n_steps
 
-        # 4. March: skip steps that stay above the local DEM maximum; solve the others.
+    def _march(self, coef, s0, ds, n_steps, under, status, idx):
+        """March every ray not ``under`` along its steps, blocks of steps at once.
+
+        Sets ``status[idx]`` to ``_HIT``, ``_LEFT_DEM`` or ``_MISSED`` in place and returns
+        ``s_hit`` (m,): the root's ``s`` for hits, NaN otherwise.
+        """
         s_hit = np.full(idx.size, np.nan)
         k_cur = np.zeros(idx.size, dtype=np.int64)
         active = np.nonzero(~under)[0]
-        n_rows, n_cols = self.shape
         while active.size:
             # Steps evaluated together: a block, or fewer when every ray is nearly done.
             block = int(min(_BLOCK_STEPS, np.max(n_steps[active] - k_cur[active])))
-            c = coef[active]
             ks = k_cur[active, None] + np.arange(block + 1)
             ka = n_steps[active, None]
-            s = s0[active, None] + ds[active, None] * (np.minimum(ks, ka) / ka)
-            hs, cs, rs = _eval_model(c, s)
-            ci = np.floor(cs)
-            ri = np.floor(rs)
-            inside = (ci >= 0) & (ci <= n_cols - 2) & (ri >= 0) & (ri <= n_rows - 2)
-            cell = np.where(inside, ri * (n_cols - 1) + ci, 0).astype(np.intp)
-            bound = np.where(inside, self._cell_max_flat.take(cell), np.inf)
-            maybe = (np.minimum(hs[:, :-1], hs[:, 1:]) <= bound[:, :-1]) & (ks[:, :-1] < ka)
+            maybe = self._steps_that_may_cross(coef[active], s0[active, None] + ds[active, None] * (np.minimum(ks, ka) / ka))
+            maybe &= ks[:, :-1] < ka
             found_any = maybe.any(axis=1)
             first = maybe.argmax(axis=1)
 
@@ -1016,17 +1066,18 @@ class Dem:
             status[idx[ended]] = _MISSED
             active = np.nonzero(status[idx] == _PENDING)[0]
             active = active[~under[active]]
+        return s_hit
 
-        # 5. Exact check and polish on the true geometry.
-        hit = np.nonzero(status[idx] == _HIT)[0]
-        t_root = t0[hit] + s_hit[hit] * (t1[hit] - t0[hit])
-        t_root, geo_root = self._polish(o_a[hit], d_a[hit], t_root,
-                                        (t1[hit] - t0[hit]) * ds[hit] / n_steps[hit])
-        t_hit[idx[hit]] = t_root
-        geo[idx[hit]] = geo_root
-        lost = ~np.isfinite(t_root)
-        status[idx[hit[lost]]] = _LEFT_DEM
-        return t_hit, status, geo
+    def _steps_that_may_cross(self, coef, s):
+        """For step ends ``s`` (m, k + 1): steps (m, k) whose lower end is not above the cell maximum."""
+        n_rows, n_cols = self.shape
+        hs, cs, rs = _eval_model(coef, s)
+        ci = np.floor(cs)
+        ri = np.floor(rs)
+        inside = (ci >= 0) & (ci <= n_cols - 2) & (ri >= 0) & (ri <= n_rows - 2)
+        cell = np.where(inside, ri * (n_cols - 1) + ci, 0).astype(np.intp)
+        bound = np.where(inside, self._cell_max_flat.take(cell), np.inf)
+        return np.minimum(hs[:, :-1], hs[:, 1:]) <= bound[:, :-1]
 
     def _first_root_in_step(self, coef, s_a, s_b):
         """First root of ``h - z`` on the model between ``s_a`` and ``s_b`` (one march step).

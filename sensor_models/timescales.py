@@ -265,19 +265,52 @@ def tai_jd(epoch, seconds):
 
 
 def tai_to_tt_jd(tai1, tai2):
-    """TT from TAI: ``TT = TAI + 32.184 s`` (added to the second part; same as ``erfa.taitt``)."""
+    """TT from TAI: ``TT = TAI + 32.184 s`` (added to the second part; same as ``erfa.taitt``).
+
+    Parameters
+    ----------
+    tai1, tai2 : array_like of float
+        TAI two-part Julian date.
+
+    Returns
+    -------
+    tt1, tt2 : ndarray
+        TT two-part Julian date, same shapes.
+    """
     tt1 = np.array(tai1, dtype=np.float64)
     tt2 = np.asarray(tai2, dtype=np.float64) + TT_MINUS_TAI_S / DAY_S
     return tt1, tt2
 
 
 def tai_to_utc_jd(tai1, tai2):
-    """UTC quasi-JD from TAI via ``erfa.taiutc`` (takes TAI, returns UTC; ERFA leap seconds)."""
+    """UTC quasi-JD from TAI via ``erfa.taiutc`` (takes TAI, returns UTC; ERFA leap seconds).
+
+    Parameters
+    ----------
+    tai1, tai2 : array_like of float
+        TAI two-part Julian date.
+
+    Returns
+    -------
+    utc1, utc2 : ndarray
+        UTC two-part quasi-Julian date (ERFA convention on leap-second days).
+    """
     return _erfa(erfa.taiutc, tai1, tai2, what="TAI -> UTC")
 
 
 def utc_jd_to_mjd(utc1, utc2) -> np.ndarray:
-    """Single float MJD(UTC) from a two-part UTC quasi-JD (~1 µs resolution; for table lookups)."""
+    """Single float MJD(UTC) from a two-part UTC quasi-JD (~1 µs resolution; for table lookups).
+
+    Parameters
+    ----------
+    utc1, utc2 : array_like of float
+        UTC two-part quasi-Julian date.
+
+    Returns
+    -------
+    ndarray of float
+        ``utc1 - 2400000.5 + utc2``.
+    """
     return (np.asarray(utc1) - MJD_ZERO_JD) + np.asarray(utc2)
 
 
@@ -286,6 +319,18 @@ def utc_to_ut1_jd(utc1, utc2, eop: EarthOrientation | None = None):
 
     ``UT1 - UTC`` is interpolated in the IERS tables at MJD(UTC); ``erfa.utcut1`` (takes UTC
     and ``UT1 - UTC`` in seconds, returns UT1) applies it across leap-second days correctly.
+
+    Parameters
+    ----------
+    utc1, utc2 : array_like of float
+        UTC two-part quasi-Julian date.
+    eop : EarthOrientation, optional
+        IERS tables; default :func:`default_eop`.
+
+    Returns
+    -------
+    ut11, ut12 : ndarray
+        UT1 two-part Julian date.
     """
     eop = default_eop() if eop is None else eop
     day_mjd, day_fraction = utc_jd_to_day(utc1, utc2)
@@ -300,6 +345,11 @@ def utc_jd_to_day(utc1, utc2):
     leap-second bookkeeping (``erfa.utcut1`` looks up TAI-UTC on that day) agree even for an
     instant that rounds to the day boundary. A single float MJD cannot guarantee this: the
     last representable instant of a day rounds up to the next day's MJD.
+
+    Parameters
+    ----------
+    utc1, utc2 : array_like of float
+        UTC two-part quasi-Julian date.
 
     Returns
     -------
@@ -316,18 +366,48 @@ def utc_jd_to_day(utc1, utc2):
 def tt_jd(epoch, seconds):
     """TT two-part Julian dates of ``epoch + seconds`` (TT = TAI + 32.184 s).
 
-    Parameters and returns as :func:`tai_jd`.
+    Parameters
+    ----------
+    epoch : str, datetime or numpy.datetime64
+        UTC scene epoch.
+    seconds : array_like of float
+        Elapsed SI seconds since the epoch, any shape.
+
+    Returns
+    -------
+    jd1, jd2 : ndarray, shape of ``seconds``
+        TT Julian date in two parts.
     """
     return tai_to_tt_jd(*tai_jd(epoch, seconds))
 
 
 def utc_jd(epoch, seconds):
-    """UTC two-part quasi-Julian dates of ``epoch + seconds`` (ERFA convention on leap days)."""
+    """UTC two-part quasi-Julian dates of ``epoch + seconds`` (ERFA convention on leap days).
+
+    Parameters
+    ----------
+    epoch : str, datetime or numpy.datetime64
+        UTC scene epoch.
+    seconds : array_like of float
+        Elapsed SI seconds since the epoch, any shape.
+
+    Returns
+    -------
+    utc1, utc2 : ndarray, shape of ``seconds``
+        UTC quasi-Julian date in two parts.
+    """
     return tai_to_utc_jd(*tai_jd(epoch, seconds))
 
 
 def utc_mjd(epoch, seconds) -> np.ndarray:
     """MJD(UTC) of ``epoch + seconds`` as one float64 (for IERS table lookups).
+
+    Parameters
+    ----------
+    epoch : str, datetime or numpy.datetime64
+        UTC scene epoch.
+    seconds : array_like of float
+        Elapsed SI seconds since the epoch, any shape.
 
     Returns
     -------
@@ -544,6 +624,11 @@ class EarthOrientation:
         The combination reproduces astropy's default ``IERS_Auto`` table (so gcpcal and astropy
         agree): C04 values where finals has Bulletin B values, then Bulletin B, then Bulletin
         A (including predictions). C04 days before 1973-01-02 are prepended.
+
+        Returns
+        -------
+        EarthOrientation
+            Daily UT1 - UTC (s) and pole coordinates (arcsec) on MJD(UTC) knots.
         """
         if finals_path is None or c04_path is None:
             try:
@@ -624,7 +709,12 @@ class EarthOrientation:
     def polar_motion_rad(self, mjd_utc, *, day_fraction=None):
         """Pole coordinates ``(xp, yp)`` in radians at MJD(UTC), linearly interpolated.
 
-        Parameters as :meth:`ut1_minus_utc_s`.
+        Parameters
+        ----------
+        mjd_utc : array_like of float
+            MJD(UTC), any shape; the whole day when ``day_fraction`` is given.
+        day_fraction : array_like of float, optional
+            Fraction of the UTC day, for a two-part MJD (see :func:`utc_jd_to_day`).
 
         Returns
         -------
@@ -646,5 +736,11 @@ class EarthOrientation:
 
 @functools.lru_cache(maxsize=1)
 def default_eop() -> EarthOrientation:
-    """The IERS tables of the installed ``astropy-iers-data``, read once on first use."""
+    """The IERS tables of the installed ``astropy-iers-data``, read once on first use.
+
+    Returns
+    -------
+    EarthOrientation
+        Shared (cached) instance of :meth:`EarthOrientation.from_iers_files`.
+    """
     return EarthOrientation.from_iers_files()

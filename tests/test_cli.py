@@ -131,7 +131,7 @@ def test_rpc_accuracy(rpc_run):
 
 
 def test_rpc_read_back(rpc_run):
-    from sensor_models.readers.manifest import read_manifest
+    from sensor_models.readers.scene import read_manifest
     from sensor_models.rpc import RpcModel, fit_rpc
 
     out, summary = rpc_run

@@ -12,7 +12,8 @@ import pytest
 
 from sensor_models.errors import ManifestError
 from sensor_models.lab import LabBand, LabCamera, LabCcd, detector_angles
-from sensor_models.readers.manifest import read_manifest, write_manifest
+from sensor_models.readers.manifest import write_manifest
+from sensor_models.readers.scene import read_manifest
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "fixtures" / "example_pushbroom" / "manifest.json"

@@ -12,7 +12,7 @@ import rasterio
 from affine import Affine
 
 from sensor_models.errors import InputError
-from sensor_models.readers.manifest import read_manifest
+from sensor_models.readers.scene import read_manifest
 from sensor_models.simulate.config import SimConfig, config_from_dict, load_config
 from sensor_models.simulate.pushbroom_sim import footprint_lonlat, simulate_pushbroom
 from sensor_models.simulate.scene import build_models

@@ -3,7 +3,8 @@
 ========================================  =========================================
 file                                      model
 ========================================  =========================================
-``*.json`` (gcpcal scene manifest)        :class:`~sensor_models.pushbroom.PushbroomModel`
+``*.json`` (gcpcal scene manifest)        :class:`~sensor_models.pushbroom.PushbroomModel` or
+                                          :class:`~sensor_models.geo_staring.GeoStaringModel`
 ``*.DIM`` (SPOT 1-5 DIMAP level 1A)       :class:`~sensor_models.pushbroom.PushbroomModel`
 ``*.geom`` (OSSIM keyword list, RPC)      :class:`~sensor_models.rpc.RpcModel`
 ``*.RPB``, ``*_RPC.TXT``                  :class:`~sensor_models.rpc.RpcModel`
@@ -23,6 +24,20 @@ __all__ = ["open_model"]
 def open_model(path, **kwargs):
     """Open a sensor model from any supported file (see the module table).
 
+    Parameters
+    ----------
+    path : str or Path
+        The model file; its kind is told by its name (``.json``, ``.dim``, anything else RPC).
+    **kwargs
+        Passed to the reader of that kind (:func:`~sensor_models.readers.scene.read_manifest`,
+        :func:`~sensor_models.readers.dimap.read_dimap`, :meth:`RpcModel.read
+        <sensor_models.rpc.RpcModel.read>`).
+
+    Returns
+    -------
+    SensorModel
+        The model the file describes.
+
     Raises
     ------
     InputError
@@ -33,7 +48,7 @@ def open_model(path, **kwargs):
         raise InputError("no such file", path=str(path))
     name = path.name.lower()
     if name.endswith(".json"):
-        from sensor_models.readers.manifest import read_manifest
+        from sensor_models.readers.scene import read_manifest
 
         return read_manifest(path, **kwargs)
     if name.endswith(".dim"):

@@ -36,9 +36,37 @@ class Fields:
         return f"{self.where}.{key}" if self.where else key
 
     def error(self, key: str, message: str) -> ManifestError:
+        """An error about field ``key`` of this object (to raise).
+
+        Parameters
+        ----------
+        key : str
+            Field name inside this object.
+        message : str
+            What is wrong.
+
+        Returns
+        -------
+        ManifestError
+            Naming the file and the dotted field path.
+        """
         return ManifestError(message, path=self.path, field=self._name(key))
 
     def raw(self, key: str, default=_MISSING):
+        """The undecoded value of ``key``, marked as read.
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        default : object, optional
+            Returned when the field is absent; without it an absent field is an error.
+
+        Returns
+        -------
+        object
+            The JSON value (or ``default``).
+        """
         self.seen.add(key)
         if key not in self.obj:
             if default is _MISSING:
@@ -47,12 +75,50 @@ class Fields:
         return self.obj[key]
 
     def has(self, key: str) -> bool:
+        """Whether field ``key`` is present (does not mark it as read).
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+
+        Returns
+        -------
+        bool
+        """
         return key in self.obj
 
     def sub(self, key: str) -> "Fields":
+        """The nested object ``key`` (required).
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+
+        Returns
+        -------
+        Fields
+            Over the nested object, with the dotted path extended by ``key``.
+        """
         return Fields(self.raw(key), self._name(key), self.path)
 
     def string(self, key: str, default=_MISSING, *, choices=None) -> str:
+        """A string field.
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        default : object, optional
+            Returned unchecked when the field is absent; without it the field is required.
+        choices : sequence of str, optional
+            The allowed values.
+
+        Returns
+        -------
+        str
+        """
         value = self.raw(key, default)
         if value is default and default is not _MISSING:
             return value
@@ -63,6 +129,21 @@ class Fields:
         return value
 
     def number(self, key: str, default=_MISSING, *, positive=False) -> float:
+        """A finite number field (JSON integer or float; booleans rejected).
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        default : object, optional
+            Returned unchecked when the field is absent; without it the field is required.
+        positive : bool
+            Require a value > 0.
+
+        Returns
+        -------
+        float
+        """
         value = self.raw(key, default)
         if value is default and default is not _MISSING:
             return value
@@ -75,6 +156,21 @@ class Fields:
         return float(value)
 
     def integer(self, key: str, default=_MISSING, *, minimum=None) -> int:
+        """An integer field (booleans and floats rejected).
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        default : object, optional
+            Returned unchecked when the field is absent; without it the field is required.
+        minimum : int, optional
+            Smallest allowed value.
+
+        Returns
+        -------
+        int
+        """
         value = self.raw(key, default)
         if value is default and default is not _MISSING:
             return value
@@ -85,7 +181,22 @@ class Fields:
         return value
 
     def array(self, key: str, shape, default=_MISSING) -> np.ndarray:
-        """A numeric array; ``shape`` may hold ``None`` for free dimensions."""
+        """A numeric array field, every element finite.
+
+        Parameters
+        ----------
+        key : str
+            Field name.
+        shape : tuple of (int or None)
+            Required shape; ``None`` leaves a dimension free.
+        default : object, optional
+            Returned unchecked when the field is absent; without it the field is required.
+
+        Returns
+        -------
+        ndarray of float64
+            Of shape ``shape``.
+        """
         value = self.raw(key, default)
         if value is default and default is not _MISSING:
             return value
@@ -105,6 +216,7 @@ class Fields:
         return arr
 
     def finish(self) -> None:
+        """Reject the keys of this object that no accessor has read (one error naming them all)."""
         unknown = sorted(set(self.obj) - self.seen)
         if unknown:
             raise ManifestError(

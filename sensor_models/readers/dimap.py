@@ -89,12 +89,34 @@ _TIME_RE = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(\.\d{1,9})?Z?$")
 
 
 def dimap_to_pixel(dimap_row_or_col):
-    """DIMAP 1-based pixel-centre coordinates -> gcpcal's (first pixel centre at 0.5)."""
+    """DIMAP 1-based pixel-centre coordinates -> gcpcal's (first pixel centre at 0.5).
+
+    Parameters
+    ----------
+    dimap_row_or_col : array_like
+        Rows or columns as DIMAP counts them (the first pixel's centre is 1).
+
+    Returns
+    -------
+    ndarray of float64
+        The same positions in gcpcal's convention (``value - 0.5``), same shape.
+    """
     return np.asarray(dimap_row_or_col, dtype=np.float64) - 0.5
 
 
 def pixel_to_dimap(row_or_col):
-    """gcpcal pixel coordinates -> DIMAP 1-based pixel-centre coordinates."""
+    """gcpcal pixel coordinates -> DIMAP 1-based pixel-centre coordinates.
+
+    Parameters
+    ----------
+    row_or_col : array_like
+        Rows or columns in gcpcal's convention (the first pixel's centre is 0.5).
+
+    Returns
+    -------
+    ndarray of float64
+        The same positions as DIMAP counts them (``value + 0.5``), same shape.
+    """
     return np.asarray(row_or_col, dtype=np.float64) + 0.5
 
 
@@ -244,7 +266,18 @@ class DimapMetadata:
         return self.velocity_m_s - np.cross([0.0, 0.0, EARTH_ROTATION_RAD_S], self.position_m)
 
     def seconds(self, row):
-        """Imaging time (s since ``epoch``) of continuous row ``row``."""
+        """Imaging time of continuous rows.
+
+        Parameters
+        ----------
+        row : array_like
+            Continuous row coordinates (gcpcal convention, first line centre 0.5).
+
+        Returns
+        -------
+        ndarray of float64
+            SI seconds since ``epoch``, same shape: ``(row - reference_row) * line_period_s``.
+        """
         return (np.asarray(row, dtype=np.float64) - self.reference_row) * self.line_period_s
 
 
@@ -400,29 +433,9 @@ def _angles(x: _Xml, parent, rel: str, where: str, epoch, *, minimum: int) -> Di
     return DimapAngles(seconds, np.array(yaw), np.array(pitch), np.array(roll), np.array(oor, dtype=bool), where)
 
 
-def parse_dimap(path) -> DimapMetadata:
-    """Parse the geometry of a SPOT 1-5 level-1A DIMAP metadata file, strictly.
-
-    Parameters
-    ----------
-    path : str or Path
-        The ``METADATA.DIM`` file.
-
-    Returns
-    -------
-    DimapMetadata
-
-    Raises
-    ------
-    ManifestError
-        A needed field is missing, empty, not a number, not finite, or a time list does not
-        increase strictly; the error names the file and the XML path of the field.
-    """
-    path = Path(path)
-    x = _Xml(path)
-    r = x.root
-    R = _ROOT
-
+def _source(x: _Xml) -> dict:
+    """Format check, mission, instrument, raster dimensions and pixel origin."""
+    r, R = x.root, _ROOT
     fmt = x.node(r, "Metadata_Id/METADATA_FORMAT", f"{R}/Metadata_Id/METADATA_FORMAT")
     if (fmt.text or "").strip() != "DIMAP":
         raise x.error(f"{R}/Metadata_Id/METADATA_FORMAT", f"must be 'DIMAP', got {fmt.text!r}")
@@ -447,19 +460,34 @@ def parse_dimap(path) -> DimapMetadata:
     origin = x.integer(r, "Raster_CS/PIXEL_ORIGIN", f"{R}/Raster_CS/PIXEL_ORIGIN", optional=True)
     if origin not in (None, 1):
         raise x.error(f"{R}/Raster_CS/PIXEL_ORIGIN", f"only PIXEL_ORIGIN 1 is supported, got {origin}")
+    return dict(
+        mission=mission,
+        instrument=instrument,
+        sensor_code=sensor_code,
+        incidence_angle_deg=incidence,
+        viewing_angle_deg=viewing,
+        n_rows=n_rows,
+        n_cols=n_cols,
+        n_bands=n_bands,
+    )
 
-    # ---- line timing
-    ts = f"{R}/Data_Strip/Sensor_Configuration/Time_Stamp"
-    tnode = x.node(r, "Data_Strip/Sensor_Configuration/Time_Stamp", ts)
+
+def _line_timing(x: _Xml) -> dict:
+    """Line period, scene epoch (``SCENE_CENTER_TIME``) and its line, converted to 0.5-based rows."""
+    ts = f"{_ROOT}/Data_Strip/Sensor_Configuration/Time_Stamp"
+    tnode = x.node(x.root, "Data_Strip/Sensor_Configuration/Time_Stamp", ts)
     line_period = x.number(tnode, "LINE_PERIOD", f"{ts}/LINE_PERIOD")
     if not line_period > 0.0:
         raise x.error(f"{ts}/LINE_PERIOD", f"must be positive, got {line_period}")
     epoch = x.time(tnode, "SCENE_CENTER_TIME", f"{ts}/SCENE_CENTER_TIME")
     center_line = x.number(tnode, "SCENE_CENTER_LINE", f"{ts}/SCENE_CENTER_LINE")
+    return dict(epoch=epoch, line_period_s=line_period, reference_row=float(dimap_to_pixel(center_line)))
 
-    # ---- ephemeris
-    eph = f"{R}/Data_Strip/Ephemeris"
-    enode = x.node(r, "Data_Strip/Ephemeris", eph)
+
+def _ephemeris(x: _Xml, epoch) -> dict:
+    """ITRF state vectors, their seconds since ``epoch`` and the kind of velocity."""
+    eph = f"{_ROOT}/Data_Strip/Ephemeris"
+    enode = x.node(x.root, "Data_Strip/Ephemeris", eph)
     points = x.nodes(enode, "Points/Point", f"{eph}/Points/Point", minimum=4)
     times, pos, vel = [], [], []
     for p in points:
@@ -476,10 +504,19 @@ def parse_dimap(path) -> DimapMetadata:
     doris = x.flag(enode, "DORIS_USED", f"{eph}/DORIS_USED", optional=True) or False
     velocity = np.array(vel)
     velocity_kind = _velocity_kind(x, eph_seconds, position, velocity, f"{eph}/Points/Point/Velocity")
+    return dict(
+        ephemeris_seconds=eph_seconds,
+        position_m=position,
+        velocity_m_s=velocity,
+        velocity_kind=velocity_kind,
+        doris_used=doris,
+    )
 
-    # ---- attitude
-    att = f"{R}/Data_Strip/Satellite_Attitudes"
-    anode = x.node(r, "Data_Strip/Satellite_Attitudes", att)
+
+def _attitudes(x: _Xml, epoch, mission: int) -> dict:
+    """Raw AOCS angles, angular speeds (SPOT 1-4) and corrected angles (SPOT 5)."""
+    att = f"{_ROOT}/Data_Strip/Satellite_Attitudes"
+    anode = x.node(x.root, "Data_Strip/Satellite_Attitudes", att)
     aocs = f"{att}/Raw_Attitudes/Aocs_Attitude"
     aocs_node = x.node(anode, "Raw_Attitudes/Aocs_Attitude", aocs)
     raw = _angles(x, aocs_node, "Angles_List/Angles", f"{aocs}/Angles_List/Angles", epoch, minimum=1)
@@ -499,10 +536,13 @@ def parse_dimap(path) -> DimapMetadata:
         corrected = _angles(
             x, cnode, "Corrected_Attitude/Angles", f"{cw}/Corrected_Attitude/Angles", epoch, minimum=4
         )
+    return dict(raw_angles=raw, angular_speeds=speeds, corrected_angles=corrected, star_tracker_used=star_tracker)
 
-    # ---- look angles
-    sc = f"{R}/Data_Strip/Sensor_Configuration"
-    snode = x.node(r, "Data_Strip/Sensor_Configuration", sc)
+
+def _look_angles(x: _Xml, n_cols: int) -> dict:
+    """Detector look angles of every band and the mirror step count."""
+    sc = f"{_ROOT}/Data_Strip/Sensor_Configuration"
+    snode = x.node(x.root, "Data_Strip/Sensor_Configuration", sc)
     lw = f"{sc}/Instrument_Look_Angles_List/Instrument_Look_Angles"
     looks = []
     for il in x.nodes(snode, "Instrument_Look_Angles_List/Instrument_Look_Angles", lw):
@@ -520,9 +560,13 @@ def parse_dimap(path) -> DimapMetadata:
             raise x.error(f"{la}/DETECTOR_ID", f"detector {ids[-1]} lies beyond NCOLS = {n_cols}")
         looks.append(DimapLookAngles(band, ids, np.array(px), np.array(py)))
     mirror_step = x.integer(snode, "Mirror_Position/STEP_COUNT", f"{sc}/Mirror_Position/STEP_COUNT", optional=True)
+    return dict(look_angles=tuple(looks), mirror_step=mirror_step)
 
-    # ---- frame: vertices and scene centre (DIMAP 1-based -> ours)
-    fw = f"{R}/Dataset_Frame"
+
+def _frame(x: _Xml) -> dict:
+    """Frame vertices and scene centre (DIMAP 1-based -> ours) with the tie-point heights."""
+    r = x.root
+    fw = f"{_ROOT}/Dataset_Frame"
     fnode = x.node(r, "Dataset_Frame", fw)
     vrow, vcol, vlon, vlat = [], [], [], []
     for v in x.nodes(fnode, "Vertex", f"{fw}/Vertex", minimum=4):
@@ -540,7 +584,7 @@ def parse_dimap(path) -> DimapMetadata:
 
     # heights the ground segment used: the tie point at the same pixel (CRS_Z)
     vh = np.full(len(vrow), np.nan)
-    tw = f"{R}/Geoposition/Geoposition_Points/Tie_Point"
+    tw = f"{_ROOT}/Geoposition/Geoposition_Points/Tie_Point"
     for tp in r.findall("Geoposition/Geoposition_Points/Tie_Point"):
         tx = x.number(tp, "TIE_POINT_DATA_X", f"{tw}/TIE_POINT_DATA_X")
         ty = x.number(tp, "TIE_POINT_DATA_Y", f"{tw}/TIE_POINT_DATA_Y")
@@ -548,31 +592,7 @@ def parse_dimap(path) -> DimapMetadata:
         for i, (rr, cc) in enumerate(zip(vrow, vcol)):
             if tz is not None and rr == ty and cc == tx:
                 vh[i] = tz
-
-    return DimapMetadata(
-        path=str(path),
-        mission=mission,
-        instrument=instrument,
-        sensor_code=sensor_code,
-        n_rows=n_rows,
-        n_cols=n_cols,
-        n_bands=n_bands,
-        epoch=epoch,
-        line_period_s=line_period,
-        reference_row=float(dimap_to_pixel(center_line)),
-        ephemeris_seconds=eph_seconds,
-        position_m=position,
-        velocity_m_s=velocity,
-        velocity_kind=velocity_kind,
-        doris_used=doris,
-        raw_angles=raw,
-        angular_speeds=speeds,
-        corrected_angles=corrected,
-        star_tracker_used=star_tracker,
-        look_angles=tuple(looks),
-        mirror_step=mirror_step,
-        incidence_angle_deg=incidence,
-        viewing_angle_deg=viewing,
+    return dict(
         vertex_row=dimap_to_pixel(vrow),
         vertex_col=dimap_to_pixel(vcol),
         vertex_lon=np.array(vlon),
@@ -585,6 +605,37 @@ def parse_dimap(path) -> DimapMetadata:
     )
 
 
+def parse_dimap(path) -> DimapMetadata:
+    """Parse the geometry of a SPOT 1-5 level-1A DIMAP metadata file, strictly.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``METADATA.DIM`` file.
+
+    Returns
+    -------
+    DimapMetadata
+        Image coordinates converted from DIMAP's 1-based pixel centres to gcpcal's
+        (first pixel centre at 0.5); times in SI seconds since ``SCENE_CENTER_TIME`` (UTC).
+
+    Raises
+    ------
+    ManifestError
+        A needed field is missing, empty, not a number, not finite, or a time list does not
+        increase strictly; the error names the file and the XML path of the field.
+    """
+    path = Path(path)
+    x = _Xml(path)
+    source = _source(x)
+    timing = _line_timing(x)
+    ephemeris = _ephemeris(x, timing["epoch"])
+    attitudes = _attitudes(x, timing["epoch"], source["mission"])
+    looks = _look_angles(x, source["n_cols"])
+    frame = _frame(x)
+    return DimapMetadata(path=str(path), **source, **timing, **ephemeris, **attitudes, **looks, **frame)
+
+
 # ---------------------------------------------------------------------------------------------
 # SPOT frames
 
@@ -594,6 +645,18 @@ def spot_orbital_to_itrf_mat(position_m, velocity_m_s) -> np.ndarray:
 
     ``Z = P/|P|``, ``X = V x Z / |V x Z|``, ``Y = Z x X`` with the ITRF position and the
     Earth-relative velocity (SPOT Geometry Handbook; as OSSIM's ``ossimSpot5Model``).
+
+    Parameters
+    ----------
+    position_m : array_like, shape (N, 3) or (3,)
+        ITRF positions, metres.
+    velocity_m_s : array_like, shape (N, 3) or (3,)
+        Earth-relative ITRF velocities, m/s.
+
+    Returns
+    -------
+    ndarray, shape (N, 3, 3)
+        Rotation matrices orbital -> ITRF.
     """
     p = np.atleast_2d(np.asarray(position_m, dtype=np.float64))
     v = np.atleast_2d(np.asarray(velocity_m_s, dtype=np.float64))
@@ -609,6 +672,16 @@ def spot_satellite_to_orbital_mat(yaw, pitch, roll) -> np.ndarray:
 
     ``Rx(-pitch) @ Ry(-roll) @ Rz(yaw)`` (active rotations): the file's roll and pitch are
     given about the reversed (-X, -Y) axes (SPOT Geometry Handbook).
+
+    Parameters
+    ----------
+    yaw, pitch, roll : array_like, shape (N,) or scalar
+        Attitude angles as the DIMAP file gives them (SPOT convention), radians.
+
+    Returns
+    -------
+    ndarray, shape (N, 3, 3)
+        Rotation matrices satellite -> local orbital frame.
     """
     yaw, pitch, roll = (np.atleast_1d(np.asarray(a, dtype=np.float64)) for a in (yaw, pitch, roll))
     angles = np.stack([-pitch, -roll, yaw], axis=-1)
@@ -620,6 +693,16 @@ def spot_look_to_camera(psi_x, psi_y):
 
     The SPOT direction ``(-tan PSI_Y, tan PSI_X, -1)`` is, in the camera frame
     (``CAMERA_TO_SPOT``), ``(tan PSI_X, -tan PSI_Y, 1)``.
+
+    Parameters
+    ----------
+    psi_x, psi_y : array_like
+        ``PSI_X`` (along track) and ``PSI_Y`` (across track) look angles, radians.
+
+    Returns
+    -------
+    tan_psi_x, tan_psi_y : ndarray of float64
+        Camera-frame direction tangents, same shape as the inputs.
     """
     return np.tan(np.asarray(psi_x, dtype=np.float64)), -np.tan(np.asarray(psi_y, dtype=np.float64))
 
@@ -651,6 +734,23 @@ def attitude_angles(meta: DimapMetadata, seconds) -> np.ndarray:
 
     SPOT 5: the corrected (absolute) angles, interpolated linearly. SPOT 1-4: the first
     valid absolute AOCS sample plus the integral of the angular speeds from its time.
+
+    Parameters
+    ----------
+    meta : DimapMetadata
+        The parsed file.
+    seconds : array_like, shape (N,) or scalar
+        SI seconds since ``meta.epoch``.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Yaw, pitch, roll in radians (not yet converted to gcpcal's frames).
+
+    Raises
+    ------
+    ManifestError
+        Fewer than two valid corrected-attitude or angular-speed samples.
     """
     t = np.atleast_1d(np.asarray(seconds, dtype=np.float64))
     if meta.corrected_angles is not None:
@@ -685,7 +785,19 @@ def _attitude_seconds(meta: DimapMetadata) -> np.ndarray:
 
 
 def dimap_orbit(meta: DimapMetadata):
-    """The ITRF :class:`~sensor_models.ephemeris.Orbit` (Earth-relative velocities)."""
+    """The ITRF orbit of a DIMAP file.
+
+    Parameters
+    ----------
+    meta : DimapMetadata
+        The parsed file.
+
+    Returns
+    -------
+    Orbit
+        Frame ``"itrf"``, seconds since ``meta.epoch``, positions in metres and Earth-relative
+        velocities in m/s (inertial file velocities are converted).
+    """
     from sensor_models.ephemeris import Orbit
 
     return Orbit(meta.epoch, meta.ephemeris_seconds, meta.position_m, meta.earth_relative_velocity_m_s, frame="itrf")
@@ -700,9 +812,20 @@ def body_to_itrf(meta: DimapMetadata, seconds, orbit=None, *, attitude: str = "m
 
     Parameters
     ----------
+    meta : DimapMetadata
+        The parsed file.
+    seconds : array_like, shape (N,) or scalar
+        SI seconds since ``meta.epoch``.
+    orbit : Orbit, optional
+        The ITRF orbit (default :func:`dimap_orbit`).
     attitude : {"measured", "nominal"}
         ``"measured"``: the file's attitude (see :func:`attitude_angles`); ``"nominal"``: zero
         yaw, pitch and roll (the satellite frame on the local orbital frame).
+
+    Returns
+    -------
+    ndarray, shape (N, 3, 3)
+        Rotation matrices body -> ITRF (body = camera, ``CAMERA_TO_SPOT`` included).
     """
     if attitude not in ATTITUDE_MODES:
         raise InputError(f"must be one of {ATTITUDE_MODES}, got {attitude!r}", field="attitude")
@@ -784,6 +907,21 @@ def fit_look_polynomials(look: DimapLookAngles, n_cols: int, *, max_residual_px:
     ``max_residual_px`` detector IFOVs (the IFOV being the median across-track step between
     neighbouring detectors). The fit is done in a scaled variable for conditioning, then
     converted to powers of ``s``.
+
+    Parameters
+    ----------
+    look : DimapLookAngles
+        The band's detector look angles.
+    n_cols : int
+        Detectors (image columns) of the band.
+    max_residual_px : float
+        Target largest residual, in detector IFOVs (about pixels).
+
+    Returns
+    -------
+    LookFit
+        Coefficients of ``tan psi_x`` and ``tan psi_y`` in powers of the 0-based detector index
+        ``s`` (detector ``s`` images column ``s + 0.5``), the degree and the residuals in IFOVs.
     """
     s, tx, ty = _detector_tans(look, n_cols)
     if s.size >= 2:
@@ -826,6 +964,8 @@ def read_dimap(path, *, band: int | None = None, attitude: str = "measured"):
     band : int, optional
         ``BAND_INDEX`` whose look angles are used (default: every band in the file, each as
         a model band named ``"B<index>"``; the first is the reference band).
+    attitude : {"measured", "nominal"}
+        The file's attitude or the nominal one (see :func:`body_to_itrf`).
 
     Returns
     -------

@@ -9,19 +9,16 @@ instant) of :class:`~sensor_models.geo_staring.GeoStaringModel`.
 
 from __future__ import annotations
 
-import json
-import os
 from pathlib import Path
 
 import numpy as np
 
-from sensor_models.atomic import atomic_write_text
 from sensor_models.errors import GcpcalError, InputError, ManifestError
 from sensor_models.geo_staring import GeoStaringModel, PointingMirror, StaringInterior, StaringLab, fit_interior
-from sensor_models.pushbroom_types import Installation
+from sensor_models.readers._common import (FORMAT_VERSION, attitude_from_fields, check_format_version, epoch_field,
+                                           exterior_to_dict, installation_from_fields, iso_utc, load_json,
+                                           orbit_from_fields, raster_from_fields, raster_to_dict, write_document)
 from sensor_models.readers._strict import Fields
-from sensor_models.readers.manifest import (FORMAT_VERSION, RasterRef, _attitude, _epoch, _iso, _load_json, _orbit,
-                                           exterior_to_dict)
 
 __all__ = ["SENSOR", "geo_manifest_to_dict", "geo_model_from_document", "read_geo_manifest", "write_geo_manifest"]
 
@@ -64,49 +61,63 @@ def _interior(f: Fields, image_shape):
     return interior, lab, residual
 
 
-def geo_model_from_document(doc, path) -> GeoStaringModel:
-    """Build a model from an already decoded manifest document (``path`` names it in errors).
-
-    For a dispatcher that has read the JSON and looked at ``sensor``.
-    """
-    path = Path(path)
-    root = Fields(doc, "", str(path))
-    version = root.integer("format_version")
-    if version != FORMAT_VERSION:
-        raise root.error("format_version", f"unsupported version {version}; this gcpcal reads {FORMAT_VERSION}")
-    root.string("sensor", choices=(SENSOR,))
-    name = root.string("name", "")
-    epoch = _epoch(root, "epoch_utc")
-
-    img = root.sub("image")
+def _image(img: Fields, path: Path):
+    """``((n_rows, n_cols), band, rasters)`` from the ``image`` object."""
     shape = (img.integer("n_rows", minimum=1), img.integer("n_cols", minimum=1))
     band = img.string("band", "B1")
     rasters = {}
     if img.has("raster"):
-        rf = img.sub("raster")
-        rel = rf.string("path")
-        index = rf.integer("index", 1, minimum=1)
-        rf.finish()
-        rasters[band] = RasterRef(path=str((path.parent / rel).resolve()), index=index)
+        rasters[band] = raster_from_fields(img.sub("raster"), path)
     img.finish()
+    return shape, band, rasters
 
+
+def _mirror(root: Fields):
+    """The optional ``mirror`` object as a :class:`PointingMirror` (``None`` when absent)."""
+    if not root.has("mirror"):
+        return None
+    fm = root.sub("mirror")
+    normal = fm.array("normal_cam", (3,))
+    angles = fm.array("angles_rad", (2,))
+    fm.finish()
+    if not np.linalg.norm(normal) > 0.0:
+        raise fm.error("normal_cam", "must not be the zero vector")
+    return PointingMirror(tuple(normal), float(angles[0]), float(angles[1]))
+
+
+def geo_model_from_document(doc, path) -> GeoStaringModel:
+    """Build a model from an already decoded manifest document.
+
+    For a dispatcher that has read the JSON and looked at ``sensor``
+    (:func:`sensor_models.readers.scene.read_manifest`).
+
+    Parameters
+    ----------
+    doc : object
+        The decoded JSON document (``sensor: "geo_staring"``).
+    path : str or Path
+        The manifest file: a relative raster path is resolved against its folder and errors
+        name it.
+
+    Returns
+    -------
+    GeoStaringModel
+        As :func:`read_geo_manifest`.
+    """
+    path = Path(path)
+    root = Fields(doc, "", str(path))
+    check_format_version(root)
+    root.string("sensor", choices=(SENSOR,))
+    name = root.string("name", "")
+    epoch = epoch_field(root, "epoch_utc")
+    shape, band, rasters = _image(root.sub("image"), path)
     ff = root.sub("frame")
     seconds = ff.number("seconds")
     ff.finish()
-    orbit = _orbit(root.sub("orbit"), epoch)
-    attitude = _attitude(root.sub("attitude"))
-    fi = root.sub("installation")
-    installation = Installation(fi.number("roll_rad"), fi.number("pitch_rad"), fi.number("yaw_rad"))
-    fi.finish()
-    mirror = None
-    if root.has("mirror"):
-        fm = root.sub("mirror")
-        normal = fm.array("normal_cam", (3,))
-        angles = fm.array("angles_rad", (2,))
-        fm.finish()
-        if not np.linalg.norm(normal) > 0.0:
-            raise fm.error("normal_cam", "must not be the zero vector")
-        mirror = PointingMirror(tuple(normal), float(angles[0]), float(angles[1]))
+    orbit = orbit_from_fields(root.sub("orbit"), epoch)
+    attitude = attitude_from_fields(root.sub("attitude"))
+    installation = installation_from_fields(root.sub("installation"))
+    mirror = _mirror(root)
     interior, lab, residual = _interior(root.sub("interior"), shape)
     root.finish()
     try:
@@ -138,6 +149,7 @@ def read_geo_manifest(path) -> GeoStaringModel:
     Parameters
     ----------
     path : str or Path
+        The manifest JSON file.
 
     Returns
     -------
@@ -152,14 +164,25 @@ def read_geo_manifest(path) -> GeoStaringModel:
         One line: ``<file>: field '<dotted.path>': <what is wrong>``.
     """
     path = Path(path)
-    return geo_model_from_document(_load_json(path), path)
+    return geo_model_from_document(load_json(path), path)
 
 
 def geo_manifest_to_dict(model: GeoStaringModel, *, raster=None, base_dir=None) -> dict:
     """The manifest document of a model; the interior is written as its 20 coefficients.
 
-    ``raster``: a path or :class:`RasterRef` of the frame's pixels (default: the model's own
-    ``rasters`` entry, if any); made relative to ``base_dir`` when given.
+    Parameters
+    ----------
+    model : GeoStaringModel
+        The model to write.
+    raster : str, Path or RasterRef, optional
+        The frame's pixels (default: the model's own ``rasters`` entry, if any).
+    base_dir : Path, optional
+        When given, an absolute raster path is written relative to this folder.
+
+    Returns
+    -------
+    dict
+        The JSON-ready document (``format_version`` 1, ``sensor: "geo_staring"``).
     """
     if not isinstance(model, GeoStaringModel):
         raise InputError(f"expected a GeoStaringModel, got {type(model).__name__}")
@@ -167,16 +190,12 @@ def geo_manifest_to_dict(model: GeoStaringModel, *, raster=None, base_dir=None) 
         raster = (getattr(model, "rasters", None) or {}).get(model.band)
     image = {"n_rows": model.n_rows, "n_cols": model.n_cols, "band": model.band}
     if raster is not None:
-        ref = raster if isinstance(raster, dict) else {"path": str(raster), "index": 1}
-        p = Path(ref["path"])
-        if base_dir is not None and p.is_absolute():
-            p = Path(os.path.relpath(p, base_dir))
-        image["raster"] = {"path": p.as_posix(), "index": int(ref.get("index", 1))}
+        image["raster"] = raster_to_dict(raster, base_dir)
     doc = {
         "format_version": FORMAT_VERSION,
         "sensor": SENSOR,
         "name": model.name,
-        "epoch_utc": _iso(model.epoch),
+        "epoch_utc": iso_utc(model.epoch),
         "image": image,
         "frame": {"seconds": model.frame_seconds},
         **exterior_to_dict(model),
@@ -195,8 +214,21 @@ def geo_manifest_to_dict(model: GeoStaringModel, *, raster=None, base_dir=None) 
 
 
 def write_geo_manifest(model: GeoStaringModel, path, *, raster=None) -> Path:
-    """Write a model's manifest atomically (temporary file in the same folder, then rename)."""
+    """Write a model's manifest atomically (temporary file in the same folder, then rename).
+
+    Parameters
+    ----------
+    model : GeoStaringModel
+        The model.
+    path : str or Path
+        Destination ``.json``; the raster path is written relative to its folder.
+    raster : str, Path or RasterRef, optional
+        The frame's pixels (default: the model's own ``rasters`` entry).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     path = Path(path)
-    doc = geo_manifest_to_dict(model, raster=raster, base_dir=path.parent.resolve())
-    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
-    return path
+    return write_document(geo_manifest_to_dict(model, raster=raster, base_dir=path.parent.resolve()), path)

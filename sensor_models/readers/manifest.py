@@ -1,76 +1,27 @@
-"""The gcpcal scene manifest (JSON, ``format_version`` 1): read strictly, write atomically.
+"""The gcpcal push-broom scene manifest (JSON, ``format_version`` 1): read strictly, write atomically.
 
 The format is documented in ``docs/manifest.md``. Every field is typed; a missing field, an
 unknown key, a wrong type, a NaN, or non-increasing times raise :class:`ManifestError` naming
-the file and the field.
+the file and the field. :func:`sensor_models.readers.scene.read_manifest` reads either manifest
+kind (it dispatches on ``sensor``); this module knows only ``sensor: "pushbroom"``.
 """
 
 from __future__ import annotations
 
-import json
-import os
 from pathlib import Path
 
-import numpy as np
-
-from sensor_models.atomic import atomic_write_text
-from sensor_models.ephemeris import ATTITUDE_FRAMES, ORBIT_FRAMES, Attitude, Orbit
 from sensor_models.errors import GcpcalError, InputError, ManifestError
 from sensor_models.pushbroom import PushbroomModel
-from sensor_models.pushbroom_types import CcdLook, Installation, LineTiming
+from sensor_models.pushbroom_types import CcdLook, LineTiming
+from sensor_models.readers._common import (FORMAT_VERSION, SENSOR_TYPES, RasterRef, attitude_from_fields,
+                                           check_format_version, epoch_field, exterior_to_dict,
+                                           installation_from_fields, iso_utc, load_json, orbit_from_fields,
+                                           raster_from_fields, raster_to_dict, write_document)
 from sensor_models.readers._strict import Fields
 
-__all__ = ["FORMAT_VERSION", "manifest_to_dict", "read_manifest", "write_manifest", "RasterRef"]
+__all__ = ["SENSOR", "manifest_to_dict", "pushbroom_model_from_document", "read_pushbroom_manifest", "write_manifest"]
 
-FORMAT_VERSION = 1
-
-
-class RasterRef(dict):
-    """``{"path": str, "index": int}``: where a band's pixels are (path relative to the manifest)."""
-
-
-def _load_json(path: Path):
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ManifestError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ManifestError(f"is not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})", path=str(path)) from None
-
-
-def _epoch(fields: Fields, key: str) -> np.datetime64:
-    from sensor_models.timescales import parse_utc
-
-    text = fields.string(key)
-    try:
-        return parse_utc(text)
-    except InputError as exc:
-        raise fields.error(key, exc.reason) from None
-
-
-def _orbit(f: Fields, epoch) -> Orbit:
-    frame = f.string("frame", choices=ORBIT_FRAMES)
-    seconds = f.array("seconds", (None,))
-    pos = f.array("position_m", (seconds.size, 3))
-    vel = f.array("velocity_m_s", (seconds.size, 3))
-    f.finish()
-    try:
-        return Orbit(epoch, seconds, pos, vel, frame=frame)
-    except InputError as exc:
-        raise ManifestError(exc.reason, path=f.path, field=exc.field) from None
-
-
-def _attitude(f: Fields) -> Attitude:
-    frame = f.string("frame", choices=ATTITUDE_FRAMES)
-    seconds = f.array("seconds", (None,))
-    quat = f.array("quaternions_xyzw", (seconds.size, 4))
-    f.finish()
-    try:
-        return Attitude(seconds, quat, frame=frame)
-    except InputError as exc:
-        raise ManifestError(exc.reason, path=f.path, field=exc.field) from None
+SENSOR = "pushbroom"
 
 
 def _ccd(f: Fields) -> CcdLook:
@@ -107,65 +58,68 @@ def _interior(f: Fields):
     return bands
 
 
-def read_manifest(path) -> PushbroomModel:
-    """Read a scene manifest into a sensor model.
-
-    Parameters
-    ----------
-    path : str or Path
-        The manifest JSON file.
-
-    Returns
-    -------
-    PushbroomModel
-        With ``model.rasters`` (band -> :class:`RasterRef` with an absolute path) and
-        ``model.manifest_path`` set.
-    """
-    path = Path(path)
-    doc = _load_json(path)
-    if isinstance(doc, dict) and doc.get("sensor") == "geo_staring":
-        from sensor_models.readers.geo_manifest import geo_model_from_document
-
-        return geo_model_from_document(doc, path)
-    root = Fields(doc, "", str(path))
-    version = root.integer("format_version")
-    if version != FORMAT_VERSION:
-        raise root.error("format_version", f"unsupported version {version}; this gcpcal reads {FORMAT_VERSION}")
-    root.string("sensor", choices=("pushbroom", "geo_staring"))
-    name = root.string("name", "")
-    epoch = _epoch(root, "epoch_utc")
-
-    img = root.sub("image")
+def _image(img: Fields, path: Path):
+    """``(n_rows, reference_band or None, rasters)`` from the ``image`` object."""
     n_rows = img.integer("n_rows", minimum=1)
     reference_band = img.string("reference_band", None)
     rasters = {}
     if img.has("rasters"):
         fr = img.sub("rasters")
         for band in fr.obj:
-            rf = Fields(fr.raw(band), f"{fr.where}.{band}", fr.path)
-            rel = rf.string("path")
-            index = rf.integer("index", 1, minimum=1)
-            rf.finish()
-            rasters[band] = RasterRef(path=str((path.parent / rel).resolve()), index=index)
+            rasters[band] = raster_from_fields(Fields(fr.raw(band), f"{fr.where}.{band}", fr.path), path)
         fr.finish()
     img.finish()
+    return n_rows, reference_band, rasters
 
-    lt = root.sub("line_timing")
-    timing = LineTiming(lt.number("reference_row"), lt.number("reference_seconds"), lt.number("line_period_s", positive=True))
-    lt.finish()
-    orbit = _orbit(root.sub("orbit"), epoch)
-    attitude = _attitude(root.sub("attitude"))
-    fi = root.sub("installation")
-    installation = Installation(fi.number("roll_rad"), fi.number("pitch_rad"), fi.number("yaw_rad"))
-    fi.finish()
-    bands = _interior(root.sub("interior"))
-    root.finish()
 
+def _check_bands(rasters, reference_band, bands, path: Path) -> None:
     unknown = sorted(set(rasters) - set(bands))
     if unknown:
         raise ManifestError(f"band {unknown[0]!r} has no interior model", path=str(path), field="image.rasters")
     if reference_band is not None and reference_band not in bands:
         raise ManifestError(f"unknown band {reference_band!r}", path=str(path), field="image.reference_band")
+
+
+def pushbroom_model_from_document(doc, path) -> PushbroomModel:
+    """Build a push-broom model from an already decoded manifest document.
+
+    Parameters
+    ----------
+    doc : object
+        The decoded JSON document (``sensor: "pushbroom"``).
+    path : str or Path
+        The manifest file: relative raster paths are resolved against its folder and errors
+        name it.
+
+    Returns
+    -------
+    PushbroomModel
+        With ``model.rasters`` (band -> :class:`RasterRef` with an absolute path) and
+        ``model.manifest_path`` set.
+
+    Raises
+    ------
+    ManifestError
+        One line: ``<file>: field '<dotted.path>': <what is wrong>``; also for a
+        ``geo_staring`` document (read those with :func:`sensor_models.readers.scene.read_manifest`).
+    """
+    path = Path(path)
+    root = Fields(doc, "", str(path))
+    check_format_version(root)
+    if root.string("sensor", choices=SENSOR_TYPES) != SENSOR:
+        raise root.error("sensor", "is not a push-broom manifest; read_manifest reads every kind")
+    name = root.string("name", "")
+    epoch = epoch_field(root, "epoch_utc")
+    n_rows, reference_band, rasters = _image(root.sub("image"), path)
+    lt = root.sub("line_timing")
+    timing = LineTiming(lt.number("reference_row"), lt.number("reference_seconds"), lt.number("line_period_s", positive=True))
+    lt.finish()
+    orbit = orbit_from_fields(root.sub("orbit"), epoch)
+    attitude = attitude_from_fields(root.sub("attitude"))
+    installation = installation_from_fields(root.sub("installation"))
+    bands = _interior(root.sub("interior"))
+    root.finish()
+    _check_bands(rasters, reference_band, bands, path)
     try:
         model = PushbroomModel(
             orbit=orbit,
@@ -186,49 +140,50 @@ def read_manifest(path) -> PushbroomModel:
     return model
 
 
-def _iso(epoch) -> str:
-    return str(np.datetime_as_string(np.datetime64(epoch, "ns"), unit="ns")) + "Z"
+def read_pushbroom_manifest(path) -> PushbroomModel:
+    """Read a ``pushbroom`` scene manifest (``docs/manifest.md``) into a model.
 
+    Parameters
+    ----------
+    path : str or Path
+        The manifest JSON file.
 
-def exterior_to_dict(model) -> dict:
-    """The ``orbit``, ``attitude`` and ``installation`` objects of a manifest (any model kind)."""
-    return {
-        "orbit": {
-            "frame": model.orbit.frame,
-            "seconds": model.orbit.seconds.tolist(),
-            "position_m": model.orbit.position_m.tolist(),
-            "velocity_m_s": model.orbit.velocity_m_s.tolist(),
-        },
-        "attitude": {
-            "frame": model.attitude.frame,
-            "seconds": model.attitude.seconds.tolist(),
-            "quaternions_xyzw": model.attitude.quaternions_xyzw.tolist(),
-        },
-        "installation": {
-            "roll_rad": model.installation.roll,
-            "pitch_rad": model.installation.pitch,
-            "yaw_rad": model.installation.yaw,
-        },
-    }
+    Returns
+    -------
+    PushbroomModel
+        As :func:`pushbroom_model_from_document`.
+    """
+    path = Path(path)
+    return pushbroom_model_from_document(load_json(path), path)
 
 
 def manifest_to_dict(model: PushbroomModel, *, rasters=None, base_dir=None) -> dict:
-    """The manifest document of a push-broom model (``rasters``: band -> path or RasterRef)."""
-    out_rasters = {}
-    for band, ref in (rasters or getattr(model, "rasters", {}) or {}).items():
-        ref = ref if isinstance(ref, dict) else {"path": str(ref), "index": 1}
-        p = Path(ref["path"])
-        if base_dir is not None and p.is_absolute():
-            p = Path(os.path.relpath(p, base_dir))
-        out_rasters[band] = {"path": p.as_posix(), "index": int(ref.get("index", 1))}
+    """The manifest document of a push-broom model.
+
+    Parameters
+    ----------
+    model : PushbroomModel
+        The model to write (directional-angle interior).
+    rasters : dict, optional
+        Band -> path or :class:`RasterRef`; default the model's own ``rasters``.
+    base_dir : Path, optional
+        When given, absolute raster paths are written relative to this folder.
+
+    Returns
+    -------
+    dict
+        The JSON-ready document (``format_version`` 1, ``sensor: "pushbroom"``).
+    """
+    out_rasters = {band: raster_to_dict(ref, base_dir)
+                   for band, ref in (rasters or getattr(model, "rasters", {}) or {}).items()}
     image = {"n_rows": model.n_rows, "reference_band": model.reference_band}
     if out_rasters:
         image["rasters"] = out_rasters
     return {
         "format_version": FORMAT_VERSION,
-        "sensor": "pushbroom",
+        "sensor": SENSOR,
         "name": model.name,
-        "epoch_utc": _iso(model.epoch),
+        "epoch_utc": iso_utc(model.epoch),
         "image": image,
         "line_timing": {
             "reference_row": model.line_timing.reference_row,
@@ -256,8 +211,21 @@ def manifest_to_dict(model: PushbroomModel, *, rasters=None, base_dir=None) -> d
 
 
 def write_manifest(model: PushbroomModel, path, *, rasters=None) -> Path:
-    """Write a manifest atomically (temporary file in the same folder, then rename)."""
+    """Write a push-broom manifest atomically (temporary file in the same folder, then rename).
+
+    Parameters
+    ----------
+    model : PushbroomModel
+        The model.
+    path : str or Path
+        Destination ``.json``; raster paths are written relative to its folder.
+    rasters : dict, optional
+        Band -> path or :class:`RasterRef`; default the model's own ``rasters``.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     path = Path(path)
-    doc = manifest_to_dict(model, rasters=rasters, base_dir=path.parent.resolve())
-    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
-    return path
+    return write_document(manifest_to_dict(model, rasters=rasters, base_dir=path.parent.resolve()), path)

@@ -112,6 +112,13 @@ class SimConfig:
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
 
     def to_dict(self) -> dict:
+        """The configuration as a JSON-ready mapping (the form :func:`config_from_dict` reads).
+
+        Returns
+        -------
+        dict
+            ``{"seed": int, "<section>": {field: value}}``; tuples become lists.
+        """
         out = {"seed": self.seed}
         for f in fields(self):
             if f.name != "seed":
@@ -125,10 +132,32 @@ class SimConfig:
         return self.seed if self.scene.acquisition_seed < 0 else self.scene.acquisition_seed
 
     def with_seed(self, seed: int) -> "SimConfig":
+        """A copy with another master seed.
+
+        Parameters
+        ----------
+        seed : int
+            The new ``seed``.
+
+        Returns
+        -------
+        SimConfig
+        """
         return replace(self, seed=int(seed))
 
     def validate(self, source: str | None = None) -> "SimConfig":
-        """Raise :class:`InputError` naming the field of the first impossible value."""
+        """Raise :class:`InputError` naming the field of the first impossible value.
+
+        Parameters
+        ----------
+        source : str, optional
+            The configuration file, named in errors.
+
+        Returns
+        -------
+        SimConfig
+            ``self``.
+        """
 
         def bad(name, why):
             return InputError(why, path=source, field=name)
@@ -240,7 +269,25 @@ def _coerce(value, default, where: str, source: str):
 
 
 def config_from_dict(doc, *, source: str = "<config>") -> SimConfig:
-    """A validated :class:`SimConfig` from a JSON-like mapping (strict)."""
+    """A validated :class:`SimConfig` from a JSON-like mapping (strict).
+
+    Parameters
+    ----------
+    doc : dict
+        ``seed`` and sections (``scene``, ``camera``, ``errors``, ``radiometry``, ``clouds``,
+        ``reference``), each a subset of that section's fields; the rest keep their defaults.
+    source : str
+        Named in errors.
+
+    Returns
+    -------
+    SimConfig
+
+    Raises
+    ------
+    InputError
+        Unknown key, wrong type or impossible value (naming the field).
+    """
     if not isinstance(doc, dict):
         raise InputError("the configuration must be a JSON object", path=source)
     base = SimConfig()
@@ -269,7 +316,18 @@ def config_from_dict(doc, *, source: str = "<config>") -> SimConfig:
 
 
 def load_config(path=None) -> SimConfig:
-    """Read a JSON configuration file (``None``: the defaults)."""
+    """Read a JSON configuration file (``None``: the defaults).
+
+    Parameters
+    ----------
+    path : str or os.PathLike, optional
+        The JSON file (see :func:`config_from_dict`).
+
+    Returns
+    -------
+    SimConfig
+        Validated.
+    """
     if path is None:
         return SimConfig().validate()
     path = Path(path)

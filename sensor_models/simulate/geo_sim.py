@@ -59,6 +59,23 @@ class GeoSimConfig:
     margin_m: float = 3000.0
 
     def validate(self, source=None) -> "GeoSimConfig":
+        """Check the ranges of the settings.
+
+        Parameters
+        ----------
+        source : str, optional
+            The configuration file, named in errors.
+
+        Returns
+        -------
+        GeoSimConfig
+            ``self``.
+
+        Raises
+        ------
+        InputError
+            Naming the first bad field.
+        """
         def bad(name, why):
             return InputError(why, path=source, field=name)
 
@@ -79,7 +96,22 @@ class GeoSimConfig:
 
 
 def load_geo_config(path=None) -> GeoSimConfig:
-    """A validated configuration from a JSON file with any subset of the keys (strict)."""
+    """A validated configuration from a JSON file with any subset of the keys (strict).
+
+    Parameters
+    ----------
+    path : str or os.PathLike, optional
+        JSON object whose keys are :class:`GeoSimConfig` fields; default: the defaults.
+
+    Returns
+    -------
+    GeoSimConfig
+
+    Raises
+    ------
+    InputError
+        Unreadable file, invalid JSON, unknown key or bad value (naming it).
+    """
     from sensor_models.simulate.config import _coerce
 
     if path is None:
@@ -128,19 +160,32 @@ def _models(cfg: GeoSimConfig):
 
 def simulate_geo_earth(out_dir, *, config: GeoSimConfig | None = None, dom=None, dem=None, geoid=None,
                        block_lines: int = 256, record_timings: bool = True) -> dict:
-    """Render a staring frame into ``out_dir`` (see the module docstring); return the summary."""
-    import pyproj
-    import rasterio
-    from rasterio.errors import NotGeoreferencedWarning
+    """Render a staring frame into ``out_dir`` (see the module docstring); return the summary.
 
+    Parameters
+    ----------
+    out_dir : str or os.PathLike
+        Output folder (created); files appear only when all are complete.
+    config : GeoSimConfig, optional
+        Default: ``GeoSimConfig()``.
+    dom, dem : path, optional
+        Real reference rasters (both or neither); without them a procedural reference is
+        generated into ``reference/``.
+    geoid : path, optional
+        EGM96 grid for an orthometric DEM.
+    block_lines : int
+        Image lines rendered per block.
+    record_timings : bool
+        Write ``render_seconds`` and ``seconds`` into the summary (False: outputs depend on the
+        configuration only).
+
+    Returns
+    -------
+    dict
+        The summary also written to ``summary.json`` (image size, reference files, LAB versus
+        truth error in pixels).
+    """
     from sensor_models.readers.geo_manifest import write_geo_manifest
-    from sensor_models.simulate.pushbroom_sim import _check_covers, _dom_scale, _utm_crs
-    from sensor_models.locate import MapGrid, dem_planes, locate_block
-    from sensor_models.psf import psf_sigma_dom_px
-    from sensor_models.raster import MapImage, sample_map_image
-    from sensor_models.simulate.radiometry import to_dn
-    from sensor_models.simulate.truth import truth_error
-    from sensor_models.terrain import Dem
 
     t0 = time.perf_counter()
     cfg = (config or GeoSimConfig()).validate()
@@ -151,66 +196,13 @@ def simulate_geo_earth(out_dir, *, config: GeoSimConfig | None = None, dom=None,
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
     try:
-        n = cfg.image_px
-        border = np.concatenate([np.linspace(0.5, n - 0.5, 16)] * 2 + [np.full(16, 0.5), np.full(16, n - 0.5)])
-        other = np.concatenate([np.full(16, 0.5), np.full(16, n - 0.5)] + [np.linspace(0.5, n - 0.5, 16)] * 2)
-        if dom is None:
-            from sensor_models.simulate.procedural import generate_reference
-
-            lon, lat, _ = truth.image_to_ground(border, other, height=cfg.mean_height_m)
-            crs = _utm_crs(float(np.mean(lon)), float(np.mean(lat)))
-            x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
-            data = generate_reference(float(np.mean(lon)), float(np.mean(lat)), float(np.ptp(x)) + 2 * cfg.margin_m,
-                                      float(np.ptp(y)) + 2 * cfg.margin_m, seed=cfg.seed,
-                                      dom_resolution_m=cfg.dom_resolution_m, dem_resolution_m=cfg.dem_resolution_m,
-                                      relief_m=cfg.relief_m, mean_height_m=cfg.mean_height_m,
-                                      sea_fraction=cfg.sea_fraction)
-            data.write(tmp / "reference")
-            dom_img = MapImage.from_array(data.dom, data.dom_transform, data.crs)
-            dem_obj = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
-            reference = {"dom": "reference/dom.tif", "dem": "reference/dem.tif"}
-        else:
-            dom_img, dem_obj = MapImage.open(dom), Dem.open(dem, geoid=geoid)
-            reference = {"dom": os.path.abspath(dom), "dem": os.path.abspath(dem)}
-        h_lo, h_hi = dem_obj.height_range_m
-        lon, lat = (np.concatenate(a) for a in zip(*(truth.image_to_ground(border, other, height=h)[:2]
-                                                      for h in (h_lo, h_hi))))
-        _check_covers(dom_img.grid, lon, lat, what="DOM", path=dom_img.path)
-        _check_covers(MapGrid.of_dem(dem_obj), lon, lat, what="DEM", path=dem_obj.source)
-        dem_planes(dem_obj)
-        sigma = psf_sigma_dom_px(cfg.gsd_m, dom_img.grid.resolution_m, cfg.psf_sigma_px)
-        scale = _dom_scale(dom_img)
+        dom_img, dem_obj, reference = _geo_reference(cfg, truth, tmp, dom, dem, geoid)
         t_render = time.perf_counter()
-        profile = dict(driver="GTiff", width=n, height=n, count=1, dtype="uint16", compress="deflate", predictor=2,
-                       tiled=False, blockysize=16)
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(tmp / "B1.tif", "w", **profile) as dst:
-                from rasterio.windows import Window
-
-                for r0 in range(0, n, block_lines):
-                    r1 = min(n, r0 + block_lines)
-                    pg = locate_block(truth, dem_obj, [dom_img.grid], band=truth.band, ccd=0, row0=r0, row1=r1)
-                    u, v = pg.uv[0]
-                    refl = sample_map_image(dom_img, u, v, sigma_px=sigma) / np.float32(scale)
-                    rng = np.random.default_rng([cfg.seed, 6, r0])
-                    dn = to_dn(refl, gain=1.0, offset_dn=40.0, gamma=1.0, seasonal=np.float32(0.0),
-                               prnu_gain=np.float32(1.0), snr=cfg.snr, bits=12, rng=rng)
-                    dst.write(dn, 1, window=Window(0, r0, n, r1 - r0))
+        _render_frame(cfg, truth, dom_img, dem_obj, tmp / "B1.tif", block_lines)
         render_s = time.perf_counter() - t_render
         write_geo_manifest(lab, tmp / "manifest.json", raster=tmp / "B1.tif")
         write_geo_manifest(truth, tmp / "truth_manifest.json", raster=tmp / "B1.tif")
-        initial = truth_error(truth, lab, dem=dem_obj, step_px=max(8, n // 32))
-        truth_doc = {
-            "format_version": 1, "kind": "gcpcal.simulate.geo_earth", "seed": cfg.seed,
-            "true_model": "truth_manifest.json", "lab_model": "manifest.json", "reference": reference,
-            "installation_rad": dict(zip(("roll", "pitch", "yaw"), truth.installation.as_array().tolist())),
-            "config": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()},
-        }
-        summary = {"kind": "gcpcal.simulate.geo_earth", "image": {"n_rows": n, "n_cols": n, "bands": [truth.band]},
-                   "reference": reference, "lab_truth_error_px": {"rms": initial["rms_px"], "max": initial["max_px"]}}
+        truth_doc, summary = _truth_and_summary(cfg, truth, lab, dem_obj, reference)
         if record_timings:
             summary.update(render_seconds=render_s, seconds=time.perf_counter() - t0)
         (tmp / "truth.json").write_text(json.dumps(truth_doc, indent=1) + "\n", encoding="utf-8")
@@ -219,3 +211,100 @@ def simulate_geo_earth(out_dir, *, config: GeoSimConfig | None = None, dom=None,
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return summary
+
+
+def _frame_border(n: int):
+    """``(rows, cols)`` of 64 pixel centres along the four edges of an ``n`` x ``n`` frame."""
+    border = np.concatenate([np.linspace(0.5, n - 0.5, 16)] * 2 + [np.full(16, 0.5), np.full(16, n - 0.5)])
+    other = np.concatenate([np.full(16, 0.5), np.full(16, n - 0.5)] + [np.linspace(0.5, n - 0.5, 16)] * 2)
+    return border, other
+
+
+def _geo_reference(cfg: GeoSimConfig, truth, tmp: Path, dom, dem, geoid):
+    """``(dom MapImage, Dem, reference file names)``: given, or procedural under ``tmp/reference``.
+
+    Checks that both cover the frame's footprint between the DEM's lowest and highest heights.
+    """
+    import pyproj
+
+    from sensor_models.simulate.pushbroom_sim import _check_covers, _utm_crs
+    from sensor_models.locate import MapGrid
+    from sensor_models.raster import MapImage
+    from sensor_models.terrain import Dem
+
+    border, other = _frame_border(cfg.image_px)
+    if dom is None:
+        from sensor_models.simulate.procedural import generate_reference
+
+        lon, lat, _ = truth.image_to_ground(border, other, height=cfg.mean_height_m)
+        crs = _utm_crs(float(np.mean(lon)), float(np.mean(lat)))
+        x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
+        data = generate_reference(float(np.mean(lon)), float(np.mean(lat)), float(np.ptp(x)) + 2 * cfg.margin_m,
+                                  float(np.ptp(y)) + 2 * cfg.margin_m, seed=cfg.seed,
+                                  dom_resolution_m=cfg.dom_resolution_m, dem_resolution_m=cfg.dem_resolution_m,
+                                  relief_m=cfg.relief_m, mean_height_m=cfg.mean_height_m,
+                                  sea_fraction=cfg.sea_fraction)
+        data.write(tmp / "reference")
+        dom_img = MapImage.from_array(data.dom, data.dom_transform, data.crs)
+        dem_obj = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
+        reference = {"dom": "reference/dom.tif", "dem": "reference/dem.tif"}
+    else:
+        dom_img, dem_obj = MapImage.open(dom), Dem.open(dem, geoid=geoid)
+        reference = {"dom": os.path.abspath(dom), "dem": os.path.abspath(dem)}
+    h_lo, h_hi = dem_obj.height_range_m
+    lon, lat = (np.concatenate(a) for a in zip(*(truth.image_to_ground(border, other, height=h)[:2]
+                                                  for h in (h_lo, h_hi))))
+    _check_covers(dom_img.grid, lon, lat, what="DOM", path=dom_img.path)
+    _check_covers(MapGrid.of_dem(dem_obj), lon, lat, what="DEM", path=dem_obj.source)
+    return dom_img, dem_obj, reference
+
+
+def _render_frame(cfg: GeoSimConfig, truth, dom_img, dem_obj, path: Path, block_lines: int) -> None:
+    """Render the frame through the TRUE model into a uint16 GeoTIFF, block by block (seeded per block)."""
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+    from rasterio.windows import Window
+
+    from sensor_models.simulate.pushbroom_sim import _dom_scale
+    from sensor_models.locate import dem_planes, locate_block
+    from sensor_models.psf import psf_sigma_dom_px
+    from sensor_models.raster import sample_map_image
+    from sensor_models.simulate.radiometry import to_dn
+
+    n = cfg.image_px
+    dem_planes(dem_obj)
+    sigma = psf_sigma_dom_px(cfg.gsd_m, dom_img.grid.resolution_m, cfg.psf_sigma_px)
+    scale = _dom_scale(dom_img)
+    profile = dict(driver="GTiff", width=n, height=n, count=1, dtype="uint16", compress="deflate", predictor=2,
+                   tiled=False, blockysize=16)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(path, "w", **profile) as dst:
+            for r0 in range(0, n, block_lines):
+                r1 = min(n, r0 + block_lines)
+                pg = locate_block(truth, dem_obj, [dom_img.grid], band=truth.band, ccd=0, row0=r0, row1=r1)
+                u, v = pg.uv[0]
+                refl = sample_map_image(dom_img, u, v, sigma_px=sigma) / np.float32(scale)
+                rng = np.random.default_rng([cfg.seed, 6, r0])
+                dn = to_dn(refl, gain=1.0, offset_dn=40.0, gamma=1.0, seasonal=np.float32(0.0),
+                           prnu_gain=np.float32(1.0), snr=cfg.snr, bits=12, rng=rng)
+                dst.write(dn, 1, window=Window(0, r0, n, r1 - r0))
+
+
+def _truth_and_summary(cfg: GeoSimConfig, truth, lab, dem_obj, reference):
+    """The ``truth.json`` document and the summary (timings left out)."""
+    from sensor_models.simulate.truth import truth_error
+
+    n = cfg.image_px
+    initial = truth_error(truth, lab, dem=dem_obj, step_px=max(8, n // 32))
+    truth_doc = {
+        "format_version": 1, "kind": "gcpcal.simulate.geo_earth", "seed": cfg.seed,
+        "true_model": "truth_manifest.json", "lab_model": "manifest.json", "reference": reference,
+        "installation_rad": dict(zip(("roll", "pitch", "yaw"), truth.installation.as_array().tolist())),
+        "config": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()},
+    }
+    summary = {"kind": "gcpcal.simulate.geo_earth", "image": {"n_rows": n, "n_cols": n, "bands": [truth.band]},
+               "reference": reference, "lab_truth_error_px": {"rms": initial["rms_px"], "max": initial["max_px"]}}
+    return truth_doc, summary

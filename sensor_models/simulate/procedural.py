@@ -324,21 +324,11 @@ def generate_reference(
     rng = np.random.default_rng(args["seed"])
     base_key = int(rng.integers(0, 2**32, dtype=np.uint64))
     keys = (int(_hash(base_key, np.array([i]))[0]) for i in itertools.count())
-
-    crs, cx_m, cy_m = _utm(args["center_lon_deg"], args["center_lat_deg"])
-    size = (args["width_m"], args["height_m"])
-    dom_grid = _Grid.centred(cx_m, cy_m, *size, args["dom_resolution_m"])
-    dem_grid = _Grid.centred(cx_m, cy_m, *size, args["dem_resolution_m"])
-    if dom_grid.n_rows * dom_grid.n_cols > _MAX_DOM_PIXELS:
-        raise InputError(
-            f"the DOM would have {dom_grid.n_rows} x {dom_grid.n_cols} pixels, more than "
-            f"{_MAX_DOM_PIXELS}; use a coarser dom_resolution_m or a smaller area",
-            field="width_m",
-        )
+    crs, centre, dom_grid, dem_grid = _reference_grids(args)
     ext = dem_grid.grown(_MARGIN_NODES)
     area_km2 = args["width_m"] * args["height_m"] / 1e6
 
-    terrain = _terrain(args, ext, (cx_m, cy_m), rng, keys)
+    terrain = _terrain(args, ext, centre, rng, keys)
     lakes = _lakes(args, ext, terrain, rng, area_km2)
     rivers = _rivers(args, ext, terrain, lakes, rng, area_km2)
     heights_ext = _heights(args, ext, terrain, lakes, rivers)
@@ -348,7 +338,7 @@ def generate_reference(
     cover = _cover_fields(args, ext, terrain, heights_ext, keys)
     roads = _roads(args, dom_grid, rng, area_km2)
     dom, water, land_cover = _render_dom(
-        args, dom_grid, ext, (cx_m, cy_m), terrain, lakes, rivers, roads, cover, rng, keys
+        args, dom_grid, ext, centre, terrain, lakes, rivers, roads, cover, rng, keys
     )
     for a in (dom, dem_m, water, land_cover):
         a.setflags(write=False)
@@ -363,6 +353,21 @@ def generate_reference(
         parameters={"generator": "sensor_models.simulate.procedural",
                     "generator_version": GENERATOR_VERSION, **args},
     )
+
+
+def _reference_grids(args):
+    """``(crs, (cx_m, cy_m), dom_grid, dem_grid)``: the UTM zone and the DOM and DEM grids."""
+    crs, cx_m, cy_m = _utm(args["center_lon_deg"], args["center_lat_deg"])
+    size = (args["width_m"], args["height_m"])
+    dom_grid = _Grid.centred(cx_m, cy_m, *size, args["dom_resolution_m"])
+    dem_grid = _Grid.centred(cx_m, cy_m, *size, args["dem_resolution_m"])
+    if dom_grid.n_rows * dom_grid.n_cols > _MAX_DOM_PIXELS:
+        raise InputError(
+            f"the DOM would have {dom_grid.n_rows} x {dom_grid.n_cols} pixels, more than "
+            f"{_MAX_DOM_PIXELS}; use a coarser dom_resolution_m or a smaller area",
+            field="width_m",
+        )
+    return crs, (cx_m, cy_m), dom_grid, dem_grid
 
 
 def illumination(heights_m, resolution_m, *, sun_azimuth_deg, sun_elevation_deg):
@@ -1244,90 +1249,13 @@ def _render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, r
     water : ndarray, bool
     land_cover : ndarray, uint8
     """
-    res = grid.res_m
-    k = {name: next(keys) for name in (
-        "fine2", "block", "stagger", "parcel", "city", "cblock", "building", "lake")}
-    x_all = grid.x_m() - centre[0]
-    y_all = grid.y_m() - centre[1]
-    col_f, row_f = ext.node_index(grid.x_m(), grid.y_m())
-    near_c = np.clip(np.round(col_f).astype(np.intp), 0, ext.n_cols - 1)
-    near_r = np.clip(np.round(row_f).astype(np.intp), 0, ext.n_rows - 1)
-    river_cov, riparian, road_cov, road_id, road_rho = _overlays(grid, rivers, roads)
-    lake_rho = np.float32(0.032 + 0.012 * _unit(_hash(k["lake"], np.arange(1)))[0])
-    rock_scale = np.float32(args["relief_m"] / 1500.0)
-
+    ctx = _dom_context(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, keys)
     radiance = np.empty(grid.shape, dtype=np.float32)
     water = np.zeros(grid.shape, dtype=bool)
     cover_map = np.zeros(grid.shape, dtype=np.uint8)
-    x = x_all.astype(np.float32)[None, :]
     for r0 in range(0, grid.n_rows, _STRIP_ROWS):
         rows = slice(r0, min(r0 + _STRIP_ROWS, grid.n_rows))
-        y = y_all[rows].astype(np.float32)[:, None]
-        f = dict(zip(_SHARP, _resample(cover.sharp, row_f[rows], col_f, "keys")))
-        f.update(zip(_SMOOTH, _resample(cover.smooth, row_f[rows], col_f, "linear")))
-        lake_level = lakes.level[near_r[rows][:, None], near_c[None, :]]
-        shape = f["shape_pre"].shape
-        fine1 = np.clip(rng.standard_normal(shape, dtype=np.float32), -3.0, 3.0)
-        fine2 = _value_noise(k["fine2"], x_all, y_all[rows], 2.5 * res)
-        med, low = f["med"], f["low"]
-
-        sea = f["coast"] < terrain.c0
-        with np.errstate(invalid="ignore"):
-            lake = ~sea & (f["shape_pre"] < lake_level)
-        land = ~(sea | lake)
-        urban = land & (f["urban"] > cover.urban_t)
-        rock = (land & ~urban & (f["shape_pre"] * rock_scale + 0.12 * med + 0.05 * fine2 > 0.72)
-                & (f["slope_deg"] > 8.0))
-        forest = land & ~urban & ~rock & (
-            (f["forest"] + 0.25 * fine2 > cover.forest_t) | (riparian[rows] > 0))
-        field_ = (land & ~(urban | rock | forest) & (f["slope_deg"] < 14.0)
-                  & (f["shape_pre"] * rock_scale < 0.45))
-        beach = land & ~urban & (f["coast"] - terrain.c0 < 45.0) & (low > -0.3)
-
-        # Natural grass and shrub is the default land reflectance.
-        rho = 0.105 * (1.0 + 0.22 * med + 0.10 * fine2 + 0.03 * fine1)
-        code = np.full(shape, LandCover.GRASS, dtype=np.uint8)
-        if field_.any():
-            xs, ys = np.broadcast_to(x, shape)[field_], np.broadcast_to(y, shape)[field_]
-            rho[field_] = _fields_texture(
-                k, xs, ys, f["warp_x"][field_], f["warp_y"][field_], fine1[field_],
-                fine2[field_], med[field_])
-            code[field_] = LandCover.FIELD
-        if forest.any():
-            rho_f = 0.052 * (1.0 + 0.25 * med) * (1.0 + 0.18 * fine1 + 0.22 * fine2)
-            rho = np.where(forest, rho_f, rho)
-            code[forest] = LandCover.FOREST
-        if rock.any():
-            rho = np.where(rock, 0.17 * (1.0 + 0.2 * med + 0.2 * fine2 + 0.08 * fine1), rho)
-            code[rock] = LandCover.ROCK
-        if urban.any():
-            xs, ys = np.broadcast_to(x, shape)[urban], np.broadcast_to(y, shape)[urban]
-            rho[urban] = _urban_texture(k, xs, ys, fine1[urban])
-            code[urban] = LandCover.URBAN
-        if beach.any():
-            rho = np.where(beach, 0.29 * (1.0 + 0.08 * fine2), rho)
-            code[beach] = LandCover.BEACH
-
-        # Roads, then rivers (under bridges), on land only.
-        a_road = road_cov[rows].astype(np.float32) * np.float32(1.0 / 255.0)
-        a_road[~land] = 0.0
-        ids = road_id[rows]
-        rho = rho * (1.0 - a_road) + np.where(ids > 0, road_rho[ids], rho) * a_road
-        a_river = river_cov[rows].astype(np.float32) * np.float32(1.0 / 255.0)
-        a_river[~land | (a_road >= 0.5)] = 0.0
-        rho = rho * (1.0 - a_river) + np.float32(0.045) * a_river
-        river = a_river >= 0.5
-        code[a_road >= 0.5] = LandCover.ROAD
-        code[river] = LandCover.RIVER
-        rho = rho * np.where(land & ~river, f["shade"], np.float32(1.0))
-
-        rho = np.where(sea, 0.038 * (1.0 + 0.005 * low), rho)
-        rho = np.where(lake, lake_rho * (1.0 + 0.005 * low), rho)
-        code[sea] = LandCover.SEA
-        code[lake] = LandCover.LAKE
-        radiance[rows] = _DN_OFFSET + _DN_GAIN * rho
-        water[rows] = sea | lake | river
-        cover_map[rows] = code
+        radiance[rows], water[rows], cover_map[rows] = _render_strip(ctx, rows, rng)
 
     radiance = ndimage.gaussian_filter(radiance, _PSF_SIGMA_PX, mode="nearest", truncate=3.0)
     dom = np.empty(grid.shape, dtype=np.uint16)
@@ -1337,6 +1265,134 @@ def _render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, r
         noisy += rng.standard_normal(noisy.shape, dtype=np.float32) * np.float32(_NOISE_DN)
         dom[rows] = np.clip(np.rint(noisy), 1, _DN_MAX).astype(np.uint16)
     return dom, water, cover_map
+
+
+@dataclass
+class _DomContext:
+    """What every strip of :func:`_render_dom` reads: noise keys, coordinates, overlays."""
+
+    k: dict
+    res: float
+    x_all: np.ndarray
+    y_all: np.ndarray
+    col_f: np.ndarray
+    row_f: np.ndarray
+    near_c: np.ndarray
+    near_r: np.ndarray
+    overlays: tuple
+    lake_rho: np.float32
+    rock_scale: np.float32
+    terrain: _Terrain
+    lakes: _Lakes
+    cover: _Cover
+
+
+def _dom_context(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, keys) -> _DomContext:
+    k = {name: next(keys) for name in (
+        "fine2", "block", "stagger", "parcel", "city", "cblock", "building", "lake")}
+    col_f, row_f = ext.node_index(grid.x_m(), grid.y_m())
+    return _DomContext(
+        k=k,
+        res=grid.res_m,
+        x_all=grid.x_m() - centre[0],
+        y_all=grid.y_m() - centre[1],
+        col_f=col_f,
+        row_f=row_f,
+        near_c=np.clip(np.round(col_f).astype(np.intp), 0, ext.n_cols - 1),
+        near_r=np.clip(np.round(row_f).astype(np.intp), 0, ext.n_rows - 1),
+        overlays=_overlays(grid, rivers, roads),
+        lake_rho=np.float32(0.032 + 0.012 * _unit(_hash(k["lake"], np.arange(1)))[0]),
+        rock_scale=np.float32(args["relief_m"] / 1500.0),
+        terrain=terrain,
+        lakes=lakes,
+        cover=cover,
+    )
+
+
+def _render_strip(ctx: _DomContext, rows: slice, rng):
+    """Radiance (DN, float32), water mask and land-cover codes of one strip of DOM rows."""
+    cover, terrain = ctx.cover, ctx.terrain
+    x = ctx.x_all.astype(np.float32)[None, :]
+    y = ctx.y_all[rows].astype(np.float32)[:, None]
+    f = dict(zip(_SHARP, _resample(cover.sharp, ctx.row_f[rows], ctx.col_f, "keys")))
+    f.update(zip(_SMOOTH, _resample(cover.smooth, ctx.row_f[rows], ctx.col_f, "linear")))
+    lake_level = ctx.lakes.level[ctx.near_r[rows][:, None], ctx.near_c[None, :]]
+    shape = f["shape_pre"].shape
+    fine1 = np.clip(rng.standard_normal(shape, dtype=np.float32), -3.0, 3.0)
+    fine2 = _value_noise(ctx.k["fine2"], ctx.x_all, ctx.y_all[rows], 2.5 * ctx.res)
+    med, low = f["med"], f["low"]
+    riparian = ctx.overlays[1]
+
+    sea = f["coast"] < terrain.c0
+    with np.errstate(invalid="ignore"):
+        lake = ~sea & (f["shape_pre"] < lake_level)
+    land = ~(sea | lake)
+    urban = land & (f["urban"] > cover.urban_t)
+    rock = (land & ~urban & (f["shape_pre"] * ctx.rock_scale + 0.12 * med + 0.05 * fine2 > 0.72)
+            & (f["slope_deg"] > 8.0))
+    forest = land & ~urban & ~rock & (
+        (f["forest"] + 0.25 * fine2 > cover.forest_t) | (riparian[rows] > 0))
+    field_ = (land & ~(urban | rock | forest) & (f["slope_deg"] < 14.0)
+              & (f["shape_pre"] * ctx.rock_scale < 0.45))
+    beach = land & ~urban & (f["coast"] - terrain.c0 < 45.0) & (low > -0.3)
+    classes = dict(field_=field_, forest=forest, rock=rock, urban=urban, beach=beach)
+
+    rho, code = _land_reflectance(ctx.k, x, y, f, classes, fine1, fine2)
+    rho, code, river = _roads_and_rivers(ctx.overlays, rows, rho, code, land)
+    rho = rho * np.where(land & ~river, f["shade"], np.float32(1.0))
+
+    rho = np.where(sea, 0.038 * (1.0 + 0.005 * low), rho)
+    rho = np.where(lake, ctx.lake_rho * (1.0 + 0.005 * low), rho)
+    code[sea] = LandCover.SEA
+    code[lake] = LandCover.LAKE
+    return _DN_OFFSET + _DN_GAIN * rho, sea | lake | river, code
+
+
+def _land_reflectance(k, x, y, f, classes, fine1, fine2):
+    """Reflectance and land-cover code of land pixels: grass by default, then each class."""
+    med = f["med"]
+    field_, forest, rock, urban, beach = (classes[n] for n in ("field_", "forest", "rock", "urban", "beach"))
+    shape = fine1.shape
+    # Natural grass and shrub is the default land reflectance.
+    rho = 0.105 * (1.0 + 0.22 * med + 0.10 * fine2 + 0.03 * fine1)
+    code = np.full(shape, LandCover.GRASS, dtype=np.uint8)
+    if field_.any():
+        xs, ys = np.broadcast_to(x, shape)[field_], np.broadcast_to(y, shape)[field_]
+        rho[field_] = _fields_texture(
+            k, xs, ys, f["warp_x"][field_], f["warp_y"][field_], fine1[field_],
+            fine2[field_], med[field_])
+        code[field_] = LandCover.FIELD
+    if forest.any():
+        rho_f = 0.052 * (1.0 + 0.25 * med) * (1.0 + 0.18 * fine1 + 0.22 * fine2)
+        rho = np.where(forest, rho_f, rho)
+        code[forest] = LandCover.FOREST
+    if rock.any():
+        rho = np.where(rock, 0.17 * (1.0 + 0.2 * med + 0.2 * fine2 + 0.08 * fine1), rho)
+        code[rock] = LandCover.ROCK
+    if urban.any():
+        xs, ys = np.broadcast_to(x, shape)[urban], np.broadcast_to(y, shape)[urban]
+        rho[urban] = _urban_texture(k, xs, ys, fine1[urban])
+        code[urban] = LandCover.URBAN
+    if beach.any():
+        rho = np.where(beach, 0.29 * (1.0 + 0.08 * fine2), rho)
+        code[beach] = LandCover.BEACH
+    return rho, code
+
+
+def _roads_and_rivers(overlays, rows, rho, code, land):
+    """Roads, then rivers (under bridges), on land only; returns ``(rho, code, river mask)``."""
+    river_cov, _, road_cov, road_id, road_rho = overlays
+    a_road = road_cov[rows].astype(np.float32) * np.float32(1.0 / 255.0)
+    a_road[~land] = 0.0
+    ids = road_id[rows]
+    rho = rho * (1.0 - a_road) + np.where(ids > 0, road_rho[ids], rho) * a_road
+    a_river = river_cov[rows].astype(np.float32) * np.float32(1.0 / 255.0)
+    a_river[~land | (a_road >= 0.5)] = 0.0
+    rho = rho * (1.0 - a_river) + np.float32(0.045) * a_river
+    river = a_river >= 0.5
+    code[a_road >= 0.5] = LandCover.ROAD
+    code[river] = LandCover.RIVER
+    return rho, code, river
 
 
 def _overlays(grid, rivers, roads):

@@ -49,7 +49,22 @@ FIELD_FACTOR = 8
 
 
 def footprint_lonlat(model, heights_m, *, step_px: int = 32):
-    """Lon/lat of the image border of every band at each height: arrays (N,)."""
+    """Lon/lat of the image border of every band at each height.
+
+    Parameters
+    ----------
+    model : PushbroomModel
+        The scene model (its ``bands`` and ``image_shape``).
+    heights_m : iterable of float
+        Ellipsoidal heights of the localization, metres.
+    step_px : int
+        Spacing of the border points, pixels (pixel centres, corners included).
+
+    Returns
+    -------
+    lon_deg, lat_deg : ndarray, shape (N,)
+        WGS84 degrees, every band and height concatenated (NaN where localization fails).
+    """
     n_rows, n_cols = model.image_shape
     rows = np.linspace(0.5, n_rows - 0.5, max(2, n_rows // step_px + 1))
     cols = np.linspace(0.5, n_cols - 0.5, max(2, n_cols // step_px + 1))
@@ -252,7 +267,61 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
 
     models = build_models(cfg)
     model = models.true_model
-    reference_files = {}
+    dom, dem, reference_files = _reference(cfg, models, tmp, dom_path, dem_path, geoid)
+    renderer = _Renderer(cfg, models, dem, dom)
+    dem_planes(dem)  # build the shared sampling planes once, before the threads
+    n_rows, n_cols = model.image_shape
+    bands = list(cfg.camera.bands)
+    n_ccd = len(model.band_ccds(cfg.camera.reference_band))
+    t_render = time.perf_counter()
+    cloud_pixels, has_mask = _render_scene(renderer, model, tmp, bands, cfg.camera.reference_band, n_ccd,
+                                           block_lines, workers, progress)
+    render_seconds = time.perf_counter() - t_render
+
+    rasters = {b: str(tmp / f"{b}.tif") for b in bands}
+    write_manifest(models.lab_model, tmp / "manifest.json", rasters=rasters)
+    write_manifest(models.true_model, tmp / "truth_manifest.json", rasters=rasters)
+    initial = truth_error(model, models.lab_model, dem=dem, step_px=32)
+    truth = {
+        "format_version": 1,
+        "kind": "gcpcal.simulate.pushbroom",
+        "seed": cfg.seed,
+        "true_model": "truth_manifest.json",
+        "lab_model": "manifest.json",
+        "reference": reference_files,
+        "clouds": {"cover_requested": cfg.clouds.cover, "mask": "cloud_mask.tif" if has_mask else None},
+        **models.truth,
+        "config": cfg.to_dict(),
+    }
+    pixels = n_rows * n_cols * len(bands)
+    summary = {
+        "kind": "gcpcal.simulate.pushbroom",
+        "seed": cfg.seed,
+        "image": {"n_rows": n_rows, "n_cols": n_cols, "bands": bands, "ccds": n_ccd},
+        "files": {**{b: f"{b}.tif" for b in bands}, "manifest": "manifest.json",
+                  "truth": "truth.json", "truth_manifest": "truth_manifest.json",
+                  **({"cloud_mask": "cloud_mask.tif"} if has_mask else {})},
+        "reference": reference_files,
+        "cloud_fraction": cloud_pixels / float(n_rows * n_cols),
+        "lab_truth_error_px": {"rms": initial["rms_px"], "max": initial["max_px"],
+                               "mean_row": initial["mean_row_px"], "mean_col": initial["mean_col_px"]},
+        "render_seconds": render_seconds,
+        "pixels_per_second": pixels / render_seconds,
+        "workers": workers,
+        "seconds": time.perf_counter() - t_start,
+    }
+    _write_json(tmp / "truth.json", truth)
+    if not record_timings:
+        summary = {k: v for k, v in summary.items() if k not in ("render_seconds", "pixels_per_second", "seconds")}
+    _write_json(tmp / "summary.json", summary)
+    return summary
+
+
+def _reference(cfg, models: SceneModels, tmp: Path, dom_path, dem_path, geoid):
+    """``(dom MapImage, Dem, reference file names)``: given, or procedural under ``tmp/reference``.
+
+    Checks that both cover the scene's footprint between the DEM's lowest and highest heights.
+    """
     if dom_path is None:
         data, p_dom, p_dem = _procedural_reference(cfg, models, tmp / "reference")
         dom = MapImage.from_array(data.dom, data.dom_transform, data.crs)
@@ -263,27 +332,28 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
         dem = Dem.open(dem_path, geoid=geoid)
         reference_files = {"dom": os.path.abspath(dom_path), "dem": os.path.abspath(dem_path)}
     h_lo, h_hi = dem.height_range_m
-    lon, lat = footprint_lonlat(model, (h_lo, h_hi))
+    lon, lat = footprint_lonlat(models.true_model, (h_lo, h_hi))
     _check_covers(dom.grid, lon, lat, what="DOM", path=dom.path)
     _check_covers(MapGrid.of_dem(dem), lon, lat, what="DEM", path=dem.source)
+    return dom, dem, reference_files
 
-    renderer = _Renderer(cfg, models, dem, dom)
-    dem_planes(dem)  # build the shared sampling planes once, before the threads
-    n_rows, n_cols = model.image_shape
-    bands = list(cfg.camera.bands)
-    ref_band = cfg.camera.reference_band
-    n_ccd = len(model.band_ccds(ref_band))
-    blocks = [(r, min(n_rows, r + block_lines)) for r in range(0, n_rows, block_lines)]
+
+def _render_scene(renderer: "_Renderer", model, tmp: Path, bands, ref_band, n_ccd, block_lines, workers, progress):
+    """Render every block of lines into ``tmp/<band>.tif`` (and ``cloud_mask.tif`` with clouds).
+
+    Returns ``(cloud pixels in the reference band, whether a cloud mask was written)``.
+    """
     from rasterio.errors import NotGeoreferencedWarning
     from rasterio.windows import Window
 
+    n_rows, n_cols = model.image_shape
+    blocks = [(r, min(n_rows, r + block_lines)) for r in range(0, n_rows, block_lines)]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)  # raw sensor geometry
         writers = {b: _open_writer(tmp / f"{b}.tif", n_rows, n_cols, "uint16") for b in bands}
         mask_writer = (_open_writer(tmp / "cloud_mask.tif", n_rows, n_cols, "uint8")
                        if renderer.clouds is not None else None)
     cloud_pixels = 0
-    t_render = time.perf_counter()
     try:
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
 
@@ -308,45 +378,7 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
             w.close()
         if mask_writer is not None:
             mask_writer.close()
-    render_seconds = time.perf_counter() - t_render
-
-    rasters = {b: str(tmp / f"{b}.tif") for b in bands}
-    write_manifest(models.lab_model, tmp / "manifest.json", rasters=rasters)
-    write_manifest(models.true_model, tmp / "truth_manifest.json", rasters=rasters)
-    initial = truth_error(model, models.lab_model, dem=dem, step_px=32)
-    truth = {
-        "format_version": 1,
-        "kind": "gcpcal.simulate.pushbroom",
-        "seed": cfg.seed,
-        "true_model": "truth_manifest.json",
-        "lab_model": "manifest.json",
-        "reference": reference_files,
-        "clouds": {"cover_requested": cfg.clouds.cover, "mask": "cloud_mask.tif" if mask_writer else None},
-        **models.truth,
-        "config": cfg.to_dict(),
-    }
-    pixels = n_rows * n_cols * len(bands)
-    summary = {
-        "kind": "gcpcal.simulate.pushbroom",
-        "seed": cfg.seed,
-        "image": {"n_rows": n_rows, "n_cols": n_cols, "bands": bands, "ccds": n_ccd},
-        "files": {**{b: f"{b}.tif" for b in bands}, "manifest": "manifest.json",
-                  "truth": "truth.json", "truth_manifest": "truth_manifest.json",
-                  **({"cloud_mask": "cloud_mask.tif"} if mask_writer else {})},
-        "reference": reference_files,
-        "cloud_fraction": cloud_pixels / float(n_rows * n_cols),
-        "lab_truth_error_px": {"rms": initial["rms_px"], "max": initial["max_px"],
-                               "mean_row": initial["mean_row_px"], "mean_col": initial["mean_col_px"]},
-        "render_seconds": render_seconds,
-        "pixels_per_second": pixels / render_seconds,
-        "workers": workers,
-        "seconds": time.perf_counter() - t_start,
-    }
-    _write_json(tmp / "truth.json", truth)
-    if not record_timings:
-        summary = {k: v for k, v in summary.items() if k not in ("render_seconds", "pixels_per_second", "seconds")}
-    _write_json(tmp / "summary.json", summary)
-    return summary
+    return cloud_pixels, mask_writer is not None
 
 
 def _write_json(path: Path, doc: dict) -> None:

@@ -56,7 +56,19 @@ def _rng(seed: int, *key: int) -> np.random.Generator:
 
 
 def ccd_layout(cfg: SimConfig):
-    """Names, first raster columns and nominal across-track focal-plane positions of the CCDs."""
+    """Names, first raster columns and nominal across-track focal-plane positions of the CCDs.
+
+    Parameters
+    ----------
+    cfg : SimConfig
+        The simulation configuration.
+
+    Returns
+    -------
+    list of (str, int, int, float)
+        Per CCD: name ``"cam<i>_ccd<j>"``, first raster column, camera index (0-based) and the
+        across-track position of its detector 0 relative to the array centre, in pixels.
+    """
     c = cfg.camera
     n_ccd = c.n_cameras * c.ccds_per_camera
     step = c.detectors_per_ccd - c.overlap_detectors
@@ -71,7 +83,19 @@ def ccd_layout(cfg: SimConfig):
 
 
 def lab_camera(cfg: SimConfig) -> LabCamera:
-    """The design (laboratory) camera: no distortion, CCDs where the drawing puts them."""
+    """The design (laboratory) camera: no distortion, CCDs where the drawing puts them.
+
+    Parameters
+    ----------
+    cfg : SimConfig
+        The simulation configuration.
+
+    Returns
+    -------
+    LabCamera
+        Focal length ``pixel_size_mm * altitude_m / gsd_m`` (mm), CCDs of
+        :func:`ccd_layout`, along-track boresight offset and band offsets in mm.
+    """
     c, s = cfg.camera, cfg.scene
     p = c.pixel_size_mm
     f = p * s.altitude_m / s.gsd_m
@@ -82,7 +106,21 @@ def lab_camera(cfg: SimConfig) -> LabCamera:
 
 
 def true_camera(cfg: SimConfig, lab: LabCamera) -> LabCamera:
-    """The camera as it really is in orbit (errors of ``cfg.errors``, random parts seeded)."""
+    """The camera as it really is in orbit (errors of ``cfg.errors``, random parts seeded).
+
+    Parameters
+    ----------
+    cfg : SimConfig
+        The configuration (its ``errors`` and ``seed``).
+    lab : LabCamera
+        The design camera (:func:`lab_camera`).
+
+    Returns
+    -------
+    LabCamera
+        With focal-length ratio, principal point, radial and decentering distortion, random
+        CCD shifts and band-offset errors; fitted at degree ``TRUE_DEGREE``.
+    """
     e, p = cfg.errors, cfg.camera.pixel_size_mm
     rng = _rng(cfg.seed, 1)
     layout = ccd_layout(cfg)
@@ -118,7 +156,21 @@ def _camera_rotation(angles_rad) -> np.ndarray:
 def true_looks(camera: LabCamera, camera_of_ccd, camera2_rotation_rad):
     """Directional angles of the true camera, camera 2 (and beyond) rotated, degree-7 fits.
 
-    Returns the bands dict and the largest fit residual in radians.
+    Parameters
+    ----------
+    camera : LabCamera
+        The true camera (:func:`true_camera`).
+    camera_of_ccd : sequence of int
+        Camera index of every CCD (0: first camera, unrotated).
+    camera2_rotation_rad : (float, float, float)
+        Roll, pitch, yaw of the second camera relative to the first, radians.
+
+    Returns
+    -------
+    bands : dict of str to tuple of CcdLook
+        Degree-``TRUE_DEGREE`` polynomials per band and CCD.
+    residual_rad : float
+        Largest fit residual of ``tan psi`` over all detectors.
     """
     rots = [np.eye(3), _camera_rotation(camera2_rotation_rad)]
     bands, worst = {}, 0.0
@@ -140,6 +192,19 @@ def true_looks(camera: LabCamera, camera_of_ccd, camera2_rotation_rad):
 
 
 def lab_looks(camera: LabCamera):
+    """Directional angles of the lab camera (:func:`sensor_models.lab.lab_to_directional_angles`).
+
+    Parameters
+    ----------
+    camera : LabCamera
+        The design camera.
+
+    Returns
+    -------
+    bands : dict of str to tuple of CcdLook
+    residual_rad : float
+        Largest fit residual of ``tan psi`` over all CCDs and bands.
+    """
     from sensor_models.lab import lab_to_directional_angles
 
     bands, residual = lab_to_directional_angles(camera)
@@ -189,7 +254,19 @@ def _measured_orbit(cfg: SimConfig, orbit: Orbit) -> Orbit:
 
 
 def build_models(cfg: SimConfig) -> SceneModels:
-    """TRUE and LAB models of the configured scene, centred on ``scene.center_lon/lat_deg``."""
+    """TRUE and LAB models of the configured scene, centred on ``scene.center_lon/lat_deg``.
+
+    Parameters
+    ----------
+    cfg : SimConfig
+        The simulation configuration.
+
+    Returns
+    -------
+    SceneModels
+        The TRUE model (true camera, true attitude), the LAB model a user receives (design
+        camera, noisy orbit and attitude) and a JSON-safe record of the true parameters.
+    """
     s, e = cfg.scene, cfg.errors
     lab = lab_camera(cfg)
     tru = true_camera(cfg, lab)

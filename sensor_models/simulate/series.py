@@ -97,6 +97,17 @@ class SeriesScene:
 
         See the module notes; ``planar`` is the length of (row, col), ``yaw_edge`` the
         displacement the yaw difference adds at the swath edges.
+
+        Parameters
+        ----------
+        base : SimConfig
+            The calibration scene's configuration (its attitude bias).
+
+        Returns
+        -------
+        dict
+            ``row``, ``col``, ``planar``, ``yaw_edge`` in pixels and
+            ``bias_difference_arcsec`` (roll, pitch, yaw).
         """
         d = (np.asarray(self.config.errors.attitude_bias_arcsec) - np.asarray(base.errors.attitude_bias_arcsec)) * ARCSEC
         s = self.config.scene
@@ -153,6 +164,11 @@ def plan_series(n_scenes: int, *, base_config: SimConfig | None = None, seed: in
         Half-width of the uniform jitter of each scene's centre about its site.
     revisit_days : (int, int)
         Range (inclusive) of the days between consecutive scenes.
+
+    Returns
+    -------
+    list of SeriesScene
+        ``n_scenes`` acquisitions, in date order.
     """
     base = (base_config or SimConfig()).validate()
     if int(n_scenes) < 1:
