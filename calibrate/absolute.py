@@ -53,7 +53,6 @@ from calibrate.lsq import PROBE_POINTS, Chunk, LsqResult, Prior, robust_weights,
 from gcpmatch.gcps import GcpTable
 from sensor_models.base import SensorModel
 from sensor_models.errors import InputError
-from sensor_models.pushbroom import PushbroomModel
 
 __all__ = ["CalibrationResult", "calibrate_model", "parameter_unit", "residual_statistics"]
 
@@ -348,7 +347,7 @@ def _per_point(value, n, field_name):
     return arr
 
 
-def _pushbroom_groups(model: PushbroomModel, points, band, ccd, interior_terms):
+def _pushbroom_groups(model, points, band, ccd, interior_terms):
     n = points["row"].size
     bands = _per_point(band, n, "band")
     if bands is None:
@@ -363,16 +362,16 @@ def _pushbroom_groups(model: PushbroomModel, points, band, ccd, interior_terms):
     ccd_idx = np.empty(n, dtype=np.intp)
     for b in present:
         sel = np.nonzero(bands == b)[0]
-        look = model.band_ccds(b)
+        look = model.detector_arrays(b)
         if ccds is None:
-            ccd_idx[sel] = model.ccd_index(points["col"][sel], band=b).reshape(-1)
+            ccd_idx[sel] = model.detector_index(points["col"][sel], band=b).reshape(-1)
             continue
         names = [c.name for c in look]
         values = ccds[sel]
         # resolve each distinct value once: a CCD name, an index, or missing (None, "", NaN:
         # the CCD whose columns hold the point)
         unique, inverse = np.unique(values.astype(str), return_inverse=True)
-        from_col = model.ccd_index(points["col"][sel], band=b).reshape(-1)
+        from_col = model.detector_index(points["col"][sel], band=b).reshape(-1)
         resolved = np.array([_resolve_ccd(v, names, b) for v in unique], dtype=np.intp)
         chosen = resolved[inverse.reshape(-1)]
         ccd_idx[sel] = np.where(chosen < 0, from_col, chosen)
@@ -380,19 +379,13 @@ def _pushbroom_groups(model: PushbroomModel, points, band, ccd, interior_terms):
     groups = []
     for b in present:
         in_band = bands == b
-        for ci, look in enumerate(model.band_ccds(b)):
+        for ci, look in enumerate(model.detector_arrays(b)):
             idx = np.nonzero(in_band & (ccd_idx == ci))[0]
             if idx.size == 0:
                 continue
             interior = _interior_names(b, look, interior_terms, all_names)
             groups.append(_Group(b, ci, look.name, idx, interior))
     return groups, bands, ccd_idx
-
-
-def _is_staring(model) -> bool:
-    from sensor_models.geo_staring import GeoStaringModel
-
-    return isinstance(model, GeoStaringModel)
 
 
 def _staring_groups(model, points, band, ccd, interior_terms):
@@ -492,7 +485,7 @@ def _interior_names(band, look, terms, all_names):
 def _check_estimable(model, group, weight, points, min_points_factor, min_span_fraction):
     """Decide whether a CCD's interior can be estimated; a skip record if not."""
     col = points["col"]
-    look = model.band_ccds(group.band)[group.ccd]
+    look = model.detector_arrays(group.band)[group.ccd]
     used = group.idx[weight[group.idx] > 0.0]
     n_unknown = len(group.interior)
     needed = int(math.ceil(min_points_factor * n_unknown))
@@ -536,8 +529,9 @@ class _Problem:
         self.chunk_points = int(chunk_points)
         self.all_names = tuple(model.parameters().names)
         self.lookup = {n: i for i, n in enumerate(self.all_names)}
-        self.pushbroom = isinstance(model, PushbroomModel)
-        self.staged = self.pushbroom or _is_staring(model)  # exterior + interior groups
+        layout = model.interior_layout
+        self.pushbroom = layout == "per_array"  # one interior per detector array (CCD)
+        self.staged = layout != "none"  # exterior + interior groups
         # yield order: first a strided sample of every group (the solver takes its provisional
         # robust scale from the first points it sees), then the rest in chunks
         n = sum(g.idx.size for g in groups)
@@ -575,7 +569,7 @@ class _Problem:
             cols = np.array([position[n] for n in names], dtype=np.intp)
             bounds = None
             if self.pushbroom and np.isfinite(max_extrapolation):
-                look = self.model.band_ccds(g.band)[g.ccd]
+                look = self.model.detector_arrays(g.band)[g.ccd]
                 margin = max_extrapolation * look.n_detectors
                 lo = look.first_col + 0.5 - margin
                 bounds = (lo, lo + look.n_detectors - 1.0 + 2.0 * margin)
@@ -588,7 +582,7 @@ class _Problem:
             model = self.model.with_parameters(values)
             for k, sel in self.segments:
                 g, names, cols, bounds = plan[k]
-                kw = {"band": g.band, "ccd": g.ccd} if self.pushbroom else {"band": g.band}
+                kw = {"band": g.band, "array": g.ccd} if self.pushbroom else {"band": g.band}
                 if names:
                     r, c, jac = model.image_jacobian(
                         p["lon"][sel], p["lat"][sel], p["h"][sel], names=names, **kw
@@ -691,9 +685,10 @@ def _group_points(model, points, table, options):
     """Groups of points (band, CCD) by model kind; per-point band names and CCD indices."""
     band, ccd = _blank_to_none(table.band), _blank_to_none(table.ccd)
     scheme = options.scheme
-    if _is_staring(model):
+    layout = model.interior_layout
+    if layout == "frame":
         groups, bands, ccd_idx = _staring_groups(model, points, band, ccd, options.interior_terms)
-    elif isinstance(model, PushbroomModel):
+    elif layout == "per_array":
         if band is not None:
             band = np.where(band == "", model.reference_band, band)
         groups, bands, ccd_idx = _pushbroom_groups(model, points, band, ccd, options.interior_terms)
@@ -726,9 +721,10 @@ def _single_group(model, points, band, ccd, scheme):
 
 def _mark_estimable(model, groups, weight, points, options):
     """Flag the groups whose interior can be estimated; skip records of the others."""
-    if isinstance(model, PushbroomModel):
+    layout = model.interior_layout
+    if layout == "per_array":
         check = _check_estimable
-    elif _is_staring(model):
+    elif layout == "frame":
         check = _check_estimable_staring
     else:
         return []
@@ -887,7 +883,7 @@ def _gauge_prior(model, groups, free, reference_ccd, gauge_sigma_px):
     else:
         in_ref = [g for g in candidates if g.band == model.reference_band] or candidates
         ref = max(in_ref, key=lambda g: g.idx.size)
-    look = model.band_ccds(ref.band)[ref.ccd]
+    look = model.detector_arrays(ref.band)[ref.ccd]
     ifov = abs(float(look.tan_psi_y[1])) if look.tan_psi_y.size > 1 else 0.0
     if not ifov > 0.0:
         ifov = 1e-5
@@ -1051,7 +1047,7 @@ def _project_all(model, problem):
     p = problem.points
     out = np.full((problem.order.size, 2), np.nan)
     for g in problem.groups:
-        kw = {"band": g.band, "ccd": g.ccd} if problem.pushbroom else {"band": g.band}
+        kw = {"band": g.band, "array": g.ccd} if problem.pushbroom else {"band": g.band}
         r, c = model.ground_to_image(p["lon"][g.idx], p["lat"][g.idx], p["h"][g.idx], **kw)
         out[g.idx] = np.stack([p["row"][g.idx] - r, p["col"][g.idx] - c], axis=-1)
     return out

@@ -38,7 +38,6 @@ from calibrate.config import CalibrationOptions
 from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
 from sensor_models.geodesy import geodetic_to_ecef
-from sensor_models.pushbroom import PushbroomModel
 
 __all__ = [
     "AccuracyReport",
@@ -320,9 +319,14 @@ def fit_normal(
 
 
 # --------------------------------------------------------------------------- model-based pieces
+def _has_named_arrays(model, band=None) -> bool:
+    """Whether the model splits its image into named detector arrays (CCDs): SensorModel protocol."""
+    return any(a.name for a in model.detector_arrays(band))
+
+
 def _model_kwargs(model, band, ccd):
-    if isinstance(model, PushbroomModel):
-        return {"band": band, "ccd": ccd}
+    if _has_named_arrays(model, band):
+        return {"band": band, "array": ccd}
     if ccd is not None:
         raise InputError("ccd applies to push-broom models only", field="ccd")
     return {"band": band}
@@ -339,12 +343,12 @@ def _band_groups(model, n, band):
 
 
 def _ccd_of(model, col, band, ccd, sel):
-    if not isinstance(model, PushbroomModel):
+    if not _has_named_arrays(model, band):
         return None
     if ccd is None:
-        return model.ccd_index(col[sel], band=band).reshape(-1)
+        return model.detector_index(col[sel], band=band).reshape(-1)
     if isinstance(ccd, str) or np.ndim(ccd) == 0:
-        return model.ccd_index(col[sel], band=band, ccd=ccd).reshape(-1)
+        return model.detector_index(col[sel], band=band, array=ccd).reshape(-1)
     return np.asarray(ccd).reshape(-1)[sel]
 
 
@@ -489,7 +493,6 @@ def check_point_accuracy(
     AccuracyReport
     """
     row, col, lon, lat, h = _arrays(row, col, lon, lat, h)
-    n = row.size
     residuals, ccd_index = check_residuals(model, row, col, lon, lat, h, band=band, ccd=ccd)
     residuals_m = vectors_m = None
     if gsd_m is not None:
@@ -537,7 +540,7 @@ def _metres_from_gsd(residuals, gsd_m):
 
 def _metres_from_model(model, residuals, row, col, h, band, ccd_index):
     """Residuals in metres, shape (N, 3), and as ground vectors, from the model's ground steps."""
-    per_point_ccd = ccd_index if isinstance(model, PushbroomModel) else None
+    per_point_ccd = ccd_index if _has_named_arrays(model) else None
     g_row, g_col = ground_steps(model, row, col, h, band=band, ccd=per_point_ccd)
     vectors_m = residuals[:, 0:1] * g_row + residuals[:, 1:2] * g_col
     residuals_m = np.stack(
@@ -566,7 +569,7 @@ def _reference_point(row, col, finite, reference_index) -> int:
 def _group_summaries(model, residuals, residuals_m, band, ccd_index) -> dict:
     """Per band and per CCD summaries of a push-broom model (empty for other models)."""
     groups = {}
-    if not isinstance(model, PushbroomModel):
+    if not _has_named_arrays(model):
         return groups
     n = residuals.shape[0]
     if band is None or isinstance(band, str):
@@ -576,7 +579,7 @@ def _group_summaries(model, residuals, residuals_m, band, ccd_index) -> dict:
     for b in dict.fromkeys(bands):
         in_band = bands == b
         groups[str(b)] = _summary_of(residuals, residuals_m, in_band)
-        names = [c.name for c in model.band_ccds(b)]
+        names = [a.name for a in model.detector_arrays(b)]
         for k in np.unique(ccd_index[in_band]):
             groups[f"{b}.{names[k]}"] = _summary_of(residuals, residuals_m, in_band & (ccd_index == k))
     return groups

@@ -681,8 +681,9 @@ def relative_calibration(model: PushbroomModel, images: Mapping[str, np.ndarray]
 
 def _checked_bands(model, images, reference_band, bands):
     """The reference band and the bands to calibrate, checked against the model and rasters."""
-    if not isinstance(model, PushbroomModel):
-        raise InputError(f"relative calibration needs a push-broom model, got {getattr(model, 'kind', type(model).__name__)}")
+    if model.interior_layout != "per_array":
+        raise InputError("relative calibration needs a model with per-CCD directional angles (push-broom), "
+                         f"got a {model.kind} model")
     reference_band = reference_band or model.reference_band
     if reference_band not in model.bands:
         raise InputError(f"unknown reference band {reference_band!r}; the model has {', '.join(model.bands)}",
@@ -833,18 +834,18 @@ def _error_stats(d: np.ndarray) -> dict:
 # --------------------------------------------------------------------------- stage action
 def _same_scene(scene: PushbroomModel, calibrated, path) -> None:
     """InputError unless ``calibrated`` describes the same image as ``scene``."""
-    if not isinstance(calibrated, PushbroomModel):
-        raise InputError(f"not a push-broom manifest (a {getattr(calibrated, 'kind', '?')} model); give the "
+    if calibrated.interior_layout != "per_array":
+        raise InputError(f"not a push-broom manifest (a {calibrated.kind} model); give the "
                          "manifest.json written by 'gcpcal calibrate'", path=path)
-    if calibrated.n_rows != scene.n_rows:
-        raise InputError(f"the calibration describes {calibrated.n_rows} lines, the scene {scene.n_rows}: "
+    if calibrated.image_shape[0] != scene.image_shape[0]:
+        raise InputError(f"the calibration describes {calibrated.image_shape[0]} lines, the scene {scene.image_shape[0]}: "
                          "a calibration of another scene", path=path)
     if set(calibrated.bands) != set(scene.bands):
         raise InputError(f"the calibration has bands {', '.join(calibrated.bands)}, the scene "
                          f"{', '.join(scene.bands)}: a calibration of another scene", path=path)
     for band in scene.bands:
-        layout = [(c.name, c.first_col, c.n_detectors) for c in scene.band_ccds(band)]
-        if [(c.name, c.first_col, c.n_detectors) for c in calibrated.band_ccds(band)] != layout:
+        layout = [(a.name, a.first_col, a.n_detectors) for a in scene.detector_arrays(band)]
+        if [(a.name, a.first_col, a.n_detectors) for a in calibrated.detector_arrays(band)] != layout:
             raise InputError(f"band {band}: the calibration's CCD layout differs from the scene's: "
                              "a calibration of another scene", path=path)
     if np.datetime64(calibrated.epoch, "ns") != np.datetime64(scene.epoch, "ns"):
@@ -937,7 +938,7 @@ def relative_scene(scene_manifest, calibrated_manifest, dem_path, out_dir, *, re
 
     t0 = time.perf_counter()
     scene = open_model(scene_manifest)
-    if not isinstance(scene, PushbroomModel):
+    if scene.interior_layout != "per_array":
         raise InputError("relative calibration needs a push-broom scene manifest", path=str(scene_manifest))
     cal_path = _calibration_manifest(calibrated_manifest)
     calibrated = open_model(cal_path)

@@ -155,8 +155,8 @@ def compensate_rpc_bias(
     RpcBiasResult
         ``success=False`` with a message when the GCPs cannot determine the terms.
     """
-    if not isinstance(rpc, RpcModel):
-        raise InputError(f"needs an RpcModel, got {type(rpc).__name__}", field="rpc")
+    if "bias" not in rpc.parameter_groups():
+        raise InputError(f"needs an RPC model (bias parameters), got a {rpc.kind} model", field="rpc")
     if terms not in BIAS_TERMS:
         raise InputError(f"terms must be one of {', '.join(BIAS_TERMS)}, got {terms!r}", field="terms")
     names = BIAS_TERMS[terms]

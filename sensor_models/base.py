@@ -469,6 +469,25 @@ class SensorModel(abc.ABC):
         """
         return {"parameters": self.parameter_names()}
 
+    @property
+    def interior_layout(self) -> str:
+        """How the calibration parameters are organized, read from :meth:`parameter_groups`.
+
+        Callers choose a calibration path by this capability, never by the model's type.
+
+        Returns
+        -------
+        {"per_array", "frame", "none"}
+            ``"per_array"``: an exterior group plus one ``"interior.<band>.<array>"`` group
+            per detector array and band (the directional angles of push-broom CCDs);
+            ``"frame"``: an exterior group plus one interior of the whole area array
+            (staring camera); ``"none"``: not a rigorous model (e.g. an RPC), whose
+            parameters are calibrated jointly as one group.
+        """
+        if not self.is_rigorous:
+            return "none"
+        return "per_array" if any(g.startswith("interior.") for g in self.parameter_groups()) else "frame"
+
     def interior_group(self, band=None, array=None) -> str | None:
         """Name of the group holding one detector array's interior (look) parameters.
 

@@ -9,7 +9,6 @@ import numpy as np
 
 from calibrate.absolute import CalibrationResult
 from sensor_models.errors import InputError
-from sensor_models.pushbroom import PushbroomModel
 
 __all__ = ["ReportContext", "check_result", "point_columns", "unwrap_result"]
 
@@ -113,7 +112,8 @@ class ReportContext:
         self.gcps = gcps
         self.checks = checks
         self.truth = truth
-        self.pushbroom = isinstance(initial, PushbroomModel) and isinstance(result.model, PushbroomModel)
+        # per-CCD look-angle curves need directional-angle interiors on both sides
+        self.pushbroom = initial.interior_layout == "per_array" and result.model.interior_layout == "per_array"
         self.bands = _calibrated_bands(result, initial) if self.pushbroom else []
         self.notes: list[str] = []
         shape = getattr(initial, "image_shape", None)

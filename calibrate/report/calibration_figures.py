@@ -18,7 +18,6 @@ import numpy as np
 from calibrate.report._html import new_figure as _new_figure, save_figure as _save
 from calibrate.report._inputs import ReportContext
 from sensor_models.errors import GcpcalError
-from sensor_models.pushbroom import PushbroomModel
 
 __all__ = ["MAX_ARROWS", "figure_distortion", "figure_error_vs_count", "figure_histograms", "figure_vectors",
            "image_difference_px", "look_difference_px"]
@@ -140,7 +139,7 @@ def image_difference_px(model, truth, band, height_m: float = 0.0) -> dict:
         Keyed by the CCD's index in ``model.band_ccds(band)``; ``detector = first_col + s``, each
         of shape (M,), M = min(n_detectors, TRUTH_SAMPLES). Empty when ``truth`` lacks the band.
     """
-    if not isinstance(truth, PushbroomModel) or band not in truth.bands:
+    if truth is None or truth.interior_layout != "per_array" or band not in truth.bands:
         return {}
     t_ccds = {c.name: (k, c) for k, c in enumerate(truth.band_ccds(band))}
     rows_eval = np.asarray(TRUTH_ROW_FRACTIONS) * truth.n_rows
@@ -197,7 +196,7 @@ def look_difference_px(initial, other, band) -> dict:
         Keyed by the CCD's index in ``initial.band_ccds(band)``; ``detector = first_col + s``,
         each of shape (M,), M = min(n_detectors, CURVE_SAMPLES).
     """
-    if not isinstance(other, PushbroomModel) or band not in other.bands:
+    if other is None or other.interior_layout != "per_array" or band not in other.bands:
         return {}
     ccds = initial.band_ccds(band)
     others = {c.name: c for c in other.band_ccds(band)}
