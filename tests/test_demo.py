@@ -95,7 +95,7 @@ def test_forty_percent_gross_outliers_barely_move_the_calibration(demo_run):
     from pathlib import Path
 
     from calibrate.absolute import calibrate_model
-    from calibrate.run import points_of
+    from calibrate.from_gcps import points_of
     from gcpmatch.gcps import read_gcps
     from sensor_models.readers import open_model
     from sensor_models.simulate.truth import truth_error

@@ -1,14 +1,14 @@
-"""Stage action behind ``gcpcal calibrate``: GCP file in, calibrated model and report out.
+"""Stage action of ``gcpcal calibrate``: GCP file in, calibrated model and report out.
 
-``calibrate_scene(scene, gcps, out_dir)`` reads any model :func:`sensor_models.readers.open_model`
-reads and a GCP table (:func:`gcpmatch.gcps.read_gcps`, strict), calibrates on the points of
-kind ``gcp`` and scores before and after on the points of kind ``check`` (never used in the
-fit), then writes into ``out_dir``:
+:func:`calibrate_scene` reads any model :func:`sensor_models.readers.open_model` reads and a GCP
+table (:func:`gcpmatch.gcps.read_gcps`, strict), calibrates on the points of kind ``gcp`` and
+scores before and after on the points of kind ``check`` (never used in the fit), then writes
+into ``out_dir``:
 
 * ``calibration.json``: parameters, covariance, correlation, condition numbers, convergence
   log, per-point residuals, check-point accuracy before and after;
-* the calibrated model: ``manifest.json`` for a push-broom scene, ``<name>_RPC.TXT`` for an
-  RPC product (bias-compensated RPC, Grodecki and Dial 2003);
+* the calibrated model: ``manifest.json`` for a push-broom or staring-camera scene,
+  ``<name>_RPC.TXT`` for an RPC product (bias-compensated RPC, Grodecki and Dial 2003);
 * ``report.html`` with PNG figures (:mod:`calibrate.report`);
 * ``calibrate.summary.json``.
 
@@ -20,61 +20,14 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+from calibrate.actions._io import staged_folder
+from calibrate.config import CalibrationOptions
+from calibrate.from_gcps import apply_calibration, points_of
 
-from sensor_models.atomic import move_tree_into
-from sensor_models.errors import InputError
-
-__all__ = ["apply_calibration", "calibrate_scene", "points_of"]
-
-
-def points_of(table, model=None) -> dict:
-    """Arrays ``row, col, lon, lat, h, sigma_px, score, band, ccd`` of a GcpTable.
-
-    ``band`` and ``ccd`` are None when blank. With a push-broom ``model``, CCD names become
-    indices into ``model.band_ccds(band)`` (what the accuracy functions take).
-    """
-    out = {k: np.asarray(getattr(table, k), dtype=np.float64) for k in ("row", "col", "lon", "lat", "h", "sigma_px", "score")}
-    for k in ("band", "ccd"):
-        v = np.asarray(getattr(table, k)).astype(str)
-        out[k] = None if (v.size == 0 or np.all(v == "")) else v
-    if model is not None and out["ccd"] is not None and hasattr(model, "band_ccds"):
-        idx = np.empty(out["ccd"].size, dtype=np.intp)
-        bands = out["band"] if out["band"] is not None else np.full(idx.size, model.reference_band)
-        for b in np.unique(bands):
-            s = bands == b
-            idx[s] = model.ccd_index(out["col"][s], band=str(b), ccd=out["ccd"][s])
-        out["ccd"] = idx
-    return out
-
-
-def apply_calibration(model, table, *, scheme="exterior-interior", robust="cauchy", band=None):
-    """Calibrate ``model`` on the ``gcp`` points of ``table``; return ``(result, gcp points)``.
-
-    Push-broom and staring-camera models use the stepwise schemes of
-    :func:`calibrate.absolute.calibrate_model`; RPC models get an image-space bias compensation (:func:`calibrate.rpc_bias.compensate_rpc_bias`).
-    """
-    from calibrate.absolute import calibrate_model
-    from sensor_models.rpc import RpcModel
-
-    g = points_of(table.gcps())
-    if g["row"].size == 0:
-        raise InputError("the GCP table holds no point of kind 'gcp'")
-    if band is not None:
-        g["band"] = np.full(g["row"].size, band) if g["band"] is None else g["band"]
-    if not isinstance(model, RpcModel):  # push-broom or staring camera: the rigorous model
-        result = calibrate_model(model, g["row"], g["col"], g["lon"], g["lat"], g["h"], band=g["band"],
-                                 ccd=g["ccd"], sigma_px=g["sigma_px"], score=g["score"], scheme=scheme, robust=robust)
-    else:
-        from calibrate.rpc_bias import compensate_rpc_bias
-
-        result = compensate_rpc_bias(model, g["row"], g["col"], g["lon"], g["lat"], g["h"], sigma_px=g["sigma_px"])
-    return result, g
+__all__ = ["calibrate_scene"]
 
 
 def _accuracy(model, pts):
@@ -86,34 +39,64 @@ def _accuracy(model, pts):
                                 band=pts["band"], ccd=pts["ccd"])
 
 
-def calibrate_scene(scene_path, gcps_path, out_dir, *, scheme="exterior-interior", robust="cauchy", band=None,
-                    image=None, report=True, progress=None) -> dict:
-    """Run the calibration stage (see the module docstring); return the summary.
-
-    ``image``: the raster the GCPs were measured in, when it is a crop of the scene the model
-    describes (an RPC product's sub-image with a pixel geotransform): the model is cropped to
-    it, as ``gcpcal match --image`` does.
-    """
-    from gcpmatch.extract import _crop_of, read_band
+def _read_inputs(scene_path, gcps_path, band, image):
+    """The model (cropped to ``image`` when that is a crop of the scene) and the GCP table."""
+    from calibrate.actions._scene import crop_to_raster
+    from gcpmatch.extract import read_band
     from gcpmatch.gcps import read_gcps
     from sensor_models.readers import open_model
 
-    t0 = time.perf_counter()
     model = open_model(scene_path)
     if image is not None:
         shape = read_band(model, band or getattr(model, "reference_band", None), image).shape
         if shape != tuple(model.image_shape) and hasattr(model, "cropped"):
-            model = _crop_of(model, image, shape)
-    table = read_gcps(gcps_path, image_shape=model.image_shape)
+            model = crop_to_raster(model, image, shape)
+    return model, read_gcps(gcps_path, image_shape=model.image_shape)
+
+
+def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptions = CalibrationOptions(), band=None,
+                    image=None, report=True, progress=None) -> dict:
+    """Run the calibration stage (see the module docstring).
+
+    Parameters
+    ----------
+    scene_path : str or Path
+        Scene manifest, RPC file or any model file.
+    gcps_path : str or Path
+        GCP table (CSV, GeoPackage or GeoTIFF) with points of kind ``gcp`` and ``check``.
+    out_dir : str or Path
+        Output folder (created when missing).
+    options : CalibrationOptions
+        Scheme, robust loss and solver settings.
+    band : str, optional
+        Band of the GCPs that name none (default: the reference band).
+    image : str or Path, optional
+        The raster the GCPs were measured in, when it is a crop of the scene the model describes
+        (an RPC product's sub-image with a pixel geotransform): the model is cropped to it, as
+        ``gcpcal match --image`` does.
+    report : bool
+        Write ``report.html`` and its figures.
+    progress : callable(str), optional
+        Receives progress messages.
+
+    Returns
+    -------
+    dict
+        The summary written to ``calibrate.summary.json`` (``success``, ``message``, ``gcps``,
+        ``check_points``, ``check_rmse_px {before, after}``, ``model``, ``seconds``).
+    """
+    t0 = time.perf_counter()
+    model, table = _read_inputs(scene_path, gcps_path, band, image)
     if progress:
         progress(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
+    # today's keywords of the library, unpacked from the options in this one place
+    # (at merge: pass ``options`` itself once calibrate_model takes it)
+    scheme, robust = options.scheme, options.robust
     result, g = apply_calibration(model, table, scheme=scheme, robust=robust, band=band)
     checks = points_of(table.checks(), model)
     acc_before, acc_after = _accuracy(model, checks), _accuracy(result.model, checks)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".calibrate-", dir=out_dir)).resolve()
-    try:
+    with staged_folder(out_dir, ".calibrate-") as tmp:
         doc = result.to_dict()
         doc["scene"] = str(scene_path)
         doc["gcp_file"] = str(gcps_path)
@@ -126,8 +109,8 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, scheme="exterior-interior
         if report and acc_before is not None:
             from calibrate.report import write_report
 
-            write_report(tmp, result=getattr(result, "calibration", result), accuracy_before=acc_before, accuracy_after=acc_after,
-                         initial_model=model, gcps=g, checks=checks)
+            write_report(tmp, result=getattr(result, "calibration", result), accuracy_before=acc_before,
+                         accuracy_after=acc_after, initial_model=model, gcps=g, checks=checks)
         summary = {
             "kind": "gcpcal.calibrate",
             "success": bool(result.success),
@@ -143,9 +126,6 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, scheme="exterior-interior
             "seconds": time.perf_counter() - t0,
         }
         (tmp / "calibrate.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-        move_tree_into(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return summary
 
 
