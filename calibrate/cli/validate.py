@@ -40,22 +40,26 @@ def command(ctx, sites_path, calibration, out_dir, scheduler, workers, spacing, 
     err = Console(stderr=True, quiet=quiet)
     columns = (TextColumn("validating"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TextColumn("{task.description}"))
-    with Progress(*columns, console=err, disable=quiet, transient=False) as bar:
-        task = bar.add_task("starting the workers", total=None)
+    bar = Progress(*columns, console=err, disable=quiet, transient=False)
+    task = bar.add_task("starting the workers", total=None)
 
-        def progress(done, total, row):
-            if row is None:  # the number of scenes, before the work starts
-                bar.update(task, total=total)
-                return
-            if row["status"] == "ok":
-                text = f"{escape(row['name'])}: planar {row['rmse_planar_px']:.3f} px on {row['points']} points"
-            else:
-                text = f"{escape(row['name'])}: [red]failed[/red] ({escape(row['reason'] or '')})"
-            bar.console.print(text, markup=True, highlight=False)
-            bar.update(task, completed=done, description=row["name"])
+    def progress(done, total, row):
+        if row is None:  # the sites file is read: the work starts
+            bar.update(task, total=total)
+            bar.start()
+            return
+        if row["status"] == "ok":
+            text = f"{escape(row['name'])}: planar {row['rmse_planar_px']:.3f} px on {row['points']} points"
+        else:
+            text = f"{escape(row['name'])}: [red]failed[/red] ({escape(row['reason'] or '')})"
+        bar.console.print(text, markup=True, highlight=False)
+        bar.update(task, completed=done, description=row["name"])
 
+    try:
         summary = validate_calibration(sites_path, calibration, out_dir, scheduler=scheduler, workers=workers,
                                        spacing_px=spacing, timeout_s=timeout, progress=progress)
+    finally:
+        bar.stop()
     if as_json:
         echo_json(summary)
     else:
