@@ -57,8 +57,8 @@ def out_dir_option(required: bool = True, default=None, help: str = "Output fold
     callable
         The click decorator.
     """
-    return click.option("--out", "out_dir", required=required, default=default, show_default=default is not None,
-                        type=click.Path(file_okay=False), help=help)
+    extra = {} if default is None else {"default": default, "show_default": True}
+    return click.option("--out", "out_dir", required=required, type=click.Path(file_okay=False), help=help, **extra)
 
 
 def add_options(options):
