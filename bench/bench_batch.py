@@ -55,8 +55,8 @@ def series(out: Path, n_scenes: int) -> Path:
 
 def calibration(out: Path) -> Path:
     """The fixture sensor's calibrated manifest (reference band), cached."""
-    from calibrate.run import calibrate_scene
-    from gcpmatch.extract import match_scene
+    from calibrate.actions.calibrate import calibrate_scene
+    from calibrate.actions.match import match_scene
     from gcpmatch.options import MatchOptions
 
     manifest = out / "manifest.json"

@@ -324,7 +324,7 @@ def validate_scene(site: Site, calibration, *, points_dir=None, spacing_px: int 
 def _validate(site: Site, calibration: Path, points_dir, spacing_px: int, out: dict) -> None:
     """Fill ``out`` (a row) step by step, so a failure keeps what was learnt before it."""
     from calibrate.accuracy import check_point_accuracy
-    from calibrate.run import points_of
+    from calibrate.from_gcps import points_of
     from gcpmatch.extract import extract_gcps, read_band
     from gcpmatch.options import MatchOptions
     from sensor_models.readers import open_model

@@ -14,16 +14,12 @@ summary:
 5. each kept window gives a GCP: the ground point that the pre-corrected model sees at the
    window centre ``p`` (DEM intersection) observed at ``p + shift`` in the scene;
    ``sigma_px`` is the CCD's robust residual spread; a stratified fraction becomes check points.
-
-:func:`match_scene` is the stage action behind ``gcpcal match`` (files in, files out).
 """
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -37,7 +33,7 @@ from gcpmatch.phase import Reject, phase_correlate
 from gcpmatch.reference import reference_for_ccd, reference_for_image
 from sensor_models.errors import InputError
 
-__all__ = ["extract_gcps", "match_scene"]
+__all__ = ["MatchOptions", "extract_gcps", "read_band"]
 
 REASONS = ("no_reference", "no_data", "cloud", "no_texture", "flat", "not_finite", "out_of_range",
            "low_score", "low_peak_ratio", "inconsistent", "model_residual")
@@ -363,57 +359,3 @@ def read_band(model, band: str, image=None) -> np.ndarray:
     except (RasterioError, IndexError) as exc:
         raise InputError(f"cannot read the scene raster ({exc})", path=path) from None
     return np.ma.filled(data.astype(np.float32), np.nan)
-
-
-def _crop_of(model, image, shape):
-    """The model of a crop whose raster says where it lies in the full scene.
-
-    A crop saved with a pixel geotransform ``(1, 0, c0, 0, 1, r0)`` and no CRS (the convention
-    of the shareloc / OTB test data: ``(c0, r0)`` is the full-scene column and row of the crop's
-    first pixel) gets ``model.cropped(r0, c0, shape)``; anything else is an error.
-    """
-    import rasterio
-
-    with rasterio.open(image) as ds:
-        t, crs = ds.transform, ds.crs
-    if crs is None and abs(t.a - 1) < 1e-12 and abs(t.e - 1) < 1e-12 and t.b == 0 and t.d == 0:
-        return model.cropped(t.f, t.c, shape)
-    raise InputError(f"the raster is {shape[0]} x {shape[1]} px but the model describes {model.image_shape}; "
-                     "a crop must carry a pixel geotransform (1, 0, col0, 0, 1, row0)", path=str(image))
-
-
-def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_datum=None, band=None, image=None,
-                mask_path=None, gpkg_path=None, geotiff_path=None, options: MatchOptions = MatchOptions(),
-                progress=None) -> dict:
-    """``gcpcal match``: read the inputs, extract GCPs, write CSV (+GPKG/GeoTIFF) and summary."""
-    from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
-    from sensor_models.atomic import atomic_write_text
-    from sensor_models.readers import open_model
-    from sensor_models.raster import MapImage
-    from sensor_models.terrain import Dem
-
-    model = open_model(scene_path)
-    band = band or getattr(model, "reference_band", None)
-    scene = read_band(model, band, image)
-    if image is not None and scene.shape != tuple(model.image_shape) and hasattr(model, "cropped"):
-        model = _crop_of(model, image, scene.shape)
-    dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
-    dom = MapImage.open(dom_path)
-    mask = None
-    if mask_path is not None:
-        mask = read_band(model, band, mask_path)
-        mask = np.nan_to_num(mask) != 0
-    table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
-    out_path = Path(out_path)
-    summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
-    if table is None or len(table) == 0:
-        atomic_write_text(out_path.with_suffix(".summary.json"), json.dumps(summary, indent=1) + "\n")
-        raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",
-                         path=str(scene_path))
-    write_gcps_csv(table, out_path)
-    if gpkg_path:
-        write_gcps_gpkg(table, gpkg_path)
-    if geotiff_path:
-        write_gcps_geotiff(table, geotiff_path, image_shape=model.image_shape)
-    atomic_write_text(out_path.with_suffix(".summary.json"), json.dumps(summary, indent=1) + "\n")
-    return summary

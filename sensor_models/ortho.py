@@ -116,11 +116,9 @@ def utm_crs(lon_deg: float, lat_deg: float) -> pyproj.CRS:
 
 def _centre_column(model, band) -> float:
     """A column at the middle of the image that is not on a CCD seam."""
-    if hasattr(model, "band_ccds"):
-        ccds = model.band_ccds(band)
-        c = ccds[len(ccds) // 2]
-        return c.first_col + 0.5 * c.n_detectors
-    return 0.5 * model.image_shape[1]
+    arrays = model.detector_arrays(band)  # one array covering the image for area arrays and RPCs
+    middle = arrays[len(arrays) // 2]
+    return middle.first_col + 0.5 * middle.n_detectors
 
 
 def _kw(band):
@@ -246,9 +244,10 @@ class _Solver:
 
 
 def _solvers(model, band):
-    if hasattr(model, "band_ccds"):
-        return [_Solver(float(c.first_col), float(c.last_col), i) for i, c in enumerate(model.band_ccds(band))]
-    return [_Solver(0.0, float(model.image_shape[1]), None)]
+    arrays = model.detector_arrays(band)
+    if len(arrays) == 1 and model.detector_view(band, 0) is model:  # the whole image is one array
+        return [_Solver(0.0, float(model.image_shape[1]), None)]
+    return [_Solver(float(a.first_col), float(a.last_col), i) for i, a in enumerate(arrays)]
 
 
 @dataclass
@@ -599,8 +598,8 @@ def _resolve_source(model, image, band):
 
 
 def _default_band(model, band):
-    if band is None and hasattr(model, "band_ccds"):
-        return getattr(model, "reference_band", None)
+    if band is None and any(a.name for a in model.detector_arrays()):  # multi-band CCD models
+        return model.reference_band
     return band
 
 

@@ -21,7 +21,7 @@ from calibrate.schemes.autocollimation import (
     render_cross,
     reproduce_table3,
 )
-from calibrate.cli_oalr import command
+from calibrate.cli.oalr import command
 from sensor_models.errors import InputError
 
 

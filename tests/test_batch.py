@@ -41,8 +41,8 @@ def small_sensor() -> SimConfig:
 @pytest.fixture(scope="module")
 def series(tmp_path_factory):
     """The series, the calibration of its sensor, and a sites file with three bad entries."""
-    from calibrate.run import calibrate_scene
-    from gcpmatch.extract import match_scene
+    from calibrate.actions.calibrate import calibrate_scene
+    from calibrate.actions.match import match_scene
     from gcpmatch.options import MatchOptions
 
     root = tmp_path_factory.mktemp("series")

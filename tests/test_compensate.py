@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from calibrate.cli_compensate import command
+from calibrate.cli.compensate import command
 from calibrate.schemes.compensate import (
     SCHEMES,
     SEED002_TABLE3,

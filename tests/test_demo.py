@@ -96,7 +96,7 @@ def test_forty_percent_gross_outliers_barely_move_the_calibration(demo_run):
 
     from calibrate.absolute import calibrate_model
     from calibrate.config import CalibrationOptions
-    from calibrate.run import points_of
+    from calibrate.from_gcps import points_of
     from gcpmatch.gcps import GcpTable, read_gcps
     from sensor_models.readers import open_model
     from sensor_models.simulate.truth import truth_error

@@ -26,9 +26,6 @@ CLI_MODULES = ("calibrate.cli", "calibrate.__main__")  # and calibrate.cli.*, ca
 #: reports: ``(check, importer)`` for the simulator check, ``(check, "a -> b")`` for the CLI
 #: check and ``(check, "a <-> b")`` (sorted module names) for cycles.
 KNOWN_PENDING = {
-    ("simulate", "calibrate.cli"),  # the `simulate` command group, moving to calibrate/cli/simulate.py
-    ("simulate", "calibrate.cli_stars"),  # `simulate geo-stars`, moving with the CLI split
-    ("cli", "calibrate.fallback -> calibrate.cli_stars"),
 }
 
 

@@ -227,7 +227,7 @@ def test_in_memory_orthorectify_agrees_with_file(tmp_path, truth, dem):
 # ---------------------------------------------------------------- acceptance on the fixture
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
-    from calibrate.demo import run_demo
+    from calibrate.actions.demo import run_demo
 
     out = tmp_path_factory.mktemp("demo")
     run_demo(out)

@@ -175,7 +175,7 @@ def test_figures_are_pngs(tmp_path, experiment):
 
 
 def test_cli_writes_json_and_figures(tmp_path):
-    from calibrate.cli_thermal import command
+    from calibrate.cli.thermal import command
 
     out = tmp_path / "run"
     res = CliRunner().invoke(command, ["--out", str(out), "--days", "4", "--interval-min", "60",

@@ -1,18 +1,17 @@
 """``gcpcal validate``: check a calibration on validation scenes, one Dask task per scene.
 
-Registered by :mod:`calibrate.cli` (module attribute ``command``). The work is
-:func:`calibrate.batch.validate_sites`; this module only parses options and shows progress
-(stderr) and the result table (stdout). Exit status: 0 when every scene was validated, 3 when
-some failed (their rows say why; the outputs are written all the same), 1 on a user error
-(one line: bad sites file, calibration, unreachable scheduler).
+Shows progress (stderr) and the result table (stdout). Exit status: 0 when every scene was
+validated, 4 when some failed and 3 when all failed (their rows say why; the outputs are written
+all the same), 1 on a user error (one line: bad sites file, calibration, unreachable scheduler).
 """
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import click
+
+from calibrate.actions.validate import validate_calibration
+from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
+from calibrate.cli.options import echo_json, json_option, out_dir_option, quiet_of
 
 __all__ = ["command"]
 
@@ -21,14 +20,14 @@ __all__ = ["command"]
 @click.argument("sites_path", metavar="SITES", type=click.Path(dir_okay=False))
 @click.option("--calibration", "calibration", required=True, type=click.Path(),
               help="Calibrated manifest.json, or the folder of gcpcal calibrate / gcpcal demo holding it.")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@out_dir_option()
 @click.option("--scheduler", help="Dask scheduler address (tcp://host:8786); default: a local cluster.")
 @click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True,
               help="Worker processes of the local cluster (ignored with --scheduler).")
 @click.option("--spacing", type=click.IntRange(min=4), default=32, show_default=True, help="Matching window spacing, pixels.")
 @click.option("--timeout", type=click.FloatRange(min=0.1), default=10.0, show_default=True,
               help="Seconds allowed to connect to --scheduler.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@json_option
 @click.pass_context
 def command(ctx, sites_path, calibration, out_dir, scheduler, workers, spacing, timeout, as_json):
     """Validate a calibration on the scenes of SITES (YAML or CSV: name, scene, dom, dem)."""
@@ -37,34 +36,36 @@ def command(ctx, sites_path, calibration, out_dir, scheduler, workers, spacing, 
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    from calibrate.batch import read_sites, validate_sites
-    from calibrate.cli import _json_default
-
-    quiet = bool((ctx.obj or {}).get("quiet", False)) or as_json
-    sites = read_sites(sites_path)
+    quiet = quiet_of(ctx, as_json)
     err = Console(stderr=True, quiet=quiet)
     columns = (TextColumn("validating"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TextColumn("{task.description}"))
-    with Progress(*columns, console=err, disable=quiet, transient=False) as bar:
-        task = bar.add_task("starting the workers", total=len(sites))
+    bar = Progress(*columns, console=err, disable=quiet, transient=False)
+    task = bar.add_task("starting the workers", total=None)
 
-        def progress(done, total, row):
-            if row["status"] == "ok":
-                text = f"{escape(row['name'])}: planar {row['rmse_planar_px']:.3f} px on {row['points']} points"
-            else:
-                text = f"{escape(row['name'])}: [red]failed[/red] ({escape(row['reason'] or '')})"
-            bar.console.print(text, markup=True, highlight=False)
-            bar.update(task, completed=done, description=row["name"])
+    def progress(done, total, row):
+        if row is None:  # the sites file is read: the work starts
+            bar.update(task, total=total)
+            bar.start()
+            return
+        if row["status"] == "ok":
+            text = f"{escape(row['name'])}: planar {row['rmse_planar_px']:.3f} px on {row['points']} points"
+        else:
+            text = f"{escape(row['name'])}: [red]failed[/red] ({escape(row['reason'] or '')})"
+        bar.console.print(text, markup=True, highlight=False)
+        bar.update(task, completed=done, description=row["name"])
 
-        rows, summary = validate_sites(sites, calibration, Path(out_dir), scheduler=scheduler, workers=workers,
-                                       progress=progress, spacing_px=spacing, timeout_s=timeout)
-    summary["sites_file"] = str(sites_path)
+    try:
+        summary = validate_calibration(sites_path, calibration, out_dir, scheduler=scheduler, workers=workers,
+                                       spacing_px=spacing, timeout_s=timeout, progress=progress)
+    finally:
+        bar.stop()
     if as_json:
-        click.echo(json.dumps({**summary, "rows": rows}, default=_json_default))
+        echo_json(summary)
     else:
-        _print_table(Console(), Table, escape, rows, summary, out_dir)
+        _print_table(Console(), Table, escape, summary["rows"], summary, out_dir)
     if summary["failed"]:
-        ctx.exit(3)
+        ctx.exit(EXIT_FAILED if not summary["ok"] else EXIT_PARTIAL)
 
 
 def _print_table(out, table_cls, escape, rows, summary, out_dir) -> None:

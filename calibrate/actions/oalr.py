@@ -1,15 +1,9 @@
-"""``gcpcal oalr``: camera changes from autocollimation cross marks (seed 004).
-
-Registered by :mod:`calibrate.cli` (module attribute ``command``).
-
-``gcpcal oalr MARKS.csv --out DIR [--reference I] [--focal-mm F] [--baseline-mm L] [--pixel-um D]
-[--sigma-k-px S] [--beta-deg B] [--alpha-deg A] [--ccd-size-px N] [--reproduce-table3] [--json]``
+"""Stage action of ``gcpcal oalr``: camera changes from autocollimation cross marks (seed 004).
 
 ``MARKS.csv`` has exactly the header columns ``time,ccd1_x_px,ccd1_y_px,ccd2_x_px,ccd2_y_px``
 (any order): the time of each epoch (seconds, strictly increasing) and the cross-mark positions on
-the two SMCCDs (x = column, y = row, pixels, first pixel centre at 0.5). Data row ``--reference``
-(0-based, default 0) holds the nominal positions. Writes ``DIR/oalr.json``
-(:func:`oalr_from_csv`).
+the two SMCCDs (x = column, y = row, pixels, first pixel centre at 0.5). Data row ``reference``
+(0-based, default 0) holds the nominal positions. Writes ``OUT/oalr.json`` (:func:`oalr_from_csv`).
 
 ``MARKS.csv`` may instead list SMCCD frames, header ``time,ccd1_frame,ccd2_frame`` (TIFF paths
 relative to the CSV): the marks are then located in the frames first (:func:`marks_from_frames`).
@@ -21,12 +15,11 @@ import csv
 import json
 from pathlib import Path
 
-import click
 import numpy as np
 
 from sensor_models.errors import InputError
 
-__all__ = ["FRAME_COLUMNS", "MARK_COLUMNS", "command", "marks_from_frames", "oalr_from_csv", "read_marks_csv"]
+__all__ = ["FRAME_COLUMNS", "MARK_COLUMNS", "marks_from_frames", "oalr_from_csv", "read_marks_csv"]
 
 MARK_COLUMNS = ("time", "ccd1_x_px", "ccd1_y_px", "ccd2_x_px", "ccd2_y_px")
 FRAME_COLUMNS = ("time", "ccd1_frame", "ccd2_frame")
@@ -61,8 +54,17 @@ def marks_from_frames(path) -> dict[str, np.ndarray]:
     """Locate the cross marks in the SMCCD frames listed by a CSV ``time,ccd1_frame,ccd2_frame``.
 
     Frame paths are relative to the CSV's folder; each frame's mark is found by
-    :func:`calibrate.schemes.autocollimation.locate_cross` (row = y, column = x). Returns the same
-    columns as :func:`read_marks_csv`.
+    :func:`calibrate.schemes.autocollimation.locate_cross` (row = y, column = x).
+
+    Parameters
+    ----------
+    path : str or Path
+        The frame list (CSV).
+
+    Returns
+    -------
+    dict
+        The same columns as :func:`read_marks_csv`.
     """
     from calibrate.schemes.autocollimation import locate_cross
 
@@ -113,6 +115,13 @@ def read_marks_csv(path, *, ccd_size_px: float | None = None) -> dict[str, np.nd
     repeated column, a row with too few or too many fields, a value that is not a finite number,
     a position outside ``[0, ccd_size_px]`` when given, times not strictly increasing, and fewer
     than one data row.
+
+    Parameters
+    ----------
+    path : str or Path
+        The marks CSV.
+    ccd_size_px : float, optional
+        SMCCD size, pixels; positions beyond it are errors.
 
     Returns
     -------
@@ -175,6 +184,32 @@ def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0
     displacement between two single locations, ``sqrt(2)`` times the location error).
     Angles in the output are arcseconds (``rot_x`` = Delta beta about X, ``rot_y`` = Delta alpha
     about Y, ``rot_z`` = Delta gamma about Z, camera frame); focal changes millimetres.
+
+    Parameters
+    ----------
+    path : str or Path
+        Marks CSV or frame-list CSV (see the module docstring).
+    out_dir : str or Path
+        Output folder (created when missing).
+    reference : int
+        Data row (0-based) of the nominal marks.
+    focal_mm, baseline_mm : float
+        Effective focal length f and distance L between the SMCCDs, mm.
+    pixel_um : float, optional
+        SMCCD pixel pitch, micrometres (default: the pitch subtending 1 arcsec at f).
+    sigma_k_px : float
+        Error of each displacement coordinate, pixels.
+    beta_deg, alpha_deg : float
+        SMCCD angles off axis in YOZ and XOZ, degrees.
+    ccd_size_px : float, optional
+        SMCCD size; positions beyond it are errors.
+    table3 : bool
+        Add seed 004 table 3, ours beside the paper's.
+
+    Returns
+    -------
+    dict
+        The document written to ``oalr.json``.
     """
     from calibrate._json import json_safe
     from calibrate.schemes.autocollimation import (ARCSEC, DEFAULT_PIXEL_UM, OalrGeometry, changes_from_displacements,
@@ -221,44 +256,3 @@ def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out_dir / "oalr.json", json.dumps(json_safe(doc), indent=1, allow_nan=False) + "\n")
     return doc
-
-
-@click.command("oalr")
-@click.argument("marks", metavar="MARKS.csv", type=click.Path(dir_okay=False))
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
-@click.option("--reference", type=int, default=0, show_default=True, help="Data row (0-based) of the nominal marks.")
-@click.option("--focal-mm", type=float, default=6550.0, show_default=True, help="Effective focal length f.")
-@click.option("--baseline-mm", type=float, default=669.0, show_default=True, help="Distance L between the SMCCDs.")
-@click.option("--pixel-um", type=float, default=None,
-              help="SMCCD pixel pitch (default: the pitch subtending 1 arcsec at f, 31.755 um at 6550 mm).")
-@click.option("--sigma-k-px", type=float, default=0.144, show_default=True,
-              help="Error of each mark displacement coordinate (seed 004: 0.430 lab, 0.144 flight).")
-@click.option("--beta-deg", type=float, default=0.0, show_default=True, help="SMCCD angle off axis in YOZ.")
-@click.option("--alpha-deg", type=float, default=0.0, show_default=True, help="SMCCD angle off axis in XOZ.")
-@click.option("--ccd-size-px", type=float, default=None, help="SMCCD size; positions beyond it are errors.")
-@click.option("--reproduce-table3", "table3", is_flag=True, help="Add seed 004 table 3, ours beside the paper's.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
-def command(marks, out_dir, reference, focal_mm, baseline_mm, pixel_um, sigma_k_px, beta_deg, alpha_deg,
-            ccd_size_px, table3, as_json):
-    """Focal-length change and camera rotations from OALR cross marks in MARKS.csv (seed 004)."""
-    if pixel_um is None:
-        from calibrate.schemes.autocollimation import ARCSEC
-
-        pixel_um = focal_mm * ARCSEC * 1000.0
-    doc = oalr_from_csv(marks, out_dir, reference=reference, focal_mm=focal_mm, baseline_mm=baseline_mm,
-                        pixel_um=pixel_um, sigma_k_px=sigma_k_px, beta_deg=beta_deg, alpha_deg=alpha_deg,
-                        ccd_size_px=ccd_size_px, table3=table3)
-    last = doc["epochs"][-1]
-    summary = {"n_epochs": len(doc["epochs"]), "last": {k: last[k] for k in
-               ("time", "delta_f_mm", "rot_x_arcsec", "rot_y_arcsec", "rot_z_arcsec")}, "sigmas": doc["sigmas"]}
-    if as_json:
-        click.echo(json.dumps(summary))
-    else:
-        s = doc["sigmas"]
-        click.echo(f"{out_dir}/oalr.json: {summary['n_epochs']} epochs; last: df {last['delta_f_mm']:+.4f} mm "
-                   f"(+/- {s['sigma_f_mm']:.4f}), rot x {last['rot_x_arcsec']:+.3f}\" y {last['rot_y_arcsec']:+.3f}\" "
-                   f"z {last['rot_z_arcsec']:+.2f}\" (+/- {s['sigma_rot_x_arcsec']:.3f}, "
-                   f"{s['sigma_rot_y_arcsec']:.3f}, {s['sigma_rot_z_arcsec']:.2f})")
-        if table3:
-            for line in doc["table3"]["discrepancies"]:
-                click.echo(f"table 3: {line}")

@@ -1,23 +1,31 @@
-"""``gcpcal relative``: band-to-band relative calibration (seed 003 section 2.2.2).
-
-Registered on the ``gcpcal`` group by :mod:`calibrate.cli` (module attribute ``command``). This
-module imports nothing from :mod:`calibrate.cli` at import time (that module imports this one
-while it loads), so the DEM options are spelled out here, as in ``calibrate.cli.dem_options``.
-"""
+"""``gcpcal relative``: band-to-band relative calibration (seed 003 section 2.2.2)."""
 
 from __future__ import annotations
 
-import json
-
 import click
 
+from calibrate.actions.relative import relative_calibration_stage
+from calibrate.cli._errors import EXIT_FAILED
+from calibrate.cli.options import add_options, dem_options, echo_json, json_option, out_dir_option, progress_printer
+from calibrate.config import ROBUST_LOSSES, CalibrationOptions
 from sensor_models.errors import InputError
 
 __all__ = ["command", "parse_rows", "parse_window"]
 
 
 def parse_window(text: str):
-    """``"64"`` -> 64, ``"64x32"`` -> ``(64, 32)``; even sizes >= 16, else an InputError naming ``--window``."""
+    """The ``--window`` value: ``"64"`` -> 64, ``"64x32"`` -> ``(64, 32)``.
+
+    Parameters
+    ----------
+    text : str
+        ``N`` or ``ROWSxCOLS``; even sizes >= 16 pixels.
+
+    Returns
+    -------
+    int or (int, int)
+        Window size, pixels.
+    """
     try:
         sizes = [int(v) for v in text.lower().split("x")]
         if len(sizes) not in (1, 2) or any(v < 16 or v % 2 for v in sizes):
@@ -28,7 +36,17 @@ def parse_window(text: str):
 
 
 def parse_rows(text: str | None):
-    """``"R0:R1"`` -> ``(R0, R1)`` (None stays None); an InputError names ``--rows`` otherwise."""
+    """The ``--rows`` value: ``"R0:R1"`` -> ``(R0, R1)``; None stays None.
+
+    Parameters
+    ----------
+    text : str or None
+        Two line numbers separated by a colon.
+
+    Returns
+    -------
+    (int, int) or None
+    """
     if text is None:
         return None
     parts = text.split(":")
@@ -45,19 +63,16 @@ def parse_rows(text: str | None):
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
 @click.option("--calibration", "calibration", required=True, type=click.Path(),
               help="Calibrated manifest.json of the reference band (as written by 'gcpcal calibrate'), or its folder.")
-@click.option("--dem", "dem_path", type=click.Path(dir_okay=False), help="DEM raster (any CRS rasterio reads).")
-@click.option("--dem-datum", type=click.Choice(["ellipsoid", "egm96"]), default=None,
-              help="Vertical datum of the DEM heights when the file does not declare it.")
-@click.option("--geoid", type=click.Path(dir_okay=False), help="Geoid grid (e.g. egm96_15.gtx) for egm96 heights.")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@add_options(dem_options)
+@out_dir_option()
 @click.option("--reference-band", help="Reference band (default: the calibrated model's reference band).")
 @click.option("--window", "window_text", default="64", show_default=True, metavar="N|RxC",
               help="Phase-correlation window, pixels: N (square) or ROWSxCOLS (e.g. 64x32); even, >= 16.")
 @click.option("--spacing", type=click.IntRange(min=1), default=24, show_default=True, help="Window grid spacing, pixels.")
 @click.option("--rows", "rows_text", metavar="R0:R1", help="Reference-band lines holding the tie points (default: all).")
-@click.option("--robust", type=click.Choice(["huber", "cauchy", "none"]), default="cauchy", show_default=True,
+@click.option("--robust", type=click.Choice(ROBUST_LOSSES), default=CalibrationOptions.robust, show_default=True,
               help="Robust loss of the interior solve.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@json_option
 @click.pass_context
 def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, reference_band, window_text, spacing,
             rows_text, robust, as_json):
@@ -69,19 +84,14 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
     Writes OUT/manifest.json (every band calibrated), OUT/relative.json (tie statistics before
     and after, per band and CCD) and OUT/relative.summary.json.
     """
-    from calibrate.cli import _json_default
-    from calibrate.relative import relative_scene
-
     if dem_path is None:
         raise InputError("--dem is required: the reference band's tie points are localized on the terrain")
-    window = parse_window(window_text)
-    rows = parse_rows(rows_text)
-    quiet = (ctx.obj or {}).get("quiet", False) or as_json
-    summary = relative_scene(scene_path, calibration, dem_path, out_dir, reference_band=reference_band,
-                             dem_datum=dem_datum, geoid=geoid, window_px=window, spacing_px=spacing, rows=rows,
-                             robust=robust, progress=None if quiet else (lambda m: click.echo(m, err=True)))
+    summary = relative_calibration_stage(
+        scene_path, calibration, dem_path, out_dir, reference_band=reference_band, dem_datum=dem_datum, geoid=geoid,
+        window_px=parse_window(window_text), spacing_px=spacing, rows=parse_rows(rows_text),
+        options=CalibrationOptions(robust=robust), progress=progress_printer(ctx, as_json))
     if as_json:
-        click.echo(json.dumps(summary, default=_json_default))
+        echo_json(summary)
     else:
         for band, s in summary["bands"].items():
             before, after = s["tie_rms_px"]["before"], s["tie_rms_px"]["after"]
@@ -90,4 +100,4 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
                        f"windows, {rms}")
         click.echo(f"wrote {out_dir}/manifest.json, relative.json in {summary['seconds']:.1f} s")
     if not summary["success"]:
-        ctx.exit(3)
+        ctx.exit(EXIT_FAILED)

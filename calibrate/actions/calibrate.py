@@ -1,0 +1,151 @@
+"""Stage action of ``gcpcal calibrate``: GCP file in, calibrated model and report out.
+
+:func:`calibrate_scene` reads any model :func:`sensor_models.readers.open_model` reads and a GCP
+table (:func:`gcpmatch.gcps.read_gcps`, strict), calibrates on the points of kind ``gcp`` and
+scores before and after on the points of kind ``check`` (never used in the fit), then writes
+into ``out_dir``:
+
+* ``calibration.json``: parameters, covariance, correlation, condition numbers, convergence
+  log, per-point residuals, check-point accuracy before and after;
+* the calibrated model: ``manifest.json`` for a push-broom or staring-camera scene,
+  ``<name>_RPC.TXT`` for an RPC product (bias-compensated RPC, Grodecki and Dial 2003);
+* ``report.html`` with PNG figures (:mod:`calibrate.report`);
+* ``calibrate.summary.json``.
+
+Everything goes to a temporary folder inside ``out_dir`` first and is moved into place at the
+end, so a failure leaves no partial output.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+from calibrate.actions._io import staged_folder
+from calibrate.config import CalibrationOptions
+from calibrate.from_gcps import apply_calibration, points_of
+
+__all__ = ["calibrate_scene"]
+
+
+def _accuracy(model, pts):
+    from calibrate.accuracy import check_point_accuracy
+
+    if pts["row"].size == 0:
+        return None
+    return check_point_accuracy(model, pts["row"], pts["col"], pts["lon"], pts["lat"], pts["h"],
+                                band=pts["band"], ccd=pts["ccd"])
+
+
+def _read_inputs(scene_path, gcps_path, band, image):
+    """The model (cropped to ``image`` when that is a crop of the scene) and the GCP table."""
+    from calibrate.actions._scene import crop_to_raster
+    from gcpmatch.extract import read_band
+    from gcpmatch.gcps import read_gcps
+    from sensor_models.readers import open_model
+
+    model = open_model(scene_path)
+    if image is not None:
+        shape = read_band(model, band or getattr(model, "reference_band", None), image).shape
+        if shape != tuple(model.image_shape) and hasattr(model, "cropped"):
+            model = crop_to_raster(model, image, shape)
+    return model, read_gcps(gcps_path, image_shape=model.image_shape)
+
+
+def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptions = CalibrationOptions(), band=None,
+                    image=None, report=True, progress=None) -> dict:
+    """Run the calibration stage (see the module docstring).
+
+    Parameters
+    ----------
+    scene_path : str or Path
+        Scene manifest, RPC file or any model file.
+    gcps_path : str or Path
+        GCP table (CSV, GeoPackage or GeoTIFF) with points of kind ``gcp`` and ``check``.
+    out_dir : str or Path
+        Output folder (created when missing).
+    options : CalibrationOptions
+        Scheme, robust loss and solver settings.
+    band : str, optional
+        Band of the GCPs that name none (default: the reference band).
+    image : str or Path, optional
+        The raster the GCPs were measured in, when it is a crop of the scene the model describes
+        (an RPC product's sub-image with a pixel geotransform): the model is cropped to it, as
+        ``gcpcal match --image`` does.
+    report : bool
+        Write ``report.html`` and its figures.
+    progress : callable(str), optional
+        Receives progress messages.
+
+    Returns
+    -------
+    dict
+        The summary written to ``calibrate.summary.json`` (``success``, ``message``, ``gcps``,
+        ``check_points``, ``check_rmse_px {before, after}``, ``model``, ``seconds``).
+    """
+    t0 = time.perf_counter()
+    model, table = _read_inputs(scene_path, gcps_path, band, image)
+    if progress:
+        progress(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
+    result, g = apply_calibration(model, table, options=options, band=band)
+    checks = points_of(table.checks(), model)
+    acc_before, acc_after = _accuracy(model, checks), _accuracy(result.model, checks)
+    out_dir = Path(out_dir)
+    with staged_folder(out_dir, ".calibrate-") as tmp:
+        doc = result.to_dict()
+        doc["scene"] = str(scene_path)
+        doc["gcp_file"] = str(gcps_path)
+        doc["check_accuracy"] = {
+            "before": None if acc_before is None else acc_before.to_dict(),
+            "after": None if acc_after is None else acc_after.to_dict(),
+        }
+        (tmp / "calibration.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        model_file = _write_model(result.model, model, tmp, out_dir)
+        if report and acc_before is not None:
+            from calibrate.report import write_report
+
+            write_report(tmp, result=getattr(result, "calibration", result), accuracy_before=acc_before,
+                         accuracy_after=acc_after, initial_model=model, gcps=g, checks=checks)
+        summary = {
+            "kind": "gcpcal.calibrate",
+            "success": bool(result.success),
+            "message": result.message,
+            "scheme": options.scheme,
+            "gcps": int(g["row"].size),
+            "check_points": int(checks["row"].size),
+            "check_rmse_px": {
+                "before": None if acc_before is None else acc_before.absolute.rmse_px,
+                "after": None if acc_after is None else acc_after.absolute.rmse_px,
+            },
+            "model": model_file,
+            "seconds": time.perf_counter() - t0,
+        }
+        (tmp / "calibrate.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    return summary
+
+
+def _write_model(calibrated, original, tmp: Path, out_dir: Path) -> str:
+    # the writer follows the model's kind: serialization, not geometry
+    if calibrated.kind == "pushbroom":
+        from sensor_models.readers.manifest import manifest_to_dict
+
+        rasters = {b: {"path": os.path.relpath(r["path"], out_dir.resolve()), "index": r.get("index", 1)}
+                   for b, r in (getattr(original, "rasters", None) or {}).items()}
+        doc = manifest_to_dict(calibrated, rasters=rasters)
+        doc["name"] = (getattr(original, "name", "") or "scene") + " (calibrated)"
+        (tmp / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        return "manifest.json"
+    if calibrated.kind == "geo_staring":
+        from sensor_models.readers.geo_manifest import geo_manifest_to_dict
+
+        ref = (getattr(original, "rasters", None) or {}).get(original.band)
+        raster = None if ref is None else {"path": os.path.relpath(ref["path"], out_dir.resolve()),
+                                            "index": ref.get("index", 1)}
+        doc = geo_manifest_to_dict(calibrated, raster=raster)
+        (tmp / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        return "manifest.json"
+    name = f"{Path(getattr(original, 'source', 'model') or 'model').stem}_RPC.TXT"
+    calibrated.write(tmp / name)
+    return name

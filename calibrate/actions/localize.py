@@ -1,0 +1,129 @@
+"""Stage action of ``gcpcal localize``: points through a model, image -> ground or ground -> image.
+
+Image coordinates put the first pixel's centre at ``(0.5, 0.5)``; ground points are WGS84
+longitude and latitude in degrees and heights in metres above the ellipsoid.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+
+from calibrate.actions._io import open_dem, write_summary
+from sensor_models.errors import InputError
+
+__all__ = ["localize_points", "read_points_csv"]
+
+
+def read_points_csv(path, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Read numeric columns from a CSV with a header; errors name the file, row and column.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file.
+    columns : tuple of str
+        Columns to read (others are ignored).
+
+    Returns
+    -------
+    dict
+        Column name -> float64 array of shape (N,), N >= 1.
+    """
+    path = Path(path)
+    try:
+        fh = path.open(newline="", encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+    with fh:
+        reader = csv.DictReader(fh)
+        header = reader.fieldnames or []
+        missing = [c for c in columns if c not in header]
+        if missing:
+            raise InputError(f"missing column(s) {', '.join(missing)} (header: {','.join(header)})", path=str(path))
+        values = {c: [] for c in columns}
+        for line, rec in enumerate(reader, start=2):
+            for c in columns:
+                try:
+                    v = float(rec[c])
+                except (TypeError, ValueError):
+                    raise InputError(f"row {line}: column '{c}' is not a number: {rec[c]!r}", path=str(path)) from None
+                if not np.isfinite(v):
+                    raise InputError(f"row {line}: column '{c}' is not finite", path=str(path))
+                values[c].append(v)
+    if not values[columns[0]]:
+        raise InputError("holds no data rows", path=str(path))
+    return {c: np.asarray(v) for c, v in values.items()}
+
+
+def _write_csv(out_path: Path, table: dict, summary: dict) -> None:
+    from sensor_models.atomic import atomic_write_text
+
+    lines = ["row,col,lon,lat,h"]
+    lines += [f"{a:.6f},{b:.6f},{x:.10f},{y:.10f},{z:.4f}" for a, b, x, y, z in zip(*table.values())]
+    atomic_write_text(out_path, "\n".join(lines) + "\n")
+    write_summary(out_path.with_suffix(".summary.json"), summary | {"output": str(out_path)})
+
+
+def localize_points(model_path, points: dict, *, direction: str, height=None, dem_path=None, dem_datum=None,
+                    geoid=None, band=None, out_path=None) -> dict:
+    """Localize points through a model and write them (with a summary) when ``out_path`` is given.
+
+    Parameters
+    ----------
+    model_path : str or Path
+        Anything :func:`sensor_models.open_model` reads.
+    points : dict
+        ``row, col`` (direct) or ``lon, lat, h`` (inverse): float64 arrays of shape (N,); or
+        ``{"csv": path}`` to read those columns from a CSV file.
+    direction : {"direct", "inverse"}
+        Image -> ground, or ground -> image.
+    height : float, optional
+        Ellipsoidal height of the ground for direct localization, m (else ``dem_path``).
+    dem_path, dem_datum, geoid : optional
+        DEM for direct localization, its vertical datum and geoid grid.
+    band : str, optional
+        Band of a multi-band model; default: the reference band.
+    out_path : str or Path, optional
+        CSV ``row,col,lon,lat,h``; ``.summary.json`` goes beside it.
+
+    Returns
+    -------
+    dict
+        The summary (``points``, ``not_localized``, ...) plus ``results``: ``row, col, lon, lat,
+        h`` arrays of shape (N,).
+    """
+    from sensor_models import open_model
+
+    t0 = time.perf_counter()
+    columns = ("row", "col") if direction == "direct" else ("lon", "lat", "h")
+    if "csv" in points:
+        points = read_points_csv(Path(points["csv"]), columns)
+    model = open_model(model_path)
+    kwargs = {} if band is None else {"band": band}
+    if direction == "direct":
+        r, c = points["row"], points["col"]
+        if dem_path is not None:
+            lo, la, hh = model.image_to_ground(r, c, dem=open_dem(dem_path, dem_datum, geoid), **kwargs)
+        else:
+            lo, la, hh = model.image_to_ground(r, c, height=height, **kwargs)
+    else:
+        lo, la, hh = points["lon"], points["lat"], points["h"]
+        r, c = model.ground_to_image(lo, la, hh, **kwargs)
+    table = {"row": np.atleast_1d(r), "col": np.atleast_1d(c), "lon": np.atleast_1d(lo), "lat": np.atleast_1d(la),
+             "h": np.atleast_1d(hh)}
+    summary = {
+        "command": "localize",
+        "model": str(model_path),
+        "model_kind": model.kind,
+        "direction": direction,
+        "points": int(table["row"].size),
+        "not_localized": int(np.count_nonzero(~np.isfinite(table["row"] + table["lon"]))),
+        "seconds": round(time.perf_counter() - t0, 4),
+    }
+    if out_path:
+        _write_csv(Path(out_path), table, summary)
+    return summary | {"results": table}

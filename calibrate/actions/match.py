@@ -1,0 +1,89 @@
+"""Stage action of ``gcpcal match``: scene, DOM and DEM in; GCP table and its summary out."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from calibrate.actions._scene import crop_to_raster
+from gcpmatch.extract import extract_gcps, read_band
+from gcpmatch.options import MatchOptions
+from sensor_models.errors import InputError
+
+__all__ = ["match_scene"]
+
+
+def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_datum=None, band=None, image=None,
+                mask_path=None, gpkg_path=None, geotiff_path=None, options: MatchOptions = MatchOptions(),
+                progress=None) -> dict:
+    """Read the inputs, extract GCPs, write the CSV (+ GeoPackage/GeoTIFF) and the summary.
+
+    Parameters
+    ----------
+    scene_path : str or Path
+        Scene manifest or any model file :func:`sensor_models.readers.open_model` reads.
+    dom_path, dem_path : str or Path
+        Reference orthoimage and DEM (any CRS).
+    out_path : str or Path
+        GCP table (CSV); ``out_path.with_suffix(".summary.json")`` goes beside it.
+    geoid : str or Path, optional
+        Geoid grid for an EGM96 DEM.
+    dem_datum : {"ellipsoid", "egm96"}, optional
+        Vertical datum of the DEM when the file does not declare it.
+    band : str, optional
+        Band to match; default: the model's reference band.
+    image : str or Path, optional
+        Scene raster (default: the manifest's raster of the band); a crop with a pixel
+        geotransform crops the model.
+    mask_path : str or Path, optional
+        Invalid-pixel raster in scene geometry (nonzero = invalid).
+    gpkg_path, geotiff_path : str or Path, optional
+        Also write the GCPs as a GeoPackage layer / as GDAL GCPs in a GeoTIFF.
+    options : MatchOptions
+        Matching settings.
+    progress : callable(str), optional
+        Receives progress messages.
+
+    Returns
+    -------
+    dict
+        The summary of :func:`gcpmatch.extract.extract_gcps` with the input and output paths.
+
+    Raises
+    ------
+    InputError
+        When no GCP could be extracted (the summary is written all the same).
+    """
+    from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
+    from sensor_models.atomic import atomic_write_text
+    from sensor_models.readers import open_model
+    from sensor_models.raster import MapImage
+    from sensor_models.terrain import Dem
+
+    model = open_model(scene_path)
+    band = band or getattr(model, "reference_band", None)
+    scene = read_band(model, band, image)
+    if image is not None and scene.shape != tuple(model.image_shape) and hasattr(model, "cropped"):
+        model = crop_to_raster(model, image, scene.shape)
+    dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
+    dom = MapImage.open(dom_path)
+    mask = None
+    if mask_path is not None:
+        mask = read_band(model, band, mask_path)
+        mask = np.nan_to_num(mask) != 0
+    table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
+    out_path = Path(out_path)
+    summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
+    if table is None or len(table) == 0:
+        atomic_write_text(out_path.with_suffix(".summary.json"), json.dumps(summary, indent=1) + "\n")
+        raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",
+                         path=str(scene_path))
+    write_gcps_csv(table, out_path)
+    if gpkg_path:
+        write_gcps_gpkg(table, gpkg_path)
+    if geotiff_path:
+        write_gcps_geotiff(table, geotiff_path, image_shape=model.image_shape)
+    atomic_write_text(out_path.with_suffix(".summary.json"), json.dumps(summary, indent=1) + "\n")
+    return summary

@@ -1,0 +1,162 @@
+"""Stage action of ``gcpcal run``: calibrate from GCPs, or from stars when clouds hide the ground.
+
+1. The scene is matched against the DOM and DEM (:func:`calibrate.actions.match.match_scene`).
+2. The GCPs are judged sufficient when there are at least ``min_gcps`` of kind ``gcp`` and they
+   cover at least ``min_coverage`` of a 4 x 4 partition of the image (clustered GCPs under a
+   hole in the clouds cannot fix a 20-coefficient interior). The matching's own verdict counts
+   too: a coarse stage that found no consistent SIFT matches (all clouds, no texture) means no
+   GCPs at all.
+3. Sufficient GCPs: the model is calibrated from them (:mod:`calibrate.actions.calibrate`).
+   Otherwise, with star frames (a ``frames.json`` sequence of the same camera with its mirror
+   turned to deep space), the camera is calibrated from the stars
+   (:mod:`calibrate.actions.stars`); without them the run fails with the reason.
+
+``run.summary.json`` says which path was taken and why (``path``: ``"gcps"`` or ``"stars"``,
+``reason``), with the matching figures that decided it.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from calibrate.actions.calibrate import calibrate_scene
+from calibrate.actions.match import match_scene
+from calibrate.actions.stars import stars_sequence
+from gcpmatch.options import MatchOptions
+from sensor_models.errors import GcpcalError, InputError
+
+__all__ = ["MIN_COVERAGE", "MIN_GCPS", "gcp_coverage", "run_scene"]
+
+#: GCPs of kind ``gcp`` needed to calibrate from the ground.
+MIN_GCPS = 60
+#: Share of a 4 x 4 partition of the image the GCPs must cover.
+MIN_COVERAGE = 0.5
+
+
+def gcp_coverage(row, col, image_shape, cells: int = 4) -> float:
+    """Fraction of a ``cells`` x ``cells`` partition of the image holding at least one point.
+
+    Parameters
+    ----------
+    row, col : array_like, shape (N,)
+        Image coordinates, pixels.
+    image_shape : tuple of int
+        ``(n_rows, n_cols)``.
+    cells : int
+        Partition cells per side.
+
+    Returns
+    -------
+    float
+        In ``[0, 1]``.
+    """
+    row, col = np.asarray(row, dtype=np.float64), np.asarray(col, dtype=np.float64)
+    if row.size == 0:
+        return 0.0
+    i = np.clip((row / image_shape[0] * cells).astype(int), 0, cells - 1)
+    j = np.clip((col / image_shape[1] * cells).astype(int), 0, cells - 1)
+    return float(np.unique(i * cells + j).size / cells**2)
+
+
+def _match(scene_path, gcp_file, *, dom_path, dem_path, dem_datum, geoid, spacing_px):
+    """Match the scene; return ``(match summary, failure message or None)``."""
+    try:
+        match = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=gcp_file, geoid=geoid,
+                            dem_datum=dem_datum, options=MatchOptions(spacing_px=spacing_px))
+        return match, None
+    except GcpcalError as exc:
+        if isinstance(exc, InputError) and not Path(gcp_file).with_suffix(".summary.json").exists() and \
+                "no GCP" not in str(exc):
+            raise  # a user mistake (missing file, bad DEM): not a reason to fall back
+        return {}, str(exc)
+
+
+def _decide(model, gcp_file, match, failure, min_gcps, min_coverage):
+    """Whether the GCPs suffice, and why; returns ``(enough, reason, n_gcps, coverage)``."""
+    n_gcps, coverage = 0, 0.0
+    if failure is None:
+        from gcpmatch.gcps import read_gcps
+
+        g = read_gcps(gcp_file).gcps()
+        n_gcps, coverage = len(g), gcp_coverage(g.row, g.col, model.image_shape)
+    enough = failure is None and n_gcps >= min_gcps and coverage >= min_coverage
+    if enough:
+        reason = f"{n_gcps} GCPs covering {100 * coverage:.0f} % of the image"
+    elif failure is not None:
+        reason = f"matching failed: {failure}"
+    else:
+        reason = (f"too few or too clustered GCPs: {n_gcps} (need {min_gcps}) covering {100 * coverage:.0f} % "
+                  f"of the image (need {100 * min_coverage:.0f} %); cloud fraction "
+                  f"{100 * float(match.get('cloud_fraction', 0.0)):.0f} %")
+    return enough, reason, n_gcps, coverage
+
+
+def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_datum=None, geoid=None,
+              min_gcps: int = MIN_GCPS, min_coverage: float = MIN_COVERAGE, spacing_px: int = 16,
+              progress=None) -> dict:
+    """Match, decide, calibrate (see the module docstring).
+
+    Parameters
+    ----------
+    scene_path : str or Path
+        Scene manifest.
+    dom_path, dem_path : str or Path
+        Reference orthoimage and DEM.
+    out_dir : str or Path
+        Output folder: ``gcps.csv``, ``calibration/`` or ``stars/``, ``run.summary.json``.
+    star_frames : str or Path, optional
+        Star sequence (``frames.json`` or its folder) for the fallback.
+    dem_datum : {"ellipsoid", "egm96"}, optional
+        Vertical datum of the DEM when the file does not declare it.
+    geoid : str or Path, optional
+        Geoid grid for an EGM96 DEM.
+    min_gcps : int
+        GCPs needed to calibrate from the ground.
+    min_coverage : float
+        Share of a 4 x 4 partition of the image the GCPs must cover, in ``[0, 1]``.
+    spacing_px : int
+        Matching window spacing, pixels.
+    progress : callable(str), optional
+        Receives progress messages.
+
+    Returns
+    -------
+    dict
+        The summary written to ``run.summary.json`` (``path``, ``reason``, ``success``, ...).
+    """
+    from sensor_models.atomic import atomic_write_text
+    from sensor_models.readers import open_model
+
+    t0 = time.perf_counter()
+    step = progress or (lambda m: None)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    model = open_model(scene_path)
+    gcp_file = out_dir / "gcps.csv"
+    step("matching the scene against the DOM")
+    match, failure = _match(scene_path, gcp_file, dom_path=dom_path, dem_path=dem_path, dem_datum=dem_datum,
+                            geoid=geoid, spacing_px=spacing_px)
+    enough, reason, n_gcps, coverage = _decide(model, gcp_file, match, failure, min_gcps, min_coverage)
+    summary = {"kind": "gcpcal.run", "scene": str(scene_path), "gcps": n_gcps, "coverage": coverage,
+               "cloud_fraction": match.get("cloud_fraction"), "reason": reason}
+    if enough:
+        step("calibrating from the GCPs")
+        result = calibrate_scene(scene_path, gcp_file, out_dir / "calibration", report=True)
+        summary.update(path="gcps", success=result["success"], message=result["message"],
+                       check_rmse_px=result["check_rmse_px"], model="calibration/" + result["model"])
+    elif star_frames is not None:
+        step(f"falling back on the star frames ({reason})")
+        doc = stars_sequence(star_frames, out_dir / "stars")
+        summary.update(path="stars", success=bool(doc.get("success")), message=doc.get("message"),
+                       star_accuracy=doc.get("accuracy"),
+                       model="stars/manifest.json" if doc.get("success") else None)
+    else:
+        summary.update(path=None, success=False,
+                       message=f"cannot calibrate: {reason}, and no star frames were given (--star-frames)")
+    summary["seconds"] = time.perf_counter() - t0
+    atomic_write_text(out_dir / "run.summary.json", json.dumps(summary, indent=1, default=str) + "\n")
+    return summary

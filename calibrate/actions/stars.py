@@ -1,0 +1,69 @@
+"""Stage action of ``gcpcal stars`` (and the star path of ``gcpcal run``): star-track calibration.
+
+``frames_path`` is a frame list (``frames.json``, format in :func:`calibrate.stars.read_frame_list`)
+or the folder holding it; the frame times come from it and the model from the manifest it names
+(``manifest`` overrides). Writes ``OUT/stars.json`` (tracks, calibration, accuracy, track
+points), ``OUT/manifest.json`` (the calibrated model of frame 0) and ``OUT/report.html`` with
+``OUT/figures/*.png`` (:func:`calibrate.report.stars.write_star_report`).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from calibrate.config import StarOptions
+from sensor_models.errors import InputError
+
+__all__ = ["stars_sequence"]
+
+
+def stars_sequence(frames_path, out_dir, *, manifest=None, options: StarOptions = StarOptions(),
+                   versus_points=(10, 15, 20, 25)) -> dict:
+    """Read the frames, calibrate from the star tracks, write ``stars.json``, the manifest, the report.
+
+    Parameters
+    ----------
+    frames_path : str or Path
+        ``frames.json`` or its folder.
+    out_dir : str or Path
+        Output folder (created when missing).
+    manifest : str or Path, optional
+        LAB manifest; default: the one the frame list names.
+    options : StarOptions
+        Catalogue, magnitude limit, scheme, centroid and seed of the held-out points.
+    versus_points : tuple of int
+        Track lengths of the accuracy-versus-points study.
+
+    Returns
+    -------
+    dict
+        The document written to ``stars.json`` (``success``, ``message``, ``accuracy``, ...).
+    """
+    from calibrate.stars import process_frames, read_frame_list
+    from sensor_models.atomic import atomic_write_text
+    from sensor_models.readers.geo_manifest import read_geo_manifest, write_geo_manifest
+
+    t0 = time.perf_counter()
+    frames, seconds, listed = read_frame_list(frames_path)
+    manifest = Path(manifest) if manifest else listed
+    if manifest is None:
+        raise InputError("the frame list names no manifest; give --manifest", path=str(frames_path))
+    lab = read_geo_manifest(manifest)
+    catalog, mag_limit = options.catalog, options.mag_limit
+    result = process_frames(frames, seconds, lab, options=options, versus_points=versus_points)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    doc = result.to_dict(points=True)
+    doc["inputs"] = {"frames": str(frames_path), "manifest": str(manifest), "catalog": str(catalog),
+                     "mag_limit": mag_limit}
+    if result.success:
+        write_geo_manifest(result.model, out_dir / "manifest.json")
+        doc["calibrated_manifest"] = "manifest.json"
+    doc["timings"]["command_s"] = time.perf_counter() - t0
+    atomic_write_text(out_dir / "stars.json", json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    from calibrate.report.stars import write_star_report
+
+    write_star_report(out_dir, doc, result=result)
+    return doc

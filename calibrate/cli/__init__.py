@@ -1,0 +1,86 @@
+"""The ``gcpcal`` command line: one click group, one module per command.
+
+Each command module (``calibrate/cli/<name>.py``, attribute ``command``) parses its options,
+builds the options value and hands off to its stage action in :mod:`calibrate.actions`; it
+prints the action's summary (a line, a table or ``--json``) and maps the outcome to the exit
+code. Shared options live in :mod:`calibrate.cli.options`; :func:`main` is the one error
+boundary (:mod:`calibrate.cli._errors`). Library code never calls ``sys.exit``.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+
+import click
+
+from calibrate.cli import (calibrate, compensate, demo, localize, match, oalr, ortho, relative, rpc, run, simulate,
+                           stars, thermal, truth, validate)
+from calibrate.cli._errors import run_guarded
+from calibrate.cli.options import add_options, verbosity_options
+from sensor_models import __version__
+
+__all__ = ["COMMAND_MODULES", "cli", "main"]
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="gcpcal")
+@add_options(verbosity_options)
+@click.pass_context
+def cli(ctx, verbose, quiet):
+    """gcpcal: on-orbit geometric calibration of satellite cameras.
+
+    \b
+    Exit codes:
+      0    success
+      1    input or I/O error (bad or missing file, unwritable folder, full disk,
+           unreadable raster, unreachable Dask scheduler) or an internal error
+      2    usage error (bad option or argument)
+      3    the stage ran but failed (e.g. no convergence)
+      4    partial success (e.g. some validation scenes failed)
+      130  interrupted
+    """
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    ctx.ensure_object(dict)
+    ctx.obj["quiet"] = quiet
+    ctx.obj["verbose"] = verbose
+
+
+#: Every command module, registered explicitly in this order (``gcpcal --help`` sorts them).
+COMMAND_MODULES = (localize, rpc, demo, match, calibrate, run, relative, validate, ortho, stars, compensate, thermal,
+                   oalr, truth, simulate)
+
+for _module in COMMAND_MODULES:
+    cli.add_command(_module.command)
+
+
+def _verbosity(args: list[str]) -> int:
+    """``-v`` count among the group's options (before the command name)."""
+    count = 0
+    for arg in args:
+        if not arg.startswith("-"):
+            break
+        if arg == "--verbose":
+            count += 1
+        elif arg.startswith("-") and not arg.startswith("--") and set(arg[1:]) <= {"v", "q"}:
+            count += arg.count("v")
+    return count
+
+
+def main(argv=None) -> int:
+    """Console entry point: run the CLI inside the error boundary.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit code: 0 ok, 1 input/I/O, 2 usage, 3 failed, 4 partial, 130 interrupted.
+    """
+    args = list(sys.argv[1:] if argv is None else argv)
+    return run_guarded(lambda: cli.main(args=args, prog_name="gcpcal", standalone_mode=False),
+                       verbose=_verbosity(args))

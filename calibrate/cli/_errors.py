@@ -1,0 +1,116 @@
+"""The one error boundary of ``gcpcal``: every exception becomes one stderr line and an exit code.
+
+=====  ==========================================================================================
+code   meaning
+=====  ==========================================================================================
+0      success
+1      input or I/O error (bad or missing file, unwritable folder, full disk, unreadable raster,
+       unreachable Dask scheduler), or an internal error
+2      usage error (bad option or argument; click's own messages)
+3      the stage ran but failed (no convergence, every validation scene failed, ...)
+4      partial success (some validation scenes failed, their rows say why)
+130    interrupted (Ctrl-C)
+=====  ==========================================================================================
+
+Nothing a user or the machine can cause prints a traceback; an unexpected exception (a bug)
+prints ``gcpcal: internal error: <type>: <message>`` and, with ``-v``, its traceback.
+"""
+
+from __future__ import annotations
+
+import traceback
+
+import click
+
+from sensor_models.errors import GcpcalError
+
+__all__ = ["EXIT_FAILED", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "run_guarded"]
+
+EXIT_OK = 0
+EXIT_INPUT = 1
+EXIT_USAGE = 2
+EXIT_FAILED = 3
+EXIT_PARTIAL = 4
+EXIT_INTERRUPTED = 130
+
+
+def _say(message: str) -> None:
+    click.echo(f"gcpcal: {message}", err=True)
+
+
+def _one_line(text: str) -> str:
+    lines = [line.strip() for line in str(text).splitlines() if line.strip()]
+    return lines[0] if lines else ""
+
+
+def _os_error_message(exc: OSError) -> str:
+    """``/x/y: Permission denied`` (the file first, as the shell says it)."""
+    what = exc.strerror or _one_line(exc) or type(exc).__name__
+    if exc.filename is not None and exc.filename2 is not None:
+        return f"{exc.filename} -> {exc.filename2}: {what}"
+    if exc.filename is not None:
+        return f"{exc.filename}: {what}"
+    return what
+
+
+def _is_dask_error(exc: BaseException) -> bool:
+    module = type(exc).__module__ or ""
+    return module.split(".")[0] in ("dask", "distributed")
+
+
+def _user_error_message(exc: BaseException) -> str | None:
+    """The message of an error a user or the machine caused; None for anything else (a bug)."""
+    from rasterio.errors import RasterioError
+
+    if isinstance(exc, GcpcalError):
+        return str(exc)
+    if isinstance(exc, RasterioError):  # before OSError: RasterioIOError is both
+        return _one_line(exc) or type(exc).__name__
+    if isinstance(exc, OSError):
+        return _os_error_message(exc)
+    if _is_dask_error(exc):
+        return f"dask: {type(exc).__name__}: {_one_line(exc)}"
+    return None
+
+
+def run_guarded(invoke, *, verbose: int = 0) -> int:
+    """Call ``invoke()`` and map what it returns or raises to an exit code.
+
+    Parameters
+    ----------
+    invoke : callable
+        Runs the click group in non-standalone mode (``group.main(..., standalone_mode=False)``);
+        an int it returns is the exit code (``ctx.exit(code)``).
+    verbose : int
+        ``-v`` count: 1 or more prints the traceback of an internal error, 2 or more that of
+        any error.
+
+    Returns
+    -------
+    int
+        The exit code (see the module docstring).
+    """
+    try:
+        rv = invoke()
+    except (KeyboardInterrupt, click.exceptions.Abort):
+        _say("interrupted")
+        return EXIT_INTERRUPTED
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except Exception as exc:  # the boundary: every error ends here as one line
+        message = _user_error_message(exc)
+        if message is None:
+            if verbose >= 1:
+                traceback.print_exc()
+            _say(f"internal error: {type(exc).__name__}: {_one_line(exc)} (run with -v for the traceback)")
+            return EXIT_INPUT
+        if verbose >= 2:
+            traceback.print_exc()
+        _say(f"error: {message}")
+        return EXIT_INPUT
+    if isinstance(rv, int) and not isinstance(rv, bool):
+        return rv
+    return EXIT_OK

@@ -1,0 +1,75 @@
+"""``gcpcal localize``: points through a model, image -> ground or ground -> image."""
+
+from __future__ import annotations
+
+import click
+
+from calibrate.actions.localize import localize_points
+from calibrate.cli.options import add_options, dem_options, echo_json, float_list
+from sensor_models.errors import InputError
+
+__all__ = ["command"]
+
+
+def _points(rows, cols, lon, lat, h_text, csv_path, inverse):
+    """``(direction, points)`` from the options, after the usage checks."""
+    direct_given = rows is not None or cols is not None
+    inverse_given = lon is not None or lat is not None or h_text is not None
+    if csv_path and (direct_given or inverse_given):
+        raise click.UsageError("give points either on the command line or with --csv, not both")
+    if direct_given and inverse_given:
+        raise click.UsageError("give --rows/--cols (direct) or --lon/--lat/--h (inverse), not both")
+    if not (csv_path or direct_given or inverse_given):
+        raise click.UsageError("give points: --rows/--cols, --lon/--lat/--h, or --csv")
+    direction = "inverse" if (inverse_given or (csv_path and inverse)) else "direct"
+    if csv_path:
+        return direction, {"csv": csv_path}
+    if direction == "direct":
+        if rows is None or cols is None:
+            raise click.UsageError("direct localization needs both --rows and --cols")
+        r, c = float_list(rows, "rows"), float_list(cols, "cols")
+        if r.size != c.size:
+            raise InputError(f"--rows has {r.size} values, --cols {c.size}")
+        return direction, {"row": r, "col": c}
+    if lon is None or lat is None or h_text is None:
+        raise click.UsageError("inverse localization needs --lon, --lat and --h")
+    lo, la, hh = float_list(lon, "lon"), float_list(lat, "lat"), float_list(h_text, "h")
+    if not lo.size == la.size == hh.size:
+        raise InputError("--lon, --lat and --h need the same number of values")
+    return direction, {"lon": lo, "lat": la, "h": hh}
+
+
+@click.command("localize")
+@click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
+@click.option("--rows", help="Comma-separated rows (direct localization).")
+@click.option("--cols", help="Comma-separated columns (direct localization).")
+@click.option("--lon", help="Comma-separated longitudes, degrees (inverse localization).")
+@click.option("--lat", help="Comma-separated latitudes, degrees (inverse localization).")
+@click.option("--h", "h_text", help="Comma-separated ellipsoidal heights, m (inverse localization).")
+@click.option("--csv", "csv_path", type=click.Path(dir_okay=False), help="CSV with row,col (direct) or lon,lat,h (--inverse).")
+@click.option("--inverse", is_flag=True, help="Ground -> image (with --csv).")
+@click.option("--height", type=float, help="Ellipsoidal height of the ground for direct localization, m.")
+@add_options(dem_options)
+@click.option("--band", help="Band (multi-band models; default: the reference band).")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False), help="Write the results as CSV (plus a .summary.json).")
+@click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
+def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height, dem_path, dem_datum, geoid, band,
+            out_path, as_json):
+    """Localize points through MODEL, image -> ground or ground -> image.
+
+    Direct: --rows/--cols (or --csv with row,col) and --height or --dem. Inverse: --lon/--lat/--h
+    (or --csv with lon,lat,h and --inverse). Image coordinates put the first pixel's centre at
+    (0.5, 0.5); heights are metres above the WGS84 ellipsoid.
+    """
+    direction, points = _points(rows, cols, lon, lat, h_text, csv_path, inverse)
+    if direction == "direct" and (height is None) == (dem_path is None):
+        raise click.UsageError("direct localization needs exactly one of --height and --dem")
+    summary = localize_points(model_path, points, direction=direction, height=height, dem_path=dem_path,
+                              dem_datum=dem_datum, geoid=geoid, band=band, out_path=out_path)
+    table = summary["results"]
+    if as_json:
+        echo_json(summary | {"results": {k: v.tolist() for k, v in table.items()}})
+    elif not out_path:
+        click.echo(f"{'row':>14} {'col':>14} {'lon_deg':>16} {'lat_deg':>16} {'h_m':>11}")
+        for a, b, x, y, z in zip(*table.values()):
+            click.echo(f"{a:14.6f} {b:14.6f} {x:16.10f} {y:16.10f} {z:11.4f}")

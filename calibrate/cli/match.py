@@ -1,0 +1,52 @@
+"""``gcpcal match``: GCPs of a scene against a reference orthoimage and a DEM."""
+
+from __future__ import annotations
+
+import click
+
+from calibrate.actions.match import match_scene
+from calibrate.config import MatchOptions
+from calibrate.cli.options import add_options, dem_options, echo_json, json_option, progress_printer
+from sensor_models.errors import InputError
+
+__all__ = ["command"]
+
+
+@click.command("match")
+@click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
+@click.option("--dom", "dom_path", required=True, type=click.Path(dir_okay=False), help="Reference orthoimage (any CRS).")
+@add_options(dem_options)
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="GCP table (CSV); a .summary.json goes beside it.")
+@click.option("--gpkg", "gpkg_path", type=click.Path(dir_okay=False), help="Also write the GCPs as a GeoPackage layer.")
+@click.option("--geotiff", "geotiff_path", type=click.Path(dir_okay=False), help="Also write the GCPs into a GeoTIFF (GDAL GCPs).")
+@click.option("--band", help="Band to match (default: the reference band).")
+@click.option("--image", type=click.Path(dir_okay=False), help="Scene raster (default: the manifest's raster of the band).")
+@click.option("--mask", "mask_path", type=click.Path(dir_okay=False), help="Cloud/invalid mask raster in scene geometry (nonzero = invalid).")
+@click.option("--check-fraction", type=click.FloatRange(0.0, 0.9), default=MatchOptions.check_fraction, show_default=True,
+              help="Share of matches kept as independent check points.")
+@click.option("--window", type=click.IntRange(min=16), default=MatchOptions.window_px, show_default=True,
+              help="Phase-correlation window, pixels.")
+@click.option("--spacing", type=click.IntRange(min=1), default=MatchOptions.spacing_px, show_default=True,
+              help="Window grid spacing, pixels.")
+@click.option("--max-offset", type=click.FloatRange(min=1.0), default=MatchOptions.max_offset_px, show_default=True,
+              help="Largest expected model error, pixels.")
+@click.option("--backend", type=click.Choice(["cpu", "gpu"]), default=MatchOptions.backend, show_default=True,
+              help="Phase correlation on CPU (numpy) or GPU (torch).")
+@json_option
+@click.pass_context
+def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_path, geotiff_path, band, image,
+            mask_path, check_fraction, window, spacing, max_offset, backend, as_json):
+    """Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation)."""
+    if dem_path is None:
+        raise InputError("--dem is required: GCPs need terrain heights")
+    options = MatchOptions(window_px=window, spacing_px=spacing, max_offset_px=max_offset,
+                           check_fraction=check_fraction, backend=backend)
+    summary = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=out_path, geoid=geoid,
+                          dem_datum=dem_datum, band=band, image=image, mask_path=mask_path, gpkg_path=gpkg_path,
+                          geotiff_path=geotiff_path, options=options, progress=progress_printer(ctx, as_json))
+    if as_json:
+        echo_json(summary)
+        return
+    click.echo(f"{out_path}: {summary['gcps']} GCPs + {summary['check_points']} check points from "
+               f"{summary['windows']} windows ({100 * summary['usable_fraction']:.0f} % usable, "
+               f"{100 * summary['cloud_fraction']:.0f} % cloud) in {summary['timings']['total_s']:.1f} s")

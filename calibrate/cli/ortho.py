@@ -1,0 +1,61 @@
+"""``gcpcal ortho``: orthoimage of a scene band as a Cloud-Optimized GeoTIFF."""
+
+from __future__ import annotations
+
+import click
+
+from calibrate.actions.ortho import ortho_scene
+from calibrate.cli.options import add_options, dem_options, echo_json, json_option, quiet_of
+from calibrate.config import ORTHO_RESAMPLING, OrthoOptions
+from sensor_models.errors import InputError
+
+__all__ = ["command"]
+
+
+@click.command("ortho")
+@click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
+@click.option("--calibration", type=click.Path(),
+              help="Calibrated model (manifest.json or RPC), or the folder of 'gcpcal calibrate': the geometry. "
+                   "Default: SCENE's own model.")
+@add_options(dem_options)
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
+              help="Orthoimage (Cloud-Optimized GeoTIFF); OUT.summary.json goes beside it.")
+@click.option("--band", help="Band (default: the reference band).")
+@click.option("--crs", help="Output CRS, e.g. EPSG:32631 (default: the UTM zone of the scene centre).")
+@click.option("--resolution", type=click.FloatRange(min=0.0, min_open=True),
+              help="Pixel size in CRS units, m (default: the scene's ground sampling distance).")
+@click.option("--resampling", type=click.Choice(ORTHO_RESAMPLING), default=OrthoOptions.resampling, show_default=True,
+              help="Interpolation of the scene pixels.")
+@click.option("--image", type=click.Path(dir_okay=False), help="Scene raster (default: the manifest's raster of the band).")
+@click.option("--block", type=click.IntRange(min=64), default=OrthoOptions.block, show_default=True,
+              help="Output pixels per block side (memory grows with its square, not with the output).")
+@json_option
+@click.pass_context
+def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_path, band, crs, resolution, resampling,
+            image, block, as_json):
+    """Orthorectify a band of SCENE on the DEM into a Cloud-Optimized GeoTIFF.
+
+    The geometry comes from --calibration (the calibrated model) when given, the pixels from
+    SCENE's rasters (or --image). The output grid is the scene footprint's bounding box in the
+    CRS at the resolution; pixels off the image or the DEM are no-data (0).
+    """
+    if dem_path is None:
+        raise InputError("--dem is required: orthorectification needs terrain heights")
+    quiet = quiet_of(ctx, as_json)
+
+    def progress(done, total):
+        if not quiet and (done == total or done % max(1, total // 10) == 0):
+            click.echo(f"ortho: {done}/{total} blocks", err=True)
+
+    options = OrthoOptions(crs=crs, resolution_m=resolution, resampling=resampling, block=block)
+    summary = ortho_scene(scene_path, out_path, dem_path=dem_path, calibration=calibration, dem_datum=dem_datum,
+                          geoid=geoid, band=band, image=image, options=options, progress=progress)
+    if as_json:
+        echo_json(summary)
+        return
+    rows, cols = summary["shape"]
+    check = summary["geometry_check_max_px"]
+    click.echo(f"wrote {summary['output']}: {cols} x {rows} px at {summary['resolution_m']:g} m in {summary['crs']}, "
+               f"{100 * summary['valid_fraction']:.0f} % valid, geometry check max "
+               f"{check:.4f} px, {summary['seconds']:.1f} s" if check is not None else
+               f"wrote {summary['output']}: {cols} x {rows} px in {summary['seconds']:.1f} s")

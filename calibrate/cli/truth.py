@@ -1,0 +1,37 @@
+"""``gcpcal truth error``: compare a model with the TRUE model of a simulated scene."""
+
+from __future__ import annotations
+
+import click
+
+from calibrate.actions.simulate import truth_error_of
+from calibrate.cli.options import add_options, dem_options, echo_json, float_list
+
+__all__ = ["command"]
+
+
+@click.group("truth")
+def command():
+    """Compare models with the truth of a simulated scene."""
+
+
+@command.command("error")
+@click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
+@click.option("--truth", "truth_path", required=True, type=click.Path(dir_okay=False), help="The TRUE model (truth_manifest.json of a simulation).")
+@add_options(dem_options)
+@click.option("--heights", help="Comma-separated ellipsoidal heights (m) to compare at, when no --dem is given.")
+@click.option("--step", type=click.FloatRange(min=1.0), default=16.0, show_default=True, help="Grid spacing in pixels.")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False), help="Write the result as JSON.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def error_command(model_path, truth_path, dem_path, dem_datum, geoid, heights, step, out_path, as_json):
+    """Pixel error of MODEL against the TRUE model over a grid of every CCD and band."""
+    result = truth_error_of(model_path, truth_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
+                            heights_m=None if heights is None else float_list(heights, "heights"), step_px=step,
+                            out_path=out_path)
+    if as_json:
+        echo_json(result)
+        return
+    for r in result["per_ccd"]:
+        click.echo(f"{r['band']:>6} {r['ccd']:>10}  rms {r['rms_px']:.4f} px  max {r['max_px']:.4f} px  "
+                   f"mean (row, col) ({r['mean_row_px']:+.4f}, {r['mean_col_px']:+.4f})")
+    click.echo(f"all: rms {result['rms_px']:.4f} px, max {result['max_px']:.4f} px over {result['n_points']} points")
