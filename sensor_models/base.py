@@ -37,7 +37,7 @@ import numpy as np
 
 from sensor_models.errors import InputError
 
-__all__ = ["WHOLE_IMAGE", "DetectorArray", "ParameterVector", "SensorModel", "as_float_arrays"]
+__all__ = ["CALIBRATION_STATUSES", "WHOLE_IMAGE", "CalibrationStatus", "DetectorArray", "ParameterVector", "SensorModel", "as_float_arrays"]
 
 #: name of the one detector array of a model whose image is not split into arrays
 WHOLE_IMAGE = ""
@@ -186,6 +186,66 @@ def _array_positions(arrays, array, shape) -> np.ndarray:
     return idx
 
 
+#: outcomes of a calibration, as recorded in the model it wrote
+CALIBRATION_STATUSES = ("calibrated", "partial", "failed")
+
+
+@dataclass(frozen=True)
+class CalibrationStatus:
+    """What a calibration run achieved, carried by the model it wrote (manifest ``calibration``).
+
+    Every command that uses a model checks it: a ``failed`` calibration is refused, a
+    ``partial`` one is used with a warning naming what is not calibrated. A model that no
+    calibration wrote (a LAB model, a vendor product) has no status (``model.calibration`` is
+    None).
+
+    Attributes
+    ----------
+    status : {"calibrated", "partial", "failed"}
+        ``calibrated``: every band and detector array calibrated and verified on check points;
+        ``partial``: some arrays are not calibrated (not estimable) or not verified (no check
+        points); ``failed``: the estimation failed and the parameters must not be used.
+    message : str
+        One line: why, for ``partial`` and ``failed``.
+    uncalibrated : tuple of dict
+        ``{"band", "ccd", "reason"}`` of every detector array whose parameters were not
+        estimated.
+    unverified : tuple of dict
+        ``{"band", "ccd", "reason"}`` of every detector array without check points.
+    """
+
+    status: str
+    message: str = ""
+    uncalibrated: tuple = ()
+    unverified: tuple = ()
+
+    def __post_init__(self):
+        if self.status not in CALIBRATION_STATUSES:
+            raise InputError(f"must be one of {', '.join(CALIBRATION_STATUSES)}, got {self.status!r}",
+                             field="calibration.status")
+        for name in ("uncalibrated", "unverified"):
+            entries = tuple({"band": str(e.get("band", "")), "ccd": str(e.get("ccd", "")),
+                             "reason": str(e.get("reason", ""))} for e in getattr(self, name))
+            object.__setattr__(self, name, entries)
+
+    @property
+    def usable(self) -> bool:
+        """Whether the model may be used (``calibrated`` or ``partial``)."""
+        return self.status != "failed"
+
+    def to_dict(self) -> dict:
+        """The manifest's ``calibration`` object.
+
+        Returns
+        -------
+        dict
+            ``status``, ``message``, ``uncalibrated``, ``unverified`` (lists of dicts).
+        """
+        return {"status": self.status, "message": self.message,
+                "uncalibrated": [dict(e) for e in self.uncalibrated],
+                "unverified": [dict(e) for e in self.unverified]}
+
+
 class SensorModel(abc.ABC):
     """Abstract sensor model: ground <-> image mapping plus parameters and Jacobians.
 
@@ -196,6 +256,8 @@ class SensorModel(abc.ABC):
 
     #: short model kind, e.g. ``"pushbroom"``, ``"rpc"``, ``"geo_staring"``
     kind: str = "abstract"
+    #: outcome of the calibration that wrote this model, None when no calibration did
+    calibration: CalibrationStatus | None = None
     #: True for a physical model (exterior and interior parameters), False for a fitted
     #: approximation such as an RPC
     is_rigorous: bool = False

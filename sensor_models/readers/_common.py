@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from sensor_models.atomic import atomic_write_text
+from sensor_models.base import CALIBRATION_STATUSES, CalibrationStatus
 from sensor_models.ephemeris import ATTITUDE_FRAMES, ORBIT_FRAMES, Attitude, Orbit
 from sensor_models.errors import InputError, ManifestError
 from sensor_models.pushbroom_types import Installation
@@ -275,3 +276,36 @@ def write_document(doc: dict, path: Path) -> Path:
     """
     atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
     return path
+
+
+def calibration_from_fields(root: Fields):
+    """The optional ``calibration`` object of a manifest (what the calibration achieved).
+
+    Parameters
+    ----------
+    root : Fields
+        The manifest's top-level object.
+
+    Returns
+    -------
+    CalibrationStatus or None
+        None when the manifest has no ``calibration`` object (no calibration wrote it).
+    """
+    if not root.has("calibration"):
+        return None
+    f = root.sub("calibration")
+    status = f.string("status", choices=CALIBRATION_STATUSES)
+    message = f.string("message", "")
+    lists = {}
+    for name in ("uncalibrated", "unverified"):
+        raw = f.raw(name, [])
+        if not isinstance(raw, list):
+            raise f.error(name, "must be a list of {band, ccd, reason} objects")
+        entries = []
+        for i, item in enumerate(raw):
+            e = Fields(item, f"{f.where}.{name}[{i}]", f.path)
+            entries.append({"band": e.string("band", ""), "ccd": e.string("ccd", ""), "reason": e.string("reason", "")})
+            e.finish()
+        lists[name] = tuple(entries)
+    f.finish()
+    return CalibrationStatus(status, message, **lists)

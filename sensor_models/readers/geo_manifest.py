@@ -15,7 +15,7 @@ import numpy as np
 
 from sensor_models.errors import GcpcalError, InputError, ManifestError
 from sensor_models.geo_staring import GeoStaringModel, PointingMirror, StaringInterior, StaringLab, fit_interior
-from sensor_models.readers._common import (FORMAT_VERSION, attitude_from_fields, check_format_version, epoch_field,
+from sensor_models.readers._common import (calibration_from_fields, FORMAT_VERSION, attitude_from_fields, check_format_version, epoch_field,
                                            exterior_to_dict, installation_from_fields, iso_utc, load_json,
                                            orbit_from_fields, raster_from_fields, raster_to_dict, write_document)
 from sensor_models.readers._strict import Fields
@@ -119,6 +119,7 @@ def geo_model_from_document(doc, path) -> GeoStaringModel:
     installation = installation_from_fields(root.sub("installation"))
     mirror = _mirror(root)
     interior, lab, residual = _interior(root.sub("interior"), shape)
+    calibration = calibration_from_fields(root)
     root.finish()
     try:
         model = GeoStaringModel(
@@ -140,6 +141,8 @@ def geo_model_from_document(doc, path) -> GeoStaringModel:
     model.lab_fit_residual = residual
     model.rasters = rasters
     model.manifest_path = str(path)
+    if calibration is not None:
+        model.calibration = calibration
     return model
 
 
@@ -210,6 +213,8 @@ def geo_manifest_to_dict(model: GeoStaringModel, *, raster=None, base_dir=None) 
         "tan_psi_x": model.interior.tan_psi_x.tolist(),
         "tan_psi_y": model.interior.tan_psi_y.tolist(),
     }
+    if model.calibration is not None:  # what the calibration that wrote the model achieved
+        doc["calibration"] = model.calibration.to_dict()
     return doc
 
 

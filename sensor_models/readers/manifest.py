@@ -13,7 +13,7 @@ from pathlib import Path
 from sensor_models.errors import GcpcalError, InputError, ManifestError
 from sensor_models.pushbroom import PushbroomModel
 from sensor_models.pushbroom_types import CcdLook, LineTiming
-from sensor_models.readers._common import (FORMAT_VERSION, SENSOR_TYPES, RasterRef, attitude_from_fields,
+from sensor_models.readers._common import (calibration_from_fields, FORMAT_VERSION, SENSOR_TYPES, RasterRef, attitude_from_fields,
                                            check_format_version, epoch_field, exterior_to_dict,
                                            installation_from_fields, iso_utc, load_json, orbit_from_fields,
                                            raster_from_fields, raster_to_dict, write_document)
@@ -118,6 +118,7 @@ def pushbroom_model_from_document(doc, path) -> PushbroomModel:
     attitude = attitude_from_fields(root.sub("attitude"))
     installation = installation_from_fields(root.sub("installation"))
     bands = _interior(root.sub("interior"))
+    calibration = calibration_from_fields(root)
     root.finish()
     _check_bands(rasters, reference_band, bands, path)
     try:
@@ -137,6 +138,8 @@ def pushbroom_model_from_document(doc, path) -> PushbroomModel:
         raise ManifestError(str(exc), path=str(path), field="orbit/attitude") from None
     model.rasters = rasters
     model.manifest_path = str(path)
+    if calibration is not None:
+        model.calibration = calibration
     return model
 
 
@@ -179,7 +182,7 @@ def manifest_to_dict(model: PushbroomModel, *, rasters=None, base_dir=None) -> d
     image = {"n_rows": model.n_rows, "reference_band": model.reference_band}
     if out_rasters:
         image["rasters"] = out_rasters
-    return {
+    doc = {
         "format_version": FORMAT_VERSION,
         "sensor": SENSOR,
         "name": model.name,
@@ -208,6 +211,9 @@ def manifest_to_dict(model: PushbroomModel, *, rasters=None, base_dir=None) -> d
             },
         },
     }
+    if model.calibration is not None:  # what the calibration that wrote the model achieved
+        doc["calibration"] = model.calibration.to_dict()
+    return doc
 
 
 def write_manifest(model: PushbroomModel, path, *, rasters=None) -> Path:
