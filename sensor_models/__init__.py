@@ -15,7 +15,20 @@ __all__ = ["GcpcalError", "__version__", "open_model"]
 
 
 def open_model(path, **kwargs):
-    """Open any supported model file; see :func:`sensor_models.readers.open_model`."""
+    """Open any supported model file (:func:`sensor_models.readers.open_model`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A gcpcal scene manifest (``*.json``), a SPOT 1-5 DIMAP (``*.DIM``), an OSSIM keyword
+        list (``*.geom``), an ``*.RPB`` / ``*_RPC.TXT`` file, or a raster carrying RPC tags.
+    **kwargs
+        Passed on to the reader (e.g. ``attitude=`` of the DIMAP reader).
+
+    Returns
+    -------
+    SensorModel
+    """
     from sensor_models.readers import open_model as _open_model
 
     return _open_model(path, **kwargs)
