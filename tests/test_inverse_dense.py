@@ -85,3 +85,22 @@ def test_staring_camera_random_batches_round_trip(seed, n, height):
     r2, c2 = model.ground_to_image(lon, lat, h)
     assert np.all(np.isfinite(r2)) and np.all(np.isfinite(c2))
     assert np.hypot(r2 - row, c2 - col).max() <= 1e-6
+
+
+PLEIADES_GEOM = DIMAP_DIR.parent / "pleiades_ventoux" / "left_image.geom"
+
+
+@pytest.mark.skipif(not PLEIADES_GEOM.is_file(), reason="../shared/data/pleiades_ventoux is absent")
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 5000), height=st.floats(-400.0, 4000.0))
+def test_rpc_random_batches_round_trip(seed, n, height):
+    """A real Pleiades RPC (iterative direct localization, rational inverse): no NaN, <= 1e-6 px."""
+    model = open_model(PLEIADES_GEOM)
+    n_rows, n_cols = model.image_shape
+    rng = np.random.default_rng(seed)
+    row, col = rng.uniform(0.5, n_rows - 0.5, n), rng.uniform(0.5, n_cols - 0.5, n)
+    lon, lat, h = model.image_to_ground(row, col, height=height + rng.normal(0.0, 300.0, n))
+    assert np.all(np.isfinite(lon)) and np.all(np.isfinite(lat))
+    r2, c2 = model.ground_to_image(lon, lat, h)
+    assert np.all(np.isfinite(r2)) and np.all(np.isfinite(c2))
+    assert np.hypot(r2 - row, c2 - col).max() <= 1e-6
