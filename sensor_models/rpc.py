@@ -1350,17 +1350,7 @@ def fit_rpc(
         height_range_m, grid_shape, check_grid_shape, regularization, max_iterations
     )
     n_rows, n_cols = (int(n) for n in model.image_shape)
-    R, C, lon, lat, h, dropped = _localize_grid(
-        model, band, n_rows, n_cols, h_lo, h_hi, grid_shape, offset=False
-    )
-    if R.size < 2 * 39:
-        raise RpcError(f"only {R.size} of {np.prod(grid_shape)} grid points could be localized; "
-                       "need at least 78")  # fmt: skip
-    norm = _normalization(lon, lat, h_lo, h_hi, n_rows, n_cols)
-    T = _terms((lon - norm["lon_off"]) / norm["lon_scale"], (lat - norm["lat_off"]) / norm["lat_scale"],
-               (h - norm["height_off"]) / norm["height_scale"]).T  # (N, 20)  # fmt: skip
-    y_line = (R - 0.5 - norm["line_off"]) / norm["line_scale"]
-    y_samp = (C - 0.5 - norm["samp_off"]) / norm["samp_scale"]
+    fit_pts, dropped, norm, T, y_line, y_samp = _fit_design(model, band, n_rows, n_cols, h_lo, h_hi, grid_shape)
     lam = float(regularization)
     rational, (it_line, it_samp), (hist_line, hist_samp) = _fit_rational(T, y_line, y_samp, lam, int(max_iterations))
     Rc, Cc, lonc, latc, hc, dropped_c = _localize_grid(
@@ -1371,12 +1361,12 @@ def fit_rpc(
     candidates = _candidates(T, y_line, y_samp, lam, rational, norm, (n_rows, n_cols))
     scored = [(_grid_errors(m_, Rc, Cc, lonc, latc, hc), form, m_) for form, m_ in candidates]
     check, form, rpc = min(scored, key=lambda item: item[0][0])
-    fit = _grid_errors(rpc, R, C, lon, lat, h)
+    fit = _grid_errors(rpc, *fit_pts)
     report = {
         "form": form,
         "check_max_px_rational": scored[0][0][0],
         **_error_report(fit, check),
-        "n_fit": int(R.size),
+        "n_fit": int(fit_pts[0].size),
         "n_check": int(Rc.size),
         "n_fit_dropped": dropped,
         "n_check_dropped": dropped_c,
@@ -1391,3 +1381,19 @@ def fit_rpc(
         "regularization": lam,
     }  # fmt: skip
     return rpc, report
+
+
+def _fit_design(model, band, n_rows, n_cols, h_lo, h_hi, grid_shape):
+    """Localize the fit grid; its points, drops, normalization, terms (N, 20) and normalized targets."""
+    R, C, lon, lat, h, dropped = _localize_grid(
+        model, band, n_rows, n_cols, h_lo, h_hi, grid_shape, offset=False
+    )
+    if R.size < 2 * 39:
+        raise RpcError(f"only {R.size} of {np.prod(grid_shape)} grid points could be localized; "
+                       "need at least 78")  # fmt: skip
+    norm = _normalization(lon, lat, h_lo, h_hi, n_rows, n_cols)
+    T = _terms((lon - norm["lon_off"]) / norm["lon_scale"], (lat - norm["lat_off"]) / norm["lat_scale"],
+               (h - norm["height_off"]) / norm["height_scale"]).T  # (N, 20)  # fmt: skip
+    y_line = (R - 0.5 - norm["line_off"]) / norm["line_scale"]
+    y_samp = (C - 0.5 - norm["samp_off"]) / norm["samp_scale"]
+    return (R, C, lon, lat, h), dropped, norm, T, y_line, y_samp
