@@ -1362,25 +1362,29 @@ def fit_rpc(
     scored = [(_grid_errors(m_, Rc, Cc, lonc, latc, hc), form, m_) for form, m_ in candidates]
     check, form, rpc = min(scored, key=lambda item: item[0][0])
     fit = _grid_errors(rpc, *fit_pts)
-    report = {
+    counts = {"n_fit": int(fit_pts[0].size), "n_check": int(Rc.size), "n_fit_dropped": dropped,
+              "n_check_dropped": dropped_c}
+    settings = {"grid_shape": list(grid_shape), "check_grid_shape": list(check_grid_shape),
+                "height_range_m": [h_lo, h_hi], "regularization": lam}
+    return rpc, _fit_report(form, scored[0][0][0], fit, check, counts, (it_line, it_samp), (hist_line, hist_samp),
+                            norm, settings)
+
+
+def _fit_report(form, check_max_rational, fit, check, counts, iterations, histories, norm, settings) -> dict:
+    """The report of :func:`fit_rpc`, in its documented key order."""
+    (it_line, it_samp), (hist_line, hist_samp) = iterations, histories
+    return {
         "form": form,
-        "check_max_px_rational": scored[0][0][0],
+        "check_max_px_rational": check_max_rational,
         **_error_report(fit, check),
-        "n_fit": int(fit_pts[0].size),
-        "n_check": int(Rc.size),
-        "n_fit_dropped": dropped,
-        "n_check_dropped": dropped_c,
+        **counts,
         "iterations_line": it_line,
         "iterations_samp": it_samp,
         "max_error_history_line_px": [e * norm["line_scale"] for e in hist_line],
         "max_error_history_samp_px": [e * norm["samp_scale"] for e in hist_samp],
         "min_abs_denominator": min(fit[4], check[4]),
-        "grid_shape": list(grid_shape),
-        "check_grid_shape": list(check_grid_shape),
-        "height_range_m": [h_lo, h_hi],
-        "regularization": lam,
+        **settings,
     }  # fmt: skip
-    return rpc, report
 
 
 def _fit_design(model, band, n_rows, n_cols, h_lo, h_hi, grid_shape):
