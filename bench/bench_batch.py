@@ -6,7 +6,7 @@ over five sites, one in four cloudy, cached in ``bench/results/batch_series/`` (
 its plan differs). The calibration: the fixture's reference band matched (dense GCPs) and
 calibrated exterior-then-interior, cached beside it.
 
-Each configuration runs :func:`calibrate.batch.validate_sites` end to end (LocalCluster start,
+Each configuration runs :func:`calibrate.actions.validate.run_validation` end to end (LocalCluster start,
 one task per scene matching the reference band and scoring the calibrated and LAB models,
 outputs) with 1 and with 2 single-threaded worker processes, alternated ``--repeats`` times;
 the best wall time of each gives the speed ratio (target >= 1.7 on 2 cores). The load average
@@ -73,11 +73,11 @@ def calibration(out: Path) -> Path:
 
 
 def run_once(sites, calib: Path, out: Path, workers: int) -> dict:
-    from calibrate.batch import validate_sites
+    from calibrate.actions.validate import run_validation
 
     load_before = os.getloadavg()
     t0 = time.perf_counter()
-    rows, summary = validate_sites(sites, calib, out, workers=workers)
+    rows, summary = run_validation(sites, calib, out, workers=workers)
     wall = time.perf_counter() - t0
     return {
         "workers": workers,

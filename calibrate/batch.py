@@ -18,12 +18,12 @@ and installation, another date, orbit, attitude bias, site and cloud cover (seed
 
 :func:`validate_sites` runs the scenes of a sites file (:func:`read_sites`) on Dask distributed
 (a :class:`~distributed.LocalCluster` of single-threaded worker processes by default, or the
-scheduler at a given address), reports progress as tasks finish, and writes into ``out_dir``:
-``validation.csv``, ``validation.json`` (rows and summary), ``validation.html`` (the table in
-the layout of seed 003 table 5 with a mean row, and a bar plot of the planar RMSE per scene,
-``validation_planar.png``) and ``points/<name>.csv`` (each scene's check points). A scene that
-fails (unreadable raster, missing DOM, no GCP, foreign sensor) is a row with
-``status = "failed"`` and the reason; it never stops the others.
+scheduler at a given address), reports progress as tasks finish, and returns one row per scene
+and a summary (:func:`summarize_rows`). A scene that fails (unreadable raster, missing DOM, no
+GCP, foreign sensor) is a row with ``status = "failed"`` and the reason; it never stops the
+others. This module writes no file of its own: the run folder (tables, page, plot and each
+scene's check points) is written by :mod:`calibrate.actions.validate`, whose point writer the
+tasks are given.
 
 Models travel to the workers as file paths (manifests), never as pickled objects; the paths
 must therefore be readable from the workers (shared filesystem on a cluster).
@@ -33,15 +33,10 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import html
 import importlib
 import io
-import json
 import logging
-import math
 import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,7 +47,7 @@ from calibrate._json import json_safe
 from sensor_models.errors import GcpcalError, InputError
 
 __all__ = ["COLUMNS", "Site", "calibration_manifest", "read_sites", "summarize_rows", "validate_scene",
-           "validate_sites", "write_outputs"]
+           "validate_sites"]
 
 _REQUIRED = ("name", "scene", "dom", "dem")
 _OPTIONAL = ("dem_datum", "geoid", "site", "band")
@@ -279,7 +274,8 @@ def _accuracy_columns(acc, prefix: str) -> dict:
     return out
 
 
-def validate_scene(site: Site, calibration, *, points_dir=None, spacing_px: int = 32, threads: int | None = None) -> dict:
+def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: int = 32,
+                   threads: int | None = None) -> dict:
     """Validate one scene with a calibration (module docstring, steps 1-3); never raises.
 
     Parameters
@@ -287,8 +283,9 @@ def validate_scene(site: Site, calibration, *, points_dir=None, spacing_px: int 
     site : Site
     calibration : str or Path
         The calibrated manifest.
-    points_dir : str or Path, optional
-        Write the scene's check points to ``points_dir/<name>.csv``.
+    write_points : callable(GcpTable, str), optional
+        Called with the scene's check points and ``site.name`` once they are matched (e.g.
+        :func:`calibrate.actions.validate.write_scene_points`).
     spacing_px : int
         Matching window grid spacing, pixels.
     threads : int, optional
@@ -308,7 +305,7 @@ def validate_scene(site: Site, calibration, *, points_dir=None, spacing_px: int 
             import cv2
 
             cv2.setNumThreads(int(threads))
-        _validate(site, Path(calibration), points_dir, spacing_px, row)
+        _validate(site, Path(calibration), write_points, spacing_px, row)
         row["status"], row["reason"] = "ok", ""
     except GcpcalError as exc:
         row["reason"] = str(exc)
@@ -321,7 +318,7 @@ def validate_scene(site: Site, calibration, *, points_dir=None, spacing_px: int 
     return json_safe(row)
 
 
-def _validate(site: Site, calibration: Path, points_dir, spacing_px: int, out: dict) -> None:
+def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out: dict) -> None:
     """Fill ``out`` (a row) step by step, so a failure keeps what was learnt before it."""
     from calibrate.accuracy import check_point_accuracy
     from calibrate.from_gcps import points_of
@@ -352,11 +349,8 @@ def _validate(site: Site, calibration: Path, points_dir, spacing_px: int, out: d
     out["cloud_fraction"] = summary.get("cloud_fraction")
     if table is None or len(table) == 0:
         raise InputError(summary.get("message", "no GCP"), path=str(site.scene))
-    if points_dir is not None:
-        from gcpmatch.gcps import write_gcps_csv
-
-        Path(points_dir).mkdir(parents=True, exist_ok=True)
-        write_gcps_csv(table, Path(points_dir) / f"{_safe_name(site.name)}.csv")
+    if write_points is not None:
+        write_points(table, site.name)
     pts = points_of(table, model)
     kw = {"band": pts["band"], "ccd": pts["ccd"]}
     acc = check_point_accuracy(model, pts["row"], pts["col"], pts["lon"], pts["lat"], pts["h"], **kw)
@@ -364,10 +358,6 @@ def _validate(site: Site, calibration: Path, points_dir, spacing_px: int, out: d
     out["points"] = int(acc.absolute.n)
     out.update(_accuracy_columns(acc, ""))
     out.update(_accuracy_columns(acc_lab, "lab_"))
-
-
-def _safe_name(name: str) -> str:
-    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name) or "scene"
 
 
 # --------------------------------------------------------------------------- Dask orchestration
@@ -410,8 +400,8 @@ def _connect(scheduler, workers: int, timeout_s: float):
                          field="scheduler") from None
 
 
-def validate_sites(sites, calibrated_model, out_dir, *, scheduler=None, workers: int = 2, progress=None,
-                   spacing_px: int = 32, timeout_s: float = 10.0, title: str | None = None):
+def validate_sites(sites, calibrated_model, *, scheduler=None, workers: int = 2, progress=None,
+                   spacing_px: int = 32, timeout_s: float = 10.0, write_points=None):
     """Validate a calibration on every scene of ``sites``, one Dask task per scene.
 
     Parameters
@@ -421,8 +411,6 @@ def validate_sites(sites, calibrated_model, out_dir, *, scheduler=None, workers:
     calibrated_model : str or Path
         The calibrated manifest, or a folder holding ``manifest.json`` (the output folder of
         ``gcpcal calibrate`` or ``gcpcal demo``).
-    out_dir : str or Path
-        Output folder (module docstring).
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:8786``); default: a LocalCluster of
         ``workers`` single-threaded processes.
@@ -434,15 +422,16 @@ def validate_sites(sites, calibrated_model, out_dir, *, scheduler=None, workers:
         Matching window spacing.
     timeout_s : float
         Time allowed to connect to ``scheduler``.
-    title : str, optional
-        Title of the HTML page.
+    write_points : callable(GcpTable, str), optional
+        Given to every task (:func:`validate_scene`): receives each scene's check points and
+        name, on the worker. Must be picklable (a module-level function or a partial of one).
 
     Returns
     -------
     rows : list of dict
         One row per site, in the sites' order (keys :data:`COLUMNS`).
     summary : dict
-        Means over the scenes that succeeded, counts, timings and the output files.
+        Means over the scenes that succeeded, counts and timings.
 
     Raises
     ------
@@ -461,12 +450,9 @@ def validate_sites(sites, calibrated_model, out_dir, *, scheduler=None, workers:
     model = open_model(calib)
     if getattr(model, "kind", None) != "pushbroom":
         raise InputError("the calibration must be a push-broom manifest (calibrated manifest.json)", path=str(calib))
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    points_dir = (out_dir / "points").resolve()
     rows: list[dict | None] = [None] * len(sites)
     with _dask_log_level():
-        n_workers = _run_tasks(sites, str(calib), str(points_dir), rows, scheduler=scheduler, workers=workers,
+        n_workers = _run_tasks(sites, str(calib), write_points, rows, scheduler=scheduler, workers=workers,
                                timeout_s=timeout_s, spacing_px=spacing_px, progress=progress)
     summary = summarize_rows(rows)
     summary.update({
@@ -476,11 +462,10 @@ def validate_sites(sites, calibrated_model, out_dir, *, scheduler=None, workers:
         "workers": n_workers,
         "seconds": time.perf_counter() - t0,
     })
-    summary["files"] = write_outputs(out_dir, rows, summary, title=title)
     return rows, summary
 
 
-def _run_tasks(sites, calib: str, points_dir: str, rows: list, *, scheduler, workers, timeout_s, spacing_px,
+def _run_tasks(sites, calib: str, write_points, rows: list, *, scheduler, workers, timeout_s, spacing_px,
                progress) -> int:
     """Submit one :func:`validate_scene` per site, fill ``rows`` as they finish; return the worker count."""
     from distributed import as_completed
@@ -496,7 +481,7 @@ def _run_tasks(sites, calib: str, points_dir: str, rows: list, *, scheduler, wor
             n_workers = len(client.scheduler_info(n_workers=-1).get("workers", {}))
         else:
             n_workers = int(workers)
-        futures = {client.submit(validate_scene, site, calib, points_dir=points_dir, spacing_px=spacing_px,
+        futures = {client.submit(validate_scene, site, calib, write_points=write_points, spacing_px=spacing_px,
                                  threads=1, pure=False): k for k, site in enumerate(sites)}
         for done, fut in enumerate(as_completed(futures), start=1):
             k = futures[fut]
@@ -545,144 +530,3 @@ def summarize_rows(rows) -> dict:
         "task_cpu_seconds": float(sum(r["cpu_seconds"] or 0.0 for r in rows)),
         "failures": {r["name"]: r["reason"] for r in rows if r["status"] != "ok"},
     }
-
-
-# --------------------------------------------------------------------------- outputs
-def write_outputs(out_dir, rows, summary, *, title: str | None = None) -> dict:
-    """Write ``validation.csv``, ``validation.json``, ``validation.html`` and the bar plot.
-
-    Everything is written into a temporary folder inside ``out_dir`` and renamed into place, so
-    an interrupted run leaves the previous files (or none), never half of them.
-
-    Parameters
-    ----------
-    out_dir : path
-        Output folder (created if needed).
-    rows : sequence of dict
-        Per-scene rows.
-    summary : dict
-        Of :func:`summarize_rows`.
-    title : str, optional
-        Title of the HTML page.
-
-    Returns
-    -------
-    dict
-        File kinds to names relative to ``out_dir``.
-    """
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    files = {"csv": "validation.csv", "json": "validation.json", "html": "validation.html",
-             "plot": "validation_planar.png"}
-    tmp = Path(tempfile.mkdtemp(prefix=".validate-", dir=out_dir))
-    try:
-        buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n")
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({c: _csv_cell(r.get(c)) for c in COLUMNS})
-        (tmp / files["csv"]).write_text(buf.getvalue(), encoding="utf-8")
-        doc = json_safe({**summary, "files": files, "columns": list(COLUMNS), "rows": rows})
-        (tmp / files["json"]).write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")
-        _bar_plot(rows, summary, tmp / files["plot"])
-        (tmp / files["html"]).write_text(_html_page(rows, summary, files, title), encoding="utf-8")
-        for name in files.values():
-            os.replace(tmp / name, out_dir / name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return files
-
-
-def _csv_cell(v):
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        return repr(v)
-    return v
-
-
-def _bar_plot(rows, summary, path: Path) -> None:
-    """Planar RMSE of the calibrated model per scene, failed scenes marked, mean dashed."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    n = len(rows)
-    fig = Figure(figsize=(max(5.0, 0.42 * n + 1.8), 3.6), dpi=110)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    x = np.arange(n)
-    vals = np.array([r["rmse_planar_px"] if r["status"] == "ok" and r["rmse_planar_px"] is not None else np.nan
-                     for r in rows], dtype=np.float64)
-    ax.bar(x, np.nan_to_num(vals), color="#3b6ea8", width=0.7, label="planar RMSE, calibrated")
-    top = float(np.nanmax(vals)) if np.isfinite(vals).any() else 1.0
-    for i in np.flatnonzero(~np.isfinite(vals)):
-        ax.text(i, 0.03 * top, "failed", rotation=90, ha="center", va="bottom", color="#b3261e", fontsize=8)
-    m = summary["mean"]["rmse_planar_px"]
-    if m is not None:
-        ax.axhline(m, color="#d9822b", ls="--", lw=1.2, label=f"mean {m:.3g} px")
-    ax.set_xticks(x)
-    ax.set_xticklabels([str(k + 1) for k in range(n)], fontsize=8)
-    ax.set_xlabel("validation scene (ID of the table)")
-    ax.set_ylabel("planar RMSE, px")
-    ax.set_ylim(0, 1.15 * top)
-    ax.legend(loc="upper right", fontsize=8, frameon=False)
-    ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, format="png")
-
-
-_CSS = (
-    "body{font-family:system-ui,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1200px;color:#222;padding:0 1em}"
-    "table{border-collapse:collapse;margin:.6em 0;font-size:.9em}"
-    "th,td{border:1px solid #ccc;padding:.25em .55em;text-align:right}th{background:#f2f4f7}"
-    "td.l{text-align:left}tr.mean td{font-weight:600;background:#fafafa}tr.failed td{color:#b3261e}"
-    ".meta{color:#666;font-size:.85em}img{max-width:100%;border:1px solid #ddd}"
-)
-
-
-def _f(v, digits: int = 3) -> str:
-    return "-" if v is None or not math.isfinite(float(v)) else f"{float(v):.{digits}f}"
-
-
-def _html_page(rows, summary, files, title) -> str:
-    e = html.escape
-    title = title or "gcpcal validation: geolocation accuracy of validation scenes"
-    head = ("<tr><th rowspan=2>ID</th><th rowspan=2>scene</th><th rowspan=2>site (centre lon, lat)</th>"
-            "<th rowspan=2>date</th><th colspan=3>accuracy, calibrated (px)</th><th rowspan=2>planar (m)</th>"
-            "<th rowspan=2>points</th><th rowspan=2>cloud</th><th rowspan=2>LAB planar (px)</th></tr>"
-            "<tr><th>along track</th><th>across track</th><th>planar</th></tr>")
-    body = []
-    for k, r in enumerate(rows, start=1):
-        where = e(r.get("site") or "")
-        if r.get("center_lon_deg") is not None:
-            where += f" ({r['center_lon_deg']:.3f}, {r['center_lat_deg']:.3f})"
-        lead = f"<td>{k}</td><td class=l>{e(r['name'])}</td><td class=l>{where}</td><td class=l>{e(r.get('date') or '')}</td>"
-        if r["status"] != "ok":
-            body.append(f"<tr class=failed>{lead}<td class=l colspan=7>failed: {e(r.get('reason') or '')}</td></tr>")
-            continue
-        cloud = "-" if r.get("cloud_fraction") is None else f"{100 * r['cloud_fraction']:.0f} %"
-        body.append(f"<tr>{lead}<td>{_f(r['rmse_along_px'])}</td><td>{_f(r['rmse_across_px'])}</td>"
-                    f"<td>{_f(r['rmse_planar_px'])}</td><td>{_f(r['rmse_planar_m'], 1)}</td><td>{r['points']}</td>"
-                    f"<td>{cloud}</td><td>{_f(r['lab_rmse_planar_px'], 1)}</td></tr>")
-    m = summary["mean"]
-    body.append(f"<tr class=mean><td class=l colspan=4>mean of {summary['ok']} scene(s)</td>"
-                f"<td>{_f(m['rmse_along_px'])}</td><td>{_f(m['rmse_across_px'])}</td><td>{_f(m['rmse_planar_px'])}</td>"
-                f"<td>{_f(m['rmse_planar_m'], 1)}</td><td>{_f(m['points'], 0)}</td><td></td>"
-                f"<td>{_f(m['lab_rmse_planar_px'], 1)}</td></tr>")
-    meta = (f"calibration {e(str(summary.get('calibration', '')))}; {summary['scenes']} scenes, {summary['ok']} ok, "
-            f"{summary['failed']} failed; {e(str(summary.get('scheduler', '')))} with {summary.get('workers', '?')} "
-            f"worker(s), {summary.get('seconds', 0.0):.1f} s")
-    return (
-        "<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
-        f"<title>{e(title)}</title><style>{_CSS}</style></head><body><h1>{e(title)}</h1>"
-        f"<p class=meta>{meta}</p>"
-        "<p>Root-mean-square geolocation error of each scene's own model with the calibrated camera (installation "
-        "and directional angles), measured on every point matched against the scene's reference DOM and DEM; no "
-        "point is used in a fit (layout of seed 003 table 5). Along track = image rows, across track = columns.</p>"
-        f"<table>{head}{''.join(body)}</table>"
-        f"<figure><img src=\"{e(files['plot'])}\" alt=\"planar RMSE per scene\"><figcaption>Planar RMSE per "
-        "validation scene, calibrated model; dashed: mean.</figcaption></figure>"
-        f"<p class=meta>Data: <a href=\"{e(files['csv'])}\">{e(files['csv'])}</a>, "
-        f"<a href=\"{e(files['json'])}\">{e(files['json'])}</a>.</p></body></html>\n"
-    )
-

@@ -690,6 +690,16 @@ def solve(
     """
     x, names = _checked_start(x0, names, robust, scale, max_iter, prior)
     n_par = x.size
+    state, initial_residuals = _start_state(residual_and_jacobian_chunks, x, names, robust=robust, scale=scale,
+                                            tuning=tuning, warm_start=warm_start, prior=prior, damping=damping)
+    n_prior = 0 if prior is None else len(prior)
+    success, message = _iterate(state, n_par, n_prior, max_iter, tol, max_condition)
+    return _finish(state.ev, state.dec, success, message, names, state.s, prior, state.iterations, state.log,
+                   initial_residuals)  # fmt: skip
+
+
+def _start_state(residual_and_jacobian_chunks, x, names, *, robust, scale, tuning, warm_start, prior, damping):
+    """The IRLS state at ``x`` (first evaluation, loss, scale, log entry 0) and the initial residuals."""
     c_huber = HUBER_C if (tuning is None or robust != "huber") else float(tuning)
     c_final = _TUNING[robust] if tuning is None else float(tuning)
     rule = "huber" if (robust == "cauchy" and not warm_start) else robust
@@ -707,10 +717,7 @@ def solve(
                   mu=float(damping))  # fmt: skip
     cost = _robust_cost(ev.norms, ev.k, ev.weight_scale, rule, c) + _prior_cost(x, prior)
     state.log.append(_log_entry(0, cost, ev.weight_scale, np.nan, np.nan, damping, True, ev, rule))
-    n_prior = 0 if prior is None else len(prior)
-    success, message = _iterate(state, n_par, n_prior, max_iter, tol, max_condition)
-    return _finish(state.ev, state.dec, success, message, names, state.s, prior, state.iterations, state.log,
-                   initial_residuals)  # fmt: skip
+    return state, initial_residuals
 
 
 def _checked_start(x0, names, robust, scale, max_iter, prior):

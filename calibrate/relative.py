@@ -35,19 +35,15 @@ Band-to-band registration is what the tie residuals ``q - F_b(F_ref^-1(p))`` mea
 reported per band and CCD for the model before and after. With a simulation's TRUE model,
 :func:`registration_error` measures the same quantity against the truth over a dense grid.
 
-:func:`relative_scene` is the stage action behind ``gcpcal relative`` (files in, files out).
+The stage action behind ``gcpcal relative`` (files in, files out) is
+:func:`calibrate.actions.relative.relative_calibration_stage`; this module writes no file.
 """
 
 from __future__ import annotations
 
-import json
-import os
-import shutil
-import tempfile
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -62,7 +58,7 @@ from sensor_models.errors import InputError
 from sensor_models.pushbroom import PushbroomModel
 
 __all__ = ["BandResult", "RelativeResult", "TiePoints", "match_band", "registration_error",
-           "relative_calibration", "relative_scene"]
+           "relative_calibration"]
 
 #: Why a window gave no tie point, in the order the tests run.
 REASONS = ("no_ground", "outside", "no_data", "flat", "not_finite", "out_of_range", "low_score",
@@ -829,155 +825,3 @@ def _error_stats(d: np.ndarray) -> dict:
         "mean_col_px": float(d[:, 1].mean()),
         "n_points": int(d.shape[0]),
     }
-
-
-# --------------------------------------------------------------------------- stage action
-def _same_scene(scene: PushbroomModel, calibrated, path) -> None:
-    """InputError unless ``calibrated`` describes the same image as ``scene``."""
-    if calibrated.interior_layout != "per_array":
-        raise InputError(f"not a push-broom manifest (a {calibrated.kind} model); give the "
-                         "manifest.json written by 'gcpcal calibrate'", path=path)
-    if calibrated.image_shape[0] != scene.image_shape[0]:
-        raise InputError(f"the calibration describes {calibrated.image_shape[0]} lines, the scene {scene.image_shape[0]}: "
-                         "a calibration of another scene", path=path)
-    if set(calibrated.bands) != set(scene.bands):
-        raise InputError(f"the calibration has bands {', '.join(calibrated.bands)}, the scene "
-                         f"{', '.join(scene.bands)}: a calibration of another scene", path=path)
-    for band in scene.bands:
-        layout = [(a.name, a.first_col, a.n_detectors) for a in scene.detector_arrays(band)]
-        if [(a.name, a.first_col, a.n_detectors) for a in calibrated.detector_arrays(band)] != layout:
-            raise InputError(f"band {band}: the calibration's CCD layout differs from the scene's: "
-                             "a calibration of another scene", path=path)
-    if np.datetime64(calibrated.epoch, "ns") != np.datetime64(scene.epoch, "ns"):
-        raise InputError(f"the calibration's epoch {calibrated.epoch} differs from the scene's {scene.epoch}: "
-                         "a calibration of another scene", path=path)
-
-
-def _calibration_manifest(calibration) -> Path:
-    path = Path(calibration)
-    if path.is_dir():
-        path = path / "manifest.json"
-    if not path.is_file():
-        raise InputError("no such file (give the manifest.json written by 'gcpcal calibrate' or its folder)",
-                         path=str(path))
-    if path.suffix.lower() != ".json":
-        raise InputError("not a scene manifest (give the manifest.json written by 'gcpcal calibrate' or its folder)",
-                         path=str(path))
-    return path
-
-
-class _LazyBands(Mapping):
-    """Band rasters of a scene manifest, read when asked for and not kept (bounded memory)."""
-
-    def __init__(self, scene):
-        self._scene = scene
-
-    def __getitem__(self, band):
-        from gcpmatch.extract import read_band
-
-        if band not in self._scene.bands:
-            raise KeyError(band)
-        return read_band(self._scene, band)
-
-    def __contains__(self, band) -> bool:  # without reading the raster
-        return band in self._scene.bands and band in (getattr(self._scene, "rasters", None) or {})
-
-    def __iter__(self):
-        return iter(self._scene.bands)
-
-    def __len__(self) -> int:
-        return len(self._scene.bands)
-
-
-def relative_scene(scene_manifest, calibrated_manifest, dem_path, out_dir, *, reference_band=None, dem_datum=None,
-                   geoid=None, window_px=64, spacing_px: int = 24, rows=None, robust: str = CalibrationOptions.robust,
-                   progress=None) -> dict:
-    """``gcpcal relative``: files in, calibrated manifest and reports out; returns the summary.
-
-    Reads the scene's rasters (the LAB manifest ``scene_manifest``), the model whose reference
-    band was calibrated (``calibrated_manifest``: the ``manifest.json`` of ``gcpcal calibrate``
-    or its folder) and the DEM, runs :func:`relative_calibration` and writes into ``out_dir``
-    ``manifest.json`` (every band calibrated, raster paths relative to ``out_dir``),
-    ``relative.json`` (:meth:`RelativeResult.to_dict`) and ``relative.summary.json``; all of
-    them through a temporary folder inside ``out_dir``, so a failure leaves no partial output.
-
-    Parameters
-    ----------
-    scene_manifest : path
-        LAB manifest of the scene (every band's raster).
-    calibrated_manifest : path
-        ``manifest.json`` of ``gcpcal calibrate`` (reference band calibrated) or its folder.
-    dem_path : path
-        DEM of the scene.
-    out_dir : path
-        Output folder (created if needed).
-    reference_band : str, optional
-        Default: the calibrated model's reference band.
-    dem_datum : str, optional
-        Vertical datum of the DEM (:data:`sensor_models.terrain.VERTICAL_DATUMS`) when its file does not declare it.
-    geoid : path, optional
-        Geoid grid for an orthometric DEM.
-    window_px, spacing_px, rows, robust
-        As in :func:`relative_calibration` (pixels).
-    progress : callable, optional
-        Called with a one-line message per step.
-
-    Returns
-    -------
-    dict
-        The summary written to ``relative.summary.json``.
-
-    Raises
-    ------
-    InputError
-        Missing or malformed files, unknown band, a calibration of another scene.
-    """
-    from sensor_models.readers import open_model
-    from sensor_models.readers.manifest import manifest_to_dict
-    from sensor_models.terrain import Dem
-
-    t0 = time.perf_counter()
-    scene = open_model(scene_manifest)
-    if scene.interior_layout != "per_array":
-        raise InputError("relative calibration needs a push-broom scene manifest", path=str(scene_manifest))
-    cal_path = _calibration_manifest(calibrated_manifest)
-    calibrated = open_model(cal_path)
-    _same_scene(scene, calibrated, str(cal_path))
-    reference_band = reference_band or calibrated.reference_band
-    if reference_band not in scene.bands:
-        raise InputError(f"unknown band {reference_band!r}; the scene has {', '.join(scene.bands)}",
-                         field="reference_band")
-    dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
-    images = _LazyBands(scene)  # the reference band and one other band in memory at a time
-    result = relative_calibration(calibrated, images, dem, reference_band=reference_band, window_px=window_px,
-                                  spacing_px=spacing_px, rows=rows, robust=robust, progress=progress)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".relative-", dir=out_dir)).resolve()
-    try:
-        rasters = {b: {"path": os.path.relpath(r["path"], out_dir.resolve()), "index": r.get("index", 1)}
-                   for b, r in (getattr(scene, "rasters", None) or {}).items()}
-        doc = manifest_to_dict(result.model, rasters=rasters)
-        doc["name"] = (scene.name or "scene") + " (calibrated, band-to-band)"
-        (tmp / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-        report = result.to_dict()
-        report.update({"scene": str(scene_manifest), "calibration": str(cal_path), "dem": str(dem_path)})
-        (tmp / "relative.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
-        summary = json_safe({
-            "kind": "gcpcal.relative",
-            "success": result.success,
-            "message": result.message,
-            "reference_band": reference_band,
-            "bands": {b: {"success": r.success, "ties": len(r.ties), "windows": r.windows,
-                          "tie_rms_px": {"before": r.before.get("rms_px"), "after": r.after.get("rms_px")}}
-                      for b, r in result.bands.items()},
-            "model": "manifest.json",
-            "report": "relative.json",
-            "seconds": time.perf_counter() - t0,
-        })
-        (tmp / "relative.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-        for name in ("manifest.json", "relative.json", "relative.summary.json"):
-            os.replace(tmp / name, out_dir / name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return summary

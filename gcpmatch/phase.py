@@ -220,8 +220,7 @@ def phase_correlate(reference, moving, *, upsample: int = 100, window: str | np.
         Taper fraction of the Tukey window (0 = box, 1 = Hann).
     lowpass : float or None
         Standard deviation, in cycles/px, of a Gaussian weight on the cross-power spectrum;
-        ``None`` for none (measured in the module docstring: a help for pure phase
-        correlation, nearly neutral with the default ``eps``).
+        ``None`` for none (its effect is measured in the module docstring).
     eps : float
         Floor of the normalization, relative to the pair's mean cross-power magnitude:
         ``~1e-6`` is pure phase correlation, larger values weight weak bins by magnitude.
@@ -245,9 +244,8 @@ def phase_correlate(reference, moving, *, upsample: int = 100, window: str | np.
     dtype : {"float32", "float64"}
         Working precision.
     backend : {"cpu", "numpy", "torch", "gpu"}
-        ``"cpu"`` (= ``"numpy"``): numpy + scipy.fft. ``"torch"``: the same algorithm in
-        torch on ``device`` (default ``"cpu"``); ``"gpu"``: torch on ``device``
-        (default ``"cuda"``).
+        ``"cpu"`` (= ``"numpy"``): numpy + scipy.fft; ``"torch"``: the same algorithm in torch
+        on ``device`` (default ``"cpu"``); ``"gpu"``: torch on ``device`` (default ``"cuda"``).
     device : str or None
         Torch device (``"cpu"``, ``"cuda"``, ``"cuda:1"``); only with the torch backends.
     batch : int or None

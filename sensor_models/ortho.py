@@ -766,9 +766,7 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
                              f"{model.image_shape[0]} x {model.image_shape[1]}", path=source.path)
         grid = ortho_grid(model, dem, crs=crs, resolution_m=resolution_m, band=band)
         geometry = OrthoGeometry(model, dem, grid, band=band, node_step_px=node_step_px)
-        out_dtype = np.dtype(dtype) if dtype is not None else source.dtype
-        if out_dtype.kind == "f" and out_dtype.itemsize < 4:
-            out_dtype = np.dtype(np.float32)
+        out_dtype = _output_dtype(dtype, source.dtype)
         _check_nodata(nodata, out_dtype)
         step = _block_size(block, geometry.scale)
         plan = _BlockPlan(geometry, source, step, RESAMPLING[resampling], out_dtype, nodata, check_points, seed)
@@ -780,6 +778,14 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
     summary.update(seconds=round(seconds, 3), cog_seconds=round(t_cog, 3),
                    pixels_per_s=grid.shape[0] * grid.shape[1] / max(seconds, 1e-9))
     return summary
+
+
+def _output_dtype(dtype, source_dtype) -> np.dtype:
+    """``dtype``, else the image's; floats narrower than 32 bits become float32."""
+    out_dtype = np.dtype(dtype) if dtype is not None else source_dtype
+    if out_dtype.kind == "f" and out_dtype.itemsize < 4:
+        out_dtype = np.dtype(np.float32)
+    return out_dtype
 
 
 def _summary(plan: "_BlockPlan", out_path: Path, *, band, resampling, step) -> dict:

@@ -1350,6 +1350,45 @@ def fit_rpc(
         height_range_m, grid_shape, check_grid_shape, regularization, max_iterations
     )
     n_rows, n_cols = (int(n) for n in model.image_shape)
+    fit_pts, dropped, norm, T, y_line, y_samp = _fit_design(model, band, n_rows, n_cols, h_lo, h_hi, grid_shape)
+    lam = float(regularization)
+    rational, (it_line, it_samp), (hist_line, hist_samp) = _fit_rational(T, y_line, y_samp, lam, int(max_iterations))
+    Rc, Cc, lonc, latc, hc, dropped_c = _localize_grid(
+        model, band, n_rows, n_cols, h_lo, h_hi, check_grid_shape, offset=True
+    )
+    if Rc.size == 0:
+        raise RpcError("no check-grid point could be localized")
+    candidates = _candidates(T, y_line, y_samp, lam, rational, norm, (n_rows, n_cols))
+    scored = [(_grid_errors(m_, Rc, Cc, lonc, latc, hc), form, m_) for form, m_ in candidates]
+    check, form, rpc = min(scored, key=lambda item: item[0][0])
+    fit = _grid_errors(rpc, *fit_pts)
+    counts = {"n_fit": int(fit_pts[0].size), "n_check": int(Rc.size), "n_fit_dropped": dropped,
+              "n_check_dropped": dropped_c}
+    settings = {"grid_shape": list(grid_shape), "check_grid_shape": list(check_grid_shape),
+                "height_range_m": [h_lo, h_hi], "regularization": lam}
+    return rpc, _fit_report(form, scored[0][0][0], fit, check, counts, (it_line, it_samp), (hist_line, hist_samp),
+                            norm, settings)
+
+
+def _fit_report(form, check_max_rational, fit, check, counts, iterations, histories, norm, settings) -> dict:
+    """The report of :func:`fit_rpc`, in its documented key order."""
+    (it_line, it_samp), (hist_line, hist_samp) = iterations, histories
+    return {
+        "form": form,
+        "check_max_px_rational": check_max_rational,
+        **_error_report(fit, check),
+        **counts,
+        "iterations_line": it_line,
+        "iterations_samp": it_samp,
+        "max_error_history_line_px": [e * norm["line_scale"] for e in hist_line],
+        "max_error_history_samp_px": [e * norm["samp_scale"] for e in hist_samp],
+        "min_abs_denominator": min(fit[4], check[4]),
+        **settings,
+    }  # fmt: skip
+
+
+def _fit_design(model, band, n_rows, n_cols, h_lo, h_hi, grid_shape):
+    """Localize the fit grid; its points, drops, normalization, terms (N, 20) and normalized targets."""
     R, C, lon, lat, h, dropped = _localize_grid(
         model, band, n_rows, n_cols, h_lo, h_hi, grid_shape, offset=False
     )
@@ -1361,33 +1400,4 @@ def fit_rpc(
                (h - norm["height_off"]) / norm["height_scale"]).T  # (N, 20)  # fmt: skip
     y_line = (R - 0.5 - norm["line_off"]) / norm["line_scale"]
     y_samp = (C - 0.5 - norm["samp_off"]) / norm["samp_scale"]
-    lam = float(regularization)
-    rational, (it_line, it_samp), (hist_line, hist_samp) = _fit_rational(T, y_line, y_samp, lam, int(max_iterations))
-    Rc, Cc, lonc, latc, hc, dropped_c = _localize_grid(
-        model, band, n_rows, n_cols, h_lo, h_hi, check_grid_shape, offset=True
-    )
-    if Rc.size == 0:
-        raise RpcError("no check-grid point could be localized")
-    candidates = _candidates(T, y_line, y_samp, lam, rational, norm, (n_rows, n_cols))
-    scored = [(_grid_errors(m_, Rc, Cc, lonc, latc, hc), form, m_) for form, m_ in candidates]
-    check, form, rpc = min(scored, key=lambda item: item[0][0])
-    fit = _grid_errors(rpc, R, C, lon, lat, h)
-    report = {
-        "form": form,
-        "check_max_px_rational": scored[0][0][0],
-        **_error_report(fit, check),
-        "n_fit": int(R.size),
-        "n_check": int(Rc.size),
-        "n_fit_dropped": dropped,
-        "n_check_dropped": dropped_c,
-        "iterations_line": it_line,
-        "iterations_samp": it_samp,
-        "max_error_history_line_px": [e * norm["line_scale"] for e in hist_line],
-        "max_error_history_samp_px": [e * norm["samp_scale"] for e in hist_samp],
-        "min_abs_denominator": min(fit[4], check[4]),
-        "grid_shape": list(grid_shape),
-        "check_grid_shape": list(check_grid_shape),
-        "height_range_m": [h_lo, h_hi],
-        "regularization": lam,
-    }  # fmt: skip
-    return rpc, report
+    return (R, C, lon, lat, h), dropped, norm, T, y_line, y_samp

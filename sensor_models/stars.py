@@ -430,10 +430,22 @@ def apparent_directions(
     tdb1, tdb2 = _tdb_jd(epoch_utc, seconds)
     # 1. space motion from the catalogue epoch (TDB Julian year) to the date
     u, px_arcsec = _space_motion(catalog, tdb1, tdb2)
+    # 2-4. parallax, light deflection and aberration as seen by the observer
+    p = _observer_corrections(u, np.where(catalog.parallax_mas > 0.0, px_arcsec, 0.0), tdb1, tdb2, position_m,
+                              velocity_m_s, aberration=aberration, light_deflection=light_deflection)
+    return np.ascontiguousarray(p)
+
+
+def _observer_corrections(u, px_arcsec, tdb1, tdb2, position_m, velocity_m_s, *, aberration, light_deflection):
+    """Steps 2-4 of :func:`apparent_directions` on unit vectors ``u`` (N, 3) at the date.
+
+    ``px_arcsec`` (N,) are the parallaxes at the date (0 for non-positive catalogue ones),
+    ``position_m`` and ``velocity_m_s`` the observer's geocentric GCRF state.
+    """
     # 2. parallax from the observer's barycentric position
     earth_helio_au, earth_bary_au, earth_bary_au_d = _earth_pv(tdb1, tdb2)
     observer_au = position_m / AU_M
-    px_rad = np.where(catalog.parallax_mas > 0.0, px_arcsec, 0.0) * (MAS_TO_RAD * 1000.0)
+    px_rad = px_arcsec * (MAS_TO_RAD * 1000.0)
     p = u - px_rad[:, None] * (earth_bary_au + observer_au)
     p /= np.linalg.norm(p, axis=1, keepdims=True)
     # 3. light deflection by the Sun
@@ -446,7 +458,7 @@ def apparent_directions(
         v_c = earth_bary_au_d * (LIGHT_TIME_AU_S / DAY_S) + velocity_m_s / erfa.CMPS
         bm1 = float(np.sqrt(1.0 - v_c @ v_c))
         p = erfa.ab(p, v_c, sun_distance_au, bm1)
-    return np.ascontiguousarray(p)
+    return p
 
 
 def _tdb_jd(epoch_utc, seconds: float):

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from calibrate.actions.validate import run_validation
 from calibrate.batch import COLUMNS, Site, read_sites, validate_sites
 from calibrate.cli import main
 from sensor_models.errors import InputError
@@ -90,7 +91,7 @@ def test_validation_table_against_the_truth(series, tmp_path):
     assert [s.name for s in sites][-2:] == ["no_dom", "other_sensor"]
     calls = []
     t0 = time.perf_counter()
-    rows, summary = validate_sites(sites, series["calibration"], tmp_path / "val", workers=2,
+    rows, summary = run_validation(sites, series["calibration"], tmp_path / "val", workers=2,
                                    progress=lambda done, total, row: calls.append((done, total, row["name"])))
     print(f"validated {len(rows)} scenes in {time.perf_counter() - t0:.1f} s")
     assert [c[0] for c in calls] == list(range(1, 7)) and {c[1] for c in calls} == {6}
@@ -167,7 +168,7 @@ def test_unreachable_scheduler_is_a_one_line_error(series, tmp_path, capsys):
     sites = read_sites(series["root"] / "sites.yaml")
     t0 = time.perf_counter()
     with pytest.raises(InputError, match="cannot reach the Dask scheduler") as info:
-        validate_sites(sites, series["calibration"], tmp_path, scheduler="tcp://127.0.0.1:1", timeout_s=1.0)
+        validate_sites(sites, series["calibration"], scheduler="tcp://127.0.0.1:1", timeout_s=1.0)
     assert time.perf_counter() - t0 < 8.0
     assert "\n" not in str(info.value) and "tcp://127.0.0.1:1" in str(info.value)
     code = main(["validate", str(series["root"] / "sites.csv"), "--calibration", str(series["calibration"]),
@@ -184,15 +185,15 @@ def test_scheduler_without_workers_is_an_error(series, tmp_path):
     sites = read_sites(series["root"] / "sites.yaml")
     with LocalCluster(n_workers=0, processes=False, dashboard_address=":0", silence_logs=logging.ERROR) as cluster:
         with pytest.raises(InputError, match="has no worker"):
-            validate_sites(sites, series["calibration"], tmp_path, scheduler=cluster.scheduler_address, timeout_s=0.5)
+            validate_sites(sites, series["calibration"], scheduler=cluster.scheduler_address, timeout_s=0.5)
 
 
 def test_calibration_path_errors(series, tmp_path):
     sites = read_sites(series["root"] / "sites.yaml")
     with pytest.raises(InputError, match="holds no manifest.json"):
-        validate_sites(sites, tmp_path, tmp_path / "o")
+        validate_sites(sites, tmp_path)
     with pytest.raises(InputError, match="no such calibration file"):
-        validate_sites(sites, tmp_path / "nothing.json", tmp_path / "o")
+        validate_sites(sites, tmp_path / "nothing.json")
 
 
 # --------------------------------------------------------------------------- sites files

@@ -217,13 +217,7 @@ def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0
     from sensor_models.atomic import atomic_write_text
 
     path = Path(path)
-    if "ccd1_frame" in _header(path):
-        marks = marks_from_frames(path)
-    else:
-        marks = read_marks_csv(path, ccd_size_px=ccd_size_px)
-    n = marks["time"].size
-    if not 0 <= int(reference) < n:
-        raise InputError(f"reference row index {reference} is outside 0..{n - 1}", field="--reference")
+    marks = _read_marks(path, ccd_size_px, reference)
     geometry = OalrGeometry(focal_mm, baseline_mm, DEFAULT_PIXEL_UM if pixel_um is None else pixel_um,
                             np.radians(beta_deg), np.radians(alpha_deg))
     d = {c: marks[c] - marks[c][reference] for c in MARK_COLUMNS[1:]}
@@ -231,13 +225,7 @@ def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0
                                     sigma_k_px=sigma_k_px)
     sig = {"sigma_f_mm": ch.sigma_f_mm, "sigma_rot_x_arcsec": ch.sigma_rot_x_rad / ARCSEC,
            "sigma_rot_y_arcsec": ch.sigma_rot_y_rad / ARCSEC, "sigma_rot_z_arcsec": ch.sigma_rot_z_rad / ARCSEC}
-    epochs = [
-        {"time": marks["time"][i], "dx1_px": d["ccd1_x_px"][i], "dy1_px": d["ccd1_y_px"][i],
-         "dx2_px": d["ccd2_x_px"][i], "dy2_px": d["ccd2_y_px"][i], "delta_f_mm": ch.delta_f_mm[i],
-         "rot_x_arcsec": ch.rot_x_rad[i] / ARCSEC, "rot_y_arcsec": ch.rot_y_rad[i] / ARCSEC,
-         "rot_z_arcsec": ch.rot_z_rad[i] / ARCSEC} | sig
-        for i in range(n)
-    ]
+    epochs = _epochs(marks["time"], d, ch, sig, ARCSEC)
     doc = {
         "format_version": 1,
         "method": "seed 004 eq. 2-5 (OALR autocollimation), errors by table 2",
@@ -256,3 +244,26 @@ def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out_dir / "oalr.json", json.dumps(json_safe(doc), indent=1, allow_nan=False) + "\n")
     return doc
+
+
+def _read_marks(path: Path, ccd_size_px, reference) -> dict:
+    """Marks of a marks CSV or a frame-list CSV, with ``reference`` checked against the rows."""
+    if "ccd1_frame" in _header(path):
+        marks = marks_from_frames(path)
+    else:
+        marks = read_marks_csv(path, ccd_size_px=ccd_size_px)
+    n = marks["time"].size
+    if not 0 <= int(reference) < n:
+        raise InputError(f"reference row index {reference} is outside 0..{n - 1}", field="--reference")
+    return marks
+
+
+def _epochs(times, d: dict, ch, sig: dict, arcsec: float) -> list:
+    """One entry per epoch of ``oalr.json``: displacements (px), changes (mm, arcsec) and sigmas."""
+    return [
+        {"time": times[i], "dx1_px": d["ccd1_x_px"][i], "dy1_px": d["ccd1_y_px"][i],
+         "dx2_px": d["ccd2_x_px"][i], "dy2_px": d["ccd2_y_px"][i], "delta_f_mm": ch.delta_f_mm[i],
+         "rot_x_arcsec": ch.rot_x_rad[i] / arcsec, "rot_y_arcsec": ch.rot_y_rad[i] / arcsec,
+         "rot_z_arcsec": ch.rot_z_rad[i] / arcsec} | sig
+        for i in range(times.size)
+    ]

@@ -2,15 +2,34 @@
 
 Tie points between the reference band and each other band become control points through the
 calibrated reference band and the DEM; each band's interior is then solved with the exterior
-held. The reading, solving and staged writing (``manifest.json``, ``relative.json``,
-``relative.summary.json``) are done by :func:`calibrate.relative.relative_scene`.
+held (:func:`calibrate.relative.relative_calibration`). This action reads the scene's rasters
+(the LAB manifest), the model whose reference band was calibrated (the ``manifest.json`` of
+``gcpcal calibrate`` or its folder) and the DEM, and writes into the output folder
+``manifest.json`` (every band calibrated, raster paths relative to the folder),
+``relative.json`` (:meth:`calibrate.relative.RelativeResult.to_dict`) and
+``relative.summary.json``; all of them through a temporary folder inside the output folder, so
+a failure leaves no partial output.
 """
 
 from __future__ import annotations
 
+import json
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from calibrate._json import json_safe
 from calibrate.config import CalibrationOptions
+from sensor_models.errors import InputError
 
 __all__ = ["relative_calibration_stage"]
+
+_OUTPUTS = ("manifest.json", "relative.json", "relative.summary.json")
 
 
 def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, reference_band=None, dem_datum=None,
@@ -27,7 +46,7 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     dem_path : str or Path
         DEM raster.
     out_dir : str or Path
-        Output folder.
+        Output folder (created if needed).
     reference_band : str, optional
         Default: the calibrated model's reference band.
     dem_datum : {"ellipsoid", "egm96"}, optional
@@ -49,9 +68,134 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     -------
     dict
         The summary written to ``relative.summary.json`` (``success``, ``bands``, ``seconds``).
-    """
-    from calibrate.relative import relative_scene
 
-    return relative_scene(scene_path, calibration, dem_path, out_dir, reference_band=reference_band,
-                          dem_datum=dem_datum, geoid=geoid, window_px=window_px, spacing_px=spacing_px, rows=rows,
-                          robust=options.robust, progress=progress)
+    Raises
+    ------
+    InputError
+        Missing or malformed files, unknown band, a calibration of another scene.
+    """
+    from calibrate.relative import relative_calibration
+    from sensor_models.terrain import Dem
+
+    t0 = time.perf_counter()
+    scene, cal_path, calibrated, reference_band = _open_models(scene_path, calibration, reference_band)
+    dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
+    images = _LazyBands(scene)  # the reference band and one other band in memory at a time
+    result = relative_calibration(calibrated, images, dem, reference_band=reference_band, window_px=window_px,
+                                  spacing_px=spacing_px, rows=rows, robust=options.robust, progress=progress)
+    report = result.to_dict()
+    report.update({"scene": str(scene_path), "calibration": str(cal_path), "dem": str(dem_path)})
+    return _write_outputs(Path(out_dir), scene, result, report, reference_band, t0)
+
+
+def _open_models(scene_path, calibration, reference_band):
+    """The LAB scene, the calibrated manifest's path and model, and the reference band, checked."""
+    from sensor_models.readers import open_model
+
+    scene = open_model(scene_path)
+    if scene.interior_layout != "per_array":
+        raise InputError("relative calibration needs a push-broom scene manifest", path=str(scene_path))
+    cal_path = _calibration_manifest(calibration)
+    calibrated = open_model(cal_path)
+    _same_scene(scene, calibrated, str(cal_path))
+    reference_band = reference_band or calibrated.reference_band
+    if reference_band not in scene.bands:
+        raise InputError(f"unknown band {reference_band!r}; the scene has {', '.join(scene.bands)}",
+                         field="reference_band")
+    return scene, cal_path, calibrated, reference_band
+
+
+def _write_outputs(out_dir: Path, scene, result, report: dict, reference_band: str, t0: float) -> dict:
+    """Stage the three outputs in a temporary folder, then rename them into ``out_dir``."""
+    from sensor_models.readers.manifest import manifest_to_dict
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".relative-", dir=out_dir)).resolve()
+    try:
+        rasters = {b: {"path": os.path.relpath(r["path"], out_dir.resolve()), "index": r.get("index", 1)}
+                   for b, r in (getattr(scene, "rasters", None) or {}).items()}
+        doc = manifest_to_dict(result.model, rasters=rasters)
+        doc["name"] = (scene.name or "scene") + " (calibrated, band-to-band)"
+        (tmp / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        (tmp / "relative.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
+        summary = _summary(result, reference_band, time.perf_counter() - t0)
+        (tmp / "relative.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+        for name in _OUTPUTS:
+            os.replace(tmp / name, out_dir / name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return summary
+
+
+def _summary(result, reference_band: str, seconds: float) -> dict:
+    """The JSON summary of the stage (``relative.summary.json``)."""
+    return json_safe({
+        "kind": "gcpcal.relative",
+        "success": result.success,
+        "message": result.message,
+        "reference_band": reference_band,
+        "bands": {b: {"success": r.success, "ties": len(r.ties), "windows": r.windows,
+                      "tie_rms_px": {"before": r.before.get("rms_px"), "after": r.after.get("rms_px")}}
+                  for b, r in result.bands.items()},
+        "model": "manifest.json",
+        "report": "relative.json",
+        "seconds": seconds,
+    })
+
+
+def _same_scene(scene, calibrated, path) -> None:
+    """InputError unless ``calibrated`` describes the same image as ``scene``."""
+    if calibrated.interior_layout != "per_array":
+        raise InputError(f"not a push-broom manifest (a {calibrated.kind} model); give the "
+                         "manifest.json written by 'gcpcal calibrate'", path=path)
+    if calibrated.image_shape[0] != scene.image_shape[0]:
+        raise InputError(f"the calibration describes {calibrated.image_shape[0]} lines, the scene {scene.image_shape[0]}: "
+                         "a calibration of another scene", path=path)
+    if set(calibrated.bands) != set(scene.bands):
+        raise InputError(f"the calibration has bands {', '.join(calibrated.bands)}, the scene "
+                         f"{', '.join(scene.bands)}: a calibration of another scene", path=path)
+    for band in scene.bands:
+        layout = [(a.name, a.first_col, a.n_detectors) for a in scene.detector_arrays(band)]
+        if [(a.name, a.first_col, a.n_detectors) for a in calibrated.detector_arrays(band)] != layout:
+            raise InputError(f"band {band}: the calibration's CCD layout differs from the scene's: "
+                             "a calibration of another scene", path=path)
+    if np.datetime64(calibrated.epoch, "ns") != np.datetime64(scene.epoch, "ns"):
+        raise InputError(f"the calibration's epoch {calibrated.epoch} differs from the scene's {scene.epoch}: "
+                         "a calibration of another scene", path=path)
+
+
+def _calibration_manifest(calibration) -> Path:
+    """The calibrated ``manifest.json``: ``calibration`` itself or the one in that folder."""
+    path = Path(calibration)
+    if path.is_dir():
+        path = path / "manifest.json"
+    if not path.is_file():
+        raise InputError("no such file (give the manifest.json written by 'gcpcal calibrate' or its folder)",
+                         path=str(path))
+    if path.suffix.lower() != ".json":
+        raise InputError("not a scene manifest (give the manifest.json written by 'gcpcal calibrate' or its folder)",
+                         path=str(path))
+    return path
+
+
+class _LazyBands(Mapping):
+    """Band rasters of a scene manifest, read when asked for and not kept (bounded memory)."""
+
+    def __init__(self, scene):
+        self._scene = scene
+
+    def __getitem__(self, band):
+        from gcpmatch.extract import read_band
+
+        if band not in self._scene.bands:
+            raise KeyError(band)
+        return read_band(self._scene, band)
+
+    def __contains__(self, band) -> bool:  # without reading the raster
+        return band in self._scene.bands and band in (getattr(self._scene, "rasters", None) or {})
+
+    def __iter__(self):
+        return iter(self._scene.bands)
+
+    def __len__(self) -> int:
+        return len(self._scene.bands)

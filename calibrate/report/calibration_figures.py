@@ -232,14 +232,7 @@ def figure_distortion(ctx: ReportContext, band, fig_dir: Path) -> dict:
     """
     ccds_init = ctx.initial.band_ccds(band)
     truth_interior = look_difference_px(ctx.initial, ctx.truth, band)
-    truth_image = {}
-    if ctx.truth is not None:
-        h = ctx.gcps["h"]
-        h_m = float(np.nanmedian(h)) if h is not None and np.any(np.isfinite(h)) else 0.0
-        try:
-            truth_image = image_difference_px(ctx.calibrated, ctx.truth, band, h_m)
-        except GcpcalError as err:  # a truth that cannot localize these detectors: say so
-            ctx.notes.append(f"band {band}: calibrated-minus-truth curves not drawn ({err})")
+    truth_image = _truth_image_differences(ctx, band)
     n_panel_rows = 2 if truth_image else 1
     fig = _new_figure(12.0, 3.6 * n_panel_rows + 0.6, wspace=0.2, hspace=0.22)
     axes = np.atleast_2d(fig.subplots(n_panel_rows, 2, sharex=True, squeeze=False))
@@ -280,20 +273,39 @@ def figure_distortion(ctx: ReportContext, band, fig_dir: Path) -> dict:
 
         handles = [Line2D([], [], color="0.2", lw=1.4), Line2D([], [], color="0.2", lw=1.2, ls="--")]
         axes[0, 1].legend(handles, ["calibrated − initial", "truth − initial"], fontsize=8, loc="upper right")
+    caption = _distortion_caption(band, bool(truth_interior), bool(truth_image))
+    safe = re.sub(r"[^A-Za-z0-9_.-]", "_", str(band))
+    return {"src": _save(fig, fig_dir, f"distortion_{safe}.png"), "caption": caption + ".", "band": band}
+
+
+def _truth_image_differences(ctx: ReportContext, band) -> dict:
+    """Per CCD, calibrated-minus-truth image positions (px) at the GCPs' median height; {} without a truth."""
+    if ctx.truth is None:
+        return {}
+    h = ctx.gcps["h"]
+    h_m = float(np.nanmedian(h)) if h is not None and np.any(np.isfinite(h)) else 0.0
+    try:
+        return image_difference_px(ctx.calibrated, ctx.truth, band, h_m)
+    except GcpcalError as err:  # a truth that cannot localize these detectors: say so
+        ctx.notes.append(f"band {band}: calibrated-minus-truth curves not drawn ({err})")
+        return {}
+
+
+def _distortion_caption(band, with_truth_interior: bool, with_truth_image: bool) -> str:
+    """Caption of :func:`figure_distortion` (without the final full stop)."""
     caption = (
         f"Band {band}: look of each detector from the calibrated interior minus the initial one, "
         f"in pixels (difference of tan ψ divided by the CCD's IFOV, |c1| of its initial tan ψy)"
     )
-    if truth_interior:
+    if with_truth_interior:
         caption += "; dashed: the truth's interior minus the initial one"
-    if truth_image:
+    if with_truth_image:
         caption += (
             ". Bottom: image position predicted by the calibrated model minus the truth's, per "
             "detector (mean over rows at 10, 50 and 90 % of the image; interior, installation "
             "and attitude together)"
         )
-    safe = re.sub(r"[^A-Za-z0-9_.-]", "_", str(band))
-    return {"src": _save(fig, fig_dir, f"distortion_{safe}.png"), "caption": caption + ".", "band": band}
+    return caption
 
 
 def figure_histograms(ctx: ReportContext, fig_dir: Path) -> dict | None:

@@ -565,32 +565,16 @@ def run_seed002(*, step_px: float = 100.0, start_px: float = 0.0, stop_px: float
         The table rows (errors in pixels), models, VCPs, check points, pointing maps, settings
         and timings.
     """
-    from sensor_models.geo_staring import GF4_LIKE_CAMERA, example_geo_staring_model
-    from sensor_models.pushbroom_types import Installation
-
     t_all = time.perf_counter()
     image_shape = tuple(int(x) for x in image_shape)
     stop = None if stop_px is None else min(float(stop_px), min(image_shape) - 1.0)
-    true_lab = seed002_true_lab(GF4_LIKE_CAMERA, image_shape)
-    inst = Installation(*(a * ARCSEC for a in SEED002_INSTALLATION_ARCSEC))
-    truth = example_geo_staring_model(camera=true_lab, image_shape=image_shape, installation=inst, name="truth")
-    lab = example_geo_staring_model(camera=GF4_LIKE_CAMERA, image_shape=image_shape, name="lab")
+    true_lab, truth, lab = _seed002_models(image_shape)
     t0 = time.perf_counter()
     vcp = virtual_control_points(truth, step_px=step_px, start_px=start_px, stop_px=stop, noise_px=noise_px, seed=seed)
     check = check_grid(truth, step_px=step_px, start_px=start_px, stop_px=stop)
     t_vcp = time.perf_counter() - t0
     runs = compensate(lab, vcp, schemes=schemes, robust=robust)
-
-    rows = [_row("before", "LAB model, no compensation", positioning_errors(lab, check), lab.installation.as_array())]
-    pointing = {"before": pointing_difference_px(lab, truth, check.row, check.col)}
-    models = {}
-    for name, run in runs.items():
-        m = run["model"]
-        models[name] = m
-        res = run["result"]
-        rows.append(_row(name, SCHEMES[name][1], positioning_errors(m, check), m.installation.as_array(),
-                         res.success, res.message, run["seconds"]))
-        pointing[name] = pointing_difference_px(m, truth, check.row, check.col)
+    rows, pointing, models = _scheme_rows(lab, truth, check, runs)
 
     # section 3.1 (figures 4 and 5): the distortion alone, and the interior fitted to it
     truth0 = truth.with_parameters(np.concatenate([np.zeros(3), truth.parameters().values[3:]]))
@@ -607,6 +591,43 @@ def run_seed002(*, step_px: float = 100.0, start_px: float = 0.0, stop_px: float
         "step_px": float(step_px), "start_px": float(start_px), "stop_px": stop,
         "noise_px": float(noise_px), "seed": int(seed), "robust": robust,
         "n_vcp": vcp.n_points, "n_check": check.n_points,
+        **_seed002_truth_settings(true_lab, truth),
+    }
+    timings = {"vcp_s": t_vcp, "total_s": time.perf_counter() - t_all,
+               "schemes_s": {k: v["seconds"] for k, v in runs.items()}}
+    return CompensationStudy(rows, truth, lab, models, vcp, check, pointing, settings, timings, best)
+
+
+def _seed002_models(image_shape):
+    """Seed 002's TRUE lab camera, the TRUE model (table 1 distortion, table 2 installation) and the LAB model."""
+    from sensor_models.geo_staring import GF4_LIKE_CAMERA, example_geo_staring_model
+    from sensor_models.pushbroom_types import Installation
+
+    true_lab = seed002_true_lab(GF4_LIKE_CAMERA, image_shape)
+    inst = Installation(*(a * ARCSEC for a in SEED002_INSTALLATION_ARCSEC))
+    truth = example_geo_staring_model(camera=true_lab, image_shape=image_shape, installation=inst, name="truth")
+    lab = example_geo_staring_model(camera=GF4_LIKE_CAMERA, image_shape=image_shape, name="lab")
+    return true_lab, truth, lab
+
+
+def _scheme_rows(lab, truth, check, runs):
+    """Table rows (LAB first, then each scheme), pointing-difference maps and the fitted models."""
+    rows = [_row("before", "LAB model, no compensation", positioning_errors(lab, check), lab.installation.as_array())]
+    pointing = {"before": pointing_difference_px(lab, truth, check.row, check.col)}
+    models = {}
+    for name, run in runs.items():
+        m = run["model"]
+        models[name] = m
+        res = run["result"]
+        rows.append(_row(name, SCHEMES[name][1], positioning_errors(m, check), m.installation.as_array(),
+                         res.success, res.message, run["seconds"]))
+        pointing[name] = pointing_difference_px(m, truth, check.row, check.col)
+    return rows, pointing, models
+
+
+def _seed002_truth_settings(true_lab, truth) -> dict:
+    """The TRUE camera and the seed 002 tables, as recorded in the study's settings."""
+    return {
         "true_lab": {
             "focal_length_mm": true_lab.focal_length_mm, "pixel_size_mm": true_lab.pixel_size_mm,
             "principal_point_px": true_lab.principal_point_px, "radial_k": true_lab.radial_k,
@@ -617,9 +638,6 @@ def run_seed002(*, step_px: float = 100.0, start_px: float = 0.0, stop_px: float
         "installation_error_arcsec": list(SEED002_INSTALLATION_ARCSEC),
         "ifov_arcsec": truth.ifov_rad / ARCSEC,
     }
-    timings = {"vcp_s": t_vcp, "total_s": time.perf_counter() - t_all,
-               "schemes_s": {k: v["seconds"] for k, v in runs.items()}}
-    return CompensationStudy(rows, truth, lab, models, vcp, check, pointing, settings, timings, best)
 
 
 # --------------------------------------------------------------------------- outputs

@@ -473,6 +473,17 @@ def _design(t, t_ref, period_s, order, trend_degree, temps, temp_mean, temp_scal
         cols += list(((temps - temp_mean) / temp_scale).T)
     return np.stack(cols, axis=1)
 
+def _check_fit_options(n: int, max_order: int, trend_degree: int, period_s: float, n_temp: int) -> None:
+    """InputError for negative orders, a non-positive period or too few epochs for ``max_order``."""
+    if max_order < 0 or trend_degree < 0:
+        raise InputError("max_order and trend_degree must be >= 0", field="max_order")
+    if not (np.isfinite(period_s) and period_s > 0):
+        raise InputError("must be positive", field="period_s")
+    needed = _n_params(max_order, trend_degree, n_temp) + 2
+    if n < needed:
+        raise InputError(f"{n} epochs are too few for harmonic order {max_order} "
+                         f"(needs at least {needed}); lower max_order or add epochs", field="times")
+
 
 def _n_params(order, trend_degree, n_temp):
     return 1 + trend_degree + 2 * order + n_temp
@@ -599,6 +610,8 @@ class ThermalModel:
             Largest harmonic order tried (0 .. max_order).
         trend_degree : int
             Degree of the polynomial trend in days (0: none, 1: linear).
+        period_s : float
+            Period of the fundamental harmonic, seconds (default: one day).
         k_fold : int
             Folds when the series spans fewer than three days.
         tie_tolerance : float
@@ -619,15 +632,8 @@ class ThermalModel:
         n = t.size
         max_order = int(max_order)
         trend_degree = int(trend_degree)
-        if max_order < 0 or trend_degree < 0:
-            raise InputError("max_order and trend_degree must be >= 0", field="max_order")
-        if not (np.isfinite(period_s) and period_s > 0):
-            raise InputError("must be positive", field="period_s")
         n_temp = 0 if temps is None else temps.shape[1]
-        needed = _n_params(max_order, trend_degree, n_temp) + 2
-        if n < needed:
-            raise InputError(f"{n} epochs are too few for harmonic order {max_order} "
-                             f"(needs at least {needed}); lower max_order or add epochs", field="times")
+        _check_fit_options(n, max_order, trend_degree, period_s, n_temp)
         t_ref = float(np.mean(t))
         temp_mean = None if temps is None else temps.mean(axis=0)
         temp_scale = None if temps is None else np.maximum(temps.std(axis=0), 1e-12)

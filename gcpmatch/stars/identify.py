@@ -485,8 +485,7 @@ def identify_stars(
     Parameters
     ----------
     centroids_px : array_like, shape (N, 2)
-        ``(row, col)`` of the detections, brightest first (as
-        :func:`gcpmatch.stars.detect_stars` returns).
+        ``(row, col)`` of the detections, brightest first (as :func:`gcpmatch.stars.detect_stars` returns).
     catalog_vectors : array_like, shape (M, 3)
         Catalogue unit vectors in GCRF (e.g. :func:`sensor_models.stars.apparent_directions`).
     image_shape : (int, int)
@@ -501,22 +500,18 @@ def identify_stars(
     catalog_magnitudes : array_like, shape (M,), optional
         Needed by lost in space to pick the pattern stars (unless ``pattern_index`` is given).
     pattern_index : StarPatternIndex, optional
-        A prebuilt index (reuse it across frames and dates: it may be built from catalogue
-        positions while ``catalog_vectors`` are apparent places, since only the hypotheses
-        come from it); built with :meth:`StarPatternIndex.for_camera` otherwise (~1 s).
+        A prebuilt index, reusable across frames and dates (it may hold catalogue positions
+        while ``catalog_vectors`` are apparent places: only the hypotheses come from it);
+        built with :meth:`StarPatternIndex.for_camera` otherwise (~1 s).
     match_tolerance_px : float, optional
         Final matching radius.
-    pointing_uncertainty_deg : float, optional
+    pointing_uncertainty_deg, fov_tolerance : float, optional
         (a) Radius searched for the initial offset between the projected catalogue and the
-        detections.
-    fov_tolerance : float, optional
-        (b) Relative uncertainty of the given scale.
+        detections, degrees; (b) relative uncertainty of the given scale.
     refine_focal : bool, optional
         Estimate the focal length with the rotation.
-    n_pattern_stars : int, optional
-        (b) Brightest detections combined into triangles.
-    n_verify_stars : int, optional
-        (b) Brightest detections used to verify a hypothesis.
+    n_pattern_stars, n_verify_stars : int, optional
+        (b) Brightest detections combined into triangles, and used to verify a hypothesis.
     min_matches : int, optional
         Fewest identified stars for success.
     false_alarm : float, optional
@@ -528,9 +523,27 @@ def identify_stars(
     -------
     StarIdentification
     """
+    rc, cat, (h, w), pp = _checked_inputs(centroids_px, catalog_vectors, image_shape, principal_point_px)
+    n = rc.shape[0]
+    if approximate_pointing is not None:
+        if n < 3:
+            return _failed(f"{n} detections; at least 3 are needed", n, "pointing")
+        return _identify_near(rc, cat, approximate_pointing, (h, w), match_tolerance_px,
+                              pointing_uncertainty_deg, refine_focal, min_matches, false_alarm,
+                              max_iterations)
+    f0 = _focal_from_scale((h, w), fov_deg, focal_px, pixel_scale_arcsec)
+    pattern_index = _pattern_index_for(pattern_index, cat, catalog_magnitudes, (h, w), f0)
+    if n < 4:
+        return _failed(f"{n} detections; lost in space needs at least 4", n, "lost_in_space")
+    return _lost_in_space(rc, cat, cKDTree(cat), pattern_index, (h, w), pp, f0, match_tolerance_px,
+                          fov_tolerance, refine_focal, n_pattern_stars, n_verify_stars,
+                          min_matches, false_alarm, max_iterations)
+
+
+def _checked_inputs(centroids_px, catalog_vectors, image_shape, principal_point_px):
+    """Centroids (N, 2), catalogue vectors (M, 3), ``(H, W)`` and the principal point, checked."""
     rc = np.asarray(centroids_px, dtype=np.float64).reshape(-1, 2)
     cat = np.asarray(catalog_vectors, dtype=np.float64).reshape(-1, 3)
-    n = rc.shape[0]
     if not np.all(np.isfinite(rc)):
         raise InputError("centroids hold NaN or infinite values", field="centroids_px")
     if cat.shape[0] == 0 or not np.all(np.isfinite(cat)):
@@ -538,25 +551,17 @@ def identify_stars(
     h, w = (int(image_shape[0]), int(image_shape[1]))
     pp = (h / 2.0, w / 2.0) if principal_point_px is None else (
         float(principal_point_px[0]), float(principal_point_px[1]))
-    if approximate_pointing is not None:
-        if n < 3:
-            return _failed(f"{n} detections; at least 3 are needed", n, "pointing")
-        return _identify_near(rc, cat, approximate_pointing, (h, w), match_tolerance_px,
-                              pointing_uncertainty_deg, refine_focal, min_matches, false_alarm,
-                              max_iterations)
-    tree = cKDTree(cat)
-    f0 = _focal_from_scale((h, w), fov_deg, focal_px, pixel_scale_arcsec)
-    if pattern_index is None:
-        if catalog_magnitudes is None:
-            raise InputError("lost in space needs catalog_magnitudes (or a pattern_index)",
-                             field="catalog_magnitudes")
-        pattern_index = StarPatternIndex.for_camera(cat, catalog_magnitudes,
-                                                    image_shape=(h, w), focal_px=f0)
-    if n < 4:
-        return _failed(f"{n} detections; lost in space needs at least 4", n, "lost_in_space")
-    return _lost_in_space(rc, cat, tree, pattern_index, (h, w), pp, f0, match_tolerance_px,
-                          fov_tolerance, refine_focal, n_pattern_stars, n_verify_stars,
-                          min_matches, false_alarm, max_iterations)
+    return rc, cat, (h, w), pp
+
+
+def _pattern_index_for(pattern_index, cat, catalog_magnitudes, shape, f0):
+    """``pattern_index``, or one built for the camera from the catalogue and its magnitudes."""
+    if pattern_index is not None:
+        return pattern_index
+    if catalog_magnitudes is None:
+        raise InputError("lost in space needs catalog_magnitudes (or a pattern_index)",
+                         field="catalog_magnitudes")
+    return StarPatternIndex.for_camera(cat, catalog_magnitudes, image_shape=shape, focal_px=f0)
 
 
 def _identify_near(rc, cat, ap: CameraPointing, shape, tol, uncertainty_deg, refine_focal,

@@ -163,6 +163,18 @@ class GeoStarsConfig:
     extra: dict = field(default_factory=dict, repr=False)
 
     def validate(self) -> "GeoStarsConfig":
+        """Check the settings.
+
+        Returns
+        -------
+        GeoStarsConfig
+            ``self``, unchanged.
+
+        Raises
+        ------
+        InputError
+            Naming the first field out of range.
+        """
         if int(self.n_frames) < 2:
             raise InputError(f"must be >= 2, got {self.n_frames}", field="n_frames")
         if not (float(self.frame_interval_s) > 0.0):
@@ -180,7 +192,20 @@ class GeoStarsConfig:
 
 # --------------------------------------------------------------------------- models
 def frame_models(model: GeoStaringModel, seconds) -> list:
-    """The model at each frame instant (:meth:`GeoStaringModel.at_frame`), a list."""
+    """The model at each frame instant (:meth:`GeoStaringModel.at_frame`).
+
+    Parameters
+    ----------
+    model : GeoStaringModel
+        The model at the scene epoch.
+    seconds : array_like of float, shape (n,)
+        Frame instants, seconds after the scene epoch.
+
+    Returns
+    -------
+    list of GeoStaringModel
+        One per instant.
+    """
     return [model.at_frame(float(t)) for t in np.asarray(seconds, dtype=np.float64).reshape(-1)]
 
 
@@ -283,77 +308,28 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
         The summary written to ``summary.json``: counts (frames, stars per frame, distinct
         stars), the installation error in arcsec, the expected initial errors and timings.
     """
-    import rasterio
-    from rasterio.errors import NotGeoreferencedWarning
-
-    from sensor_models.psf import render_stars
     from sensor_models.readers.geo_manifest import write_geo_manifest
-    from sensor_models.stars import StarCatalog, catalog_stars_in_frame
 
     t_start = time.perf_counter()
-    cfg = config or GeoStarsConfig()
-    changes = {k: v for k, v in dict(n_frames=n_frames, frame_interval_s=frame_interval_s, seed=seed,
-                                     mag_limit=mag_limit, image_shape=image_shape).items() if v is not None}
-    if changes:
-        cfg = GeoStarsConfig(**{**asdict(cfg), **changes})
-    cfg = cfg.validate()
+    cfg = _resolved_config(config, n_frames=n_frames, frame_interval_s=frame_interval_s, seed=seed,
+                           mag_limit=mag_limit, image_shape=image_shape)
     rng = np.random.default_rng(int(cfg.seed))
     lab, truth, d_inst = _build_models(cfg, rng)
-    catalog = StarCatalog.load(mag_limit=cfg.mag_limit)
-    if cfg.only_hip:
-        catalog = catalog.select(np.isin(catalog.hip, np.asarray(cfg.only_hip, dtype=np.int64)))
-        if len(catalog) == 0:
-            raise InputError(f"none of {list(cfg.only_hip)} is in the catalogue", field="only_hip")
-    unit_icrs = catalog.unit_vectors()
-    mags = catalog.vmag - np.nan_to_num(np.clip(catalog.b_minus_v, -0.3, 2.0), nan=0.0) * cfg.swir_color_term
-    seconds = np.arange(int(cfg.n_frames)) * float(cfg.frame_interval_s)
-    margin = 5.0 * cfg.psf_sigma_px + 2.0
+    catalog, unit_icrs, mags = _star_catalog(cfg)
     shape = truth.image_shape
 
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}-", dir=out_dir.parent)).resolve()
     try:
-        (tmp / "frames").mkdir()
-        frames, rendered = [], []
-        profile = dict(driver="GTiff", width=shape[1], height=shape[0], count=1, dtype="uint16")
-        n_per_frame = []
-        for k, t in enumerate(seconds):
-            model_t = truth.at_frame(float(t))
-            idx, _, row, col = catalog_stars_in_frame(model_t, catalog, unit_icrs, margin)
-            flux = cfg.flux_ref_adu * 10.0 ** (-0.4 * (mags[idx] - cfg.ref_mag))
-            img = render_stars(shape, np.stack([row, col], -1), flux, sigma_px=cfg.psf_sigma_px,
-                               background=cfg.background_adu, gain_e_per_adu=cfg.gain_e_per_adu,
-                               read_noise_e=cfg.read_noise_e, rng=rng)
-            dn = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
-            name = f"frames/frame_{k:04d}.tif"
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", NotGeoreferencedWarning)
-                with rasterio.open(tmp / name, "w", **profile) as dst:
-                    dst.write(dn, 1)
-            frames.append({"path": name, "seconds": float(t)})
-            inside = (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
-            n_per_frame.append(int(inside.sum()))
-            rendered.append({"seconds": float(t), "hip": catalog.hip[idx].tolist(), "row": row.tolist(),
-                             "col": col.tolist(), "mag": mags[idx].round(3).tolist()})
+        frames, rendered, n_per_frame = _render_frames(tmp, cfg, truth, catalog, unit_icrs, mags, rng)
         write_geo_manifest(lab, tmp / "manifest.json")
         write_geo_manifest(truth, tmp / "truth_manifest.json")
-        centre = ([0.5 * shape[0]], [0.5 * shape[1]])
-        initial = _radec_error_px(lab, truth, *centre)[0]
         frames_doc = {"format_version": 1, "kind": FRAMES_KIND, "epoch_utc": str(np.datetime64(lab.epoch, "ms")),
                       "manifest": "manifest.json", "frames": frames}
+        truth_doc = _truth_doc(cfg, lab, truth, d_inst, rendered)
         hips = sorted({h for r in rendered for h, rr, cc in zip(r["hip"], r["row"], r["col"])
                        if 0 <= rr < shape[0] and 0 <= cc < shape[1]})
-        truth_doc = {
-            "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items() if k != "extra"},
-            "parameter_names": list(truth.parameter_names()),
-            "true_parameters": truth.parameters().values.tolist(),
-            "lab_parameters": lab.parameters().values.tolist(),
-            "installation_error_arcsec": (d_inst / ARCSEC).tolist(),
-            "initial_error_centre_px": {"ra": float(initial[0]), "de": float(initial[1])},
-            "true_interior_fit_residual": truth.lab_fit_residual,
-            "stars": rendered,
-        }
         summary = {
             "frames": int(cfg.n_frames),
             "frame_interval_s": float(cfg.frame_interval_s),
@@ -374,3 +350,78 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return summary
+
+
+def _resolved_config(config, **overrides) -> GeoStarsConfig:
+    """``config`` (default settings when None) with the non-None ``overrides``, validated."""
+    cfg = config or GeoStarsConfig()
+    changes = {k: v for k, v in overrides.items() if v is not None}
+    if changes:
+        cfg = GeoStarsConfig(**{**asdict(cfg), **changes})
+    return cfg.validate()
+
+
+def _star_catalog(cfg: GeoStarsConfig):
+    """The catalogue to render, its ICRS unit vectors and the magnitudes in the camera's band."""
+    from sensor_models.stars import StarCatalog
+
+    catalog = StarCatalog.load(mag_limit=cfg.mag_limit)
+    if cfg.only_hip:
+        catalog = catalog.select(np.isin(catalog.hip, np.asarray(cfg.only_hip, dtype=np.int64)))
+        if len(catalog) == 0:
+            raise InputError(f"none of {list(cfg.only_hip)} is in the catalogue", field="only_hip")
+    unit_icrs = catalog.unit_vectors()
+    mags = catalog.vmag - np.nan_to_num(np.clip(catalog.b_minus_v, -0.3, 2.0), nan=0.0) * cfg.swir_color_term
+    return catalog, unit_icrs, mags
+
+
+def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, mags, rng):
+    """Render and write every frame under ``tmp/frames``; the frame list, stars drawn, counts inside."""
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    from sensor_models.psf import render_stars
+    from sensor_models.stars import catalog_stars_in_frame
+
+    seconds = np.arange(int(cfg.n_frames)) * float(cfg.frame_interval_s)
+    margin = 5.0 * cfg.psf_sigma_px + 2.0
+    shape = truth.image_shape
+    (tmp / "frames").mkdir()
+    frames, rendered = [], []
+    profile = dict(driver="GTiff", width=shape[1], height=shape[0], count=1, dtype="uint16")
+    n_per_frame = []
+    for k, t in enumerate(seconds):
+        model_t = truth.at_frame(float(t))
+        idx, _, row, col = catalog_stars_in_frame(model_t, catalog, unit_icrs, margin)
+        flux = cfg.flux_ref_adu * 10.0 ** (-0.4 * (mags[idx] - cfg.ref_mag))
+        img = render_stars(shape, np.stack([row, col], -1), flux, sigma_px=cfg.psf_sigma_px,
+                           background=cfg.background_adu, gain_e_per_adu=cfg.gain_e_per_adu,
+                           read_noise_e=cfg.read_noise_e, rng=rng)
+        dn = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
+        name = f"frames/frame_{k:04d}.tif"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(tmp / name, "w", **profile) as dst:
+                dst.write(dn, 1)
+        frames.append({"path": name, "seconds": float(t)})
+        inside = (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
+        n_per_frame.append(int(inside.sum()))
+        rendered.append({"seconds": float(t), "hip": catalog.hip[idx].tolist(), "row": row.tolist(),
+                         "col": col.tolist(), "mag": mags[idx].round(3).tolist()})
+    return frames, rendered, n_per_frame
+
+
+def _truth_doc(cfg: GeoStarsConfig, lab, truth, d_inst, rendered) -> dict:
+    """The content of ``truth.json``: settings, true and LAB parameters, errors, stars drawn."""
+    shape = truth.image_shape
+    initial = _radec_error_px(lab, truth, [0.5 * shape[0]], [0.5 * shape[1]])[0]
+    return {
+        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items() if k != "extra"},
+        "parameter_names": list(truth.parameter_names()),
+        "true_parameters": truth.parameters().values.tolist(),
+        "lab_parameters": lab.parameters().values.tolist(),
+        "installation_error_arcsec": (d_inst / ARCSEC).tolist(),
+        "initial_error_centre_px": {"ra": float(initial[0]), "de": float(initial[1])},
+        "true_interior_fit_residual": truth.lab_fit_residual,
+        "stars": rendered,
+    }

@@ -321,6 +321,27 @@ def generate_reference(
         On a bad argument (the message names it).
     """
     args = _validated(locals())
+    crs, dom_grid, dem_grid, dom, dem_m, water, land_cover = _synthesize(args)
+    for a in (dom, dem_m, water, land_cover):
+        a.setflags(write=False)
+    return ReferenceData(
+        dom=dom,
+        dom_transform=dom_grid.transform,
+        dem_m=dem_m,
+        dem_transform=dem_grid.transform,
+        crs=crs,
+        water_mask=water,
+        land_cover=land_cover,
+        parameters={"generator": "sensor_models.simulate.procedural",
+                    "generator_version": GENERATOR_VERSION, **args},
+    )
+
+
+def _synthesize(args):
+    """Every phase of :func:`generate_reference` in order, on one random stream.
+
+    Returns ``(crs, dom_grid, dem_grid, dom, dem_m, water, land_cover)``.
+    """
     rng = np.random.default_rng(args["seed"])
     base_key = int(rng.integers(0, 2**32, dtype=np.uint64))
     keys = (int(_hash(base_key, np.array([i]))[0]) for i in itertools.count())
@@ -340,19 +361,7 @@ def generate_reference(
     dom, water, land_cover = _render_dom(
         args, dom_grid, ext, centre, terrain, lakes, rivers, roads, cover, rng, keys
     )
-    for a in (dom, dem_m, water, land_cover):
-        a.setflags(write=False)
-    return ReferenceData(
-        dom=dom,
-        dom_transform=dom_grid.transform,
-        dem_m=dem_m,
-        dem_transform=dem_grid.transform,
-        crs=crs,
-        water_mask=water,
-        land_cover=land_cover,
-        parameters={"generator": "sensor_models.simulate.procedural",
-                    "generator_version": GENERATOR_VERSION, **args},
-    )
+    return crs, dom_grid, dem_grid, dom, dem_m, water, land_cover
 
 
 def _reference_grids(args):
