@@ -1,0 +1,237 @@
+"""Issue 12 items 1 and 7: the coverage gate of a calibration and its a-posteriori variance factor.
+
+Bad-input and fault cases of the gate (half-DEM scene, CCD without check points, CCD with too
+little spread, failed solve); the lead assembles them into tests/test_bad_inputs.py.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibrate.cli import main
+from calibrate.config import CalibrationOptions
+from calibrate.coverage import calibration_coverage, calibration_status
+
+FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
+
+
+def _crop_dem_west(dst: Path) -> Path:
+    """The fixture DEM cropped to its western half (tags kept: the vertical datum)."""
+    import rasterio
+    from rasterio.windows import Window
+
+    with rasterio.open(FIXTURE / "reference" / "dem.tif") as src:
+        window = Window(0, 0, src.width // 2, src.height)
+        profile = src.profile.copy()
+        profile.update(width=src.width // 2, transform=src.window_transform(window))
+        with rasterio.open(dst, "w", **profile) as out:
+            out.write(src.read(window=window))
+            out.update_tags(**src.tags())
+    return dst
+
+
+def _run(capsys, args):
+    code = main(args)
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def half_dem_gcps(tmp_path_factory):
+    """GCPs of the fixture matched against the DOM and a DEM of the western half only."""
+    folder = tmp_path_factory.mktemp("half_dem")
+    dem = _crop_dem_west(folder / "dem_west.tif")
+    code = main(["match", str(FIXTURE / "manifest.json"), "--dom", str(FIXTURE / "reference" / "dom.tif"),
+                 "--dem", str(dem), "--out", str(folder / "gcps.csv")])
+    return code, folder
+
+
+@pytest.fixture(scope="module")
+def full_gcps(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("full_dem")
+    code = main(["match", str(FIXTURE / "manifest.json"), "--dom", str(FIXTURE / "reference" / "dom.tif"),
+                 "--dem", str(FIXTURE / "reference" / "dem.tif"), "--out", str(folder / "gcps.csv")])
+    assert code == 0
+    return folder / "gcps.csv"
+
+
+def test_half_dem_match_names_the_dem(half_dem_gcps):
+    code, folder = half_dem_gcps
+    assert code == 0
+    summary = json.loads((folder / "gcps.summary.json").read_text())
+    per_ccd = {c["ccd"]: c for c in summary["per_ccd"]}
+    for name in ("cam2_ccd1", "cam2_ccd2"):
+        assert per_ccd[name]["gcps"] == 0
+        assert per_ccd[name]["dem_coverage"] < 0.05
+        assert "DEM covers" in per_ccd[name]["cause"] and "dem_west.tif" in per_ccd[name]["cause"]
+    for name in ("cam1_ccd1", "cam1_ccd2"):
+        assert per_ccd[name]["dem_coverage"] > 0.9
+        assert per_ccd[name]["cause"] is None
+
+
+def test_half_dem_calibration_is_partial(half_dem_gcps, tmp_path, capsys):
+    _code, folder = half_dem_gcps
+    out = tmp_path / "cal"
+    code, stdout, _err = _run(capsys, ["calibrate", str(FIXTURE / "manifest.json"), "--gcps", str(folder / "gcps.csv"),
+                                       "--out", str(out), "--no-report"])
+    assert code == 4  # EXIT_PARTIAL
+    for name in ("cam2_ccd1", "cam2_ccd2"):
+        assert f"B2.{name}: no GCP on this detector array" in stdout
+    summary = json.loads((out / "calibrate.summary.json").read_text())
+    assert summary["status"] == "partial"
+    bad = {c["ccd"] for c in summary["coverage"] if not c["calibrated"]}
+    assert bad == {"cam2_ccd1", "cam2_ccd2"}
+    assert all(c["check_rmse_px"]["after"] is not None for c in summary["coverage"] if c["verified"])
+    doc = json.loads((out / "calibration.json").read_text())
+    assert doc["status"]["status"] == "partial" and len(doc["coverage"]) == 4
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["calibration"]["status"] == "partial"
+    assert {e["ccd"] for e in manifest["calibration"]["uncalibrated"]} == {"cam2_ccd1", "cam2_ccd2"}
+
+
+def test_half_dem_report_names_uncalibrated(half_dem_gcps, tmp_path, capsys):
+    _code, folder = half_dem_gcps
+    out = tmp_path / "cal"
+    code, _out, _err = _run(capsys, ["calibrate", str(FIXTURE / "manifest.json"), "--gcps",
+                                     str(folder / "gcps.csv"), "--out", str(out), "--json"])
+    assert code == 4
+    html = (out / "report.html").read_text()
+    assert "Coverage per CCD" in html and "B2.cam2_ccd1: no GCP" in html and "partial" in html
+
+
+def test_full_dem_is_calibrated(full_gcps, tmp_path, capsys):
+    code, stdout, _err = _run(capsys, ["calibrate", str(FIXTURE / "manifest.json"), "--gcps", str(full_gcps),
+                                       "--out", str(tmp_path / "cal"), "--no-report"])
+    assert code == 0, stdout
+    summary = json.loads((tmp_path / "cal" / "calibrate.summary.json").read_text())
+    assert summary["status"] == "calibrated"
+    assert all(c["calibrated"] and c["verified"] for c in summary["coverage"])
+    assert summary["variance_factor"] > 0
+
+
+def _without(table_path, out_path, drop):
+    from gcpmatch.gcps import GcpTable, read_gcps, write_gcps_csv
+
+    table = read_gcps(table_path)
+    keep = ~drop(table)
+    write_gcps_csv(GcpTable.from_arrays(**{k: np.asarray(v)[keep] for k, v in table.as_dict().items()}), out_path)
+    return out_path
+
+
+def test_ccd_without_check_points_is_unverified(full_gcps, tmp_path, capsys):
+    gcps = _without(full_gcps, tmp_path / "g.csv", lambda t: (t.kind == "check") & (t.ccd == "cam1_ccd2"))
+    code, stdout, _err = _run(capsys, ["calibrate", str(FIXTURE / "manifest.json"), "--gcps", str(gcps),
+                                       "--out", str(tmp_path / "cal"), "--no-report"])
+    assert code == 4
+    assert "B2.cam1_ccd2: no check point" in stdout
+    summary = json.loads((tmp_path / "cal" / "calibrate.summary.json").read_text())
+    row = {c["ccd"]: c for c in summary["coverage"]}["cam1_ccd2"]
+    assert row["calibrated"] and not row["verified"] and row["check_rmse_px"]["after"] is None
+
+
+def test_ccd_with_too_little_spread_is_uncalibrated(full_gcps, tmp_path, capsys):
+    from gcpmatch.gcps import read_gcps
+    from sensor_models.readers import open_model
+
+    model = open_model(FIXTURE / "manifest.json")
+    first = {a.name: a.first_col for a in model.detector_arrays("B2")}
+    table = read_gcps(full_gcps)
+    offset = table.col - np.array([first.get(str(c), 0) for c in table.ccd])
+    gcps = _without(full_gcps, tmp_path / "g.csv",
+                    lambda t: (t.kind == "gcp") & (t.ccd == "cam1_ccd1") & (offset > 60))
+    code, stdout, _err = _run(capsys, ["calibrate", str(FIXTURE / "manifest.json"), "--gcps", str(gcps),
+                                       "--out", str(tmp_path / "cal"), "--no-report"])
+    assert code == 4
+    summary = json.loads((tmp_path / "cal" / "calibrate.summary.json").read_text())
+    row = {c["ccd"]: c for c in summary["coverage"]}["cam1_ccd1"]
+    assert not row["calibrated"] and "needed" in row["reason"] and row["spread_across"] < 0.3
+    assert "B2.cam1_ccd1: 6 GCPs < 24 needed" in stdout
+
+
+def test_ccd_with_narrow_spread_is_uncalibrated(full_gcps):
+    """Enough GCPs, all on a narrow strip of the CCD's detectors: the span rule skips it."""
+    from calibrate.absolute import calibrate_model
+    from calibrate.from_gcps import points_of
+    from gcpmatch.gcps import GcpTable, read_gcps
+    from sensor_models.readers import open_model
+
+    model = open_model(FIXTURE / "manifest.json")
+    array = {a.name: a for a in model.detector_arrays("B2")}["cam1_ccd1"]
+    table = read_gcps(full_gcps)
+    narrow = (table.ccd == "cam1_ccd1") & (table.col - array.first_col > 0.4 * array.n_detectors)
+    keep = ~narrow
+    table = GcpTable.from_arrays(**{k: np.asarray(v)[keep] for k, v in table.as_dict().items()})
+    result = calibrate_model(model, table, options=CalibrationOptions(min_points_factor=1.0))
+    fitted = points_of(table.gcps(), model)
+    rows = calibration_coverage(model, fitted, points_of(table.checks(), model), success=result.success,
+                                skipped=result.skipped, weight=fitted["score"])
+    row = {r.ccd: r for r in rows}["cam1_ccd1"]
+    assert not row.calibrated and "span" in row.reason and row.spread_across < 0.4
+    assert calibration_status(result.success, result.message, rows).status == "partial"
+
+
+def test_failed_solve_is_failed_status():
+    from sensor_models.readers import open_model
+
+    model = open_model(FIXTURE / "manifest.json")
+    pts = {"row": np.array([10.0, 500.0]), "col": np.array([10.0, 60.0]), "band": None, "ccd": None}
+    rows = calibration_coverage(model, pts, pts, success=False)
+    status = calibration_status(False, "rank deficient", rows)
+    assert status.status == "failed" and not status.usable
+    assert all(not r.calibrated for r in rows) and rows[0].reason.startswith("the calibration failed")
+
+
+# --------------------------------------------------------------------------- variance factor
+def _synthetic_gcps(lab, truth, rng, *, noise_px, sigma_px, n_per_ccd=60):
+    """GCPs rendered by ``truth`` on every CCD of the reference band, image noise ``noise_px``."""
+    from gcpmatch.gcps import GcpTable
+
+    band = lab.reference_band
+    rows, cols, lon, lat, h, ccd = [], [], [], [], [], []
+    n_rows = lab.image_shape[0]
+    for array in lab.detector_arrays(band):
+        r = rng.uniform(0.05, 0.95, n_per_ccd) * n_rows
+        c = array.first_col + rng.uniform(0.02, 0.98, n_per_ccd) * array.n_detectors
+        height = rng.uniform(0.0, 1500.0, n_per_ccd)
+        lo, la, hh = truth.image_to_ground(r, c, height=height, band=band, array=array.name)
+        rows.append(r + rng.normal(0.0, noise_px, n_per_ccd))
+        cols.append(c + rng.normal(0.0, noise_px, n_per_ccd))
+        lon.append(lo)
+        lat.append(la)
+        h.append(hh)
+        ccd += [array.name] * n_per_ccd
+    return GcpTable.from_arrays(np.concatenate(rows), np.concatenate(cols), np.concatenate(lon),
+                                np.concatenate(lat), np.concatenate(h), sigma_px=sigma_px, band=band,
+                                ccd=np.array(ccd), kind="gcp")
+
+
+def test_variance_factor_and_sigma_coverage_with_noise_twice_sigma():
+    """GCP noise 2x the stated sigma_px: variance factor ~4 and the sigmas cover the truth at ~95 %."""
+    from calibrate.absolute import calibrate_model
+    from sensor_models.readers import open_model
+
+    lab = open_model(FIXTURE / "manifest.json")
+    names = list(lab.parameters().names)
+    theta = lab.parameters().values.copy()
+    ext = [names.index(f"installation.{a}") for a in ("roll", "pitch", "yaw")]
+    theta[ext] += np.deg2rad(np.array([60.0, -40.0, 90.0]) / 3600.0)
+    truth = lab.with_parameters(theta)
+    rng = np.random.default_rng(5)
+    factors, inside, total = [], 0, 0
+    for _trial in range(30):
+        gcps = _synthetic_gcps(lab, truth, rng, noise_px=1.0, sigma_px=0.5)
+        result = calibrate_model(lab, gcps, options=CalibrationOptions(scheme="exterior"))
+        assert result.success, result.message
+        factors.append(result.variance_factor)
+        true_values = theta[[names.index(n) for n in result.names]]
+        z = np.abs(result.values - true_values) / result.sigma
+        inside += int(np.sum(z <= 1.96))
+        total += z.size
+    assert 3.2 < np.median(factors) < 4.8
+    assert 0.88 <= inside / total <= 1.0  # 95 % nominal, 90 trials
+    assert result.to_dict(points=False)["variance_factor"] == pytest.approx(result.sigma0**2)
