@@ -67,11 +67,62 @@ def test_half_dem_match_names_the_dem(half_dem_gcps):
     per_ccd = {c["ccd"]: c for c in summary["per_ccd"]}
     for name in ("cam2_ccd1", "cam2_ccd2"):
         assert per_ccd[name]["gcps"] == 0
-        assert per_ccd[name]["dem_coverage"] < 0.05
-        assert "DEM covers" in per_ccd[name]["cause"] and "dem_west.tif" in per_ccd[name]["cause"]
+        assert per_ccd[name]["dem_coverage"] < 0.5 and per_ccd[name]["dom_coverage"] > 0.9
+        assert per_ccd[name]["cause"].startswith("DEM covers") and "dem_west.tif" in per_ccd[name]["cause"]
     for name in ("cam1_ccd1", "cam1_ccd2"):
-        assert per_ccd[name]["dem_coverage"] > 0.9
+        assert per_ccd[name]["dem_coverage"] > 0.5
         assert per_ccd[name]["cause"] is None
+    assert "restricted" in summary["coarse"]["note"]
+
+
+def _other_dom(dst: Path) -> Path:
+    """The fixture DOM at half the resolution with another tone curve (another sensor, date)."""
+    import rasterio
+    from rasterio.enums import Resampling
+
+    with rasterio.open(FIXTURE / "reference" / "dom.tif") as src:
+        data = src.read(1, out_shape=(src.height // 2, src.width // 2), resampling=Resampling.average).astype(float)
+        top = float(data.max())
+        toned = (np.clip(data / top, 0, 1) ** 0.6 * top * 0.9 + 20).astype(src.dtypes[0])
+        profile = src.profile.copy()
+        profile.update(width=src.width // 2, height=src.height // 2, transform=src.transform * src.transform.scale(2, 2))
+    with rasterio.open(dst, "w", **profile) as out:
+        out.write(toned, 1)
+    return dst
+
+
+def test_half_dem_cause_is_the_same_whatever_the_dom(half_dem_gcps, tmp_path, capsys):
+    _code, folder = half_dem_gcps
+    dom = _other_dom(tmp_path / "dom_other.tif")
+    code, stdout, _err = _run(capsys, ["match", str(FIXTURE / "manifest.json"), "--dom", str(dom), "--dem",
+                                       str(folder / "dem_west.tif"), "--out", str(tmp_path / "gcps.csv")])
+    assert code == 0
+    other = json.loads((tmp_path / "gcps.summary.json").read_text())
+    first = json.loads((folder / "gcps.summary.json").read_text())
+    assert [c["cause"] for c in other["per_ccd"]] == [c["cause"] for c in first["per_ccd"]]
+    assert [c["gcps"] > 0 for c in other["per_ccd"]] == [c["gcps"] > 0 for c in first["per_ccd"]]
+    for name in ("cam2_ccd1", "cam2_ccd2"):
+        assert f"CCD {name}: 0 GCPs; DEM" in stdout
+    assert stdout.count("cause: DEM covers") == 2 and "coarse search was restricted" in stdout
+
+
+def test_dem_outside_the_scene_names_the_dem(tmp_path, capsys):
+    """A DEM that covers none of the reference around the scene: one line naming the DEM, exit 3."""
+    import rasterio
+    from rasterio.transform import Affine
+
+    with rasterio.open(FIXTURE / "reference" / "dem.tif") as src:
+        profile, data, tags = src.profile.copy(), src.read(), src.tags()
+    profile.update(transform=Affine.translation(200_000.0, 0.0) * profile["transform"])
+    far = tmp_path / "dem_far.tif"
+    with rasterio.open(far, "w", **profile) as out:
+        out.write(data)
+        out.update_tags(**tags)
+    out_csv = tmp_path / "gcps.csv"
+    code, _out, err = _run(capsys, ["match", str(FIXTURE / "manifest.json"), "--dom",
+                                    str(FIXTURE / "reference" / "dom.tif"), "--dem", str(far), "--out", str(out_csv)])
+    assert code != 0 and "dem_far.tif" in err and "covers 0 %" in err
+    assert not out_csv.exists()
 
 
 def test_half_dem_calibration_is_partial(half_dem_gcps, tmp_path, capsys):
