@@ -121,7 +121,7 @@ def test_dem_outside_the_scene_names_the_dem(tmp_path, capsys):
     out_csv = tmp_path / "gcps.csv"
     code, _out, err = _run(capsys, ["match", str(FIXTURE / "manifest.json"), "--dom",
                                     str(FIXTURE / "reference" / "dom.tif"), "--dem", str(far), "--out", str(out_csv)])
-    assert code != 0 and "dem_far.tif" in err and "covers 0 %" in err
+    assert code == 1 and err.count("\n") == 1 and "dem_far.tif" in err and "covers 0 %" in err
     assert not out_csv.exists()
 
 
@@ -286,3 +286,28 @@ def test_variance_factor_and_sigma_coverage_with_noise_twice_sigma():
     assert 3.2 < np.median(factors) < 4.8
     assert 0.88 <= inside / total <= 1.0  # 95 % nominal, 90 trials
     assert result.to_dict(points=False)["variance_factor"] == pytest.approx(result.sigma0**2)
+
+
+def test_failed_rpc_bias_writes_no_rpc_file(shared_data, tmp_path, capsys, monkeypatch):
+    """A failed bias compensation ends 'failed' (exit 3) and leaves no RPC file to be used."""
+    import dataclasses
+
+    import calibrate.actions.calibrate as action
+
+    real = action.apply_calibration
+
+    def failing(model, table, **kw):
+        result, g = real(model, table, **kw)
+        return dataclasses.replace(result, success=False, message="forced failure"), g
+
+    monkeypatch.setattr(action, "apply_calibration", failing)
+    gcps = tmp_path / "g.csv"
+    gcps.write_text("id,row,col,lon,lat,h,kind\ng1,100.5,100.5,5.1616,44.2296,500,gcp\n"
+                    "g2,500.5,900.5,5.1668,44.2279,500,gcp\nc1,300.5,500.5,5.164,44.229,500,check\n")
+    out = tmp_path / "cal"
+    code, stdout, _err = _run(capsys, ["calibrate", str(shared_data / "pleiades_ventoux" / "right_image_bias.geom"),
+                                       "--gcps", str(gcps), "--out", str(out), "--no-report"])
+    assert code == 3 and "FAILED" in stdout
+    assert not list(out.glob("*_RPC.TXT"))
+    summary = json.loads((out / "calibrate.summary.json").read_text())
+    assert summary["status"] == "failed" and summary["model"] is None
