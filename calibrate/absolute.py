@@ -101,7 +101,11 @@ class CalibrationResult:
     skipped : list of dict
         CCDs whose interior was not estimated: ``band, ccd, n_points, needed, span, reason``.
     sigma0, scale : float
-        Of the last step (:class:`calibrate.lsq.LsqResult`).
+        Of the last step (:class:`calibrate.lsq.LsqResult`): ``sigma0`` is the a-posteriori
+        standard deviation of unit weight (robust form of ``sqrt(sum w r~^2 / (n - p))`` over
+        the normalized residuals ``r~ = r / sigma_px``); the covariance is already scaled by its
+        square, ``C = sigma0^2 (J^T W J)^-1`` (:mod:`calibrate.lsq`), so parameter sigmas are
+        a-posteriori ones, not the a-priori ``(J^T W J)^-1``.
     """
 
     success: bool
@@ -126,6 +130,18 @@ class CalibrationResult:
     sigma0: float = float("nan")
     scale: float = float("nan")
     robust: str = "huber"
+
+    @property
+    def variance_factor(self) -> float:
+        """A-posteriori variance factor ``sigma0**2`` of the last step (1 when ``sigma_px`` is right).
+
+        Returns
+        -------
+        float
+            ``sigma0**2`` (dimensionless): about 4 when the GCP errors are twice their stated
+            ``sigma_px``; NaN when nothing was estimated.
+        """
+        return float(self.sigma0) ** 2
 
     @property
     def sigma(self) -> np.ndarray | None:
@@ -208,6 +224,8 @@ class CalibrationResult:
             "correlation": None if self.correlation is None else self.correlation.tolist(),
             "condition_numbers": dict(self.condition_numbers),
             "sigma0": self.sigma0,
+            "variance_factor": self.variance_factor,
+            "covariance_scaling": "covariance = sigma0^2 (J^T W J)^-1 (a posteriori)",
             "scale": self.scale,
             "skipped": list(self.skipped),
             "steps": list(self.steps),

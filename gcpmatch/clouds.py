@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["bright_outliers", "cloud_pixels", "low_texture"]
+__all__ = ["bright_outliers", "cloud_pixels", "detect_clouds", "low_texture"]
+
+#: fewest land pixels (scene and reference correlating) the detector needs to fit its relation
+MIN_LAND_PX = 100
 
 
 def _local_ncc(a: np.ndarray, b: np.ndarray, size: int) -> np.ndarray:
@@ -35,11 +38,14 @@ def cloud_pixels(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, nc
                  box_px: int = 15, min_size_px: int = 5) -> np.ndarray:
     """Pixels much brighter than the reference predicts (clouds), as a boolean mask.
 
+    The mask of :func:`detect_clouds` (which also says whether the detector could estimate).
+
     1. Land is where scene and reference correlate locally (normalized cross-correlation in a
        ``box_px`` box above ``ncc_land``); clouds and water do not.
     2. On land pixels the scene is regressed on the reference (``s ~ a r + b``, IRLS with Huber
        weights, pixels more than 2.5 sigma on the bright side trimmed: haze and cloud edges
-       correlate but are brighter), so the relation holds even when clouds cover most of a CCD.
+       correlate but are brighter), started from the darker half of the pixels, so the
+       relation holds even when clouds cover most of a CCD.
     3. Pixels whose residual exceeds ``k`` robust standard deviations on the bright side, after
        a morphological opening of ``min_size_px`` (clouds are extended, noise is not), are
        flagged. NaN reference pixels are never flagged.
@@ -62,7 +68,34 @@ def cloud_pixels(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, nc
     Returns
     -------
     ndarray of bool, shape (n_rows, n_cols)
+        True on cloud pixels (none where the detector cannot estimate).
+    """
+    return detect_clouds(scene, reference, k=k, ncc_land=ncc_land, box_px=box_px, min_size_px=min_size_px)[0]
+
+
+def detect_clouds(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, ncc_land: float = 0.5,
+                  box_px: int = 15, min_size_px: int = 5):
+    """Cloud mask of :func:`cloud_pixels` and the cloud fraction, or None where it cannot tell.
+
+    The detector needs :data:`MIN_LAND_PX` pixels where scene and reference correlate (land)
+    to fit its scene-versus-reference relation. Without them (a scene all cloud, no reference
+    under it, a reference of another place) it cannot estimate the cloud cover: the fraction
+    is then None ("unknown"), never 0.
+
+    Parameters
+    ----------
+    scene, reference : ndarray, shape (n_rows, n_cols)
+        As :func:`cloud_pixels`.
+    k, ncc_land, box_px, min_size_px
+        As :func:`cloud_pixels`.
+
+    Returns
+    -------
+    mask : ndarray of bool, shape (n_rows, n_cols)
         True on cloud pixels.
+    fraction : float or None
+        Cloud pixels over the pixels with scene and reference data, in [0, 1]; None when the
+        detector cannot estimate.
     """
     import cv2
 
@@ -71,12 +104,12 @@ def cloud_pixels(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, nc
     s32 = np.where(ok, scene, 0.0).astype(np.float32)
     r32 = np.where(ok, reference, 0.0).astype(np.float32)
     land = np.flatnonzero(ok & (_local_ncc(s32, r32, box_px) > ncc_land))
-    if land.size < 100:
-        return out
+    if land.size < MIN_LAND_PX:
+        return out, None
     # a regular subsample of at most ~50 000 land pixels is plenty for two coefficients
     land = land[:: max(1, land.size // 50_000)]
     x, y = r32.ravel()[land].astype(np.float64), s32.ravel()[land].astype(np.float64)
-    w = np.ones(x.size)
+    w = _darker_half_start(x, y)
     for it in range(9):
         a = np.stack([x, np.ones_like(x)], axis=-1) * np.sqrt(w)[:, None]
         coef = np.linalg.lstsq(a, y * np.sqrt(w), rcond=None)[0]
@@ -88,7 +121,25 @@ def cloud_pixels(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, nc
         w[res > 2.5 * s] = 0.0
     bright = (ok & (s32 - (np.float32(coef[0]) * r32 + np.float32(coef[1])) > np.float32(k * s))).astype(np.uint8)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (min_size_px, min_size_px))
-    return cv2.morphologyEx(bright, cv2.MORPH_OPEN, kernel).astype(bool)
+    mask = cv2.morphologyEx(bright, cv2.MORPH_OPEN, kernel).astype(bool)
+    return mask, float(mask[ok].mean())
+
+
+def _darker_half_start(x, y, rounds: int = 3) -> np.ndarray:
+    """Start weights of the land fit: the pixels below the line fitted to the darker half.
+
+    Cloud edges and haze correlate with the ground but are brighter; when they are a large
+    share of the "land" pixels (a CCD mostly under cloud) a fit to all of them is pulled up
+    and the clouds are missed. The contamination is one-sided, so the darker half about the
+    current line is refitted a few times, which settles on the ground's relation.
+    """
+    a = np.stack([x, np.ones_like(x)], axis=-1)
+    low = np.ones(x.size, bool)
+    for _ in range(rounds):
+        coef = np.linalg.lstsq(a[low], y[low], rcond=None)[0]
+        res = y - a @ coef
+        low = res <= np.median(res)
+    return low.astype(np.float64)
 
 
 def bright_outliers(mean_scene: np.ndarray, mean_ref: np.ndarray, *, k: float = 4.0) -> np.ndarray:

@@ -72,6 +72,8 @@ class CoarseResult:
     factor: int
     ccd_offsets_px: dict = field(default_factory=dict)
     points: dict = field(default_factory=dict)  # row, col, lon, lat, h of the final inliers
+    dem_coverage: float = 1.0  # fraction of the searched DOM with DEM heights
+    note: str = ""
 
     def summary(self) -> dict:
         """The counts and fit figures as a JSON-ready dict (no model, no points).
@@ -79,14 +81,17 @@ class CoarseResult:
         Returns
         -------
         dict
-            Keypoints, ratio matches, RANSAC inliers, kept inliers, ``rms_m``, ``factor`` and
-            ``ccd_offsets_px`` (keys as strings).
+            Keypoints, ratio matches, RANSAC inliers, kept inliers, ``rms_m``, ``factor``,
+            ``ccd_offsets_px`` (keys as strings), ``dem_coverage`` (fraction of the DOM searched
+            around the scene that has DEM heights) and ``note`` (says when the search was
+            restricted to that part).
         """
         return {
             "keypoints_scene": self.n_keypoints_scene, "keypoints_dom": self.n_keypoints_dom,
             "ratio_matches": self.n_matches, "ransac_inliers": self.n_ransac_inliers,
             "inliers": self.n_inliers, "rms_m": self.rms_m, "factor": self.factor,
             "ccd_offsets_px": {str(k): v for k, v in self.ccd_offsets_px.items()},
+            "dem_coverage": self.dem_coverage, "note": self.note,
         }
 
 
@@ -215,7 +220,15 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     Raises
     ------
     CoarseMatchError
-        Too few consistent matches (no texture, wrong area, all clouds).
+        Too few consistent matches (no texture, wrong area, all clouds), or a DEM that covers
+        none of the scene.
+
+    Notes
+    -----
+    Matches need DEM heights. When the DEM covers only part of the scene the search is
+    restricted to that part before SIFT: the DOM is blanked where the DEM has no height (a
+    test in true ground coordinates, independent of the model's error), so whatever the DOM
+    the same part is searched; the result's ``note`` says so, an error names the coverage.
     """
     n_rows, n_cols = scene.shape
     small, small_valid, f = _reduce_scene(scene, target_px)
@@ -224,6 +237,7 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     coarse_res = gsd * f  # metres per reduced pixel
     win = _dom_window(model, dom, band=band, h_mid=h_mid, gsd=gsd, coarse_res=coarse_res,
                       max_offset_px=max_offset_px)
+    dem_cover, note = _restrict_to_dem(win, dem)
     a_pred = _predicted_affine(model, band, h_mid, scene.shape, f, win)
     warped, warped_valid = _warp_to_dom(small, small_valid, a_pred)
     ps, pd, n_kp_s, n_kp_d, ransac_in = _sift_ransac(warped, warped_valid, win.dom_small, n_features=n_features,
@@ -232,7 +246,8 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     inside = (row > 0) & (row < n_rows) & (col > 0) & (col < n_cols) & np.isfinite(gh)
     sel = ransac_in & inside
     if sel.sum() < 6:
-        raise CoarseMatchError("too few RANSAC inliers inside the scene and the DEM")
+        where = "" if not note else f" ({note})"
+        raise CoarseMatchError(f"too few RANSAC inliers inside the scene and the DEM: {int(sel.sum())} < 6{where}")
     corrected, keep, rms_m, offsets = _precorrect(model, band, row, col, glon, glat, gh, sel=sel, inside=inside,
                                                   min_scale_m=0.5 * coarse_res)
     return CoarseResult(
@@ -240,7 +255,40 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         n_ransac_inliers=int(ransac_in.sum()), n_inliers=int(keep.size), rms_m=rms_m, factor=f,
         ccd_offsets_px=offsets,
         points={"row": row[keep], "col": col[keep], "lon": glon[keep], "lat": glat[keep], "h": gh[keep]},
+        dem_coverage=dem_cover, note=note,
     )
+
+
+#: below this fraction of the searched DOM with DEM heights, the search is restricted to them
+_FULL_COVER = 0.99
+
+
+def _restrict_to_dem(win: _DomWindow, dem, step: int = 4):
+    """Blank the searched DOM where the DEM has no height (matches need one); coverage and a note.
+
+    The test is on the DOM side, in true ground coordinates, so it does not depend on the
+    model's error; it is made on every ``step``-th reduced DOM pixel and enlarged.
+    """
+    small = win.dom_small
+    valid = np.isfinite(small)
+    rows = np.arange(0, small.shape[0], step) + 0.5 * min(step, small.shape[0]) - 0.5
+    cols = np.arange(0, small.shape[1], step) + 0.5 * min(step, small.shape[1]) - 0.5
+    px, py = np.meshgrid(np.minimum(cols, small.shape[1] - 1), np.minimum(rows, small.shape[0] - 1))
+    ui, vi = win.small_to_index(px.ravel(), py.ravel())
+    inv = ~win.index
+    lon, lat = win.from_map.transform(inv.a * ui + inv.b * vi + inv.c, inv.d * ui + inv.e * vi + inv.f)
+    with np.errstate(invalid="ignore"):
+        has = np.isfinite(dem.height_m(np.asarray(lon), np.asarray(lat))).reshape(px.shape).astype(np.uint8)
+    has = cv2.resize(has, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_NEAREST).astype(bool)
+    cover = float((has & valid).sum() / max(valid.sum(), 1))
+    name = getattr(dem, "source", None) or "the DEM"
+    if cover <= 0.0:
+        raise CoarseMatchError(f"the DEM covers 0 % of the reference around the scene ({name})")
+    if cover >= _FULL_COVER:
+        return cover, ""
+    win.dom_small = np.where(has, small, np.nan).astype(small.dtype)
+    return cover, (f"the DEM covers {100 * cover:.0f} % of the reference searched around the scene ({name}); "
+                   "the coarse search was restricted to that part")
 
 
 def _reduce_scene(scene: np.ndarray, target_px: int):

@@ -24,8 +24,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from gcpmatch.clouds import cloud_pixels, low_texture
-from gcpmatch.coarse import coarse_match
+from gcpmatch.clouds import detect_clouds, low_texture
+from gcpmatch.coarse import coarse_match, scene_height_m
+from gcpmatch.coverage import reference_coverage
 from gcpmatch.gcps import GcpTable
 from gcpmatch.options import MatchOptions
 from gcpmatch.outliers import local_consistency, smooth_residuals
@@ -93,7 +94,7 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
     model_pc = coarse.model
     if progress:
         progress(f"coarse stage: {coarse.n_inliers} SIFT matches, model pre-corrected")
-    tally = _Tally()
+    tally = _Tally(height_m=scene_height_m(model_pc, dem, band=band), mask_given=mask is not None)
     for i, look in enumerate(model_pc.detector_arrays(band)):
         # an array that is a model of its own (a CCD) is rendered alone; a whole image at once
         split = model_pc.detector_view(band, i) is not model_pc
@@ -114,6 +115,9 @@ class _Tally:
     per_ccd: list = field(default_factory=list)
     tables: list = field(default_factory=list)
     cloud_sum: float = 0.0
+    cloud_cols: int = 0  # detector columns whose cloud fraction is known
+    height_m: float = 0.0  # localization height of the coverage grids
+    mask_given: bool = False
     n_windows: int = 0
     t_ref: float = 0.0
     t_phase: float = 0.0
@@ -148,12 +152,17 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
     tally.t_ref += time.perf_counter() - t1
     cols = slice(look.first_col, look.first_col + look.n_detectors)
     img = scene[:, cols]
-    msk = cloud_pixels(img, ref) if mask is None else mask[:, cols]  # detector: brighter than predicted
-    cloud_px = float(msk.mean())
+    if mask is None:  # detector: brighter than the reference predicts
+        msk, cloud_px = detect_clouds(img, ref)
+    else:
+        msk = mask[:, cols]
+        cloud_px = float(msk.mean())
+    cover = reference_coverage(model_pc, dem, dom, band=band, array=ccd, height_m=tally.height_m)
     rs = _grid_starts(img.shape[0], opt.window_px, opt.spacing_px)
     cs = _grid_starts(img.shape[1], opt.window_px, opt.spacing_px)
     if rs.size == 0 or cs.size == 0:
-        tally.per_ccd.append({"ccd": look.name, "windows": 0, "gcps": 0})
+        tally.per_ccd.append(_ccd_report(look, 0, 0, cloud_px, cover, {}, float("nan"), (np.empty(0),) * 2,
+                                         img.shape, dem, dom))
         return
     rr, cc = (a.ravel() for a in np.meshgrid(rs, cs, indexing="ij"))
     n = rr.size
@@ -167,18 +176,60 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
     if keep.size:
         kw = {"array": ccd} if ccd is not None else {}
         tally.tables.append(_ccd_gcps(model_pc, dem, band, look, r_c, c_c, shift[keep], score[keep], sigma, kw))
-    tally.cloud_sum += cloud_px * look.n_detectors
-    tally.per_ccd.append({
-        "ccd": look.name, "windows": int(n), "gcps": int(keep.size),
-        "usable_fraction": float(keep.size / n),
-        "cloud_fraction": cloud_px,
-        "cloud_windows": int(np.sum(status == "cloud")),
-        "no_texture_fraction": float(np.mean(status == "no_texture")),
-        "sigma_px": None if not np.isfinite(sigma) else sigma,
-        "coverage": _coverage(r_c, c_c - look.first_col, img.shape),
-    })
+    if cloud_px is not None:
+        tally.cloud_sum += cloud_px * look.n_detectors
+        tally.cloud_cols += look.n_detectors
+    counts = {r: int(np.sum(status == r)) for r in REASONS}
+    tally.per_ccd.append(_ccd_report(look, n, keep.size, cloud_px, cover, counts, sigma,
+                                     (r_c, c_c - look.first_col), img.shape, dem, dom))
     if progress:
-        progress(f"CCD {look.name}: {keep.size} GCPs from {n} windows")
+        line = f"CCD {look.name}: {keep.size} GCPs from {n} windows"
+        cause = tally.per_ccd[-1]["cause"]
+        progress(line + (f" ({cause})" if cause else ""))
+
+
+#: a CCD with fewer usable windows than this fraction gets a ``cause``
+THIN_FRACTION = 0.1
+
+
+def _ccd_report(look, n, n_keep, cloud_px, cover, counts, sigma, centres, shape, dem, dom) -> dict:
+    """The per-CCD entry of the summary, with the ``cause`` of an empty or thin CCD."""
+    n_win = max(n, 1)
+    report = {
+        "ccd": look.name, "windows": int(n), "gcps": int(n_keep),
+        "usable_fraction": float(n_keep / n_win),
+        "cloud_fraction": cloud_px,
+        "cloud_windows": int(counts.get("cloud", 0)),
+        "no_texture_fraction": float(counts.get("no_texture", 0) / n_win),
+        "dem_coverage": cover["dem"],
+        "dom_coverage": cover["dom"],
+        "sigma_px": None if not np.isfinite(sigma) else sigma,
+        "coverage": _coverage(centres[0], centres[1], shape),
+    }
+    if cloud_px is None:
+        report["cloud_note"] = "the cloud detector cannot estimate here (too little land matches the reference)"
+    thin = n_keep == 0 or n_keep < THIN_FRACTION * n_win
+    report["cause"] = _cause(report, counts, dem, dom) if thin else None
+    return report
+
+
+def _cause(report, counts, dem, dom) -> str:
+    """Why a CCD gave no (or few) GCPs: the first of DEM, DOM, clouds, texture, else the rejections."""
+    def name(obj, what):
+        return getattr(obj, "source", None) or getattr(obj, "path", None) or what
+
+    if report["dem_coverage"] < 0.5:
+        return f"DEM covers {100 * report['dem_coverage']:.0f} % of the CCD ({name(dem, 'DEM')})"
+    if report["dom_coverage"] is not None and report["dom_coverage"] < 0.5:
+        return f"DOM covers {100 * report['dom_coverage']:.0f} % of the CCD ({name(dom, 'DOM')})"
+    if report["cloud_fraction"] is not None and report["cloud_fraction"] >= 0.5:
+        return f"clouds cover {100 * report['cloud_fraction']:.0f} % of the CCD"
+    if report["windows"] and report["no_texture_fraction"] >= 0.5:
+        return f"no texture (water, uniform ground) in {100 * report['no_texture_fraction']:.0f} % of the windows"
+    if report["cloud_fraction"] is None and report["windows"]:
+        return "cloud cover unknown; the scene does not match the reference (clouds, or another place)"
+    top = sorted(((v, k) for k, v in counts.items() if v), reverse=True)[:3]
+    return "windows rejected: " + (", ".join(f"{k} {v}" for v, k in top) or "no window fits the CCD")
 
 
 def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
@@ -294,7 +345,7 @@ def _summary(band, table, tally: _Tally, coarse, opt: MatchOptions, timings: dic
         "check_points": int(0 if table is None else np.sum(table.kind == "check")),
         "windows": n_windows,
         "usable_fraction": n_gcp / max(n_windows, 1),
-        "cloud_fraction": tally.cloud_sum / n_cols,
+        "cloud_fraction": tally.cloud_sum / tally.cloud_cols if tally.cloud_cols else None,
         "cloud_window_fraction": reasons["cloud"] / max(n_windows, 1),
         "rejected": reasons,
         "per_ccd": tally.per_ccd,
@@ -304,8 +355,15 @@ def _summary(band, table, tally: _Tally, coarse, opt: MatchOptions, timings: dic
         "matches_per_second": (n_windows - reasons["no_reference"] - reasons["no_data"] - reasons["cloud"])
         / max(tally.t_phase, 1e-9),
     }
+    if tally.cloud_cols < n_cols and not tally.mask_given:
+        summary["cloud_note"] = ("cloud fraction unknown" if not tally.cloud_cols else
+                                 f"cloud fraction over the {100 * tally.cloud_cols / n_cols:.0f} % of the columns "
+                                 "where the detector could estimate it") + "; give --mask for a known cover"
+    if coarse.note:
+        summary["note"] = coarse.note
     if n_gcp == 0:
-        summary["message"] = "no GCP: " + ", ".join(f"{k} {v}" for k, v in reasons.items() if v)
+        causes = "; ".join(f"{c['ccd'] or 'image'}: {c['cause']}" for c in tally.per_ccd if c.get("cause"))
+        summary["message"] = "no GCP: " + (causes or ", ".join(f"{k} {v}" for k, v in reasons.items() if v))
     return summary
 
 

@@ -173,3 +173,29 @@ def test_torch_backend_gives_the_same_gcps(clear_scene):
     both = cpu.valid & tor.valid
     assert both.sum() > 150
     assert np.abs(cpu.shift_px[both] - tor.shift_px[both]).max() < 0.01
+
+
+def test_mostly_cloudy_scene_reports_its_cloud_fraction(tmp_path):
+    """Issue 12: without a mask the detector's estimate is reported (it said ~4 % at 61 % cloud)."""
+    d = tmp_path / "mostly_cloudy"
+    cfg = _config()
+    truth_summary = simulate_pushbroom(d, config=replace(cfg, clouds=replace(cfg.clouds, cover=0.6)))
+    lab, truth, dem, dom, img = _open(d)
+    _table, summary = extract_gcps(lab, img, dem, dom, band="B2", options=MatchOptions(spacing_px=24))
+    assert abs(summary["cloud_fraction"] - truth_summary["cloud_fraction"]) < 0.1
+    worst = max(summary["per_ccd"], key=lambda c: c["cloud_fraction"])
+    assert worst["cloud_fraction"] > 0.7
+    assert all(c["cause"] is None or c["cause"].startswith("clouds cover") for c in summary["per_ccd"])
+
+
+def test_cloud_fraction_unknown_when_the_detector_cannot_tell():
+    from gcpmatch.clouds import detect_clouds
+
+    rng = np.random.default_rng(0)
+    reference = rng.uniform(500, 1500, (200, 120)).astype(np.float32)
+    overcast = (3300 + 30 * rng.standard_normal((200, 120))).astype(np.float32)  # no ground seen
+    mask, fraction = detect_clouds(overcast, reference)
+    assert fraction is None and not mask.any()
+    clear = reference * 1.1 + 40
+    mask, fraction = detect_clouds(clear, reference)
+    assert fraction == 0.0

@@ -23,6 +23,8 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
+
 from calibrate.actions._io import staged_folder
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
@@ -92,25 +94,24 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     result, g = apply_calibration(model, table, options=options, band=band)
     checks = points_of(table.checks(), model)
     acc_before, acc_after = _accuracy(model, checks), _accuracy(result.model, checks)
+    coverage, status = _gate(model, table, result, band, acc_before, acc_after)
+    result.model.calibration = status
     out_dir = Path(out_dir)
     with staged_folder(out_dir, ".calibrate-") as tmp:
-        doc = result.to_dict()
-        doc["scene"] = str(scene_path)
-        doc["gcp_file"] = str(gcps_path)
-        doc["check_accuracy"] = {
-            "before": None if acc_before is None else acc_before.to_dict(),
-            "after": None if acc_after is None else acc_after.to_dict(),
-        }
+        doc = _calibration_doc(result, scene_path, gcps_path, acc_before, acc_after, coverage, status)
         (tmp / "calibration.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-        model_file = _write_model(result.model, model, tmp, out_dir)
+        model_file = _write_model(result.model, model, tmp, out_dir, failed=status.status == "failed")
         if report and acc_before is not None:
             from calibrate.report import write_report
 
             write_report(tmp, result=getattr(result, "calibration", result), accuracy_before=acc_before,
-                         accuracy_after=acc_after, initial_model=model, gcps=g, checks=checks)
+                         accuracy_after=acc_after, initial_model=model, gcps=g, checks=checks,
+                         coverage=coverage, status=status)
         summary = {
             "kind": "gcpcal.calibrate",
             "success": bool(result.success),
+            "status": status.status,
+            "status_message": status.message,
             "message": result.message,
             "scheme": options.scheme,
             "gcps": int(g["row"].size),
@@ -119,6 +120,8 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
                 "before": None if acc_before is None else acc_before.absolute.rmse_px,
                 "after": None if acc_after is None else acc_after.absolute.rmse_px,
             },
+            "variance_factor": doc["variance_factor"],
+            "coverage": coverage,
             "model": model_file,
             "seconds": time.perf_counter() - t0,
         }
@@ -126,7 +129,61 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     return summary
 
 
-def _write_model(calibrated, original, tmp: Path, out_dir: Path) -> str:
+def _gate(model, table, result, band, acc_before, acc_after):
+    """Per-CCD coverage rows (with check RMSE before/after) and the run's CalibrationStatus."""
+    from calibrate.coverage import calibration_coverage, calibration_status
+
+    fitted = points_of(table.gcps(), model)
+    if band is not None and fitted["band"] is None:
+        fitted["band"] = np.full(fitted["row"].size, band)
+    checks = points_of(table.checks(), model)
+    if band is not None and checks["band"] is None and checks["row"].size:
+        checks["band"] = np.full(checks["row"].size, band)
+    lsq = getattr(result, "calibration", result)
+    rows = calibration_coverage(model, fitted, checks, success=bool(result.success),
+                                skipped=getattr(lsq, "skipped", ()), weight=fitted["score"])
+    status = calibration_status(bool(result.success), result.message, rows)
+    coverage = []
+    for c in rows:
+        entry = c.to_dict()
+        entry["check_rmse_px"] = {"before": _group_rmse(acc_before, c, len(rows)),
+                                  "after": _group_rmse(acc_after, c, len(rows))}
+        coverage.append(entry)
+    return coverage, status
+
+
+def _group_rmse(accuracy, coverage, n_arrays):
+    """Check-point RMSE (px) of one CCD, None without check points on it."""
+    if accuracy is None or coverage.check_points == 0:
+        return None
+    summary = accuracy.groups.get(f"{coverage.band}.{coverage.ccd}")
+    if summary is None and n_arrays == 1:
+        summary = accuracy.absolute
+    return None if summary is None else summary.to_dict()["rmse_px"]
+
+
+def _finite(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _calibration_doc(result, scene_path, gcps_path, acc_before, acc_after, coverage, status) -> dict:
+    """The content of ``calibration.json``."""
+    doc = result.to_dict()
+    doc["scene"] = str(scene_path)
+    doc["gcp_file"] = str(gcps_path)
+    doc["status"] = status.to_dict()
+    doc["coverage"] = coverage
+    doc["variance_factor"] = _finite(getattr(result, "calibration", result).variance_factor)
+    doc["check_accuracy"] = {
+        "before": None if acc_before is None else acc_before.to_dict(),
+        "after": None if acc_after is None else acc_after.to_dict(),
+    }
+    return doc
+
+
+def _write_model(calibrated, original, tmp: Path, out_dir: Path, *, failed=False) -> str | None:
+    """Write the calibrated model; its file name (None: a failed RPC bias fit writes none)."""
     # the writer follows the model's kind: serialization, not geometry
     if calibrated.kind == "pushbroom":
         from sensor_models.readers.manifest import manifest_to_dict
@@ -146,6 +203,8 @@ def _write_model(calibrated, original, tmp: Path, out_dir: Path) -> str:
         doc = geo_manifest_to_dict(calibrated, raster=raster)
         (tmp / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         return "manifest.json"
+    if failed:
+        return None
     name = f"{Path(getattr(original, 'source', 'model') or 'model').stem}_RPC.TXT"
     calibrated.write(tmp / name)
     return name

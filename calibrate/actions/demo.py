@@ -14,7 +14,9 @@ the truth:
 3. **report**: check-point accuracy before and after (never used in a fit), per CCD, the HTML
    report with figures, and ``summary.json`` with ``gcps``, ``check_points``,
    ``check_rmse_px {before, after}``, ``truth_error_px {rms, max}`` (calibrated model against
-   the TRUE model over a dense grid of every CCD and band, on the DEM) and ``seconds``.
+   the TRUE model over a dense grid of every CCD and band, on the DEM), ``status`` (the coverage
+   gate of the reference band's calibration, :mod:`calibrate.coverage`: the demo must end
+   ``calibrated``), ``variance_factor``, ``coverage`` and ``seconds``.
 """
 
 from __future__ import annotations
@@ -113,11 +115,26 @@ def _score(fx: dict, merged, model, ref_pts, step) -> dict:
             "truth_lab": t_err_lab, "evc": evc}
 
 
-def _summary(fixture_dir: Path, merged, result, band_results, match_summaries, sc: dict) -> dict:
+def _gate(lab, merged, result, sc: dict) -> dict:
+    """Coverage gate of the reference band's calibration (:mod:`calibrate.coverage`)."""
+    from calibrate.coverage import calibration_coverage, calibration_status
+    from calibrate.from_gcps import points_of
+
+    fitted = points_of(merged.gcps(), lab)
+    rows = calibration_coverage(lab, fitted, sc["checks"], success=bool(result.success), skipped=result.skipped,
+                                weight=fitted["score"])
+    status = calibration_status(bool(result.success), result.message, rows)
+    return {"status": status.status, "status_message": status.message,
+            "variance_factor": result.variance_factor, "coverage": [c.to_dict() for c in rows]}
+
+
+def _summary(fixture_dir: Path, merged, result, band_results, match_summaries, sc: dict, lab=None) -> dict:
     before, after = sc["before"].absolute, sc["after"].absolute
+    gate = _gate(lab, merged, result, sc) if lab is not None else {}
     return {
         "kind": "gcpcal.demo",
         "scene": str(fixture_dir / "manifest.json"),
+        **gate,
         "gcps": int(np.sum(merged.kind == "gcp")),
         "check_points": int(np.sum(merged.kind == "check")),
         "check_rmse_px": {"before": before.rmse_px, "after": after.rmse_px},
@@ -169,7 +186,7 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
     merged, match_summaries = _match(fx, out_dir, spacing_px)
     result, model, ref_pts, band_results = _calibrate(fx, merged, out_dir, step)
     sc = _score(fx, merged, model, ref_pts, step)
-    summary = _summary(fixture_dir, merged, result, band_results, match_summaries, sc)
+    summary = _summary(fixture_dir, merged, result, band_results, match_summaries, sc, lab=fx["lab"])
     step("writing the report")
     write_report(out_dir, result=result, accuracy_before=sc["before"], accuracy_after=sc["after"],
                  initial_model=fx["lab"], gcps=ref_pts, checks=sc["checks"], error_vs_count=sc["evc"],

@@ -1,15 +1,21 @@
-"""``gcpcal calibrate``: calibrate a scene's model from a GCP table."""
+"""``gcpcal calibrate``: calibrate a scene's model from a GCP table.
+
+Exit codes follow the run's status (:mod:`calibrate.coverage`): 0 ``calibrated``, 4 ``partial``
+(some CCD not calibrated or without check points; each is named with its reason), 3 ``failed``.
+"""
 
 from __future__ import annotations
 
 import click
 
 from calibrate.actions.calibrate import calibrate_scene
-from calibrate.cli._errors import EXIT_FAILED
+from calibrate.cli._errors import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL
 from calibrate.cli.options import echo_json, json_option, out_dir_option, progress_printer
 from calibrate.config import CALIBRATION_SCHEMES, ROBUST_LOSSES, CalibrationOptions
 
 __all__ = ["command"]
+
+_EXIT_OF_STATUS = {"calibrated": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXIT_FAILED}
 
 
 @click.command("calibrate")
@@ -26,16 +32,47 @@ __all__ = ["command"]
 @json_option
 @click.pass_context
 def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, image, no_report, as_json):
-    """Calibrate SCENE's model from GCPs; write calibration.json, the calibrated model and report.html."""
+    """Calibrate SCENE's model from GCPs; write calibration.json, the calibrated model and report.html.
+
+    Exit 0: calibrated; 4: partial (CCDs not calibrated or not verified, named); 3: failed.
+    """
     options = CalibrationOptions(scheme=scheme, robust=robust)
     summary = calibrate_scene(scene_path, gcps_path, out_dir, options=options, band=band, image=image,
                               report=not no_report, progress=progress_printer(ctx, as_json))
     if as_json:
         echo_json(summary)
     else:
-        before, after = summary["check_rmse_px"]["before"], summary["check_rmse_px"]["after"]
-        checks = (f"check RMSE {before:.3f} -> {after:.3f} px on {summary['check_points']} check points"
-                  if before is not None else "no check points")
-        click.echo(f"{out_dir}: {'converged' if summary['success'] else 'FAILED'} ({summary['message']}); {checks}")
-    if not summary["success"]:
-        ctx.exit(EXIT_FAILED)
+        _print_summary(out_dir, summary)
+    code = _EXIT_OF_STATUS[summary["status"]]
+    if code != EXIT_OK:
+        ctx.exit(code)
+
+
+def _print_summary(out_dir, summary) -> None:
+    """The one-line outcome, the per-CCD coverage table and the CCDs that are not calibrated/verified."""
+    before, after = summary["check_rmse_px"]["before"], summary["check_rmse_px"]["after"]
+    checks = (f"check RMSE {before:.3f} -> {after:.3f} px on {summary['check_points']} check points"
+              if before is not None else "no check points")
+    state = {"calibrated": "calibrated", "partial": "PARTIAL", "failed": "FAILED"}[summary["status"]]
+    vf = summary.get("variance_factor")
+    vf_text = "" if vf is None else f"; variance factor {vf:.3g}"
+    click.echo(f"{out_dir}: {state} ({summary['message']}); {checks}{vf_text}")
+    rows = summary.get("coverage") or []
+    if not rows:
+        return
+    header = ("band", "CCD", "GCPs", "checks", "along", "across", "calibrated", "verified", "check RMSE after")
+    table = [header] + [(c["band"], c["ccd"], str(c["gcps"]), str(c["check_points"]),
+                         f"{100 * c['spread_along']:.0f} %", f"{100 * c['spread_across']:.0f} %",
+                         "yes" if c["calibrated"] else "NO", "yes" if c["verified"] else "NO",
+                         _px((c.get("check_rmse_px") or {}).get("after"))) for c in rows]
+    widths = [max(len(r[k]) for r in table) for k in range(len(header))]
+    for r in table:
+        click.echo("  " + "  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip())
+    for c in rows:
+        if not (c["calibrated"] and c["verified"]):
+            name = ".".join(p for p in (c["band"], c["ccd"]) if p) or "image"
+            click.echo(f"  {name}: {c['reason']}")
+
+
+def _px(value) -> str:
+    return "-" if value is None else f"{value:.3f} px"

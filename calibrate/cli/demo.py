@@ -31,6 +31,7 @@ def _print_table(summary: dict, out_dir) -> None:
                   f"{summary['truth_error_px']['max']:.3f}")
     out = Console()
     out.print(table)
+    out.print(f"status: {summary.get('status', '?')}; variance factor {summary.get('variance_factor', float('nan')):.3g}")
     out.print(f"{summary['gcps']} GCPs, {summary['check_points']} check points; "
               f"wrote {out_dir}/summary.json, {out_dir}/report.html in {summary['seconds']:.1f} s")
 

@@ -47,6 +47,24 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpk
     if as_json:
         echo_json(summary)
         return
+    _print_summary(out_path, summary)
+
+
+def _percent(value, what) -> str:
+    return f"{what} unknown" if value is None else f"{100 * value:.0f} % {what}"
+
+
+def _print_summary(out_path, summary) -> None:
+    """The totals, then per CCD: DEM and DOM coverage, clouds, texture and the cause of an empty CCD."""
     click.echo(f"{out_path}: {summary['gcps']} GCPs + {summary['check_points']} check points from "
                f"{summary['windows']} windows ({100 * summary['usable_fraction']:.0f} % usable, "
-               f"{100 * summary['cloud_fraction']:.0f} % cloud) in {summary['timings']['total_s']:.1f} s")
+               f"{_percent(summary['cloud_fraction'], 'cloud')}) in {summary['timings']['total_s']:.1f} s")
+    for key in ("note", "cloud_note"):
+        if summary.get(key):
+            click.echo(f"  note: {summary[key]}")
+    for c in summary.get("per_ccd", []):
+        dom = c.get("dom_coverage")
+        line = (f"  CCD {c['ccd'] or 'image'}: {c['gcps']} GCPs; DEM {100 * c.get('dem_coverage', 0.0):.0f} %, "
+                f"DOM {'-' if dom is None else f'{100 * dom:.0f} %'}, {_percent(c.get('cloud_fraction'), 'cloud')}, "
+                f"{100 * c.get('no_texture_fraction', 0.0):.0f} % no texture")
+        click.echo(line + (f"; cause: {c['cause']}" if c.get("cause") else ""))

@@ -116,6 +116,8 @@ class ReportContext:
         self.pushbroom = initial.interior_layout == "per_array" and result.model.interior_layout == "per_array"
         self.bands = _calibrated_bands(result, initial) if self.pushbroom else []
         self.notes: list[str] = []
+        self.coverage: list[dict] = []  # coverage-gate rows (calibrate.coverage), set by write_report
+        self.status = None  # the run's CalibrationStatus, when known
         shape = getattr(initial, "image_shape", None)
         if shape is not None:
             self.n_rows, self.n_cols = float(shape[0]), float(shape[1])

@@ -85,6 +85,8 @@ def write_report(
     truth_model=None,
     title: str = "gcpcal calibration report",
     extra: dict | None = None,
+    coverage=None,
+    status=None,
 ) -> Path:
     """Write ``out_dir/report.html`` and its PNG figures in ``out_dir/figures/``.
 
@@ -112,6 +114,13 @@ def write_report(
     title : str
     extra : dict, optional
         Shown as a key/value table (values that are not text are printed as JSON).
+    coverage : list of dict, optional
+        Per band and CCD rows of the coverage gate (``band, ccd, gcps, check_points,
+        spread_along, spread_across, calibrated, verified, reason``, optionally
+        ``check_rmse_px {before, after}``; :mod:`calibrate.coverage`): a coverage table that
+        names every uncalibrated or unverified CCD with its reason.
+    status : CalibrationStatus, optional
+        The run's status (calibrated, partial, failed), shown in the summary.
 
     Returns
     -------
@@ -133,6 +142,7 @@ def write_report(
         fig_dir = tmp / "figures"
         fig_dir.mkdir()
         ctx = ReportContext(result, accuracy_before, accuracy_after, initial_model, g, c, truth_model)
+        ctx.coverage, ctx.status = list(coverage or []), status
         figures = {"vectors": figure_vectors(ctx, fig_dir)}
         figures["distortion"] = [figure_distortion(ctx, band, fig_dir) for band in ctx.bands]
         figures["histograms"] = figure_histograms(ctx, fig_dir)
@@ -176,6 +186,7 @@ def _checked_inputs(result, accuracy_before, accuracy_after, gcps, checks, error
 def _html(ctx: ReportContext, figures, error_vs_count, title, extra) -> str:
     sections = [
         ("summary", "Summary", _section_summary(ctx) + _figure_html(figures["vectors"])),
+        *([("coverage", "Coverage per CCD", _section_coverage(ctx))] if ctx.coverage else []),
         ("parameters", "Parameters", _section_parameters(ctx) + "".join(_figure_html(f) for f in figures["distortion"])),
         ("per-ccd", "Accuracy per CCD", _section_per_ccd(ctx)),
         ("distribution", "Residual distribution", _figure_html(figures["histograms"]) + _section_normal(ctx)),
@@ -201,6 +212,11 @@ def _html(ctx: ReportContext, figures, error_vs_count, title, extra) -> str:
 def _section_summary(ctx: ReportContext) -> str:
     r = ctx.result
     status = '<span class="ok">success</span>' if r.success else '<span class="fail">failed</span>'
+    if ctx.status is not None:
+        css = {"calibrated": "ok", "partial": "fail", "failed": "fail"}[ctx.status.status]
+        status = f'<span class="{css}">{_e(ctx.status.status)}</span>'
+        if ctx.status.status != "calibrated":
+            status += " " + _e(ctx.status.message)
     model_name = getattr(ctx.initial, "name", "") or ""
     kind = getattr(ctx.initial, "kind", type(ctx.initial).__name__)
     n_in = int(np.sum(np.asarray(r.inlier, dtype=bool)))
@@ -213,6 +229,7 @@ def _section_summary(ctx: ReportContext) -> str:
         ("GCPs", f"{ctx.gcps['row'].size} ({n_in} inliers)"),
         ("Check points", f"{ctx.checks['row'].size}"),
         ("σ0 / residual scale", f"{_fmt(r.sigma0)} / {_fmt(r.scale)} px"),
+        ("Variance factor σ0²", f"{_fmt(r.variance_factor)} (parameter σ scaled by it: C = σ0² (JᵀWJ)⁻¹)"),
         ("Condition numbers", _e(", ".join(f"{k} {_fmt(v)}" for k, v in r.condition_numbers.items()) or "–")),
     ]
     if r.skipped:
@@ -232,6 +249,24 @@ def _section_summary(ctx: ReportContext) -> str:
                      _fmt(s["rms_px"]), "–", _fmt(s["max_px"]), "–", "–", "–"])
     rmse = "<p>Root mean square errors (relative: seed 003 eq. 4-6, about the check point nearest the centroid).</p>"
     return summary + rmse + _table(header, rows)
+
+
+def _section_coverage(ctx) -> str:
+    """Per band and CCD: points, spread, verdict and reason (every CCD, names in full)."""
+    header = ["band", "CCD", "GCPs", "check points", "spread along", "spread across", "calibrated", "verified",
+              "check RMSE before (px)", "check RMSE after (px)", "reason"]
+    rows = []
+    for c in ctx.coverage:
+        rmse = c.get("check_rmse_px") or {}
+        rows.append([_e(c["band"]), _e(c["ccd"]), str(c["gcps"]), str(c["check_points"]),
+                     f"{100 * c['spread_along']:.0f} %", f"{100 * c['spread_across']:.0f} %",
+                     "yes" if c["calibrated"] else '<span class="fail">no</span>',
+                     "yes" if c["verified"] else '<span class="fail">no</span>',
+                     _fmt(rmse.get("before")), _fmt(rmse.get("after")), _e(c["reason"]) or "–"])
+    bad = [c for c in ctx.coverage if not (c["calibrated"] and c["verified"])]
+    items = "".join(f"<li>{_e('.'.join(p for p in (c['band'], c['ccd']) if p))}: {_e(c['reason'])}</li>" for c in bad)
+    note = f"<p>Not calibrated or not verified:</p><ul>{items}</ul>" if bad else "<p>Every CCD calibrated and verified.</p>"
+    return note + _table(header, rows)
 
 
 def _parameter_rows(r: CalibrationResult, names_idx) -> list:
