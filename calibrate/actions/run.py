@@ -89,9 +89,10 @@ def _decide(model, gcp_file, match, failure, min_gcps, min_coverage):
     elif failure is not None:
         reason = f"matching failed: {failure}"
     else:
+        cloud = match.get("cloud_fraction")
+        cloud_text = "unknown" if cloud is None else f"{100 * float(cloud):.0f} %"
         reason = (f"too few or too clustered GCPs: {n_gcps} (need {min_gcps}) covering {100 * coverage:.0f} % "
-                  f"of the image (need {100 * min_coverage:.0f} %); cloud fraction "
-                  f"{100 * float(match.get('cloud_fraction', 0.0)):.0f} %")
+                  f"of the image (need {100 * min_coverage:.0f} %); cloud fraction {cloud_text}")
     return enough, reason, n_gcps, coverage
 
 
