@@ -164,13 +164,16 @@ def as_float_arrays(*arrays, names=None):
     return [np.ascontiguousarray(a) for a in out]
 
 
-def _array_positions(arrays, array, shape) -> np.ndarray:
-    """Indices in ``arrays`` of ``array`` (a name, an index, or one of those per point)."""
+def _array_positions(arrays, array, shape, *, noun: str = "detector array", field: str = "array") -> np.ndarray:
+    """Indices in ``arrays`` of ``array`` (a name, an index, or one of those per point).
+
+    Errors name the array as ``noun`` (e.g. ``"CCD"``) and the keyword as ``field``.
+    """
     names = [a.name for a in arrays]
     listed = ", ".join(repr(n) for n in names)
     if isinstance(array, str):
         if array not in names:
-            raise InputError(f"unknown detector array {array!r}; the band has {listed}", field="array")
+            raise InputError(f"unknown {noun} {array!r}; the band has {listed}", field=field)
         return np.full(shape, names.index(array), dtype=np.intp)
     arr = np.asarray(array)
     if arr.dtype.kind in "USO":  # names, one per point
@@ -178,11 +181,11 @@ def _array_positions(arrays, array, shape) -> np.ndarray:
         flat = arr.reshape(-1).astype(str)
         unknown = sorted(set(flat) - set(lookup))
         if unknown:
-            raise InputError(f"unknown detector array {unknown[0]!r}; the band has {listed}", field="array")
+            raise InputError(f"unknown {noun} {unknown[0]!r}; the band has {listed}", field=field)
         arr = np.array([lookup[n] for n in flat], dtype=np.intp).reshape(arr.shape)
     idx = np.broadcast_to(np.asarray(arr, dtype=np.intp), shape).copy()
     if np.any((idx < 0) | (idx >= len(arrays))):
-        raise InputError(f"detector array index out of range 0..{len(arrays) - 1}", field="array")
+        raise InputError(f"{noun} index out of range 0..{len(arrays) - 1}", field=field)
     return idx
 
 

@@ -43,7 +43,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from sensor_models.base import DetectorArray, ParameterVector, SensorModel, as_float_arrays
+from sensor_models.base import DetectorArray, ParameterVector, SensorModel, _array_positions, as_float_arrays
 from sensor_models.ephemeris import Attitude, Orbit
 from sensor_models.errors import InputError, OutOfRangeError
 from sensor_models.geodesy import ecef_to_geodetic, geodetic_to_ecef
@@ -391,23 +391,7 @@ class PushbroomModel(SensorModel):
         ccds = self.band_ccds(band)
         col = np.asarray(col, dtype=np.float64)
         if ccd is not None:
-            names = [c.name for c in ccds]
-            if isinstance(ccd, str):
-                if ccd not in names:
-                    raise InputError(f"unknown CCD {ccd!r}; band has {', '.join(names)}", field="ccd")
-                return np.full(col.shape, names.index(ccd), dtype=np.intp)
-            arr = np.asarray(ccd)
-            if arr.dtype.kind in "USO":  # names, one per point
-                lookup = {n: i for i, n in enumerate(names)}
-                flat = arr.reshape(-1).astype(str)
-                unknown = sorted(set(flat) - set(lookup))
-                if unknown:
-                    raise InputError(f"unknown CCD {unknown[0]!r}; band has {', '.join(names)}", field="ccd")
-                ccd = np.array([lookup[n] for n in flat], dtype=np.intp).reshape(arr.shape)
-            idx = np.broadcast_to(np.asarray(ccd, dtype=np.intp), col.shape).copy()
-            if np.any((idx < 0) | (idx >= len(ccds))):
-                raise InputError(f"CCD index out of range 0..{len(ccds) - 1}", field="ccd")
-            return idx
+            return _array_positions(ccds, ccd, col.shape, noun="CCD", field="ccd")
         firsts = np.array([c.first_col for c in ccds], dtype=np.float64)
         lasts = np.array([c.last_col for c in ccds], dtype=np.float64)
         dist = np.maximum(firsts[None, :] - col.reshape(-1, 1), col.reshape(-1, 1) - lasts[None, :])
