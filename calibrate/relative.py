@@ -889,6 +889,26 @@ class _LazyBands(Mapping):
         return len(self._scene.bands)
 
 
+def _output_status(result: RelativeResult, input_status):
+    """The status of the band-to-band model: calibrated only when every band and the input were.
+
+    A failed band is named as uncalibrated; the input's uncalibrated and unverified arrays are
+    carried forward.
+    """
+    from sensor_models.base import CalibrationStatus
+
+    failed = tuple({"band": b, "ccd": "", "reason": r.message} for b, r in result.bands.items() if not r.success)
+    carried_u = tuple(input_status.uncalibrated) if input_status is not None else ()
+    carried_v = tuple(input_status.unverified) if input_status is not None else ()
+    if not result.bands or not (failed or carried_u or carried_v or
+                                (input_status is not None and input_status.status != "calibrated")):
+        return CalibrationStatus("calibrated") if result.bands else CalibrationStatus("failed", "no band calibrated")
+    why = [f"band(s) {', '.join(e['band'] for e in failed)} not calibrated"] if failed else []
+    if input_status is not None and input_status.status != "calibrated":
+        why.append(f"reference calibration partial: {input_status.message}")
+    return CalibrationStatus("partial", "; ".join(why), uncalibrated=carried_u + failed, unverified=carried_v)
+
+
 def relative_scene(scene_manifest, calibrated_manifest, dem_path, out_dir, *, reference_band=None, dem_datum=None,
                    geoid=None, window_px=64, spacing_px: int = 24, rows=None, robust: str = CalibrationOptions.robust,
                    progress=None) -> dict:
@@ -957,6 +977,7 @@ def relative_scene(scene_manifest, calibrated_manifest, dem_path, out_dir, *, re
     try:
         rasters = {b: {"path": os.path.relpath(r["path"], out_dir.resolve()), "index": r.get("index", 1)}
                    for b, r in (getattr(scene, "rasters", None) or {}).items()}
+        result.model.calibration = _output_status(result, calibrated.calibration)
         doc = manifest_to_dict(result.model, rasters=rasters)
         doc["name"] = (scene.name or "scene") + " (calibrated, band-to-band)"
         (tmp / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
@@ -967,6 +988,7 @@ def relative_scene(scene_manifest, calibrated_manifest, dem_path, out_dir, *, re
             "kind": "gcpcal.relative",
             "success": result.success,
             "message": result.message,
+            "calibration_status": result.model.calibration.status,
             "reference_band": reference_band,
             "bands": {b: {"success": r.success, "ties": len(r.ties), "windows": r.windows,
                           "tie_rms_px": {"before": r.before.get("rms_px"), "after": r.after.get("rms_px")}}

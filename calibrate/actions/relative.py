@@ -50,8 +50,10 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     dict
         The summary written to ``relative.summary.json`` (``success``, ``bands``, ``seconds``).
     """
+    from calibrate.actions._status import open_usable_calibration
     from calibrate.relative import relative_scene
 
-    return relative_scene(scene_path, calibration, dem_path, out_dir, reference_band=reference_band,
+    warning = open_usable_calibration(calibration, command="relative")[2]  # a failed calibration is refused
+    return {"warnings": [warning] if warning else []} | relative_scene(scene_path, calibration, dem_path, out_dir, reference_band=reference_band,
                           dem_datum=dem_datum, geoid=geoid, window_px=window_px, spacing_px=spacing_px, rows=rows,
                           robust=options.robust, progress=progress)

@@ -75,8 +75,10 @@ def validate_calibration(sites_path, calibration, out_dir, *, scheduler=None, wo
     """
     from pathlib import Path
 
+    from calibrate.actions._status import open_usable_calibration
     from calibrate.batch import read_sites, validate_sites
 
+    warning = open_usable_calibration(calibration, command="validate")[2]  # a failed calibration is refused
     if scheduler is not None:
         check_scheduler_address(scheduler)
     sites = read_sites(sites_path)
@@ -85,4 +87,4 @@ def validate_calibration(sites_path, calibration, out_dir, *, scheduler=None, wo
     rows, summary = validate_sites(sites, calibration, Path(out_dir), scheduler=scheduler, workers=workers,
                                    progress=progress, spacing_px=spacing_px, timeout_s=timeout_s)
     summary["sites_file"] = str(sites_path)
-    return {**summary, "rows": rows}
+    return {**summary, "warnings": [warning] if warning else [], "rows": rows}

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.localize import localize_points
+from calibrate.cli._warnings import echo_warnings
 from calibrate.cli.options import add_options, dem_options, echo_json, float_list
 from sensor_models.errors import InputError
 
@@ -66,6 +67,7 @@ def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height,
         raise click.UsageError("direct localization needs exactly one of --height and --dem")
     summary = localize_points(model_path, points, direction=direction, height=height, dem_path=dem_path,
                               dem_datum=dem_datum, geoid=geoid, band=band, out_path=out_path)
+    echo_warnings(summary)
     table = summary["results"]
     if as_json:
         echo_json(summary | {"results": {k: v.tolist() for k, v in table.items()}})

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.simulate import truth_error_of
+from calibrate.cli._warnings import echo_warnings
 from calibrate.cli.options import add_options, dem_options, echo_json, float_list
 
 __all__ = ["command"]
@@ -28,6 +29,7 @@ def error_command(model_path, truth_path, dem_path, dem_datum, geoid, heights, s
     result = truth_error_of(model_path, truth_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
                             heights_m=None if heights is None else float_list(heights, "heights"), step_px=step,
                             out_path=out_path)
+    echo_warnings(result)
     if as_json:
         echo_json(result)
         return
