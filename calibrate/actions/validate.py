@@ -78,9 +78,9 @@ def validate_calibration(sites_path, calibration, out_dir, *, scheduler=None, wo
     from calibrate.actions._status import open_usable_calibration
     from calibrate.batch import read_sites, validate_sites
 
-    warning = open_usable_calibration(calibration, command="validate")[2]  # a failed calibration is refused
     if scheduler is not None:
         check_scheduler_address(scheduler)
+    warning = open_usable_calibration(calibration, command="validate")[2]  # a failed calibration is refused
     sites = read_sites(sites_path)
     if progress is not None:
         progress(0, len(sites), None)

@@ -5,8 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.localize import localize_points
-from calibrate.cli._warnings import echo_warnings
-from calibrate.cli.options import add_options, dem_options, echo_json, float_list
+from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings, float_list
 from sensor_models.errors import InputError
 
 __all__ = ["command"]

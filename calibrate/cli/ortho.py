@@ -5,8 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.ortho import ortho_scene
-from calibrate.cli._warnings import echo_warnings
-from calibrate.cli.options import add_options, dem_options, echo_json, json_option, quiet_of
+from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings, json_option, quiet_of
 from calibrate.config import ORTHO_RESAMPLING, OrthoOptions
 from sensor_models.errors import InputError
 

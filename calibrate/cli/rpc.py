@@ -5,8 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.rpc import fit_rpcs
-from calibrate.cli._warnings import echo_warnings
-from calibrate.cli.options import add_options, dem_options, echo_json
+from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings
 
 __all__ = ["command"]
 

@@ -6,8 +6,8 @@ import click
 
 from calibrate.actions.run import MIN_COVERAGE, MIN_GCPS, run_scene
 from calibrate.cli._errors import EXIT_FAILED
-from calibrate.cli._warnings import echo_warnings
-from calibrate.cli.options import add_options, dem_options, echo_json, json_option, out_dir_option, progress_printer
+from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, json_option, out_dir_option,
+                                   progress_printer)
 from sensor_models.errors import InputError
 
 __all__ = ["command"]

@@ -9,8 +9,7 @@ import click
 
 from calibrate.actions.simulate import (pushbroom_config, simulate_geo_earth_scene, simulate_geo_star_frames,
                                         simulate_pushbroom_scene, simulate_validation_series)
-from calibrate.cli._warnings import echo_warnings
-from calibrate.cli.options import float_list, out_dir_option, quiet_of
+from calibrate.cli.options import echo_warnings, float_list, out_dir_option, quiet_of
 
 __all__ = ["command"]
 

@@ -11,8 +11,7 @@ import click
 
 from calibrate.actions.validate import validate_calibration
 from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
-from calibrate.cli._warnings import echo_warnings
-from calibrate.cli.options import echo_json, json_option, out_dir_option, quiet_of
+from calibrate.cli.options import echo_json, echo_warnings, json_option, out_dir_option, quiet_of
 
 __all__ = ["command"]
 
