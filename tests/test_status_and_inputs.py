@@ -370,3 +370,17 @@ def test_stars_writes_its_status_into_the_manifest(star_sequences, tmp_path, mon
     assert doc["calibration_status"] == want
     status = open_model(tmp_path / "out" / "manifest.json").calibration
     assert status.status == want and (success or status.message == "3 tracks")
+
+
+def test_truth_error_with_a_dem_under_part_of_the_scene_says_so(tmp_path, capsys):
+    with rasterio.open(DEM) as ds:
+        profile, z, tags = ds.profile, ds.read(1), ds.tags()
+    width = int(0.55 * z.shape[1])  # the western 55 %: camera 2's last CCD falls off it
+    profile.update(width=width)
+    with rasterio.open(tmp_path / "west.tif", "w", **profile) as ds:
+        ds.write(z[:, :width], 1)
+        ds.update_tags(**tags)
+    code, out, err = run(capsys, "truth", "error", SCENE, "--truth", TRUTH, "--dem", tmp_path / "west.tif")
+    assert code == 0 and "Traceback" not in err
+    assert err.count("\n") == 1 and "gcpcal: warning:" in err and "of the scene footprint" in err
+    assert "cam2_ccd2  no point on the DEM" in out

@@ -13,6 +13,12 @@
 
 ``run.summary.json`` says which path was taken and why (``path``: ``"gcps"`` or ``"stars"``,
 ``reason``), with the matching figures that decided it.
+
+Star frames of another camera (image size, pixel angle) are refused before any work
+(:func:`calibrate.actions.stars.read_star_inputs`). The run's own result is checked like any
+model a command uses (:mod:`calibrate.actions._status`): a failed step gives ``success: false``
+and ``model: null`` (the manifest it left is marked ``failed``, so no command uses it); a partial
+one is reported in ``calibration_status`` and ``warnings``.
 """
 
 from __future__ import annotations

@@ -3,8 +3,11 @@
 ``frames_path`` is a frame list (``frames.json``, format in :func:`calibrate.stars.read_frame_list`)
 or the folder holding it; the frame times come from it and the model from the manifest it names
 (``manifest`` overrides). Writes ``OUT/stars.json`` (tracks, calibration, accuracy, track
-points), ``OUT/manifest.json`` (the calibrated model of frame 0) and ``OUT/report.html`` with
-``OUT/figures/*.png`` (:func:`calibrate.report.stars.write_star_report`).
+points), ``OUT/manifest.json`` (the calibrated model of frame 0, its ``calibration`` status
+``calibrated``; a failed estimation's model is kept with status ``failed``, which every command
+refuses) and ``OUT/report.html`` with ``OUT/figures/*.png``
+(:func:`calibrate.report.stars.write_star_report`). Frames of another camera than the manifest's
+are refused before any work (:func:`read_star_inputs`).
 """
 
 from __future__ import annotations

@@ -59,7 +59,8 @@ def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height,
 
     Direct: --rows/--cols (or --csv with row,col) and --height or --dem. Inverse: --lon/--lat/--h
     (or --csv with lon,lat,h and --inverse). Image coordinates put the first pixel's centre at
-    (0.5, 0.5); heights are metres above the WGS84 ellipsoid.
+    (0.5, 0.5); heights are metres above the WGS84 ellipsoid. Points outside the image, longitudes
+    outside [-180, 360), latitudes outside [-90, 90] and heights outside [-500, 9000] m are refused.
     """
     direction, points = _points(rows, cols, lon, lat, h_text, csv_path, inverse)
     if direction == "direct" and (height is None) == (dem_path is None):

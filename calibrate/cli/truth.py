@@ -33,6 +33,9 @@ def error_command(model_path, truth_path, dem_path, dem_datum, geoid, heights, s
         echo_json(result)
         return
     for r in result["per_ccd"]:
+        if r["rms_px"] is None:  # the CCD's grid fell off the DEM
+            click.echo(f"{r['band']:>6} {r['ccd']:>10}  no point on the DEM")
+            continue
         click.echo(f"{r['band']:>6} {r['ccd']:>10}  rms {r['rms_px']:.4f} px  max {r['max_px']:.4f} px  "
                    f"mean (row, col) ({r['mean_row_px']:+.4f}, {r['mean_col_px']:+.4f})")
     click.echo(f"all: rms {result['rms_px']:.4f} px, max {result['max_px']:.4f} px over {result['n_points']} points")
