@@ -384,3 +384,13 @@ def test_truth_error_with_a_dem_under_part_of_the_scene_says_so(tmp_path, capsys
     assert code == 0 and "Traceback" not in err
     assert err.count("\n") == 1 and "gcpcal: warning:" in err and "of the scene footprint" in err
     assert "cam2_ccd2  no point on the DEM" in out
+
+
+def test_ortho_uses_a_partial_calibration_and_says_so(partial, tmp_path, capsys):
+    out = tmp_path / "o.tif"
+    code, _, err = run(capsys, "-q", "ortho", SCENE, "--calibration", partial.parent, "--dem", DEM, "--out", out,
+                       "--resolution", "240")
+    assert code == 0, err
+    assert err.count("gcpcal: warning:") == 1 and "gcpcal ortho uses it" in err
+    summary = json.loads(out.with_suffix(".summary.json").read_text())
+    assert summary["calibration_status"] == "partial" and len(summary["warnings"]) == 1
