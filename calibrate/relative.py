@@ -897,15 +897,17 @@ def _output_status(result: RelativeResult, input_status):
     """
     from sensor_models.base import CalibrationStatus
 
+    if not result.bands:
+        return CalibrationStatus("failed", "no band calibrated")
     failed = tuple({"band": b, "ccd": "", "reason": r.message} for b, r in result.bands.items() if not r.success)
-    carried_u = tuple(input_status.uncalibrated) if input_status is not None else ()
-    carried_v = tuple(input_status.unverified) if input_status is not None else ()
-    if not result.bands or not (failed or carried_u or carried_v or
-                                (input_status is not None and input_status.status != "calibrated")):
-        return CalibrationStatus("calibrated") if result.bands else CalibrationStatus("failed", "no band calibrated")
+    input_partial = input_status is not None and input_status.status != "calibrated"
+    if not failed and not input_partial:
+        return CalibrationStatus("calibrated")
     why = [f"band(s) {', '.join(e['band'] for e in failed)} not calibrated"] if failed else []
-    if input_status is not None and input_status.status != "calibrated":
+    carried_u, carried_v = (), ()
+    if input_partial:
         why.append(f"reference calibration partial: {input_status.message}")
+        carried_u, carried_v = tuple(input_status.uncalibrated), tuple(input_status.unverified)
     return CalibrationStatus("partial", "; ".join(why), uncalibrated=carried_u + failed, unverified=carried_v)
 
 

@@ -394,3 +394,13 @@ def test_ortho_uses_a_partial_calibration_and_says_so(partial, tmp_path, capsys)
     assert err.count("gcpcal: warning:") == 1 and "gcpcal ortho uses it" in err
     summary = json.loads(out.with_suffix(".summary.json").read_text())
     assert summary["calibration_status"] == "partial" and len(summary["warnings"]) == 1
+
+
+def test_run_without_a_result_leaves_earlier_files_alone(tmp_path):
+    from calibrate.actions.run import _own_status
+
+    old = manifest_with(None, tmp_path / "calibration")  # an earlier run's output
+    before = old.read_text()
+    fields = _own_status(tmp_path, {"success": False, "path": None, "message": "no star frames"})
+    assert fields["success"] is False and fields["model"] is None
+    assert old.read_text() == before

@@ -120,9 +120,9 @@ def _own_status(out_dir: Path, summary: dict) -> dict:
     from sensor_models.readers import open_model
 
     model_name = summary.get("model")
-    candidates = [out_dir / model_name] if model_name else [out_dir / "calibration" / "manifest.json",
-                                                             out_dir / "stars" / "manifest.json"]
-    model_file = next((p for p in candidates if p.is_file()), None)
+    if not model_name:  # only what this run's step wrote, never a file of an earlier run
+        model_name = {"gcps": "calibration/manifest.json", "stars": "stars/manifest.json"}.get(summary.get("path"))
+    model_file = out_dir / model_name if model_name and (out_dir / model_name).is_file() else None
     if not summary.get("success"):
         if model_file is not None and model_file.suffix == ".json":
             status = open_model(model_file).calibration
