@@ -72,6 +72,7 @@ __all__ = [
     "StarCalibrationResult",
     "StarObservations",
     "calibrate_tracks",
+    "check_frames_camera",
     "detect_frames",
     "error_versus_track_points",
     "identify",
@@ -137,6 +138,60 @@ def read_frame_list(path):
         seconds.append(float(e["seconds"]))
     manifest = path.parent / doc["manifest"] if doc.get("manifest") else None
     return frames, _check_seconds(seconds, len(frames)), manifest
+
+
+#: Largest relative difference of the pixel angle (IFOV) between the camera of a star sequence
+#: and the camera it calibrates (a LAB focal length is off by far less; another camera by more).
+IFOV_TOLERANCE = 0.02
+
+
+def _frame_shape(frame) -> tuple[int, int]:
+    """``(n_rows, n_cols)`` of a frame raster, from its header."""
+    import rasterio
+
+    with rasterio.open(frame) as ds:
+        return int(ds.height), int(ds.width)
+
+
+def check_frames_camera(frames, listed_model, model, *, frames_source, model_source) -> None:
+    """Refuse star frames taken by another camera than the one ``model`` describes.
+
+    The frames must have the model's image size (``n_rows x n_cols``, read from the first
+    frame's header), and the camera the frame list names (its manifest) must have the model's
+    image size and pixel angle (IFOV, within :data:`IFOV_TOLERANCE`).
+
+    Parameters
+    ----------
+    frames : list of Path
+        The frame rasters (:func:`read_frame_list`).
+    listed_model : SensorModel or None
+        Model of the manifest the frame list names (None when it names none).
+    model : SensorModel
+        The camera to calibrate (the scene's or ``--manifest``'s model).
+    frames_source, model_source : str or Path
+        The frame list and the model's file (named in the message).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        Naming both files, both sizes or both pixel angles (microradians).
+    """
+    want = tuple(int(x) for x in model.image_shape)
+    shapes = [("frames", _frame_shape(frames[0]))]
+    if listed_model is not None:
+        shapes.append(("its manifest", tuple(int(x) for x in listed_model.image_shape)))
+    for what, shape in shapes:
+        if shape != want:
+            raise InputError(f"the star frames belong to another camera: {what} {shape[0]} x {shape[1]} px, "
+                             f"{model_source} {want[0]} x {want[1]} px", path=str(frames_source))
+    ifov_a, ifov_b = getattr(listed_model, "ifov_rad", None), getattr(model, "ifov_rad", None)
+    if ifov_a is not None and ifov_b is not None and abs(ifov_a / ifov_b - 1.0) > IFOV_TOLERANCE:
+        raise InputError(f"the star frames belong to another camera: pixel angle {1e6 * ifov_a:.3f} urad, "
+                         f"{model_source} {1e6 * ifov_b:.3f} urad", path=str(frames_source))
 
 
 def _check_seconds(seconds, n_frames: int) -> np.ndarray:

@@ -15,7 +15,10 @@ from calibrate.cli import main
 def scenes(tmp_path_factory):
     root = tmp_path_factory.mktemp("fallback")
     cfg = root / "geo.json"
-    cfg.write_text(json.dumps({"image_px": 256, "seed": 5}))
+    # the Earth view is taken by the star frames' camera (seed 000 optics: 1024 x 1024 px of 25 um behind
+    # 1250 mm, 715.72 m at nadir): frames of another camera are refused (tests/test_status_and_inputs.py)
+    cfg.write_text(json.dumps({"image_px": 1024, "seed": 5, "pixel_size_mm": 0.025, "gsd_m": 715.72,
+                               "dom_resolution_m": 240.0, "dem_resolution_m": 480.0, "margin_m": 20000.0}))
     assert main(["-q", "simulate", "geo-earth", "--out", str(root / "earth"), "--config", str(cfg)]) == 0
     assert main(["-q", "simulate", "geo-stars", "--out", str(root / "stars"), "--frames", "40"]) == 0
     return root

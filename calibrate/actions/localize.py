@@ -2,6 +2,11 @@
 
 Image coordinates put the first pixel's centre at ``(0.5, 0.5)``; ground points are WGS84
 longitude and latitude in degrees and heights in metres above the ellipsoid.
+
+Inputs are checked before anything is computed: image points outside the image
+(``0 <= row <= n_rows``, ``0 <= col <= n_cols``) and ground coordinates outside
+:data:`GROUND_RANGES` are refused with one line naming the field (no NaN, no per-point flag), and
+a model written by a failed calibration is refused (:mod:`calibrate.actions._status`).
 """
 
 from __future__ import annotations
@@ -13,9 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.actions._io import open_dem, write_summary
+from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
 
-__all__ = ["localize_points", "read_points_csv"]
+__all__ = ["GROUND_RANGES", "check_ground_points", "check_image_points", "localize_points", "read_points_csv"]
+
+#: Accepted ranges of ground coordinates: ``[low, high)`` for ``lon`` (degrees; 0..360 east is
+#: accepted too), ``[low, high]`` for ``lat`` (degrees) and ``h`` (metres above the ellipsoid).
+GROUND_RANGES = {"lon": (-180.0, 360.0), "lat": (-90.0, 90.0), "h": (-500.0, 9000.0)}
 
 
 def read_points_csv(path, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -59,6 +69,72 @@ def read_points_csv(path, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
     return {c: np.asarray(v) for c, v in values.items()}
 
 
+def _first_outside(values, low, high, *, high_open=False):
+    values = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    bad = (values < low) | ((values >= high) if high_open else (values > high)) | ~np.isfinite(values)
+    return None if not bad.any() else (int(np.flatnonzero(bad)[0]), float(values[bad][0]), int(bad.sum()))
+
+
+def check_ground_points(points: dict, *, source=None) -> None:
+    """Refuse ground coordinates outside :data:`GROUND_RANGES` (one line naming the field).
+
+    Parameters
+    ----------
+    points : dict
+        Any of ``lon``, ``lat`` (degrees) and ``h`` (metres): float arrays of shape (N,).
+    source : str, optional
+        The file the points came from (named in the message).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        Naming the field, the first offending value and how many are out of range.
+    """
+    for name, (low, high) in GROUND_RANGES.items():
+        if name not in points:
+            continue
+        found = _first_outside(points[name], low, high, high_open=(name == "lon"))
+        if found is not None:
+            i, value, n = found
+            closing = ")" if name == "lon" else "]"
+            unit = "m" if name == "h" else "degrees"
+            raise InputError(f"{value:g} (point {i + 1}; {n} point(s) in all) is outside [{low:g}, {high:g}{closing} "
+                             f"{unit}", path=source, field=name)
+
+
+def check_image_points(points: dict, image_shape, *, source=None) -> None:
+    """Refuse image coordinates outside the image (``0 <= row <= n_rows``, ``0 <= col <= n_cols``).
+
+    Parameters
+    ----------
+    points : dict
+        ``row`` and ``col``, pixels (first pixel's centre at 0.5): float arrays of shape (N,).
+    image_shape : tuple of int
+        ``(n_rows, n_cols)`` of the model's image.
+    source : str, optional
+        The file the points came from (named in the message).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        Naming the field, the first offending value and the image size.
+    """
+    for name, size in zip(("row", "col"), image_shape):
+        found = _first_outside(points[name], 0.0, float(size))
+        if found is not None:
+            i, value, n = found
+            raise InputError(f"{value:g} (point {i + 1}; {n} point(s) in all) is outside the image "
+                             f"[0, {size}] px ({image_shape[0]} x {image_shape[1]} px)", path=source, field=name)
+
+
 def _write_csv(out_path: Path, table: dict, summary: dict) -> None:
     from sensor_models.atomic import atomic_write_text
 
@@ -100,10 +176,19 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
 
     t0 = time.perf_counter()
     columns = ("row", "col") if direction == "direct" else ("lon", "lat", "h")
+    source = None
     if "csv" in points:
+        source = str(points["csv"])
         points = read_points_csv(Path(points["csv"]), columns)
     model = open_model(model_path)
+    warning = require_usable(model, model_path, command="localize")
     kwargs = {} if band is None else {"band": band}
+    if direction == "direct":
+        check_image_points(points, model.image_shape, source=source)
+        if height is not None:
+            check_ground_points({"h": np.asarray([height])})
+    else:
+        check_ground_points(points, source=source)
     if direction == "direct":
         r, c = points["row"], points["col"]
         if dem_path is not None:
@@ -122,6 +207,7 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
         "direction": direction,
         "points": int(table["row"].size),
         "not_localized": int(np.count_nonzero(~np.isfinite(table["row"] + table["lon"]))),
+        **status_fields(model, warning),
         "seconds": round(time.perf_counter() - t0, 4),
     }
     if out_path:

@@ -12,38 +12,11 @@ import time
 from pathlib import Path
 
 from calibrate.actions._io import open_dem, write_summary
+from calibrate.actions._status import open_usable_calibration, require_usable, status_fields
 from calibrate.config import OrthoOptions
 from sensor_models.errors import InputError
 
-__all__ = ["ortho_scene", "resolve_calibration"]
-
-
-def resolve_calibration(path) -> Path:
-    """The calibrated model file of a path the user gave.
-
-    Parameters
-    ----------
-    path : str or Path
-        A model file, or a folder holding ``manifest.json`` or a single ``*_RPC.TXT`` (the outputs
-        of ``gcpcal calibrate``).
-
-    Returns
-    -------
-    Path
-        The model file.
-    """
-    path = Path(path)
-    if path.is_dir():
-        manifest = path / "manifest.json"
-        if manifest.is_file():
-            return manifest
-        rpcs = sorted(p for p in path.iterdir() if p.name.upper().endswith("_RPC.TXT"))
-        if len(rpcs) == 1:
-            return rpcs[0]
-        raise InputError("the calibration folder holds no manifest.json (nor a single *_RPC.TXT)", path=str(path))
-    if not path.is_file():
-        raise InputError("calibration not found", path=str(path))
-    return path
+__all__ = ["ortho_scene"]
 
 
 def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=None, geoid=None, band=None,
@@ -83,11 +56,10 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     if out_path.suffix.lower() not in (".tif", ".tiff"):
         raise InputError("the orthoimage is a GeoTIFF: give a .tif name", path=str(out_path))
     scene = open_model(scene_path)
-    geometry = scene
-    calib_file = None
+    scene_warning = require_usable(scene, scene_path, command="ortho")
+    geometry, calib_file, calib_warning = scene, None, None
     if calibration is not None:
-        calib_file = resolve_calibration(calibration)
-        geometry = open_model(calib_file)
+        geometry, calib_file, calib_warning = open_usable_calibration(calibration, command="ortho")
         if tuple(geometry.image_shape) != tuple(scene.image_shape):
             raise InputError(f"the calibrated model describes a {geometry.image_shape[0]} x {geometry.image_shape[1]} "
                              f"px image, the scene {scene.image_shape[0]} x {scene.image_shape[1]}",
@@ -115,6 +87,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
         "model_kind": geometry.kind,
         "image": str(image[0]) if isinstance(image, tuple) else str(image),
         "dem": str(dem_path),
+        **status_fields(geometry, scene_warning, calib_warning),
         **result,
         "ortho_seconds": result["seconds"],
         "seconds": round(time.perf_counter() - t0, 3),

@@ -77,7 +77,10 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     from calibrate.relative import relative_calibration
     from sensor_models.terrain import Dem
 
+    from calibrate.actions._status import open_usable_calibration
+
     t0 = time.perf_counter()
+    warning = open_usable_calibration(calibration, command="relative")[2]  # a failed calibration is refused
     scene, cal_path, calibrated, reference_band = _open_models(scene_path, calibration, reference_band)
     dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
     images = _LazyBands(scene)  # the reference band and one other band in memory at a time
@@ -85,7 +88,9 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
                                   spacing_px=spacing_px, rows=rows, robust=options.robust, progress=progress)
     report = result.to_dict()
     report.update({"scene": str(scene_path), "calibration": str(cal_path), "dem": str(dem_path)})
-    return _write_outputs(Path(out_dir), scene, result, report, reference_band, t0)
+    result.model.calibration = _output_status(result, calibrated.calibration)
+    summary = _write_outputs(Path(out_dir), scene, result, report, reference_band, t0)
+    return {"warnings": [warning] if warning else []} | summary
 
 
 def _open_models(scene_path, calibration, reference_band):
@@ -138,6 +143,7 @@ def _summary(result, reference_band: str, seconds: float) -> dict:
                       "tie_rms_px": {"before": r.before.get("rms_px"), "after": r.after.get("rms_px")}}
                   for b, r in result.bands.items()},
         "model": "manifest.json",
+        "calibration_status": result.model.calibration.status,
         "report": "relative.json",
         "seconds": seconds,
     })
@@ -199,3 +205,25 @@ class _LazyBands(Mapping):
 
     def __len__(self) -> int:
         return len(self._scene.bands)
+
+
+def _output_status(result, input_status):
+    """The status of the band-to-band model: calibrated only when every band and the input were.
+
+    A failed band is named as uncalibrated; the input's uncalibrated and unverified arrays are
+    carried forward.
+    """
+    from sensor_models.base import CalibrationStatus
+
+    if not result.bands:
+        return CalibrationStatus("failed", "no band calibrated")
+    failed = tuple({"band": b, "ccd": "", "reason": r.message} for b, r in result.bands.items() if not r.success)
+    input_partial = input_status is not None and input_status.status != "calibrated"
+    if not failed and not input_partial:
+        return CalibrationStatus("calibrated")
+    why = [f"band(s) {', '.join(e['band'] for e in failed)} not calibrated"] if failed else []
+    carried_u, carried_v = (), ()
+    if input_partial:
+        why.append(f"reference calibration partial: {input_status.message}")
+        carried_u, carried_v = tuple(input_status.uncalibrated), tuple(input_status.unverified)
+    return CalibrationStatus("partial", "; ".join(why), uncalibrated=carried_u + failed, unverified=carried_v)

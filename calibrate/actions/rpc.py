@@ -11,7 +11,9 @@ import time
 from pathlib import Path
 
 from calibrate.actions._io import open_dem, write_summary
+from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
+from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["DEFAULT_HEIGHT_RANGE_M", "fit_rpcs"]
 
@@ -27,13 +29,16 @@ def _with_ccd_suffix(path: Path, ccd: str) -> Path:
     return path.with_name(f"{path.stem}_{ccd}{path.suffix}")
 
 
-def _height_range(dem_path, dem_datum, geoid, height_range):
+def _height_range(model, dem_path, dem_datum, geoid, height_range):
+    """``(height range, DEM footprint figures)``; the DEM must cover the model's footprint."""
     if dem_path is not None:
         dem = open_dem(dem_path, dem_datum, geoid)
         h_lo, h_hi = dem.height_range_m
+        lon, lat = footprint_sample_lonlat(model, 0.5 * (h_lo + h_hi))
+        coverage = check_dem_footprint(dem, lon, lat)
         pad = max(50.0, 0.05 * (h_hi - h_lo))
-        return (h_lo - pad, h_hi + pad)
-    return DEFAULT_HEIGHT_RANGE_M if height_range is None else height_range
+        return (h_lo - pad, h_hi + pad), coverage
+    return (DEFAULT_HEIGHT_RANGE_M if height_range is None else height_range), {"warnings": []}
 
 
 def _targets(model, out: Path, band, ccd):
@@ -81,7 +86,8 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
 
     t0 = time.perf_counter()
     model = open_model(model_path)
-    height_range = _height_range(dem_path, dem_datum, geoid, height_range)
+    warning = require_usable(model, model_path, command="rpc")
+    height_range, coverage = _height_range(model, dem_path, dem_datum, geoid, height_range)
     out = Path(out_path)
     targets = _targets(model, out, band, ccd)
     fits = []
@@ -95,6 +101,8 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
         "command": "rpc",
         "model": str(model_path),
         "height_range_m": list(height_range),
+        **status_fields(model, warning, *coverage.pop("warnings")),
+        **coverage,
         "rpcs": fits,
         "check_max_px": max(f["fit"]["check_max_px"] for f in fits),
         "seconds": round(time.perf_counter() - t0, 3),

@@ -13,6 +13,12 @@
 
 ``run.summary.json`` says which path was taken and why (``path``: ``"gcps"`` or ``"stars"``,
 ``reason``), with the matching figures that decided it.
+
+Star frames of another camera (image size, pixel angle) are refused before any work
+(:func:`calibrate.actions.stars.read_star_inputs`). The run's own result is checked like any
+model a command uses (:mod:`calibrate.actions._status`): a failed step gives ``success: false``
+and ``model: null`` (the manifest it left is marked ``failed``, so no command uses it); a partial
+one is reported in ``calibration_status`` and ``warnings``.
 """
 
 from __future__ import annotations
@@ -25,7 +31,8 @@ import numpy as np
 
 from calibrate.actions.calibrate import calibrate_scene
 from calibrate.actions.match import match_scene
-from calibrate.actions.stars import stars_sequence
+from calibrate.actions._status import FailedCalibrationError, require_usable, status_fields
+from calibrate.actions.stars import read_star_inputs, stars_sequence
 from gcpmatch.options import MatchOptions
 from sensor_models.errors import GcpcalError, InputError
 
@@ -96,6 +103,44 @@ def _decide(model, gcp_file, match, failure, min_gcps, min_coverage):
     return enough, reason, n_gcps, coverage
 
 
+def _mark_failed(model_file: Path, message: str) -> None:
+    """Record a failed status in a manifest a failed step left (so no command uses it)."""
+    from sensor_models.atomic import atomic_write_text
+
+    doc = json.loads(model_file.read_text(encoding="utf-8"))
+    doc["calibration"] = {"status": "failed", "message": message, "uncalibrated": [], "unverified": []}
+    atomic_write_text(model_file, json.dumps(doc, indent=1) + "\n")
+
+
+def _own_status(out_dir: Path, summary: dict) -> dict:
+    """Check the run's own calibration result: a failed one is unusable, a partial one is said.
+
+    Returns the summary fields to update: ``success``, ``model`` (None unless usable),
+    ``calibration_status``, ``warnings``.
+    """
+    from sensor_models.readers import open_model
+
+    model_name = summary.get("model")
+    if not model_name:  # only what this run's step wrote, never a file of an earlier run
+        model_name = {"gcps": "calibration/manifest.json", "stars": "stars/manifest.json"}.get(summary.get("path"))
+    model_file = out_dir / model_name if model_name and (out_dir / model_name).is_file() else None
+    if not summary.get("success"):
+        if model_file is not None and model_file.suffix == ".json":
+            status = open_model(model_file).calibration
+            if status is None or status.status != "failed":
+                _mark_failed(model_file, str(summary.get("message") or "the calibration failed"))
+        return {"success": False, "model": None, "calibration_status": "failed", "warnings": []}
+    if model_file is None:
+        return {"calibration_status": None, "warnings": []}
+    calibrated = open_model(model_file)
+    try:
+        warning = require_usable(calibrated, model_file, command="run")
+    except FailedCalibrationError as exc:
+        return {"success": False, "model": None, "calibration_status": "failed", "message": exc.reason,
+                "warnings": []}
+    return status_fields(calibrated, warning)
+
+
 def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_datum=None, geoid=None,
               min_gcps: int = MIN_GCPS, min_coverage: float = MIN_COVERAGE, spacing_px: int = 16,
               progress=None) -> dict:
@@ -135,8 +180,10 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
     t0 = time.perf_counter()
     step = progress or (lambda m: None)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     model = open_model(scene_path)
+    if star_frames is not None:  # frames of another camera are refused before any work
+        read_star_inputs(star_frames, scene_model=model, scene_source=scene_path)
+    out_dir.mkdir(parents=True, exist_ok=True)
     gcp_file = out_dir / "gcps.csv"
     step("matching the scene against the DOM")
     match, failure = _match(scene_path, gcp_file, dom_path=dom_path, dem_path=dem_path, dem_datum=dem_datum,
@@ -158,6 +205,7 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
     else:
         summary.update(path=None, success=False,
                        message=f"cannot calibrate: {reason}, and no star frames were given (--star-frames)")
+    summary.update(_own_status(out_dir, summary))
     summary["seconds"] = time.perf_counter() - t0
     atomic_write_text(out_dir / "run.summary.json", json.dumps(summary, indent=1, default=str) + "\n")
     return summary

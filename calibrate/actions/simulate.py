@@ -9,6 +9,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from calibrate.actions._io import open_dem, write_summary
+from calibrate.actions._status import require_usable, status_fields
+from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["pushbroom_config", "simulate_geo_earth_scene", "simulate_geo_star_frames", "simulate_pushbroom_scene",
            "simulate_validation_series", "truth_error_of"]
@@ -186,8 +188,14 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
 
     true_model = open_model(truth_path)
     model = open_model(model_path)
-    dem = open_dem(dem_path, dem_datum, geoid) if dem_path else None
+    warning = require_usable(model, model_path, command="truth error")
+    dem, coverage = None, {"warnings": []}
+    if dem_path:
+        dem = open_dem(dem_path, dem_datum, geoid)
+        lon, lat = footprint_sample_lonlat(true_model, 0.5 * sum(dem.height_range_m))
+        coverage = check_dem_footprint(dem, lon, lat)
     result = truth_error(true_model, model, dem=dem, step_px=step_px, heights_m=heights_m)
+    result = {**result, **status_fields(model, warning, *coverage.pop("warnings")), **coverage}
     if out_path:
         write_summary(Path(out_path), result)
     return result

@@ -92,17 +92,19 @@ def validate_calibration(sites_path, calibration, out_dir, *, scheduler=None, wo
         The summary of :func:`run_validation` with ``sites_file`` and ``rows``
         (one per scene; a failed scene says why).
     """
+    from calibrate.actions._status import open_usable_calibration
     from calibrate.batch import read_sites
 
     if scheduler is not None:
         check_scheduler_address(scheduler)
+    warning = open_usable_calibration(calibration, command="validate")[2]  # a failed calibration is refused
     sites = read_sites(sites_path)
     if progress is not None:
         progress(0, len(sites), None)
     rows, summary = run_validation(sites, calibration, Path(out_dir), scheduler=scheduler, workers=workers,
                                    progress=progress, spacing_px=spacing_px, timeout_s=timeout_s)
     summary["sites_file"] = str(sites_path)
-    return {**summary, "rows": rows}
+    return {**summary, "warnings": [warning] if warning else [], "rows": rows}
 
 
 def run_validation(sites, calibration, out_dir, *, scheduler=None, workers: int = 2, progress=None,

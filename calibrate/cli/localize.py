@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.localize import localize_points
-from calibrate.cli.options import add_options, dem_options, echo_json, float_list
+from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings, float_list
 from sensor_models.errors import InputError
 
 __all__ = ["command"]
@@ -59,13 +59,15 @@ def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height,
 
     Direct: --rows/--cols (or --csv with row,col) and --height or --dem. Inverse: --lon/--lat/--h
     (or --csv with lon,lat,h and --inverse). Image coordinates put the first pixel's centre at
-    (0.5, 0.5); heights are metres above the WGS84 ellipsoid.
+    (0.5, 0.5); heights are metres above the WGS84 ellipsoid. Points outside the image, longitudes
+    outside [-180, 360), latitudes outside [-90, 90] and heights outside [-500, 9000] m are refused.
     """
     direction, points = _points(rows, cols, lon, lat, h_text, csv_path, inverse)
     if direction == "direct" and (height is None) == (dem_path is None):
         raise click.UsageError("direct localization needs exactly one of --height and --dem")
     summary = localize_points(model_path, points, direction=direction, height=height, dem_path=dem_path,
                               dem_datum=dem_datum, geoid=geoid, band=band, out_path=out_path)
+    echo_warnings(summary)
     table = summary["results"]
     if as_json:
         echo_json(summary | {"results": {k: v.tolist() for k, v in table.items()}})

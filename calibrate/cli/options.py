@@ -14,7 +14,7 @@ import numpy as np
 from calibrate._json import json_default
 from sensor_models.errors import InputError
 
-__all__ = ["add_options", "dem_options", "echo_json", "float_list", "json_option", "out_dir_option",
+__all__ = ["add_options", "dem_options", "echo_json", "echo_warnings", "float_list", "json_option", "out_dir_option",
            "progress_printer", "quiet_of", "verbosity_options"]
 
 #: ``--dem``, ``--dem-datum``, ``--geoid`` (keywords ``dem_path``, ``dem_datum``, ``geoid``).
@@ -145,3 +145,19 @@ def echo_json(doc: dict) -> None:
         The summary.
     """
     click.echo(json.dumps(doc, default=json_default))
+
+
+def echo_warnings(summary: dict) -> None:
+    """Print the ``warnings`` of an action's summary on stderr (whatever ``--json`` or ``-q`` say).
+
+    Parameters
+    ----------
+    summary : dict
+        The action's summary; its ``warnings`` (list of str, optional) are printed.
+
+    Returns
+    -------
+    None
+    """
+    for warning in summary.get("warnings") or ():
+        click.echo(f"gcpcal: warning: {warning}", err=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.ortho import ortho_scene
-from calibrate.cli.options import add_options, dem_options, echo_json, json_option, quiet_of
+from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings, json_option, quiet_of
 from calibrate.config import ORTHO_RESAMPLING, OrthoOptions
 from sensor_models.errors import InputError
 
@@ -50,6 +50,7 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_path, 
     options = OrthoOptions(crs=crs, resolution_m=resolution, resampling=resampling, block=block)
     summary = ortho_scene(scene_path, out_path, dem_path=dem_path, calibration=calibration, dem_datum=dem_datum,
                           geoid=geoid, band=band, image=image, options=options, progress=progress)
+    echo_warnings(summary)
     if as_json:
         echo_json(summary)
         return

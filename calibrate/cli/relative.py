@@ -6,7 +6,8 @@ import click
 
 from calibrate.actions.relative import relative_calibration_stage
 from calibrate.cli._errors import EXIT_FAILED
-from calibrate.cli.options import add_options, dem_options, echo_json, json_option, out_dir_option, progress_printer
+from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, json_option, out_dir_option,
+                                   progress_printer)
 from calibrate.config import ROBUST_LOSSES, CalibrationOptions
 from sensor_models.errors import InputError
 
@@ -90,6 +91,7 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
         scene_path, calibration, dem_path, out_dir, reference_band=reference_band, dem_datum=dem_datum, geoid=geoid,
         window_px=parse_window(window_text), spacing_px=spacing, rows=parse_rows(rows_text),
         options=CalibrationOptions(robust=robust), progress=progress_printer(ctx, as_json))
+    echo_warnings(summary)
     if as_json:
         echo_json(summary)
     else:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.rpc import fit_rpcs
-from calibrate.cli.options import add_options, dem_options, echo_json
+from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings
 
 __all__ = ["command"]
 
@@ -30,6 +30,7 @@ def command(model_path, out_path, dem_path, dem_datum, geoid, height_range, band
     """
     summary = fit_rpcs(model_path, out_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
                        height_range=height_range, band=band, ccd=ccd)
+    echo_warnings(summary)
     if as_json:
         echo_json(summary)
         return

@@ -6,7 +6,8 @@ import click
 
 from calibrate.actions.run import MIN_COVERAGE, MIN_GCPS, run_scene
 from calibrate.cli._errors import EXIT_FAILED
-from calibrate.cli.options import add_options, dem_options, echo_json, json_option, out_dir_option, progress_printer
+from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, json_option, out_dir_option,
+                                   progress_printer)
 from sensor_models.errors import InputError
 
 __all__ = ["command"]
@@ -32,6 +33,7 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, star_frames, 
     summary = run_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_dir=out_dir, star_frames=star_frames,
                         dem_datum=dem_datum, geoid=geoid, min_gcps=min_gcps, min_coverage=min_coverage,
                         progress=progress_printer(ctx, as_json))
+    echo_warnings(summary)
     if as_json:
         echo_json(summary)
     else:

@@ -9,7 +9,7 @@ import click
 
 from calibrate.actions.simulate import (pushbroom_config, simulate_geo_earth_scene, simulate_geo_star_frames,
                                         simulate_pushbroom_scene, simulate_validation_series)
-from calibrate.cli.options import float_list, out_dir_option, quiet_of
+from calibrate.cli.options import echo_warnings, float_list, out_dir_option, quiet_of
 
 __all__ = ["command"]
 
@@ -43,6 +43,7 @@ def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid
             out_dir, cfg, dom_path=dom_path, dem_path=dem_path, geoid=geoid, workers=workers,
             progress=lambda done, total: bar.update(task, completed=done, total=total),
         )
+    echo_warnings(summary)
     img = summary["image"]
     click.echo(
         f"{out_dir}: {img['n_rows']} x {img['n_cols']} px, {len(img['bands'])} bands, {img['ccds']} CCDs; "
@@ -78,6 +79,7 @@ def geo_earth_command(out_dir, seed, config_path, dom_path, dem_path, geoid):
     """Render an Earth view of a geostationary staring camera through a TRUE model."""
     summary = simulate_geo_earth_scene(out_dir, seed=seed, config_path=config_path, dom_path=dom_path,
                                        dem_path=dem_path, geoid=geoid)
+    echo_warnings(summary)
     img = summary["image"]
     click.echo(f"{out_dir}: {img['n_rows']} x {img['n_cols']} px staring frame; LAB model off by "
                f"{summary['lab_truth_error_px']['rms']:.1f} px RMS (max {summary['lab_truth_error_px']['max']:.1f})")

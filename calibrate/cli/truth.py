@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.simulate import truth_error_of
-from calibrate.cli.options import add_options, dem_options, echo_json, float_list
+from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings, float_list
 
 __all__ = ["command"]
 
@@ -28,10 +28,14 @@ def error_command(model_path, truth_path, dem_path, dem_datum, geoid, heights, s
     result = truth_error_of(model_path, truth_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
                             heights_m=None if heights is None else float_list(heights, "heights"), step_px=step,
                             out_path=out_path)
+    echo_warnings(result)
     if as_json:
         echo_json(result)
         return
     for r in result["per_ccd"]:
+        if r["rms_px"] is None:  # the CCD's grid fell off the DEM
+            click.echo(f"{r['band']:>6} {r['ccd']:>10}  no point on the DEM")
+            continue
         click.echo(f"{r['band']:>6} {r['ccd']:>10}  rms {r['rms_px']:.4f} px  max {r['max_px']:.4f} px  "
                    f"mean (row, col) ({r['mean_row_px']:+.4f}, {r['mean_col_px']:+.4f})")
     click.echo(f"all: rms {result['rms_px']:.4f} px, max {result['max_px']:.4f} px over {result['n_points']} points")

@@ -11,7 +11,7 @@ import click
 
 from calibrate.actions.validate import validate_calibration
 from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
-from calibrate.cli.options import echo_json, json_option, out_dir_option, quiet_of
+from calibrate.cli.options import echo_json, echo_warnings, json_option, out_dir_option, quiet_of
 
 __all__ = ["command"]
 
@@ -60,6 +60,7 @@ def command(ctx, sites_path, calibration, out_dir, scheduler, workers, spacing, 
                                        spacing_px=spacing, timeout_s=timeout, progress=progress)
     finally:
         bar.stop()
+    echo_warnings(summary)
     if as_json:
         echo_json(summary)
     else:

@@ -197,12 +197,15 @@ def simulate_geo_earth(out_dir, *, config: GeoSimConfig | None = None, dom=None,
     tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
     try:
         dom_img, dem_obj, reference = _geo_reference(cfg, truth, tmp, dom, dem, geoid)
+        dem_figures = reference.pop("dem_figures")
         t_render = time.perf_counter()
         _render_frame(cfg, truth, dom_img, dem_obj, tmp / "B1.tif", block_lines)
         render_s = time.perf_counter() - t_render
         write_geo_manifest(lab, tmp / "manifest.json", raster=tmp / "B1.tif")
         write_geo_manifest(truth, tmp / "truth_manifest.json", raster=tmp / "B1.tif")
         truth_doc, summary = _truth_and_summary(cfg, truth, lab, dem_obj, reference)
+        summary.update(dem_coverage=dem_figures["dem_coverage"], dem_void_fraction=dem_figures["dem_void_fraction"],
+                       warnings=dem_figures["warnings"])
         if record_timings:
             summary.update(render_seconds=render_s, seconds=time.perf_counter() - t0)
         (tmp / "truth.json").write_text(json.dumps(truth_doc, indent=1) + "\n", encoding="utf-8")
@@ -230,7 +233,7 @@ def _geo_reference(cfg: GeoSimConfig, truth, tmp: Path, dom, dem, geoid):
     from sensor_models.simulate.pushbroom_sim import _check_covers, _utm_crs
     from sensor_models.locate import MapGrid
     from sensor_models.raster import MapImage
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
 
     border, other = _frame_border(cfg.image_px)
     if dom is None:
@@ -256,6 +259,8 @@ def _geo_reference(cfg: GeoSimConfig, truth, tmp: Path, dom, dem, geoid):
                                                   for h in (h_lo, h_hi))))
     _check_covers(dom_img.grid, lon, lat, what="DOM", path=dom_img.path)
     _check_covers(MapGrid.of_dem(dem_obj), lon, lat, what="DEM", path=dem_obj.source)
+    grid_lon, grid_lat = footprint_sample_lonlat(truth, 0.5 * (h_lo + h_hi), n_side=65)
+    reference["dem_figures"] = check_dem_footprint(dem_obj, grid_lon, grid_lat, min_coverage=1.0)
     return dom_img, dem_obj, reference
 
 

@@ -10,6 +10,11 @@
 * ``reference/dom.tif``, ``reference/dem.tif`` (and ``water_mask.tif``) when the reference was
   generated procedurally (no ``dom``/``dem`` given).
 
+A given DEM must cover the whole footprint (the message says which share it covers); voids
+under the footprint are reported (``summary.json``: ``dem_coverage``, ``dem_void_fraction``,
+``warnings``) and more than :data:`sensor_models.terrain.MAX_FOOTPRINT_VOID_FRACTION` (5 %) of the
+footprint in voids is refused, since void pixels would render as 0.
+
 Every file is written in a hidden temporary folder inside ``out_dir`` and moved into place at
 the end, so a failure leaves no partial output. Lines are rendered in blocks (bounded memory:
 no full-scene float arrays), the (band, CCD) tasks of a block on a thread pool; every random
@@ -40,7 +45,7 @@ from sensor_models.raster import MapImage, sample_map_image
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.radiometry import smooth_field, to_dn
 from sensor_models.simulate.scene import SceneModels, build_models
-from sensor_models.terrain import Dem
+from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["footprint_lonlat", "simulate_pushbroom"]
 
@@ -267,7 +272,7 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
 
     models = build_models(cfg)
     model = models.true_model
-    dom, dem, reference_files = _reference(cfg, models, tmp, dom_path, dem_path, geoid)
+    dom, dem, reference_files, dem_figures = _reference(cfg, models, tmp, dom_path, dem_path, geoid)
     renderer = _Renderer(cfg, models, dem, dom)
     dem_planes(dem)  # build the shared sampling planes once, before the threads
     n_rows, n_cols = model.image_shape
@@ -303,6 +308,9 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
                   **({"cloud_mask": "cloud_mask.tif"} if has_mask else {})},
         "reference": reference_files,
         "cloud_fraction": cloud_pixels / float(n_rows * n_cols),
+        "dem_coverage": dem_figures["dem_coverage"],
+        "dem_void_fraction": dem_figures["dem_void_fraction"],
+        "warnings": dem_figures["warnings"],
         "lab_truth_error_px": {"rms": initial["rms_px"], "max": initial["max_px"],
                                "mean_row": initial["mean_row_px"], "mean_col": initial["mean_col_px"]},
         "render_seconds": render_seconds,
@@ -334,8 +342,11 @@ def _reference(cfg, models: SceneModels, tmp: Path, dom_path, dem_path, geoid):
     h_lo, h_hi = dem.height_range_m
     lon, lat = footprint_lonlat(models.true_model, (h_lo, h_hi))
     _check_covers(dom.grid, lon, lat, what="DOM", path=dom.path)
+    # the whole footprint on the DEM (the share covered is said), voids reported, too many refused
+    grid_lon, grid_lat = footprint_sample_lonlat(models.true_model, 0.5 * (h_lo + h_hi), n_side=65)
+    dem_figures = check_dem_footprint(dem, grid_lon, grid_lat, min_coverage=1.0)
     _check_covers(MapGrid.of_dem(dem), lon, lat, what="DEM", path=dem.source)
-    return dom, dem, reference_files
+    return dom, dem, reference_files, dem_figures
 
 
 def _render_scene(renderer: "_Renderer", model, tmp: Path, bands, ref_band, n_ccd, block_lines, workers, progress):
