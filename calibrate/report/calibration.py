@@ -139,20 +139,25 @@ def write_report(
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".report-", dir=out_dir))
     try:
-        fig_dir = tmp / "figures"
-        fig_dir.mkdir()
         ctx = ReportContext(result, accuracy_before, accuracy_after, initial_model, g, c, truth_model)
         ctx.coverage, ctx.status = list(coverage or []), status
-        figures = {"vectors": figure_vectors(ctx, fig_dir)}
-        figures["distortion"] = [figure_distortion(ctx, band, fig_dir) for band in ctx.bands]
-        figures["histograms"] = figure_histograms(ctx, fig_dir)
-        figures["count"] = figure_error_vs_count(error_vs_count, fig_dir) if error_vs_count else None
+        figures = _figures(ctx, error_vs_count, tmp / "figures")
         text = _html(ctx, figures, error_vs_count, str(title), extra)
         (tmp / "report.html").write_text(text, encoding="utf-8")
         _move_into_place(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return out_dir / "report.html"
+
+
+def _figures(ctx, error_vs_count, fig_dir: Path) -> dict:
+    """Draw every figure of the report into ``fig_dir`` (created); their paths by kind."""
+    fig_dir.mkdir()
+    figures = {"vectors": figure_vectors(ctx, fig_dir)}
+    figures["distortion"] = [figure_distortion(ctx, band, fig_dir) for band in ctx.bands]
+    figures["histograms"] = figure_histograms(ctx, fig_dir)
+    figures["count"] = figure_error_vs_count(error_vs_count, fig_dir) if error_vs_count else None
+    return figures
 
 
 def _checked_inputs(result, accuracy_before, accuracy_after, gcps, checks, error_vs_count, extra):
