@@ -23,7 +23,7 @@ import os
 import time
 from pathlib import Path
 
-from calibrate.actions._io import staged_folder
+from calibrate.actions._io import check_output_folder, staged_folder
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
 
@@ -86,6 +86,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
         ``check_points``, ``check_rmse_px {before, after}``, ``model``, ``seconds``).
     """
     t0 = time.perf_counter()
+    check_output_folder(out_dir, inputs=[scene_path, gcps_path, image])  # before any work
     model, table = _read_inputs(scene_path, gcps_path, band, image)
     if progress:
         progress(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
@@ -93,7 +94,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     checks = points_of(table.checks(), model)
     acc_before, acc_after = _accuracy(model, checks), _accuracy(result.model, checks)
     out_dir = Path(out_dir)
-    with staged_folder(out_dir, ".calibrate-") as tmp:
+    with staged_folder(out_dir, ".calibrate-", inputs=[scene_path, gcps_path, image]) as tmp:
         doc = result.to_dict()
         doc["scene"] = str(scene_path)
         doc["gcp_file"] = str(gcps_path)

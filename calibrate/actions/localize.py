@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.actions._io import open_dem, write_summary
+from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from sensor_models.errors import InputError
 
 __all__ = ["localize_points", "read_points_csv"]
@@ -60,12 +60,11 @@ def read_points_csv(path, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
 
 
 def _write_csv(out_path: Path, table: dict, summary: dict) -> None:
-    from sensor_models.atomic import atomic_write_text
-
     lines = ["row,col,lon,lat,h"]
     lines += [f"{a:.6f},{b:.6f},{x:.10f},{y:.10f},{z:.4f}" for a, b, x, y, z in zip(*table.values())]
-    atomic_write_text(out_path, "\n".join(lines) + "\n")
-    write_summary(out_path.with_suffix(".summary.json"), summary | {"output": str(out_path)})
+    with staged_files(out_path, out_path.with_suffix(".summary.json")) as (csv_tmp, summary_tmp):
+        csv_tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        write_summary(summary_tmp, summary | {"output": str(out_path)})
 
 
 def localize_points(model_path, points: dict, *, direction: str, height=None, dem_path=None, dem_datum=None,
@@ -99,6 +98,8 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     from sensor_models import open_model
 
     t0 = time.perf_counter()
+    if out_path:  # before any work
+        check_output_files(Path(out_path), Path(out_path).with_suffix(".summary.json"))
     columns = ("row", "col") if direction == "direct" else ("lon", "lat", "h")
     if "csv" in points:
         points = read_points_csv(Path(points["csv"]), columns)

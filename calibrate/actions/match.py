@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.actions._io import staged_files
 from calibrate.actions._scene import crop_to_raster
 from gcpmatch.extract import extract_gcps, read_band
 from gcpmatch.options import MatchOptions
@@ -57,33 +58,39 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         When no GCP could be extracted (the summary is written all the same).
     """
     from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
-    from sensor_models.atomic import atomic_write_text
     from sensor_models.readers import open_model
     from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
-    model = open_model(scene_path)
-    band = band or getattr(model, "reference_band", None)
-    scene = read_band(model, band, image)
-    if image is not None and scene.shape != tuple(model.image_shape) and hasattr(model, "cropped"):
-        model = crop_to_raster(model, image, scene.shape)
-    dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
-    dom = MapImage.open(dom_path)
-    mask = None
-    if mask_path is not None:
-        mask = read_band(model, band, mask_path)
-        mask = np.nan_to_num(mask) != 0
-    table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
+    options.validate()  # before any work: e.g. --backend gpu without CUDA
     out_path = Path(out_path)
-    summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
-    if table is None or len(table) == 0:
-        atomic_write_text(out_path.with_suffix(".summary.json"), json.dumps(summary, indent=1) + "\n")
-        raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",
-                         path=str(scene_path))
-    write_gcps_csv(table, out_path)
-    if gpkg_path:
-        write_gcps_gpkg(table, gpkg_path)
-    if geotiff_path:
-        write_gcps_geotiff(table, geotiff_path, image_shape=model.image_shape)
-    atomic_write_text(out_path.with_suffix(".summary.json"), json.dumps(summary, indent=1) + "\n")
+    summary_path = out_path.with_suffix(".summary.json")
+    with staged_files(out_path, summary_path, gpkg_path, geotiff_path) as (csv_tmp, summary_tmp, gpkg_tmp, tif_tmp):
+        model = open_model(scene_path)
+        band = band or getattr(model, "reference_band", None)
+        scene = read_band(model, band, image)
+        if image is not None and scene.shape != tuple(model.image_shape) and hasattr(model, "cropped"):
+            model = crop_to_raster(model, image, scene.shape)
+        dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
+        dom = MapImage.open(dom_path)
+        mask = None
+        if mask_path is not None:
+            mask = read_band(model, band, mask_path)
+            mask = np.nan_to_num(mask) != 0
+        table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
+        summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
+        failure = None
+        if table is None or len(table) == 0:
+            # the summary says why; no stale GCP file of an earlier run stays beside it
+            failure = InputError(f"no GCP could be extracted ({summary['message']}); see {summary_path}",
+                                 path=str(scene_path))
+        else:
+            if tif_tmp is not None:  # first: the one writer with a size limit
+                write_gcps_geotiff(table, tif_tmp, image_shape=model.image_shape)
+            write_gcps_csv(table, csv_tmp)
+            if gpkg_tmp is not None:
+                write_gcps_gpkg(table, gpkg_tmp)
+        summary_tmp.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    if failure is not None:
+        raise failure
     return summary

@@ -8,6 +8,7 @@ held. The reading, solving and staged writing (``manifest.json``, ``relative.jso
 
 from __future__ import annotations
 
+from calibrate.actions._io import final_paths, staged_folder
 from calibrate.config import CalibrationOptions
 
 __all__ = ["relative_calibration_stage"]
@@ -52,6 +53,8 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     """
     from calibrate.relative import relative_scene
 
-    return relative_scene(scene_path, calibration, dem_path, out_dir, reference_band=reference_band,
-                          dem_datum=dem_datum, geoid=geoid, window_px=window_px, spacing_px=spacing_px, rows=rows,
-                          robust=options.robust, progress=progress)
+    with staged_folder(out_dir, ".relative-", inputs=[scene_path, calibration, dem_path, geoid]) as stage:
+        summary = relative_scene(scene_path, calibration, dem_path, stage, reference_band=reference_band,
+                                 dem_datum=dem_datum, geoid=geoid, window_px=window_px, spacing_px=spacing_px,
+                                 rows=rows, robust=options.robust, progress=progress)
+    return final_paths(summary, stage, out_dir)

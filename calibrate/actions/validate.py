@@ -7,6 +7,7 @@ file, checks the scheduler address the user gave and hands the sites over.
 
 from __future__ import annotations
 
+from calibrate.actions._io import final_paths, staged_folder
 from sensor_models.errors import InputError
 
 __all__ = ["check_scheduler_address", "validate_calibration"]
@@ -80,9 +81,11 @@ def validate_calibration(sites_path, calibration, out_dir, *, scheduler=None, wo
     if scheduler is not None:
         check_scheduler_address(scheduler)
     sites = read_sites(sites_path)
-    if progress is not None:
-        progress(0, len(sites), None)
-    rows, summary = validate_sites(sites, calibration, Path(out_dir), scheduler=scheduler, workers=workers,
-                                   progress=progress, spacing_px=spacing_px, timeout_s=timeout_s)
+    with staged_folder(out_dir, ".validate-", inputs=[sites_path, calibration]) as stage:
+        if progress is not None:
+            progress(0, len(sites), None)
+        rows, summary = validate_sites(sites, calibration, stage, scheduler=scheduler, workers=workers,
+                                       progress=progress, spacing_px=spacing_px, timeout_s=timeout_s)
+    rows, summary = final_paths(rows, stage, out_dir), final_paths(summary, stage, out_dir)
     summary["sites_file"] = str(sites_path)
     return {**summary, "rows": rows}
