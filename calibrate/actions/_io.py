@@ -332,6 +332,8 @@ def staged_files(*paths):
             elif final.is_file():
                 final.unlink()
     except BaseException as exc:
+        for stage in stages.values():
+            shutil.rmtree(stage, ignore_errors=True)
         _remove_folders(made)
         named = _name_write_error(exc, finals[0] if finals else Path("."))
         if named is exc:
