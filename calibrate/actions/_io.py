@@ -27,8 +27,8 @@ from calibrate._json import json_default
 from sensor_models.atomic import atomic_write_text, replace_tree
 from sensor_models.errors import InputError
 
-__all__ = ["OUTPUT_MARKER", "check_output_files", "check_output_folder", "final_paths", "open_dem", "staged_files", "staged_folder",
-           "write_summary"]
+__all__ = ["OUTPUT_MARKER", "check_output_files", "check_output_folder", "final_paths", "open_dem", "staged_files",
+           "staged_folder", "write_summary"]
 
 #: File written into every output folder: gcpcal may replace such a folder whole on a rerun.
 OUTPUT_MARKER = ".gcpcal-output"
@@ -112,7 +112,8 @@ def _refuse_inputs_inside(out_dir: Path, inputs) -> None:
             continue
         resolved = Path(item).resolve()
         if resolved == out_dir or out_dir in resolved.parents:
-            raise InputError(f"the output folder would replace the input {item}: choose another --out", path=str(out_dir))
+            raise InputError(f"the output folder would replace the input {item}: choose another --out",
+                             path=str(out_dir))
 
 
 def check_output_folder(out_dir, *, inputs=()) -> Path:
@@ -257,7 +258,8 @@ def staged_folder(out_dir, prefix: str = ".stage-", *, inputs=()):
     """A staging folder beside ``out_dir`` that replaces ``out_dir`` whole on success.
 
     The output path is checked first (:func:`check_output_folder`), so enter this before the
-    computation. On success a :data:`OUTPUT_MARKER` file is added and the staging folder is
+    computation. On success a :data:`OUTPUT_MARKER` file is added (unless a ``*summary.json``
+    marks the folder already) and the staging folder is
     renamed to ``out_dir`` (an existing ``out_dir`` is renamed aside and removed). On any
     exception or interrupt the staging folder, and any parent folder created for it, are removed.
 
@@ -283,8 +285,9 @@ def staged_folder(out_dir, prefix: str = ".stage-", *, inputs=()):
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; the output folder gets the usual mode
         yield tmp
         _name_final_folder(tmp, out_dir)
-        (tmp / OUTPUT_MARKER).write_text("written by gcpcal; a rerun may replace this folder whole\n",
-                                         encoding="utf-8")
+        if not _written_by_gcpcal(tmp):  # a summary already says it; else the marker does
+            (tmp / OUTPUT_MARKER).write_text("written by gcpcal; a rerun may replace this folder whole\n",
+                                             encoding="utf-8")
         replace_tree(tmp, out_dir)
     except BaseException as exc:
         if tmp is not None:

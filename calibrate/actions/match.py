@@ -78,7 +78,8 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
             mask = read_band(model, band, mask_path)
             mask = np.nan_to_num(mask) != 0
         table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
-        summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
+        summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path),
+                        "gcp_file": str(out_path)})
         failure = None
         if table is None or len(table) == 0:
             # the summary says why; no stale GCP file of an earlier run stays beside it
