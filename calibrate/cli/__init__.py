@@ -71,18 +71,19 @@ def _verbosity(args: list[str]) -> int:
     return count
 
 
-#: Commands that start a Dask cluster: their worker processes ignore Ctrl-C (see _worker_signals).
+#: Commands that start a Dask cluster: their workers ignore Ctrl-C (calibrate.actions._worker_signals).
 _CLUSTER_COMMANDS = ("validate",)
 
 
 def _worker_config(args: list[str]):
-    """A dask.config context whose workers load :mod:`calibrate.cli._worker_signals`, or a no-op."""
+    """A dask.config context whose workers load :mod:`calibrate.actions._worker_signals`, or a no-op."""
     if not any(command in args for command in _CLUSTER_COMMANDS):
         return contextlib.nullcontext()
     import dask.config
+    import distributed.config  # noqa: F401  its defaults first: the context restores a snapshot on exit
 
     preload = list(dask.config.get("distributed.worker.preload", default=None) or [])
-    return dask.config.set({"distributed.worker.preload": preload + ["calibrate.cli._worker_signals"]})
+    return dask.config.set({"distributed.worker.preload": preload + ["calibrate.actions._worker_signals"]})
 
 
 def _on_interrupt(signum, frame):

@@ -1,4 +1,4 @@
-"""Dask worker preload of ``gcpcal validate``: worker processes ignore Ctrl-C.
+"""Dask worker preload of the validate stage: worker processes ignore Ctrl-C.
 
 A Ctrl-C in a terminal reaches every process of the foreground group, the Dask workers too, and
 each would print a ``KeyboardInterrupt`` traceback. The workers ignore it instead; the ``gcpcal``
