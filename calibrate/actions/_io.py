@@ -16,6 +16,8 @@ equal those from the final folder.
 from __future__ import annotations
 
 import errno
+import functools
+import inspect
 import json
 import os
 import shutil
@@ -28,7 +30,7 @@ from sensor_models.atomic import atomic_write_text, replace_tree
 from sensor_models.errors import InputError
 
 __all__ = ["OUTPUT_MARKER", "check_output_files", "check_output_folder", "final_paths", "open_dem", "staged_files",
-           "staged_folder", "write_summary"]
+           "staged_folder", "staged_output", "write_summary"]
 
 #: File written into every output folder: gcpcal may replace such a folder whole on a rerun.
 OUTPUT_MARKER = ".gcpcal-output"
@@ -345,3 +347,42 @@ def staged_files(*paths):
     finally:
         for stage in stages.values():
             shutil.rmtree(stage, ignore_errors=True)
+
+
+def staged_output(parameter: str = "out_dir", *, inputs=(), prefix: str = ".stage-"):
+    """Decorator: the action writes its output folder through :func:`staged_folder`.
+
+    The wrapped action receives the staging folder in place of its ``parameter`` argument; the
+    folder's path is checked before the action runs, and it replaces the final folder whole when
+    the action returns. Paths under the staging folder in the returned value name the final one.
+
+    Parameters
+    ----------
+    parameter : str
+        Name of the action's output-folder argument.
+    inputs : tuple of str
+        Names of the action's input-path arguments (refused when inside the output folder).
+    prefix : str
+        Middle part of the staging folder's name.
+
+    Returns
+    -------
+    callable
+        The decorator.
+    """
+    def wrap(func):
+        signature = inspect.signature(func)
+
+        @functools.wraps(func)
+        def staged(*args, **kwargs):
+            bound = signature.bind(*args, **kwargs)
+            out_dir = bound.arguments[parameter]
+            given = [bound.arguments.get(name) for name in inputs]
+            with staged_folder(out_dir, prefix, inputs=given) as stage:
+                bound.arguments[parameter] = stage
+                result = func(*bound.args, **bound.kwargs)
+            return final_paths(result, stage, out_dir)
+
+        return staged
+
+    return wrap

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.actions._io import staged_folder, write_summary
+from calibrate.actions._io import staged_output, write_summary
 from calibrate.config import CalibrationOptions
 
 __all__ = ["FIXTURE_DIR", "run_demo"]
@@ -138,6 +138,7 @@ def _summary(fixture_dir: Path, merged, result, band_results, match_summaries, s
     }
 
 
+@staged_output("out_dir", inputs=("fixture_dir",), prefix=".demo-")
 def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing_px: int = 16) -> dict:
     """Run the demo (see the module docstring).
 
@@ -162,21 +163,19 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
 
     t_start = time.perf_counter()
     step = progress or (lambda message: None)
-    out_dir, fixture_dir = Path(out_dir), Path(fixture_dir)
-    with staged_folder(out_dir, ".demo-", inputs=[fixture_dir]) as stage:
-        out_dir = stage  # every output is written into the staging folder, swapped in at the end
-        fx = _open_fixture(fixture_dir)
-        step(f"matching band {fx['reference_band']} against the DOM")
-        merged, match_summaries = _match(fx, out_dir, spacing_px)
-        result, model, ref_pts, band_results = _calibrate(fx, merged, out_dir, step)
-        sc = _score(fx, merged, model, ref_pts, step)
-        summary = _summary(fixture_dir, merged, result, band_results, match_summaries, sc)
-        step("writing the report")
-        write_report(out_dir, result=result, accuracy_before=sc["before"], accuracy_after=sc["after"],
-                     initial_model=fx["lab"], gcps=ref_pts, checks=sc["checks"], error_vs_count=sc["evc"],
-                     truth_model=fx["truth"], title="gcpcal demo: HY-1C-like scene",
-                     extra={k: summary[k] for k in ("gcps", "check_points")})
-        summary["report"] = "report.html"
-        summary["seconds"] = time.perf_counter() - t_start
-        write_summary(out_dir / "summary.json", summary)
+    out_dir, fixture_dir = Path(out_dir), Path(fixture_dir)  # out_dir: the staging folder (staged_output)
+    fx = _open_fixture(fixture_dir)
+    step(f"matching band {fx['reference_band']} against the DOM")
+    merged, match_summaries = _match(fx, out_dir, spacing_px)
+    result, model, ref_pts, band_results = _calibrate(fx, merged, out_dir, step)
+    sc = _score(fx, merged, model, ref_pts, step)
+    summary = _summary(fixture_dir, merged, result, band_results, match_summaries, sc)
+    step("writing the report")
+    write_report(out_dir, result=result, accuracy_before=sc["before"], accuracy_after=sc["after"],
+                 initial_model=fx["lab"], gcps=ref_pts, checks=sc["checks"], error_vs_count=sc["evc"],
+                 truth_model=fx["truth"], title="gcpcal demo: HY-1C-like scene",
+                 extra={k: summary[k] for k in ("gcps", "check_points")})
+    summary["report"] = "report.html"
+    summary["seconds"] = time.perf_counter() - t_start
+    write_summary(out_dir / "summary.json", summary)
     return summary

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.actions._io import staged_files
+from calibrate.actions._io import check_output_files, staged_files
 from calibrate.actions._scene import crop_to_raster
 from gcpmatch.extract import extract_gcps, read_band
 from gcpmatch.options import MatchOptions
@@ -63,35 +63,32 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     from sensor_models.terrain import Dem
 
     options.validate()  # before any work: e.g. --backend gpu without CUDA
+    check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path)
+    model = open_model(scene_path)
+    band = band or getattr(model, "reference_band", None)
+    scene = read_band(model, band, image)
+    if image is not None and scene.shape != tuple(model.image_shape) and hasattr(model, "cropped"):
+        model = crop_to_raster(model, image, scene.shape)
+    dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
+    dom = MapImage.open(dom_path)
+    mask = None
+    if mask_path is not None:
+        mask = read_band(model, band, mask_path)
+        mask = np.nan_to_num(mask) != 0
+    table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
     out_path = Path(out_path)
-    summary_path = out_path.with_suffix(".summary.json")
-    with staged_files(out_path, summary_path, gpkg_path, geotiff_path) as (csv_tmp, summary_tmp, gpkg_tmp, tif_tmp):
-        model = open_model(scene_path)
-        band = band or getattr(model, "reference_band", None)
-        scene = read_band(model, band, image)
-        if image is not None and scene.shape != tuple(model.image_shape) and hasattr(model, "cropped"):
-            model = crop_to_raster(model, image, scene.shape)
-        dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
-        dom = MapImage.open(dom_path)
-        mask = None
-        if mask_path is not None:
-            mask = read_band(model, band, mask_path)
-            mask = np.nan_to_num(mask) != 0
-        table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
-        summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path),
-                        "gcp_file": str(out_path)})
-        failure = None
-        if table is None or len(table) == 0:
-            # the summary says why; no stale GCP file of an earlier run stays beside it
-            failure = InputError(f"no GCP could be extracted ({summary['message']}); see {summary_path}",
-                                 path=str(scene_path))
-        else:
-            if tif_tmp is not None:  # first: the one writer with a size limit
-                write_gcps_geotiff(table, tif_tmp, image_shape=model.image_shape)
+    summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
+    # every file moves in together at the end; with no GCP only the summary (an older table goes)
+    staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path)
+    with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp):
+        if table is not None and len(table) > 0:
+            if geotiff_tmp is not None:  # first: the one writer with a size limit
+                write_gcps_geotiff(table, geotiff_tmp, image_shape=model.image_shape)
             write_gcps_csv(table, csv_tmp)
             if gpkg_tmp is not None:
                 write_gcps_gpkg(table, gpkg_tmp)
         summary_tmp.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-    if failure is not None:
-        raise failure
+    if table is None or len(table) == 0:
+        raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",
+                         path=str(scene_path))
     return summary

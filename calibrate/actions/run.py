@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.actions._io import staged_folder
+from calibrate.actions._io import staged_output
 from calibrate.actions.calibrate import calibrate_scene
 from calibrate.actions.match import match_scene
 from calibrate.actions.stars import stars_sequence
@@ -96,6 +96,7 @@ def _decide(model, gcp_file, match, failure, min_gcps, min_coverage):
     return enough, reason, n_gcps, coverage
 
 
+@staged_output("out_dir", inputs=("scene_path", "dom_path", "dem_path", "geoid", "star_frames"), prefix=".run-")
 def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_datum=None, geoid=None,
               min_gcps: int = MIN_GCPS, min_coverage: float = MIN_COVERAGE, spacing_px: int = 16,
               progress=None) -> dict:
@@ -134,31 +135,29 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
 
     t0 = time.perf_counter()
     step = progress or (lambda m: None)
-    out_dir = Path(out_dir)
-    with staged_folder(out_dir, ".run-", inputs=[scene_path, dom_path, dem_path, geoid, star_frames]) as stage:
-        out_dir = stage  # every output is written into the staging folder, swapped in at the end
-        model = open_model(scene_path)
-        gcp_file = out_dir / "gcps.csv"
-        step("matching the scene against the DOM")
-        match, failure = _match(scene_path, gcp_file, dom_path=dom_path, dem_path=dem_path, dem_datum=dem_datum,
-                                geoid=geoid, spacing_px=spacing_px)
-        enough, reason, n_gcps, coverage = _decide(model, gcp_file, match, failure, min_gcps, min_coverage)
-        summary = {"kind": "gcpcal.run", "scene": str(scene_path), "gcps": n_gcps, "coverage": coverage,
-                   "cloud_fraction": match.get("cloud_fraction"), "reason": reason}
-        if enough:
-            step("calibrating from the GCPs")
-            result = calibrate_scene(scene_path, gcp_file, out_dir / "calibration", report=True)
-            summary.update(path="gcps", success=result["success"], message=result["message"],
-                           check_rmse_px=result["check_rmse_px"], model="calibration/" + result["model"])
-        elif star_frames is not None:
-            step(f"falling back on the star frames ({reason})")
-            doc = stars_sequence(star_frames, out_dir / "stars")
-            summary.update(path="stars", success=bool(doc.get("success")), message=doc.get("message"),
-                           star_accuracy=doc.get("accuracy"),
-                           model="stars/manifest.json" if doc.get("success") else None)
-        else:
-            summary.update(path=None, success=False,
-                           message=f"cannot calibrate: {reason}, and no star frames were given (--star-frames)")
-        summary["seconds"] = time.perf_counter() - t0
-        atomic_write_text(out_dir / "run.summary.json", json.dumps(summary, indent=1, default=str) + "\n")
+    out_dir = Path(out_dir)  # the staging folder (staged_output)
+    model = open_model(scene_path)
+    gcp_file = out_dir / "gcps.csv"
+    step("matching the scene against the DOM")
+    match, failure = _match(scene_path, gcp_file, dom_path=dom_path, dem_path=dem_path, dem_datum=dem_datum,
+                            geoid=geoid, spacing_px=spacing_px)
+    enough, reason, n_gcps, coverage = _decide(model, gcp_file, match, failure, min_gcps, min_coverage)
+    summary = {"kind": "gcpcal.run", "scene": str(scene_path), "gcps": n_gcps, "coverage": coverage,
+               "cloud_fraction": match.get("cloud_fraction"), "reason": reason}
+    if enough:
+        step("calibrating from the GCPs")
+        result = calibrate_scene(scene_path, gcp_file, out_dir / "calibration", report=True)
+        summary.update(path="gcps", success=result["success"], message=result["message"],
+                       check_rmse_px=result["check_rmse_px"], model="calibration/" + result["model"])
+    elif star_frames is not None:
+        step(f"falling back on the star frames ({reason})")
+        doc = stars_sequence(star_frames, out_dir / "stars")
+        summary.update(path="stars", success=bool(doc.get("success")), message=doc.get("message"),
+                       star_accuracy=doc.get("accuracy"),
+                       model="stars/manifest.json" if doc.get("success") else None)
+    else:
+        summary.update(path=None, success=False,
+                       message=f"cannot calibrate: {reason}, and no star frames were given (--star-frames)")
+    summary["seconds"] = time.perf_counter() - t0
+    atomic_write_text(out_dir / "run.summary.json", json.dumps(summary, indent=1, default=str) + "\n")
     return summary

@@ -13,13 +13,14 @@ import json
 import time
 from pathlib import Path
 
-from calibrate.actions._io import staged_folder
+from calibrate.actions._io import staged_output
 from calibrate.config import StarOptions
 from sensor_models.errors import InputError
 
 __all__ = ["stars_sequence"]
 
 
+@staged_output("out_dir", inputs=("frames_path", "manifest"), prefix=".stars-")
 def stars_sequence(frames_path, out_dir, *, manifest=None, options: StarOptions = StarOptions(),
                    versus_points=(10, 15, 20, 25)) -> dict:
     """Read the frames, calibrate from the star tracks, write ``stars.json``, the manifest, the report.
@@ -42,18 +43,11 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, options: StarOptions 
     dict
         The document written to ``stars.json`` (``success``, ``message``, ``accuracy``, ...).
     """
-    t0 = time.perf_counter()
-    with staged_folder(out_dir, ".stars-", inputs=[frames_path, manifest]) as stage:
-        doc = _stars_into(stage, frames_path, manifest, options, versus_points, t0)
-    return doc
-
-
-def _stars_into(out_dir: Path, frames_path, manifest, options: StarOptions, versus_points, t0: float) -> dict:
-    """Calibrate from the frames and write every output into ``out_dir`` (the staging folder)."""
     from calibrate.stars import process_frames, read_frame_list
     from sensor_models.atomic import atomic_write_text
     from sensor_models.readers.geo_manifest import read_geo_manifest, write_geo_manifest
 
+    t0 = time.perf_counter()
     frames, seconds, listed = read_frame_list(frames_path)
     manifest = Path(manifest) if manifest else listed
     if manifest is None:
@@ -61,6 +55,7 @@ def _stars_into(out_dir: Path, frames_path, manifest, options: StarOptions, vers
     lab = read_geo_manifest(manifest)
     catalog, mag_limit = options.catalog, options.mag_limit
     result = process_frames(frames, seconds, lab, options=options, versus_points=versus_points)
+    out_dir = Path(out_dir)  # the staging folder (staged_output)
     doc = result.to_dict(points=True)
     doc["inputs"] = {"frames": str(frames_path), "manifest": str(manifest), "catalog": str(catalog),
                      "mag_limit": mag_limit}
