@@ -28,7 +28,12 @@ def _torch():
 def _device(torch, device):
     if device in (None, "auto"):
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
+    device = torch.device(device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        from gcpmatch.options import require_cuda
+
+        require_cuda()
+    return device
 
 
 def sift_matches(img_a: np.ndarray, mask_a: np.ndarray, img_b: np.ndarray, mask_b: np.ndarray, *,

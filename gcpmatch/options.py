@@ -13,9 +13,25 @@ from dataclasses import dataclass
 
 from sensor_models.errors import InputError
 
-__all__ = ["BACKENDS", "MatchOptions"]
+__all__ = ["BACKENDS", "MatchOptions", "require_cuda"]
 
 BACKENDS = ("cpu", "gpu", "torch")  # numpy/scipy; torch on CUDA; torch on the CPU
+
+
+def require_cuda() -> None:
+    """Raise unless torch is installed and sees a CUDA device (the ``gpu`` backend's need).
+
+    Raises
+    ------
+    InputError
+        Without torch, or with a torch that has no CUDA device (checked before any work).
+    """
+    try:
+        import torch
+    except ImportError:
+        raise InputError("--backend gpu needs torch with CUDA (pip install -e '.[gpu]'); use --backend cpu") from None
+    if not torch.cuda.is_available():
+        raise InputError("--backend gpu needs a CUDA device; this torch has none (use --backend cpu)")
 
 
 def _is_int(value) -> bool:
@@ -91,6 +107,8 @@ class MatchOptions:
             raise InputError(f"check fraction must lie in [0, 1), got {self.check_fraction}", field="check_fraction")
         if self.backend not in BACKENDS:
             raise InputError(f"backend must be cpu or gpu, got {self.backend!r}", field="backend")
+        if self.backend == "gpu":
+            require_cuda()
         for name in ("cloud_window_fraction", "texture_fraction"):
             value = getattr(self, name)
             if not _is_real(value) or not 0.0 <= value <= 1.0:

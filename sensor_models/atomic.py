@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write_text", "move_tree_into", "temporary_beside"]
+__all__ = ["atomic_write_text", "move_tree_into", "replace_tree", "temporary_beside"]
 
 
 def temporary_beside(path, suffix: str = ".tmp") -> Path:
@@ -80,3 +81,31 @@ def move_tree_into(tmp, out_dir) -> None:
             dst = out_dir / src.relative_to(tmp)
             dst.parent.mkdir(parents=True, exist_ok=True)
             os.replace(src, dst)
+
+
+def replace_tree(staged, target) -> None:
+    """Swap folder ``staged`` in as ``target``, replacing an existing ``target`` whole.
+
+    ``staged`` must lie beside ``target`` (same parent, same filesystem). An existing ``target``
+    is renamed aside, ``staged`` is renamed in, and the old folder is removed, so no file of an
+    earlier run survives. If the second rename fails the old folder is put back.
+
+    Parameters
+    ----------
+    staged : str or os.PathLike
+        The complete new folder.
+    target : str or os.PathLike
+        The final folder (may or may not exist).
+    """
+    staged, target = Path(staged), Path(target)
+    if not target.exists():
+        os.rename(staged, target)
+        return
+    aside = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+    os.replace(target, aside)  # a folder may replace an empty folder (POSIX rename)
+    try:
+        os.rename(staged, target)
+    except BaseException:
+        os.replace(aside, target)
+        raise
+    shutil.rmtree(aside, ignore_errors=True)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.actions._io import staged_folder
+from calibrate.actions._io import check_output_folder, staged_folder
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
 
@@ -88,6 +88,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
         ``check_points``, ``check_rmse_px {before, after}``, ``model``, ``seconds``).
     """
     t0 = time.perf_counter()
+    check_output_folder(out_dir, inputs=[scene_path, gcps_path, image])  # before any work
     model, table = _read_inputs(scene_path, gcps_path, band, image)
     if progress:
         progress(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
@@ -97,7 +98,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     coverage, status = _gate(model, table, result, band, acc_before, acc_after)
     result.model.calibration = status
     out_dir = Path(out_dir)
-    with staged_folder(out_dir, ".calibrate-") as tmp:
+    with staged_folder(out_dir, ".calibrate-", inputs=[scene_path, gcps_path, image]) as tmp:
         doc = _calibration_doc(result, scene_path, gcps_path, acc_before, acc_after, coverage, status)
         (tmp / "calibration.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         model_file = _write_model(result.model, model, tmp, out_dir, failed=status.status == "failed")

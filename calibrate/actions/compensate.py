@@ -7,6 +7,8 @@ distortion, table 2 installation errors) and writes ``OUT/table.json``, ``OUT/ta
 
 from __future__ import annotations
 
+from calibrate.actions._io import check_output_folder, final_paths, staged_folder
+
 __all__ = ["compensation_study"]
 
 
@@ -36,6 +38,9 @@ def compensation_study(out_dir, *, step_px: float = 100.0, start_px: float = 0.0
     """
     from calibrate.schemes.compensate import run_seed002, write_study
 
+    check_output_folder(out_dir)  # before any work
     study = run_seed002(step_px=step_px, start_px=start_px, stop_px=stop_px, noise_px=noise_px, seed=seed,
                         schemes=list(schemes) if schemes else None)
-    return write_study(study, out_dir, figures=figures)
+    with staged_folder(out_dir, ".compensate-") as stage:
+        doc = write_study(study, stage, figures=figures)
+    return final_paths(doc, stage, out_dir)

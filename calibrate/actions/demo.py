@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.actions._io import write_summary
+from calibrate.actions._io import staged_output, write_summary
 from calibrate.config import CalibrationOptions
 
 __all__ = ["FIXTURE_DIR", "run_demo"]
@@ -155,6 +155,7 @@ def _summary(fixture_dir: Path, merged, result, band_results, match_summaries, s
     }
 
 
+@staged_output("out_dir", inputs=("fixture_dir",), prefix=".demo-")
 def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing_px: int = 16) -> dict:
     """Run the demo (see the module docstring).
 
@@ -179,8 +180,7 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
 
     t_start = time.perf_counter()
     step = progress or (lambda message: None)
-    out_dir, fixture_dir = Path(out_dir), Path(fixture_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir, fixture_dir = Path(out_dir), Path(fixture_dir)  # out_dir: the staging folder (staged_output)
     fx = _open_fixture(fixture_dir)
     step(f"matching band {fx['reference_band']} against the DOM")
     merged, match_summaries = _match(fx, out_dir, spacing_px)

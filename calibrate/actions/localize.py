@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.actions._io import open_dem, write_summary
+from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
 
@@ -136,12 +136,11 @@ def check_image_points(points: dict, image_shape, *, source=None) -> None:
 
 
 def _write_csv(out_path: Path, table: dict, summary: dict) -> None:
-    from sensor_models.atomic import atomic_write_text
-
     lines = ["row,col,lon,lat,h"]
     lines += [f"{a:.6f},{b:.6f},{x:.10f},{y:.10f},{z:.4f}" for a, b, x, y, z in zip(*table.values())]
-    atomic_write_text(out_path, "\n".join(lines) + "\n")
-    write_summary(out_path.with_suffix(".summary.json"), summary | {"output": str(out_path)})
+    with staged_files(out_path, out_path.with_suffix(".summary.json")) as (csv_tmp, summary_tmp):
+        csv_tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        write_summary(summary_tmp, summary | {"output": str(out_path)})
 
 
 def localize_points(model_path, points: dict, *, direction: str, height=None, dem_path=None, dem_datum=None,
@@ -175,6 +174,8 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     from sensor_models import open_model
 
     t0 = time.perf_counter()
+    if out_path:  # before any work
+        check_output_files(Path(out_path), Path(out_path).with_suffix(".summary.json"))
     columns = ("row", "col") if direction == "direct" else ("lon", "lat", "h")
     source = None
     if "csv" in points:

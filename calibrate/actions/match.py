@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.actions._io import check_output_files, staged_files
 from calibrate.actions._scene import crop_to_raster
 from gcpmatch.extract import extract_gcps, read_band
 from gcpmatch.options import MatchOptions
@@ -57,11 +58,12 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         When no GCP could be extracted (the summary is written all the same).
     """
     from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
-    from sensor_models.atomic import atomic_write_text
     from sensor_models.readers import open_model
     from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
+    options.validate()  # before any work: e.g. --backend gpu without CUDA
+    check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path)
     model = open_model(scene_path)
     band = band or getattr(model, "reference_band", None)
     scene = read_band(model, band, image)
@@ -76,14 +78,17 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
     out_path = Path(out_path)
     summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
+    # every file moves in together at the end; with no GCP only the summary (an older table goes)
+    staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path)
+    with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp):
+        if table is not None and len(table) > 0:
+            if geotiff_tmp is not None:  # first: the one writer with a size limit
+                write_gcps_geotiff(table, geotiff_tmp, image_shape=model.image_shape)
+            write_gcps_csv(table, csv_tmp)
+            if gpkg_tmp is not None:
+                write_gcps_gpkg(table, gpkg_tmp)
+        summary_tmp.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     if table is None or len(table) == 0:
-        atomic_write_text(out_path.with_suffix(".summary.json"), json.dumps(summary, indent=1) + "\n")
         raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",
                          path=str(scene_path))
-    write_gcps_csv(table, out_path)
-    if gpkg_path:
-        write_gcps_gpkg(table, gpkg_path)
-    if geotiff_path:
-        write_gcps_geotiff(table, geotiff_path, image_shape=model.image_shape)
-    atomic_write_text(out_path.with_suffix(".summary.json"), json.dumps(summary, indent=1) + "\n")
     return summary

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.actions._io import check_output_folder, staged_folder
 from sensor_models.errors import InputError
 
 __all__ = ["FRAME_COLUMNS", "MARK_COLUMNS", "marks_from_frames", "oalr_from_csv", "read_marks_csv"]
@@ -217,6 +218,7 @@ def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0
     from sensor_models.atomic import atomic_write_text
 
     path = Path(path)
+    check_output_folder(out_dir, inputs=[path])  # before any work
     marks = _read_marks(path, ccd_size_px, reference)
     geometry = OalrGeometry(focal_mm, baseline_mm, DEFAULT_PIXEL_UM if pixel_um is None else pixel_um,
                             np.radians(beta_deg), np.radians(alpha_deg))
@@ -240,9 +242,8 @@ def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0
     }
     if table3:
         doc["table3"] = reproduce_table3(geometry)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out_dir / "oalr.json", json.dumps(json_safe(doc), indent=1, allow_nan=False) + "\n")
+    with staged_folder(out_dir, ".oalr-", inputs=[path]) as stage:
+        atomic_write_text(stage / "oalr.json", json.dumps(json_safe(doc), indent=1, allow_nan=False) + "\n")
     return doc
 
 

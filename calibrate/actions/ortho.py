@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from calibrate.actions._io import open_dem, write_summary
+from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import open_usable_calibration, require_usable, status_fields
 from calibrate.config import OrthoOptions
 from sensor_models.errors import InputError
@@ -55,6 +55,8 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     out_path = Path(out_path)
     if out_path.suffix.lower() not in (".tif", ".tiff"):
         raise InputError("the orthoimage is a GeoTIFF: give a .tif name", path=str(out_path))
+    summary_path = out_path.with_suffix(".summary.json")
+    check_output_files(out_path, summary_path)  # before any work
     scene = open_model(scene_path)
     scene_warning = require_usable(scene, scene_path, command="ortho")
     geometry, calib_file, calib_warning = scene, None, None
@@ -78,21 +80,23 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     dem = open_dem(dem_path, dem_datum, geoid)
     say = progress or (lambda done, total: None)
     # today's keywords of the library, unpacked from the options in this one place
-    result = orthorectify_to_file(geometry, image, dem, out_path, crs=options.crs, resolution_m=options.resolution_m,
-                                  band=band, resampling=options.resampling, block=options.block, progress=say)
-    summary = {
-        "command": "ortho",
-        "scene": str(scene_path),
-        "calibration": None if calib_file is None else str(calib_file),
-        "model_kind": geometry.kind,
-        "image": str(image[0]) if isinstance(image, tuple) else str(image),
-        "dem": str(dem_path),
-        **status_fields(geometry, scene_warning, calib_warning),
-        **result,
-        "ortho_seconds": result["seconds"],
-        "seconds": round(time.perf_counter() - t0, 3),
-    }
-    summary_path = out_path.with_suffix(".summary.json")
-    summary["summary"] = str(summary_path)
-    write_summary(summary_path, summary)
+    with staged_files(out_path, summary_path) as (tif_tmp, summary_tmp):
+        result = orthorectify_to_file(geometry, image, dem, tif_tmp, crs=options.crs,
+                                      resolution_m=options.resolution_m, band=band, resampling=options.resampling,
+                                      block=options.block, progress=say)
+        result["output"] = str(out_path)
+        summary = {
+            "command": "ortho",
+            "scene": str(scene_path),
+            "calibration": None if calib_file is None else str(calib_file),
+            "model_kind": geometry.kind,
+            "image": str(image[0]) if isinstance(image, tuple) else str(image),
+            "dem": str(dem_path),
+            **status_fields(geometry, scene_warning, calib_warning),
+            **result,
+            "ortho_seconds": result["seconds"],
+            "seconds": round(time.perf_counter() - t0, 3),
+        }
+        summary["summary"] = str(summary_path)
+        write_summary(summary_tmp, summary)
     return summary

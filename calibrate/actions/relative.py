@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -24,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate._json import json_safe
+from calibrate.actions._io import staged_folder
 from calibrate.config import CalibrationOptions
 from sensor_models.errors import InputError
 
@@ -81,15 +80,17 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
 
     t0 = time.perf_counter()
     warning = open_usable_calibration(calibration, command="relative")[2]  # a failed calibration is refused
-    scene, cal_path, calibrated, reference_band = _open_models(scene_path, calibration, reference_band)
-    dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
-    images = _LazyBands(scene)  # the reference band and one other band in memory at a time
-    result = relative_calibration(calibrated, images, dem, reference_band=reference_band, window_px=window_px,
-                                  spacing_px=spacing_px, rows=rows, robust=options.robust, progress=progress)
-    report = result.to_dict()
-    report.update({"scene": str(scene_path), "calibration": str(cal_path), "dem": str(dem_path)})
-    result.model.calibration = _output_status(result, calibrated.calibration)
-    summary = _write_outputs(Path(out_dir), scene, result, report, reference_band, t0)
+    inputs = [p for p in (scene_path, calibration, dem_path, geoid) if p is not None]
+    with staged_folder(out_dir, ".relative-", inputs=inputs) as stage:  # checks the output path first
+        scene, cal_path, calibrated, reference_band = _open_models(scene_path, calibration, reference_band)
+        dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
+        images = _LazyBands(scene)  # the reference band and one other band in memory at a time
+        result = relative_calibration(calibrated, images, dem, reference_band=reference_band, window_px=window_px,
+                                      spacing_px=spacing_px, rows=rows, robust=options.robust, progress=progress)
+        report = result.to_dict()
+        report.update({"scene": str(scene_path), "calibration": str(cal_path), "dem": str(dem_path)})
+        result.model.calibration = _output_status(result, calibrated.calibration)
+        summary = _write_outputs(stage, Path(out_dir), scene, result, report, reference_band, t0)
     return {"warnings": [warning] if warning else []} | summary
 
 
@@ -110,25 +111,18 @@ def _open_models(scene_path, calibration, reference_band):
     return scene, cal_path, calibrated, reference_band
 
 
-def _write_outputs(out_dir: Path, scene, result, report: dict, reference_band: str, t0: float) -> dict:
-    """Stage the three outputs in a temporary folder, then rename them into ``out_dir``."""
+def _write_outputs(stage: Path, out_dir: Path, scene, result, report: dict, reference_band: str, t0: float) -> dict:
+    """Write the three outputs into the staging folder; raster paths relative to ``out_dir``."""
     from sensor_models.readers.manifest import manifest_to_dict
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".relative-", dir=out_dir)).resolve()
-    try:
-        rasters = {b: {"path": os.path.relpath(r["path"], out_dir.resolve()), "index": r.get("index", 1)}
-                   for b, r in (getattr(scene, "rasters", None) or {}).items()}
-        doc = manifest_to_dict(result.model, rasters=rasters)
-        doc["name"] = (scene.name or "scene") + " (calibrated, band-to-band)"
-        (tmp / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-        (tmp / "relative.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
-        summary = _summary(result, reference_band, time.perf_counter() - t0)
-        (tmp / "relative.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-        for name in _OUTPUTS:
-            os.replace(tmp / name, out_dir / name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    rasters = {b: {"path": os.path.relpath(r["path"], out_dir.absolute()), "index": r.get("index", 1)}
+               for b, r in (getattr(scene, "rasters", None) or {}).items()}
+    doc = manifest_to_dict(result.model, rasters=rasters)
+    doc["name"] = (scene.name or "scene") + " (calibrated, band-to-band)"
+    (stage / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    (stage / "relative.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
+    summary = _summary(result, reference_band, time.perf_counter() - t0)
+    (stage / "relative.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     return summary
 
 

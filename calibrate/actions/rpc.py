@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from calibrate.actions._io import open_dem, write_summary
+from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
 from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
@@ -85,27 +85,29 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
     from sensor_models.rpc import fit_rpc
 
     t0 = time.perf_counter()
+    out = Path(out_path)
+    summary_path = out.with_name(out.name + ".summary.json")
+    check_output_files(out, summary_path)  # before any work
     model = open_model(model_path)
     warning = require_usable(model, model_path, command="rpc")
     height_range, coverage = _height_range(model, dem_path, dem_datum, geoid, height_range)
-    out = Path(out_path)
     targets = _targets(model, out, band, ccd)
     fits = []
-    out.parent.mkdir(parents=True, exist_ok=True)
-    for target, path, ccd_name in targets:
-        kwargs = {} if (band is None or ccd_name is not None) else {"band": band}
-        fitted, report = fit_rpc(target, height_range_m=tuple(height_range), **kwargs)
-        fitted.write(path)
-        fits.append({"ccd": ccd_name, "output": str(path), "fit": report})
-    summary = {
-        "command": "rpc",
-        "model": str(model_path),
-        "height_range_m": list(height_range),
-        **status_fields(model, warning, *coverage.pop("warnings")),
-        **coverage,
-        "rpcs": fits,
-        "check_max_px": max(f["fit"]["check_max_px"] for f in fits),
-        "seconds": round(time.perf_counter() - t0, 3),
-    }
-    write_summary(out.with_name(out.name + ".summary.json"), summary)
+    with staged_files(*[path for _, path, _ in targets], summary_path) as staged:
+        for (target, path, ccd_name), staged_path in zip(targets, staged):
+            kwargs = {} if (band is None or ccd_name is not None) else {"band": band}
+            fitted, report = fit_rpc(target, height_range_m=tuple(height_range), **kwargs)
+            fitted.write(staged_path)
+            fits.append({"ccd": ccd_name, "output": str(path), "fit": report})
+        summary = {
+            "command": "rpc",
+            "model": str(model_path),
+            "height_range_m": list(height_range),
+            **status_fields(model, warning, *coverage.pop("warnings")),
+            **coverage,
+            "rpcs": fits,
+            "check_max_px": max(f["fit"]["check_max_px"] for f in fits),
+            "seconds": round(time.perf_counter() - t0, 3),
+        }
+        write_summary(staged[-1], summary)
     return summary

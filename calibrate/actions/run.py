@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.actions._io import staged_output
 from calibrate.actions.calibrate import calibrate_scene
 from calibrate.actions.match import match_scene
 from calibrate.actions._status import FailedCalibrationError, require_usable, status_fields
@@ -141,6 +142,7 @@ def _own_status(out_dir: Path, summary: dict) -> dict:
     return status_fields(calibrated, warning)
 
 
+@staged_output("out_dir", inputs=("scene_path", "dom_path", "dem_path", "geoid", "star_frames"), prefix=".run-")
 def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_datum=None, geoid=None,
               min_gcps: int = MIN_GCPS, min_coverage: float = MIN_COVERAGE, spacing_px: int = 16,
               progress=None) -> dict:
@@ -179,7 +181,7 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
 
     t0 = time.perf_counter()
     step = progress or (lambda m: None)
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir)  # the staging folder (staged_output)
     model = open_model(scene_path)
     if star_frames is not None:  # frames of another camera are refused before any work
         read_star_inputs(star_frames, scene_model=model, scene_source=scene_path)

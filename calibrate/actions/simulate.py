@@ -6,9 +6,8 @@ The only action module that imports :mod:`sensor_models.simulate` (production st
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
-from calibrate.actions._io import open_dem, write_summary
+from calibrate.actions._io import check_output_files, final_paths, open_dem, staged_files, staged_folder, write_summary
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
 
@@ -63,8 +62,10 @@ def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, g
     """
     from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
 
-    return simulate_pushbroom(Path(out_dir), config=config, dom=dom_path, dem=dem_path, geoid=geoid, workers=workers,
-                              progress=progress)
+    with staged_folder(out_dir, ".simulate-", inputs=[dom_path, dem_path, geoid]) as stage:
+        summary = simulate_pushbroom(stage, config=config, dom=dom_path, dem=dem_path, geoid=geoid, workers=workers,
+                                     progress=progress)
+    return final_paths(summary, stage, out_dir)
 
 
 def simulate_validation_series(out_dir, n_scenes: int, *, seed: int = 0, config_path=None, cloud_fractions=(),
@@ -96,9 +97,12 @@ def simulate_validation_series(out_dir, n_scenes: int, *, seed: int = 0, config_
     from sensor_models.simulate.config import load_config
     from sensor_models.simulate.series import simulate_series
 
-    return simulate_series(Path(out_dir), n_scenes, base_config=load_config(config_path), seed=seed,
-                           cloud_fractions=tuple(cloud_fractions), calibration_scene=calibration_scene,
-                           workers=workers)
+    base_config = load_config(config_path)
+    with staged_folder(out_dir, ".simulate-", inputs=[config_path]) as stage:
+        folders = simulate_series(stage, n_scenes, base_config=base_config, seed=seed,
+                                  cloud_fractions=tuple(cloud_fractions), calibration_scene=calibration_scene,
+                                  workers=workers)
+    return final_paths(folders, stage, out_dir)
 
 
 def simulate_geo_earth_scene(out_dir, *, seed=None, config_path=None, dom_path=None, dem_path=None,
@@ -128,7 +132,9 @@ def simulate_geo_earth_scene(out_dir, *, seed=None, config_path=None, dom_path=N
     cfg = load_geo_config(config_path)
     if seed is not None:
         cfg = replace(cfg, seed=seed)
-    return simulate_geo_earth(Path(out_dir), config=cfg, dom=dom_path, dem=dem_path, geoid=geoid)
+    with staged_folder(out_dir, ".simulate-", inputs=[dom_path, dem_path, geoid]) as stage:
+        summary = simulate_geo_earth(stage, config=cfg, dom=dom_path, dem=dem_path, geoid=geoid)
+    return final_paths(summary, stage, out_dir)
 
 
 def simulate_geo_star_frames(out_dir, *, seed: int = 0, n_frames: int = 120, frame_interval_s: float = 10.0,
@@ -155,8 +161,10 @@ def simulate_geo_star_frames(out_dir, *, seed: int = 0, n_frames: int = 120, fra
     """
     from sensor_models.simulate.geo_stars import simulate_geo_stars
 
-    return simulate_geo_stars(out_dir, seed=seed, n_frames=n_frames, frame_interval_s=frame_interval_s,
-                              mag_limit=mag_limit)
+    with staged_folder(out_dir, ".simulate-") as stage:
+        summary = simulate_geo_stars(stage, seed=seed, n_frames=n_frames, frame_interval_s=frame_interval_s,
+                                     mag_limit=mag_limit)
+    return final_paths(summary, stage, out_dir)
 
 
 def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geoid=None, heights_m=None,
@@ -186,6 +194,8 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
     from sensor_models.readers import open_model
     from sensor_models.simulate.truth import truth_error
 
+    if out_path:  # before any work
+        check_output_files(out_path)
     true_model = open_model(truth_path)
     model = open_model(model_path)
     warning = require_usable(model, model_path, command="truth error")
@@ -197,5 +207,6 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
     result = truth_error(true_model, model, dem=dem, step_px=step_px, heights_m=heights_m)
     result = {**result, **status_fields(model, warning, *coverage.pop("warnings")), **coverage}
     if out_path:
-        write_summary(Path(out_path), result)
+        with staged_files(out_path) as (json_tmp,):
+            write_summary(json_tmp, result)
     return result

@@ -16,6 +16,7 @@ import json
 import time
 from pathlib import Path
 
+from calibrate.actions._io import staged_output
 from calibrate.config import StarOptions
 from sensor_models.errors import InputError
 
@@ -68,6 +69,7 @@ def read_star_inputs(frames_path, manifest=None, *, scene_model=None, scene_sour
     return frames, seconds, manifest, lab
 
 
+@staged_output("out_dir", inputs=("frames_path", "manifest"), prefix=".stars-")
 def stars_sequence(frames_path, out_dir, *, manifest=None, options: StarOptions = StarOptions(),
                    versus_points=(10, 15, 20, 25)) -> dict:
     """Read the frames, calibrate from the star tracks, write ``stars.json``, the manifest, the report.
@@ -99,8 +101,7 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, options: StarOptions 
     frames, seconds, manifest, lab = read_star_inputs(frames_path, manifest)
     catalog, mag_limit = options.catalog, options.mag_limit
     result = process_frames(frames, seconds, lab, options=options, versus_points=versus_points)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = Path(out_dir)  # the staging folder (staged_output)
     doc = result.to_dict(points=True)
     doc["inputs"] = {"frames": str(frames_path), "manifest": str(manifest), "catalog": str(catalog),
                      "mag_limit": mag_limit}

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from calibrate.actions._io import staged_folder
+from calibrate.actions._io import check_output_folder, staged_folder
 from sensor_models.errors import InputError
 
 __all__ = ["thermal_experiment"]
@@ -59,6 +59,7 @@ def thermal_experiment(out_dir, *, days: float = 5.0, interval_min: float = 30.0
 
     if not (days > holdout_days > 0 and interval_min > 0):
         raise InputError("needs days > holdout_days > 0 and interval_min > 0", field="days")
+    check_output_folder(out_dir)  # before any work
     t_start = time.perf_counter()
     lab = example_geo_staring_model()
     drift = ThermalDrift()

@@ -25,6 +25,7 @@ import numpy as np
 
 from calibrate._json import json_safe
 from calibrate.batch import COLUMNS
+from calibrate.actions._io import final_paths, staged_folder
 from sensor_models.errors import InputError
 
 __all__ = ["check_scheduler_address", "run_validation", "validate_calibration", "write_outputs",
@@ -99,10 +100,12 @@ def validate_calibration(sites_path, calibration, out_dir, *, scheduler=None, wo
         check_scheduler_address(scheduler)
     warning = open_usable_calibration(calibration, command="validate")[2]  # a failed calibration is refused
     sites = read_sites(sites_path)
-    if progress is not None:
-        progress(0, len(sites), None)
-    rows, summary = run_validation(sites, calibration, Path(out_dir), scheduler=scheduler, workers=workers,
-                                   progress=progress, spacing_px=spacing_px, timeout_s=timeout_s)
+    with staged_folder(out_dir, ".validate-", inputs=[sites_path, calibration]) as stage:
+        if progress is not None:
+            progress(0, len(sites), None)
+        rows, summary = run_validation(sites, calibration, stage, scheduler=scheduler, workers=workers,
+                                       progress=progress, spacing_px=spacing_px, timeout_s=timeout_s)
+    rows, summary = final_paths(rows, stage, out_dir), final_paths(summary, stage, out_dir)
     summary["sites_file"] = str(sites_path)
     return {**summary, "warnings": [warning] if warning else [], "rows": rows}
 

@@ -9,14 +9,17 @@ boundary (:mod:`calibrate.cli._errors`). Library code never calls ``sys.exit``.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import signal
 import sys
+import threading
 
 import click
 
 from calibrate.cli import (calibrate, compensate, demo, localize, match, oalr, ortho, relative, rpc, run, simulate,
                            stars, thermal, truth, validate)
-from calibrate.cli._errors import run_guarded
+from calibrate.cli._errors import quiet_cluster_logs, run_guarded
 from calibrate.cli.options import add_options, verbosity_options
 from sensor_models import __version__
 
@@ -68,6 +71,27 @@ def _verbosity(args: list[str]) -> int:
     return count
 
 
+#: Commands that start a Dask cluster: their workers ignore Ctrl-C (calibrate.actions._worker_signals).
+_CLUSTER_COMMANDS = ("validate",)
+
+
+def _worker_config(args: list[str]):
+    """A dask.config context whose workers load :mod:`calibrate.actions._worker_signals`, or a no-op."""
+    if not any(command in args for command in _CLUSTER_COMMANDS):
+        return contextlib.nullcontext()
+    import dask.config
+    import distributed.config  # noqa: F401  its defaults first: the context restores a snapshot on exit
+
+    preload = list(dask.config.get("distributed.worker.preload", default=None) or [])
+    return dask.config.set({"distributed.worker.preload": preload + ["calibrate.actions._worker_signals"]})
+
+
+def _on_interrupt(signum, frame):
+    """SIGINT: quiet the Dask cluster's loggers, then interrupt as Python does."""
+    quiet_cluster_logs()
+    raise KeyboardInterrupt
+
+
 def main(argv=None) -> int:
     """Console entry point: run the CLI inside the error boundary.
 
@@ -82,5 +106,13 @@ def main(argv=None) -> int:
         The exit code: 0 ok, 1 input/I/O, 2 usage, 3 failed, 4 partial, 130 interrupted.
     """
     args = list(sys.argv[1:] if argv is None else argv)
-    return run_guarded(lambda: cli.main(args=args, prog_name="gcpcal", standalone_mode=False),
-                       verbose=_verbosity(args))
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, _on_interrupt)
+    try:
+        with _worker_config(args):
+            return run_guarded(lambda: cli.main(args=args, prog_name="gcpcal", standalone_mode=False),
+                               verbose=_verbosity(args))
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)

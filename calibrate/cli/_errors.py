@@ -18,13 +18,15 @@ prints ``gcpcal: internal error: <type>: <message>`` and, with ``-v``, its trace
 
 from __future__ import annotations
 
+import logging
 import traceback
 
 import click
 
 from sensor_models.errors import GcpcalError
 
-__all__ = ["EXIT_FAILED", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE", "run_guarded"]
+__all__ = ["EXIT_FAILED", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE",
+           "quiet_cluster_logs", "run_guarded"]
 
 EXIT_OK = 0
 EXIT_INPUT = 1
@@ -32,6 +34,21 @@ EXIT_USAGE = 2
 EXIT_FAILED = 3
 EXIT_PARTIAL = 4
 EXIT_INTERRUPTED = 130
+
+
+#: Loggers silenced once Ctrl-C arrives: a closing Dask cluster logs each worker's end.
+_CLUSTER_LOGGERS = ("distributed", "dask", "tornado", "asyncio")
+
+
+def quiet_cluster_logs() -> None:
+    """Disable the Dask cluster's loggers (and their children) for the rest of the process.
+
+    Called when the user interrupts: the cluster then closes without a line per worker.
+    """
+    names = list(logging.root.manager.loggerDict) + list(_CLUSTER_LOGGERS)
+    for name in names:
+        if name.split(".")[0] in _CLUSTER_LOGGERS:
+            logging.getLogger(name).disabled = True
 
 
 def _say(message: str) -> None:
@@ -53,6 +70,22 @@ def _os_error_message(exc: OSError) -> str:
     return what
 
 
+def _rasterio_message(exc: BaseException) -> str:
+    """``Read failed: <file>, band 1: IReadBlock failed ...``: rasterio's line, with GDAL's cause.
+
+    rasterio's ``Read failed. See previous exception for details.`` names no file; the GDAL
+    error it chains from does (``scene.tif, band 1: ...``), so the two are joined.
+    """
+    text = _one_line(exc) or type(exc).__name__
+    cause = exc.__cause__ or exc.__context__
+    if cause is None or not text.endswith("See previous exception for details."):
+        return text
+    head = text[: -len("See previous exception for details.")].strip().rstrip(".")
+    detail = _one_line(cause)
+    hint = " (truncated or corrupt raster?)" if head.lower().startswith("read failed") else ""
+    return f"{head}: {detail}{hint}" if detail else head
+
+
 def _is_dask_error(exc: BaseException) -> bool:
     module = type(exc).__module__ or ""
     return module.split(".")[0] in ("dask", "distributed")
@@ -64,8 +97,10 @@ def _user_error_message(exc: BaseException) -> str | None:
 
     if isinstance(exc, GcpcalError):
         return str(exc)
+    if isinstance(exc, OSError) and exc.filename is not None:  # a file named by gcpcal (e.g. a failed write)
+        return _os_error_message(exc)
     if isinstance(exc, RasterioError):  # before OSError: RasterioIOError is both
-        return _one_line(exc) or type(exc).__name__
+        return _rasterio_message(exc)
     if isinstance(exc, OSError):
         return _os_error_message(exc)
     if _is_dask_error(exc):
@@ -93,6 +128,7 @@ def run_guarded(invoke, *, verbose: int = 0) -> int:
     try:
         rv = invoke()
     except (KeyboardInterrupt, click.exceptions.Abort):
+        quiet_cluster_logs()
         _say("interrupted")
         return EXIT_INTERRUPTED
     except click.exceptions.Exit as exc:
