@@ -25,7 +25,7 @@ import numpy as np
 
 from sensor_models.base import CalibrationStatus
 
-__all__ = ["CcdCoverage", "calibration_coverage", "calibration_status"]
+__all__ = ["BAND_LEFT_FOR_RELATIVE", "CcdCoverage", "calibration_coverage", "calibration_status"]
 
 _UNVERIFIED = "no check point on this detector array; its accuracy is not verified"
 
@@ -194,7 +194,11 @@ def _verdict(band, array, rows, cols, n_checks, n_rows, success, skip) -> CcdCov
                        calibrated=calibrated, verified=n_checks > 0, reason="; ".join(why))
 
 
-def calibration_status(success: bool, message: str, coverage) -> CalibrationStatus:
+#: reason recorded for a band that no GCP covers (the band-to-band calibration's job)
+BAND_LEFT_FOR_RELATIVE = "no GCP in this band: calibrate it against the reference band with gcpcal relative"
+
+
+def calibration_status(success: bool, message: str, coverage, *, bands_left=()) -> CalibrationStatus:
     """The run's status from the solve's outcome and the coverage of its detector arrays.
 
     Parameters
@@ -205,22 +209,29 @@ def calibration_status(success: bool, message: str, coverage) -> CalibrationStat
         The solve's message (kept for a failed run).
     coverage : sequence of CcdCoverage
         From :func:`calibration_coverage`.
+    bands_left : sequence of str
+        Bands of the model that no GCP covers: their interiors keep their initial values, so
+        they are listed as uncalibrated (:data:`BAND_LEFT_FOR_RELATIVE`) until ``gcpcal
+        relative`` calibrates them.
 
     Returns
     -------
     CalibrationStatus
-        ``failed`` when the solve failed; ``partial`` when an array is uncalibrated or
-        unverified (listed with their reasons); ``calibrated`` otherwise.
+        ``failed`` when the solve failed; ``partial`` when an array or a band is uncalibrated
+        or an array unverified (listed with their reasons); ``calibrated`` otherwise.
     """
     uncalibrated = [{"band": c.band, "ccd": c.ccd, "reason": c.reason.replace("; " + _UNVERIFIED, "")}
                     for c in coverage if not c.calibrated]
+    uncalibrated += [{"band": b, "ccd": "", "reason": BAND_LEFT_FOR_RELATIVE} for b in bands_left]
     unverified = [{"band": c.band, "ccd": c.ccd, "reason": _UNVERIFIED} for c in coverage if not c.verified]
     if not success:
         return CalibrationStatus("failed", message, uncalibrated, unverified)
     if uncalibrated or unverified:
         parts = []
-        if uncalibrated:
+        if any(not c.calibrated for c in coverage):
             parts.append("not calibrated: " + ", ".join(c.label for c in coverage if not c.calibrated))
+        if bands_left:
+            parts.append(f"band(s) {', '.join(bands_left)} without GCPs: run gcpcal relative")
         if unverified:
             parts.append("no check points: " + ", ".join(c.label for c in coverage if not c.verified))
         return CalibrationStatus("partial", "; ".join(parts), uncalibrated, unverified)

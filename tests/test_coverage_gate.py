@@ -142,7 +142,9 @@ def test_half_dem_calibration_is_partial(half_dem_gcps, tmp_path, capsys):
     assert doc["status"]["status"] == "partial" and len(doc["coverage"]) == 4
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["calibration"]["status"] == "partial"
-    assert {e["ccd"] for e in manifest["calibration"]["uncalibrated"]} == {"cam2_ccd1", "cam2_ccd2"}
+    assert {e["ccd"] for e in manifest["calibration"]["uncalibrated"] if e["ccd"]} == {"cam2_ccd1", "cam2_ccd2"}
+    # the bands without GCPs are named too: band-to-band calibration is still to run on them
+    assert {e["band"] for e in manifest["calibration"]["uncalibrated"] if not e["ccd"]} == {"B1", "B3", "B4"}
 
 
 def test_half_dem_report_names_uncalibrated(half_dem_gcps, tmp_path, capsys):
@@ -155,14 +157,24 @@ def test_half_dem_report_names_uncalibrated(half_dem_gcps, tmp_path, capsys):
     assert "Coverage per CCD" in html and "B2.cam2_ccd1: no GCP" in html and "partial" in html
 
 
-def test_full_dem_is_calibrated(full_gcps, tmp_path, capsys):
+def test_full_dem_is_partial_until_relative_then_calibrated(full_gcps, tmp_path, capsys):
+    """Absolute calibration of the reference band leaves the other bands to band-to-band
+    calibration: partial (exit 4) naming them, then `gcpcal relative` makes it calibrated."""
     code, stdout, _err = _run(capsys, ["calibrate", str(FIXTURE / "manifest.json"), "--gcps", str(full_gcps),
                                        "--out", str(tmp_path / "cal"), "--no-report"])
-    assert code == 0, stdout
+    assert code == 4, stdout
     summary = json.loads((tmp_path / "cal" / "calibrate.summary.json").read_text())
-    assert summary["status"] == "calibrated"
-    assert all(c["calibrated"] and c["verified"] for c in summary["coverage"])
+    assert summary["status"] == "partial"
+    assert all(c["calibrated"] and c["verified"] for c in summary["coverage"])  # every B2 CCD
     assert summary["variance_factor"] > 0
+    status = json.loads((tmp_path / "cal" / "manifest.json").read_text())["calibration"]
+    assert {(e["band"], e["ccd"]) for e in status["uncalibrated"]} == {("B1", ""), ("B3", ""), ("B4", "")}
+    code, stdout, err = _run(capsys, ["relative", str(FIXTURE / "manifest.json"), "--calibration",
+                                      str(tmp_path / "cal"), "--dem", str(FIXTURE / "reference" / "dem.tif"),
+                                      "--out", str(tmp_path / "rel")])
+    assert code == 0, stdout + err
+    status = json.loads((tmp_path / "rel" / "manifest.json").read_text())["calibration"]
+    assert status["status"] == "calibrated" and not status["uncalibrated"] and not status["unverified"]
 
 
 def _without(table_path, out_path, drop):

@@ -143,7 +143,9 @@ def _gate(model, table, result, band, acc_before, acc_after):
     lsq = getattr(result, "calibration", result)
     rows = calibration_coverage(model, fitted, checks, success=bool(result.success),
                                 skipped=getattr(lsq, "skipped", ()), weight=fitted["score"])
-    status = calibration_status(bool(result.success), result.message, rows)
+    gated = {c.band or model.reference_band for c in rows}  # a blank band is the reference band
+    bands_left = [b for b in model.bands if b is not None and b not in gated] if rows else []
+    status = calibration_status(bool(result.success), result.message, rows, bands_left=bands_left)
     coverage = []
     for c in rows:
         entry = c.to_dict()

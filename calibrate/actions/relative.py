@@ -212,12 +212,15 @@ def _output_status(result, input_status):
     if not result.bands:
         return CalibrationStatus("failed", "no band calibrated")
     failed = tuple({"band": b, "ccd": "", "reason": r.message} for b, r in result.bands.items() if not r.success)
-    input_partial = input_status is not None and input_status.status != "calibrated"
-    if not failed and not input_partial:
+    done = {b for b, r in result.bands.items() if r.success}
+    carried_u, carried_v = (), ()
+    if input_status is not None and input_status.status != "calibrated":
+        # a band the absolute calibration left to this step (no GCP in it) is settled when it succeeded
+        carried_u = tuple(e for e in input_status.uncalibrated if not (e["ccd"] == "" and e["band"] in done))
+        carried_v = tuple(input_status.unverified)
+    if not failed and not carried_u and not carried_v:
         return CalibrationStatus("calibrated")
     why = [f"band(s) {', '.join(e['band'] for e in failed)} not calibrated"] if failed else []
-    carried_u, carried_v = (), ()
-    if input_partial:
+    if carried_u or carried_v:
         why.append(f"reference calibration partial: {input_status.message}")
-        carried_u, carried_v = tuple(input_status.uncalibrated), tuple(input_status.unverified)
     return CalibrationStatus("partial", "; ".join(why), uncalibrated=carried_u + failed, unverified=carried_v)
