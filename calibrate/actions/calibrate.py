@@ -132,7 +132,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
 
 def _gate(model, table, result, band, acc_before, acc_after):
     """Per-CCD coverage rows (with check RMSE before/after) and the run's CalibrationStatus."""
-    from calibrate.coverage import calibration_coverage, calibration_status
+    from calibrate.coverage import apply_check_accuracy, calibration_coverage, calibration_status
 
     fitted = points_of(table.gcps(), model)
     if band is not None and fitted["band"] is None:
@@ -143,12 +143,13 @@ def _gate(model, table, result, band, acc_before, acc_after):
     lsq = getattr(result, "calibration", result)
     rows = calibration_coverage(model, fitted, checks, success=bool(result.success),
                                 skipped=getattr(lsq, "skipped", ()), weight=fitted["score"])
+    rmse = [(_group_rmse(acc_before, c, len(rows)), _group_rmse(acc_after, c, len(rows))) for c in rows]
+    rows = apply_check_accuracy(rows, rmse)
     status = calibration_status(bool(result.success), result.message, rows)
     coverage = []
-    for c in rows:
+    for c, (before, after) in zip(rows, rmse):
         entry = c.to_dict()
-        entry["check_rmse_px"] = {"before": _group_rmse(acc_before, c, len(rows)),
-                                  "after": _group_rmse(acc_after, c, len(rows))}
+        entry["check_rmse_px"] = {"before": before, "after": after}
         coverage.append(entry)
     return coverage, status
 
