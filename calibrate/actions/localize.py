@@ -158,6 +158,17 @@ def _check_dem_under_points(model, rows, cols, dem, kwargs) -> None:
                        f"lat {b[1]:.4f}..{b[3]:.4f}): give a DEM under the scene")
 
 
+def _check_dem_heights(h_m, dem) -> None:
+    """Refuse a localization on a DEM that left points without a height (voids)."""
+    from sensor_models.errors import DemError
+
+    h_m = np.atleast_1d(h_m)
+    n_bad = int(np.count_nonzero(~np.isfinite(h_m)))
+    if n_bad:
+        raise DemError(f"{dem.source or 'DEM'}: {n_bad} of the {h_m.size} points fall in DEM voids (no height "
+                       f"there): fill the voids or give --height")
+
+
 def localize_points(model_path, points: dict, *, direction: str, height=None, dem_path=None, dem_datum=None,
                     geoid=None, band=None, out_path=None) -> dict:
     """Localize points through a model and write them (with a summary) when ``out_path`` is given.
@@ -211,6 +222,7 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
             dem = open_dem(dem_path, dem_datum, geoid)
             _check_dem_under_points(model, r, c, dem, kwargs)
             lo, la, hh = model.image_to_ground(r, c, dem=dem, **kwargs)
+            _check_dem_heights(hh, dem)
         else:
             lo, la, hh = model.image_to_ground(r, c, height=height, **kwargs)
     else:

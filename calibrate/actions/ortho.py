@@ -11,6 +11,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numpy as np
+
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import open_usable_calibration, require_usable, status_fields
 from calibrate.config import OrthoOptions
@@ -78,6 +80,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
             raise InputError(f"the scene lists no raster for band {key!r}; give --image", path=str(scene_path))
         image = (rasters[key]["path"], int(rasters[key].get("index", 1)))
     dem = open_dem(dem_path, dem_datum, geoid)
+    dem_figures = _dem_under_scene(geometry, dem, band)
     say = progress or (lambda done, total: None)
     # today's keywords of the library, unpacked from the options in this one place
     with staged_files(out_path, summary_path) as (tif_tmp, summary_tmp):
@@ -92,7 +95,8 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
             "model_kind": geometry.kind,
             "image": str(image[0]) if isinstance(image, tuple) else str(image),
             "dem": str(dem_path),
-            **status_fields(geometry, scene_warning, calib_warning),
+            **status_fields(geometry, scene_warning, calib_warning, *dem_figures.pop("warnings")),
+            **dem_figures,
             **result,
             "ortho_seconds": result["seconds"],
             "seconds": round(time.perf_counter() - t0, 3),
@@ -100,3 +104,12 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
         summary["summary"] = str(summary_path)
         write_summary(summary_tmp, summary)
     return summary
+
+
+def _dem_under_scene(geometry, dem, band) -> dict:
+    """DEM coverage and voids over the scene footprint; refuses a DEM away or mostly void."""
+    from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
+
+    kwargs = {} if band is None or getattr(geometry, "bands", None) is None else {"band": band}
+    lon, lat = footprint_sample_lonlat(geometry, float(np.mean(dem.height_range_m)), **kwargs)
+    return check_dem_footprint(dem, lon, lat)
