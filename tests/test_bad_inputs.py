@@ -299,6 +299,8 @@ CASES = [
     # demo
     Case("demo", "output under a file", lambda b, w: ["demo", "--out", w / "afile" / "demo"], 1, ("afile",),
          _file_prep),
+    Case("demo", "output is a file", lambda b, w: ["demo", "--out", w / "afile"], 2, ("afile",), _file_prep),
+    Case("demo", "existing output", lambda b, w: ["demo", "--out", w / "demo"], 0, SAME, marks=(pytest.mark.slow,)),
     # match
     Case("match", "nonexistent scene", _match(scene=lambda b, w: b.missing_json), 1),
     Case("match", "empty manifest", _match(scene=lambda b, w: b.empty_json), 1),
@@ -456,7 +458,7 @@ def _run(capsys, argv):
     return code, [line for line in err.splitlines() if line.strip()]
 
 
-@pytest.mark.parametrize("case", CASES, ids=[f"{c.command}: {c.case}" for c in CASES])
+@pytest.mark.parametrize("case", [pytest.param(c, marks=c.marks, id=f"{c.command}: {c.case}") for c in CASES])
 def test_bad_input_matrix(case: Case, bad, tmp_path, capsys):
     work = tmp_path / "work"
     work.mkdir()
@@ -613,3 +615,16 @@ def test_ctrl_c_during_validate_is_one_line_and_leaves_nothing(tmp_path, tmp_pat
     assert code == 130, lines
     assert lines == ["gcpcal: interrupted"]
     assert _files(work) == []
+
+
+# --------------------------------------------------------------------------- usage errors
+def test_usage_error_is_one_line_naming_the_help(capsys):
+    code, lines = _run(capsys, ["rpc", str(EXAMPLE), "--no-such-option"])
+    assert code == 2
+    assert lines == ["gcpcal: error: No such option '--no-such-option'. (gcpcal rpc --help)"]
+
+
+def test_usage_error_with_verbose_shows_click_usage(capsys):
+    assert main(["-v", "rpc", str(EXAMPLE), "--no-such-option"]) == 2
+    err = capsys.readouterr().err
+    assert "Usage: gcpcal rpc" in err and "No such option" in err
