@@ -628,3 +628,27 @@ def test_usage_error_with_verbose_shows_click_usage(capsys):
     assert main(["-v", "rpc", str(EXAMPLE), "--no-such-option"]) == 2
     err = capsys.readouterr().err
     assert "Usage: gcpcal rpc" in err and "No such option" in err
+
+
+# --------------------------------------------------------------------------- what the one line says
+def test_all_cloud_match_names_the_cloud_figure(bad, tmp_path, capsys):
+    code, lines = _run(capsys, ["-q", *map(str, _match(extra=("--image", str(bad.cloud_image)))(bad, tmp_path))])
+    assert code == 1 and len(lines) == 1
+    assert "cloud fraction unknown" in lines[0]
+    mask = tmp_path / "mask.tif"
+    _raster_copy(FIXTURE / "B2.tif", mask, edit=lambda a, p: (np.ones_like(a), p))
+    code, lines = _run(capsys, ["-q", *map(str, _match()(bad, tmp_path)), "--image", str(bad.cloud_image),
+                                "--mask", str(mask)])
+    assert code == 1 and len(lines) == 1
+    assert "the mask marks 100 % of the scene as cloud" in lines[0]
+    assert _files(tmp_path) == ["mask.tif"]
+
+
+def test_geotiff_over_its_limit_is_refused_before_matching(bad, tmp_path, capsys, monkeypatch):
+    calls = []
+    monkeypatch.setattr("calibrate.actions.match.extract_gcps", lambda *a, **k: calls.append(1))
+    code, lines = _run(capsys, ["-q", *map(str, _match(extra=("--geotiff", str(tmp_path / "g.tif"), "--spacing",
+                                                              "2"))(bad, tmp_path))])
+    assert code == 1 and len(lines) == 1
+    assert "a GeoTIFF holds at most 10922" in lines[0] and "--spacing" in lines[0]
+    assert calls == [] and _files(tmp_path) == []
