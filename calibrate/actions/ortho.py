@@ -95,7 +95,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
             "model_kind": geometry.kind,
             "image": str(image[0]) if isinstance(image, tuple) else str(image),
             "dem": str(dem_path),
-            **status_fields(geometry, scene_warning, calib_warning, *dem_figures.pop("warnings")),
+            **status_fields(geometry, scene_warning, calib_warning),
             **dem_figures,
             **result,
             "ortho_seconds": result["seconds"],
@@ -107,9 +107,13 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
 
 
 def _dem_under_scene(geometry, dem, band) -> dict:
-    """DEM coverage and voids over the scene footprint; refuses a DEM away or mostly void."""
+    """``dem_coverage`` and ``dem_void_fraction`` over the scene footprint; refuses a DEM away or mostly void.
+
+    Part of an ortho outside the DEM is no-data, which the summary's valid share shows: no warning.
+    """
     from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
 
     kwargs = {} if band is None or getattr(geometry, "bands", None) is None else {"band": band}
     lon, lat = footprint_sample_lonlat(geometry, float(np.mean(dem.height_range_m)), **kwargs)
-    return check_dem_footprint(dem, lon, lat)
+    figures = check_dem_footprint(dem, lon, lat)
+    return {"dem_coverage": figures["dem_coverage"], "dem_void_fraction": figures["dem_void_fraction"]}
