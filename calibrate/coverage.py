@@ -11,6 +11,15 @@ fraction of the array's detectors between its leftmost and rightmost point). It 
   ``CalibrationResult.skipped``);
 * **verified**: the array has at least one check point (never used in the fit).
 
+Two more rules keep a fit that is wrong from being called calibrated:
+
+* **points far outside the image**: an array with a fitted GCP more than
+  :data:`OUTSIDE_MARGIN` of the image's size outside the image (rows ``[0, n_rows]``, columns
+  ``[0, n_cols]``) is not calibrated: such a point was measured on another image or mistyped,
+  and a fit through it extrapolates;
+* **check accuracy worse after than before**: an array whose check-point RMSE after the
+  calibration exceeds its RMSE before (:func:`apply_check_accuracy`) is not calibrated.
+
 The run's status (:class:`sensor_models.base.CalibrationStatus`) follows: ``failed`` when the
 solve failed, ``partial`` when any array is uncalibrated or unverified, else ``calibrated``.
 Only the bands the GCP table holds are gated: the other bands are the job of the band-to-band
@@ -19,15 +28,19 @@ relative calibration (:mod:`calibrate.relative`).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from sensor_models.base import CalibrationStatus
 
-__all__ = ["BAND_LEFT_FOR_RELATIVE", "CcdCoverage", "calibration_coverage", "calibration_status"]
+__all__ = ["BAND_LEFT_FOR_RELATIVE", "OUTSIDE_MARGIN", "CcdCoverage", "apply_check_accuracy", "calibration_coverage",
+           "calibration_status"]
 
 _UNVERIFIED = "no check point on this detector array; its accuracy is not verified"
+
+#: Share of the image's size (rows, columns) a fitted GCP may lie outside the image.
+OUTSIDE_MARGIN = 0.1
 
 
 @dataclass(frozen=True)
@@ -166,13 +179,58 @@ def calibration_coverage(model, gcps: dict, checks: dict | None, *, success: boo
     checked = _per_array_points(model, checks, bands_list, default_band)
     reasons = _skip_reasons(skipped, getattr(model, "interior_layout", "none"))
     n_rows = float(model.image_shape[0])
+    outside = _outside_image(gcps, model.image_shape, bands_list, default_band)
     out = []
     for b in bands_list:
         for k, array in enumerate(model.detector_arrays(b or None)):
             rows, cols = fitted.get((b, k), (np.empty(0), np.empty(0)))
             n_checks = checked.get((b, k), (np.empty(0),))[0].size
-            skip = reasons.get((b, array.name), reasons.get((b, None)))
+            skip = reasons.get((b, array.name), reasons.get((b, None))) or outside.get(b)
             out.append(_verdict(b, array, rows, cols, n_checks, n_rows, success, skip))
+    return out
+
+
+def _outside_image(points, image_shape, bands_list, default_band) -> dict:
+    """``{band: reason}`` of the bands with fitted GCPs far outside the image."""
+    if points is None or points["row"].size == 0:
+        return {}
+    n_rows, n_cols = (float(n) for n in image_shape)
+    row, col = np.asarray(points["row"], dtype=float), np.asarray(points["col"], dtype=float)
+    far = ((row < -OUTSIDE_MARGIN * n_rows) | (row > (1 + OUTSIDE_MARGIN) * n_rows)
+           | (col < -OUTSIDE_MARGIN * n_cols) | (col > (1 + OUTSIDE_MARGIN) * n_cols) | ~np.isfinite(row + col))
+    band = _band_of(points, default_band)
+    out = {}
+    for b in bands_list:
+        n_far = int(np.count_nonzero(far & (band == b)))
+        if n_far:
+            out[b] = (f"{n_far} GCP(s) lie more than {100 * OUTSIDE_MARGIN:.0f} % of the image outside it "
+                      f"({n_rows:.0f} x {n_cols:.0f} px): measured on another image?")
+    return out
+
+
+def apply_check_accuracy(coverage, check_rmse_px) -> list[CcdCoverage]:
+    """Withdraw "calibrated" from the arrays whose check accuracy got worse.
+
+    Parameters
+    ----------
+    coverage : sequence of CcdCoverage
+        From :func:`calibration_coverage`.
+    check_rmse_px : sequence of (float or None, float or None)
+        Check-point RMSE before and after the calibration, pixels, one pair per entry of
+        ``coverage`` (None where unknown: no rule applies).
+
+    Returns
+    -------
+    list of CcdCoverage
+        ``coverage`` with ``calibrated=False`` and the reason added where the RMSE after
+        exceeds the RMSE before.
+    """
+    out = []
+    for c, (before, after) in zip(coverage, check_rmse_px):
+        if c.calibrated and before is not None and after is not None and after > before:
+            why = f"its check RMSE got worse ({before:.3f} -> {after:.3f} px): the fit does not hold there"
+            c = replace(c, calibrated=False, reason="; ".join(r for r in (why, c.reason) if r))
+        out.append(c)
     return out
 
 

@@ -148,9 +148,12 @@ IFOV_TOLERANCE = 0.02
 def _frame_shape(frame) -> tuple[int, int]:
     """``(n_rows, n_cols)`` of a frame raster, from its header."""
     import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
 
-    with rasterio.open(frame) as ds:
-        return int(ds.height), int(ds.width)
+    with warnings.catch_warnings():  # star frames have no map geometry: no warning line
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(frame) as ds:
+            return int(ds.height), int(ds.width)
 
 
 def check_frames_camera(frames, listed_model, model, *, frames_source, model_source) -> None:

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from gcpmatch.clouds import detect_clouds, low_texture
-from gcpmatch.coarse import coarse_match, scene_height_m
+from gcpmatch.coarse import CoarseMatchError, coarse_match, scene_height_m
 from gcpmatch.coverage import reference_coverage
 from gcpmatch.gcps import GcpTable
 from gcpmatch.options import MatchOptions
@@ -34,7 +34,7 @@ from gcpmatch.phase import Reject, phase_correlate
 from gcpmatch.reference import reference_for_ccd, reference_for_image
 from sensor_models.errors import InputError
 
-__all__ = ["MatchOptions", "extract_gcps", "read_band"]
+__all__ = ["MatchOptions", "extract_gcps", "read_band", "window_count"]
 
 REASONS = ("no_reference", "no_data", "cloud", "no_texture", "flat", "not_finite", "out_of_range",
            "low_score", "low_peak_ratio", "inconsistent", "model_residual")
@@ -48,6 +48,29 @@ def _grid_starts(n: int, window: int, spacing: int) -> np.ndarray:
     last = n - window
     starts = np.arange(0, last + 1, spacing)
     return starts if starts[-1] == last else np.append(starts, last)
+
+
+def window_count(model, band: str, options: MatchOptions) -> int:
+    """Matching windows over every detector array of a band: an upper bound of the GCP count.
+
+    Parameters
+    ----------
+    model : SensorModel
+        The scene's model (``image_shape``, ``detector_arrays``).
+    band : str
+        Band to match.
+    options : MatchOptions
+        ``window_px`` and ``spacing_px`` (pixels) place the windows, as :func:`extract_gcps` does.
+
+    Returns
+    -------
+    int
+        Number of windows (each gives at most one GCP or check point).
+    """
+    n_rows = model.image_shape[0]
+    rows = _grid_starts(n_rows, options.window_px, options.spacing_px).size
+    return int(sum(rows * _grid_starts(look.n_detectors, options.window_px, options.spacing_px).size
+                   for look in model.detector_arrays(band)))
 
 
 def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndarray | None = None,
@@ -89,7 +112,10 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
     opt = options.validate()
     t0 = time.perf_counter()
     scene = _checked_scene(model, scene, mask)
-    coarse = _coarse_stage(scene, model, dem, dom, band, opt)
+    try:
+        coarse = _coarse_stage(scene, model, dem, dom, band, opt)
+    except CoarseMatchError as exc:  # name the cloud figure: clouds are a common cause
+        raise CoarseMatchError(f"{exc}; {_cloud_note(scene, mask)}") from exc
     timings = {"coarse_s": time.perf_counter() - t0}
     model_pc = coarse.model
     if progress:
@@ -131,6 +157,15 @@ def _checked_scene(model, scene, mask) -> np.ndarray:
     if mask is not None and mask.shape != scene.shape:
         raise InputError(f"the mask is {mask.shape}, the scene {scene.shape}")
     return scene
+
+
+def _cloud_note(scene: np.ndarray, mask) -> str:
+    """The cloud figure known before the coarse stage: the mask's share, or "unknown"."""
+    valid = np.isfinite(scene) & (scene != 0)
+    if mask is not None and valid.any():
+        return f"the mask marks {100 * np.count_nonzero(mask & valid) / np.count_nonzero(valid):.0f} % of the scene as cloud"
+    return ("cloud fraction unknown (the cloud detector needs the pre-corrected model; give --mask to name the "
+            "clouds)")
 
 
 def _coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):

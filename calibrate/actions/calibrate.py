@@ -132,7 +132,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
 
 def _gate(model, table, result, band, acc_before, acc_after):
     """Per-CCD coverage rows (with check RMSE before/after) and the run's CalibrationStatus."""
-    from calibrate.coverage import calibration_coverage, calibration_status
+    from calibrate.coverage import apply_check_accuracy, calibration_coverage, calibration_status
 
     fitted = points_of(table.gcps(), model)
     if band is not None and fitted["band"] is None:
@@ -143,14 +143,15 @@ def _gate(model, table, result, band, acc_before, acc_after):
     lsq = getattr(result, "calibration", result)
     rows = calibration_coverage(model, fitted, checks, success=bool(result.success),
                                 skipped=getattr(lsq, "skipped", ()), weight=fitted["score"])
+    rmse = [(_group_rmse(acc_before, c, len(rows)), _group_rmse(acc_after, c, len(rows))) for c in rows]
+    rows = apply_check_accuracy(rows, rmse)
     gated = {c.band or model.reference_band for c in rows}  # a blank band is the reference band
     bands_left = [b for b in model.bands if b is not None and b not in gated] if rows else []
     status = calibration_status(bool(result.success), result.message, rows, bands_left=bands_left)
     coverage = []
-    for c in rows:
+    for c, (before, after) in zip(rows, rmse):
         entry = c.to_dict()
-        entry["check_rmse_px"] = {"before": _group_rmse(acc_before, c, len(rows)),
-                                  "after": _group_rmse(acc_after, c, len(rows))}
+        entry["check_rmse_px"] = {"before": before, "after": after}
         coverage.append(entry)
     return coverage, status
 

@@ -143,6 +143,32 @@ def _write_csv(out_path: Path, table: dict, summary: dict) -> None:
         write_summary(summary_tmp, summary | {"output": str(out_path)})
 
 
+def _check_dem_under_points(model, rows, cols, dem, kwargs) -> None:
+    """Refuse a DEM that is not under every point to localize (its points would come back NaN)."""
+    from sensor_models.errors import DemError
+
+    lon, lat, _ = model.image_to_ground(rows, cols, height=float(np.mean(dem.height_range_m)), **kwargs)
+    lon, lat = np.atleast_1d(lon), np.atleast_1d(lat)
+    coverage = dem.coverage_fraction(lon, lat) if lon.size else 1.0
+    if coverage < 1.0:
+        b = dem.bounds_lonlat
+        raise DemError(f"{dem.source or 'DEM'}: the DEM is under {100 * coverage:.1f} % of the {lon.size} points "
+                       f"to localize (points lon {np.nanmin(lon):.4f}..{np.nanmax(lon):.4f}, lat "
+                       f"{np.nanmin(lat):.4f}..{np.nanmax(lat):.4f}; the DEM spans lon {b[0]:.4f}..{b[2]:.4f}, "
+                       f"lat {b[1]:.4f}..{b[3]:.4f}): give a DEM under the scene")
+
+
+def _check_dem_heights(h_m, dem) -> None:
+    """Refuse a localization on a DEM that left points without a height (voids)."""
+    from sensor_models.errors import DemError
+
+    h_m = np.atleast_1d(h_m)
+    n_bad = int(np.count_nonzero(~np.isfinite(h_m)))
+    if n_bad:
+        raise DemError(f"{dem.source or 'DEM'}: {n_bad} of the {h_m.size} points fall in DEM voids (no height "
+                       f"there): fill the voids or give --height")
+
+
 def localize_points(model_path, points: dict, *, direction: str, height=None, dem_path=None, dem_datum=None,
                     geoid=None, band=None, out_path=None) -> dict:
     """Localize points through a model and write them (with a summary) when ``out_path`` is given.
@@ -193,7 +219,10 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     if direction == "direct":
         r, c = points["row"], points["col"]
         if dem_path is not None:
-            lo, la, hh = model.image_to_ground(r, c, dem=open_dem(dem_path, dem_datum, geoid), **kwargs)
+            dem = open_dem(dem_path, dem_datum, geoid)
+            _check_dem_under_points(model, r, c, dem, kwargs)
+            lo, la, hh = model.image_to_ground(r, c, dem=dem, **kwargs)
+            _check_dem_heights(hh, dem)
         else:
             lo, la, hh = model.image_to_ground(r, c, height=height, **kwargs)
     else:

@@ -9,7 +9,7 @@ import numpy as np
 
 from calibrate.actions._io import check_output_files, staged_files
 from calibrate.actions._scene import crop_to_raster
-from gcpmatch.extract import extract_gcps, read_band
+from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
 from sensor_models.errors import InputError
 
@@ -69,6 +69,8 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     scene = read_band(model, band, image)
     if image is not None and scene.shape != tuple(model.image_shape) and hasattr(model, "cropped"):
         model = crop_to_raster(model, image, scene.shape)
+    if geotiff_path is not None:  # before any work: the GeoTIFF's size limit, from the window count
+        _check_geotiff_capacity(model, band, options, geotiff_path)
     dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
     dom = MapImage.open(dom_path)
     mask = None
@@ -92,3 +94,13 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",
                          path=str(scene_path))
     return summary
+
+
+def _check_geotiff_capacity(model, band, options: MatchOptions, geotiff_path) -> None:
+    """Refuse ``--geotiff`` when the windows could give more GCPs than a GeoTIFF holds."""
+    from gcpmatch.gcps import GEOTIFF_MAX_GCPS
+
+    n_windows = window_count(model, band, options)
+    if n_windows > GEOTIFF_MAX_GCPS:
+        raise InputError(f"{geotiff_path}: up to {n_windows} GCPs ({n_windows} windows) and a GeoTIFF holds at most "
+                         f"{GEOTIFF_MAX_GCPS}: raise --spacing or write --gpkg instead", path=str(geotiff_path))

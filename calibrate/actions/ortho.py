@@ -11,6 +11,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numpy as np
+
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import open_usable_calibration, require_usable, status_fields
 from calibrate.config import OrthoOptions
@@ -78,6 +80,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
             raise InputError(f"the scene lists no raster for band {key!r}; give --image", path=str(scene_path))
         image = (rasters[key]["path"], int(rasters[key].get("index", 1)))
     dem = open_dem(dem_path, dem_datum, geoid)
+    dem_figures = _dem_under_scene(geometry, dem, band)
     say = progress or (lambda done, total: None)
     # today's keywords of the library, unpacked from the options in this one place
     with staged_files(out_path, summary_path) as (tif_tmp, summary_tmp):
@@ -93,6 +96,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
             "image": str(image[0]) if isinstance(image, tuple) else str(image),
             "dem": str(dem_path),
             **status_fields(geometry, scene_warning, calib_warning),
+            **dem_figures,
             **result,
             "ortho_seconds": result["seconds"],
             "seconds": round(time.perf_counter() - t0, 3),
@@ -100,3 +104,16 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
         summary["summary"] = str(summary_path)
         write_summary(summary_tmp, summary)
     return summary
+
+
+def _dem_under_scene(geometry, dem, band) -> dict:
+    """``dem_coverage`` and ``dem_void_fraction`` over the scene footprint; refuses a DEM away or mostly void.
+
+    Part of an ortho outside the DEM is no-data, which the summary's valid share shows: no warning.
+    """
+    from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
+
+    kwargs = {} if band is None or getattr(geometry, "bands", None) is None else {"band": band}
+    lon, lat = footprint_sample_lonlat(geometry, float(np.mean(dem.height_range_m)), **kwargs)
+    figures = check_dem_footprint(dem, lon, lat)
+    return {"dem_coverage": figures["dem_coverage"], "dem_void_fraction": figures["dem_void_fraction"]}

@@ -74,7 +74,7 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
         Missing or malformed files, unknown band, a calibration of another scene.
     """
     from calibrate.relative import relative_calibration
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
 
     from calibrate.actions._status import open_usable_calibration
 
@@ -84,6 +84,7 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     with staged_folder(out_dir, ".relative-", inputs=inputs) as stage:  # checks the output path first
         scene, cal_path, calibrated, reference_band = _open_models(scene_path, calibration, reference_band)
         dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
+        check_dem_footprint(dem, *footprint_sample_lonlat(calibrated, float(np.mean(dem.height_range_m))))
         images = _LazyBands(scene)  # the reference band and one other band in memory at a time
         result = relative_calibration(calibrated, images, dem, reference_band=reference_band, window_px=window_px,
                                       spacing_px=spacing_px, rows=rows, robust=options.robust, progress=progress)

@@ -6,7 +6,8 @@ code   meaning
 0      success
 1      input or I/O error (bad or missing file, unwritable folder, full disk, unreadable raster,
        unreachable Dask scheduler), or an internal error
-2      usage error (bad option or argument; click's own messages)
+2      usage error (bad option or argument): one line ``gcpcal: error: <message> (gcpcal <command>
+       --help)``; with ``-v`` click's usage and hint too
 3      the stage ran but failed (no convergence, every validation scene failed, ...)
 4      partial success (some validation scenes failed, their rows say why)
 130    interrupted (Ctrl-C)
@@ -86,6 +87,14 @@ def _rasterio_message(exc: BaseException) -> str:
     return f"{head}: {detail}{hint}" if detail else head
 
 
+def _usage_error_line(exc: click.UsageError) -> str:
+    """``error: <message> (gcpcal <command> --help)``: click's usage, hint and error in one line."""
+    message = _one_line(exc.format_message()) or "bad usage"
+    ctx = exc.ctx
+    command = ctx.command_path if ctx is not None else "gcpcal"
+    return f"error: {message} ({command} --help)"
+
+
 def _is_dask_error(exc: BaseException) -> bool:
     module = type(exc).__module__ or ""
     return module.split(".")[0] in ("dask", "distributed")
@@ -132,6 +141,12 @@ def run_guarded(invoke, *, verbose: int = 0) -> int:
         _say("interrupted")
         return EXIT_INTERRUPTED
     except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.UsageError as exc:
+        if verbose >= 1:
+            exc.show()
+        else:
+            _say(_usage_error_line(exc))
         return exc.exit_code
     except click.ClickException as exc:
         exc.show()
