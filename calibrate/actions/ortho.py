@@ -68,21 +68,10 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
             raise InputError(f"the calibrated model describes a {geometry.image_shape[0]} x {geometry.image_shape[1]} "
                              f"px image, the scene {scene.image_shape[0]} x {scene.image_shape[1]}",
                              path=str(calib_file))
-    if band is None:
-        band = getattr(geometry, "reference_band", None)
-    bands = getattr(geometry, "bands", None)
-    if band is not None and bands is not None and band not in bands:
-        raise InputError(f"unknown band {band!r}; the model has {', '.join(bands)}", field="band")
-    if image is None:
-        rasters = getattr(scene, "rasters", None) or {}
-        key = band if band is not None else getattr(scene, "reference_band", None)
-        if key not in rasters:
-            raise InputError(f"the scene lists no raster for band {key!r}; give --image", path=str(scene_path))
-        image = (rasters[key]["path"], int(rasters[key].get("index", 1)))
+    band, image = _band_and_image(scene, geometry, band, image, scene_path)
     dem = open_dem(dem_path, dem_datum, geoid)
     dem_figures = _dem_under_scene(geometry, dem, band)
     say = progress or (lambda done, total: None)
-    # today's keywords of the library, unpacked from the options in this one place
     with staged_files(out_path, summary_path) as (tif_tmp, summary_tmp):
         result = orthorectify_to_file(geometry, image, dem, tif_tmp, crs=options.crs,
                                       resolution_m=options.resolution_m, band=band, resampling=options.resampling,
@@ -104,6 +93,23 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
         summary["summary"] = str(summary_path)
         write_summary(summary_tmp, summary)
     return summary
+
+
+def _band_and_image(scene, geometry, band, image, scene_path):
+    """The band to orthorectify (default: the reference band) and its raster (default: the scene's)."""
+    if band is None:
+        band = geometry.reference_band
+    if band is not None and band not in geometry.bands:
+        named = [str(b) for b in geometry.bands if b is not None]
+        raise InputError(f"unknown band {band!r}; the model has {', '.join(named) if named else 'no named band'}",
+                         field="band")
+    if image is None:
+        rasters = getattr(scene, "rasters", None) or {}
+        key = band if band is not None else scene.reference_band
+        if key not in rasters:
+            raise InputError(f"the scene lists no raster for band {key!r}; give --image", path=str(scene_path))
+        image = (rasters[key]["path"], int(rasters[key].get("index", 1)))
+    return band, image
 
 
 def _dem_under_scene(geometry, dem, band) -> dict:
