@@ -79,10 +79,10 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     from calibrate.actions._status import open_usable_calibration
 
     t0 = time.perf_counter()
-    warning = open_usable_calibration(calibration, command="relative")[2]  # a failed calibration is refused
+    calibrated, cal_path, warning = open_usable_calibration(calibration, command="relative")  # refuses a failed one
     inputs = [p for p in (scene_path, calibration, dem_path, geoid) if p is not None]
     with staged_folder(out_dir, ".relative-", inputs=inputs) as stage:  # checks the output path first
-        scene, cal_path, calibrated, reference_band = _open_models(scene_path, calibration, reference_band)
+        scene, reference_band = _open_scene(scene_path, calibrated, cal_path, reference_band)
         dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
         check_dem_footprint(dem, *footprint_sample_lonlat(calibrated, float(np.mean(dem.height_range_m))))
         images = _LazyBands(scene)  # the reference band and one other band in memory at a time
@@ -95,21 +95,19 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     return {"warnings": [warning] if warning else []} | summary
 
 
-def _open_models(scene_path, calibration, reference_band):
-    """The LAB scene, the calibrated manifest's path and model, and the reference band, checked."""
+def _open_scene(scene_path, calibrated, cal_path, reference_band):
+    """The LAB scene, checked against the calibrated model, and the reference band."""
     from sensor_models.readers import open_model
 
     scene = open_model(scene_path)
     if scene.interior_layout != "per_array":
         raise InputError("relative calibration needs a push-broom scene manifest", path=str(scene_path))
-    cal_path = _calibration_manifest(calibration)
-    calibrated = open_model(cal_path)
     _same_scene(scene, calibrated, str(cal_path))
     reference_band = reference_band or calibrated.reference_band
     if reference_band not in scene.bands:
         raise InputError(f"unknown band {reference_band!r}; the scene has {', '.join(scene.bands)}",
                          field="reference_band")
-    return scene, cal_path, calibrated, reference_band
+    return scene, reference_band
 
 
 def _write_outputs(stage: Path, out_dir: Path, scene, result, report: dict, reference_band: str, t0: float) -> dict:
@@ -163,20 +161,6 @@ def _same_scene(scene, calibrated, path) -> None:
     if np.datetime64(calibrated.epoch, "ns") != np.datetime64(scene.epoch, "ns"):
         raise InputError(f"the calibration's epoch {calibrated.epoch} differs from the scene's {scene.epoch}: "
                          "a calibration of another scene", path=path)
-
-
-def _calibration_manifest(calibration) -> Path:
-    """The calibrated ``manifest.json``: ``calibration`` itself or the one in that folder."""
-    path = Path(calibration)
-    if path.is_dir():
-        path = path / "manifest.json"
-    if not path.is_file():
-        raise InputError("no such file (give the manifest.json written by 'gcpcal calibrate' or its folder)",
-                         path=str(path))
-    if path.suffix.lower() != ".json":
-        raise InputError("not a scene manifest (give the manifest.json written by 'gcpcal calibrate' or its folder)",
-                         path=str(path))
-    return path
 
 
 class _LazyBands(Mapping):
