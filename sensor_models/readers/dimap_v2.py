@@ -51,9 +51,10 @@ __all__ = [
 
 #: lines of ephemeris and attitude added beyond each end of the image (the model's margin)
 EXTENSION_LINES = 64
-#: samples (nearest the end) and degree of the polynomial that extends the orbit
+#: samples (nearest the end) and degree of the polynomial that extends the orbit (positions and
+#: velocities fitted together)
 ORBIT_FIT_SAMPLES = 8
-ORBIT_FIT_DEGREE = 5
+ORBIT_FIT_DEGREE = 3
 #: elements read at most by :func:`is_dimap_v2` before giving up
 _SNIFF_ELEMENTS = 64
 
@@ -114,17 +115,37 @@ def raster_paths(path) -> list[Path]:
     return [path.parent / href for href in _references(x)["raster_hrefs"]]
 
 
+def _fit_state_polynomial(seconds, position_m, velocity_m_s, degree: int):
+    """Least-squares polynomial through positions and velocities; returns ``(mid, scale, coef)``.
+
+    Velocity rows are weighted by the median sample spacing, so that a velocity error over one
+    interval counts as the position error it would cause.
+    """
+    mid, scale = seconds.mean(), max(float(np.ptp(seconds)), 1e-9)
+    u = (seconds - mid) / scale
+    powers = np.arange(degree + 1)
+    a_pos = u[:, None] ** powers
+    a_vel = np.zeros_like(a_pos)
+    a_vel[:, 1:] = powers[1:] * u[:, None] ** (powers[1:] - 1) / scale
+    weight = float(np.median(np.diff(seconds))) if seconds.size > 1 else 1.0
+    design = np.vstack([a_pos, weight * a_vel])
+    rhs = np.vstack([position_m, weight * velocity_m_s])
+    coef, *_ = np.linalg.lstsq(design, rhs, rcond=None)
+    return mid, scale, coef
+
+
 def extend_orbit(seconds, position_m, velocity_m_s, *, before_s: float, after_s: float):
     """Add one state vector ``before_s`` before the first and ``after_s`` after the last sample.
 
-    Each end is a polynomial of degree ``ORBIT_FIT_DEGREE`` fitted to the ``ORBIT_FIT_SAMPLES``
-    positions nearest it; the new velocity is its derivative. Over a few hundredths of a second
-    of a LEO orbit the polynomial is exact to well below a millimetre.
+    Each end is a polynomial of degree ``ORBIT_FIT_DEGREE`` fitted by least squares to the
+    positions and velocities of the ``ORBIT_FIT_SAMPLES`` samples nearest it; the new velocity
+    is its derivative. Dropping the last three SPOT 6 samples and extending over a whole
+    sample interval (0.13 s) reproduces the next one to 3 mm; the reader extends by 15 ms.
 
     Parameters
     ----------
     seconds : ndarray, shape (N,)
-        Sample times, SI seconds, strictly increasing.
+        Sample times, SI seconds, strictly increasing (N >= 2).
     position_m, velocity_m_s : ndarray, shape (N, 3)
         ITRF positions and Earth-relative velocities.
     before_s, after_s : float
@@ -137,17 +158,16 @@ def extend_orbit(seconds, position_m, velocity_m_s, *, before_s: float, after_s:
     """
     t, p, v = [np.asarray(a, dtype=np.float64) for a in (seconds, position_m, velocity_m_s)]
     m = min(ORBIT_FIT_SAMPLES, t.size)
-    deg = min(ORBIT_FIT_DEGREE, m - 1)
+    deg = min(ORBIT_FIT_DEGREE, 2 * m - 1)
     out_t, out_p, out_v = [t], [p], [v]
-    for new_t, sl, first in ((t[0] - before_s, slice(0, m), True), (t[-1] + after_s, slice(t.size - m, t.size), False)):
-        if new_t == (t[0] if first else t[-1]):
+    for extra, sl, first in ((before_s, slice(0, m), True), (after_s, slice(t.size - m, t.size), False)):
+        if not extra > 0.0:
             continue
-        ts = t[sl]
-        mid, scale = ts.mean(), max(np.ptp(ts), 1e-9)
-        c = np.polynomial.polynomial.polyfit((ts - mid) / scale, p[sl], deg)
+        new_t = t[0] - extra if first else t[-1] + extra
+        mid, scale, coef = _fit_state_polynomial(t[sl], p[sl], v[sl], deg)
         u = (new_t - mid) / scale
-        pos = np.polynomial.polynomial.polyval(u, c)
-        vel = np.polynomial.polynomial.polyval(u, np.polynomial.polynomial.polyder(c)) / scale
+        pos = np.polynomial.polynomial.polyval(u, coef)
+        vel = np.polynomial.polynomial.polyval(u, np.polynomial.polynomial.polyder(coef)) / scale
         where = 0 if first else len(out_t)
         out_t.insert(where, np.array([new_t]))
         out_p.insert(where, pos[None, :])
