@@ -159,18 +159,22 @@ def test_other_pixel_conventions_miss_the_frame(model, d_row, d_col, at_least_m)
     assert miss.max() > at_least_m
 
 
-def test_scalar_last_quaternions_miss_by_kilometres(model):
-    """Reading Q3 as the scalar instead of Q0 throws the frame tens of kilometres away."""
+@pytest.mark.parametrize("reading", ["scalar-last", "itrf-to-satellite"])
+def test_other_quaternion_readings_miss_the_earth(model, reading):
+    """Q3 read as the scalar, or the rotation read the other way round: no ray lands near the
+    frame (they miss the Earth altogether)."""
     from sensor_models.ephemeris import Attitude
     from sensor_models.pushbroom import PushbroomModel
 
-    att = model.attitude
-    wrong = PushbroomModel(orbit=model.orbit, attitude=Attitude(att.seconds, att.quaternions_xyzw[:, [3, 0, 1, 2]], frame="itrf"),
+    q = model.attitude.quaternions_xyzw
+    q = q[:, [3, 0, 1, 2]] if reading == "scalar-last" else q * [-1.0, -1.0, -1.0, 1.0]
+    wrong = PushbroomModel(orbit=model.orbit, attitude=Attitude(model.attitude.seconds, q, frame="itrf"),
                            line_timing=model.line_timing, bands=dict(model.bands), n_rows=model.n_rows)
     rows, cols, lon, lat = frame_points(model.dimap_v2_metadata)
     with np.errstate(invalid="ignore"):
         miss = misses_m(wrong, rows, cols, lon, lat, 836.0)
-    assert not np.all(miss < 1000.0)
+    assert np.all(~np.isfinite(miss) | (miss > 1000.0))
+    assert np.all(np.isfinite(misses_m(model, rows, cols, lon, lat, 836.0)))
 
 
 def test_satellite_frame_is_along_across_down(model):
@@ -217,7 +221,8 @@ def test_extension_covers_the_image_edges_only(model):
     assert np.all(np.isfinite(lon)) and np.all(np.isfinite(lat))
     lo, hi = model.row_range
     # defined a few dozen lines beyond the image, never further than the extension
-    assert -EXTENSION_LINES < lo < -EXTENSION_LINES / 2 and model.n_rows + EXTENSION_LINES / 2 < hi < model.n_rows + EXTENSION_LINES
+    assert -EXTENSION_LINES < lo < -EXTENSION_LINES / 2
+    assert model.n_rows + EXTENSION_LINES / 2 < hi < model.n_rows + EXTENSION_LINES
 
 
 def test_extend_orbit_reproduces_a_dropped_end_sample(model):
@@ -274,6 +279,8 @@ def test_band_choice(spot6):
 
 _PERIOD = '<LINE_PERIOD unit="microsecond">229.110269</LINE_PERIOD>'
 _MODEL = "Dimap_Document/Geometric_Data/Refined_Model"
+_PERIOD_FIELD = f"{_MODEL}/Time/Time_Stamp/LINE_PERIOD"
+_BAND = f"{_MODEL}/Geometric_Calibration/Instrument_Calibration/Band_Calibration_List/Band_Calibration"
 
 
 def _edit(text, pattern, repl):
@@ -285,9 +292,9 @@ def _edit(text, pattern, repl):
 @pytest.mark.parametrize(
     "pattern, repl, field, message",
     [
-        (re.escape(_PERIOD), "", f"{_MODEL}/Time/Time_Stamp/LINE_PERIOD", "is missing"),
-        (re.escape(_PERIOD), _PERIOD.replace("229.110269", "fast"), f"{_MODEL}/Time/Time_Stamp/LINE_PERIOD", "must be a number"),
-        (re.escape(_PERIOD), _PERIOD.replace("microsecond", "furlong"), f"{_MODEL}/Time/Time_Stamp/LINE_PERIOD", "unit"),
+        (re.escape(_PERIOD), "", _PERIOD_FIELD, "is missing"),
+        (re.escape(_PERIOD), _PERIOD.replace("229.110269", "fast"), _PERIOD_FIELD, "must be a number"),
+        (re.escape(_PERIOD), _PERIOD.replace("microsecond", "furlong"), _PERIOD_FIELD, "unit"),
         (r"<END>2018-09-15T18:19:32.528005Z</END>", "<END>2018-09-15T18:19:32.628005Z</END>",
          f"{_MODEL}/Time/Time_Range/END", "line dating is inconsistent"),
         (r"<Q0>0.4408006788225401</Q0>", "<Q0>0.5408006788225401</Q0>",
@@ -302,13 +309,12 @@ def _edit(text, pattern, repl):
         (r"<PIXEL_ORIGIN>1</PIXEL_ORIGIN>", "<PIXEL_ORIGIN>0</PIXEL_ORIGIN>",
          "Dimap_Document/Geoposition/Raster_CRS/PIXEL_ORIGIN", "PIXEL_ORIGIN 1"),
         (r"<FIRST_COL>1</FIRST_COL>", "<FIRST_COL>2</FIRST_COL>",
-         f"{_MODEL}/Geometric_Calibration/Instrument_Calibration/Band_Calibration_List/Band_Calibration/Swath_Range/FIRST_COL",
+         f"{_BAND}/Swath_Range/FIRST_COL",
          "FIRST_COL 1"),
         (r"<YAW>0.0</YAW>", "<YAW>1e-5</YAW>",
          f"{_MODEL}/Geometric_Calibration/Instrument_Calibration/Instrument_Biases/YAW", "biases"),
         (r"<XLOS_0>-0.0267584453300000</XLOS_0>", "",
-         f"{_MODEL}/Geometric_Calibration/Instrument_Calibration/Band_Calibration_List/Band_Calibration/"
-         "Polynomial_Look_Angles/XLOS_0", "is missing"),
+         f"{_BAND}/Polynomial_Look_Angles/XLOS_0", "is missing"),
         (r"<Point>(?:(?!<Point>).)*?18:19:32.528005Z</TIME>\s*</Point>", "",
          f"{_MODEL}/Ephemeris/Point_List/Point/TIME", "image lines"),
         (r'<METADATA_FORMAT version="2.12">', '<METADATA_FORMAT version="1.1">',
