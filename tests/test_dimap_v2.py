@@ -5,8 +5,8 @@
 vectors and 188 quaternions over the 5.85 s of the scene, a linear ``XLOS`` look-angle
 polynomial, and the producer's localization of the four corners and of the centre
 (``Dataset_Extent``). The file states no height for those points, so the tests fit the one
-height that brings all five onto the model (it comes out at 836.49 m, a plausible mean height
-for that Mojave desert scene) and then require every point on it to the millimetre level:
+height that brings all five onto the model (it comes out at 836.49 m above the ellipsoid) and
+then require every point on it to the millimetre level:
 5 points x 2 coordinates for 1 unknown. Each convention the reader chose is bracketed from the
 other side: half a line or half a column off, or the quaternion read scalar-last, and the same
 fit misses by much more.
