@@ -267,6 +267,27 @@ def test_rpc_fitted_to_the_model_lands_on_the_frame(model):
     assert np.min(np.abs(c_high - cols)) > 5.0
 
 
+def test_look_polynomials_are_the_file_s_padded_to_a_cubic(model):
+    (ccd,) = model.bands["P"]
+    xlos = model.dimap_v2_metadata.bands[0].xlos
+    assert (ccd.first_col, ccd.n_detectors) == (0, 25669)
+    assert np.array_equal(ccd.tan_psi_y, np.r_[-xlos, 0.0, 0.0])
+    assert np.array_equal(ccd.tan_psi_x, np.zeros(4))
+    assert "P.ccd1.tan_psi_y.c3" in model.parameter_names()
+
+
+def test_model_survives_a_manifest_round_trip(model, tmp_path):
+    """Written as a gcpcal manifest (what calibration results apply to) and read back, the
+    model localizes identically."""
+    from sensor_models.readers.manifest import read_pushbroom_manifest, write_manifest
+
+    again = read_pushbroom_manifest(write_manifest(model, tmp_path / "spot6.json"))
+    rows, cols = np.array([0.5, 12000.3, 25532.5]), np.array([0.5, 9000.7, 25668.5])
+    before = np.array(model.image_to_ground(rows, cols, height=800.0))
+    after = np.array(again.image_to_ground(rows, cols, height=800.0))
+    assert np.array_equal(before, after)
+
+
 def test_band_choice(spot6):
     assert tuple(read_dimap_v2(spot6, band="P").bands) == ("P",)
     with pytest.raises(ManifestError, match="BAND_ID 'B0'"):

@@ -55,6 +55,9 @@ EXTENSION_LINES = 64
 #: velocities fitted together)
 ORBIT_FIT_SAMPLES = 8
 ORBIT_FIT_DEGREE = 3
+#: look polynomials are padded with zeros to at least this many coefficients (the cubic of seed
+#: 003 eq. 2), so that interior calibration can estimate every term of it
+MIN_LOOK_COEFFICIENTS = 4
 #: elements read at most by :func:`is_dimap_v2` before giving up
 _SNIFF_ELEMENTS = 64
 
@@ -243,13 +246,17 @@ def band_look(band: DimapV2Band):
     CcdLook
         One array ``"ccd1"`` from column ``FIRST_COL - 1`` (left edge) with
         ``LAST_COL - FIRST_COL + 1`` detectors, ``tan psi_x = YLOS(s)``,
-        ``tan psi_y = -XLOS(s)`` in the detector index ``s = COL - 1``.
+        ``tan psi_y = -XLOS(s)`` in the detector index ``s = COL - 1``, each padded with zero
+        coefficients to at least ``MIN_LOOK_COEFFICIENTS`` (the geometry is unchanged).
     """
     from sensor_models.pushbroom_types import CcdLook
 
+    def padded(coefficients):
+        c = np.asarray(coefficients, dtype=np.float64)
+        return np.concatenate([c, np.zeros(max(0, MIN_LOOK_COEFFICIENTS - c.size))])
+
     return CcdLook("ccd1", band.first_col - 1, band.last_col - band.first_col + 1,
-                   tan_psi_x=np.asarray(band.ylos, dtype=np.float64),
-                   tan_psi_y=-np.asarray(band.xlos, dtype=np.float64))
+                   tan_psi_x=padded(band.ylos), tan_psi_y=-padded(band.xlos))
 
 
 def read_dimap_v2(path, *, band: str | None = None):
