@@ -353,6 +353,21 @@ def test_malformed_field_raises_manifest_error_naming_it(spot6, tmp_path, patter
     assert str(bad) in str(info.value) and "\n" not in str(info.value)
 
 
+@pytest.mark.parametrize("line, ok", [(12767, True), (12768, False)])
+def test_a_dated_reference_line_must_agree_with_start(spot6, tmp_path, line, ok):
+    """MIDDLE (18:19:29.603183) is DIMAP line 12767 by START + (ROW - 1) * LINE_PERIOD."""
+    stamp = (f"{_PERIOD}<REFERENCE_TIME>2018-09-15T18:19:29.603183Z</REFERENCE_TIME>"
+             f"<REFERENCE_LINE>{line}</REFERENCE_LINE>")
+    path = tmp_path / "DIM_REF.XML"
+    path.write_text(_edit(spot6.read_text(), re.escape(_PERIOD), stamp))
+    if ok:
+        assert parse_dimap_v2(path).line_period_s == pytest.approx(229.110269e-6)
+    else:
+        with pytest.raises(ManifestError, match="line dating is inconsistent") as info:
+            parse_dimap_v2(path)
+        assert info.value.field == f"{_MODEL}/Time/Time_Stamp/REFERENCE_TIME"
+
+
 def test_unreadable_files_raise_manifest_error(tmp_path):
     with pytest.raises(ManifestError, match="cannot read"):
         parse_dimap_v2(tmp_path / "missing.XML")

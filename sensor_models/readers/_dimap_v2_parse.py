@@ -31,7 +31,7 @@ TIME_RANGE_TOLERANCE_LINES = 0.05
 #: largest tolerated departure of a quaternion's norm from 1
 QUATERNION_NORM_TOLERANCE = 1e-6
 #: units of ``LINE_PERIOD`` accepted, with their factor to seconds
-_PERIOD_UNITS = {"microsecond": 1e-6, "millisecond": 1e-3, "second": 1.0, "s": 1.0}
+_PERIOD_UNITS = {"microsecond": 1e-6, "us": 1e-6, "millisecond": 1e-3, "ms": 1e-3, "second": 1.0, "s": 1.0}
 _GEOCENTRIC_CODES = ("urn:ogc:def:crs:EPSG::4978", "EPSG:4978")
 
 
@@ -194,7 +194,33 @@ def _timing(x: _Xml, n_rows: int) -> dict:
             f"lies {end_s:.6f} s after START, but NROWS and LINE_PERIOD put the last line at "
             f"{expected:.6f} s: the line dating is inconsistent",
         )
+    _check_reference_line(x, node, epoch, period)
     return dict(epoch=epoch, line_period_s=period, end_seconds=end_s)
+
+
+def _check_reference_line(x: _Xml, node, epoch, period: float) -> None:
+    """Optional ``Time_Stamp/REFERENCE_LINE`` + ``REFERENCE_TIME`` must agree with ``START``.
+
+    The line dating used is ``START + (ROW - 1) * LINE_PERIOD`` (verified on a real file); a
+    file that also dates a reference line must agree with it, or it is refused rather than
+    guessed.
+    """
+    w = f"{_R}/{_MODEL}/Time/Time_Stamp"
+    line = x.number(node, "Time_Stamp/REFERENCE_LINE", f"{w}/REFERENCE_LINE", optional=True)
+    has_time = node.find("Time_Stamp/REFERENCE_TIME") is not None
+    if line is None and not has_time:
+        return
+    if line is None or not has_time:
+        missing = "REFERENCE_LINE" if line is None else "REFERENCE_TIME"
+        raise x.error(f"{w}/{missing}", "is missing (REFERENCE_LINE and REFERENCE_TIME come together)")
+    ref_s = float(_seconds_since([x.time(node, "Time_Stamp/REFERENCE_TIME", f"{w}/REFERENCE_TIME")], epoch)[0])
+    expected = (line - 1.0) * period
+    if abs(ref_s - expected) > TIME_RANGE_TOLERANCE_LINES * period:
+        raise x.error(
+            f"{w}/REFERENCE_TIME",
+            f"dates line {line:g} at {ref_s:.6f} s after START, but START and LINE_PERIOD date it at "
+            f"{expected:.6f} s: the line dating is inconsistent",
+        )
 
 
 def _check_geocentric(x: _Xml) -> None:

@@ -143,7 +143,7 @@ def extend_orbit(seconds, position_m, velocity_m_s, *, before_s: float, after_s:
     Each end is a polynomial of degree ``ORBIT_FIT_DEGREE`` fitted by least squares to the
     positions and velocities of the ``ORBIT_FIT_SAMPLES`` samples nearest it; the new velocity
     is its derivative. Dropping the last three SPOT 6 samples and extending over a whole
-    sample interval (0.13 s) reproduces the next one to 3 mm; the reader extends by 15 ms.
+    sample interval (0.13 s) reproduces the next one to 4 mm; the reader extends by 15 ms.
 
     Parameters
     ----------
