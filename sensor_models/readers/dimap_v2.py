@@ -41,6 +41,7 @@ from sensor_models.readers.dimap import _Xml
 __all__ = [
     "DimapV2Band",
     "DimapV2Metadata",
+    "band_look",
     "extend_attitude",
     "extend_orbit",
     "is_dimap_v2",
