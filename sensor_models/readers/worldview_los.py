@@ -239,11 +239,11 @@ def _fold(meta, bands, orbit, attitude, h_ref, *, aberration, refraction):
         u = np.stack([bx, by, np.ones_like(bx)], axis=-1)
         u /= np.linalg.norm(u, axis=-1, keepdims=True)
         k = t.size
-        d_app = np.concatenate([r_cam[i].apply(u) for i in range(k)])
+        d_app = np.einsum("kij,sj->ksi", r_cam.as_matrix(), u).reshape(-1, 3)
         d_true, shift = _true_directions(np.repeat(pos, s.size, axis=0), np.repeat(vel, s.size, axis=0), d_app,
                                          h_ref, aberration=aberration, refraction=refraction)
-        u_eff = np.concatenate([r_eff[i].inv().apply(d_true[i * s.size:(i + 1) * s.size]) for i in range(k)])
-        u_eff = u_eff.reshape(k, s.size, 3)
+        # camera-frame vectors of the corrected rays: R_eff^T d (R_eff^T = transpose)
+        u_eff = np.einsum("kji,ksj->ksi", r_eff.as_matrix(), d_true.reshape(k, s.size, 3))
         tan_x, tan_y = u_eff[..., 0] / u_eff[..., 2], u_eff[..., 1] / u_eff[..., 2]
         mx, my = tan_x[in_image].mean(axis=0), tan_y[in_image].mean(axis=0)
         ifov = band.det_pitch_mm / meta.principal_distance_mm
