@@ -218,6 +218,15 @@ def test_nonlinear_line_times_are_refused(shared_data, tmp_path):
     assert parse_worldview(good).tlc_lines.size == 3
 
 
+def test_unknown_band_and_bad_fold_height_are_one_line_errors(shared_data):
+    path = xml_path(shared_data, "WV2")
+    with pytest.raises(InputError, match=r"no band 'B'.*bands: P"):
+        read_worldview(path, band="B")
+    with pytest.raises(ManifestError, match="within") as info:
+        read_worldview(path, refraction_height_m=2.0e4)
+    assert info.value.field == "refraction_height_m" and info.value.path == str(path)
+
+
 def test_not_an_isd_document(shared_data):
     with pytest.raises(ManifestError, match="expected <isd>"):
         parse_worldview(shared_data / "products" / "SPOT6.XML")

@@ -208,7 +208,22 @@ class WorldViewMetadata:
         return self.first_line_seconds + pixel_to_dg(row) * self.line_period_s
 
     def band(self, band_id: str) -> WorldViewBand:
-        """The band named ``band_id`` (``InputError`` naming the bands there are)."""
+        """The band named ``band_id``.
+
+        Parameters
+        ----------
+        band_id : str
+            A ``BANDID`` of ``GEO/DETECTOR_MOUNTING`` (``"P"`` ...).
+
+        Returns
+        -------
+        WorldViewBand
+
+        Raises
+        ------
+        InputError
+            No such band; the message lists the bands there are.
+        """
         for b in self.bands:
             if b.band_id == band_id:
                 return b
@@ -216,7 +231,13 @@ class WorldViewMetadata:
         raise InputError(f"no band {band_id!r} in the product (bands: {names})", path=self.path, field="band")
 
     def rpc_model(self):
-        """The ``RPB`` section as an :class:`~sensor_models.rpc.RpcModel` (None if absent)."""
+        """The vendor RPC of the ``RPB`` section.
+
+        Returns
+        -------
+        RpcModel or None
+            With ``image_shape = (n_rows, n_cols)``; None when the XML has no ``RPB``.
+        """
         if self.rpb is None:
             return None
         from sensor_models.rpc import RpcModel
