@@ -140,6 +140,7 @@ class LineTiming:
 
     ``row`` is the continuous image row (first line's centre at 0.5), ``t`` SI seconds since the
     scene epoch. The time of a line is the time of its centre (mid-integration).
+    ``line_period_s`` is negative for a reverse scan (the rows advance backwards in time).
     """
 
     reference_row: float
@@ -152,8 +153,9 @@ class LineTiming:
             if not np.isfinite(value):
                 raise InputError("must be finite", field=f"line_timing.{name}")
             object.__setattr__(self, name, value)
-        if not self.line_period_s > 0.0:
-            raise InputError("must be positive", field="line_timing.line_period_s")
+        if self.line_period_s == 0.0:
+            # negative: a reverse scan (time decreasing with the row, e.g. WorldView "Reverse")
+            raise InputError("must be non-zero", field="line_timing.line_period_s")
 
     def seconds(self, row):
         """Imaging time of continuous rows.
