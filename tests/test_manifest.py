@@ -115,6 +115,12 @@ def test_missing_field(doc, tmp_path):
     _expect_error(_write(tmp_path, d), "line_timing.line_period_s", "missing")
 
 
+def test_zero_line_period_refused(doc, tmp_path):
+    d = copy.deepcopy(doc)
+    d["line_timing"]["line_period_s"] = 0.0
+    _expect_error(_write(tmp_path, d), "line_timing.line_period_s", "non-zero")
+
+
 def test_unknown_key_top_level(doc, tmp_path):
     d = copy.deepcopy(doc)
     d["comment"] = "hello"
