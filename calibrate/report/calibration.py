@@ -239,7 +239,7 @@ def _section_summary(ctx: ReportContext) -> str:
     ]
     if r.skipped:
         items.append(("CCDs keeping their interior", _e("; ".join(str(s.get("reason", s)) for s in r.skipped))))
-    summary = _table(["", ""], [(k, v) for k, v in items], left=2)
+    summary = _table(None, [(k, v) for k, v in items], left=2)
 
     header = ["", "n", "along (px)", "across (px)", "planar (px)", "relative planar (px)", "max (px)",
               "along (m)", "across (m)", "planar (m)"]

@@ -469,7 +469,7 @@ def _section_summary(doc) -> str:
         items.append((_e(f"Input: {key}"), _e(value)))
     if doc.get("calibrated_manifest"):
         items.append(("Calibrated manifest", _e(doc["calibrated_manifest"])))
-    return _table(["", ""], items, left=2)
+    return _table(None, items, left=2)
 
 
 def _section_accuracy(doc) -> str:
