@@ -269,7 +269,8 @@ def figure_distortion(ctx: ReportContext, band, fig_dir: Path) -> dict:
         for j in range(2):
             axes[0, j].text(look.first_col + 0.5 * look.n_detectors, 0.02, look.name, color=colors[k],
                             transform=axes[0, j].get_xaxis_transform(), ha="center", va="bottom",
-                            fontsize=6 if small else 8, rotation=90 if small else 0)
+                            fontsize=6 if small else 8, rotation=90 if small else 0,
+                            bbox={"facecolor": "white", "alpha": 0.8, "lw": 0, "pad": 1.0})
     if truth_interior:
         from matplotlib.lines import Line2D
 
