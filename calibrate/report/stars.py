@@ -496,11 +496,14 @@ def _starless_note(c: dict) -> str:
     chance = c["n_identified"] or 0
     matches = (f" ({chance} chance match{'es' if chance != 1 else ''} with catalogue stars formed no track)"
                if chance else "")
-    return ('<p class="fail">No star identified in any of the '
-            f"{_e(c['n_frames'] if c['n_frames'] is not None else '')} frames: none of the "
-            f"{_e(c['n_detections'] if c['n_detections'] is not None else '')} detections lies on a star track"
-            f"{matches}; they are noise or hot pixels. Check that the frames look at the sky (the pointing "
-            "mirror turned to deep space), their exposure, and the manifest's attitude and times.</p>")
+    frames = "any frame" if c["n_frames"] is None else f"any of the {c['n_frames']} frames"
+    if c["n_detections"] is None:
+        detections = "no detection lies on a star track"
+    else:
+        detections = f"none of the {c['n_detections']} detections lies on a star track"
+    return (f'<p class="fail">No star identified in {_e(frames)}: {_e(detections)}{_e(matches)}; they are noise '
+            "or hot pixels. Check that the frames look at the sky (the pointing mirror turned to deep space), "
+            "their exposure, and the manifest's attitude and times.</p>")
 
 
 def _census_rows(c: dict) -> list:
