@@ -644,7 +644,7 @@ def _section_tracks(tracks) -> str:
                      _fmt(t.get("row_mean_px")), "–" if not span else f"{_fmt(span[0])} – {_fmt(span[1])}",
                      _e(t.get("skipped", ""))])
     used = sum(1 for t in tracks if not t.get("skipped"))
-    return (f"<details><summary>{len(tracks)} catalogue stars identified, {used} of them tracked and used"
+    return (f"<details><summary>{len(tracks)} catalogue stars matched by a detection, {used} of them tracked and used"
             f"</summary>{_table(header, body)}</details>")
 
 
