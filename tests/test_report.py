@@ -368,3 +368,15 @@ def test_bad_band_to_band_or_truth_inputs_write_nothing(case, tmp_path, kwargs, 
         write_report(tmp_path / "r", **case, **kwargs)
     assert err.value.field == field
     assert not (tmp_path / "r" / "report.html").exists()
+
+
+def test_demo_report_coverage_rows_hold_each_ccds_check_rmse(demo):
+    _, s, html = demo
+    section = _section(html, "coverage")
+    keys = [k for k in s["per_ccd_after"] if "." in k]
+    assert len(keys) == 4
+    for key in keys:
+        band, ccd = key.split(".")
+        row = re.search(rf'<tr><td class="l">{band}</td><td>{ccd}</td>(.*?)</tr>', section).group(1)
+        cells = re.findall(r"<td>(.*?)</td>", row)
+        assert cells[-2] == _fmt4(s["per_ccd_after"][key]) and float(cells[-3]) > 100.0  # after; before

@@ -160,6 +160,15 @@ def _summary(fixture_dir: Path, merged, result, band_results, match_summaries, s
     }
 
 
+def _report_coverage(coverage: list, sc: dict) -> list:
+    """The coverage rows for the report, each with its CCD's check RMSE before and after (px)."""
+    def rmse(which, row):
+        group = sc[which].groups.get(f"{row['band']}.{row['ccd']}")
+        return None if group is None else group.rmse_px
+
+    return [dict(row, check_rmse_px={w: rmse(w, row) for w in ("before", "after")}) for row in coverage]
+
+
 @staged_output("out_dir", inputs=("fixture_dir",), prefix=".demo-")
 def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing_px: int = 16) -> dict:
     """Run the demo (see the module docstring).
@@ -198,7 +207,7 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
                  initial_model=fx["lab"], gcps=ref_pts, checks=sc["checks"], error_vs_count=sc["evc"],
                  truth_model=fx["truth"], title="gcpcal demo: HY-1C-like scene",
                  extra={k: summary[k] for k in ("gcps", "check_points")}, relative=relative,
-                 truth_error={"after": sc["truth"], "before": sc["truth_lab"]}, coverage=summary["coverage"],
+                 truth_error={"after": sc["truth"], "before": sc["truth_lab"]}, coverage=_report_coverage(summary["coverage"], sc),
                  status=CalibrationStatus(summary["status"], summary["status_message"]))
     summary["report"] = "report.html"
     summary["seconds"] = time.perf_counter() - t_start
