@@ -263,3 +263,120 @@ def test_rpc_bias_result_is_unwrapped(tmp_path):
     text = (tmp_path / "report.html").read_text(encoding="utf-8")
     assert ">bias.row.a0<" in text and ">bias.col.b0<" in text and "<details><summary>Interior" not in text
     assert f"{after.absolute.rmse_px:.4g}" in text
+
+
+# --------------------------------------------------------------------------- the demo report
+def _section(html, sid):
+    m = re.search(rf'<section id="{sid}">(.*?)</section>', html, flags=re.S)
+    return None if m is None else m.group(1)
+
+
+def _fmt4(value):
+    return f"{value:.4g}"
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """``gcpcal demo``'s folder and summary (about 10-15 s)."""
+    import json
+
+    from calibrate.actions.demo import run_demo
+
+    out = tmp_path_factory.mktemp("demo") / "out"
+    run_demo(out)
+    return out, json.loads((out / "summary.json").read_text()), (out / "report.html").read_text(encoding="utf-8")
+
+
+def test_demo_report_band_to_band_section_holds_the_summary_numbers(demo):
+    out, s, html = demo
+    section = _section(html, "band-to-band")
+    assert section is not None and 'href="#band-to-band"' in html
+    others = [b for b, r in s["calibration"].items() if "tie_rms_before_px" in r]
+    assert sorted(others) == ["B1", "B3", "B4"]
+    for band in others:
+        r = s["calibration"][band]
+        row = re.search(rf'<tr><td class="l">{band}</td>(.*?)</tr>', section).group(1)
+        cells = re.findall(r"<td>(.*?)</td>", row)
+        # tie points, inliers (from the message "... over N inliers of M GCPs"), RMS before and after
+        inliers, ties = re.search(r"over (\d+) inliers of (\d+)", r["message"]).groups()
+        assert cells[0] == "<span class=\"ok\">yes</span>" and cells[1] == ties and cells[2] == inliers
+        assert cells[-2:] == [_fmt4(r["tie_rms_before_px"]), _fmt4(r["tie_rms_after_px"])]
+        assert 1.0 < r["tie_rms_before_px"] < 20.0 and r["tie_rms_after_px"] < 0.05
+        assert f'<img src="figures/band_to_band_{band}.png"' in section
+        img = mpimg.imread(out / "figures" / f"band_to_band_{band}.png")
+        assert img.shape[0] >= 300 and float(np.std(img[..., :3])) > 0.02
+    assert "band_to_band_B2.png" not in section  # B2 is the reference band
+
+
+def test_demo_report_truth_section_holds_the_summary_numbers(demo):
+    out, s, html = demo
+    section = _section(html, "truth")
+    assert section is not None
+    for which in ("truth_error_px", "truth_error_before_px"):
+        assert f"<td>{_fmt4(s[which]['rms'])}</td><td>{_fmt4(s[which]['max'])}</td>" in section
+    assert len(s["truth_error_per_ccd"]) == 16  # 4 bands x 4 CCDs
+    for r in s["truth_error_per_ccd"]:
+        assert (f'<td class="l">{r["band"]}</td><td class="l">{r["ccd"]}</td><td>1625</td>'
+                f'<td>{_fmt4(r["rms_px"])}</td><td>{_fmt4(r["max_px"])}</td>') in section
+    assert '<img src="figures/truth_error_vs_detector.png"' in section
+    img = mpimg.imread(out / "figures" / "truth_error_vs_detector.png")
+    assert img.shape[0] >= 300 and float(np.std(img[..., :3])) > 0.02
+    # and in the summary table, linked to the section
+    summary = _section(html, "summary")
+    assert f"RMS {_fmt4(s['truth_error_px']['rms'])} px, max {_fmt4(s['truth_error_px']['max'])} px" in summary
+
+
+def test_band_totals_combine_the_ccds_exactly(demo):
+    from calibrate.report.truth import band_totals
+
+    _, s, html = demo
+    per_ccd = [dict(r, n_points=1625) for r in s["truth_error_per_ccd"]]
+    totals = band_totals(per_ccd)
+    assert sorted(totals) == ["B1", "B2", "B3", "B4"]
+    everything = band_totals([dict(r, band="all") for r in per_ccd])["all"]
+    assert everything["rms_px"] == pytest.approx(s["truth_error_px"]["rms"], rel=1e-9)
+    assert everything["max_px"] == pytest.approx(s["truth_error_px"]["max"], rel=1e-12)
+    for band, t in totals.items():
+        rms = [r["rms_px"] for r in per_ccd if r["band"] == band]
+        assert min(rms) < t["rms_px"] < max(rms)
+        assert f'<td class="l">{band}</td><td>6500</td><td>{_fmt4(t["rms_px"])}</td>' in _section(html, "truth")
+
+
+def test_demo_report_has_no_empty_header_row_and_loads_every_figure(demo):
+    out, _, html = demo
+    heads = re.findall(r"<thead><tr>(.*?)</tr></thead>", html)
+    assert heads and all(re.sub(r"<[^>]+>", "", h).strip() for h in heads)
+    assert '<table><tbody><tr><td class="l">Status</td>' in html  # the summary, without a header row
+    srcs = set(re.findall(r'<img src="([^"]+)"', html))
+    assert srcs == {f"figures/{p.name}" for p in (out / "figures").iterdir()}
+    assert len(srcs) == 8
+
+
+def test_ordinary_report_has_neither_demo_section(written):
+    _, _, text = written
+    assert _section(text, "band-to-band") is None and _section(text, "truth") is None
+    assert "Error against the TRUE model" not in text
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"relative": "B1"}, "relative"),
+    ({"truth_error": {"before": {"rms_px": 1.0, "max_px": 2.0}}}, "truth_error"),
+    ({"truth_error": {"after": {"rms_px": 1.0}}}, "truth_error.after"),
+])
+def test_bad_band_to_band_or_truth_inputs_write_nothing(case, tmp_path, kwargs, field):
+    with pytest.raises(InputError) as err:
+        write_report(tmp_path / "r", **case, **kwargs)
+    assert err.value.field == field
+    assert not (tmp_path / "r" / "report.html").exists()
+
+
+def test_demo_report_coverage_rows_hold_each_ccds_check_rmse(demo):
+    _, s, html = demo
+    section = _section(html, "coverage")
+    keys = [k for k in s["per_ccd_after"] if "." in k]
+    assert len(keys) == 4
+    for key in keys:
+        band, ccd = key.split(".")
+        row = re.search(rf'<tr><td class="l">{band}</td><td>{ccd}</td>(.*?)</tr>', section).group(1)
+        cells = re.findall(r"<td>(.*?)</td>", row)
+        assert cells[-2] == _fmt4(s["per_ccd_after"][key]) and float(cells[-3]) > 100.0  # after; before

@@ -160,3 +160,113 @@ def test_cli_writes_the_report(tmp_path):
     assert {"figures/star_tracks.png", "figures/radec_errors.png", "figures/error_histograms.png",
             "figures/error_vs_points.png"} <= set(_images(html))
     assert f"{doc['accuracy']['after']['de']['mean_abs_px']:.4g}" in html
+
+
+def _sky_frames(sim, out, *, fmt, hot_pixels=300, seed=0):
+    """A frame list of the simulated camera whose frames hold sky noise and hot pixels only.
+
+    Each frame: Gaussian sky background (300 DN, sigma 19 DN, the simulator's level) plus
+    ``hot_pixels`` single hot pixels of 200-3000 DN at random places, written as FITS with
+    astropy (``fmt="fits"``) or as a GeoTIFF with rasterio (``fmt="tif"``).
+    """
+    from sensor_models.readers.geo_manifest import read_geo_manifest
+
+    listed = json.loads((sim / "frames.json").read_text())
+    shape = read_geo_manifest(sim / "manifest.json").image_shape
+    rng = np.random.default_rng(seed)
+    (out / "frames").mkdir(parents=True)
+    frames = []
+    for k, frame in enumerate(listed["frames"]):
+        sky = rng.normal(300.0, 19.3, shape)
+        r, c = rng.integers(0, shape[0], hot_pixels), rng.integers(0, shape[1], hot_pixels)
+        sky[r, c] += rng.uniform(200.0, 3000.0, hot_pixels)
+        path = out / "frames" / f"sky_{k:04d}.{fmt}"
+        if fmt == "fits":
+            from astropy.io import fits
+
+            fits.writeto(path, sky.astype(np.float32))
+        else:
+            import warnings
+
+            import rasterio
+            from rasterio.errors import NotGeoreferencedWarning
+
+            with warnings.catch_warnings():  # a sky frame has no map geometry
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                with rasterio.open(path, "w", driver="GTiff", width=shape[1], height=shape[0], count=1,
+                                   dtype="uint16") as ds:
+                    ds.write(np.clip(sky, 0, 65535).astype(np.uint16), 1)
+        frames.append({"path": f"frames/{path.name}", "seconds": frame["seconds"]})
+    listed.update(frames=frames, manifest=str((sim / "manifest.json").resolve()))
+    (out / "frames.json").write_text(json.dumps(listed))
+    return out
+
+
+@pytest.fixture(scope="module")
+def sim20(tmp_path_factory):
+    from sensor_models.simulate.geo_stars import simulate_geo_stars
+
+    sim = tmp_path_factory.mktemp("sim20") / "sim"
+    simulate_geo_stars(sim, n_frames=20, seed=0)
+    return sim
+
+
+def _assert_says_starless(html, frames_doc, n_frames):
+    n_det, n_id = frames_doc["n_detections"], frames_doc["n_identified"]
+    assert n_det > 1000 and frames_doc["n_tracks"] == 0  # thousands of detections, no track
+    assert frames_doc["frames_without_stars"] == []  # every frame has detections: the old count said "0 without"
+    assert f"No star identified in any of the {n_frames} frames" in html
+    assert f"none of the {n_det} detections lies on a star track" in html
+    assert "noise or hot pixels" in html and f"{n_id} chance" in html
+    assert "without stars)" not in html and f"{n_det} / {n_id}" not in html
+    assert "<img" not in html  # no empty track figure
+    assert "No accuracy: no star track to calibrate from." in html
+
+
+def test_starless_frames_say_so_instead_of_counting_detections(sim20, tmp_path):
+    """``gcpcal stars`` on frames of noise and hot pixels: the report says no star was found."""
+    from calibrate.cli import main
+
+    sky = _sky_frames(sim20, tmp_path / "sky", fmt="tif")
+    assert main(["-q", "stars", str(sky), "--out", str(tmp_path / "cal")]) == 3  # stage failed, report written
+    doc = json.loads((tmp_path / "cal" / "stars.json").read_text())
+    _assert_says_starless((tmp_path / "cal" / "report.html").read_text(encoding="utf-8"), doc["frames"], 20)
+
+
+def test_starless_fits_frames_say_so(sim20, tmp_path):
+    """The same with FITS frames written by astropy, through the library (process_frames)."""
+    from calibrate.stars import process_frames, read_frame_list
+    from sensor_models.readers.geo_manifest import read_geo_manifest
+
+    sky = _sky_frames(sim20, tmp_path / "sky", fmt="fits", seed=1)
+    frames, seconds, manifest = read_frame_list(sky)
+    assert all(str(f).endswith(".fits") for f in frames)
+    result = process_frames(frames, seconds, read_geo_manifest(manifest))
+    assert not result.success
+    doc = json.loads(json.dumps(result.to_dict(points=True), allow_nan=False))
+    html = write_star_report(tmp_path / "report", doc, result=result).read_text(encoding="utf-8")
+    _assert_says_starless(html, doc["frames"], 20)
+
+
+def test_report_with_stars_does_not_say_starless(run, tmp_path):
+    result, doc = run
+    html = write_star_report(tmp_path, doc, result=result).read_text(encoding="utf-8")
+    f = doc["frames"]
+    assert "No star identified" not in html and "noise or hot pixels" not in html
+    assert f"{f['n_detections']} detections, {f['n_identified']} matched to catalogue stars, " \
+           f"{f['n_points']} on star tracks" in html
+    assert "(0 without a tracked star)" in html
+    # a frame without any track point is counted
+    thin = copy.deepcopy(doc)
+    keep = [i for i, k in enumerate(thin["points"]["frame"]) if k not in (3, 4)]
+    thin["points"] = {key: [v[i] for i in keep] for key, v in thin["points"].items()}
+    html = write_star_report(tmp_path / "thin", thin).read_text(encoding="utf-8")
+    assert "(2 without a tracked star)" in html
+
+
+def test_key_value_tables_have_no_empty_header_row(run, tmp_path):
+    result, doc = run
+    html = write_star_report(tmp_path, doc, result=result).read_text(encoding="utf-8")
+    heads = re.findall(r"<thead><tr>(.*?)</tr></thead>", html)
+    assert heads and all(re.sub(r"<[^>]+>", "", h).strip() for h in heads)
+    assert html.count("<table>") > len(heads)  # the summary table is there, without a header

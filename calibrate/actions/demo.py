@@ -12,7 +12,8 @@ the truth:
    against the calibrated reference band from dense band-to-band tie points (seed 003 section
    2.2.2, :mod:`calibrate.relative`);
 3. **report**: check-point accuracy before and after (never used in a fit), per CCD, the HTML
-   report with figures, and ``summary.json`` with ``gcps``, ``check_points``,
+   report with figures (band-to-band section per band, error against the TRUE model per band
+   and CCD with its curve against the detector), and ``summary.json`` with ``gcps``, ``check_points``,
    ``check_rmse_px {before, after}``, ``truth_error_px {rms, max}`` (calibrated model against
    the TRUE model over a dense grid of every CCD and band, on the DEM), ``status`` (the coverage
    gate of the reference band's calibration, :mod:`calibrate.coverage`: the demo must end
@@ -69,7 +70,11 @@ def _match(fx: dict, out_dir: Path, spacing_px: int):
 
 
 def _calibrate(fx: dict, merged, out_dir: Path, step):
-    """Phase 2: the reference band absolutely, then every other band against it; writes the manifest."""
+    """Phase 2: the reference band absolutely, then every other band against it; writes the manifest.
+
+    Returns the reference band's CalibrationResult, the RelativeResult (its ``model``: the final
+    model), the GCP columns and the per-band summary rows.
+    """
     from calibrate.absolute import calibrate_model
     from calibrate.from_gcps import points_of
     from calibrate.relative import relative_calibration
@@ -90,7 +95,7 @@ def _calibrate(fx: dict, merged, out_dir: Path, step):
                               "tie_rms_before_px": r.before.get("rms_px"), "tie_rms_after_px": r.after.get("rms_px")}
     write_manifest(relative.model, out_dir / "manifest.json",
                    rasters={b: ref["path"] for b, ref in (lab.rasters or {}).items()})
-    return result, relative.model, ref_pts, band_results
+    return result, relative, ref_pts, band_results
 
 
 def _score(fx: dict, merged, model, ref_pts, step) -> dict:
@@ -155,6 +160,15 @@ def _summary(fixture_dir: Path, merged, result, band_results, match_summaries, s
     }
 
 
+def _report_coverage(coverage: list, sc: dict) -> list:
+    """The coverage rows for the report, each with its CCD's check RMSE before and after (px)."""
+    def rmse(which, row):
+        group = sc[which].groups.get(f"{row['band']}.{row['ccd']}")
+        return None if group is None else group.rmse_px
+
+    return [dict(row, check_rmse_px={w: rmse(w, row) for w in ("before", "after")}) for row in coverage]
+
+
 @staged_output("out_dir", inputs=("fixture_dir",), prefix=".demo-")
 def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing_px: int = 16) -> dict:
     """Run the demo (see the module docstring).
@@ -177,6 +191,7 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
         The summary also written to ``out_dir/summary.json``.
     """
     from calibrate.report import write_report
+    from sensor_models.base import CalibrationStatus
 
     t_start = time.perf_counter()
     step = progress or (lambda message: None)
@@ -184,14 +199,16 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
     fx = _open_fixture(fixture_dir)
     step(f"matching band {fx['reference_band']} against the DOM")
     merged, match_summaries = _match(fx, out_dir, spacing_px)
-    result, model, ref_pts, band_results = _calibrate(fx, merged, out_dir, step)
-    sc = _score(fx, merged, model, ref_pts, step)
+    result, relative, ref_pts, band_results = _calibrate(fx, merged, out_dir, step)
+    sc = _score(fx, merged, relative.model, ref_pts, step)
     summary = _summary(fixture_dir, merged, result, band_results, match_summaries, sc, lab=fx["lab"])
     step("writing the report")
     write_report(out_dir, result=result, accuracy_before=sc["before"], accuracy_after=sc["after"],
                  initial_model=fx["lab"], gcps=ref_pts, checks=sc["checks"], error_vs_count=sc["evc"],
                  truth_model=fx["truth"], title="gcpcal demo: HY-1C-like scene",
-                 extra={k: summary[k] for k in ("gcps", "check_points")})
+                 extra={k: summary[k] for k in ("gcps", "check_points")}, relative=relative,
+                 truth_error={"after": sc["truth"], "before": sc["truth_lab"]}, coverage=_report_coverage(summary["coverage"], sc),
+                 status=CalibrationStatus(summary["status"], summary["status_message"]))
     summary["report"] = "report.html"
     summary["seconds"] = time.perf_counter() - t_start
     write_summary(out_dir / "summary.json", summary)

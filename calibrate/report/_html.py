@@ -156,8 +156,8 @@ def table(header, rows, *, left=1, row_classes=None) -> str:
 
     Parameters
     ----------
-    header : sequence of str
-        Column titles (escaped here).
+    header : sequence of str or None
+        Column titles (escaped here); None for a table of key/value rows without a header row.
     rows : sequence of sequence of str
         Escaped cell HTML.
     left : int
@@ -170,13 +170,15 @@ def table(header, rows, *, left=1, row_classes=None) -> str:
     str
         HTML.
     """
-    head = "".join(f'<th class="l">{h}</th>' if j < left else f"<th>{h}</th>" for j, h in enumerate(header))
+    head = "" if header is None else "".join(
+        f'<th class="l">{h}</th>' if j < left else f"<th>{h}</th>" for j, h in enumerate(header))
     body = []
     for i, row in enumerate(rows):
         cls = f' class="{row_classes[i]}"' if row_classes and row_classes[i] else ""
         cells = "".join(f'<td class="l">{c}</td>' if j < left else f"<td>{c}</td>" for j, c in enumerate(row))
         body.append(f"<tr{cls}>{cells}</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+    thead = f"<thead><tr>{head}</tr></thead>" if head else ""
+    return f"<table>{thead}<tbody>{''.join(body)}</tbody></table>"
 
 
 def figure_html(fig) -> str:

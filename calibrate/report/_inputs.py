@@ -118,6 +118,8 @@ class ReportContext:
         self.notes: list[str] = []
         self.coverage: list[dict] = []  # coverage-gate rows (calibrate.coverage), set by write_report
         self.status = None  # the run's CalibrationStatus, when known
+        self.relative = None  # band-to-band RelativeResult, when given
+        self.truth_error = None  # model_difference results against the truth, when given
         shape = getattr(initial, "image_shape", None)
         if shape is not None:
             self.n_rows, self.n_cols = float(shape[0]), float(shape[1])

@@ -62,6 +62,8 @@ from calibrate.accuracy import AccuracyReport
 from calibrate.report._html import CSS as _CSS, escape as _e, figure_html as _figure_html, fmt as _fmt
 from calibrate.report._html import move_into_place as _move_into_place, table as _table
 from calibrate.report._inputs import ReportContext, check_result, point_columns, unwrap_result
+from calibrate.report.band_to_band import figure_band_to_band, section_band_to_band
+from calibrate.report.truth import figure_truth_error, section_truth
 from calibrate.report.calibration_figures import (figure_distortion, figure_error_vs_count, figure_histograms,
                                                   figure_vectors)
 from sensor_models.errors import InputError
@@ -87,6 +89,8 @@ def write_report(
     extra: dict | None = None,
     coverage=None,
     status=None,
+    relative=None,
+    truth_error=None,
 ) -> Path:
     """Write ``out_dir/report.html`` and its PNG figures in ``out_dir/figures/``.
 
@@ -121,6 +125,15 @@ def write_report(
         names every uncalibrated or unverified CCD with its reason.
     status : CalibrationStatus, optional
         The run's status (calibrated, partial, failed), shown in the summary.
+    relative : calibrate.relative.RelativeResult, optional
+        The band-to-band calibration of the other bands against ``result``'s model: adds the
+        band-to-band section (:mod:`calibrate.report.band_to_band`); its ``model`` is then the
+        final model graded against ``truth_model``.
+    truth_error : dict, optional
+        ``{"after": model_difference(truth, final model), "before": model_difference(truth,
+        initial model)}`` (:func:`sensor_models.compare.model_difference`; ``before``
+        optional): adds the TRUE-model section (:mod:`calibrate.report.truth`), with a figure of
+        the error against the detector when ``truth_model`` is given.
 
     Returns
     -------
@@ -135,12 +148,14 @@ def write_report(
     result = unwrap_result(result)
     g, c, error_vs_count = _checked_inputs(result, accuracy_before, accuracy_after, gcps, checks, error_vs_count,
                                            extra)  # fmt: skip
+    _check_relative_truth(relative, truth_error)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".report-", dir=out_dir))
     try:
         ctx = ReportContext(result, accuracy_before, accuracy_after, initial_model, g, c, truth_model)
         ctx.coverage, ctx.status = list(coverage or []), status
+        ctx.relative, ctx.truth_error = relative, truth_error
         figures = _figures(ctx, error_vs_count, tmp / "figures")
         text = _html(ctx, figures, error_vs_count, str(title), extra)
         (tmp / "report.html").write_text(text, encoding="utf-8")
@@ -157,7 +172,36 @@ def _figures(ctx, error_vs_count, fig_dir: Path) -> dict:
     figures["distortion"] = [figure_distortion(ctx, band, fig_dir) for band in ctx.bands]
     figures["histograms"] = figure_histograms(ctx, fig_dir)
     figures["count"] = figure_error_vs_count(error_vs_count, fig_dir) if error_vs_count else None
+    final = ctx.relative.model if ctx.relative is not None else ctx.calibrated
+    if ctx.relative is not None:
+        figures["band_to_band"] = [figure_band_to_band(b, final, fig_dir) for b in ctx.relative.bands.values()]
+    if ctx.truth_error is not None and ctx.truth is not None:
+        figures["truth"] = figure_truth_error(final, ctx.truth, list(final.bands), fig_dir,
+                                              height_m=_median_height(ctx), notes=ctx.notes)
     return figures
+
+
+def _median_height(ctx) -> float:
+    """Median GCP height (m), 0 without heights."""
+    h = ctx.gcps["h"]
+    return float(np.nanmedian(h)) if h is not None and np.any(np.isfinite(h)) else 0.0
+
+
+def _check_relative_truth(relative, truth_error) -> None:
+    """Validate the band-to-band result and the truth errors of :func:`write_report`."""
+    if relative is not None and not (isinstance(getattr(relative, "bands", None), Mapping)
+                                     and getattr(relative, "model", None) is not None):
+        raise InputError(f"must be a RelativeResult (bands and model), got {type(relative).__name__}",
+                         field="relative")
+    if truth_error is None:
+        return
+    if not isinstance(truth_error, Mapping) or not isinstance(truth_error.get("after"), Mapping):
+        raise InputError("must map 'after' (and optionally 'before') to model_difference results",
+                         field="truth_error")
+    for which in ("after", "before"):
+        value = truth_error.get(which)
+        if value is not None and not (isinstance(value, Mapping) and "rms_px" in value and "max_px" in value):
+            raise InputError("needs 'rms_px' and 'max_px' (model_difference)", field=f"truth_error.{which}")
 
 
 def _checked_inputs(result, accuracy_before, accuracy_after, gcps, checks, error_vs_count, extra):
@@ -194,8 +238,13 @@ def _html(ctx: ReportContext, figures, error_vs_count, title, extra) -> str:
         *([("coverage", "Coverage per CCD", _section_coverage(ctx))] if ctx.coverage else []),
         ("parameters", "Parameters", _section_parameters(ctx) + "".join(_figure_html(f) for f in figures["distortion"])),
         ("per-ccd", "Accuracy per CCD", _section_per_ccd(ctx)),
-        ("distribution", "Residual distribution", _figure_html(figures["histograms"]) + _section_normal(ctx)),
     ]
+    if ctx.relative is not None:
+        sections.append(("band-to-band", "Band-to-band calibration",
+                         section_band_to_band(ctx.relative, figures.get("band_to_band") or [])))
+    if ctx.truth_error is not None:
+        sections.append(("truth", "Error against the TRUE model", section_truth(ctx.truth_error, figures.get("truth"))))
+    sections.append(("distribution", "Residual distribution", _figure_html(figures["histograms"]) + _section_normal(ctx)))
     if error_vs_count:
         sections.append(("gcp-count", "Error versus number of GCPs", _figure_html(figures["count"]) + _section_count(error_vs_count)))
     sections.append(("convergence", "Convergence log", _section_convergence(ctx)))
@@ -237,9 +286,15 @@ def _section_summary(ctx: ReportContext) -> str:
         ("Variance factor σ0²", f"{_fmt(r.variance_factor)} (parameter σ scaled by it: C = σ0² (JᵀWJ)⁻¹)"),
         ("Condition numbers", _e(", ".join(f"{k} {_fmt(v)}" for k, v in r.condition_numbers.items()) or "–")),
     ]
+    if ctx.truth_error is not None:
+        t, lab = ctx.truth_error["after"], ctx.truth_error.get("before")
+        text = f"RMS {_fmt(t.get('rms_px'))} px, max {_fmt(t.get('max_px'))} px over every band and CCD"
+        if lab:
+            text += f" (LAB model: RMS {_fmt(lab.get('rms_px'))} px, max {_fmt(lab.get('max_px'))} px)"
+        items.append(('<a href="#truth">Error against the TRUE model</a>', text))
     if r.skipped:
         items.append(("CCDs keeping their interior", _e("; ".join(str(s.get("reason", s)) for s in r.skipped))))
-    summary = _table(["", ""], [(k, v) for k, v in items], left=2)
+    summary = _table(None, [(k, v) for k, v in items], left=2)
 
     header = ["", "n", "along (px)", "across (px)", "planar (px)", "relative planar (px)", "max (px)",
               "along (m)", "across (m)", "planar (m)"]

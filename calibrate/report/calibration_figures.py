@@ -68,7 +68,7 @@ def figure_vectors(ctx: ReportContext, fig_dir: Path) -> dict:
     extent = max(n_rows, n_cols)
     ratio = n_rows / max(n_cols, 1.0)
     panel_h = float(np.clip(5.2 * ratio, 3.0, 7.0))
-    fig = _new_figure(12.0, panel_h + 0.9, wspace=0.08)
+    fig = _new_figure(12.0, panel_h + 1.2, wspace=0.08, top=0.75)
     axes = fig.subplots(1, 2, sharex=True, sharey=True)
     row, col = ctx.checks["row"], ctx.checks["col"]
     g_idx = _subset(ctx.gcps["row"].size, MAX_DOTS, seed=1)
@@ -86,10 +86,12 @@ def figure_vectors(ctx: ReportContext, fig_dir: Path) -> dict:
         scale = max(ref, 1e-12) / (0.06 * extent)  # residual pixels per image pixel of arrow
         q = ax.quiver(col[sub][ok], row[sub][ok], res[ok, 1], res[ok, 0], color=color, angles="xy",
                       scale_units="xy", scale=scale, width=0.0025, headwidth=3.5, headlength=4.0)
-        ax.quiverkey(q, X=0.72, Y=1.035, U=key, label=f"{key:g} px", labelpos="E", coordinates="axes")
+        # the key arrow sits on its own line between the axes and the title (pad, points)
+        ax.quiverkey(q, X=0.02, Y=1.03, U=key, label=f"key: {key:g} px", labelpos="E", coordinates="axes",
+                     fontproperties={"size": 9})
         summary = acc.absolute
         count = f"n={summary.n}" if summary.n == row.size else f"n={summary.n} of {row.size} projected"
-        ax.set_title(f"{label}: RMSE {summary.rmse_px:.4g} px ({count})", loc="left", fontsize=10)
+        ax.set_title(f"{label}: RMSE {summary.rmse_px:.4g} px ({count})", loc="left", fontsize=10, pad=20)
         ax.set_xlim(0.0, n_cols)
         ax.set_ylim(n_rows, 0.0)
         ax.set_xlabel("column (px)")
@@ -267,7 +269,8 @@ def figure_distortion(ctx: ReportContext, band, fig_dir: Path) -> dict:
         for j in range(2):
             axes[0, j].text(look.first_col + 0.5 * look.n_detectors, 0.02, look.name, color=colors[k],
                             transform=axes[0, j].get_xaxis_transform(), ha="center", va="bottom",
-                            fontsize=6 if small else 8, rotation=90 if small else 0)
+                            fontsize=6 if small else 8, rotation=90 if small else 0,
+                            bbox={"facecolor": "white", "alpha": 0.8, "lw": 0, "pad": 1.0})
     if truth_interior:
         from matplotlib.lines import Line2D
 
@@ -327,7 +330,7 @@ def figure_histograms(ctx: ReportContext, fig_dir: Path) -> dict | None:
     keys = [k for k in ("row", "col") if k in hists]
     if not keys:
         return None
-    fig = _new_figure(11.0, 3.8, wspace=0.2)
+    fig = _new_figure(11.0, 4.1, wspace=0.2, top=0.75)
     axes = np.atleast_1d(fig.subplots(1, len(keys), squeeze=False)[0])
     labels = {"row": "along track (row)", "col": "across track (column)"}
     for ax, key in zip(axes, keys):
@@ -346,7 +349,7 @@ def figure_histograms(ctx: ReportContext, fig_dir: Path) -> dict | None:
             ax.axvline(bound, color="#c0392b", ls="--", lw=1.0)
         ax.axvline(fit.mean, color="0.3", lw=0.8)
         ax.set_title(
-            f"{labels[key]}: μ = {fit.mean:.4g} px, σ = {fit.std:.4g} px, "
+            f"{labels[key]}\nμ = {fit.mean:.4g} px, σ = {fit.std:.4g} px, "
             f"{100.0 * fit.fraction_within_two_sigma:.1f} % within ±2σ",
             loc="left", fontsize=9,
         )

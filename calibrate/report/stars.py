@@ -54,7 +54,7 @@ from calibrate.report._html import CSS as _CSS, escape as _e, figure_html as _fi
 from calibrate.report._html import move_into_place as _move_into_place, new_figure as _new_figure, save_figure as _save, table as _table
 from sensor_models.errors import InputError
 
-__all__ = ["SEED_000", "held_out_errors", "write_star_report"]
+__all__ = ["SEED_000", "held_out_errors", "star_census", "write_star_report"]
 
 #: Published figures of seed 000 (real data, 20 days; table 3 means, table 4 normal fits).
 SEED_000 = {
@@ -163,7 +163,7 @@ def write_star_report(out_dir, result_doc: Mapping, *, result=None,
         fig_dir = tmp / "figures"
         fig_dir.mkdir()
         figures = {
-            "tracks": _figure_tracks(points, shape, fig_dir) if points is not None else None,
+            "tracks": _figure_tracks(points, shape, fig_dir) if points is not None and points["hip"].size else None,
             "errors": _figure_errors(doc, points, fig_dir),
             "histograms": _figure_histograms(doc, points, fig_dir),
             "versus": _figure_versus(doc.get("versus_points") or [], fig_dir),
@@ -429,9 +429,10 @@ def _figure_versus(rows, fig_dir: Path) -> dict | None:
 
 # --------------------------------------------------------------------------- HTML
 def _html(doc, points, figures, title) -> str:
-    sections = [("summary", "Summary", _section_summary(doc) + _figure_html(figures["tracks"]))]
+    sections = [("summary", "Summary", _section_summary(doc, points) + _figure_html(figures["tracks"]))]
     sections.append(("accuracy", "Accuracy on the held-out points",
-                     _section_accuracy(doc) + _figure_html(figures["errors"]) + _figure_html(figures["histograms"])))
+                     _section_accuracy(doc, points) + _figure_html(figures["errors"])
+                     + _figure_html(figures["histograms"])))
     sections.append(("parameters", "Parameters", _section_parameters(doc)))
     if doc.get("versus_points"):
         sections.append(("versus-points", "Error versus number of track points",
@@ -451,30 +452,101 @@ def _html(doc, points, figures, title) -> str:
             f"<nav>{nav}</nav>{body}</body></html>\n")
 
 
-def _section_summary(doc) -> str:
+def star_census(doc, points) -> dict:
+    """What the frames held: frames with a tracked star, detections on and off the star tracks.
+
+    A detection counts as a star only when it lies on a track (a catalogue star followed from
+    frame to frame, :func:`calibrate.stars.process_frames`); identified detections that formed
+    no track are chance matches of noise with the catalogue.
+
+    Parameters
+    ----------
+    doc : mapping
+        ``stars.json``: ``frames`` with ``n_frames``, ``n_detections``, ``n_identified``,
+        ``n_tracks``, ``n_points``.
+    points : dict or None
+        Per-point arrays (:func:`_points`): the track points, with their ``frame``.
+
+    Returns
+    -------
+    dict
+        ``n_frames, n_detections, n_identified, n_tracks, n_track_points`` (int or None),
+        ``frames_without_track`` (int or None: frames holding no track point) and ``starless``
+        (bool: no star track in any frame).
+    """
     f = doc["frames"]
+
+    def count(key):
+        value = f.get(key)
+        return int(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+    n_frames, n_points = count("n_frames"), count("n_points")
+    if points is not None:
+        n_points = int(points["hip"].size)
+    with_track = None if points is None else int(np.unique(points["frame"][np.isfinite(points["frame"])]).size)
+    n_tracks = count("n_tracks")
+    return {"n_frames": n_frames, "n_detections": count("n_detections"), "n_identified": count("n_identified"),
+            "n_tracks": n_tracks, "n_track_points": n_points,
+            "frames_without_track": None if with_track is None or n_frames is None else n_frames - with_track,
+            "starless": n_tracks == 0 or n_points == 0}
+
+
+def _starless_note(c: dict) -> str:
+    """The paragraph that says the frames hold no star (``c``: :func:`star_census`)."""
+    chance = c["n_identified"] or 0
+    matches = (f" ({chance} chance match{'es' if chance != 1 else ''} with catalogue stars formed no track)"
+               if chance else "")
+    frames = "any frame" if c["n_frames"] is None else f"any of the {c['n_frames']} frames"
+    if c["n_detections"] is None:
+        detections = "no detection lies on a star track"
+    else:
+        detections = f"none of the {c['n_detections']} detections lies on a star track"
+    return (f'<p class="fail">No star identified in {_e(frames)}: {_e(detections)}{_e(matches)}; they are noise '
+            "or hot pixels. Check that the frames look at the sky (the pointing mirror turned to deep space), "
+            "their exposure, and the manifest's attitude and times.</p>")
+
+
+def _census_rows(c: dict) -> list:
+    """Summary rows for frames and detections (``c``: :func:`star_census`)."""
+    dash = lambda v: "–" if v is None else str(v)  # noqa: E731
+    if c["starless"]:
+        frames = f"{dash(c['n_frames'])} (no star track in any)"
+        detections = (f"{dash(c['n_detections'])}, none on a star track: noise or hot pixels "
+                      f"({dash(c['n_identified'])} chance catalogue matches)")
+    else:
+        frames = f"{dash(c['n_frames'])} ({dash(c['frames_without_track'])} without a tracked star)"
+        detections = (f"{dash(c['n_detections'])} detections, {dash(c['n_identified'])} matched to catalogue stars, "
+                      f"{dash(c['n_track_points'])} on star tracks")
+    return [("Frames", _e(frames)), ("Detections", _e(detections))]
+
+
+def _section_summary(doc, points=None) -> str:
+    f = doc["frames"]
+    census = star_census(doc, points)
     status = '<span class="ok">success</span>' if doc["success"] else '<span class="fail">failed</span>'
     offset = f.get("offset_px")
     items = [
         ("Status", status), ("Message", _e(doc["message"])), ("Scheme", _e(doc["scheme"])),
-        ("Frames", f"{_e(f.get('n_frames', '–'))} ({_e(len(f.get('frames_without_stars') or []))} without stars)"),
-        ("Detections / identified", f"{_e(f.get('n_detections', '–'))} / {_e(f.get('n_identified', '–'))}"),
+        *_census_rows(census),
         ("Tracks", _e(f.get("n_tracks", "–"))),
         ("Track points", f"{_e(f.get('n_points', '–'))} ({_e(f.get('n_calibration_points', '–'))} calibration, "
                          f"{_e(f.get('n_check_points', '–'))} held out)"),
         ("Identification offset (row, col)",
-         "–" if not offset else f"({_fmt(offset[0])}, {_fmt(offset[1])}) px"),
+         "–" if not offset or census["starless"] else f"({_fmt(offset[0])}, {_fmt(offset[1])}) px"),
     ]
     for key, value in (doc.get("inputs") or {}).items():
         items.append((_e(f"Input: {key}"), _e(value)))
     if doc.get("calibrated_manifest"):
         items.append(("Calibrated manifest", _e(doc["calibrated_manifest"])))
-    return _table(["", ""], items, left=2)
+    note = _starless_note(census) if census["starless"] else ""
+    return note + _table(None, items, left=2)
 
 
-def _section_accuracy(doc) -> str:
+def _section_accuracy(doc, points=None) -> str:
     acc = doc["accuracy"]
     if not acc:
+        if star_census(doc, points)["starless"]:
+            return "<p>No accuracy: no star track to calibrate from.</p>"
         return "<p>No accuracy: the calibration did not run.</p>"
     header = ["model", "error", "n", "mean (px)", "mean |e| (px)", "RMS (px)", "max |e| (px)", "σ (px)",
               "2σ (px)", "2σ bounds (px)", "μ CI 95 % (px)", "σ CI 95 % (px)", "within 2σ"]
@@ -546,6 +618,9 @@ def _section_parameters(doc) -> str:
                      f"{_table(['coefficient', 'LAB', 'calibrated', 'change', 'σ'], rows)}</details>")
     if sigma:
         parts.append("<p>σ: standard deviations of the last least-squares step's free parameters.</p>")
+    if parts and not doc["success"]:
+        parts.insert(0, '<p class="fail">The calibration failed: the "calibrated" values are those of the model '
+                        "kept for diagnosis, not to be used.</p>")
     return "".join(parts) or "<p>No parameter in the document.</p>"
 
 
@@ -568,7 +643,9 @@ def _section_tracks(tracks) -> str:
                      _e(t.get("n_check", "–")), _e(t.get("n_rejected", "–")), _fmt(t.get("spline_rms_px")),
                      _fmt(t.get("row_mean_px")), "–" if not span else f"{_fmt(span[0])} – {_fmt(span[1])}",
                      _e(t.get("skipped", ""))])
-    return f"<details><summary>{len(tracks)} tracks</summary>{_table(header, body)}</details>"
+    used = sum(1 for t in tracks if not t.get("skipped"))
+    return (f"<details><summary>{len(tracks)} catalogue stars matched by a detection, {used} of them tracked and used"
+            f"</summary>{_table(header, body)}</details>")
 
 
 def _section_runs(runs) -> str:
