@@ -146,14 +146,19 @@ IFOV_TOLERANCE = 0.02
 
 
 def _frame_shape(frame) -> tuple[int, int]:
-    """``(n_rows, n_cols)`` of a frame raster, from its header."""
+    """``(n_rows, n_cols)`` of a frame raster (FITS through astropy, anything else through GDAL)."""
+    if Path(frame).suffix.lower() in (".fits", ".fit", ".fts"):
+        return tuple(int(n) for n in load_frame(frame).shape)
     import rasterio
-    from rasterio.errors import NotGeoreferencedWarning
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
     with warnings.catch_warnings():  # star frames have no map geometry: no warning line
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(frame) as ds:
-            return int(ds.height), int(ds.width)
+        try:
+            with rasterio.open(frame) as ds:
+                return int(ds.height), int(ds.width)
+        except RasterioError as exc:
+            raise InputError(f"cannot read the star frame ({exc})", path=str(frame)) from None
 
 
 def check_frames_camera(frames, listed_model, model, *, frames_source, model_source) -> None:

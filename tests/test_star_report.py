@@ -248,6 +248,16 @@ def test_starless_fits_frames_say_so(sim20, tmp_path):
     _assert_says_starless(html, doc["frames"], 20)
 
 
+def test_stars_command_reads_fits_frame_lists(sim20, tmp_path):
+    """``gcpcal stars`` takes a frame list of FITS files (the frame size is read by astropy)."""
+    from calibrate.cli import main
+
+    sky = _sky_frames(sim20, tmp_path / "sky", fmt="fits", seed=2)
+    assert main(["-q", "stars", str(sky), "--out", str(tmp_path / "cal")]) == 3  # starless: failed, reported
+    doc = json.loads((tmp_path / "cal" / "stars.json").read_text())
+    _assert_says_starless((tmp_path / "cal" / "report.html").read_text(encoding="utf-8"), doc["frames"], 20)
+
+
 def test_report_with_stars_does_not_say_starless(run, tmp_path):
     result, doc = run
     html = write_star_report(tmp_path, doc, result=result).read_text(encoding="utf-8")
