@@ -20,3 +20,13 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real test data not found at {SHARED_DATA} (../shared/data beside the project)")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def demo_folder(tmp_path_factory):
+    """``gcpcal demo``'s output folder, run once per session (about 10-15 s); tests only read it."""
+    from calibrate.cli import main
+
+    out = tmp_path_factory.mktemp("demo-session") / "demo"
+    assert main(["-q", "demo", "--out", str(out), "--json"]) == 0
+    return out

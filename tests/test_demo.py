@@ -10,10 +10,8 @@ from calibrate.cli import main
 
 
 @pytest.fixture(scope="module")
-def demo_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("demo")
-    rc = main(["-q", "demo", "--out", str(out), "--json"])
-    assert rc == 0
+def demo_run(demo_folder):
+    out = demo_folder
     return out, json.loads((out / "summary.json").read_text())
 
 

@@ -226,12 +226,8 @@ def test_in_memory_orthorectify_agrees_with_file(tmp_path, truth, dem):
 
 # ---------------------------------------------------------------- acceptance on the fixture
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    from calibrate.actions.demo import run_demo
-
-    out = tmp_path_factory.mktemp("demo")
-    run_demo(out)
-    return out
+def demo(demo_folder):
+    return demo_folder
 
 
 def _dom_on(path):

@@ -276,14 +276,11 @@ def _fmt4(value):
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
+def demo(demo_folder):
     """``gcpcal demo``'s folder and summary (about 10-15 s)."""
     import json
 
-    from calibrate.actions.demo import run_demo
-
-    out = tmp_path_factory.mktemp("demo") / "out"
-    run_demo(out)
+    out = demo_folder
     return out, json.loads((out / "summary.json").read_text()), (out / "report.html").read_text(encoding="utf-8")
 
 

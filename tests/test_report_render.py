@@ -58,13 +58,9 @@ def _render(html_path: Path) -> dict:
 
 
 @pytest.fixture(scope="module")
-def demo_report(tmp_path_factory):
-    """``gcpcal demo``'s report (about 10-15 s)."""
-    from calibrate.actions.demo import run_demo
-
-    out = tmp_path_factory.mktemp("render") / "demo"
-    run_demo(out)
-    return out / "report.html"
+def demo_report(demo_folder):
+    """``gcpcal demo``'s report (the session's demo run, :func:`conftest.demo_folder`)."""
+    return demo_folder / "report.html"
 
 
 def test_every_figure_of_the_demo_report_loads_in_chromium(demo_report):
