@@ -36,7 +36,7 @@ from pathlib import Path
 
 from sensor_models.errors import InputError
 
-__all__ = ["RASTER_SUFFIXES", "crop_to_raster", "missing_raster_message", "open_scene", "raster_beside", "xml_root"]
+__all__ = ["RASTER_SUFFIXES", "crop_to_raster", "missing_raster_message", "open_scene", "raster_beside"]
 
 #: Raster suffixes looked for beside a model file with the same stem, in this order.
 RASTER_SUFFIXES = (".tif", ".TIF", ".tiff", ".TIFF", ".NTF", ".ntf", ".jp2", ".JP2")
@@ -74,7 +74,7 @@ def open_scene(path, *, image=None, band=None, **kwargs):
         No such file; a raster with no RPC anywhere (the message lists what was looked for);
         a raster of another size without a pixel geotransform.
     """
-    from sensor_models.readers import open_model
+    from sensor_models.readers.model_file import open_model
 
     path = Path(path)
     if not path.exists():
@@ -209,7 +209,7 @@ def _rasters_of_model_file(path: Path, model) -> tuple[dict, tuple]:
     name = path.name.lower()
     if name.endswith(".dim"):
         raster, candidates = _dimap_data_file(path, "Data_Access/Data_File/DATA_FILE_PATH")
-    elif name.endswith(".xml") and xml_root(path) == "Dimap_Document":
+    elif name.endswith(".xml") and _xml_root(path) == "Dimap_Document":
         raster, candidates = _dimap_data_file(path, "Raster_Data/Data_Access/Data_Files/Data_File/DATA_FILE_PATH")
     else:  # .geom, .RPB, _RPC.TXT, WorldView .XML
         raster, candidates = raster_beside(path)
@@ -234,32 +234,10 @@ def _dimap_data_file(path: Path, rel: str) -> tuple[Path | None, tuple[Path, ...
     return next((c for c in candidates if c.is_file()), None), candidates
 
 
-def xml_root(path) -> str:
-    """The local name of an XML file's root element (namespace dropped).
+def _xml_root(path: Path) -> str:
+    from sensor_models.readers.model_file import xml_root
 
-    Parameters
-    ----------
-    path : str or Path
-        The XML file; only its first element is parsed.
-
-    Returns
-    -------
-    str
-        E.g. ``"Dimap_Document"`` or ``"isd"``.
-
-    Raises
-    ------
-    InputError
-        Not XML, or empty.
-    """
-    import xml.etree.ElementTree as ET
-
-    try:
-        for _, elem in ET.iterparse(path, events=("start",)):
-            return elem.tag.rsplit("}", 1)[-1]
-    except ET.ParseError as exc:
-        raise InputError(f"not readable XML ({exc})", path=str(path)) from None
-    raise InputError("empty XML file", path=str(path))
+    return xml_root(path)
 
 
 def _band_rasters(model, raster: Path) -> dict:
