@@ -217,6 +217,17 @@ def test_relative_takes_the_form_and_says_an_rpc_has_no_bands(gen, tmp_path, cap
     assert not (tmp_path / "rel").exists()
 
 
+def test_run_on_a_crop_raster(gen, tmp_path):
+    """run (match, then calibrate) on the crop as given: the DOM's shift comes back as the bias."""
+    out = tmp_path / "run"
+    assert main(["-q", "run", str(gen.dir / "crop.tif"), "--dom", gen.dom, *gen.dem, "--out", str(out),
+                 "--min-gcps", "20"]) == 0
+    summary = json.loads((out / "run.summary.json").read_text())
+    assert summary["path"] == "gcps" and summary["success"]
+    bias = json.loads((out / "calibration" / "calibration.json").read_text())["bias"]
+    assert abs(bias["bias.row.a0"] - SHIFT_PX[0]) < 0.1 and abs(bias["bias.col.b0"] - SHIFT_PX[1]) < 0.1
+
+
 def test_image_overrides_the_raster_found(gen, tmp_path):
     """--image wins over the raster beside the model file; its crop crops the model."""
     model = open_scene(gen.dir / "geom.geom", image=gen.dir / "crop.tif")
