@@ -309,6 +309,14 @@ def test_xml_dispatch_by_root_element(shared_data, tmp_path, monkeypatch, capsys
     _write_raster(tmp_path / tile, _texture(FULL, 3))
     model = open_scene(tmp_path / "DIM_SPOT6.XML")
     assert model.rasters == {None: {"path": str((tmp_path / tile).resolve()), "index": 1}}
+    tiled = tmp_path / "DIM_TILED.XML"
+    tiled.write_text("<?xml version='1.0'?><Dimap_Document><Raster_Data><Data_Access><Data_Files>"
+                     + "".join(f"<Data_File><DATA_FILE_PATH href='R1C{i}.TIF'/></Data_File>" for i in (1, 2))
+                     + "</Data_Files></Data_Access></Raster_Data></Dimap_Document>")
+    assert open_scene(tiled).rasters == {} and open_scene(tiled).raster_tiles == 2
+    err = _one_line_error(capsys, ["ortho", str(tiled), "--dem", str(tmp_path / "none.tif"),
+                                   "--out", str(tmp_path / "o.tif")])
+    assert "split into 2 tiles (R1C1.TIF, ...)" in err and "--image" in err
     (tmp_path / "other.xml").write_text("<?xml version='1.0'?><kml/>")
     with pytest.raises(Exception, match="unknown XML product"):
         open_model(tmp_path / "other.xml")

@@ -41,7 +41,6 @@ __all__ = ["RASTER_SUFFIXES", "crop_to_raster", "missing_raster_message", "open_
 #: Raster suffixes looked for beside a model file with the same stem, in this order.
 RASTER_SUFFIXES = (".tif", ".TIF", ".tiff", ".TIFF", ".NTF", ".ntf", ".jp2", ".JP2")
 
-_RPC_SUFFIXES = (".geom", ".rpb")  # model files whose raster has the same stem (plus _RPC.TXT)
 _MODEL_SUFFIXES = (".json", ".dim", ".xml", ".geom", ".rpb")
 
 
@@ -71,8 +70,10 @@ def open_scene(path, *, image=None, band=None, **kwargs):
     Raises
     ------
     InputError
-        No such file; a raster with no RPC anywhere (the message lists what was looked for);
-        a raster of another size without a pixel geotransform.
+        No such file; a file that is neither a model file nor a raster; a raster with no RPC
+        anywhere (the message lists what was looked for); a raster of another size without a
+        pixel geotransform. A tiled DIMAP product gives no raster (``raster_tiles`` > 1) and
+        :func:`missing_raster_message` says so.
     """
     from sensor_models.readers.model_file import open_model
 
@@ -90,6 +91,7 @@ def open_scene(path, *, image=None, band=None, **kwargs):
         model = _model_of_raster(path, **kwargs)
         rasters, candidates = _single_raster(model, path), ()
     model.raster_candidates = () if rasters else tuple(str(c) for c in candidates)
+    model.raster_tiles = len(candidates) if _names_tiles(path) else 0
     return _with_image(model, rasters, image, band, check_shape=True)
 
 
@@ -109,6 +111,10 @@ def missing_raster_message(model, band) -> str:
         E.g. ``"no raster found for the scene (looked for a.tif, a.TIF in /data); give --image"``.
     """
     candidates = [Path(c) for c in getattr(model, "raster_candidates", ()) or ()]
+    tiles = getattr(model, "raster_tiles", 0) or 0
+    if tiles > 1:
+        return (f"the product's raster is split into {tiles} tiles ({candidates[0].name}, ...); give one raster "
+                "(e.g. a VRT of the tiles) as --image")
     if candidates:
         folders = {c.parent for c in candidates}
         names = ", ".join(c.name for c in candidates)
@@ -186,15 +192,11 @@ def _is_model_file(path: Path) -> bool:
 
 def _model_of_raster(path: Path, **kwargs):
     """The RPC of a raster: GDAL's (tags, ``.RPB``, ``_RPC.TXT``), else ``X.geom`` beside it."""
-    from sensor_models.errors import RpcError
     from sensor_models.rpc import RpcModel
 
-    try:
+    shape, has_rpc = _raster_rpc(path)
+    if has_rpc:
         return RpcModel.read(path, **kwargs)
-    except RpcError as exc:
-        if "no RPC found" not in str(exc):
-            raise
-    shape = _raster_info(path)[0]
     for geom in (path.with_suffix(".geom"), path.with_suffix(".GEOM")):
         if geom.is_file():
             return RpcModel.read(geom, **kwargs)
@@ -218,8 +220,17 @@ def _rasters_of_model_file(path: Path, model) -> tuple[dict, tuple]:
     return _band_rasters(model, raster), candidates
 
 
+def _names_tiles(path: Path) -> bool:
+    """Whether the candidates of this model file are the tiles it names (DIMAP), not alternatives."""
+    name = path.name.lower()
+    return name.endswith(".dim") or (name.endswith(".xml") and _xml_root(path) == "Dimap_Document")
+
+
 def _dimap_data_file(path: Path, rel: str) -> tuple[Path | None, tuple[Path, ...]]:
-    """The raster a DIMAP file names (``DATA_FILE_PATH@href``, relative to the file's folder)."""
+    """The raster a DIMAP file names (``DATA_FILE_PATH@href``, relative to the file's folder).
+
+    A product tiled into several files gives no raster (the tiles are the candidates).
+    """
     import xml.etree.ElementTree as ET
 
     try:
@@ -228,10 +239,9 @@ def _dimap_data_file(path: Path, rel: str) -> tuple[Path | None, tuple[Path, ...
         raise InputError(f"not readable XML ({exc})", path=str(path)) from None
     hrefs = [e.get("href") for e in root.iterfind(rel) if e.get("href")]
     candidates = tuple(path.parent / h for h in hrefs)
-    if len(candidates) > 1:  # a tiled product: one raster per tile
-        raise InputError(f"the product's raster is split into {len(candidates)} tiles; give one raster "
-                         "(e.g. a VRT of the tiles) as --image", path=str(path))
-    return next((c for c in candidates if c.is_file()), None), candidates
+    if len(candidates) != 1:  # none named, or a tiled product (one raster per tile)
+        return None, candidates
+    return (candidates[0] if candidates[0].is_file() else None), candidates
 
 
 def _xml_root(path: Path) -> str:
@@ -266,11 +276,28 @@ def _with_image(model, rasters: dict, image, band, *, check_shape: bool):
     if check_shape and ref is not None and (image is None or hasattr(model, "cropped")):
         shape = _raster_info(ref["path"])[0]
         if shape != tuple(model.image_shape):
-            candidates = model.raster_candidates
+            candidates, tiles = model.raster_candidates, getattr(model, "raster_tiles", 0)
             model = crop_to_raster(model, ref["path"], shape)
-            model.raster_candidates = candidates
+            model.raster_candidates, model.raster_tiles = candidates, tiles
     model.rasters = rasters
     return model
+
+
+def _raster_rpc(path) -> tuple[tuple[int, int], bool]:
+    """``((n_rows, n_cols), whether GDAL finds an RPC)`` of a raster (tags or sidecar)."""
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as ds:
+                return (ds.height, ds.width), bool(ds.tags(ns="RPC"))
+    except RasterioError as exc:
+        raise InputError(f"cannot open as a raster ({exc}); a SCENE is a manifest, a model file or a raster",
+                         path=str(path)) from None
 
 
 def _raster_info(path):
