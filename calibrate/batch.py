@@ -324,11 +324,11 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     from calibrate.from_gcps import points_of
     from gcpmatch.extract import extract_gcps, read_band
     from gcpmatch.options import MatchOptions
-    from sensor_models.readers import open_model
+    from sensor_models.readers import open_model, open_scene
     from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
-    lab = open_model(site.scene)
+    lab = open_scene(site.scene)
     out["date"] = str(np.datetime_as_string(np.datetime64(lab.epoch, "s")))[:10] if hasattr(lab, "epoch") else None
     calibrated = open_model(calibration)
     model = _calibrated_scene_model(lab, calibrated)

@@ -440,7 +440,9 @@ def read_band(model, band: str, image=None) -> np.ndarray:
     if image is None:
         rasters = getattr(model, "rasters", None) or {}
         if band not in rasters:
-            raise InputError(f"the scene lists no raster for band {band!r}; give --image")
+            from sensor_models.readers.scene_input import missing_raster_message
+
+            raise InputError(missing_raster_message(model, band))
         path, index = rasters[band]["path"], int(rasters[band].get("index", 1))
     else:
         path, index = str(image), 1

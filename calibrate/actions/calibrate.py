@@ -43,16 +43,10 @@ def _accuracy(model, pts):
 
 def _read_inputs(scene_path, gcps_path, band, image):
     """The model (cropped to ``image`` when that is a crop of the scene) and the GCP table."""
-    from calibrate.actions._scene import crop_to_raster
-    from gcpmatch.extract import read_band
     from gcpmatch.gcps import read_gcps
-    from sensor_models.readers import open_model
+    from sensor_models.readers import open_scene
 
-    model = open_model(scene_path)
-    if image is not None:
-        shape = read_band(model, band or getattr(model, "reference_band", None), image).shape
-        if shape != tuple(model.image_shape) and hasattr(model, "cropped"):
-            model = crop_to_raster(model, image, shape)
+    model = open_scene(scene_path, image=image, band=band)
     return model, read_gcps(gcps_path, image_shape=model.image_shape)
 
 

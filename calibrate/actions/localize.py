@@ -197,7 +197,7 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
         The summary (``points``, ``not_localized``, ...) plus ``results``: ``row, col, lon, lat,
         h`` arrays of shape (N,).
     """
-    from sensor_models import open_model
+    from sensor_models.readers import open_scene
 
     t0 = time.perf_counter()
     if out_path:  # before any work
@@ -207,7 +207,7 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     if "csv" in points:
         source = str(points["csv"])
         points = read_points_csv(Path(points["csv"]), columns)
-    model = open_model(model_path)
+    model = open_scene(model_path)  # a raster with its RPC, or a crop, as well as a model file
     warning = require_usable(model, model_path, command="localize")
     kwargs = {} if band is None else {"band": band}
     if direction == "direct":

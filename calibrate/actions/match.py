@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.actions._io import check_output_files, staged_files
-from calibrate.actions._scene import crop_to_raster
 from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
 from sensor_models.errors import InputError
@@ -24,7 +23,8 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     Parameters
     ----------
     scene_path : str or Path
-        Scene manifest or any model file :func:`sensor_models.readers.open_model` reads.
+        SCENE in any form :func:`sensor_models.readers.open_scene` reads (manifest, model file
+        with its raster, raster with an RPC).
     dom_path, dem_path : str or Path
         Reference orthoimage and DEM (any CRS).
     out_path : str or Path
@@ -58,17 +58,15 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         When no GCP could be extracted (the summary is written all the same).
     """
     from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
-    from sensor_models.readers import open_model
+    from sensor_models.readers import open_scene
     from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
     options.validate()  # before any work: e.g. --backend gpu without CUDA
     check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path)
-    model = open_model(scene_path)
+    model = open_scene(scene_path, image=image, band=band)  # cropped to the raster when that is a crop
     band = band or getattr(model, "reference_band", None)
     scene = read_band(model, band, image)
-    if image is not None and scene.shape != tuple(model.image_shape) and hasattr(model, "cropped"):
-        model = crop_to_raster(model, image, scene.shape)
     if geotiff_path is not None:  # before any work: the GeoTIFF's size limit, from the window count
         _check_geotiff_capacity(model, band, options, geotiff_path)
     dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)

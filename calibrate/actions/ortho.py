@@ -17,6 +17,7 @@ from calibrate.actions._io import check_output_files, open_dem, staged_files, wr
 from calibrate.actions._status import open_usable_calibration, require_usable, status_fields
 from calibrate.config import OrthoOptions
 from sensor_models.errors import InputError
+from sensor_models.readers.scene_input import missing_raster_message, open_scene
 
 __all__ = ["ortho_scene"]
 
@@ -50,7 +51,6 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     dict
         The summary written to ``OUT.summary.json``.
     """
-    from sensor_models import open_model
     from sensor_models.ortho import orthorectify_to_file
 
     t0 = time.perf_counter()
@@ -59,7 +59,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
         raise InputError("the orthoimage is a GeoTIFF: give a .tif name", path=str(out_path))
     summary_path = out_path.with_suffix(".summary.json")
     check_output_files(out_path, summary_path)  # before any work
-    scene = open_model(scene_path)
+    scene = open_scene(scene_path, image=image, band=band)  # cropped to the raster when that is a crop
     scene_warning = require_usable(scene, scene_path, command="ortho")
     geometry, calib_file, calib_warning = scene, None, None
     if calibration is not None:
@@ -107,7 +107,7 @@ def _band_and_image(scene, geometry, band, image, scene_path):
         rasters = getattr(scene, "rasters", None) or {}
         key = band if band is not None else scene.reference_band
         if key not in rasters:
-            raise InputError(f"the scene lists no raster for band {key!r}; give --image", path=str(scene_path))
+            raise InputError(missing_raster_message(scene, key), path=str(scene_path))
         image = (rasters[key]["path"], int(rasters[key].get("index", 1)))
     return band, image
 

@@ -97,9 +97,9 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
 
 def _open_scene(scene_path, calibrated, cal_path, reference_band):
     """The LAB scene, checked against the calibrated model, and the reference band."""
-    from sensor_models.readers import open_model
+    from sensor_models.readers import open_scene
 
-    scene = open_model(scene_path)
+    scene = open_scene(scene_path)
     if scene.interior_layout != "per_array":
         raise InputError("relative calibration needs a push-broom scene manifest", path=str(scene_path))
     _same_scene(scene, calibrated, str(cal_path))

@@ -81,14 +81,14 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
     dict
         The summary (``rpcs``: output, CCD and fit report of each RPC; ``check_max_px``).
     """
-    from sensor_models import open_model
+    from sensor_models.readers import open_scene
     from sensor_models.rpc import fit_rpc
 
     t0 = time.perf_counter()
     out = Path(out_path)
     summary_path = out.with_name(out.name + ".summary.json")
     check_output_files(out, summary_path)  # before any work
-    model = open_model(model_path)
+    model = open_scene(model_path)  # a raster with its RPC, or a crop, as well as a model file
     warning = require_usable(model, model_path, command="rpc")
     height_range, coverage = _height_range(model, dem_path, dem_datum, geoid, height_range)
     targets = _targets(model, out, band, ccd)

@@ -177,12 +177,12 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
         The summary written to ``run.summary.json`` (``path``, ``reason``, ``success``, ...).
     """
     from sensor_models.atomic import atomic_write_text
-    from sensor_models.readers import open_model
+    from sensor_models.readers import open_scene
 
     t0 = time.perf_counter()
     step = progress or (lambda m: None)
     out_dir = Path(out_dir)  # the staging folder (staged_output)
-    model = open_model(scene_path)
+    model = open_scene(scene_path)
     if star_frames is not None:  # frames of another camera are refused before any work
         read_star_inputs(star_frames, scene_model=model, scene_source=scene_path)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -34,6 +34,10 @@ _EXIT_OF_STATUS = {"calibrated": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXI
 def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, image, no_report, as_json):
     """Calibrate SCENE's model from GCPs; write calibration.json, the calibrated model and report.html.
 
+    SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
+    beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
+    .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
+
     Exit 0: calibrated; 4: partial (CCDs not calibrated or not verified, named); 3: failed.
     """
     options = CalibrationOptions(scheme=scheme, robust=robust)

@@ -61,6 +61,11 @@ def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height,
     (or --csv with lon,lat,h and --inverse). Image coordinates put the first pixel's centre at
     (0.5, 0.5); heights are metres above the WGS84 ellipsoid. Points outside the image, longitudes
     outside [-180, 360), latitudes outside [-90, 90] and heights outside [-500, 9000] m are refused.
+
+    MODEL is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
+    beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
+    .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md). Pixels are
+    the raster's: a crop's own rows and columns.
     """
     direction, points = _points(rows, cols, lon, lat, h_text, csv_path, inverse)
     if direction == "direct" and (height is None) == (dem_path is None):

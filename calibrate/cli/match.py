@@ -20,7 +20,7 @@ __all__ = ["command"]
 @click.option("--gpkg", "gpkg_path", type=click.Path(dir_okay=False), help="Also write the GCPs as a GeoPackage layer.")
 @click.option("--geotiff", "geotiff_path", type=click.Path(dir_okay=False), help="Also write the GCPs into a GeoTIFF (GDAL GCPs).")
 @click.option("--band", help="Band to match (default: the reference band).")
-@click.option("--image", type=click.Path(dir_okay=False), help="Scene raster (default: the manifest's raster of the band).")
+@click.option("--image", type=click.Path(dir_okay=False), help="Scene raster (default: the raster SCENE lists, names or has beside it).")
 @click.option("--mask", "mask_path", type=click.Path(dir_okay=False), help="Cloud/invalid mask raster in scene geometry (nonzero = invalid).")
 @click.option("--check-fraction", type=click.FloatRange(0.0, 0.9), default=MatchOptions.check_fraction, show_default=True,
               help="Share of matches kept as independent check points.")
@@ -36,7 +36,12 @@ __all__ = ["command"]
 @click.pass_context
 def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_path, geotiff_path, band, image,
             mask_path, check_fraction, window, spacing, max_offset, backend, as_json):
-    """Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation)."""
+    """Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation).
+
+    SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
+    beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
+    .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
+    """
     if dem_path is None:
         raise InputError("--dem is required: GCPs need terrain heights")
     options = MatchOptions(window_px=window, spacing_px=spacing, max_offset_px=max_offset,

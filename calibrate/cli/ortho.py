@@ -26,7 +26,7 @@ __all__ = ["command"]
               help="Pixel size in CRS units, m (default: the scene's ground sampling distance).")
 @click.option("--resampling", type=click.Choice(ORTHO_RESAMPLING), default=OrthoOptions.resampling, show_default=True,
               help="Interpolation of the scene pixels.")
-@click.option("--image", type=click.Path(dir_okay=False), help="Scene raster (default: the manifest's raster of the band).")
+@click.option("--image", type=click.Path(dir_okay=False), help="Scene raster (default: the raster SCENE lists, names or has beside it).")
 @click.option("--block", type=click.IntRange(min=64), default=OrthoOptions.block, show_default=True,
               help="Output pixels per block side (memory grows with its square, not with the output).")
 @json_option
@@ -38,6 +38,10 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_path, 
     The geometry comes from --calibration (the calibrated model) when given, the pixels from
     SCENE's rasters (or --image). The output grid is the scene footprint's bounding box in the
     CRS at the resolution; pixels off the image or the DEM are no-data (0).
+
+    SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
+    beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
+    .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
     """
     if dem_path is None:
         raise InputError("--dem is required: orthorectification needs terrain heights")

@@ -84,6 +84,9 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
     each band's interior (directional angles per CCD) is then solved with the exterior held.
     Writes OUT/manifest.json (every band calibrated), OUT/relative.json (tie statistics before
     and after, per band and CCD) and OUT/relative.summary.json.
+
+    SCENE is the push-broom scene (a gcpcal manifest with its rasters); an RPC has no
+    bands to calibrate against each other.
     """
     if dem_path is None:
         raise InputError("--dem is required: the reference band's tie points are localized on the terrain")

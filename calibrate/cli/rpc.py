@@ -27,6 +27,10 @@ def command(model_path, out_path, dem_path, dem_datum, geoid, height_range, band
     The height range comes from --dem (its minimum and maximum over the scene, with a margin) or
     --height-range. The fit is terrain-independent; its errors on an independent check grid are
     reported in OUT.summary.json.
+
+    MODEL is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
+    beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
+    .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
     """
     summary = fit_rpcs(model_path, out_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
                        height_range=height_range, band=band, ccd=ccd)

@@ -27,7 +27,12 @@ __all__ = ["command"]
 @click.pass_context
 def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, star_frames, out_dir, min_gcps, min_coverage,
             as_json):
-    """Calibrate SCENE from GCPs, or from star frames when clouds leave too few (says which and why)."""
+    """Calibrate SCENE from GCPs, or from star frames when clouds leave too few (says which and why).
+
+    SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
+    beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
+    .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
+    """
     if dem_path is None:
         raise InputError("--dem is required: GCPs need terrain heights")
     summary = run_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_dir=out_dir, star_frames=star_frames,

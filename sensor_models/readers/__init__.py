@@ -8,53 +8,19 @@ file                                      model
 ``*.DIM`` (SPOT 1-5 DIMAP level 1A)       :class:`~sensor_models.pushbroom.PushbroomModel`
 ``*.geom`` (OSSIM keyword list, RPC)      :class:`~sensor_models.rpc.RpcModel`
 ``*.RPB``, ``*_RPC.TXT``                  :class:`~sensor_models.rpc.RpcModel`
+``*.XML`` DIMAP v2 (``Dimap_Document``)   :func:`sensor_models.readers.dimap_v2.read_dimap_v2`
+``*.XML`` WorldView (``isd``)             :func:`sensor_models.readers.worldview.read_worldview`
 a raster with RPC metadata (GeoTIFF...)   :class:`~sensor_models.rpc.RpcModel`
 ========================================  =========================================
+
+:func:`open_scene` (:mod:`sensor_models.readers.scene_input`) opens a SCENE as the user has it:
+any of these files, or a raster with an RPC, with the raster of its pixels found and the model
+cropped to a crop.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
+from sensor_models.readers.model_file import open_model
+from sensor_models.readers.scene_input import open_scene
 
-from sensor_models.errors import InputError
-
-__all__ = ["open_model"]
-
-
-def open_model(path, **kwargs):
-    """Open a sensor model from any supported file (see the module table).
-
-    Parameters
-    ----------
-    path : str or Path
-        The model file; its kind is told by its name (``.json``, ``.dim``, anything else RPC).
-    **kwargs
-        Passed to the reader of that kind (:func:`~sensor_models.readers.scene.read_manifest`,
-        :func:`~sensor_models.readers.dimap.read_dimap`, :meth:`RpcModel.read
-        <sensor_models.rpc.RpcModel.read>`).
-
-    Returns
-    -------
-    SensorModel
-        The model the file describes.
-
-    Raises
-    ------
-    InputError
-        If the file does not exist or its kind is not recognized (naming the file).
-    """
-    path = Path(path)
-    if not path.exists():
-        raise InputError("no such file", path=str(path))
-    name = path.name.lower()
-    if name.endswith(".json"):
-        from sensor_models.readers.scene import read_manifest
-
-        return read_manifest(path, **kwargs)
-    if name.endswith(".dim"):
-        from sensor_models.readers.dimap import read_dimap
-
-        return read_dimap(path, **kwargs)
-    from sensor_models.rpc import RpcModel
-
-    return RpcModel.read(path, **kwargs)
+__all__ = ["open_model", "open_scene"]

@@ -1,0 +1,106 @@
+"""The reader of a model file, told by its name (or, for ``.xml``, by its root element).
+
+See the table in :mod:`sensor_models.readers`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from sensor_models.errors import InputError
+
+__all__ = ["open_model", "xml_root"]
+
+#: Root element of a vendor XML file -> (module, reader function) of its geometric reader.
+_XML_READERS = {
+    "Dimap_Document": ("sensor_models.readers.dimap_v2", "read_dimap_v2"),
+    "isd": ("sensor_models.readers.worldview", "read_worldview"),
+}
+
+
+def open_model(path, **kwargs):
+    """Open a sensor model from any supported file (see the module table).
+
+    Parameters
+    ----------
+    path : str or Path
+        The model file; its kind is told by its name (``.json``, ``.dim``, ``.xml`` by its root
+        element, anything else RPC).
+    **kwargs
+        Passed to the reader of that kind (:func:`~sensor_models.readers.scene.read_manifest`,
+        :func:`~sensor_models.readers.dimap.read_dimap`, :meth:`RpcModel.read
+        <sensor_models.rpc.RpcModel.read>`).
+
+    Returns
+    -------
+    SensorModel
+        The model the file describes.
+
+    Raises
+    ------
+    InputError
+        If the file does not exist or its kind is not recognized (naming the file); for an
+        ``.xml`` product whose reader is not installed, "reader not available".
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError("no such file", path=str(path))
+    name = path.name.lower()
+    if name.endswith(".json"):
+        from sensor_models.readers.scene import read_manifest
+
+        return read_manifest(path, **kwargs)
+    if name.endswith(".dim"):
+        from sensor_models.readers.dimap import read_dimap
+
+        return read_dimap(path, **kwargs)
+    if name.endswith(".xml"):
+        return _read_vendor_xml(path, **kwargs)
+    from sensor_models.rpc import RpcModel
+
+    return RpcModel.read(path, **kwargs)
+
+
+def xml_root(path) -> str:
+    """The local name of an XML file's root element (namespace dropped).
+
+    Parameters
+    ----------
+    path : str or Path
+        The XML file; only its first element is parsed.
+
+    Returns
+    -------
+    str
+        E.g. ``"Dimap_Document"`` or ``"isd"``.
+
+    Raises
+    ------
+    InputError
+        Not XML, or empty.
+    """
+    import xml.etree.ElementTree as ET
+
+    try:
+        for _, elem in ET.iterparse(path, events=("start",)):
+            return elem.tag.rsplit("}", 1)[-1]
+    except ET.ParseError as exc:
+        raise InputError(f"not readable XML ({exc})", path=str(path)) from None
+    raise InputError("empty XML file", path=str(path))
+
+
+def _read_vendor_xml(path: Path, **kwargs):
+    """A DIMAP v2 or WorldView XML file, told by its root element, through its reader."""
+    import importlib
+
+    root = xml_root(path)
+    if root not in _XML_READERS:
+        raise InputError(f"unknown XML product (root element {root!r}); gcpcal reads DIMAP v2 "
+                         "(Dimap_Document) and WorldView (isd) XML", path=str(path))
+    module_name, function_name = _XML_READERS[root]
+    try:
+        reader = getattr(importlib.import_module(module_name), function_name)
+    except (ImportError, AttributeError):
+        raise InputError(f"reader not available for {root} XML ({module_name}.{function_name})",
+                         path=str(path)) from None
+    return reader(path, **kwargs)
