@@ -264,6 +264,8 @@ def test_rpc_out_is_written_exactly(tmp_path, capsys):
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "4 CCDs" in err and "--out a folder" in err and "--ccd" in err
     assert list(tmp_path.iterdir()) == []
+    code, out, err = _run(capsys, "rpc", SCENE, "--ccd", "cam2_ccd1", "--out", tmp_path / "x.txt")
+    assert code == 2 and "*_RPC.TXT, *.RPB, *.tif or a folder" in err and list(tmp_path.iterdir()) == []
     # one CCD: exactly the file given, and its summary
     for name in ("one.tif", "one_RPC.TXT", "one.RPB"):
         code, out, err = _run(capsys, "rpc", SCENE, "--ccd", "cam2_ccd1", "--out", tmp_path / name,

@@ -8,7 +8,7 @@ What ``--out PATH`` gets (docs/calibration_outputs.md, "RPC output"):
   RPC tags and its fit errors in the metadata (:mod:`calibrate.actions._l1a`). PATH is written
   exactly; its summary is ``PATH.summary.json``.
 * a FOLDER otherwise (a push-broom band with several CCDs), and whenever PATH is an existing
-  folder or has none of those suffixes: per CCD ``<ccd>_RPC.TXT`` and, when the scene's raster
+  folder or a name without a suffix (any other suffix is a usage error): per CCD ``<ccd>_RPC.TXT`` and, when the scene's raster
   is known (manifest ``rasters`` or ``--image``), ``<ccd>.tif`` (that CCD's columns with its
   RPC); plus ``rpc.summary.json``. An RPC describes one smooth image, and the stitched raster
   jumps where CCDs meet, so each CCD gets its own RPC and raster.
@@ -41,7 +41,7 @@ class RpcOutputUsageError(InputError):
 
 
 def out_is_folder(out_path) -> bool:
-    """Whether ``--out`` names a folder: an existing folder, or a name without an RPC file suffix.
+    """Whether ``--out`` names a folder: an existing folder, or a name without a suffix.
 
     Parameters
     ----------
@@ -50,9 +50,19 @@ def out_is_folder(out_path) -> bool:
     Returns
     -------
     bool
+        True for a folder, False for an RPC file (``*_RPC.TXT``, ``*.RPB``, ``*.tif``, ``*.tiff``).
+
+    Raises
+    ------
+    RpcOutputUsageError
+        A file name with another suffix.
     """
     out = Path(out_path)
-    return out.is_dir() or not out.name.lower().endswith(_FILE_SUFFIXES)
+    if out.is_dir() or not out.suffix:
+        return True
+    if not out.name.lower().endswith(_FILE_SUFFIXES):
+        raise RpcOutputUsageError("--out must be *_RPC.TXT, *.RPB, *.tif or a folder", path=str(out))
+    return False
 
 
 def _height_range(model, dem_path, dem_datum, geoid, height_range):
