@@ -214,6 +214,26 @@ def test_gcp_geotiff_holds_the_scene_pixels_and_the_gcps(matched):
     assert len(read_gcps(matched / "gcps.tif")) == len(table)  # and our reader takes it back
 
 
+def test_gcp_geotiff_copies_only_the_matched_band(tmp_path):
+    from gcpmatch.gcps import write_gcps_geotiff
+    from sensor_models.errors import InputError
+
+    rng = np.random.default_rng(6)
+    stack = rng.integers(0, 4000, size=(3, 30, 40)).astype("uint16")
+    src = tmp_path / "stack.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=40, height=30, count=3, dtype="uint16") as ds:
+        ds.write(stack)
+    table = GcpTable.from_arrays([1.5, 20.5], [2.5, 35.5], [5.0, 5.1], [44.0, 44.1], [10.0, 20.0])
+    write_gcps_geotiff(table, tmp_path / "g.tif", image_shape=(30, 40), source_raster=src, source_band=2)
+    with rasterio.open(tmp_path / "g.tif") as ds:
+        assert ds.count == 1 and len(ds.gcps[0]) == 2
+        assert np.array_equal(ds.read(1), stack[1])
+    for bad in (0, 4, "2"):
+        with pytest.raises(InputError, match="source_band"):
+            write_gcps_geotiff(table, tmp_path / "h.tif", image_shape=(30, 40), source_raster=src, source_band=bad)
+    assert not (tmp_path / "h.tif").exists()
+
+
 # --------------------------------------------------------------------------- rpc: L1A + exact path
 def _gdal_round_trip(tif, ours: RpcModel, lon, lat, h):
     """Ground -> image by GDAL's RPC transformer (no RPC_DEM: the given heights) and by ours."""

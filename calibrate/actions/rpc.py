@@ -140,8 +140,8 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
     Returns
     -------
     dict
-        The summary (``rpcs``: per RPC its CCD, ``output``, ``raster`` (the L1A GeoTIFF or None)
-        and fit report; ``check_max_px``; ``outputs``).
+        The summary (``rpcs``: per RPC its ``ccd``, ``first_col``, ``output``, ``raster`` (the
+        level-1A GeoTIFF or None) and ``fit`` report; ``check_max_px``; ``warnings``).
 
     Raises
     ------
