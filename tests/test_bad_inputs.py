@@ -324,7 +324,8 @@ CASES = [
     Case("calibrate", "nonexistent GCPs", _calibrate(lambda b, w: b.missing), 1),
     Case("calibrate", "empty GCPs", _calibrate(lambda b, w: b.empty_csv), 1),
     *[Case("calibrate", f"GCPs {name}", _calibrate(G(name)), 1 if name not in ("3 rows", "collinear rows") else 3,
-           () if name not in ("3 rows", "collinear rows") else ("cal", "cal/calibrate.summary.json", "cal/calibration.json", "cal/manifest.json"))
+           () if name not in ("3 rows", "collinear rows") else ("cal", "cal/calibrate.summary.json", "cal/calibration.json", "cal/manifest.json",
+                                                                  "cal/residuals.gpkg"))
       for name in _GCP_CASES],
     *[Case("calibrate", f"manifest {name}", (lambda n: lambda b, w: ["calibrate", b.manifest[n], "--gcps", b.gcps,
                                                                     "--out", w / "cal", "--no-report"])(name), 1)
