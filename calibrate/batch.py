@@ -283,9 +283,10 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
     site : Site
     calibration : str or Path
         The calibrated manifest.
-    write_points : callable(GcpTable, str), optional
-        Called with the scene's check points and ``site.name`` once they are matched (e.g.
-        :func:`calibrate.actions.validate.write_scene_points`).
+    write_points : callable(GcpTable, str, dict), optional
+        Called with the scene's check points, ``site.name`` and their residual layer against the
+        calibrated model (:func:`calibrate.residual_layer.residual_layer`, kind ``check``) once
+        they are scored (e.g. :func:`calibrate.actions.validate.write_scene_points`).
     spacing_px : int
         Matching window grid spacing, pixels.
     threads : int, optional
@@ -349,11 +350,13 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     out["cloud_fraction"] = summary.get("cloud_fraction")
     if table is None or len(table) == 0:
         raise InputError(summary.get("message", "no GCP"), path=str(site.scene))
-    if write_points is not None:
-        write_points(table, site.name)
     pts = points_of(table, model)
     kw = {"band": pts["band"], "ccd": pts["ccd"]}
     acc = check_point_accuracy(model, pts["row"], pts["col"], pts["lon"], pts["lat"], pts["h"], **kw)
+    if write_points is not None:  # every point is a check point here: none was fitted
+        from calibrate.residual_layer import residual_layer
+
+        write_points(table, site.name, residual_layer(model, table, acc.residuals_px, "check", site=site.name))
     acc_lab = check_point_accuracy(lab, pts["row"], pts["col"], pts["lon"], pts["lat"], pts["h"], **kw)
     out["points"] = int(acc.absolute.n)
     out.update(_accuracy_columns(acc, ""))
@@ -422,9 +425,9 @@ def validate_sites(sites, calibrated_model, *, scheduler=None, workers: int = 2,
         Matching window spacing.
     timeout_s : float
         Time allowed to connect to ``scheduler``.
-    write_points : callable(GcpTable, str), optional
-        Given to every task (:func:`validate_scene`): receives each scene's check points and
-        name, on the worker. Must be picklable (a module-level function or a partial of one).
+    write_points : callable(GcpTable, str, dict), optional
+        Given to every task (:func:`validate_scene`): receives each scene's check points, name
+        and residual layer, on the worker. Must be picklable (a module-level function or a partial of one).
 
     Returns
     -------

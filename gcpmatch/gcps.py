@@ -1165,7 +1165,7 @@ def _remove_sqlite_files(tmp: Path) -> None:
         Path(str(tmp) + suffix).unlink(missing_ok=True)
 
 
-def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None) -> Path:
+def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None, source_band=None) -> Path:
     """Write ``table`` as GDAL GCPs (EPSG:4326) inside a GeoTIFF; atomically.
 
     GDAL GCP ``line = row`` and ``pixel = col`` (both corner based, see the module notes),
@@ -1186,6 +1186,9 @@ def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None
         descriptions) are copied into the output; it is only read. Its own georeferencing
         (geotransform, CRS, RPCs) is not copied: the GCPs take its place. Without it the output
         is a single-band uint8 raster of zeros (tiled, sparse, deflate: a few kilobytes).
+    source_band : int, optional
+        Copy only this band of ``source_raster`` (1-based, as GDAL counts): the band the GCPs
+        were measured in. Default: every band.
 
     Returns
     -------
@@ -1205,7 +1208,8 @@ def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None
         if src is not None and (src.height, src.width) != image_shape:
             raise InputError(f"raster shape {(src.height, src.width)} differs from image_shape "
                              f"{image_shape}", path=str(source_raster))  # fmt: skip
-        _write_geotiff_atomically(table, path, image_shape, src)
+        bands = _source_bands(src, source_band, source_raster)
+        _write_geotiff_atomically(table, path, image_shape, src, bands)
     finally:
         if src is not None:
             src.close()
@@ -1229,7 +1233,7 @@ def _check_geotiff_table(table: GcpTable, path: Path, image_shape) -> tuple[int,
 def _open_source_raster(source_raster, path: Path):
     """The open rasterio dataset of ``source_raster`` (None if not given); never ``path`` itself."""
     import rasterio
-    from rasterio.errors import RasterioError
+    from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
     if source_raster is None:
         return None
@@ -1238,19 +1242,35 @@ def _open_source_raster(source_raster, path: Path):
         raise InputError("the output would replace source_raster; write elsewhere",
                          path=str(path))  # fmt: skip
     try:
-        return rasterio.open(source_raster)
+        with warnings.catch_warnings():  # a level-1A raster has no georeferencing: expected
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            return rasterio.open(source_raster)
     except (RasterioError, OSError) as exc:
         raise InputError(f"cannot open as a raster: {exc}", path=str(source_raster)) from None
 
 
-def _write_geotiff_atomically(table: GcpTable, path: Path, image_shape, src) -> None:
+def _source_bands(src, source_band, source_raster) -> list[int]:
+    """The 1-based bands of ``src`` to copy (all of them without ``source_band``)."""
+    if src is None:
+        if source_band is not None:
+            raise InputError("source_band needs source_raster", field="source_band")
+        return []
+    if source_band is None:
+        return list(range(1, src.count + 1))
+    if not (isinstance(source_band, (int, np.integer)) and 1 <= int(source_band) <= src.count):
+        raise InputError(f"must be a band of the raster, 1 to {src.count}; got {source_band!r}",
+                         path=str(source_raster), field="source_band")  # fmt: skip
+    return [int(source_band)]
+
+
+def _write_geotiff_atomically(table: GcpTable, path: Path, image_shape, src, bands) -> None:
     """Write the GeoTIFF to a temporary file beside ``path``, check it, rename it onto ``path``."""
     import rasterio
     from rasterio.errors import RasterioError
 
     tmp = temporary_beside(path, ".tif")
     try:
-        _write_geotiff(table, tmp, image_shape, src)
+        _write_geotiff(table, tmp, image_shape, src, bands)
         with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(tmp) as check:
             n_written = len(check.gcps[0])
         if n_written != len(table):  # never leave a file with GCPs silently dropped
@@ -1265,7 +1285,7 @@ def _write_geotiff_atomically(table: GcpTable, path: Path, image_shape, src) -> 
         raise
 
 
-def _write_geotiff(table: GcpTable, tmp: Path, image_shape, src) -> None:
+def _write_geotiff(table: GcpTable, tmp: Path, image_shape, src, bands) -> None:
     """The GeoTIFF itself: pixels (copied from ``src`` or sparse zeros), GCPs, table metadata."""
     import rasterio
     from rasterio.control import GroundControlPoint
@@ -1283,27 +1303,28 @@ def _write_geotiff(table: GcpTable, tmp: Path, image_shape, src) -> None:
     if src is None:
         profile.update(count=1, dtype="uint8", sparse_ok=True)
     else:
-        profile.update(count=src.count, dtype=src.dtypes[0], nodata=src.nodata)
+        profile.update(count=len(bands), dtype=src.dtypes[bands[0] - 1], nodata=src.nodata)
     with warnings.catch_warnings(), rasterio.Env(GDAL_PAM_ENABLED="NO"):
         # the new dataset has no georeferencing until its GCPs are set just below
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         dst = rasterio.open(tmp, "w", **profile)
     with rasterio.Env(GDAL_PAM_ENABLED="NO"), dst:
         if src is not None:
-            _copy_pixels(src, dst, n_rows, n_cols)
+            _copy_pixels(src, dst, n_rows, n_cols, bands)
         dst.gcps = (gcps, CRS.from_epsg(4326))
         dst.update_tags(ns=_TIFF_DOMAIN, **{_TIFF_ITEM: "".join(_csv_chunks(table))})
 
 
-def _copy_pixels(src, dst, n_rows: int, n_cols: int) -> None:
-    """Copy every band of ``src`` into ``dst`` in row blocks of ~16 MiB, with band descriptions."""
+def _copy_pixels(src, dst, n_rows: int, n_cols: int, bands) -> None:
+    """Copy ``bands`` of ``src`` into ``dst`` in row blocks of ~16 MiB, with band descriptions."""
     from rasterio.windows import Window
 
-    row_bytes = n_cols * src.count * np.dtype(src.dtypes[0]).itemsize
+    row_bytes = n_cols * len(bands) * np.dtype(src.dtypes[bands[0] - 1]).itemsize
     step = max(1, 2**24 // row_bytes)  # ~16 MiB of pixels at a time
     for r0 in range(0, n_rows, step):
         win = Window(0, r0, n_cols, min(step, n_rows - r0))
-        dst.write(src.read(window=win), window=win)
-    for band, text in enumerate(src.descriptions, start=1):
+        dst.write(src.read(bands, window=win), window=win)
+    for out_band, band in enumerate(bands, start=1):
+        text = src.descriptions[band - 1]
         if text:
-            dst.set_band_description(band, text)
+            dst.set_band_description(out_band, text)

@@ -311,7 +311,8 @@ CASES = [
     Case("match", "DOM without CRS", _match(dom=lambda b, w: b.dom_nocrs), 1),
     Case("match", "DEM without CRS", _match(dem=lambda b, w: b.dem_nocrs), 1),
     Case("match", "DEM not covering", _match(dem=lambda b, w: b.dem_far), 1),
-    Case("match", "DEM with voids", _match(dem=lambda b, w: b.dem_voids), 0, ("gcps.csv", "gcps.summary.json")),
+    Case("match", "DEM with voids", _match(dem=lambda b, w: b.dem_voids), 0,
+         ("gcps.csv", "gcps.summary.json", "gcps_residuals.gpkg")),
     Case("match", "truncated image", _match(extra=("--image", "{truncated_image}")), 1),
     Case("match", "all-cloud scene", _match(extra=("--image", "{cloud_image}")), 1),
     Case("match", "output under a file", _match(out="afile/gcps.csv"), 1, ("afile",), _file_prep),
@@ -323,7 +324,8 @@ CASES = [
     Case("calibrate", "nonexistent GCPs", _calibrate(lambda b, w: b.missing), 1),
     Case("calibrate", "empty GCPs", _calibrate(lambda b, w: b.empty_csv), 1),
     *[Case("calibrate", f"GCPs {name}", _calibrate(G(name)), 1 if name not in ("3 rows", "collinear rows") else 3,
-           () if name not in ("3 rows", "collinear rows") else ("cal", "cal/calibrate.summary.json", "cal/calibration.json", "cal/manifest.json"))
+           () if name not in ("3 rows", "collinear rows") else ("cal", "cal/calibrate.summary.json", "cal/calibration.json", "cal/manifest.json",
+                                                                  "cal/residuals.gpkg"))
       for name in _GCP_CASES],
     *[Case("calibrate", f"manifest {name}", (lambda n: lambda b, w: ["calibrate", b.manifest[n], "--gcps", b.gcps,
                                                                     "--out", w / "cal", "--no-report"])(name), 1)

@@ -110,10 +110,10 @@ def test_csv_non_numeric(capsys, tmp_path):
 
 @pytest.fixture(scope="module")
 def rpc_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("rpc") / "x_RPC.TXT"
+    out = tmp_path_factory.mktemp("rpc") / "rpcs"  # two CCDs: a folder, one RPC per CCD
     code = main(["rpc", EXAMPLE, "--out", str(out), "--height-range", "0", "3000", "--json"])
     assert code == 0
-    summary = json.loads(out.with_name(out.name + ".summary.json").read_text())
+    summary = json.loads((out / "rpc.summary.json").read_text())
     return out, summary
 
 
@@ -151,5 +151,7 @@ def test_rpc_read_back(rpc_run):
 
 
 def test_rpc_out_into_new_folder(capsys, tmp_path):
-    code, out, err = run(capsys, "rpc", EXAMPLE, "--out", tmp_path / "new" / "x_RPC.TXT", "--height-range", "0", "100")
-    assert code == 0
+    code, out, err = run(capsys, "rpc", EXAMPLE, "--ccd", "ccd2", "--out", tmp_path / "new" / "x_RPC.TXT",
+                         "--height-range", "0", "100")
+    assert code == 0 and (tmp_path / "new" / "x_RPC.TXT").is_file()
+    assert sorted(p.name for p in (tmp_path / "new").iterdir()) == ["x_RPC.TXT", "x_RPC.TXT.summary.json"]

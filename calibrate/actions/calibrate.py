@@ -10,6 +10,9 @@ into ``out_dir``:
 * the calibrated model: ``manifest.json`` for a push-broom or staring-camera scene,
   ``<name>_RPC.TXT`` for an RPC product (bias-compensated RPC, Grodecki and Dial 2003);
 * ``report.html`` with PNG figures (:mod:`calibrate.report`);
+* ``residuals.gpkg``: the residual layer after calibration (:mod:`calibrate.residual_layer`),
+  one point per GCP (kind ``gcp``, or ``outlier`` where the fit rejected it) and per check
+  point (kind ``check``);
 * ``calibrate.summary.json``.
 
 Everything goes to a temporary folder inside ``out_dir`` first and is moved into place at the
@@ -28,6 +31,7 @@ import numpy as np
 from calibrate.actions._io import check_output_folder, staged_folder
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
+from calibrate.residual_layer import concatenate_layers, residual_layer, write_residual_layer
 
 __all__ = ["calibrate_scene"]
 
@@ -96,6 +100,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
         doc = _calibration_doc(result, scene_path, gcps_path, acc_before, acc_after, coverage, status)
         (tmp / "calibration.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         model_file = _write_model(result.model, model, tmp, out_dir, failed=status.status == "failed")
+        write_residual_layer(_residual_layer(result, table, acc_after, band), tmp / "residuals.gpkg")
         if report and acc_before is not None:
             from calibrate.report import write_report
 
@@ -118,6 +123,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
             "variance_factor": doc["variance_factor"],
             "coverage": coverage,
             "model": model_file,
+            "residual_layer": "residuals.gpkg",
             "seconds": time.perf_counter() - t0,
         }
         (tmp / "calibrate.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
@@ -148,6 +154,23 @@ def _gate(model, table, result, band, acc_before, acc_after):
         entry["check_rmse_px"] = {"before": before, "after": after}
         coverage.append(entry)
     return coverage, status
+
+
+def _residual_layer(result, table, acc_after, band):
+    """Residual layer after calibration: the fit's own residuals of the GCPs, the check points'."""
+    from gcpmatch.gcps import GcpTable
+
+    def with_band(t):
+        if band is not None and len(t) and np.all(t.band == ""):
+            return GcpTable.from_arrays(**{**t.as_dict(), "band": band})
+        return t
+
+    lsq = getattr(result, "calibration", result)
+    kind = np.where(np.asarray(lsq.inlier, dtype=bool), "gcp", "outlier")
+    layers = [residual_layer(result.model, with_band(table.gcps()), lsq.residuals_after, kind)]
+    if acc_after is not None:
+        layers.append(residual_layer(result.model, with_band(table.checks()), acc_after.residuals_px, "check"))
+    return concatenate_layers(layers)
 
 
 def _group_rmse(accuracy, coverage, n_arrays):

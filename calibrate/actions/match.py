@@ -8,11 +8,28 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.actions._io import check_output_files, staged_files
+from calibrate.actions._l1a import scene_raster
 from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
 from sensor_models.errors import InputError
 
-__all__ = ["match_scene"]
+__all__ = ["match_scene", "residual_layer_path"]
+
+
+def residual_layer_path(gcps_path) -> Path:
+    """The residual layer ``match`` writes beside its GCP table: ``<stem>_residuals.gpkg``.
+
+    Parameters
+    ----------
+    gcps_path : str or Path
+        The GCP table (``--out``).
+
+    Returns
+    -------
+    Path
+    """
+    gcps_path = Path(gcps_path)
+    return gcps_path.with_name(f"{gcps_path.stem}_residuals.gpkg")
 
 
 def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_datum=None, band=None, image=None,
@@ -41,7 +58,9 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     mask_path : str or Path, optional
         Invalid-pixel raster in scene geometry (nonzero = invalid).
     gpkg_path, geotiff_path : str or Path, optional
-        Also write the GCPs as a GeoPackage layer / as GDAL GCPs in a GeoTIFF.
+        Also write the GCPs as a GeoPackage layer / as GDAL GCPs in a GeoTIFF that holds a copy
+        of the matched band's pixels. The residual layer of the GCPs against the (uncalibrated)
+        input model always goes to :func:`residual_layer_path` beside ``out_path``.
     options : MatchOptions
         Matching settings.
     progress : callable(str), optional
@@ -57,13 +76,15 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     InputError
         When no GCP could be extracted (the summary is written all the same).
     """
+    from calibrate.residual_layer import model_residual_layer, write_residual_layer
     from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
     from sensor_models.readers import open_scene
     from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
     options.validate()  # before any work: e.g. --backend gpu without CUDA
-    check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path)
+    residuals_path = residual_layer_path(out_path)
+    check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path)
     model = open_scene(scene_path, image=image, band=band)  # cropped to the raster when that is a crop
     band = band or getattr(model, "reference_band", None)
     scene = read_band(model, band, image)
@@ -78,15 +99,20 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
     out_path = Path(out_path)
     summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
+    if table is not None and len(table) > 0:
+        summary["residual_layer"] = str(residuals_path)
     # every file moves in together at the end; with no GCP only the summary (an older table goes)
-    staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path)
-    with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp):
+    staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path)
+    with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp, residuals_tmp):
         if table is not None and len(table) > 0:
             if geotiff_tmp is not None:  # first: the one writer with a size limit
-                write_gcps_geotiff(table, geotiff_tmp, image_shape=model.image_shape)
+                raster, index = scene_raster(model, band, image)
+                write_gcps_geotiff(table, geotiff_tmp, image_shape=model.image_shape, source_raster=raster,
+                                   source_band=index)
             write_gcps_csv(table, csv_tmp)
             if gpkg_tmp is not None:
                 write_gcps_gpkg(table, gpkg_tmp)
+            write_residual_layer(model_residual_layer(model, table), residuals_tmp)
         summary_tmp.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     if table is None or len(table) == 0:
         raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",

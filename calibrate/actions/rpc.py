@@ -1,8 +1,19 @@
 """Stage action of ``gcpcal rpc``: an RPC fitted to a model over its image and height range.
 
-A push-broom band with several CCDs gets one RPC per CCD image (columns counted from the CCD's
-first detector), since the stitched raster is discontinuous where CCDs overlap. The fit's errors
-on an independent check grid go to ``OUT.summary.json``.
+What ``--out PATH`` gets (docs/calibration_outputs.md, "RPC output"):
+
+* a FILE when one RPC is fitted (an RPC or staring-camera model, a push-broom band with one
+  CCD, or ``--ccd``): ``*_RPC.TXT`` or ``*.RPB`` (text), or ``*.tif``: a georeferenced level-1A,
+  a copy of the scene raster's band (the CCD's columns for ``--ccd``) with the RPC as GeoTIFF
+  RPC tags and its fit errors in the metadata (:mod:`calibrate.actions._l1a`). PATH is written
+  exactly; its summary is ``PATH.summary.json``.
+* a FOLDER otherwise (a push-broom band with several CCDs), and whenever PATH is an existing
+  folder or a name without a suffix (any other suffix is a usage error): per CCD ``<ccd>_RPC.TXT`` and, when the scene's raster
+  is known (manifest ``rasters`` or ``--image``), ``<ccd>.tif`` (that CCD's columns with its
+  RPC); plus ``rpc.summary.json``. An RPC describes one smooth image, and the stitched raster
+  jumps where CCDs meet, so each CCD gets its own RPC and raster.
+
+A file PATH for a band with several CCDs is a usage error (:class:`RpcOutputUsageError`, exit 2).
 """
 
 from __future__ import annotations
@@ -10,23 +21,48 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
+from calibrate.actions._io import (check_output_files, check_output_folder, open_dem, staged_files, staged_folder,
+                                   write_summary)
+from calibrate.actions._l1a import scene_raster, write_l1a_with_rpc
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
 from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
 
-__all__ = ["DEFAULT_HEIGHT_RANGE_M", "fit_rpcs"]
+__all__ = ["DEFAULT_HEIGHT_RANGE_M", "RpcOutputUsageError", "fit_rpcs", "out_is_folder"]
 
 #: Ellipsoidal heights (m) spanned by the fit when neither a DEM nor a range is given.
 DEFAULT_HEIGHT_RANGE_M = (-100.0, 3000.0)
 
+_FILE_SUFFIXES = ("_rpc.txt", ".rpb", ".tif", ".tiff")
 
-def _with_ccd_suffix(path: Path, ccd: str) -> Path:
-    """``scene_RPC.TXT`` -> ``scene_ccd1_RPC.TXT``; ``scene.RPB`` -> ``scene_ccd1.RPB``."""
-    name = path.name
-    if name.upper().endswith("_RPC.TXT"):
-        return path.with_name(f"{name[:-8]}_{ccd}{name[-8:]}")
-    return path.with_name(f"{path.stem}_{ccd}{path.suffix}")
+
+class RpcOutputUsageError(InputError):
+    """``--out`` names one file but the band has several CCDs (the CLI maps it to exit 2)."""
+
+
+def out_is_folder(out_path) -> bool:
+    """Whether ``--out`` names a folder: an existing folder, or a name without a suffix.
+
+    Parameters
+    ----------
+    out_path : str or Path
+
+    Returns
+    -------
+    bool
+        True for a folder, False for an RPC file (``*_RPC.TXT``, ``*.RPB``, ``*.tif``, ``*.tiff``).
+
+    Raises
+    ------
+    RpcOutputUsageError
+        A file name with another suffix.
+    """
+    out = Path(out_path)
+    if out.is_dir() or not out.suffix:
+        return True
+    if not out.name.lower().endswith(_FILE_SUFFIXES):
+        raise RpcOutputUsageError("--out must be *_RPC.TXT, *.RPB, *.tif or a folder", path=str(out))
+    return False
 
 
 def _height_range(model, dem_path, dem_datum, geoid, height_range):
@@ -41,31 +77,42 @@ def _height_range(model, dem_path, dem_datum, geoid, height_range):
     return (DEFAULT_HEIGHT_RANGE_M if height_range is None else height_range), {"warnings": []}
 
 
-def _targets(model, out: Path, band, ccd):
-    """``(model to fit, output path, CCD name)`` for each RPC to write."""
+def _targets(model, band, ccd):
+    """``(model to fit, CCD name or None, first scene column)`` of each RPC to fit."""
     arrays = model.detector_arrays(band)
     if model.detector_view(band, 0) is model:  # one smooth image (area array, RPC): one RPC
         if ccd is not None:
             raise InputError(f"--ccd applies to push-broom models, not to a {model.kind} model")
-        return [(model, out, None)]
-    # an RPC describes one smooth image: one per CCD (the stitched raster jumps at overlaps)
+        return [(model, None, 0)]
     if ccd is not None:
-        return [(model.detector_view(band, ccd), out, ccd)]
-    if len(arrays) == 1:
-        return [(model.detector_view(band, 0), out, arrays[0].name)]
-    return [(model.detector_view(band, i), _with_ccd_suffix(out, a.name), a.name) for i, a in enumerate(arrays)]
+        i = int(model.detector_index([0.0], band=band, array=ccd)[0])
+        return [(model.detector_view(band, i), arrays[i].name, arrays[i].first_col)]
+    return [(model.detector_view(band, i), a.name, a.first_col) for i, a in enumerate(arrays)]
+
+
+def _open_inputs(model_path, band, image):
+    """The model (cropped to its raster when that is a crop of the scene), its band and raster."""
+    from sensor_models.readers import open_scene
+
+    model = open_scene(model_path, image=image, band=band)  # a raster with its RPC, or a crop, too
+    band = band or model.reference_band
+    try:
+        raster = scene_raster(model, band)
+    except InputError:
+        raster = None
+    return model, band, raster
 
 
 def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None, height_range=None, band=None,
-             ccd=None) -> dict:
-    """Fit and write the RPC(s) of a model, and ``OUT.summary.json``.
+             ccd=None, image=None) -> dict:
+    """Fit and write the RPC(s) of a model (see the module docstring for what ``out_path`` gets).
 
     Parameters
     ----------
     model_path : str or Path
-        Anything :func:`sensor_models.open_model` reads.
+        Anything :func:`sensor_models.readers.open_scene` reads.
     out_path : str or Path
-        ``*_RPC.TXT``, ``*.RPB`` or ``*.tif`` (RPC tags); one file per CCD gets a ``_<ccd>`` suffix.
+        A file (``*_RPC.TXT``, ``*.RPB``, ``*.tif``) for one RPC, else a folder.
     dem_path, dem_datum, geoid : optional
         DEM whose height range (with a margin) the fit spans, its vertical datum and geoid grid.
     height_range : (float, float), optional
@@ -74,40 +121,103 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
     band : str, optional
         Band of a multi-band model; default: the reference band.
     ccd : str, optional
-        One CCD only; default: one RPC per CCD.
+        One CCD only; default: one RPC per CCD (then ``out_path`` must be a folder).
+    image : str or Path, optional
+        The scene raster (default: the manifest's raster of the band); a crop with a pixel
+        geotransform crops the model, as ``gcpcal match --image`` does.
 
     Returns
     -------
     dict
-        The summary (``rpcs``: output, CCD and fit report of each RPC; ``check_max_px``).
-    """
-    from sensor_models.readers import open_scene
-    from sensor_models.rpc import fit_rpc
+        The summary (``rpcs``: per RPC its ``ccd``, ``first_col``, ``output``, ``raster`` (the
+        level-1A GeoTIFF or None) and ``fit`` report; ``check_max_px``; ``warnings``).
 
+    Raises
+    ------
+    RpcOutputUsageError
+        ``out_path`` names a file and several RPCs are to be written.
+    InputError
+        Unreadable model, DEM or raster, or a ``*.tif`` output without a known scene raster.
+    """
     t0 = time.perf_counter()
     out = Path(out_path)
-    summary_path = out.with_name(out.name + ".summary.json")
-    check_output_files(out, summary_path)  # before any work
-    model = open_scene(model_path)  # a raster with its RPC, or a crop, as well as a model file
+    folder = out_is_folder(out)
+    summary_path = out / "rpc.summary.json" if folder else out.with_name(out.name + ".summary.json")
+    if folder:  # before any work
+        check_output_folder(out, inputs=[model_path, image, dem_path])
+    else:
+        check_output_files(out, summary_path)
+    model, band, raster = _open_inputs(model_path, band, image)
     warning = require_usable(model, model_path, command="rpc")
     height_range, coverage = _height_range(model, dem_path, dem_datum, geoid, height_range)
-    targets = _targets(model, out, band, ccd)
-    fits = []
-    with staged_files(*[path for _, path, _ in targets], summary_path) as staged:
-        for (target, path, ccd_name), staged_path in zip(targets, staged):
-            kwargs = {} if (band is None or ccd_name is not None) else {"band": band}
-            fitted, report = fit_rpc(target, height_range_m=tuple(height_range), **kwargs)
-            fitted.write(staged_path)
-            fits.append({"ccd": ccd_name, "output": str(path), "fit": report})
-        summary = {
-            "command": "rpc",
-            "model": str(model_path),
-            "height_range_m": list(height_range),
-            **status_fields(model, warning, *coverage.pop("warnings")),
-            **coverage,
-            "rpcs": fits,
-            "check_max_px": max(f["fit"]["check_max_px"] for f in fits),
-            "seconds": round(time.perf_counter() - t0, 3),
-        }
-        write_summary(staged[-1], summary)
+    targets = _targets(model, band, ccd)
+    if not folder and len(targets) > 1:
+        names = ", ".join(name for _, name, _ in targets)
+        raise RpcOutputUsageError(f"band {band} has {len(targets)} CCDs ({names}): give --out a folder (one RPC "
+                                  f"and raster per CCD) or choose one with --ccd", path=str(out))
+    if not folder and out.suffix.lower() in (".tif", ".tiff") and raster is None:
+        raise InputError(f"a *.tif output is a copy of the scene raster, and the scene lists no raster for band "
+                         f"{band!r}: give --image, or write *_RPC.TXT / *.RPB", path=str(out))
+    context = dict(band=band, raster=raster, height_range=height_range, model_path=model_path,
+                   n_rows_cols=tuple(model.image_shape))
+    if folder:
+        with staged_folder(out, ".rpc-", inputs=[model_path, image, dem_path]) as tmp:
+            fits = [_fit_one(t, _folder_outputs(tmp, out, t[1], model, raster), context) for t in targets]
+            summary = _summary(model, model_path, height_range, warning, coverage, fits, t0)
+            if raster is None:
+                summary["warnings"].append(f"the scene lists no raster for band {band!r}: wrote the RPCs only "
+                                           "(give --image for georeferenced level-1A copies)")
+            write_summary(tmp / summary_path.name, summary)
+        return summary
+    with staged_files(out, summary_path) as (staged, staged_summary):
+        fits = [_fit_one(targets[0], [(staged, out)], context)]
+        summary = _summary(model, model_path, height_range, warning, coverage, fits, t0)
+        write_summary(staged_summary, summary)
     return summary
+
+
+def _folder_outputs(tmp: Path, out: Path, ccd_name, model, raster):
+    """``[(staged path, final path)]`` of one RPC in a folder output: text RPC, then the L1A."""
+    name = ccd_name or Path(str(getattr(model, "source", "") or "scene")).stem or "scene"
+    pairs = [(tmp / f"{name}_RPC.TXT", out / f"{name}_RPC.TXT")]
+    if raster is not None:
+        pairs.append((tmp / f"{name}.tif", out / f"{name}.tif"))
+    return pairs
+
+
+def _fit_one(target, outputs, context) -> dict:
+    """Fit one RPC and write it to each ``(staged, final)`` path; its summary entry."""
+    from sensor_models.rpc import fit_rpc
+
+    view, ccd_name, first_col = target
+    band = context["band"]
+    kwargs = {"band": band} if (ccd_name is None and band is not None) else {}
+    fitted, report = fit_rpc(view, height_range_m=tuple(context["height_range"]), **kwargs)
+    entry = {"ccd": ccd_name, "first_col": int(first_col), "output": None, "raster": None, "fit": report}
+    for staged, final in outputs:
+        if final.suffix.lower() in (".tif", ".tiff"):
+            path, index = context["raster"]
+            extra = {"GCPCAL_RPC_HEIGHT_RANGE_M": " ".join(repr(float(h)) for h in context["height_range"]),
+                     "GCPCAL_MODEL": str(context["model_path"]), "GCPCAL_BAND": str(band or ""),
+                     "GCPCAL_CCD": ccd_name or "", "GCPCAL_FIRST_COL": str(int(first_col))}
+            write_l1a_with_rpc(path, index, staged, fitted, image_shape=context["n_rows_cols"], first_col=first_col,
+                               fit_report=report, extra_tags=extra)
+            entry["raster"] = str(final)
+            entry["source_raster"] = path
+        else:
+            fitted.write(staged)
+        entry["output"] = entry["output"] or str(final)
+    return entry
+
+
+def _summary(model, model_path, height_range, warning, coverage, fits, t0) -> dict:
+    return {
+        "command": "rpc",
+        "model": str(model_path),
+        "height_range_m": list(height_range),
+        **status_fields(model, warning, *coverage.pop("warnings")),
+        **coverage,
+        "rpcs": fits,
+        "check_max_px": max(f["fit"]["check_max_px"] for f in fits),
+        "seconds": round(time.perf_counter() - t0, 3),
+    }

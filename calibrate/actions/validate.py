@@ -4,8 +4,10 @@ The work is :func:`calibrate.batch.validate_sites` (one Dask task per scene, row
 summary); this action reads the sites file, checks the scheduler address the user gave, hands
 the sites over and writes the run folder: ``validation.csv``, ``validation.json`` (rows and
 summary), ``validation.html`` (the table in the layout of seed 003 table 5 with a mean row, and
-a bar plot of the planar RMSE per scene, ``validation_planar.png``) and ``points/<name>.csv``
-(each scene's check points, written by the tasks through :func:`write_scene_points`).
+a bar plot of the planar RMSE per scene, ``validation_planar.png``), ``points/<name>.csv``
+(each scene's check points, written by the tasks through :func:`write_scene_points`) and
+``residuals.gpkg`` (every scene's check-point residuals against the calibrated model, one
+layer with a ``site`` field holding the scene's name; :mod:`calibrate.residual_layer`).
 """
 
 from __future__ import annotations
@@ -28,8 +30,8 @@ from calibrate.batch import COLUMNS
 from calibrate.actions._io import final_paths, staged_folder
 from sensor_models.errors import InputError
 
-__all__ = ["check_scheduler_address", "run_validation", "validate_calibration", "write_outputs",
-           "write_scene_points"]
+__all__ = ["check_scheduler_address", "merge_residual_layers", "run_validation", "validate_calibration",
+           "write_outputs", "write_scene_points"]
 
 
 def check_scheduler_address(address: str) -> str:
@@ -154,11 +156,13 @@ def run_validation(sites, calibration, out_dir, *, scheduler=None, workers: int 
     rows, summary = validate_sites(sites, calibration, scheduler=scheduler, workers=workers, progress=progress,
                                    spacing_px=spacing_px, timeout_s=timeout_s,
                                    write_points=partial(write_scene_points, str(points_dir)))
+    summary["residual_layer"] = merge_residual_layers(out_dir, rows)
     summary["files"] = write_outputs(out_dir, rows, summary, title=title)
+    summary["files"]["residuals"] = summary["residual_layer"]
     return rows, summary
 
 
-def write_scene_points(points_dir, table, name: str) -> Path:
+def write_scene_points(points_dir, table, name: str, residuals: dict | None = None) -> Path:
     """Write one scene's check points to ``points_dir/<name>.csv`` (run on the Dask worker).
 
     Parameters
@@ -169,18 +173,53 @@ def write_scene_points(points_dir, table, name: str) -> Path:
         The scene's check points (pixels, WGS84 degrees, metres).
     name : str
         The scene's name; characters other than letters, digits and ``-_.`` become ``_``.
+    residuals : dict, optional
+        Their residual layer (:func:`calibrate.residual_layer.residual_layer`), written to
+        ``points_dir/<name>_residuals.gpkg`` for :func:`merge_residual_layers` to gather.
 
     Returns
     -------
     Path
-        The file written.
+        The CSV file written.
     """
+    from calibrate.residual_layer import write_residual_layer
     from gcpmatch.gcps import write_gcps_csv
 
     Path(points_dir).mkdir(parents=True, exist_ok=True)
     path = Path(points_dir) / f"{_safe_name(name)}.csv"
     write_gcps_csv(table, path)
+    if residuals is not None:
+        write_residual_layer(residuals, Path(points_dir) / f"{_safe_name(name)}_residuals.gpkg")
     return path
+
+
+def merge_residual_layers(out_dir, rows) -> str:
+    """Gather the scenes' residual layers into ``out_dir/residuals.gpkg`` (one layer, ``site`` field).
+
+    The per-scene files ``points/<name>_residuals.gpkg`` the tasks wrote are read in the sites'
+    order and removed; a scene that failed contributes no point.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The run folder (holding ``points/``).
+    rows : sequence of dict
+        Per-scene rows (``name``), in the sites' order.
+
+    Returns
+    -------
+    str
+        ``"residuals.gpkg"``, the layer's name relative to ``out_dir``.
+    """
+    from calibrate.residual_layer import concatenate_layers, read_residual_layer, write_residual_layer
+
+    points_dir = Path(out_dir) / "points"
+    parts = [points_dir / f"{_safe_name(r['name'])}_residuals.gpkg" for r in rows]
+    parts = [p for p in dict.fromkeys(parts) if p.is_file()]
+    write_residual_layer(concatenate_layers(read_residual_layer(p) for p in parts), Path(out_dir) / "residuals.gpkg")
+    for p in parts:
+        p.unlink()
+    return "residuals.gpkg"
 
 
 def _safe_name(name: str) -> str:

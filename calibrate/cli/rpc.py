@@ -1,10 +1,10 @@
-"""``gcpcal rpc``: fit an RPC to a model and write it."""
+"""``gcpcal rpc``: fit an RPC to a model and write it (a text RPC or a level-1A GeoTIFF)."""
 
 from __future__ import annotations
 
 import click
 
-from calibrate.actions.rpc import fit_rpcs
+from calibrate.actions.rpc import RpcOutputUsageError, fit_rpcs
 from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings
 
 __all__ = ["command"]
@@ -12,28 +12,41 @@ __all__ = ["command"]
 
 @click.command("rpc")
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
-@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="Output: *_RPC.TXT, *.RPB, or *.tif (RPC tags).")
+@click.option("--out", "out_path", required=True, type=click.Path(),
+              help="One RPC: this exact file, *_RPC.TXT, *.RPB, or *.tif (a copy of the scene raster with RPC tags). "
+                   "Several CCDs: a folder (<ccd>_RPC.TXT and <ccd>.tif per CCD).")
+@click.option("--image", type=click.Path(dir_okay=False),
+              help="Scene raster copied into a *.tif output (default: the manifest's raster of the band); a crop "
+                   "with a pixel geotransform crops the model.")
 @add_options(dem_options)
 @click.option("--height-range", nargs=2, type=float, help="Min and max ellipsoidal heights (m) when no --dem is given.")
 @click.option("--band", help="Band (multi-band models; default: the reference band).")
-@click.option("--ccd", help="CCD name; default: one RPC per CCD (suffix _<ccd> in the file name).")
+@click.option("--ccd", help="CCD name: one RPC for that CCD's columns (then --out may be a file).")
 @click.option("--json", "as_json", is_flag=True, help="Print the fit summary as JSON.")
-def command(model_path, out_path, dem_path, dem_datum, geoid, height_range, band, ccd, as_json):
+def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_range, band, ccd, as_json):
     """Fit an RPC to MODEL over its image and height range and write it.
 
-    A push-broom band with several CCDs gets one RPC per CCD image (columns counted from the
-    CCD's first detector), since the stitched raster is discontinuous where CCDs overlap.
+    --out is written exactly. One RPC (an RPC or staring-camera model, a one-CCD band, or --ccd)
+    goes to a file: *_RPC.TXT, *.RPB, or *.tif, a georeferenced level-1A: a copy of the scene
+    raster's band (the CCD's columns with --ccd) with the RPC as GeoTIFF RPC tags and its fit
+    error in the metadata. A push-broom band with several CCDs needs --out to be a folder: the
+    stitched raster jumps where CCDs meet, so each CCD gets its own RPC (<ccd>_RPC.TXT, columns
+    counted from the CCD's first detector) and raster (<ccd>.tif); a file name there is a usage
+    error (exit 2).
 
     The height range comes from --dem (its minimum and maximum over the scene, with a margin) or
     --height-range. The fit is terrain-independent; its errors on an independent check grid are
-    reported in OUT.summary.json.
+    reported in the summary (OUT.summary.json, or rpc.summary.json in the folder).
 
     MODEL is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
     beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
     .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
     """
-    summary = fit_rpcs(model_path, out_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
-                       height_range=height_range, band=band, ccd=ccd)
+    try:
+        summary = fit_rpcs(model_path, out_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
+                           height_range=height_range, band=band, ccd=ccd, image=image)
+    except RpcOutputUsageError as exc:
+        raise click.UsageError(str(exc)) from None
     echo_warnings(summary)
     if as_json:
         echo_json(summary)
@@ -41,4 +54,6 @@ def command(model_path, out_path, dem_path, dem_datum, geoid, height_range, band
     for f in summary["rpcs"]:
         rep = f["fit"]
         label = f" (CCD {f['ccd']})" if f["ccd"] else ""
-        click.echo(f"wrote {f['output']}{label}: check-grid max {rep['check_max_px']:.2e} px, rms {rep['check_rms_px']:.2e} px")
+        also = f" and {f['raster']}" if f["raster"] and f["raster"] != f["output"] else ""
+        click.echo(f"wrote {f['output']}{also}{label}: RPC fit check-grid max {rep['check_max_px']:.2e} px, "
+                   f"rms {rep['check_rms_px']:.2e} px")

@@ -1,0 +1,283 @@
+"""The residual layer: per-point image residuals as a GeoPackage layer a GIS opens.
+
+One point feature per GCP or check point, at the point's ground position (EPSG:4326
+``POINT Z``: lon, lat in degrees, h in metres above the WGS84 ellipsoid), with the fields of
+:data:`RESIDUAL_FIELDS`. ``match``, ``calibrate`` and ``validate`` write it through
+:func:`write_residual_layer`; docs/calibration_outputs.md ("Residual layer") describes it.
+
+Residuals are observed minus modelled image coordinates, in pixels: ``resid_along_px`` in the
+row (line, along-track) direction, ``resid_across_px`` in the column (sample, across-track)
+direction. Metres come from the model's local ground sampling distance at the point:
+``gsd_along_m = |g_row|`` and ``gsd_across_m = |g_col|``, the horizontal ground lengths of a
+one-pixel step in row and in column, found by localizing ``row +- 0.5`` and ``col +- 0.5`` at
+the point's height (:func:`calibrate.accuracy.ground_steps`); then
+``resid_along_m = resid_along_px * gsd_along_m`` and likewise across. ``resid_planar_m`` is the
+length of the ground vector ``resid_along_px g_row + resid_across_px g_col`` (equal to the root
+sum of squares of the two only when rows and columns are perpendicular on the ground).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from sensor_models.atomic import temporary_beside
+from sensor_models.errors import InputError
+
+__all__ = ["KINDS", "RESIDUAL_FIELDS", "concatenate_layers", "model_residual_layer", "read_residual_layer", "residual_layer",
+           "write_residual_layer"]
+
+#: Point kinds: fitted GCP, independent check point, GCP the fit rejected as an outlier.
+KINDS = ("gcp", "check", "outlier")
+
+#: Field name -> (GeoPackage type, unit, meaning), in layer order (after ``fid`` and ``geom``).
+RESIDUAL_FIELDS = {
+    "id": ("TEXT", "", "point id of the GCP table"),
+    "kind": ("TEXT", "", "gcp | check | outlier"),
+    "site": ("TEXT", "", "validation site (validate); empty elsewhere"),
+    "band": ("TEXT", "", "band the point was measured in"),
+    "ccd": ("TEXT", "", "detector array (CCD) that imaged the point; empty for a single-array image"),
+    "row": ("REAL", "px", "observed image row (first pixel centre at 0.5)"),
+    "col": ("REAL", "px", "observed image column"),
+    "lon": ("REAL", "deg", "WGS84 longitude"),
+    "lat": ("REAL", "deg", "WGS84 latitude"),
+    "h": ("REAL", "m", "height above the WGS84 ellipsoid"),
+    "sigma_px": ("REAL", "px", "the point's measurement sigma (matcher's)"),
+    "resid_along_px": ("REAL", "px", "observed minus modelled row"),
+    "resid_across_px": ("REAL", "px", "observed minus modelled column"),
+    "resid_planar_px": ("REAL", "px", "hypot of the two"),
+    "resid_along_m": ("REAL", "m", "resid_along_px x gsd_along_m"),
+    "resid_across_m": ("REAL", "m", "resid_across_px x gsd_across_m"),
+    "resid_planar_m": ("REAL", "m", "length of the residual's ground vector"),
+    "gsd_along_m": ("REAL", "m/px", "ground length of a one-row step at the point (model's)"),
+    "gsd_across_m": ("REAL", "m/px", "ground length of a one-column step at the point (model's)"),
+}
+
+_TEXT = [k for k, v in RESIDUAL_FIELDS.items() if v[0] == "TEXT"]
+_DESCRIPTION = ("gcpcal residuals (observed minus modelled image coordinates; along = rows, across = "
+                "columns; metres from the model's local GSD)")  # fmt: skip
+_WKB_POINT_Z = np.dtype([("order", "u1"), ("type", "<u4"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
+
+
+def _ccd_names(model, col, band, ccd_names):
+    """Per point: the table's CCD name, or the name of the array whose columns hold ``col``."""
+    names = np.asarray(ccd_names, dtype=object).astype(str)
+    blank = names == ""
+    for b in np.unique(band[blank]) if blank.any() else ():
+        sel = blank & (band == b)
+        arrays = model.detector_arrays(str(b) or None)
+        idx = model.detector_index(col[sel], band=str(b) or None)
+        names[sel] = np.array([a.name for a in arrays], dtype=object)[idx]
+    return names
+
+
+def _ccd_indices(model, col, band, names):
+    """Per point: index of its CCD in ``model.detector_arrays(band)``; None without named CCDs."""
+    idx, named = np.zeros(col.size, dtype=np.intp), False
+    for b in np.unique(band):
+        sel = band == b
+        if any(a.name for a in model.detector_arrays(str(b) or None)):
+            idx[sel], named = model.detector_index(col[sel], band=str(b) or None, array=names[sel]), True
+    return idx if named else None
+
+
+def residual_layer(model, table, residuals_px, kind, *, site: str = "") -> dict[str, np.ndarray]:
+    """The residual layer's columns for the points of ``table``.
+
+    Parameters
+    ----------
+    model : SensorModel
+        The model the residuals were computed against; its local GSD converts pixels to metres.
+    table : gcpmatch.gcps.GcpTable
+        The N points (row, col, lon, lat, h, sigma_px, band, ccd, id).
+    residuals_px : array_like, shape (N, 2)
+        Observed minus modelled (row, col), pixels; NaN where the model gives no projection.
+    kind : str or array_like of str, shape (N,)
+        Each point's kind, one of :data:`KINDS`.
+    site : str
+        Validation site name (empty outside ``validate``).
+
+    Returns
+    -------
+    dict of str to ndarray, shape (N,)
+        The :data:`RESIDUAL_FIELDS` columns (text as object arrays).
+
+    Raises
+    ------
+    InputError
+        Mis-shaped residuals or an unknown kind.
+    """
+    from calibrate.accuracy import ground_steps
+
+    n = len(table)
+    res = np.asarray(residuals_px, dtype=np.float64)
+    if res.shape != (n, 2):
+        raise InputError(f"residuals have shape {res.shape}, expected ({n}, 2)", field="residuals_px")
+    kinds = np.broadcast_to(np.asarray(kind, dtype=object).astype(str), (n,))
+    if not np.isin(kinds, KINDS).all():
+        raise InputError(f"kind must be one of {KINDS}", field="kind")
+    band = np.where(table.band == "", model.reference_band or "", table.band).astype(str)
+    names = _ccd_names(model, table.col, band, table.ccd)
+    g_row, g_col = ground_steps(model, table.row, table.col, table.h, band=None if np.all(band == "") else band,
+                                ccd=_ccd_indices(model, table.col, band, names))
+    gsd_row, gsd_col = np.linalg.norm(g_row, axis=1), np.linalg.norm(g_col, axis=1)
+    vec = res[:, 0:1] * g_row + res[:, 1:2] * g_col
+    cols = {"id": table.id, "kind": kinds, "site": np.full(n, str(site)), "band": band, "ccd": names,
+            "row": table.row, "col": table.col, "lon": table.lon, "lat": table.lat, "h": table.h,
+            "sigma_px": table.sigma_px, "resid_along_px": res[:, 0], "resid_across_px": res[:, 1],
+            "resid_planar_px": np.hypot(res[:, 0], res[:, 1]), "resid_along_m": res[:, 0] * gsd_row,
+            "resid_across_m": res[:, 1] * gsd_col, "resid_planar_m": np.linalg.norm(vec, axis=1),
+            "gsd_along_m": gsd_row, "gsd_across_m": gsd_col}
+    return {k: _column(k, cols[k]) for k in RESIDUAL_FIELDS}
+
+
+def model_residual_layer(model, table, *, kind=None, site: str = "") -> dict[str, np.ndarray]:
+    """The residual layer of ``table``'s points against ``model`` (no fit involved).
+
+    Parameters
+    ----------
+    model : SensorModel
+        The model the points are scored against (e.g. the uncalibrated input model of ``match``).
+    table : gcpmatch.gcps.GcpTable
+        The points.
+    kind : str or array_like of str, optional
+        Each point's kind (:data:`KINDS`); default: the table's own ``kind`` column.
+    site : str
+        Validation site name.
+
+    Returns
+    -------
+    dict of str to ndarray
+        As :func:`residual_layer`; residuals from :func:`calibrate.accuracy.check_residuals`.
+    """
+    from calibrate.accuracy import check_residuals
+
+    band = np.where(table.band == "", model.reference_band or "", table.band).astype(str)
+    names = _ccd_names(model, table.col, band, table.ccd)
+    res = np.zeros((0, 2))
+    if len(table):
+        res, _ = check_residuals(model, table.row, table.col, table.lon, table.lat, table.h,
+                                 band=None if np.all(band == "") else band,
+                                 ccd=_ccd_indices(model, table.col, band, names))
+    return residual_layer(model, table, res, table.kind if kind is None else kind, site=site)
+
+
+def _column(name: str, values) -> np.ndarray:
+    if name in _TEXT:
+        return np.asarray(values).astype(str).astype(object)
+    return np.asarray(values, dtype=np.float64).copy()
+
+
+def concatenate_layers(layers) -> dict[str, np.ndarray]:
+    """Join residual layers (e.g. one per validation site) into one.
+
+    Parameters
+    ----------
+    layers : iterable of dict
+        Columns as :func:`residual_layer` returns them.
+
+    Returns
+    -------
+    dict of str to ndarray
+        The rows of every layer, in order.
+    """
+    layers = list(layers)
+    if not layers:
+        return {k: _column(k, []) for k in RESIDUAL_FIELDS}
+    return {k: _column(k, np.concatenate([np.asarray(x[k], dtype=object if k in _TEXT else np.float64)
+                                          for x in layers])) for k in RESIDUAL_FIELDS}
+
+
+def write_residual_layer(columns: dict, path, *, layer: str = "residuals") -> Path:
+    """Write a residual layer as an OGC GeoPackage (EPSG:4326 POINT Z); atomically.
+
+    Written by GDAL through :func:`pyogrio.raw.write`, as
+    :func:`gcpmatch.gcps.write_gcps_gpkg` writes GCPs: ``fid``, ``geom`` (lon, lat, h) and the
+    :data:`RESIDUAL_FIELDS` in order. An empty layer (no point) is written with its schema.
+
+    Parameters
+    ----------
+    columns : dict of str to array_like, shape (N,)
+        The :data:`RESIDUAL_FIELDS` columns (:func:`residual_layer`).
+    path : str or Path
+        Destination (``*.gpkg``); its folder must exist. Written to a temporary file beside it and
+        renamed.
+    layer : str
+        Layer name.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    InputError
+        A missing column or GDAL could not write the file.
+    """
+    import pyogrio.raw
+    from pyogrio.errors import DataSourceError, DataLayerError, FieldError, GeometryError
+
+    missing = [k for k in RESIDUAL_FIELDS if k not in columns]
+    if missing:
+        raise InputError(f"residual layer lacks the columns {missing}", path=str(path))
+    cols = {k: _column(k, columns[k]) for k in RESIDUAL_FIELDS}
+    points = np.zeros(cols["lon"].size, dtype=_WKB_POINT_Z)
+    points["order"], points["type"] = 1, 1001
+    points["x"], points["y"], points["z"] = cols["lon"], cols["lat"], cols["h"]
+    geometry = np.array(points.view(f"V{_WKB_POINT_Z.itemsize}").tolist(), dtype=object)
+    path = Path(path)
+    tmp = temporary_beside(path, ".gpkg")
+    try:
+        tmp.unlink()  # GDAL creates the file itself
+        pyogrio.raw.write(tmp, geometry, list(cols.values()), fields=list(cols), layer=layer, driver="GPKG",
+                          crs="EPSG:4326", geometry_type="Point Z", dataset_options={"VERSION": "1.3"},
+                          layer_options={"SPATIAL_INDEX": "NO", "FID": "fid", "GEOMETRY_NAME": "geom",
+                                         "DESCRIPTION": _DESCRIPTION})
+        os.replace(tmp, path)
+    except (DataSourceError, DataLayerError, FieldError, GeometryError) as exc:
+        raise InputError(f"GDAL could not write the residual layer: {exc}", path=str(path)) from None
+    finally:
+        for suffix in ("", "-journal", "-wal", "-shm"):
+            Path(str(tmp) + suffix).unlink(missing_ok=True)
+    return path
+
+
+def read_residual_layer(path, *, layer: str = "residuals") -> dict[str, np.ndarray]:
+    """Read a residual layer written by :func:`write_residual_layer`.
+
+    Parameters
+    ----------
+    path : str or Path
+        The GeoPackage.
+    layer : str
+        Layer name.
+
+    Returns
+    -------
+    dict of str to ndarray, shape (N,)
+        The :data:`RESIDUAL_FIELDS` columns in feature order, plus ``geom_lon``, ``geom_lat``,
+        ``geom_h`` from the point geometries.
+
+    Raises
+    ------
+    InputError
+        Unreadable file, missing layer or field.
+    """
+    import pyogrio.raw
+    from pyogrio.errors import DataSourceError, DataLayerError
+
+    try:
+        meta, _, geometry, values = pyogrio.raw.read(path, layer=layer)
+    except (DataSourceError, DataLayerError) as exc:
+        raise InputError(f"cannot read the residual layer: {exc}", path=str(path)) from None
+    names = list(meta["fields"])
+    missing = [k for k in RESIDUAL_FIELDS if k not in names]
+    if missing:
+        raise InputError(f"residual layer lacks the fields {missing}", path=str(path))
+    out = {k: _column(k, values[names.index(k)]) for k in RESIDUAL_FIELDS}
+    xyz = np.array([np.frombuffer(bytes(g), dtype=_WKB_POINT_Z)[0].tolist()[2:] for g in geometry]).reshape(-1, 3)
+    out["geom_lon"], out["geom_lat"], out["geom_h"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    return out
