@@ -222,6 +222,7 @@ def simulate_pushbroom(
     block_lines: int = 256,
     progress=None,
     record_timings: bool = True,
+    profile=None,
 ) -> dict:
     """Simulate a push-broom scene into ``out_dir`` (see the module docstring).
 
@@ -244,6 +245,11 @@ def simulate_pushbroom(
     record_timings : bool
         Write render times into ``summary.json`` (False: every output file is a function of
         the configuration and inputs only, e.g. for committed fixtures).
+    profile : PushbroomProfile or str, optional
+        Error profile (:mod:`sensor_models.simulate.profiles`); None or ``"ideal"``: today's
+        simulator, byte for byte. ``"realistic"``:
+        :func:`sensor_models.simulate.realistic_sim.simulate_realistic` (``dom`` is then the
+        scene's source radiance, optional; no ``dem``).
 
     Returns
     -------
@@ -252,6 +258,13 @@ def simulate_pushbroom(
     """
     t_start = time.perf_counter()
     cfg = (config or SimConfig()).validate()
+    if isinstance(profile, str):
+        from sensor_models.simulate.profiles import get_profile
+
+        profile = get_profile(profile)
+    if profile is not None and not profile.is_ideal:
+        return _simulate_with_profile(out_dir, cfg, profile, dom, dem, geoid, workers, block_lines, progress,
+                                      t_start, record_timings)
     if (dom is None) != (dem is None):
         raise InputError("give both --dom and --dem, or neither (procedural reference)")
     out_dir = Path(out_dir)
@@ -266,10 +279,24 @@ def simulate_pushbroom(
     return summary
 
 
-def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines, progress, t_start, record_timings):
-    from sensor_models.readers.manifest import write_manifest
-    from sensor_models.simulate.truth import truth_error
+def _simulate_with_profile(out_dir, cfg, profile, dom, dem, geoid, workers, block_lines, progress, t_start,
+                           record_timings):
+    from sensor_models.simulate.realistic_sim import simulate_realistic
 
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
+    try:
+        summary = simulate_realistic(tmp, cfg, profile, dom_path=dom, dem_path=dem, geoid=geoid, workers=workers,
+                                     block_lines=block_lines, progress=progress, t_start=t_start,
+                                     record_timings=record_timings)
+        move_tree_into(tmp, out_dir)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return summary
+
+
+def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines, progress, t_start, record_timings):
     models = build_models(cfg)
     model = models.true_model
     dom, dem, reference_files, dem_figures = _reference(cfg, models, tmp, dom_path, dem_path, geoid)
@@ -282,7 +309,25 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
     cloud_pixels, has_mask = _render_scene(renderer, model, tmp, bands, cfg.camera.reference_band, n_ccd,
                                            block_lines, workers, progress)
     render_seconds = time.perf_counter() - t_render
+    return _write_outputs(cfg, models, tmp, dem, reference_files, dem_figures, (cloud_pixels, has_mask),
+                          render_seconds, workers, t_start, record_timings)
 
+
+def _write_outputs(cfg, models, tmp: Path, dem, reference_files, dem_figures, clouds, render_seconds, workers,
+                   t_start, record_timings, *, extra_truth=None, extra_summary=None) -> dict:
+    """Write the manifests, ``truth.json`` and ``summary.json`` of a rendered scene; return the summary.
+
+    ``clouds`` is ``(cloud pixels of the reference band, whether a mask was written)``;
+    ``extra_truth`` and ``extra_summary`` (dicts) are appended to the two documents.
+    """
+    from sensor_models.readers.manifest import write_manifest
+    from sensor_models.simulate.truth import truth_error
+
+    model = models.true_model
+    n_rows, n_cols = model.image_shape
+    bands = list(cfg.camera.bands)
+    n_ccd = len(model.band_ccds(cfg.camera.reference_band))
+    cloud_pixels, has_mask = clouds
     rasters = {b: str(tmp / f"{b}.tif") for b in bands}
     write_manifest(models.lab_model, tmp / "manifest.json", rasters=rasters)
     write_manifest(models.true_model, tmp / "truth_manifest.json", rasters=rasters)
@@ -297,6 +342,7 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
         "clouds": {"cover_requested": cfg.clouds.cover, "mask": "cloud_mask.tif" if has_mask else None},
         **models.truth,
         "config": cfg.to_dict(),
+        **(extra_truth or {}),
     }
     pixels = n_rows * n_cols * len(bands)
     summary = {
@@ -313,6 +359,7 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
         "warnings": dem_figures["warnings"],
         "lab_truth_error_px": {"rms": initial["rms_px"], "max": initial["max_px"],
                                "mean_row": initial["mean_row_px"], "mean_col": initial["mean_col_px"]},
+        **(extra_summary or {}),
         "render_seconds": render_seconds,
         "pixels_per_second": pixels / render_seconds,
         "workers": workers,
