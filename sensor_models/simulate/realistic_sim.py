@@ -42,7 +42,7 @@ from sensor_models.simulate.scene import build_models
 from sensor_models.simulate.true_lens import cubic_residual_px, lens_extras
 from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
 
-__all__ = ["apply_profile", "simulate_realistic"]
+__all__ = ["apply_profile", "detector_gains", "simulate_realistic"]
 
 
 def apply_profile(cfg: SimConfig, profile) -> SimConfig:
@@ -130,6 +130,32 @@ def _source_and_dem(cfg: SimConfig, models, given_source):
     return source, data
 
 
+def detector_gains(profile, seed: int, band_index: int, ccd: int, n_detectors: int, n_ccds: int):
+    """Per-detector gain (PRNU times the CCD's gain) and offset (striping) of one band and CCD.
+
+    Parameters
+    ----------
+    profile : PushbroomProfile
+        ``prnu_rms``, ``ccd_gain_step``, ``striping_dn``.
+    seed : int
+        Camera seed (the detectors are the sensor's, shared by its scenes).
+    band_index, ccd : int
+        Band position and CCD index.
+    n_detectors, n_ccds : int
+        Detectors of the CCD; CCDs of the band.
+
+    Returns
+    -------
+    gain : ndarray of float32, shape (n_detectors,)
+    offset_dn : ndarray of float32, shape (n_detectors,)
+    """
+    v = profile.value
+    prnu = np.random.default_rng([seed, 30, band_index, ccd]).normal(1.0, v("prnu_rms"), n_detectors)
+    ccd_gain = np.random.default_rng([seed, 31, band_index]).normal(1.0, v("ccd_gain_step"), n_ccds)[ccd]
+    stripes = np.random.default_rng([seed, 32, band_index, ccd]).normal(0.0, v("striping_dn"), n_detectors)
+    return (prnu * ccd_gain).astype(np.float32), stripes.astype(np.float32)
+
+
 class _KernelRenderer:
     """Renders one (band, CCD, block of lines) task with :mod:`sensor_models.simulate.kernel`."""
 
@@ -147,14 +173,6 @@ class _KernelRenderer:
         self.profile = profile
         self.band_index = {b: i for i, b in enumerate(cfg.camera.bands)}
 
-    def _detector_gains(self, b: int, ccd: int, n: int):
-        v, seed = self.profile.value, self.cfg.seed
-        prnu = np.random.default_rng([seed, 30, b, ccd]).normal(1.0, v("prnu_rms"), n)
-        n_ccd = len(self.model.band_ccds(self.cfg.camera.bands[b]))
-        ccd_gain = np.random.default_rng([seed, 31, b]).normal(1.0, v("ccd_gain_step"), n_ccd)[ccd]
-        stripes = np.random.default_rng([seed, 32, b, ccd]).normal(0.0, v("striping_dn"), n)
-        return (prnu * ccd_gain).astype(np.float32), stripes.astype(np.float32)
-
     def task(self, band: str, ccd: int, row0: int, row1: int):
         cfg, r, v = self.cfg, self.cfg.radiometry, self.profile.value
         b = self.band_index[band]
@@ -165,7 +183,7 @@ class _KernelRenderer:
         ir, ic = self.lens.irregularity(b, ccd, n)
         rad = integrate_footprint(self.radiance, u, v_, *self.offsets, irregular_row=ir, irregular_col=ic)
         rad = rad[row0 - lo : row0 - lo + (row1 - row0)]
-        gain, stripes = self._detector_gains(b, ccd, n)
+        gain, stripes = detector_gains(self.profile, cfg.seed, b, ccd, n, len(self.model.band_ccds(band)))
         dn = detector_response(rad, gain=r.band_gain[b], gamma=r.band_gamma[b], offset_dn=r.band_offset_dn[b],
                                nonlinearity=v("nonlinearity"), pixel_gain=gain, pixel_offset_dn=stripes, snr=r.snr,
                                bits=r.bits, rng=np.random.default_rng([cfg.pass_seed, 33, b, ccd, row0]))
