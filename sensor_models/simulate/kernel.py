@@ -18,7 +18,7 @@ Signal chain of one detector sample, in order:
    non-linearity, per-detector gain (PRNU) and offset (striping), per-CCD gain steps, read and
    shot noise, quantization.
 
-The system MTF of steps 1-2 (:func:`system_mtf`) is that of the disk ``2 J1(x) / x``, the halo, the
+The system MTF of steps 1-2 (:func:`system_mtf`) is that of the disk (``2 J1(x) / x``), the halo, the
 box ``sinc`` and the smear ``sinc``, plus the bilinear interpolation of the source raster.
 """
 
@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.special import j1
 
 __all__ = ["detector_response", "footprint_offsets", "integrate_footprint", "optics_kernel", "system_mtf"]
 

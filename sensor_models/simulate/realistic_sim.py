@@ -30,16 +30,16 @@ import pyproj
 
 from sensor_models.errors import InputError
 from sensor_models.locate import MapGrid, dem_planes, locate_block
-from sensor_models.raster import MapImage
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.kernel import (detector_response, footprint_offsets, integrate_footprint, optics_kernel,
                                            system_mtf)
 from sensor_models.simulate.profiles import profile_table
-from sensor_models.simulate.pushbroom_sim import (_check_covers, _render_scene, _utm_crs, _write_outputs,
-                                                  footprint_lonlat)
+from sensor_models.simulate.render_io import (check_covers, footprint_lonlat, render_scene, utm_crs,
+                                              write_outputs)
 from sensor_models.simulate.reference_pair import DEM_NODATA, degrade_dem, degrade_dom, write_raster
 from sensor_models.simulate.scene import build_models
 from sensor_models.simulate.true_lens import cubic_residual_px, lens_extras
+from sensor_models.simulate.truth import truth_error
 from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["apply_profile", "detector_gains", "simulate_realistic"]
@@ -111,7 +111,7 @@ def _source_and_dem(cfg: SimConfig, models, given_source):
     ref = cfg.reference
     h = (ref.mean_height_m - ref.relief_m - 100.0, ref.mean_height_m + ref.relief_m + 100.0)
     lon, lat = footprint_lonlat(models.true_model, h)
-    crs = _utm_crs(float(lon.mean()), float(lat.mean()))
+    crs = utm_crs(float(lon.mean()), float(lat.mean()))
     x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
     width, height = float(np.ptp(x)) + 2.0 * ref.margin_m, float(np.ptp(y)) + 2.0 * ref.margin_m
     cx, cy = 0.5 * (np.min(x) + np.max(x)), 0.5 * (np.min(y) + np.max(y))
@@ -269,14 +269,14 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     source, data = _source_and_dem(cfg, models, given)
     true_dem = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
     lon, lat = footprint_lonlat(models.true_model, true_dem.height_range_m)
-    _check_covers(MapGrid(source[1], source[2], source[0].shape), lon, lat, what="source radiance",
+    check_covers(MapGrid(source[1], source[2], source[0].shape), lon, lat, what="source radiance",
                   path=str(dom_path) if dom_path else None)
-    _check_covers(MapGrid.of_dem(true_dem), lon, lat, what="DEM", path=None)
+    check_covers(MapGrid.of_dem(true_dem), lon, lat, what="DEM", path=None)
     reference_files, degraded = _write_reference(tmp, cfg, profile, source, data)
     renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, source, lens)
     dem_planes(true_dem)
     t_render = time.perf_counter()
-    clouds = _render_scene(renderer, models.true_model, tmp, list(cfg.camera.bands), cfg.camera.reference_band,
+    clouds = render_scene(renderer, models.true_model, tmp, list(cfg.camera.bands), cfg.camera.reference_band,
                            len(models.true_model.band_ccds(cfg.camera.reference_band)), block_lines, workers, progress)
     render_seconds = time.perf_counter() - t_render
     user_dem = Dem.open(tmp / "reference" / "dem.tif")
@@ -289,6 +289,8 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     extra_truth = {"profile": profile.name, "profile_table": [list(r) for r in profile_table(profile)],
                    "orbit_bias_m": profile.value("orbit_bias_m"),
                    "detector_irregularity_px": {"axes": ["row", "col"], "bands": irregular}, "injected": injected}
-    return _write_outputs(cfg, models, tmp, user_dem, reference_files, dem_figures, clouds, render_seconds, workers,
-                          t_start, record_timings, extra_truth=extra_truth,
-                          extra_summary={"profile": profile.name, "injected": injected})
+    # the LAB model's error over the TRUE terrain (the user's DEM has voids)
+    initial = truth_error(models.true_model, models.lab_model, dem=true_dem, step_px=32)
+    return write_outputs(cfg, models, tmp, initial, reference_files, dem_figures, clouds, render_seconds, workers,
+                         t_start, record_timings, extra_truth=extra_truth,
+                         extra_summary={"profile": profile.name, "injected": injected})
