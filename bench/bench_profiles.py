@@ -62,7 +62,13 @@ ABLATIONS = {
     "no_date_sensor": {"seasonal_change": 0.0, "haze": 0.0, "reference_gamma": 1.0},
     "no_reference_change": {"dom_bias_m": (0.0, 0.0), "dom_field_rms_m": 0.0, "dem_error_rms_m": 0.0,
                             "dem_void_fraction": 0.0, "seasonal_change": 0.0, "haze": 0.0, "reference_gamma": 1.0},
+    "no_attitude_orbit": {"star_tracker_noise_urad": 1.0, "jitter_amplitude_urad": (1.0, 1.0, 0.5),
+                          "jitter_frequency_hz": 1.3, "orbit_bias_m": 0.0},
+    "no_lens": {"radial_k2_px": 0.0, "radial_k3_px": 0.0, "focal_plane_curvature_px": 0.0, "ccd_bending_px": 0.0,
+                "detector_irregularity_px": 0.0},
 }
+#: kernel and reference resolution only: every other group of realistic switched off
+ABLATIONS["kernel_only"] = {**ABLATIONS["no_reference_change"], **ABLATIONS["no_attitude_orbit"], **ABLATIONS["no_lens"]}
 
 
 def _simulate(scene: Path, name: str, config: Path, source) -> None:

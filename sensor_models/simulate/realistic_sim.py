@@ -116,13 +116,13 @@ def _source_and_dem(cfg: SimConfig, models, given_source):
     width, height = float(np.ptp(x)) + 2.0 * ref.margin_m, float(np.ptp(y)) + 2.0 * ref.margin_m
     cx, cy = 0.5 * (np.min(x) + np.max(x)), 0.5 * (np.min(y) + np.max(y))
     clon, clat = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(cx, cy)
-    dom_path = None if given_source is None else "given"
-    sea = ref.sea_fraction if dom_path is None else 0.0  # a real texture has its own water
+    procedural = given_source is None
+    # a real texture has its own water; its procedural DOM is not used, so drawn coarse
     data = generate_reference(float(clon), float(clat), width, height, seed=cfg.seed,
-                              dom_resolution_m=ref.dom_resolution_m if dom_path is None else 2 * ref.dem_resolution_m,
+                              dom_resolution_m=ref.dom_resolution_m if procedural else 2 * ref.dem_resolution_m,
                               dem_resolution_m=ref.dem_resolution_m, relief_m=ref.relief_m,
-                              mean_height_m=ref.mean_height_m, sea_fraction=sea)
-    if dom_path is None:
+                              mean_height_m=ref.mean_height_m, sea_fraction=ref.sea_fraction if procedural else 0.0)
+    if procedural:
         dom = data.dom.astype(np.float32)
         source = (dom / np.float32(np.percentile(dom, 99.5)), data.dom_transform, data.crs)
     else:
@@ -257,6 +257,29 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     if cfg.clouds.cover > 0:
         raise InputError(f"clouds are not simulated under the {profile.name} profile yet", field="clouds.cover")
     tmp = Path(tmp)
+    cfg, models, lens, source, true_dem, data = _setup(cfg, profile, dom_path)
+    reference_files, degraded = _write_reference(tmp, cfg, profile, source, data)
+    renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, source, lens)
+    dem_planes(true_dem)
+    t_render = time.perf_counter()
+    clouds = render_scene(renderer, models.true_model, tmp, list(cfg.camera.bands), cfg.camera.reference_band,
+                          len(models.true_model.band_ccds(cfg.camera.reference_band)), block_lines, workers, progress)
+    render_seconds = time.perf_counter() - t_render
+    user_dem = Dem.open(tmp / "reference" / "dem.tif")
+    g_lon, g_lat = footprint_sample_lonlat(models.true_model, float(np.mean(true_dem.height_range_m)), n_side=65)
+    dem_figures = check_dem_footprint(user_dem, g_lon, g_lat, min_coverage=1.0)
+    dem_figures["warnings"] = [w.replace(f"{tmp}/", "") for w in dem_figures["warnings"]]  # no temporary path
+    injected = {**_figures(cfg, profile, models, lens, true_dem, tmp / "reference" / "dem.tif", renderer.scale),
+                **degraded, "source_radiance": str(Path(dom_path).resolve()) if dom_path else "procedural"}
+    # the LAB model's error over the TRUE terrain (the user's DEM has voids)
+    initial = truth_error(models.true_model, models.lab_model, dem=true_dem, step_px=32)
+    return write_outputs(cfg, models, tmp, initial, reference_files, dem_figures, clouds, render_seconds, workers,
+                         t_start, record_timings, extra_truth=_truth_record(cfg, profile, models, lens, injected),
+                         extra_summary={"profile": profile.name, "injected": injected})
+
+
+def _setup(cfg: SimConfig, profile, dom_path):
+    """Effective configuration, models (centred on a given source), lens, source radiance, TRUE DEM."""
     cfg = apply_profile(cfg, profile)
     lens = lens_extras(profile, cfg.seed)
     centre, given = None, None
@@ -270,27 +293,15 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     true_dem = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
     lon, lat = footprint_lonlat(models.true_model, true_dem.height_range_m)
     check_covers(MapGrid(source[1], source[2], source[0].shape), lon, lat, what="source radiance",
-                  path=str(dom_path) if dom_path else None)
+                 path=str(dom_path) if dom_path else None)
     check_covers(MapGrid.of_dem(true_dem), lon, lat, what="DEM", path=None)
-    reference_files, degraded = _write_reference(tmp, cfg, profile, source, data)
-    renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, source, lens)
-    dem_planes(true_dem)
-    t_render = time.perf_counter()
-    clouds = render_scene(renderer, models.true_model, tmp, list(cfg.camera.bands), cfg.camera.reference_band,
-                           len(models.true_model.band_ccds(cfg.camera.reference_band)), block_lines, workers, progress)
-    render_seconds = time.perf_counter() - t_render
-    user_dem = Dem.open(tmp / "reference" / "dem.tif")
-    g_lon, g_lat = footprint_sample_lonlat(models.true_model, float(np.mean(true_dem.height_range_m)), n_side=65)
-    dem_figures = check_dem_footprint(user_dem, g_lon, g_lat, min_coverage=1.0)
-    injected = {**_figures(cfg, profile, models, lens, true_dem, tmp / "reference" / "dem.tif", renderer.scale),
-                **degraded, "source_radiance": str(Path(dom_path).resolve()) if dom_path else "procedural"}
+    return cfg, models, lens, source, true_dem, data
+
+
+def _truth_record(cfg, profile, models, lens, injected) -> dict:
+    """What ``truth.json`` adds under a profile: its table, the orbit bias, every detector's irregularity."""
     irregular = {b: [np.stack(lens.irregularity(i, k, look.n_detectors)).round(5).tolist()
                      for k, look in enumerate(models.true_model.band_ccds(b))] for i, b in enumerate(cfg.camera.bands)}
-    extra_truth = {"profile": profile.name, "profile_table": [list(r) for r in profile_table(profile)],
-                   "orbit_bias_m": profile.value("orbit_bias_m"),
-                   "detector_irregularity_px": {"axes": ["row", "col"], "bands": irregular}, "injected": injected}
-    # the LAB model's error over the TRUE terrain (the user's DEM has voids)
-    initial = truth_error(models.true_model, models.lab_model, dem=true_dem, step_px=32)
-    return write_outputs(cfg, models, tmp, initial, reference_files, dem_figures, clouds, render_seconds, workers,
-                         t_start, record_timings, extra_truth=extra_truth,
-                         extra_summary={"profile": profile.name, "injected": injected})
+    return {"profile": profile.name, "profile_table": [list(r) for r in profile_table(profile)],
+            "orbit_bias_m": profile.value("orbit_bias_m"),
+            "detector_irregularity_px": {"axes": ["row", "col"], "bands": irregular}, "injected": injected}
