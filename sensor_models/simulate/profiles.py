@@ -83,7 +83,7 @@ class PushbroomProfile:
     prnu_rms: Sourced = _f("relative gain, rms", "per-detector gain")
     striping_dn: Sourced = _f("DN rms", "per-detector offset")
     ccd_gain_step: Sourced = _f("relative gain, rms", "gain of each CCD (steps at the CCD joins)")
-    nonlinearity: Sourced = _f("relative deviation at full scale", "quadratic response s (1 - a (1 - s))")
+    nonlinearity: Sourced = _f("coefficient a (largest deviation a/4 at half scale)", "response L (1 - a (1 - L))")
     snr: Sourced = _f("at 0.35 full scale", "read + shot noise")
     bits: Sourced = _f("bits", "quantization")
     # -- reference DOM and DEM given to the user --------------------------------------------
@@ -158,7 +158,7 @@ def _realistic() -> PushbroomProfile:
         focal_plane_curvature_px=Sourced(0.5, ASSUMPTION),
         ccd_bending_px=Sourced(0.3, ASSUMPTION),
         detector_irregularity_px=Sourced(0.03, f"{ISSUE13} brief: 0.02-0.05 px rms"),
-        supersampling=Sourced(4, "numerical choice (integration error < 1 % of contrast at Nyquist)"),
+        supersampling=Sourced(4, "numerical choice: 4 x 4 samples over the box, x 4 over the smear"),
         motion_smear_lines=Sourced(1.0, "push-broom without TDI integrates over one line period"),
         defocus_radius_px=Sourced(0.6, f"{ASSUMPTION}; chosen so that the system MTF at Nyquist is in {S2_MTF}"),
         halo_fraction=Sourced(0.05, ASSUMPTION),
