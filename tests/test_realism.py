@@ -255,3 +255,18 @@ def test_realistic_scene_from_sentinel2_red(tmp_path, shared_data):
     src30 = cv2.resize(src, ref.shape[::-1], interpolation=cv2.INTER_AREA)
     r = np.corrcoef(src30.ravel(), ref.ravel())[0, 1]
     assert 0.7 < r < 0.99
+
+
+def test_realistic_scene_is_a_function_of_its_seed(tmp_path):
+    cfg = config_from_dict(MEDIUM)
+    digests = []
+    for k, workers in enumerate((1, 2)):
+        out = tmp_path / f"s{k}"
+        simulate_pushbroom(out, config=cfg, profile="realistic", record_timings=False, workers=workers)
+        digests.append({p.name: hashlib.sha256(p.read_bytes()).hexdigest()
+                        for p in (out / "B2.tif", out / "reference" / "dom.tif", out / "reference" / "dem.tif",
+                                  out / "truth.json", out / "manifest.json")})
+    assert digests[0] == digests[1]
+    other = tmp_path / "other"
+    simulate_pushbroom(other, config=cfg.with_seed(7), profile="realistic", record_timings=False)
+    assert hashlib.sha256((other / "B2.tif").read_bytes()).hexdigest() != digests[0]["B2.tif"]
