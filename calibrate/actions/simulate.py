@@ -11,8 +11,12 @@ from calibrate.actions._io import check_output_files, final_paths, open_dem, sta
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
 
-__all__ = ["pushbroom_config", "simulate_geo_earth_scene", "simulate_geo_star_frames", "simulate_pushbroom_scene",
-           "simulate_validation_series", "truth_error_of"]
+__all__ = ["PROFILE_NAMES", "pushbroom_config", "simulate_geo_earth_scene", "simulate_geo_star_frames",
+           "simulate_pushbroom_scene", "simulate_validation_series", "truth_error_of"]
+
+
+#: error profiles of ``gcpcal simulate pushbroom --profile`` (sensor_models.simulate.profiles.PROFILES)
+PROFILE_NAMES = ("ideal", "realistic")
 
 
 def pushbroom_config(config_path=None, seed=None):
@@ -37,7 +41,7 @@ def pushbroom_config(config_path=None, seed=None):
 
 
 def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, geoid=None, workers: int = 2,
-                             progress=None) -> dict:
+                             progress=None, profile: str = "ideal") -> dict:
     """Render a level-1A push-broom scene through a TRUE model; write the LAB manifest and truth.
 
     Parameters
@@ -54,6 +58,8 @@ def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, g
         Rendering threads.
     progress : callable(done, total), optional
         Called as rendering proceeds.
+    profile : str
+        Error profile name (:data:`PROFILE_NAMES`; ``ideal``: today's simulator).
 
     Returns
     -------
@@ -64,7 +70,7 @@ def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, g
 
     with staged_folder(out_dir, ".simulate-", inputs=[dom_path, dem_path, geoid]) as stage:
         summary = simulate_pushbroom(stage, config=config, dom=dom_path, dem=dem_path, geoid=geoid, workers=workers,
-                                     progress=progress)
+                                     progress=progress, profile=profile)
     return final_paths(summary, stage, out_dir)
 
 

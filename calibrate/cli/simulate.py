@@ -7,8 +7,9 @@ from pathlib import Path
 
 import click
 
-from calibrate.actions.simulate import (pushbroom_config, simulate_geo_earth_scene, simulate_geo_star_frames,
-                                        simulate_pushbroom_scene, simulate_validation_series)
+from calibrate.actions.simulate import (PROFILE_NAMES, pushbroom_config, simulate_geo_earth_scene,
+                                        simulate_geo_star_frames, simulate_pushbroom_scene,
+                                        simulate_validation_series)
 from calibrate.cli.options import echo_warnings, float_list, out_dir_option, quiet_of
 
 __all__ = ["command"]
@@ -28,8 +29,10 @@ def command():
 @click.option("--geoid", type=click.Path(dir_okay=False), help="EGM96 grid for an orthometric DEM.")
 @click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True, help="Rendering threads.")
 @click.option("--print-config", is_flag=True, help="Print the effective configuration as JSON and exit.")
+@click.option("--profile", type=click.Choice(PROFILE_NAMES), default="ideal", show_default=True,
+              help="Error profile (docs/error_budget.md); realistic: --dom is the source radiance, no --dem.")
 @click.pass_context
-def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid, workers, print_config):
+def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid, workers, print_config, profile):
     """Render a level-1A push-broom scene through a TRUE model; write the LAB manifest and truth."""
     from rich.progress import Progress
 
@@ -40,7 +43,7 @@ def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid
     with Progress(transient=True, disable=quiet_of(ctx)) as bar:
         task = bar.add_task("rendering", total=None)
         summary = simulate_pushbroom_scene(
-            out_dir, cfg, dom_path=dom_path, dem_path=dem_path, geoid=geoid, workers=workers,
+            out_dir, cfg, dom_path=dom_path, dem_path=dem_path, geoid=geoid, workers=workers, profile=profile,
             progress=lambda done, total: bar.update(task, completed=done, total=total),
         )
     echo_warnings(summary)

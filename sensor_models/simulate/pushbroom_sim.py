@@ -24,13 +24,10 @@ number of workers.
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import tempfile
 import time
-import warnings
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -44,66 +41,17 @@ from sensor_models.psf import psf_sigma_dom_px
 from sensor_models.raster import MapImage, sample_map_image
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.radiometry import smooth_field, to_dn
+from sensor_models.simulate.render_io import check_covers, footprint_lonlat, render_scene, utm_crs, write_outputs
 from sensor_models.simulate.scene import SceneModels, build_models
 from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["footprint_lonlat", "simulate_pushbroom"]
 
+# historical private names, used by geo_sim and series
+_utm_crs, _check_covers, _render_scene, _write_outputs = utm_crs, check_covers, render_scene, write_outputs
+
 #: coarse grid factor (DOM pixels per node) of the seasonal and cloud fields
 FIELD_FACTOR = 8
-
-
-def footprint_lonlat(model, heights_m, *, step_px: int = 32):
-    """Lon/lat of the image border of every band at each height.
-
-    Parameters
-    ----------
-    model : PushbroomModel
-        The scene model (its ``bands`` and ``image_shape``).
-    heights_m : iterable of float
-        Ellipsoidal heights of the localization, metres.
-    step_px : int
-        Spacing of the border points, pixels (pixel centres, corners included).
-
-    Returns
-    -------
-    lon_deg, lat_deg : ndarray, shape (N,)
-        WGS84 degrees, every band and height concatenated (NaN where localization fails).
-    """
-    n_rows, n_cols = model.image_shape
-    rows = np.linspace(0.5, n_rows - 0.5, max(2, n_rows // step_px + 1))
-    cols = np.linspace(0.5, n_cols - 0.5, max(2, n_cols // step_px + 1))
-    r = np.concatenate([rows, rows, np.full(cols.size, 0.5), np.full(cols.size, n_rows - 0.5)])
-    c = np.concatenate([np.full(rows.size, 0.5), np.full(rows.size, n_cols - 0.5), cols, cols])
-    lons, lats = [], []
-    for band in model.bands:
-        for h in heights_m:
-            lon, lat, _ = model.image_to_ground(r, c, height=float(h), band=band)
-            lons.append(lon)
-            lats.append(lat)
-    return np.concatenate(lons), np.concatenate(lats)
-
-
-def _utm_crs(lon: float, lat: float) -> pyproj.CRS:
-    zone = int(np.floor((lon + 180.0) / 6.0)) % 60 + 1
-    return pyproj.CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
-
-
-def _check_covers(grid: MapGrid, lon, lat, *, what: str, path: str | None, margin_px: float = 2.0):
-    tr = pyproj.Transformer.from_crs("EPSG:4326", grid.crs, always_xy=True)
-    x, y = tr.transform(lon, lat)
-    a = grid.index_affine()
-    u = a.a * np.asarray(x) + a.b * np.asarray(y) + a.c
-    v = a.d * np.asarray(x) + a.e * np.asarray(y) + a.f
-    n_rows, n_cols = grid.shape
-    inside = (u >= margin_px) & (u <= n_cols - 1 - margin_px) & (v >= margin_px) & (v <= n_rows - 1 - margin_px)
-    if not inside.all():
-        frac = 1.0 - inside.mean()
-        raise InputError(
-            f"the {what} does not cover the scene footprint ({100 * frac:.0f} % of the border points "
-            f"outside, footprint lon {lon.min():.4f}..{lon.max():.4f}, lat {lat.min():.4f}..{lat.max():.4f})",
-            path=path or what,
-        )
 
 
 def _procedural_reference(cfg: SimConfig, models: SceneModels, out_dir: Path):
@@ -202,15 +150,6 @@ def _dom_scale(dom: MapImage) -> float:
     return scale
 
 
-def _open_writer(path: Path, n_rows: int, n_cols: int, dtype: str):
-    import rasterio
-
-    return rasterio.open(
-        path, "w", driver="GTiff", width=n_cols, height=n_rows, count=1, dtype=dtype,
-        compress="deflate", predictor=2, zlevel=6, tiled=False, blockysize=16,
-    )
-
-
 def simulate_pushbroom(
     out_dir,
     *,
@@ -222,6 +161,7 @@ def simulate_pushbroom(
     block_lines: int = 256,
     progress=None,
     record_timings: bool = True,
+    profile=None,
 ) -> dict:
     """Simulate a push-broom scene into ``out_dir`` (see the module docstring).
 
@@ -244,6 +184,11 @@ def simulate_pushbroom(
     record_timings : bool
         Write render times into ``summary.json`` (False: every output file is a function of
         the configuration and inputs only, e.g. for committed fixtures).
+    profile : PushbroomProfile or str, optional
+        Error profile (:mod:`sensor_models.simulate.profiles`); None or ``"ideal"``: today's
+        simulator, byte for byte. ``"realistic"``:
+        :func:`sensor_models.simulate.realistic_sim.simulate_realistic` (``dom`` is then the
+        scene's source radiance, optional; no ``dem``).
 
     Returns
     -------
@@ -252,6 +197,13 @@ def simulate_pushbroom(
     """
     t_start = time.perf_counter()
     cfg = (config or SimConfig()).validate()
+    if isinstance(profile, str):
+        from sensor_models.simulate.profiles import get_profile
+
+        profile = get_profile(profile)
+    if profile is not None and not profile.is_ideal:
+        return _simulate_with_profile(out_dir, cfg, profile, dom, dem, geoid, workers, block_lines, progress,
+                                      t_start, record_timings)
     if (dom is None) != (dem is None):
         raise InputError("give both --dom and --dem, or neither (procedural reference)")
     out_dir = Path(out_dir)
@@ -266,8 +218,24 @@ def simulate_pushbroom(
     return summary
 
 
+def _simulate_with_profile(out_dir, cfg, profile, dom, dem, geoid, workers, block_lines, progress, t_start,
+                           record_timings):
+    from sensor_models.simulate.realistic_sim import simulate_realistic
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
+    try:
+        summary = simulate_realistic(tmp, cfg, profile, dom_path=dom, dem_path=dem, geoid=geoid, workers=workers,
+                                     block_lines=block_lines, progress=progress, t_start=t_start,
+                                     record_timings=record_timings)
+        move_tree_into(tmp, out_dir)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return summary
+
+
 def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines, progress, t_start, record_timings):
-    from sensor_models.readers.manifest import write_manifest
     from sensor_models.simulate.truth import truth_error
 
     models = build_models(cfg)
@@ -282,47 +250,9 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
     cloud_pixels, has_mask = _render_scene(renderer, model, tmp, bands, cfg.camera.reference_band, n_ccd,
                                            block_lines, workers, progress)
     render_seconds = time.perf_counter() - t_render
-
-    rasters = {b: str(tmp / f"{b}.tif") for b in bands}
-    write_manifest(models.lab_model, tmp / "manifest.json", rasters=rasters)
-    write_manifest(models.true_model, tmp / "truth_manifest.json", rasters=rasters)
     initial = truth_error(model, models.lab_model, dem=dem, step_px=32)
-    truth = {
-        "format_version": 1,
-        "kind": "gcpcal.simulate.pushbroom",
-        "seed": cfg.seed,
-        "true_model": "truth_manifest.json",
-        "lab_model": "manifest.json",
-        "reference": reference_files,
-        "clouds": {"cover_requested": cfg.clouds.cover, "mask": "cloud_mask.tif" if has_mask else None},
-        **models.truth,
-        "config": cfg.to_dict(),
-    }
-    pixels = n_rows * n_cols * len(bands)
-    summary = {
-        "kind": "gcpcal.simulate.pushbroom",
-        "seed": cfg.seed,
-        "image": {"n_rows": n_rows, "n_cols": n_cols, "bands": bands, "ccds": n_ccd},
-        "files": {**{b: f"{b}.tif" for b in bands}, "manifest": "manifest.json",
-                  "truth": "truth.json", "truth_manifest": "truth_manifest.json",
-                  **({"cloud_mask": "cloud_mask.tif"} if has_mask else {})},
-        "reference": reference_files,
-        "cloud_fraction": cloud_pixels / float(n_rows * n_cols),
-        "dem_coverage": dem_figures["dem_coverage"],
-        "dem_void_fraction": dem_figures["dem_void_fraction"],
-        "warnings": dem_figures["warnings"],
-        "lab_truth_error_px": {"rms": initial["rms_px"], "max": initial["max_px"],
-                               "mean_row": initial["mean_row_px"], "mean_col": initial["mean_col_px"]},
-        "render_seconds": render_seconds,
-        "pixels_per_second": pixels / render_seconds,
-        "workers": workers,
-        "seconds": time.perf_counter() - t_start,
-    }
-    _write_json(tmp / "truth.json", truth)
-    if not record_timings:
-        summary = {k: v for k, v in summary.items() if k not in ("render_seconds", "pixels_per_second", "seconds")}
-    _write_json(tmp / "summary.json", summary)
-    return summary
+    return _write_outputs(cfg, models, tmp, initial, reference_files, dem_figures, (cloud_pixels, has_mask),
+                          render_seconds, workers, t_start, record_timings)
 
 
 def _reference(cfg, models: SceneModels, tmp: Path, dom_path, dem_path, geoid):
@@ -347,50 +277,3 @@ def _reference(cfg, models: SceneModels, tmp: Path, dom_path, dem_path, geoid):
     dem_figures = check_dem_footprint(dem, grid_lon, grid_lat, min_coverage=1.0)
     _check_covers(MapGrid.of_dem(dem), lon, lat, what="DEM", path=dem.source)
     return dom, dem, reference_files, dem_figures
-
-
-def _render_scene(renderer: "_Renderer", model, tmp: Path, bands, ref_band, n_ccd, block_lines, workers, progress):
-    """Render every block of lines into ``tmp/<band>.tif`` (and ``cloud_mask.tif`` with clouds).
-
-    Returns ``(cloud pixels in the reference band, whether a cloud mask was written)``.
-    """
-    from rasterio.errors import NotGeoreferencedWarning
-    from rasterio.windows import Window
-
-    n_rows, n_cols = model.image_shape
-    blocks = [(r, min(n_rows, r + block_lines)) for r in range(0, n_rows, block_lines)]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)  # raw sensor geometry
-        writers = {b: _open_writer(tmp / f"{b}.tif", n_rows, n_cols, "uint16") for b in bands}
-        mask_writer = (_open_writer(tmp / "cloud_mask.tif", n_rows, n_cols, "uint8")
-                       if renderer.clouds is not None else None)
-    cloud_pixels = 0
-    try:
-        with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
-
-            for k, (r0, r1) in enumerate(blocks):
-                jobs = {(b, c): pool.submit(renderer.task, b, c, r0, r1) for b in bands for c in range(n_ccd)}
-                for b in bands:
-                    block = np.zeros((r1 - r0, n_cols), dtype=np.uint16)
-                    mask = np.zeros((r1 - r0, n_cols), dtype=np.uint8) if b == ref_band else None
-                    for c, look in enumerate(model.band_ccds(b)):
-                        dn, alpha = jobs[(b, c)].result()
-                        block[:, look.first_col : look.first_col + look.n_detectors] = dn
-                        if mask is not None and alpha is not None:
-                            mask[:, look.first_col : look.first_col + look.n_detectors] = alpha > 0.5
-                    writers[b].write(block, 1, window=Window(0, r0, n_cols, r1 - r0))
-                    if mask is not None and mask_writer is not None:
-                        mask_writer.write(mask, 1, window=Window(0, r0, n_cols, r1 - r0))
-                        cloud_pixels += int(mask.sum())
-                if progress is not None:
-                    progress(k + 1, len(blocks))
-    finally:
-        for w in writers.values():
-            w.close()
-        if mask_writer is not None:
-            mask_writer.close()
-    return cloud_pixels, mask_writer is not None
-
-
-def _write_json(path: Path, doc: dict) -> None:
-    path.write_text(json.dumps(doc, indent=1, sort_keys=False) + "\n", encoding="utf-8")

@@ -105,7 +105,7 @@ def lab_camera(cfg: SimConfig) -> LabCamera:
     return LabCamera(focal_length_mm=f, pixel_size_mm=p, bands=bands, polynomial_degree=c.lab_polynomial_degree)
 
 
-def true_camera(cfg: SimConfig, lab: LabCamera) -> LabCamera:
+def true_camera(cfg: SimConfig, lab: LabCamera, *, lens=None) -> LabCamera:
     """The camera as it really is in orbit (errors of ``cfg.errors``, random parts seeded).
 
     Parameters
@@ -114,6 +114,9 @@ def true_camera(cfg: SimConfig, lab: LabCamera) -> LabCamera:
         The configuration (its ``errors`` and ``seed``).
     lab : LabCamera
         The design camera (:func:`lab_camera`).
+    lens : LensExtras, optional
+        Lens terms beyond the cubic (:mod:`sensor_models.simulate.true_lens`); its ``k2_px`` and
+        ``k3_px`` become ``radial_k[1:]``. None: ``k2 = k3 = 0``.
 
     Returns
     -------
@@ -127,6 +130,8 @@ def true_camera(cfg: SimConfig, lab: LabCamera) -> LabCamera:
     half_mm = 0.5 * (layout[-1][3] - layout[0][3] + cfg.camera.detectors_per_ccd) * p
     # radial: displacement y k1 r^2 = radial_distortion_px * p at the array end
     k1 = e.radial_distortion_px * p / half_mm**3
+    k2 = 0.0 if lens is None else lens.k2_px * p / half_mm**5
+    k3 = 0.0 if lens is None else lens.k3_px * p / half_mm**7
     # decentering: p2 (r^2 + 2 y^2) ~ 3 p2 y^2 across track, p1 r^2 along track at the end
     p1 = e.decentering_px[0] * p / half_mm**2
     p2 = e.decentering_px[1] * p / (3.0 * half_mm**2)
@@ -142,7 +147,7 @@ def true_camera(cfg: SimConfig, lab: LabCamera) -> LabCamera:
         pixel_size_mm=p,
         bands=bands,
         principal_point_mm=(e.principal_point_px[0] * p, e.principal_point_px[1] * p),
-        radial_k=(k1, 0.0, 0.0),
+        radial_k=(k1, k2, k3),
         decentering_p=(p1, p2),
         polynomial_degree=TRUE_DEGREE,
     )
@@ -153,7 +158,7 @@ def _camera_rotation(angles_rad) -> np.ndarray:
     return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
 
 
-def true_looks(camera: LabCamera, camera_of_ccd, camera2_rotation_rad):
+def true_looks(camera: LabCamera, camera_of_ccd, camera2_rotation_rad, *, extra_tan_x=None):
     """Directional angles of the true camera, camera 2 (and beyond) rotated, degree-7 fits.
 
     Parameters
@@ -164,6 +169,9 @@ def true_looks(camera: LabCamera, camera_of_ccd, camera2_rotation_rad):
         Camera index of every CCD (0: first camera, unrotated).
     camera2_rotation_rad : (float, float, float)
         Roll, pitch, yaw of the second camera relative to the first, radians.
+    extra_tan_x : callable, optional
+        ``extra_tan_x(ccd_index, s) -> d tan psi_x`` added before the fit (focal-plane curvature,
+        CCD bending: :meth:`sensor_models.simulate.true_lens.LensExtras.smooth_tan`).
 
     Returns
     -------
@@ -181,6 +189,8 @@ def true_looks(camera: LabCamera, camera_of_ccd, camera2_rotation_rad):
             tx, ty = detector_angles(camera, band, ccd, s)
             v = np.stack([tx, ty, np.ones_like(tx)], axis=-1) @ rots[min(camera_of_ccd[k], 1)].T
             tx, ty = v[:, 0] / v[:, 2], v[:, 1] / v[:, 2]
+            if extra_tan_x is not None:
+                tx = tx + extra_tan_x(k, s)
             half = max(1.0, 0.5 * (ccd.n_detectors - 1))
             scale = half ** np.arange(TRUE_DEGREE + 1)
             cx = P.polyfit(s / half, tx, TRUE_DEGREE) / scale
@@ -245,21 +255,28 @@ def _measured_attitude(cfg: SimConfig, seconds) -> Attitude:
     return Attitude(seconds, _attitude_quaternions(seconds, angles), frame="orbital")
 
 
-def _measured_orbit(cfg: SimConfig, orbit: Orbit) -> Orbit:
+def _measured_orbit(cfg: SimConfig, orbit: Orbit, bias_m: float = 0.0) -> Orbit:
     rng = _rng(cfg.pass_seed, 4)
     sigma = cfg.errors.orbit_noise_m
     pos = orbit.position_m + rng.normal(0.0, sigma, orbit.position_m.shape)
+    if bias_m > 0:  # a constant offset of the navigation solution, direction from the pass seed
+        direction = _rng(cfg.pass_seed, 7).normal(size=3)
+        pos = pos + bias_m * direction / np.linalg.norm(direction)
     vel = orbit.velocity_m_s + rng.normal(0.0, sigma * 1e-3, orbit.velocity_m_s.shape)
     return Orbit(orbit.epoch, orbit.seconds, pos, vel, frame=orbit.frame)
 
 
-def build_models(cfg: SimConfig) -> SceneModels:
+def build_models(cfg: SimConfig, *, lens=None, orbit_bias_m: float = 0.0) -> SceneModels:
     """TRUE and LAB models of the configured scene, centred on ``scene.center_lon/lat_deg``.
 
     Parameters
     ----------
     cfg : SimConfig
         The simulation configuration.
+    lens : LensExtras, optional
+        TRUE lens terms beyond the cubic (``realistic`` profile); None: none.
+    orbit_bias_m : float
+        Norm of a constant offset of the measured orbit, metres (0: none).
 
     Returns
     -------
@@ -269,11 +286,12 @@ def build_models(cfg: SimConfig) -> SceneModels:
     """
     s, e = cfg.scene, cfg.errors
     lab = lab_camera(cfg)
-    tru = true_camera(cfg, lab)
+    tru = true_camera(cfg, lab, lens=lens)
     layout = ccd_layout(cfg)
     camera_of_ccd = tuple(cam for _, _, cam, _ in layout)
     lab_bands, lab_residual = lab_looks(lab)
-    true_bands, true_residual = true_looks(tru, camera_of_ccd, np.asarray(e.camera2_rotation_arcsec) * ARCSEC)
+    true_bands, true_residual = true_looks(tru, camera_of_ccd, np.asarray(e.camera2_rotation_arcsec) * ARCSEC,
+                                           extra_tan_x=_lens_sag(cfg, tru, layout, lens))
     line_period = _line_period(cfg)
     duration = s.n_rows * line_period
     t_orbit = np.arange(-20.0, duration + 20.0, 1.0)
@@ -303,7 +321,7 @@ def build_models(cfg: SimConfig) -> SceneModels:
                            raan_deg=raan, argument_of_latitude_deg=arg_lat)
     true_att, att_info = _true_attitude(cfg, t_true_att)
     true_model = model(orbit, true_att, true_bands, inst_true, "truth")
-    lab_model = model(_measured_orbit(cfg, orbit), _measured_attitude(cfg, t_meas_att), lab_bands,
+    lab_model = model(_measured_orbit(cfg, orbit, orbit_bias_m), _measured_attitude(cfg, t_meas_att), lab_bands,
                       Installation(), "simulated")
     ifov = s.gsd_m / s.altitude_m
     truth = {
@@ -326,6 +344,16 @@ def build_models(cfg: SimConfig) -> SceneModels:
         **att_info,
     }
     return SceneModels(true_model, lab_model, tru, lab, camera_of_ccd, truth)
+
+
+def _lens_sag(cfg: SimConfig, camera: LabCamera, layout, lens):
+    """``extra_tan_x(ccd_index, s)`` of the lens's curvature and bending (None without them)."""
+    if lens is None or (lens.curvature_px == 0 and lens.bending_px == 0):
+        return None
+    n = cfg.camera.detectors_per_ccd
+    half = 0.5 * (layout[-1][3] - layout[0][3] + n)  # layout positions are from the array centre
+    ifov = camera.pixel_size_mm / camera.focal_length_mm
+    return lambda k, s: lens.smooth_tan(layout[k][3] + s, s, n, half, ifov)
 
 
 def _camera_dict(cam: LabCamera) -> dict:

@@ -1,0 +1,307 @@
+"""A push-broom scene under a non-ideal error profile (``gcpcal simulate pushbroom --profile realistic``).
+
+Same outputs as :func:`sensor_models.simulate.pushbroom_sim.simulate_pushbroom` (bands, LAB and
+TRUE manifests, ``truth.json``, ``summary.json``, ``reference/dom.tif`` and ``reference/dem.tif``),
+but:
+
+* the TRUE model carries the profile's attitude jitter, drift, star-tracker noise (in the
+  measured attitude) and orbit bias, and a lens beyond the cubic
+  (:mod:`sensor_models.simulate.true_lens`);
+* the pixels come from the simulator's own kernel (:mod:`sensor_models.simulate.kernel`);
+* ``reference/dom.tif`` and ``reference/dem.tif`` are NOT what rendered the scene: they are
+  degraded copies (:mod:`sensor_models.simulate.reference_pair`); the source radiance and the
+  TRUE DEM are kept in ``reference/truth/`` for inspection.
+
+The source radiance is a given raster (``dom``: e.g. the Sentinel-2 red band of
+``../shared/data/real_textures``; the scene is then centred on it) or the procedural texture
+(:func:`sensor_models.simulate.procedural.generate_reference`). The TRUE DEM is procedural.
+Clouds are not simulated under this profile yet.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pyproj
+
+from sensor_models.errors import InputError
+from sensor_models.locate import MapGrid, dem_planes, locate_block
+from sensor_models.simulate.config import SimConfig
+from sensor_models.simulate.kernel import (detector_response, footprint_offsets, integrate_footprint, optics_kernel,
+                                           system_mtf)
+from sensor_models.simulate.profiles import profile_table
+from sensor_models.simulate.render_io import (check_covers, footprint_lonlat, render_scene, utm_crs,
+                                              write_outputs)
+from sensor_models.simulate.reference_pair import DEM_NODATA, degrade_dem, degrade_dom, write_raster
+from sensor_models.simulate.scene import build_models
+from sensor_models.simulate.true_lens import cubic_residual_px, lens_extras
+from sensor_models.simulate.truth import truth_error
+from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
+
+__all__ = ["apply_profile", "detector_gains", "simulate_realistic"]
+
+
+def apply_profile(cfg: SimConfig, profile) -> SimConfig:
+    """The configuration with the profile's attitude, orbit and detector magnitudes.
+
+    Parameters
+    ----------
+    cfg : SimConfig
+        The scene configuration (geometry, camera, calibration targets).
+    profile : PushbroomProfile
+        Sets ``errors.attitude_noise_urad``, ``jitter_*``, ``attitude_drift_arcsec_s``,
+        ``orbit_noise_m`` and ``radiometry.snr``, ``bits``, ``prnu``, ``seasonal_*``.
+
+    Returns
+    -------
+    SimConfig
+        Validated.
+    """
+    v = profile.value
+    e = replace(cfg.errors, attitude_noise_urad=float(v("star_tracker_noise_urad")),
+                jitter_amplitude_urad=tuple(v("jitter_amplitude_urad")), jitter_frequency_hz=float(v("jitter_frequency_hz")),
+                attitude_drift_arcsec_s=tuple(v("attitude_drift_arcsec_s")), orbit_noise_m=float(v("orbit_noise_m")))
+    r = replace(cfg.radiometry, snr=float(v("snr")), bits=int(v("bits")), prnu=float(v("prnu_rms")),
+                seasonal_change=float(v("seasonal_change")), seasonal_scale_m=float(v("seasonal_scale_m")))
+    return replace(cfg, errors=e, radiometry=r).validate()
+
+
+def _read_source(path):
+    """``(radiance 0..1 float32 with NaN, transform, crs)`` of a north-up raster in metres."""
+    import rasterio
+
+    try:
+        with rasterio.open(path) as ds:
+            a = ds.read(1, masked=True)
+            transform, crs = ds.transform, pyproj.CRS.from_user_input(ds.crs.to_wkt()) if ds.crs else None
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"cannot read the source radiance ({exc})", path=str(path)) from None
+    if crs is None or not crs.is_projected or transform.b != 0 or transform.d != 0:
+        raise InputError("the source radiance must be a north-up raster in a projected CRS (metres)", path=str(path))
+    a = np.ma.filled(a.astype(np.float32), np.nan)
+    valid = a[np.isfinite(a) & (a > 0)]
+    if valid.size < 100:
+        raise InputError("the source radiance holds no texture", path=str(path))
+    return a / np.float32(np.percentile(valid, 99.5)), transform, crs
+
+
+def _centred_models(cfg: SimConfig, lens, orbit_bias_m: float, centre_lonlat):
+    """Models whose TRUE footprint centre lies on ``centre_lonlat`` (None: the configured centre)."""
+    if centre_lonlat is None:
+        return cfg, build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m)
+    lon, lat = centre_lonlat
+    for _ in range(3):
+        cfg = replace(cfg, scene=replace(cfg.scene, center_lon_deg=float(lon), center_lat_deg=float(lat))).validate()
+        models = build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m)
+        m = models.true_model
+        tl, tb, _ = m.image_to_ground([m.n_rows / 2], [m.n_cols / 2], height=cfg.reference.mean_height_m)
+        lon += centre_lonlat[0] - float(tl[0])
+        lat += centre_lonlat[1] - float(tb[0])
+    return cfg, build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m)
+
+
+def _source_and_dem(cfg: SimConfig, models, given_source):
+    """Source radiance (array, transform, crs: ``given_source`` or procedural) and the TRUE DEM."""
+    from sensor_models.simulate.procedural import generate_reference
+
+    ref = cfg.reference
+    h = (ref.mean_height_m - ref.relief_m - 100.0, ref.mean_height_m + ref.relief_m + 100.0)
+    lon, lat = footprint_lonlat(models.true_model, h)
+    crs = utm_crs(float(lon.mean()), float(lat.mean()))
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
+    width, height = float(np.ptp(x)) + 2.0 * ref.margin_m, float(np.ptp(y)) + 2.0 * ref.margin_m
+    cx, cy = 0.5 * (np.min(x) + np.max(x)), 0.5 * (np.min(y) + np.max(y))
+    clon, clat = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(cx, cy)
+    procedural = given_source is None
+    # a real texture has its own water; its procedural DOM is not used, so drawn coarse
+    data = generate_reference(float(clon), float(clat), width, height, seed=cfg.seed,
+                              dom_resolution_m=ref.dom_resolution_m if procedural else 2 * ref.dem_resolution_m,
+                              dem_resolution_m=ref.dem_resolution_m, relief_m=ref.relief_m,
+                              mean_height_m=ref.mean_height_m, sea_fraction=ref.sea_fraction if procedural else 0.0)
+    if procedural:
+        dom = data.dom.astype(np.float32)
+        source = (dom / np.float32(np.percentile(dom, 99.5)), data.dom_transform, data.crs)
+    else:
+        source = given_source
+    return source, data
+
+
+def detector_gains(profile, seed: int, band_index: int, ccd: int, n_detectors: int, n_ccds: int):
+    """Per-detector gain (PRNU times the CCD's gain) and offset (striping) of one band and CCD.
+
+    Parameters
+    ----------
+    profile : PushbroomProfile
+        ``prnu_rms``, ``ccd_gain_step``, ``striping_dn``.
+    seed : int
+        Camera seed (the detectors are the sensor's, shared by its scenes).
+    band_index, ccd : int
+        Band position and CCD index.
+    n_detectors, n_ccds : int
+        Detectors of the CCD; CCDs of the band.
+
+    Returns
+    -------
+    gain : ndarray of float32, shape (n_detectors,)
+    offset_dn : ndarray of float32, shape (n_detectors,)
+    """
+    v = profile.value
+    prnu = np.random.default_rng([seed, 30, band_index, ccd]).normal(1.0, v("prnu_rms"), n_detectors)
+    ccd_gain = np.random.default_rng([seed, 31, band_index]).normal(1.0, v("ccd_gain_step"), n_ccds)[ccd]
+    stripes = np.random.default_rng([seed, 32, band_index, ccd]).normal(0.0, v("striping_dn"), n_detectors)
+    return (prnu * ccd_gain).astype(np.float32), stripes.astype(np.float32)
+
+
+class _KernelRenderer:
+    """Renders one (band, CCD, block of lines) task with :mod:`sensor_models.simulate.kernel`."""
+
+    clouds = None
+
+    def __init__(self, cfg: SimConfig, profile, model, dem: Dem, source, lens):
+        v = profile.value
+        radiance, transform, crs = source
+        self.cfg, self.model, self.dem, self.lens = cfg, model, dem, lens
+        self.grid = MapGrid(transform, crs, radiance.shape)
+        self.scale = cfg.scene.gsd_m / abs(transform.a)
+        kern = optics_kernel(v("defocus_radius_px"), v("halo_fraction"), v("halo_sigma_px"), source_px_per_px=self.scale)
+        self.radiance = cv2.filter2D(np.nan_to_num(radiance, nan=0.0), cv2.CV_32F, kern, borderType=cv2.BORDER_REFLECT)
+        self.offsets = footprint_offsets(int(v("supersampling")), float(v("motion_smear_lines")))
+        self.profile = profile
+        self.band_index = {b: i for i, b in enumerate(cfg.camera.bands)}
+
+    def task(self, band: str, ccd: int, row0: int, row1: int):
+        cfg, r, v = self.cfg, self.cfg.radiometry, self.profile.value
+        b = self.band_index[band]
+        lo = row0 if row1 - row0 >= 2 else max(0, row0 - 1)  # the Jacobian needs two lines
+        pg = locate_block(self.model, self.dem, [self.grid], band=band, ccd=ccd, row0=lo, row1=max(row1, lo + 2))
+        u, v_ = pg.uv[0]
+        n = u.shape[1]
+        ir, ic = self.lens.irregularity(b, ccd, n)
+        rad = integrate_footprint(self.radiance, u, v_, *self.offsets, irregular_row=ir, irregular_col=ic)
+        rad = rad[row0 - lo : row0 - lo + (row1 - row0)]
+        gain, stripes = detector_gains(self.profile, cfg.seed, b, ccd, n, len(self.model.band_ccds(band)))
+        dn = detector_response(rad, gain=r.band_gain[b], gamma=r.band_gamma[b], offset_dn=r.band_offset_dn[b],
+                               nonlinearity=v("nonlinearity"), pixel_gain=gain, pixel_offset_dn=stripes, snr=r.snr,
+                               bits=r.bits, rng=np.random.default_rng([cfg.pass_seed, 33, b, ccd, row0]))
+        return dn, None
+
+
+def _write_reference(tmp: Path, cfg, profile, source, data):
+    """Degrade and write ``reference/dom.tif``, ``dem.tif`` (and the truth under ``reference/truth``)."""
+    radiance, transform, crs = source
+    ref_dir = tmp / "reference"
+    (ref_dir / "truth").mkdir(parents=True, exist_ok=True)
+    dom = degrade_dom(radiance, transform, profile, seed=cfg.pass_seed)
+    dem = degrade_dem(data.dem_m, data.dem_transform, profile, seed=cfg.pass_seed)
+    write_raster(ref_dir / "dom.tif", dom.values, dom.transform, crs)
+    write_raster(ref_dir / "dem.tif", dem.values, dem.transform, data.crs, tags={"VERTICAL_DATUM": "ellipsoid"},
+                 nodata=DEM_NODATA)
+    write_raster(ref_dir / "truth" / "dem_true.tif", data.dem_m.astype(np.float32), data.dem_transform, data.crs,
+                 tags={"VERTICAL_DATUM": "ellipsoid"})
+    files = {"dom": "reference/dom.tif", "dem": "reference/dem.tif", "true_dem": "reference/truth/dem_true.tif"}
+    return files, {"dom": dom.figures, "dem": dem.figures}
+
+
+def _figures(cfg, profile, models, lens, true_dem: Dem, user_dem_path: Path, source_scale: float) -> dict:
+    """What the profile injected, measured: MTF at Nyquist, lens residual, DEM error."""
+    v = profile.value
+    mtf = {ax: float(system_mtf([0.5], defocus_radius_px=v("defocus_radius_px"), halo_fraction=v("halo_fraction"),
+                                halo_sigma_px=v("halo_sigma_px"), supersampling=int(v("supersampling")),
+                                smear_lines=v("motion_smear_lines"), source_px_per_px=source_scale, axis=ax)[0])
+           for ax in ("col", "row")}
+    user = Dem.open(user_dem_path)
+    lon, lat = footprint_sample_lonlat(models.true_model, cfg.reference.mean_height_m, n_side=33)
+    dh = user.height_m(lon, lat) - true_dem.height_m(lon, lat)
+    dh = dh[np.isfinite(dh)]
+    return {"mtf_nyquist": mtf, "lens_beyond_cubic_px": cubic_residual_px(models, lens),
+            "dem_error_under_footprint_m": {"rms": float(np.sqrt(np.mean(dh**2))), "max": float(np.abs(dh).max())}}
+
+
+def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=None, geoid=None, workers: int = 2,
+                       block_lines: int = 256, progress=None, t_start: float | None = None,
+                       record_timings: bool = True) -> dict:
+    """Render a scene under ``profile`` into the (temporary) folder ``tmp``; return its summary.
+
+    Parameters
+    ----------
+    tmp : Path
+        Output folder (the caller moves it into place).
+    cfg : SimConfig
+        Geometry, camera and calibration targets; the profile overrides attitude, orbit and
+        detector magnitudes (:func:`apply_profile`).
+    profile : PushbroomProfile
+        A non-ideal profile.
+    dom_path : path, optional
+        Source radiance raster (north-up, projected); the scene is centred on it. None:
+        procedural texture around the configured centre.
+    dem_path, geoid : None
+        Not supported under this profile (the TRUE DEM is procedural); given: an error.
+    workers, block_lines, progress, record_timings
+        As :func:`sensor_models.simulate.pushbroom_sim.simulate_pushbroom`.
+    t_start : float, optional
+        ``time.perf_counter()`` at the start of the command.
+
+    Returns
+    -------
+    dict
+        The summary (``summary.json``), with ``profile`` and ``injected`` figures.
+    """
+    t_start = time.perf_counter() if t_start is None else t_start
+    if dem_path is not None or geoid is not None:
+        raise InputError(f"the {profile.name} profile derives the user's DEM from a procedural TRUE DEM: give --dom "
+                         "only (the scene's source radiance)", field="dem")
+    if cfg.clouds.cover > 0:
+        raise InputError(f"clouds are not simulated under the {profile.name} profile yet", field="clouds.cover")
+    tmp = Path(tmp)
+    cfg, models, lens, source, true_dem, data = _setup(cfg, profile, dom_path)
+    reference_files, degraded = _write_reference(tmp, cfg, profile, source, data)
+    renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, source, lens)
+    dem_planes(true_dem)
+    t_render = time.perf_counter()
+    clouds = render_scene(renderer, models.true_model, tmp, list(cfg.camera.bands), cfg.camera.reference_band,
+                          len(models.true_model.band_ccds(cfg.camera.reference_band)), block_lines, workers, progress)
+    render_seconds = time.perf_counter() - t_render
+    user_dem = Dem.open(tmp / "reference" / "dem.tif")
+    g_lon, g_lat = footprint_sample_lonlat(models.true_model, float(np.mean(true_dem.height_range_m)), n_side=65)
+    dem_figures = check_dem_footprint(user_dem, g_lon, g_lat, min_coverage=1.0)
+    dem_figures["warnings"] = [w.replace(f"{tmp}/", "") for w in dem_figures["warnings"]]  # no temporary path
+    injected = {**_figures(cfg, profile, models, lens, true_dem, tmp / "reference" / "dem.tif", renderer.scale),
+                **degraded, "source_radiance": str(Path(dom_path).resolve()) if dom_path else "procedural"}
+    # the LAB model's error over the TRUE terrain (the user's DEM has voids)
+    initial = truth_error(models.true_model, models.lab_model, dem=true_dem, step_px=32)
+    return write_outputs(cfg, models, tmp, initial, reference_files, dem_figures, clouds, render_seconds, workers,
+                         t_start, record_timings, extra_truth=_truth_record(cfg, profile, models, lens, injected),
+                         extra_summary={"profile": profile.name, "injected": injected})
+
+
+def _setup(cfg: SimConfig, profile, dom_path):
+    """Effective configuration, models (centred on a given source), lens, source radiance, TRUE DEM."""
+    cfg = apply_profile(cfg, profile)
+    lens = lens_extras(profile, cfg.seed)
+    centre, given = None, None
+    if dom_path is not None:
+        given = radiance, transform, crs = _read_source(dom_path)
+        cx = transform.c + 0.5 * radiance.shape[1] * transform.a
+        cy = transform.f + 0.5 * radiance.shape[0] * transform.e
+        centre = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(cx, cy)
+    cfg, models = _centred_models(cfg, lens, float(profile.value("orbit_bias_m")), centre)
+    source, data = _source_and_dem(cfg, models, given)
+    true_dem = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
+    lon, lat = footprint_lonlat(models.true_model, true_dem.height_range_m)
+    check_covers(MapGrid(source[1], source[2], source[0].shape), lon, lat, what="source radiance",
+                 path=str(dom_path) if dom_path else None)
+    check_covers(MapGrid.of_dem(true_dem), lon, lat, what="DEM", path=None)
+    return cfg, models, lens, source, true_dem, data
+
+
+def _truth_record(cfg, profile, models, lens, injected) -> dict:
+    """What ``truth.json`` adds under a profile: its table, the orbit bias, every detector's irregularity."""
+    irregular = {b: [np.stack(lens.irregularity(i, k, look.n_detectors)).round(5).tolist()
+                     for k, look in enumerate(models.true_model.band_ccds(b))] for i, b in enumerate(cfg.camera.bands)}
+    return {"profile": profile.name, "profile_table": [list(r) for r in profile_table(profile)],
+            "orbit_bias_m": profile.value("orbit_bias_m"),
+            "detector_irregularity_px": {"axes": ["row", "col"], "bands": irregular}, "injected": injected}

@@ -1,0 +1,230 @@
+"""The reference a user matches against is not what rendered the scene (``realistic`` profile).
+
+From the scene's source radiance and the TRUE DEM, :func:`degrade_dom` and :func:`degrade_dem`
+make what a user would download:
+
+DOM (another date, another sensor, its own geolocation error), in this order:
+
+1. geolocation error: the DOM shows the ground point ``p + e(p)`` at ``p``, with ``e`` a bias
+   ``dom_bias_m`` plus a smooth field of ``dom_field_rms_m`` rms per axis and correlation length
+   ``dom_field_scale_m`` (a feature's DOM coordinates are off by ``-e``);
+2. another date: a multiplicative change ``1 + seasonal_change f`` (``f`` a unit smooth field of
+   correlation length ``seasonal_scale_m``: crops, phenology) and an additive haze veil of mean
+   ``haze`` (times ``1 + 0.5 f'``, 5 km);
+3. another sensor: the non-linear mapping ``x^reference_gamma``, the reference's own Gaussian
+   MTF (``reference_mtf_sigma_px`` reference pixels) and an area average onto the reference grid
+   (``reference_resolution_m``, Landsat-like);
+4. 12-bit digital numbers ``1 + 3000 x``.
+
+DEM (SRTM-like): area average of the true DEM onto ``dem_resolution_m`` plus a smooth error of
+``dem_error_rms_m`` rms (correlation ``dem_error_scale_m``) and voids (nodata) over
+``dem_void_fraction`` of the nodes, in blobs.
+
+Every draw is seeded from ``(pass seed, purpose)``: the same seed gives the same files.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from affine import Affine
+
+from sensor_models.simulate.radiometry import smooth_field
+
+__all__ = ["DegradedRaster", "degrade_dem", "degrade_dom", "displacement_field_m", "write_raster"]
+
+#: nodata of the degraded DEM
+DEM_NODATA = -32768.0
+
+
+@dataclass(frozen=True)
+class DegradedRaster:
+    """A raster a user receives and what was done to it.
+
+    Attributes
+    ----------
+    values : ndarray, shape (rows, cols)
+        uint16 digital numbers (DOM) or float32 heights with NaN voids (DEM).
+    transform : affine.Affine
+        Pixel-corner affine (rasterio convention), metres of ``crs``.
+    figures : dict
+        Measured magnitudes of what was injected (JSON-safe).
+    """
+
+    values: np.ndarray
+    transform: Affine
+    figures: dict
+
+
+def _seed(seed: int, purpose: int):
+    return np.random.SeedSequence([int(seed), 40, int(purpose)])
+
+
+def displacement_field_m(shape, resolution_m: float, *, bias_m, field_rms_m: float, field_scale_m: float, seed: int):
+    """Geolocation error ``e = (east, north)`` of a DOM on its grid, metres.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Grid rows and columns.
+    resolution_m : float
+        Grid spacing, metres.
+    bias_m : (float, float)
+        East and north bias, metres.
+    field_rms_m : float
+        Standard deviation of the smooth part, per axis, metres.
+    field_scale_m : float
+        Correlation length of the smooth part, metres.
+    seed : int
+        Pass seed.
+
+    Returns
+    -------
+    east_m, north_m : ndarray of float32, shape ``shape``
+    """
+    coarse = 8
+    cshape = (shape[0] // coarse + 2, shape[1] // coarse + 2)
+    scale = max(field_scale_m / (resolution_m * coarse), 1.0)
+    out = []
+    for k, b in enumerate(bias_m):
+        f = smooth_field(cshape, scale, _seed(seed, 1 + k)) if field_rms_m > 0 else np.zeros(cshape, np.float32)
+        f = cv2.resize(f, (cshape[1] * coarse, cshape[0] * coarse), interpolation=cv2.INTER_LINEAR)
+        out.append((np.float32(b) + np.float32(field_rms_m) * f[: shape[0], : shape[1]]).astype(np.float32))
+    return out[0], out[1]
+
+
+def _smooth(shape, scale_px: float, seed: int, purpose: int) -> np.ndarray:
+    coarse = max(1, int(scale_px // 8))
+    cshape = (shape[0] // coarse + 2, shape[1] // coarse + 2)
+    f = smooth_field(cshape, max(scale_px / coarse, 1.0), _seed(seed, purpose))
+    f = cv2.resize(f, (cshape[1] * coarse, cshape[0] * coarse), interpolation=cv2.INTER_LINEAR)
+    return f[: shape[0], : shape[1]]
+
+
+def _area_average(values: np.ndarray, transform: Affine, out_res_m: float):
+    """Area average onto a coarser north-up grid with the same corner; NaN-aware."""
+    res = abs(transform.a)
+    n_rows = max(2, int(round(values.shape[0] * res / out_res_m)))
+    n_cols = max(2, int(round(values.shape[1] * res / out_res_m)))
+    valid = np.isfinite(values).astype(np.float32)
+    filled = np.where(valid > 0, values, 0.0).astype(np.float32)
+    s = cv2.resize(filled, (n_cols, n_rows), interpolation=cv2.INTER_AREA)
+    w = cv2.resize(valid, (n_cols, n_rows), interpolation=cv2.INTER_AREA)
+    out = np.where(w > 0.5, s / np.maximum(w, 1e-6), np.nan).astype(np.float32)
+    sx = values.shape[1] * res / n_cols
+    sy = values.shape[0] * res / n_rows
+    return out, Affine(sx, 0.0, transform.c, 0.0, -sy, transform.f)
+
+
+def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) -> DegradedRaster:
+    """The reference DOM a user receives, from the scene's source radiance (see the module docstring).
+
+    Parameters
+    ----------
+    radiance : ndarray of float32, shape (H, W)
+        Source radiance, 0..1 (NaN: no data), on a north-up grid.
+    transform : affine.Affine
+        Its pixel-corner affine, metres.
+    profile : PushbroomProfile
+        Magnitudes (``dom_*``, ``seasonal_*``, ``haze``, ``reference_*``).
+    seed : int
+        Pass seed.
+
+    Returns
+    -------
+    DegradedRaster
+        uint16 DN on the reference grid; ``figures``: ``geolocation_rms_m``,
+        ``geolocation_bias_m``, ``geolocation_max_m``, ``resolution_m``.
+    """
+    v = profile.value
+    res = abs(transform.a)
+    east, north = displacement_field_m(radiance.shape, res, bias_m=v("dom_bias_m"), field_rms_m=v("dom_field_rms_m"),
+                                       field_scale_m=v("dom_field_scale_m"), seed=seed)
+    rows, cols = np.mgrid[0 : radiance.shape[0], 0 : radiance.shape[1]].astype(np.float32)
+    # the DOM pixel at p shows the ground at p + e (north is up: row decreases northwards)
+    x = cv2.remap(radiance.astype(np.float32), cols + east / np.float32(res), rows - north / np.float32(res),
+                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    del rows, cols
+    change = _smooth(x.shape, v("seasonal_scale_m") / res, seed, 10)
+    haze = _smooth(x.shape, 5000.0 / res, seed, 11)
+    x = x * (1.0 + np.float32(v("seasonal_change")) * change) + np.float32(v("haze")) * (1.0 + 0.5 * haze)
+    x = np.power(np.clip(x, 0.0, None), np.float32(v("reference_gamma")))
+    sigma_src = v("reference_mtf_sigma_px") * v("reference_resolution_m") / res
+    if sigma_src > 0:
+        x = cv2.GaussianBlur(x, (0, 0), sigmaX=sigma_src, sigmaY=sigma_src, borderType=cv2.BORDER_REPLICATE)
+    x, out_transform = _area_average(x, transform, v("reference_resolution_m"))
+    dn = np.clip(np.rint(1.0 + 3000.0 * np.nan_to_num(x, nan=0.0)), 1, 4095).astype(np.uint16)
+    mag = np.hypot(east, north)
+    figures = {"geolocation_rms_m": float(np.sqrt(np.mean(mag**2))), "geolocation_max_m": float(mag.max()),
+               "geolocation_bias_m": [float(east.mean()), float(north.mean())],
+               "resolution_m": float(abs(out_transform.a))}
+    return DegradedRaster(dn, out_transform, figures)
+
+
+def degrade_dem(dem_m: np.ndarray, transform: Affine, profile, *, seed: int) -> DegradedRaster:
+    """The SRTM-like DEM a user receives, from the TRUE DEM (see the module docstring).
+
+    Parameters
+    ----------
+    dem_m : ndarray of float32, shape (H, W)
+        True ellipsoidal heights, metres, north-up grid.
+    transform : affine.Affine
+        Its pixel-corner affine, metres.
+    profile : PushbroomProfile
+        ``dem_resolution_m``, ``dem_error_rms_m``, ``dem_error_scale_m``, ``dem_void_fraction``.
+    seed : int
+        Pass seed.
+
+    Returns
+    -------
+    DegradedRaster
+        float32 heights (NaN voids); ``figures``: ``added_error_rms_m``, ``void_fraction``,
+        ``resolution_m``.
+    """
+    v = profile.value
+    coarse, out_transform = _area_average(np.asarray(dem_m, np.float32), transform, v("dem_resolution_m"))
+    res = abs(out_transform.a)
+    err = np.float32(v("dem_error_rms_m")) * _smooth(coarse.shape, v("dem_error_scale_m") / res, seed, 20)
+    out = coarse + err
+    frac = float(v("dem_void_fraction"))
+    if frac > 0:
+        blobs = _smooth(coarse.shape, 3.0, seed, 21)
+        out[blobs > np.quantile(blobs, 1.0 - frac)] = np.nan
+    figures = {"added_error_rms_m": float(np.sqrt(np.mean(err**2))), "void_fraction": float(np.isnan(out).mean()),
+               "resolution_m": float(res)}
+    return DegradedRaster(out.astype(np.float32), out_transform, figures)
+
+
+def write_raster(path, values: np.ndarray, transform: Affine, crs, *, tags=None, nodata=None) -> None:
+    """Write one band as a DEFLATE GeoTIFF (NaN becomes ``nodata`` when given).
+
+    Parameters
+    ----------
+    path : str or Path
+        Target file.
+    values : ndarray, shape (rows, cols)
+        uint16 or float32.
+    transform : affine.Affine
+        Pixel-corner affine.
+    crs : pyproj.CRS or rasterio CRS
+        Its CRS.
+    tags : dict, optional
+        Metadata items (e.g. ``VERTICAL_DATUM=ellipsoid``).
+    nodata : float, optional
+        Nodata value.
+    """
+    import rasterio
+    from rasterio.crs import CRS as RioCRS
+
+    data = values
+    if nodata is not None:
+        data = np.where(np.isfinite(values), values, nodata).astype(values.dtype)
+    crs = crs if isinstance(crs, RioCRS) else RioCRS.from_wkt(crs.to_wkt())
+    with rasterio.open(path, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=1,
+                       dtype=data.dtype.name, crs=crs, transform=transform, tiled=True, blockxsize=256,
+                       blockysize=256, compress="deflate", nodata=nodata) as dst:
+        if tags:
+            dst.update_tags(**tags)
+        dst.write(data, 1)

@@ -1,0 +1,216 @@
+"""Helpers shared by the push-broom simulator's profiles: footprints, coverage, block rendering, outputs.
+
+(:mod:`sensor_models.simulate.pushbroom_sim` renders the ``ideal`` profile,
+:mod:`sensor_models.simulate.realistic_sim` the others; both write through these helpers.)
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pyproj
+
+from sensor_models.errors import InputError
+from sensor_models.locate import MapGrid
+
+__all__ = ["check_covers", "footprint_lonlat", "render_scene", "utm_crs", "write_outputs"]
+
+
+def footprint_lonlat(model, heights_m, *, step_px: int = 32):
+    """Lon/lat of the image border of every band at each height.
+
+    Parameters
+    ----------
+    model : PushbroomModel
+        The scene model (its ``bands`` and ``image_shape``).
+    heights_m : iterable of float
+        Ellipsoidal heights of the localization, metres.
+    step_px : int
+        Spacing of the border points, pixels (pixel centres, corners included).
+
+    Returns
+    -------
+    lon_deg, lat_deg : ndarray, shape (N,)
+        WGS84 degrees, every band and height concatenated (NaN where localization fails).
+    """
+    n_rows, n_cols = model.image_shape
+    rows = np.linspace(0.5, n_rows - 0.5, max(2, n_rows // step_px + 1))
+    cols = np.linspace(0.5, n_cols - 0.5, max(2, n_cols // step_px + 1))
+    r = np.concatenate([rows, rows, np.full(cols.size, 0.5), np.full(cols.size, n_rows - 0.5)])
+    c = np.concatenate([np.full(rows.size, 0.5), np.full(rows.size, n_cols - 0.5), cols, cols])
+    lons, lats = [], []
+    for band in model.bands:
+        for h in heights_m:
+            lon, lat, _ = model.image_to_ground(r, c, height=float(h), band=band)
+            lons.append(lon)
+            lats.append(lat)
+    return np.concatenate(lons), np.concatenate(lats)
+
+
+def utm_crs(lon: float, lat: float) -> pyproj.CRS:
+    zone = int(np.floor((lon + 180.0) / 6.0)) % 60 + 1
+    return pyproj.CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
+
+
+def check_covers(grid: MapGrid, lon, lat, *, what: str, path: str | None, margin_px: float = 2.0):
+    tr = pyproj.Transformer.from_crs("EPSG:4326", grid.crs, always_xy=True)
+    x, y = tr.transform(lon, lat)
+    a = grid.index_affine()
+    u = a.a * np.asarray(x) + a.b * np.asarray(y) + a.c
+    v = a.d * np.asarray(x) + a.e * np.asarray(y) + a.f
+    n_rows, n_cols = grid.shape
+    inside = (u >= margin_px) & (u <= n_cols - 1 - margin_px) & (v >= margin_px) & (v <= n_rows - 1 - margin_px)
+    if not inside.all():
+        frac = 1.0 - inside.mean()
+        raise InputError(
+            f"the {what} does not cover the scene footprint ({100 * frac:.0f} % of the border points "
+            f"outside, footprint lon {lon.min():.4f}..{lon.max():.4f}, lat {lat.min():.4f}..{lat.max():.4f})",
+            path=path or what,
+        )
+
+
+def _open_writer(path: Path, n_rows: int, n_cols: int, dtype: str):
+    import rasterio
+
+    return rasterio.open(
+        path, "w", driver="GTiff", width=n_cols, height=n_rows, count=1, dtype=dtype,
+        compress="deflate", predictor=2, zlevel=6, tiled=False, blockysize=16,
+    )
+
+
+def render_scene(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lines, workers, progress):
+    """Render every block of lines into ``tmp/<band>.tif`` (and ``cloud_mask.tif`` with clouds).
+
+    Returns ``(cloud pixels in the reference band, whether a cloud mask was written)``.
+    """
+    from rasterio.errors import NotGeoreferencedWarning
+    from rasterio.windows import Window
+
+    n_rows, n_cols = model.image_shape
+    blocks = [(r, min(n_rows, r + block_lines)) for r in range(0, n_rows, block_lines)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)  # raw sensor geometry
+        writers = {b: _open_writer(tmp / f"{b}.tif", n_rows, n_cols, "uint16") for b in bands}
+        mask_writer = (_open_writer(tmp / "cloud_mask.tif", n_rows, n_cols, "uint8")
+                       if renderer.clouds is not None else None)
+    cloud_pixels = 0
+    try:
+        with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+
+            for k, (r0, r1) in enumerate(blocks):
+                jobs = {(b, c): pool.submit(renderer.task, b, c, r0, r1) for b in bands for c in range(n_ccd)}
+                for b in bands:
+                    block = np.zeros((r1 - r0, n_cols), dtype=np.uint16)
+                    mask = np.zeros((r1 - r0, n_cols), dtype=np.uint8) if b == ref_band else None
+                    for c, look in enumerate(model.band_ccds(b)):
+                        dn, alpha = jobs[(b, c)].result()
+                        block[:, look.first_col : look.first_col + look.n_detectors] = dn
+                        if mask is not None and alpha is not None:
+                            mask[:, look.first_col : look.first_col + look.n_detectors] = alpha > 0.5
+                    writers[b].write(block, 1, window=Window(0, r0, n_cols, r1 - r0))
+                    if mask is not None and mask_writer is not None:
+                        mask_writer.write(mask, 1, window=Window(0, r0, n_cols, r1 - r0))
+                        cloud_pixels += int(mask.sum())
+                if progress is not None:
+                    progress(k + 1, len(blocks))
+    finally:
+        for w in writers.values():
+            w.close()
+        if mask_writer is not None:
+            mask_writer.close()
+    return cloud_pixels, mask_writer is not None
+
+
+def write_outputs(cfg, models, tmp: Path, initial, reference_files, dem_figures, clouds, render_seconds, workers,
+                   t_start, record_timings, *, extra_truth=None, extra_summary=None) -> dict:
+    """Write the manifests, ``truth.json`` and ``summary.json`` of a rendered scene; return the summary.
+
+    Parameters
+    ----------
+    cfg : SimConfig
+        The effective configuration.
+    models : SceneModels
+        TRUE and LAB models.
+    tmp : Path
+        Output folder.
+    initial : dict
+        :func:`sensor_models.simulate.truth.truth_error` of the LAB model.
+    reference_files : dict
+        Reference file names (written into both documents).
+    dem_figures : dict
+        :func:`sensor_models.terrain.check_dem_footprint` of the user's DEM.
+    clouds : (int, bool)
+        Cloud pixels of the reference band, whether a mask was written.
+    render_seconds : float
+        Rendering time.
+    workers : int
+        Rendering threads.
+    t_start : float
+        ``time.perf_counter()`` at the start.
+    record_timings : bool
+        Keep the timings in ``summary.json``.
+    extra_truth, extra_summary : dict, optional
+        Appended to ``truth.json`` and ``summary.json``.
+
+    Returns
+    -------
+    dict
+        The summary.
+    """
+    from sensor_models.readers.manifest import write_manifest
+
+    model = models.true_model
+    n_rows, n_cols = model.image_shape
+    bands = list(cfg.camera.bands)
+    n_ccd = len(model.band_ccds(cfg.camera.reference_band))
+    cloud_pixels, has_mask = clouds
+    rasters = {b: str(tmp / f"{b}.tif") for b in bands}
+    write_manifest(models.lab_model, tmp / "manifest.json", rasters=rasters)
+    write_manifest(models.true_model, tmp / "truth_manifest.json", rasters=rasters)
+    truth = {
+        "format_version": 1,
+        "kind": "gcpcal.simulate.pushbroom",
+        "seed": cfg.seed,
+        "true_model": "truth_manifest.json",
+        "lab_model": "manifest.json",
+        "reference": reference_files,
+        "clouds": {"cover_requested": cfg.clouds.cover, "mask": "cloud_mask.tif" if has_mask else None},
+        **models.truth,
+        "config": cfg.to_dict(),
+        **(extra_truth or {}),
+    }
+    pixels = n_rows * n_cols * len(bands)
+    summary = {
+        "kind": "gcpcal.simulate.pushbroom",
+        "seed": cfg.seed,
+        "image": {"n_rows": n_rows, "n_cols": n_cols, "bands": bands, "ccds": n_ccd},
+        "files": {**{b: f"{b}.tif" for b in bands}, "manifest": "manifest.json",
+                  "truth": "truth.json", "truth_manifest": "truth_manifest.json",
+                  **({"cloud_mask": "cloud_mask.tif"} if has_mask else {})},
+        "reference": reference_files,
+        "cloud_fraction": cloud_pixels / float(n_rows * n_cols),
+        "dem_coverage": dem_figures["dem_coverage"],
+        "dem_void_fraction": dem_figures["dem_void_fraction"],
+        "warnings": dem_figures["warnings"],
+        "lab_truth_error_px": {"rms": initial["rms_px"], "max": initial["max_px"],
+                               "mean_row": initial["mean_row_px"], "mean_col": initial["mean_col_px"]},
+        **(extra_summary or {}),
+        "render_seconds": render_seconds,
+        "pixels_per_second": pixels / render_seconds,
+        "workers": workers,
+        "seconds": time.perf_counter() - t_start,
+    }
+    _write_json(tmp / "truth.json", truth)
+    if not record_timings:
+        summary = {k: v for k, v in summary.items() if k not in ("render_seconds", "pixels_per_second", "seconds")}
+    _write_json(tmp / "summary.json", summary)
+    return summary
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    path.write_text(json.dumps(doc, indent=1, sort_keys=False) + "\n", encoding="utf-8")
