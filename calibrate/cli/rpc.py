@@ -5,7 +5,8 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.rpc import fit_rpcs
-from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings
+from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, height_range_option, json_option,
+                                   one_height_source)
 
 __all__ = ["command"]
 
@@ -14,10 +15,10 @@ __all__ = ["command"]
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="Output: *_RPC.TXT, *.RPB, or *.tif (RPC tags).")
 @add_options(dem_options)
-@click.option("--height-range", nargs=2, type=float, help="Min and max ellipsoidal heights (m) when no --dem is given.")
+@height_range_option
 @click.option("--band", help="Band (multi-band models; default: the reference band).")
 @click.option("--ccd", help="CCD name; default: one RPC per CCD (suffix _<ccd> in the file name).")
-@click.option("--json", "as_json", is_flag=True, help="Print the fit summary as JSON.")
+@json_option
 def command(model_path, out_path, dem_path, dem_datum, geoid, height_range, band, ccd, as_json):
     """Fit an RPC to MODEL over its image and height range and write it.
 
@@ -28,6 +29,7 @@ def command(model_path, out_path, dem_path, dem_datum, geoid, height_range, band
     --height-range. The fit is terrain-independent; its errors on an independent check grid are
     reported in OUT.summary.json.
     """
+    one_height_source(height_range=height_range, dem=dem_path)
     summary = fit_rpcs(model_path, out_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
                        height_range=height_range, band=band, ccd=ccd)
     echo_warnings(summary)
