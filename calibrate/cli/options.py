@@ -208,6 +208,9 @@ def quiet_of(ctx: click.Context, as_json: bool = False) -> bool:
 def progress_printer(ctx: click.Context, as_json: bool = False):
     """A progress callback printing each message on stderr, or None when quiet.
 
+    Kept for callers outside this package; commands use :func:`calibrate.cli._progress.stage_progress`,
+    which prints the same lines where stderr is not a terminal and a live display where it is.
+
     Parameters
     ----------
     ctx : click.Context

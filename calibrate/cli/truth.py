@@ -51,8 +51,14 @@ def error_command(model_path, truth_path, dem_path, dem_datum, geoid, height, he
 
 
 def _heights_m(height, height_range, heights_text, dem_path):
-    """Heights (m) of the comparison planes from the height family; None for the DEM or the default."""
-    source = one_height_source(height=height, height_range=height_range, heights=heights_text, dem=dem_path)
+    """Heights (m) of the comparison planes from the height family; None for the DEM or the default.
+
+    The deprecated ``--heights`` keeps its old meaning: ignored when ``--dem`` is given.
+    """
+    source = one_height_source(height=height, height_range=height_range, dem=dem_path)
+    if heights_text is not None:
+        one_height_source(height=height, height_range=height_range, heights=heights_text)
+        source = source or "heights"
     if source == "height":
         return [height]
     if source == "height_range":
