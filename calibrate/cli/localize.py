@@ -5,8 +5,8 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.localize import localize_points
-from calibrate.cli.options import (add_options, constant_height_option, dem_options, echo_json, echo_warnings, float_list,
-                                   json_option, one_height_source)
+from calibrate.cli.options import (add_options, constant_height_option, dem_options, echo_json, echo_warnings,
+                                   float_list, json_option, one_height_source)
 from sensor_models.errors import InputError
 
 __all__ = ["command"]

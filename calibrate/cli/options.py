@@ -15,8 +15,8 @@ from calibrate._json import json_default
 from sensor_models.errors import InputError
 
 __all__ = ["add_options", "apply_verbosity", "constant_height_option", "dem_options", "echo_json", "echo_warnings",
-           "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source", "out_dir_option", "progress_printer",
-           "quiet_of", "verbosity_options"]
+           "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source",
+           "out_dir_option", "progress_printer", "quiet_of", "verbosity_options"]
 
 #: ``--dem``, ``--dem-datum``, ``--geoid`` (keywords ``dem_path``, ``dem_datum``, ``geoid``).
 dem_options = [
@@ -98,7 +98,8 @@ def apply_verbosity(ctx: click.Context, verbose: int, quiet: bool) -> None:
     ctx.ensure_object(dict)
     ctx.obj["verbose"] = int(ctx.obj.get("verbose", 0)) + int(verbose)
     ctx.obj["quiet"] = bool(ctx.obj.get("quiet", False)) or bool(quiet)
-    level = logging.ERROR if ctx.obj["quiet"] else (logging.WARNING, logging.INFO, logging.DEBUG)[min(ctx.obj["verbose"], 2)]
+    levels = (logging.WARNING, logging.INFO, logging.DEBUG)
+    level = logging.ERROR if ctx.obj["quiet"] else levels[min(ctx.obj["verbose"], 2)]
     logging.getLogger().setLevel(level)
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.simulate import truth_error_of
-from calibrate.cli.options import (add_options, constant_height_option, dem_options, echo_json, echo_warnings, float_list,
-                                   height_range_option, json_option, one_height_source)
+from calibrate.cli.options import (add_options, constant_height_option, dem_options, echo_json, echo_warnings,
+                                   float_list, height_range_option, json_option, one_height_source)
 
 __all__ = ["command"]
 
