@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CLI_DIR = ROOT / "calibrate" / "cli"
 ACTIONS_DIR = ROOT / "calibrate" / "actions"
 EXAMPLE = str(ROOT / "fixtures" / "example_pushbroom" / "manifest.json")
-SHARED_MODULES = {"__init__", "options", "_errors"}
+SHARED_MODULES = {"__init__", "options", "_errors", "_progress"}
 
 
 def _command_paths(group: click.Group, prefix=()):
@@ -46,6 +46,67 @@ def test_help_of_every_command_and_subcommand(path, capsys):
     assert main([*path, "--help"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("Usage: gcpcal " + " ".join(path))
+
+
+def _all_commands(group: click.Group, prefix=("gcpcal",)):
+    yield prefix, group
+    for name, cmd in sorted(group.commands.items()):
+        if isinstance(cmd, click.Group):
+            yield from _all_commands(cmd, prefix + (name,))
+        else:
+            yield prefix + (name,), cmd
+
+
+def test_every_option_and_argument_has_help():
+    """Walk the click tree (the group, its subgroups, every command): no option without help text,
+    no argument that the command's help does not name."""
+    missing = []
+    for path, cmd in _all_commands(cli):
+        assert (cmd.help or "").strip(), f"{' '.join(path)} has no help"
+        for param in cmd.params:
+            if isinstance(param, click.Option):
+                if not (param.help or "").strip():
+                    missing.append(f"{' '.join(path)} {param.opts[0]}")
+            elif isinstance(param, click.Argument):
+                name = param.metavar or param.name.upper()
+                if name.split(".")[0] not in cmd.help:
+                    missing.append(f"{' '.join(path)} argument {name}")
+    assert not missing, "without help: " + ", ".join(missing)
+
+
+def test_help_walk_would_catch_an_option_without_help():
+    @click.command("probe")
+    @click.option("--bare")
+    @click.argument("thing")
+    def probe(bare, thing):
+        """A command whose option and argument are undocumented."""
+
+    group = click.Group("g", commands={"probe": probe})
+    bad = [p for _, c in _all_commands(group) for p in c.params if isinstance(p, click.Option) and not p.help]
+    assert [p.name for p in bad] == ["bare"]
+    assert "THING" not in probe.help
+
+
+def test_shell_completion_script_is_produced():
+    """click 8's completion: ``_GCPCAL_COMPLETE=bash_source gcpcal`` prints the script, and the
+    script's callback completes command names and options (docs/cli.md)."""
+    import subprocess
+    import sys
+
+    code = "import sys; from calibrate.cli import main; sys.exit(main())"
+    env = dict(os.environ, PYTHONPATH=str(ROOT), _GCPCAL_COMPLETE="bash_source")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "_gcpcal_completion()" in proc.stdout and "complete -o nosort -F _gcpcal_completion gcpcal" in proc.stdout
+    env.update(_GCPCAL_COMPLETE="bash_complete", COMP_WORDS="gcpcal loc", COMP_CWORD="1")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60)
+    assert proc.returncode == 0 and proc.stdout.split() == ["plain,localize"], proc.stdout
+    env.update(COMP_WORDS="gcpcal rpc --height", COMP_CWORD="2")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60)
+    assert proc.stdout.split() == ["plain,--height-range"], proc.stdout
+    env.update(_GCPCAL_COMPLETE="zsh_source")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60)
+    assert "#compdef gcpcal" in proc.stdout
 
 
 def test_group_help_documents_the_exit_codes(capsys):

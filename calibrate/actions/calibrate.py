@@ -88,8 +88,9 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     t0 = time.perf_counter()
     check_output_folder(out_dir, inputs=[scene_path, gcps_path, image])  # before any work
     model, table = _read_inputs(scene_path, gcps_path, band, image)
-    if progress:
-        progress(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
+    say = progress or (lambda message: None)
+    say(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
+    say(f"fitting the model ({options.scheme})")
     result, g = apply_calibration(model, table, options=options, band=band)
     checks = points_of(table.checks(), model)
     acc_before, acc_after = _accuracy(model, checks), _accuracy(result.model, checks)
@@ -104,6 +105,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
         if report and acc_before is not None:
             from calibrate.report import write_report
 
+            say("writing the report")
             write_report(tmp, result=getattr(result, "calibration", result), accuracy_before=acc_before,
                          accuracy_after=acc_after, initial_model=model, gcps=g, checks=checks,
                          coverage=coverage, status=status)

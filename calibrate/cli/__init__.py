@@ -10,6 +10,7 @@ boundary (:mod:`calibrate.cli._errors`). Library code never calls ``sys.exit``.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import signal
 import sys
@@ -20,7 +21,7 @@ import click
 from calibrate.cli import (calibrate, compensate, demo, localize, match, oalr, ortho, relative, rpc, run, simulate,
                            stars, thermal, truth, validate)
 from calibrate.cli._errors import quiet_cluster_logs, run_guarded
-from calibrate.cli.options import add_options, verbosity_options
+from calibrate.cli.options import add_options, apply_verbosity, verbosity_options
 from sensor_models import __version__
 
 __all__ = ["COMMAND_MODULES", "cli", "main"]
@@ -43,26 +44,48 @@ def cli(ctx, verbose, quiet):
       4    partial success (e.g. some validation scenes failed)
       130  interrupted
     """
-    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(format="%(levelname)s %(name)s: %(message)s")
     ctx.ensure_object(dict)
-    ctx.obj["quiet"] = quiet
-    ctx.obj["verbose"] = verbose
+    ctx.obj.update(quiet=False, verbose=0)
+    apply_verbosity(ctx, verbose, quiet)
 
 
 #: Every command module, registered explicitly in this order (``gcpcal --help`` sorts them).
 COMMAND_MODULES = (localize, rpc, demo, match, calibrate, run, relative, validate, ortho, stars, compensate, thermal,
                    oalr, truth, simulate)
 
+
+def _accept_verbosity(command: click.Command) -> None:
+    """Give ``command`` (and, for a group, each subcommand) the group's ``-v``/``-q``, with the same effect.
+
+    ``gcpcal -q match ...``, ``gcpcal match -q ...`` and ``gcpcal match ... -q`` are the same
+    command; the counts add up (``gcpcal -v calibrate -v`` is ``-vv``).
+    """
+    for decorator in reversed(verbosity_options):
+        decorator(command)  # click.option on a Command object appends to its params
+    callback = command.callback
+
+    @functools.wraps(callback)
+    def with_verbosity(*args, verbose=0, quiet=False, **kwargs):
+        apply_verbosity(click.get_current_context(), verbose, quiet)
+        return callback(*args, **kwargs)
+
+    command.callback = with_verbosity
+    if isinstance(command, click.Group):
+        for sub in command.commands.values():
+            _accept_verbosity(sub)
+
+
 for _module in COMMAND_MODULES:
+    _accept_verbosity(_module.command)
     cli.add_command(_module.command)
 
 
 def _verbosity(args: list[str]) -> int:
-    """``-v`` count among the group's options (before the command name)."""
+    """``-v`` count anywhere before a ``--`` (the group's and the command's add up)."""
     count = 0
     for arg in args:
-        if not arg.startswith("-"):
+        if arg == "--":
             break
         if arg == "--verbose":
             count += 1

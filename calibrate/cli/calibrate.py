@@ -10,7 +10,8 @@ import click
 
 from calibrate.actions.calibrate import calibrate_scene
 from calibrate.cli._errors import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL
-from calibrate.cli.options import echo_json, json_option, out_dir_option, progress_printer
+from calibrate.cli._progress import stage_progress
+from calibrate.cli.options import echo_json, exit_with_status, json_option, out_dir_option
 from calibrate.config import CALIBRATION_SCHEMES, ROBUST_LOSSES, CalibrationOptions
 
 __all__ = ["command"]
@@ -41,15 +42,16 @@ def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, image, no
     Exit 0: calibrated; 4: partial (CCDs not calibrated or not verified, named); 3: failed.
     """
     options = CalibrationOptions(scheme=scheme, robust=robust)
-    summary = calibrate_scene(scene_path, gcps_path, out_dir, options=options, band=band, image=image,
-                              report=not no_report, progress=progress_printer(ctx, as_json))
+    with stage_progress(ctx, "gcpcal calibrate", as_json) as progress:
+        summary = calibrate_scene(scene_path, gcps_path, out_dir, options=options, band=band, image=image,
+                                  report=not no_report, progress=progress.message)
     if as_json:
         echo_json(summary)
     else:
         _print_summary(out_dir, summary)
     code = _EXIT_OF_STATUS[summary["status"]]
     if code != EXIT_OK:
-        ctx.exit(code)
+        exit_with_status(ctx, code, summary.get("status_message") or summary["message"])
 
 
 def _print_summary(out_dir, summary) -> None:

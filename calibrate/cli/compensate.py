@@ -6,7 +6,8 @@ import click
 
 from calibrate.actions.compensate import compensation_study
 from calibrate.cli._errors import EXIT_FAILED
-from calibrate.cli.options import echo_json, json_option, out_dir_option
+from calibrate.cli._progress import stage_progress
+from calibrate.cli.options import echo_json, exit_with_status, json_option, out_dir_option
 
 __all__ = ["command"]
 
@@ -52,11 +53,13 @@ def command(ctx, out_dir, step_px, start_px, stop_px, noise_px, seed, schemes, n
     Writes OUT/table.json, OUT/table.csv, OUT/summary.md and OUT/figures/*.png. Exit code 3 when
     a scheme fails.
     """
-    doc = compensation_study(out_dir, step_px=step_px, start_px=start_px, stop_px=stop_px, noise_px=noise_px,
-                             seed=seed, schemes=schemes, figures=not no_figures)
+    with stage_progress(ctx, "gcpcal compensate", as_json):
+        doc = compensation_study(out_dir, step_px=step_px, start_px=start_px, stop_px=stop_px, noise_px=noise_px,
+                                 seed=seed, schemes=schemes, figures=not no_figures)
     if as_json:
         echo_json({"best_scheme": doc["best_scheme"], "rows": [{k: r.get(k) for k in _JSON_KEYS} for r in doc["rows"]]})
     else:
         _print_table(out_dir, doc)
-    if not all(r["success"] for r in doc["rows"]):
-        ctx.exit(EXIT_FAILED)
+    failed = [r["scheme"] for r in doc["rows"] if not r["success"]]
+    if failed:
+        exit_with_status(ctx, EXIT_FAILED, f"scheme(s) {', '.join(failed)} failed (see {out_dir}/table.json)")

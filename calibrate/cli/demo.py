@@ -7,7 +7,8 @@ from pathlib import Path
 import click
 
 from calibrate.actions.demo import run_demo
-from calibrate.cli.options import echo_json, json_option, out_dir_option, quiet_of
+from calibrate.cli._progress import stage_progress
+from calibrate.cli.options import echo_json, json_option, out_dir_option
 
 __all__ = ["command"]
 
@@ -21,7 +22,7 @@ def _print_table(summary: dict, out_dir) -> None:
 
     table = Table(title="HY-1C-like scene: LAB model -> calibrated (check points never used in the fit)")
     for col in ("", "before", "after"):
-        table.add_column(col, justify="right")
+        table.add_column(col, justify="right", overflow="fold")  # wrap, never cut with "..."
     for key, label in _ROWS:
         b, a = summary[key]["before"], summary[key]["after"]
         table.add_row(label, f"{b:.2f}" if b is not None else "-", f"{a:.3f}" if a is not None else "-")
@@ -42,11 +43,8 @@ def _print_table(summary: dict, out_dir) -> None:
 @click.pass_context
 def command(ctx, out_dir, as_json):
     """Run the main job on the embedded fixtures and write OUT/summary.json."""
-    from rich.console import Console
-
-    console = Console(stderr=True, quiet=quiet_of(ctx, as_json))
-    with console.status("gcpcal demo") as status:
-        summary = run_demo(Path(out_dir), progress=lambda m: status.update(f"gcpcal demo: {m}"))
+    with stage_progress(ctx, "gcpcal demo", as_json) as progress:
+        summary = run_demo(Path(out_dir), progress=progress.message)
     if as_json:
         echo_json(summary)
         return

@@ -5,7 +5,8 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.localize import localize_points
-from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings, float_list
+from calibrate.cli.options import (add_options, constant_height_option, dem_options, echo_json, echo_warnings,
+                                   float_list, json_option, one_height_source)
 from sensor_models.errors import InputError
 
 __all__ = ["command"]
@@ -48,11 +49,11 @@ def _points(rows, cols, lon, lat, h_text, csv_path, inverse):
 @click.option("--h", "h_text", help="Comma-separated ellipsoidal heights, m (inverse localization).")
 @click.option("--csv", "csv_path", type=click.Path(dir_okay=False), help="CSV with row,col (direct) or lon,lat,h (--inverse).")
 @click.option("--inverse", is_flag=True, help="Ground -> image (with --csv).")
-@click.option("--height", type=float, help="Ellipsoidal height of the ground for direct localization, m.")
+@constant_height_option
 @add_options(dem_options)
 @click.option("--band", help="Band (multi-band models; default: the reference band).")
 @click.option("--out", "out_path", type=click.Path(dir_okay=False), help="Write the results as CSV (plus a .summary.json).")
-@click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
+@json_option
 def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height, dem_path, dem_datum, geoid, band,
             out_path, as_json):
     """Localize points through MODEL, image -> ground or ground -> image.
@@ -68,7 +69,7 @@ def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height,
     the raster's: a crop's own rows and columns.
     """
     direction, points = _points(rows, cols, lon, lat, h_text, csv_path, inverse)
-    if direction == "direct" and (height is None) == (dem_path is None):
+    if one_height_source(height=height, dem=dem_path) is None and direction == "direct":
         raise click.UsageError("direct localization needs exactly one of --height and --dem")
     summary = localize_points(model_path, points, direction=direction, height=height, dem_path=dem_path,
                               dem_datum=dem_datum, geoid=geoid, band=band, out_path=out_path)

@@ -6,7 +6,8 @@ import click
 
 from calibrate.actions.match import match_scene
 from calibrate.config import MatchOptions
-from calibrate.cli.options import add_options, dem_options, echo_json, json_option, progress_printer
+from calibrate.cli._progress import stage_progress
+from calibrate.cli.options import add_options, dem_options, echo_json, json_option
 from sensor_models.errors import InputError
 
 __all__ = ["command"]
@@ -46,9 +47,10 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpk
         raise InputError("--dem is required: GCPs need terrain heights")
     options = MatchOptions(window_px=window, spacing_px=spacing, max_offset_px=max_offset,
                            check_fraction=check_fraction, backend=backend)
-    summary = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=out_path, geoid=geoid,
-                          dem_datum=dem_datum, band=band, image=image, mask_path=mask_path, gpkg_path=gpkg_path,
-                          geotiff_path=geotiff_path, options=options, progress=progress_printer(ctx, as_json))
+    with stage_progress(ctx, "gcpcal match", as_json) as progress:
+        summary = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=out_path, geoid=geoid,
+                              dem_datum=dem_datum, band=band, image=image, mask_path=mask_path, gpkg_path=gpkg_path,
+                              geotiff_path=geotiff_path, options=options, progress=progress.message)
     if as_json:
         echo_json(summary)
         return

@@ -31,7 +31,8 @@ def command(marks, out_dir, reference, focal_mm, baseline_mm, pixel_um, sigma_k_
 
     MARKS.csv has the columns time,ccd1_x_px,ccd1_y_px,ccd2_x_px,ccd2_y_px (x = column, y = row,
     pixels), or time,ccd1_frame,ccd2_frame (SMCCD frames, paths relative to the CSV). Writes
-    OUT/oalr.json.
+    OUT/oalr.json. Format, frames and units: docs/oalr_marks.md; example:
+    fixtures/oalr_marks/marks.csv.
     """
     if pixel_um is None:
         from calibrate.schemes.autocollimation import ARCSEC

@@ -14,8 +14,9 @@ import numpy as np
 from calibrate._json import json_default
 from sensor_models.errors import InputError
 
-__all__ = ["add_options", "dem_options", "echo_json", "echo_warnings", "float_list", "json_option", "out_dir_option",
-           "progress_printer", "quiet_of", "verbosity_options"]
+__all__ = ["add_options", "apply_verbosity", "constant_height_option", "dem_options", "echo_json", "echo_warnings",
+           "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source",
+           "out_dir_option", "progress_printer", "quiet_of", "verbosity_options"]
 
 #: ``--dem``, ``--dem-datum``, ``--geoid`` (keywords ``dem_path``, ``dem_datum``, ``geoid``).
 dem_options = [
@@ -29,15 +30,101 @@ dem_options = [
     click.option("--geoid", type=click.Path(dir_okay=False), help="Geoid grid (e.g. egm96_15.gtx) for egm96 heights."),
 ]
 
-#: ``-v/--verbose`` (count) and ``-q/--quiet`` of the group.
+# The height family (docs/cli.md, "Terrain heights"): one spelling and one meaning in every command
+# that localizes on the ground (localize, rpc, ortho, truth error, relative):
+#   --height M              one constant ellipsoidal height, metres;
+#   --height-range MIN MAX  ellipsoidal heights spanned, metres (RPC fit, truth comparison);
+#   --dem PATH [--dem-datum ellipsoid|egm96] [--geoid GRID]   terrain from a DEM (``dem_options``).
+# A command offers the members it can use; the others are not among its options.
+
+#: ``--height M`` (keyword ``height``).
+constant_height_option = click.option(
+    "--height", "height", type=float, metavar="M",
+    help="Constant ground height, m above the WGS84 ellipsoid (instead of --dem).")
+
+#: ``--height-range MIN MAX`` (keyword ``height_range``).
+height_range_option = click.option(
+    "--height-range", "height_range", nargs=2, type=float, metavar="MIN MAX",
+    help="Lowest and highest ground heights, m above the WGS84 ellipsoid (instead of --dem).")
+
+def one_height_source(**given) -> str | None:
+    """The one member of the height family given (``--height``, ``--height-range``, ``--dem``), or None.
+
+    Parameters
+    ----------
+    **given
+        Option name (without dashes, ``_`` for ``-``) -> its value (None when not given).
+
+    Returns
+    -------
+    str or None
+        The option name given, e.g. ``"dem"``.
+
+    Raises
+    ------
+    click.UsageError
+        When more than one is given.
+    """
+    named = [name for name, value in given.items() if value is not None and value != ()]
+    if len(named) > 1:
+        raise click.UsageError("give one of " + ", ".join("--" + n.replace("_", "-") for n in given) + ", not "
+                               + " and ".join("--" + n.replace("_", "-") for n in named))
+    return named[0] if named else None
+
+
+#: ``-v/--verbose`` (count) and ``-q/--quiet``: on the group and, the same, on every command.
 verbosity_options = [
     click.option("-v", "--verbose", count=True, help="More log output (repeatable); -v shows the traceback of an "
                                                      "internal error, -vv of any error."),
-    click.option("-q", "--quiet", is_flag=True, help="Only errors."),
+    click.option("-q", "--quiet", is_flag=True, help="Only errors, warnings and the reason of an exit 3 or 4; "
+                                                     "no progress."),
 ]
 
+
+def apply_verbosity(ctx: click.Context, verbose: int, quiet: bool) -> None:
+    """Record ``-v``/``-q`` in ``ctx.obj`` (added to those before the command name) and set the log level.
+
+    Parameters
+    ----------
+    ctx : click.Context
+        The group's or the command's context; ``ctx.obj`` is the dict shared by all of them.
+    verbose : int
+        ``-v`` count given here.
+    quiet : bool
+        ``-q`` given here.
+    """
+    import logging
+
+    ctx.ensure_object(dict)
+    ctx.obj["verbose"] = int(ctx.obj.get("verbose", 0)) + int(verbose)
+    ctx.obj["quiet"] = bool(ctx.obj.get("quiet", False)) or bool(quiet)
+    levels = (logging.WARNING, logging.INFO, logging.DEBUG)
+    level = logging.ERROR if ctx.obj["quiet"] else levels[min(ctx.obj["verbose"], 2)]
+    logging.getLogger().setLevel(level)
+
+
+def exit_with_status(ctx: click.Context, code: int, reason: str) -> None:
+    """End a command with exit 3 (failed) or 4 (partial), saying why on stderr in one line.
+
+    The line is printed whatever ``-q`` or ``--json`` say (stdout keeps the summary).
+
+    Parameters
+    ----------
+    ctx : click.Context
+        The command's context.
+    code : int
+        3 or 4 (:mod:`calibrate.cli._errors`).
+    reason : str
+        Why, in one line, e.g. ``"B2.ccd2: 0 GCPs"``.
+    """
+    what = {3: "failed", 4: "partial"}.get(code, f"exit {code}")
+    text = " ".join(str(reason).split()) or "(no reason given)"
+    click.echo(f"gcpcal: {what}: {text}", err=True)
+    ctx.exit(code)
+
 #: ``--json`` (keyword ``as_json``).
-json_option = click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+json_option = click.option("--json", "as_json", is_flag=True,
+                           help="Print the summary as JSON on stdout, and nothing else there; no progress.")
 
 
 def out_dir_option(required: bool = True, default=None, help: str = "Output folder."):
@@ -121,6 +208,9 @@ def quiet_of(ctx: click.Context, as_json: bool = False) -> bool:
 
 def progress_printer(ctx: click.Context, as_json: bool = False):
     """A progress callback printing each message on stderr, or None when quiet.
+
+    Kept for callers outside this package; commands use :func:`calibrate.cli._progress.stage_progress`,
+    which prints the same lines where stderr is not a terminal and a live display where it is.
 
     Parameters
     ----------

@@ -5,7 +5,8 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.ortho import ortho_scene
-from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings, json_option, quiet_of
+from calibrate.cli._progress import stage_progress
+from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings, json_option
 from calibrate.config import ORTHO_RESAMPLING, OrthoOptions
 from sensor_models.errors import InputError
 
@@ -45,15 +46,10 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_path, 
     """
     if dem_path is None:
         raise InputError("--dem is required: orthorectification needs terrain heights")
-    quiet = quiet_of(ctx, as_json)
-
-    def progress(done, total):
-        if not quiet and (done == total or done % max(1, total // 10) == 0):
-            click.echo(f"ortho: {done}/{total} blocks", err=True)
-
     options = OrthoOptions(crs=crs, resolution_m=resolution, resampling=resampling, block=block)
-    summary = ortho_scene(scene_path, out_path, dem_path=dem_path, calibration=calibration, dem_datum=dem_datum,
-                          geoid=geoid, band=band, image=image, options=options, progress=progress)
+    with stage_progress(ctx, "gcpcal ortho: blocks", as_json) as progress:
+        summary = ortho_scene(scene_path, out_path, dem_path=dem_path, calibration=calibration, dem_datum=dem_datum,
+                              geoid=geoid, band=band, image=image, options=options, progress=progress.count)
     echo_warnings(summary)
     if as_json:
         echo_json(summary)

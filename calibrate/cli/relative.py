@@ -6,8 +6,9 @@ import click
 
 from calibrate.actions.relative import relative_calibration_stage
 from calibrate.cli._errors import EXIT_FAILED
-from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, json_option, out_dir_option,
-                                   progress_printer)
+from calibrate.cli._progress import stage_progress
+from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, exit_with_status, json_option,
+                                   out_dir_option)
 from calibrate.config import ROBUST_LOSSES, CalibrationOptions
 from sensor_models.errors import InputError
 
@@ -90,10 +91,11 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
     """
     if dem_path is None:
         raise InputError("--dem is required: the reference band's tie points are localized on the terrain")
-    summary = relative_calibration_stage(
-        scene_path, calibration, dem_path, out_dir, reference_band=reference_band, dem_datum=dem_datum, geoid=geoid,
-        window_px=parse_window(window_text), spacing_px=spacing, rows=parse_rows(rows_text),
-        options=CalibrationOptions(robust=robust), progress=progress_printer(ctx, as_json))
+    with stage_progress(ctx, "gcpcal relative", as_json) as progress:
+        summary = relative_calibration_stage(
+            scene_path, calibration, dem_path, out_dir, reference_band=reference_band, dem_datum=dem_datum,
+            geoid=geoid, window_px=parse_window(window_text), spacing_px=spacing, rows=parse_rows(rows_text),
+            options=CalibrationOptions(robust=robust), progress=progress.message)
     echo_warnings(summary)
     if as_json:
         echo_json(summary)
@@ -105,4 +107,6 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
                        f"windows, {rms}")
         click.echo(f"wrote {out_dir}/manifest.json, relative.json in {summary['seconds']:.1f} s")
     if not summary["success"]:
-        ctx.exit(EXIT_FAILED)
+        failed = [band for band, s in summary["bands"].items() if not s["success"]]
+        exit_with_status(ctx, EXIT_FAILED, (f"band(s) {', '.join(failed)} not calibrated: " if failed else "")
+                         + str(summary.get("message") or ""))

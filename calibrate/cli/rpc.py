@@ -5,7 +5,8 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.rpc import RpcOutputUsageError, fit_rpcs
-from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings
+from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, height_range_option, json_option,
+                                   one_height_source)
 
 __all__ = ["command"]
 
@@ -19,10 +20,10 @@ __all__ = ["command"]
               help="Scene raster copied into a *.tif output (default: the manifest's raster of the band); a crop "
                    "with a pixel geotransform crops the model.")
 @add_options(dem_options)
-@click.option("--height-range", nargs=2, type=float, help="Min and max ellipsoidal heights (m) when no --dem is given.")
+@height_range_option
 @click.option("--band", help="Band (multi-band models; default: the reference band).")
 @click.option("--ccd", help="CCD name: one RPC for that CCD's columns (then --out may be a file).")
-@click.option("--json", "as_json", is_flag=True, help="Print the fit summary as JSON.")
+@json_option
 def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_range, band, ccd, as_json):
     """Fit an RPC to MODEL over its image and height range and write it.
 
@@ -42,6 +43,7 @@ def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_rang
     beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
     .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
     """
+    one_height_source(height_range=height_range, dem=dem_path)
     try:
         summary = fit_rpcs(model_path, out_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
                            height_range=height_range, band=band, ccd=ccd, image=image)

@@ -6,8 +6,9 @@ import click
 
 from calibrate.actions.run import MIN_COVERAGE, MIN_GCPS, run_scene
 from calibrate.cli._errors import EXIT_FAILED
-from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, json_option, out_dir_option,
-                                   progress_printer)
+from calibrate.cli._progress import stage_progress
+from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, exit_with_status, json_option,
+                                   out_dir_option)
 from sensor_models.errors import InputError
 
 __all__ = ["command"]
@@ -35,9 +36,10 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, star_frames, 
     """
     if dem_path is None:
         raise InputError("--dem is required: GCPs need terrain heights")
-    summary = run_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_dir=out_dir, star_frames=star_frames,
-                        dem_datum=dem_datum, geoid=geoid, min_gcps=min_gcps, min_coverage=min_coverage,
-                        progress=progress_printer(ctx, as_json))
+    with stage_progress(ctx, "gcpcal run", as_json) as progress:
+        summary = run_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_dir=out_dir, star_frames=star_frames,
+                            dem_datum=dem_datum, geoid=geoid, min_gcps=min_gcps, min_coverage=min_coverage,
+                            progress=progress.message)
     echo_warnings(summary)
     if as_json:
         echo_json(summary)
@@ -45,4 +47,4 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, star_frames, 
         click.echo(f"{out_dir}: path {summary['path']} ({summary['reason']}); "
                    f"{'converged' if summary['success'] else 'FAILED'}: {summary['message']}")
     if not summary["success"]:
-        ctx.exit(EXIT_FAILED)
+        exit_with_status(ctx, EXIT_FAILED, f"path {summary['path']}: {summary['message']}")

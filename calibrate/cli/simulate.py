@@ -10,7 +10,8 @@ import click
 from calibrate.actions.simulate import (PROFILE_NAMES, pushbroom_config, simulate_geo_earth_scene,
                                         simulate_geo_star_frames, simulate_pushbroom_scene,
                                         simulate_validation_series)
-from calibrate.cli.options import echo_warnings, float_list, out_dir_option, quiet_of
+from calibrate.cli._progress import stage_progress
+from calibrate.cli.options import echo_json, echo_warnings, float_list, json_option, out_dir_option
 
 __all__ = ["command"]
 
@@ -31,27 +32,26 @@ def command():
 @click.option("--print-config", is_flag=True, help="Print the effective configuration as JSON and exit.")
 @click.option("--profile", type=click.Choice(PROFILE_NAMES), default="ideal", show_default=True,
               help="Error profile (docs/error_budget.md); realistic: --dom is the source radiance, no --dem.")
+@json_option
 @click.pass_context
-def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid, workers, print_config, profile):
+def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid, workers, print_config, profile,
+                      as_json):
     """Render a level-1A push-broom scene through a TRUE model; write the LAB manifest and truth."""
-    from rich.progress import Progress
-
     cfg = pushbroom_config(config_path, seed)
     if print_config:
         click.echo(json.dumps(cfg.to_dict(), indent=1))
         return
-    with Progress(transient=True, disable=quiet_of(ctx)) as bar:
-        task = bar.add_task("rendering", total=None)
-        summary = simulate_pushbroom_scene(
-            out_dir, cfg, dom_path=dom_path, dem_path=dem_path, geoid=geoid, workers=workers, profile=profile,
-            progress=lambda done, total: bar.update(task, completed=done, total=total),
-        )
+    with stage_progress(ctx, "gcpcal simulate pushbroom: rendering", as_json) as progress:
+        summary = simulate_pushbroom_scene(out_dir, cfg, dom_path=dom_path, dem_path=dem_path, geoid=geoid,
+                                           workers=workers, profile=profile, progress=progress.count)
     echo_warnings(summary)
+    if as_json:
+        echo_json(summary)
+        return
     img = summary["image"]
     click.echo(
         f"{out_dir}: {img['n_rows']} x {img['n_cols']} px, {len(img['bands'])} bands, {img['ccds']} CCDs; "
-        f"LAB model off by {summary['lab_truth_error_px']['rms']:.1f} px RMS "
-        f"(max {summary['lab_truth_error_px']['max']:.1f}); rendered in {summary['render_seconds']:.1f} s"
+        f"{_lab_error_text(summary)}; rendered in {summary['render_seconds']:.1f} s"
     )
 
 
@@ -62,12 +62,19 @@ def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="Sensor configuration (JSON, as simulate pushbroom).")
 @click.option("--clouds", default="0,0,0,0.3", show_default=True, help="Cloud covers cycled over the scenes.")
 @click.option("--calibration-scene", is_flag=True, help="Also render a scene to calibrate the sensor on.")
-@click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True)
-def series_command(out_dir, scenes, seed, config_path, clouds, calibration_scene, workers):
+@click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True, help="Parallel renderings.")
+@json_option
+@click.pass_context
+def series_command(ctx, out_dir, scenes, seed, config_path, clouds, calibration_scene, workers, as_json):
     """Validation scenes of one sensor (dates, sites, attitude biases, clouds) and their sites file."""
-    paths = simulate_validation_series(out_dir, scenes, seed=seed, config_path=config_path,
-                                       cloud_fractions=tuple(float_list(clouds, "clouds")),
-                                       calibration_scene=calibration_scene, workers=workers)
+    with stage_progress(ctx, f"gcpcal simulate series: {scenes} scene(s)", as_json):
+        paths = simulate_validation_series(out_dir, scenes, seed=seed, config_path=config_path,
+                                           cloud_fractions=tuple(float_list(clouds, "clouds")),
+                                           calibration_scene=calibration_scene, workers=workers)
+    if as_json:
+        echo_json({"command": "simulate series", "scenes": [str(p) for p in paths],
+                   "sites": str(Path(out_dir) / "sites.yaml")})
+        return
     click.echo(f"{out_dir}: {len(paths)} scenes; sites file {Path(out_dir) / 'sites.yaml'}")
 
 
@@ -78,27 +85,46 @@ def series_command(out_dir, scenes, seed, config_path, clouds, calibration_scene
 @click.option("--dom", "dom_path", type=click.Path(dir_okay=False), help="Reference orthoimage (with --dem).")
 @click.option("--dem", "dem_path", type=click.Path(dir_okay=False), help="DEM declaring its vertical datum (with --dom).")
 @click.option("--geoid", type=click.Path(dir_okay=False), help="EGM96 grid for an orthometric DEM.")
-def geo_earth_command(out_dir, seed, config_path, dom_path, dem_path, geoid):
+@json_option
+@click.pass_context
+def geo_earth_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid, as_json):
     """Render an Earth view of a geostationary staring camera through a TRUE model."""
-    summary = simulate_geo_earth_scene(out_dir, seed=seed, config_path=config_path, dom_path=dom_path,
-                                       dem_path=dem_path, geoid=geoid)
+    with stage_progress(ctx, "gcpcal simulate geo-earth: rendering", as_json):
+        summary = simulate_geo_earth_scene(out_dir, seed=seed, config_path=config_path, dom_path=dom_path,
+                                           dem_path=dem_path, geoid=geoid)
     echo_warnings(summary)
+    if as_json:
+        echo_json(summary)
+        return
     img = summary["image"]
-    click.echo(f"{out_dir}: {img['n_rows']} x {img['n_cols']} px staring frame; LAB model off by "
-               f"{summary['lab_truth_error_px']['rms']:.1f} px RMS (max {summary['lab_truth_error_px']['max']:.1f})")
+    click.echo(f"{out_dir}: {img['n_rows']} x {img['n_cols']} px staring frame; {_lab_error_text(summary)}")
 
 
 @command.command("geo-stars")
 @out_dir_option()
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed of the simulation.")
 @click.option("--frames", "n_frames", type=int, default=120, show_default=True, help="Number of frames.")
 @click.option("--interval", "frame_interval_s", type=float, default=10.0, show_default=True, help="Seconds between frames.")
-@click.option("--mag-limit", type=float, default=10.0, show_default=True)
-def geo_stars_command(out_dir, seed, n_frames, frame_interval_s, mag_limit):
+@click.option("--mag-limit", type=float, default=10.0, show_default=True, help="Faintest star magnitude rendered.")
+@json_option
+@click.pass_context
+def geo_stars_command(ctx, out_dir, seed, n_frames, frame_interval_s, mag_limit, as_json):
     """Render a star-field sequence of a geostationary staring camera (seed 000) with its truth."""
-    s = simulate_geo_star_frames(out_dir, seed=seed, n_frames=n_frames, frame_interval_s=frame_interval_s,
-                                 mag_limit=mag_limit)
+    with stage_progress(ctx, f"gcpcal simulate geo-stars: {n_frames} frames", as_json):
+        s = simulate_geo_star_frames(out_dir, seed=seed, n_frames=n_frames, frame_interval_s=frame_interval_s,
+                                     mag_limit=mag_limit)
+    if as_json:
+        echo_json(s)
+        return
     click.echo(f"{out_dir}: {s['frames']} frames, {s['distinct_stars']} stars "
                f"({s['stars_per_frame']['mean']:.1f} per frame), initial error RA/DE "
                f"{s['initial_error_centre_px']['ra']:.2f}/{s['initial_error_centre_px']['de']:.2f} px "
                f"at the centre")
+
+
+def _lab_error_text(summary) -> str:
+    """``LAB model off by X px RMS (max Y)``, or why that is not measurable (every point outside the image)."""
+    err = summary["lab_truth_error_px"]
+    if err.get("rms") is None:
+        return "LAB model error not measurable (it puts every compared point outside the image)"
+    return f"LAB model off by {err['rms']:.1f} px RMS (max {err['max']:.1f})"

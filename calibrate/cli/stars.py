@@ -6,7 +6,8 @@ import click
 
 from calibrate.actions.stars import stars_sequence
 from calibrate.cli._errors import EXIT_FAILED
-from calibrate.cli.options import echo_json, out_dir_option
+from calibrate.cli._progress import stage_progress
+from calibrate.cli.options import echo_json, exit_with_status, json_option, out_dir_option
 from calibrate.config import STAR_CENTROIDS, STAR_SCHEMES, StarOptions
 
 __all__ = ["command"]
@@ -32,17 +33,19 @@ def _accuracy_line(out_dir, doc: dict) -> str:
               help="Faintest catalogue magnitude.")
 @click.option("--scheme", type=click.Choice(STAR_SCHEMES), default=StarOptions.scheme, show_default=True,
               help="Seed 000's stepwise scheme, the exterior alone, or joint.")
-@click.option("--centroid", type=click.Choice(STAR_CENTROIDS), default=StarOptions.centroid, show_default=True)
+@click.option("--centroid", type=click.Choice(STAR_CENTROIDS), default=StarOptions.centroid, show_default=True,
+              help="Star centroid estimator on the frames.")
 @click.option("--seed", type=int, default=StarOptions.seed, show_default=True, help="Choice of the held-out points.")
-@click.option("--json", "as_json", is_flag=True, help="Print the accuracy summary as JSON.")
+@json_option
 @click.pass_context
 def command(ctx, frames_path, out_dir, manifest, catalog, mag_limit, scheme, centroid, seed, as_json):
     """Calibrate a staring camera from star tracks in FRAMES (a frames.json or its folder)."""
     options = StarOptions(catalog=catalog, mag_limit=mag_limit, scheme=scheme, centroid=centroid, seed=seed)
-    doc = stars_sequence(frames_path, out_dir, manifest=manifest, options=options)
+    with stage_progress(ctx, "gcpcal stars", as_json):
+        doc = stars_sequence(frames_path, out_dir, manifest=manifest, options=options)
     if as_json:
         echo_json({"success": doc["success"], "message": doc["message"], "accuracy": doc["accuracy"]})
     else:
         click.echo(_accuracy_line(out_dir, doc))
     if not doc["success"]:
-        ctx.exit(EXIT_FAILED)
+        exit_with_status(ctx, EXIT_FAILED, doc["message"])

@@ -11,7 +11,8 @@ import click
 
 from calibrate.actions.validate import validate_calibration
 from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
-from calibrate.cli.options import echo_json, echo_warnings, json_option, out_dir_option, quiet_of
+from calibrate.cli._progress import stage_progress
+from calibrate.cli.options import echo_json, echo_warnings, exit_with_status, json_option, out_dir_option
 
 __all__ = ["command"]
 
@@ -33,40 +34,38 @@ def command(ctx, sites_path, calibration, out_dir, scheduler, workers, spacing, 
     """Validate a calibration on the scenes of SITES (YAML or CSV: name, scene, dom, dem)."""
     from rich.console import Console
     from rich.markup import escape
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    quiet = quiet_of(ctx, as_json)
-    err = Console(stderr=True, quiet=quiet)
-    columns = (TextColumn("validating"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-               TextColumn("{task.description}"))
-    bar = Progress(*columns, console=err, disable=quiet, transient=False)
-    task = bar.add_task("starting the workers", total=None)
-
-    def progress(done, total, row):
-        if row is None:  # the sites file is read: the work starts
-            bar.update(task, total=total)
-            bar.start()
-            return
-        if row["status"] == "ok":
-            text = f"{escape(row['name'])}: planar {row['rmse_planar_px']:.3f} px on {row['points']} points"
-        else:
-            text = f"{escape(row['name'])}: [red]failed[/red] ({escape(row['reason'] or '')})"
-        bar.console.print(text, markup=True, highlight=False)
-        bar.update(task, completed=done, description=row["name"])
-
-    try:
+    with stage_progress(ctx, "gcpcal validate", as_json) as bar:
         summary = validate_calibration(sites_path, calibration, out_dir, scheduler=scheduler, workers=workers,
-                                       spacing_px=spacing, timeout_s=timeout, progress=progress)
-    finally:
-        bar.stop()
+                                       spacing_px=spacing, timeout_s=timeout, progress=_scene_printer(bar, escape))
     echo_warnings(summary)
     if as_json:
         echo_json(summary)
     else:
         _print_table(Console(), Table, escape, summary["rows"], summary, out_dir)
     if summary["failed"]:
-        ctx.exit(EXIT_FAILED if not summary["ok"] else EXIT_PARTIAL)
+        reasons = "; ".join(f"{name}: {reason}" for name, reason in summary["failures"].items())
+        exit_with_status(ctx, EXIT_FAILED if not summary["ok"] else EXIT_PARTIAL,
+                         f"{summary['failed']} of {summary['scenes']} scene(s) failed ({reasons})")
+
+
+def _scene_printer(bar, escape):
+    """The ``progress(done, total, row)`` callback of the validation: one stderr line per scene."""
+    def progress(done, total, row):
+        if row is None:  # the sites file is read: the work starts
+            bar.count(0, total)
+            bar.status("starting the workers")
+            return
+        if row["status"] == "ok":
+            text = f"{escape(row['name'])}: planar {row['rmse_planar_px']:.3f} px on {row['points']} points"
+        else:
+            text = f"{escape(row['name'])}: [red]failed[/red] ({escape(row['reason'] or '')})"
+        bar.note(text, markup=True)
+        bar.count(done, total)
+        bar.status(row["name"])
+
+    return progress
 
 
 def _print_table(out, table_cls, escape, rows, summary, out_dir) -> None:
@@ -75,7 +74,7 @@ def _print_table(out, table_cls, escape, rows, summary, out_dir) -> None:
 
     table = table_cls(title="Validation scenes: accuracy of the calibrated model, px (seed 003 table 5)")
     for col in ("ID", "scene", "date", "along", "across", "planar", "planar m", "points", "LAB planar"):
-        table.add_column(col, justify="left" if col in ("scene", "date") else "right")
+        table.add_column(col, justify="left" if col in ("scene", "date") else "right", overflow="fold")  # never "..."
     for k, r in enumerate(rows, start=1):
         if r["status"] != "ok":
             table.add_row(str(k), escape(r["name"]), r.get("date") or "", "[red]failed[/red]", "", "", "", "", "")
