@@ -324,8 +324,8 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     from calibrate.from_gcps import points_of
     from gcpmatch.extract import extract_gcps, read_band
     from gcpmatch.options import MatchOptions
+    from sensor_models.dom_inputs import open_dom
     from sensor_models.readers import open_model
-    from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
     lab = open_model(site.scene)
@@ -336,11 +336,11 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     if band not in model.bands:
         raise InputError(f"the scene has no band {band!r}", path=str(site.scene), field="band")
     for what, p in (("DOM", site.dom), ("DEM", site.dem)):
-        if not Path(p).is_file():
+        if not (Path(p).exists() or set("*?[") & set(str(p))):  # a file, a folder of tiles or a glob
             raise InputError(f"no such {what} file", path=str(p))
     image = read_band(model, band)
     dem = Dem.open(site.dem, vertical_datum=site.dem_datum, geoid=site.geoid)
-    dom = MapImage.open(site.dom)
+    dom, _ = open_dom(site.dom)
     n_rows, n_cols = model.image_shape
     lon, lat, _ = model.image_to_ground([0.5 * n_rows], [0.5 * n_cols], dem=dem, band=band)
     out["center_lon_deg"], out["center_lat_deg"] = float(lon[0]), float(lat[0])

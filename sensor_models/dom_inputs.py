@@ -309,6 +309,8 @@ def resolve_dom(source) -> ResolvedDom:
         (``sentinel-2``, ``landsat`` or ``raster``) and ``notes`` for the summary.
     """
     source = _as_source(source)
+    if source.qa and not source.use_qa:
+        raise InputError("--dom-qa and --no-dom-qa contradict each other; give one", field="dom_qa")
     files = _band_inputs(source)
     dom = ResolvedDom(files=files, qa_layout=source.qa_layout)
     if all(_is_sentinel2(f) for f in files):

@@ -63,12 +63,14 @@ def open_dem(dem_path, datum=None, geoid=None):
 
     Parameters
     ----------
-    dem_path : str or Path
-        DEM raster (any CRS rasterio reads).
+    dem_path : str, Path or sequence of them
+        DEM raster (any CRS rasterio reads), or tiles: a list, a comma list, a folder, a glob
+        or a ``.vrt`` (mosaicked through a GDAL VRT, :mod:`sensor_models.mosaic`).
     datum : {"ellipsoid", "egm96"} or None
         Vertical datum of the heights when the file does not declare it.
     geoid : str or Path or None
-        Geoid grid for EGM96 heights.
+        Geoid grid for EGM96 heights (default: the EGM96 grid in PROJ's data directories,
+        :func:`sensor_models.terrain.find_egm96_grid`).
 
     Returns
     -------
@@ -108,10 +110,21 @@ def _written_by_gcpcal(folder: Path) -> bool:
     return any(p.name.endswith("summary.json") for p in folder.iterdir())
 
 
-def _refuse_inputs_inside(out_dir: Path, inputs) -> None:
+def _input_paths(inputs):
+    """The paths of ``inputs``: a path, a sequence of paths, or a value with ``paths`` (a DOM source)."""
     for item in inputs:
         if item is None:
             continue
+        if hasattr(item, "paths"):
+            yield from _input_paths(item.paths)
+        elif isinstance(item, (list, tuple)):
+            yield from _input_paths(item)
+        else:
+            yield item
+
+
+def _refuse_inputs_inside(out_dir: Path, inputs) -> None:
+    for item in _input_paths(inputs):
         resolved = Path(item).resolve()
         if resolved == out_dir or out_dir in resolved.parents:
             raise InputError(f"the output folder would replace the input {item}: choose another --out",

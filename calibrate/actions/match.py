@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.actions._io import check_output_files, staged_files
+from calibrate.actions._io import check_output_files, open_dem, staged_files
 from calibrate.actions._scene import crop_to_raster
 from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
+from sensor_models.dom_inputs import dom_description, masked_fraction, open_dom
 from sensor_models.errors import InputError
 
 __all__ = ["match_scene"]
@@ -25,8 +26,11 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     ----------
     scene_path : str or Path
         Scene manifest or any model file :func:`sensor_models.readers.open_model` reads.
-    dom_path, dem_path : str or Path
-        Reference orthoimage and DEM (any CRS).
+    dom_path : str, Path, sequence of them or sensor_models.dom_inputs.DomSource
+        Reference orthoimage (any CRS): a raster, tiles, a Landsat or Sentinel-2 band or product
+        folder with its band, QA and radiometry (:func:`sensor_models.dom_inputs.open_dom`).
+    dem_path : str, Path or sequence of them
+        DEM (any CRS), or tiles (:func:`calibrate.actions._io.open_dem`).
     out_path : str or Path
         GCP table (CSV); ``out_path.with_suffix(".summary.json")`` goes beside it.
     geoid : str or Path, optional
@@ -59,8 +63,6 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     """
     from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
     from sensor_models.readers import open_model
-    from sensor_models.raster import MapImage
-    from sensor_models.terrain import Dem
 
     options.validate()  # before any work: e.g. --backend gpu without CUDA
     check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path)
@@ -71,8 +73,8 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         model = crop_to_raster(model, image, scene.shape)
     if geotiff_path is not None:  # before any work: the GeoTIFF's size limit, from the window count
         _check_geotiff_capacity(model, band, options, geotiff_path)
-    dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
-    dom = MapImage.open(dom_path)
+    dem = open_dem(dem_path, dem_datum, geoid)
+    dom, dom_found = open_dom(dom_path)
     mask = None
     if mask_path is not None:
         mask = read_band(model, band, mask_path)
@@ -80,6 +82,7 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
     out_path = Path(out_path)
     summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
+    summary.update(_dom_summary(dom, dom_found, model, band, dem))
     # every file moves in together at the end; with no GCP only the summary (an older table goes)
     staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path)
     with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp):
@@ -104,3 +107,19 @@ def _check_geotiff_capacity(model, band, options: MatchOptions, geotiff_path) ->
     if n_windows > GEOTIFF_MAX_GCPS:
         raise InputError(f"{geotiff_path}: up to {n_windows} GCPs ({n_windows} windows) and a GeoTIFF holds at most "
                          f"{GEOTIFF_MAX_GCPS}: raise --spacing or write --gpkg instead", path=str(geotiff_path))
+
+
+def _dom_summary(dom, dom_found, model, band, dem) -> dict:
+    """What the DOM was resolved to, and the share of it under the footprint that its QA masks."""
+    from sensor_models.terrain import footprint_sample_lonlat
+
+    fields = dom_description(dom_found)
+    share = None
+    if dom.qa_path is not None:
+        lon, lat = footprint_sample_lonlat(model, float(np.mean(dem.height_range_m)), band=band)
+        share = masked_fraction(dom, lon, lat)
+    fields["dom_masked_fraction"] = share
+    if share is not None:
+        fields["dom_note"] = (f"the DOM's QA ({dom_found.qa_layout}) masks {100 * share:.0f} % of the reference under "
+                              "the scene (cloud, shadow, cirrus, fill): windows there have no reference")
+    return fields
