@@ -138,12 +138,12 @@ def _walk_rasters(folder: str):
                 yield os.path.join(root, name)
 
 
-def _band_files(folder: str, band: str) -> list:
-    """Files of ``band`` under ``folder``, at the finest resolution found."""
+def _band_files(folder: str, band: str, given: str) -> list:
+    """Files of ``band`` (as normalized; ``given`` as the user wrote it) under ``folder``, finest resolution."""
     found = [(p, _band_of(os.path.basename(p))) for p in _walk_rasters(folder)]
     found = [(p, res) for p, b in found if b is not None and b[0] == band for res in [b[1]]]
     if not found:
-        raise InputError(f"no file of band B{band} under the DOM folder (looked for *_B{band}.TIF, *_B{band:0>2}.jp2, "
+        raise InputError(f"no file of band {given} under the DOM folder (looked for *_B{band}.TIF, *_B{band:0>2}.jp2, "
                          f"*_B{band:0>2}_<res>m.jp2)", path=folder, field="dom_band")
     finest = min((res or 0) for _, res in found)
     return [p for p, res in found if (res or 0) == finest]
@@ -167,7 +167,7 @@ def _band_inputs(source: DomSource) -> list:
     files = []
     for item in source.items:
         if os.path.isdir(item):
-            files += [f for f in _band_files(item, band) if f not in files]
+            files += [f for f in _band_files(item, band, source.band) if f not in files]
         else:
             files += [f for f in raster_inputs(item, what="DOM") if f not in files]
     return files

@@ -264,6 +264,6 @@ def mosaic_path(items, *, what: str = "raster") -> str:
     files = raster_inputs(items, what=what)
     if len(files) == 1:
         return files[0]
-    fd, vrt = tempfile.mkstemp(prefix=f"{what.lower()}-", suffix=".vrt", dir=_private_dir())
+    fd, vrt = tempfile.mkstemp(prefix=f"{what.lower().replace(' ', '-')}-", suffix=".vrt", dir=_private_dir())
     os.close(fd)
     return write_vrt(files, vrt, what=what)

@@ -112,14 +112,7 @@ class MapImage:
         grid, declared = _open_grid(path, what=what)
         image = cls(grid, None, path, declared if declared is not None else nodata, float(scale), float(offset))
         if qa_path is not None:
-            from sensor_models.reference_qa import qa_layout_of
-
-            qa = mosaic_path(qa_path, what=f"{what} QA")
-            qa_grid, _ = _open_grid(qa, what=f"{what} QA")
-            if not qa_grid.crs.equals(grid.crs, ignore_axis_order=True):
-                raise InputError(f"the QA raster's CRS ({qa_grid.crs.name}) differs from the {what}'s "
-                                 f"({grid.crs.name})", path=qa)
-            image.qa_path, image.qa_layout = qa, qa_layout_of(qa, layout=qa_layout)
+            image.qa_path, image.qa_layout = _open_qa(qa_path, qa_layout, grid, what=what)
         return image
 
     def read_decimated(self, row0: int, row1: int, col0: int, col1: int, out_shape) -> np.ndarray:
@@ -239,6 +232,23 @@ def _open_grid(path: str, *, what: str):
             return grid, ds.nodata
     except RasterioError as exc:
         raise InputError(f"cannot be read as a {what} raster ({exc})", path=path) from None
+
+
+def _open_qa(qa_path, qa_layout, grid: MapGrid, *, what: str):
+    """``(path GDAL opens, layout)`` of a QA raster or its tiles, checked against the DOM's CRS."""
+    from sensor_models.mosaic import mosaic_path, raster_inputs
+    from sensor_models.reference_qa import qa_layout_of
+
+    files = raster_inputs(qa_path, what=f"{what} QA")
+    layouts = {qa_layout_of(f, layout=qa_layout) for f in files}
+    if len(layouts) > 1:
+        raise InputError(f"the QA tiles have different layouts ({', '.join(sorted(layouts))})", path=files[0])
+    qa = mosaic_path(files, what=f"{what}-QA")
+    qa_grid, _ = _open_grid(qa, what=f"{what} QA")
+    if not qa_grid.crs.equals(grid.crs, ignore_axis_order=True):
+        raise InputError(f"the QA raster's CRS ({qa_grid.crs.name}) differs from the {what}'s ({grid.crs.name})",
+                         path=files[0])
+    return qa, layouts.pop()
 
 
 def sample_map_image(image: MapImage, u, v, *, sigma_px: float = 0.0) -> np.ndarray:
