@@ -43,7 +43,8 @@ import numpy as np
 from sensor_models.errors import InputError
 from sensor_models.mosaic import RASTER_SUFFIXES, raster_inputs
 
-__all__ = ["DomSource", "S2_BAND_IDS", "dom_description", "masked_fraction", "open_dom", "resolve_dom"]
+__all__ = ["DomSource", "ResolvedDom", "S2_BAND_IDS", "dom_description", "masked_fraction", "open_dom", "resolve_dom",
+           "s2_radiometry"]
 
 #: Sentinel-2 band names in the order of the MTD files' ``band_id`` (0 to 12).
 S2_BAND_IDS = ("B01", "B02", "B03", "B04", "B05", "B06", "B07", "B08", "B8A", "B09", "B10", "B11", "B12")

@@ -165,7 +165,7 @@ def test_pre_collection_bqa_bits_by_hand(shared_data):
         rows, cols = np.nonzero(qa == value)
         assert rows.size, value
         assert bool(invalid_from_qa(qa[rows[0], cols[0]], "landsat-pre-collection")) is masked, value
-    assert set(np.unique(qa)) <= set(BQA_BY_HAND) | {20512 + 0, 28704, 36896, 45088, 53280, 61472}
+    assert set(np.unique(qa)) <= set(BQA_BY_HAND) | {28704, 36896, 45088, 53280, 61472}  # + bit 5 (water)
     # the same values read as Collection 2 would say something else: the layouts differ
     assert bool(invalid_from_qa(28672, "landsat-c2")) is False
 
@@ -422,3 +422,18 @@ def test_match_cli_dom_and_dem_errors_are_one_line(scene, tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 1 and "--dom-qa-layout" in err and err.count("\n") == 1
     assert not (tmp_path / "g.csv").exists()
+
+
+def test_sites_file_names_the_dom_band_and_qa(tmp_path):
+    from calibrate.batch import read_sites
+
+    sites = tmp_path / "sites.csv"
+    sites.write_text("name,scene,dom,dem,dom_band,dom_qa\n"
+                     "a,s.json,S2A.SAFE,dem/,B04,\n"
+                     "b,s.json,l8/LC08_B4.TIF,dem.tif,,l8/LC08_QA_PIXEL.TIF\n")
+    a, b = read_sites(sites)
+    assert a.dom_band == "B04" and a.dom_qa is None and a.dom == tmp_path / "S2A.SAFE"
+    assert b.dom_band is None and b.dom_qa == tmp_path / "l8" / "LC08_QA_PIXEL.TIF"
+    sites.write_text("name,scene,dom,dem,dom_bands\na,s.json,d.tif,dem.tif,B04\n")
+    with pytest.raises(InputError, match="unknown column"):
+        read_sites(sites)
