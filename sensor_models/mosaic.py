@@ -162,8 +162,8 @@ def _fill_value(dtype: str) -> float:
     return 0 if info.min == 0 else int(info.min)
 
 
-def _vrt_xml(tiles: list[_Tile]) -> str:
-    """The VRT XML of ``tiles`` (alike, north-up) covering their union."""
+def _vrt_xml(tiles: list[_Tile], nodata=None) -> str:
+    """The VRT XML of ``tiles`` (alike, north-up) covering their union; ``nodata`` for tiles declaring none."""
     res_x, res_y = tiles[0].transform[0], tiles[0].transform[4]  # res_y < 0
     x0 = min(t.transform[2] for t in tiles)
     y0 = max(t.transform[5] for t in tiles)
@@ -176,7 +176,8 @@ def _vrt_xml(tiles: list[_Tile]) -> str:
             raise InputError(f"the tile's pixels are not aligned with those of {os.path.basename(tiles[0].path)} "
                              f"(offset of {col % 1:.3f}, {row % 1:.3f} pixel); resample the tiles to one grid first",
                              path=t.path)
-    nodata = tiles[0].nodata if tiles[0].nodata is not None else _fill_value(tiles[0].dtype)
+    if nodata is None:
+        nodata = tiles[0].nodata if tiles[0].nodata is not None else _fill_value(tiles[0].dtype)
     gdal_type = {"uint8": "Byte", "int8": "Int8", "uint16": "UInt16", "int16": "Int16", "uint32": "UInt32",
                  "int32": "Int32", "float32": "Float32", "float64": "Float64"}.get(tiles[0].dtype, "Float64")
     lines = [f'<VRTDataset rasterXSize="{width}" rasterYSize="{height}">',
@@ -201,7 +202,7 @@ def _vrt_xml(tiles: list[_Tile]) -> str:
     return "\n".join(lines)
 
 
-def write_vrt(files, vrt_path, *, what: str = "raster") -> str:
+def write_vrt(files, vrt_path, *, what: str = "raster", nodata=None) -> str:
     """Write a VRT mosaic of the north-up tiles ``files`` (band 1 of each) to ``vrt_path``.
 
     Parameters
@@ -212,6 +213,9 @@ def write_vrt(files, vrt_path, *, what: str = "raster") -> str:
         Where to write the VRT XML (tiles are referenced by absolute path).
     what : str
         What the tiles are, for messages.
+    nodata : float, optional
+        No-data value of tiles that declare none (default: 0 for unsigned integers, the type's
+        minimum for signed ones, NaN for floats); also the mosaic's where no tile covers.
 
     Returns
     -------
@@ -228,8 +232,19 @@ def write_vrt(files, vrt_path, *, what: str = "raster") -> str:
     _check_alike(tiles, what=what)
     vrt_path = os.fspath(vrt_path)
     with open(vrt_path, "w", encoding="utf-8") as fh:
-        fh.write(_vrt_xml(tiles))
+        fh.write(_vrt_xml(tiles, nodata))
     return vrt_path
+
+
+def _declares_nodata(path: str) -> bool:
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    try:
+        with rasterio.open(path) as ds:
+            return ds.nodata is not None
+    except RasterioError:
+        return True  # let the caller's own open report it
 
 
 def _private_dir() -> str:
@@ -240,7 +255,7 @@ def _private_dir() -> str:
     return _TMP_DIR
 
 
-def mosaic_path(items, *, what: str = "raster") -> str:
+def mosaic_path(items, *, what: str = "raster", nodata=None) -> str:
     """One path GDAL opens for what the user gave: a file, or a VRT mosaic of several.
 
     Parameters
@@ -249,12 +264,15 @@ def mosaic_path(items, *, what: str = "raster") -> str:
         As :func:`raster_inputs` takes.
     what : str
         What the files are ("DOM", "DEM"), for messages.
+    nodata : float, optional
+        No-data value of files that declare none. A single such file is then wrapped in a VRT
+        that declares it, so that GDAL's own reads (decimated averages included) skip it.
 
     Returns
     -------
     str
-        The single file (a ``.vrt`` included) when one is named; else a VRT written into a
-        private temporary folder that lives as long as the process.
+        The single file (a ``.vrt`` included) when one is named and needs no ``nodata``; else a
+        VRT written into a private temporary folder that lives as long as the process.
 
     Raises
     ------
@@ -262,7 +280,7 @@ def mosaic_path(items, *, what: str = "raster") -> str:
         As :func:`raster_inputs` and :func:`write_vrt`.
     """
     files = raster_inputs(items, what=what)
-    if len(files) == 1:
+    if len(files) == 1 and (nodata is None or files[0].lower().endswith(".vrt") or _declares_nodata(files[0])):
         return files[0]
     fd, vrt = tempfile.mkstemp(prefix=f"{what.lower().replace(' ', '-')}-", suffix=".vrt", dir=_private_dir())
     os.close(fd)

@@ -108,7 +108,7 @@ class MapImage:
         """
         from sensor_models.mosaic import mosaic_path
 
-        path = mosaic_path(path, what=what)
+        path = mosaic_path(path, what=what, nodata=nodata)
         grid, declared = _open_grid(path, what=what)
         image = cls(grid, None, path, declared if declared is not None else nodata, float(scale), float(offset))
         if qa_path is not None:
