@@ -10,7 +10,8 @@ GDAL when a caller reads, so a mosaic is never held whole in memory.
 
 Tiles must share one CRS (refused otherwise, naming the first tile that differs) and one pixel
 size (within 1e-9 relative), and be north-up. The mosaic covers the union of the tiles; where
-tiles overlap (SRTM tiles share their edge row and column) the later tile in sorted order wins,
+tiles overlap (SRTM tiles share their edge row and column) the later tile in sorted order wins, metadata items that every tile carries with one value
+(as gcpcal's ``VERTICAL_DATUM``) are kept,
 and where no tile covers, the mosaic has no data (the tiles' no-data value, or, when they
 declare none, 0 for unsigned integers, the type's minimum for signed ones, NaN for floats).
 
@@ -113,6 +114,7 @@ class _Tile:
     dtype: str
     nodata: float | None
     block: tuple
+    tags: tuple  # (key, value) of the default metadata domain
 
 
 def _read_tile(path: str, *, what: str) -> _Tile:
@@ -128,7 +130,7 @@ def _read_tile(path: str, *, what: str) -> _Tile:
                 raise InputError(f"the {what} tile is not north-up (rotated or flipped geotransform); warp it first",
                                  path=path)
             return _Tile(path, ds.crs.to_wkt(), tuple(t)[:6], ds.width, ds.height, ds.dtypes[0], ds.nodata,
-                         tuple(ds.block_shapes[0]))
+                         tuple(ds.block_shapes[0]), tuple(sorted(ds.tags().items())))
     except RasterioError as exc:
         raise InputError(f"cannot be read as a {what} raster ({exc})", path=path) from None
 
@@ -162,6 +164,15 @@ def _fill_value(dtype: str) -> float:
     return 0 if info.min == 0 else int(info.min)
 
 
+def _metadata_xml(tiles: list[_Tile]) -> list[str]:
+    """Metadata items every tile carries with the same value (e.g. gcpcal's ``VERTICAL_DATUM``)."""
+    common = set(tiles[0].tags).intersection(*(t.tags for t in tiles[1:]))
+    if not common:
+        return []
+    items = [f'    <MDI key="{escape(k, {chr(34): "&quot;"})}">{escape(v)}</MDI>' for k, v in sorted(common)]
+    return ["  <Metadata>", *items, "  </Metadata>"]
+
+
 def _vrt_xml(tiles: list[_Tile], nodata=None) -> str:
     """The VRT XML of ``tiles`` (alike, north-up) covering their union; ``nodata`` for tiles declaring none."""
     res_x, res_y = tiles[0].transform[0], tiles[0].transform[4]  # res_y < 0
@@ -183,6 +194,7 @@ def _vrt_xml(tiles: list[_Tile], nodata=None) -> str:
     lines = [f'<VRTDataset rasterXSize="{width}" rasterYSize="{height}">',
              f"  <SRS>{escape(tiles[0].crs_wkt)}</SRS>",
              f"  <GeoTransform>{x0!r}, {res_x!r}, 0.0, {y0!r}, 0.0, {res_y!r}</GeoTransform>",
+             *_metadata_xml(tiles),
              f'  <VRTRasterBand dataType="{gdal_type}" band="1">']
     if nodata is not None:
         lines.append(f"    <NoDataValue>{nodata!r}</NoDataValue>")

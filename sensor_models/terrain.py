@@ -153,15 +153,21 @@ def _read_raster(path, *, what, window_from=None, missing_error=DemError):
     return np.ascontiguousarray(values), transform, crs
 
 
-def _dem_source(path) -> str:
-    """One path GDAL opens for a DEM: the file, or a VRT mosaic of the tiles named by ``path``."""
+def _dem_source(path):
+    """``(path GDAL opens, name for messages)`` of a DEM file, or of the tiles named by ``path``.
+
+    Several tiles are mosaicked through a GDAL VRT (:func:`sensor_models.mosaic.mosaic_path`);
+    messages then name the first tile and their count, not the private VRT.
+    """
     from sensor_models.errors import GcpcalError
-    from sensor_models.mosaic import mosaic_path
+    from sensor_models.mosaic import mosaic_path, raster_inputs
 
     if isinstance(path, (str, os.PathLike)) and Path(path).is_file():
-        return os.fspath(path)
+        return os.fspath(path), os.fspath(path)
     try:
-        return mosaic_path(path, what="DEM")
+        files = raster_inputs(path, what="DEM")
+        label = files[0] if len(files) == 1 else f"{files[0]} (and {len(files) - 1} more DEM tiles)"
+        return mosaic_path(files, what="DEM"), label
     except GcpcalError as exc:
         if isinstance(path, (str, os.PathLike)) and "not found" in str(exc):
             raise DemError(f"{os.fspath(path)}: DEM file not found") from None
@@ -732,19 +738,19 @@ class Dem:
         InputError
             Unknown ``vertical_datum``, malformed ``bounds``, a geoid with ``"ellipsoid"``.
         """
-        source = _dem_source(path)
+        gdal_path, source = _dem_source(path)
         datum = _check_datum_name(vertical_datum)
         if datum == "ellipsoid" and geoid is not None:
             raise InputError("geoid is only used with vertical_datum='egm96'", path=source)
         window_from = None
         if bounds is not None:
             window_from = _window_for_bounds(bounds, margin_deg, source=source)
-        values, transform, crs = _read_raster(source, what="DEM", window_from=window_from)
+        values, transform, crs = _read_raster(gdal_path, what="DEM", window_from=window_from)
         if crs is None:
             raise DemError(f"{source}: the DEM declares no coordinate reference system")
         declared = _declared_datum(crs, source=source)
         if declared is None:
-            declared = _tagged_datum(source)
+            declared = _tagged_datum(gdal_path)
         if datum is None:
             if declared is None:
                 raise DemError(

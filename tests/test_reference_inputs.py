@@ -126,6 +126,20 @@ def test_srtm_hgt_tiles_form_one_dem_with_a_void_between(tmp_path):
     np.testing.assert_array_equal(np.nan_to_num(same.heights_m, nan=-1), np.nan_to_num(dem.heights_m, nan=-1))
 
 
+def test_dem_tiles_keep_the_vertical_datum_they_all_declare(tmp_path):
+    heights = np.linspace(200.0, 400.0, 40 * 60, dtype=np.float32).reshape(40, 60)
+    tiles = _split_in_four(heights, Affine(30.0, 0, 600000.0, 0, -30.0, 4900000.0), tmp_path / "t", rows=20, cols=30)
+    for tile in tiles:
+        with rasterio.open(tile, "r+") as ds:
+            ds.update_tags(VERTICAL_DATUM="ellipsoid")
+    dem = Dem.open(tmp_path / "t")  # no vertical_datum given: the tiles declare it
+    np.testing.assert_array_equal(dem.heights_m, heights.astype(np.float64))
+    with rasterio.open(tiles[3], "r+") as ds:
+        ds.update_tags(VERTICAL_DATUM="egm96")
+    with pytest.raises(GcpcalError, match=r"t/tile_0.tif \(and 3 more DEM tiles\): the DEM does not declare"):
+        Dem.open(tmp_path / "t")
+
+
 def test_window_read_of_a_mosaic_does_not_hold_the_mosaic(tmp_path):
     rng = np.random.default_rng(2)
     big = rng.random((1600, 1600), dtype=np.float32)  # 10 MB of float32
