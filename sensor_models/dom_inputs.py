@@ -402,7 +402,8 @@ def masked_fraction(image, lon_deg, lat_deg, *, max_side: int = 512):
     if image.qa_path is None:
         return None
     to_map = pyproj.Transformer.from_crs("EPSG:4326", image.grid.crs, always_xy=True)
-    x, y = to_map.transform(np.asarray(lon_deg, dtype=np.float64).ravel(), np.asarray(lat_deg, dtype=np.float64).ravel())
+    lon = np.asarray(lon_deg, dtype=np.float64).ravel()
+    x, y = to_map.transform(lon, np.asarray(lat_deg, dtype=np.float64).ravel())
     col, row = ~image.grid.transform * (np.asarray(x), np.asarray(y))
     ok = np.isfinite(col) & np.isfinite(row)
     n_rows, n_cols = image.grid.shape

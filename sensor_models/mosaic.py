@@ -8,12 +8,13 @@ single file or a ``.vrt``, else a VRT XML written here into a private temporary 
 when the process ends). The VRT only references the tiles; pixels are read by window through
 GDAL when a caller reads, so a mosaic is never held whole in memory.
 
-Tiles must share one CRS (refused otherwise, naming the first tile that differs) and one pixel
-size (within 1e-9 relative), and be north-up. The mosaic covers the union of the tiles; where
-tiles overlap (SRTM tiles share their edge row and column) the later tile in sorted order wins, metadata items that every tile carries with one value
-(as gcpcal's ``VERTICAL_DATUM``) are kept,
-and where no tile covers, the mosaic has no data (the tiles' no-data value, or, when they
-declare none, 0 for unsigned integers, the type's minimum for signed ones, NaN for floats).
+Tiles must share one CRS (refused otherwise, naming the first tile that differs), one pixel size
+(within 1e-9 relative), one data type and one pixel grid, and be north-up. The mosaic covers
+the union of the tiles. Where tiles overlap (SRTM tiles share their edge row and column) the
+later tile in sorted order wins. Metadata items that every tile carries with one value (as
+gcpcal's ``VERTICAL_DATUM``) are kept. Where no tile covers, the mosaic has no data (the tiles'
+no-data value, or, when they declare none, 0 for unsigned integers, the type's minimum for
+signed ones, NaN for floats).
 
 VRT format: GDAL, "VRT -- GDAL Virtual Format" (``VRTDataset``, ``VRTRasterBand``,
 ``ComplexSource`` with ``SrcRect``/``DstRect`` and ``NODATA``), https://gdal.org/drivers/raster/vrt.html.
@@ -259,11 +260,17 @@ def _declares_nodata(path: str) -> bool:
         return True  # let the caller's own open report it
 
 
+def _remove_if_owner(folder: str, owner_pid: int) -> None:
+    """Remove ``folder`` at exit, but only from the process that made it (not from a forked child)."""
+    if os.getpid() == owner_pid:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def _private_dir() -> str:
     global _TMP_DIR
     if _TMP_DIR is None or not os.path.isdir(_TMP_DIR):
         _TMP_DIR = tempfile.mkdtemp(prefix="gcpcal-mosaic-")
-        atexit.register(shutil.rmtree, _TMP_DIR, True)
+        atexit.register(_remove_if_owner, _TMP_DIR, os.getpid())
     return _TMP_DIR
 
 

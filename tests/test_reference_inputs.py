@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import tracemalloc
 
 import numpy as np
@@ -458,3 +457,31 @@ def test_sites_file_names_the_dom_band_and_qa(tmp_path):
     sites.write_text("name,scene,dom,dem,dom_bands\na,s.json,d.tif,dem.tif,B04\n")
     with pytest.raises(InputError, match="unknown column"):
         read_sites(sites)
+
+
+def test_dem_and_dom_options_hand_over_tiles_and_a_dom_source():
+    import click
+    from click.testing import CliRunner
+
+    from calibrate.cli.options import add_options, dem_options, dom_options
+
+    seen = {}
+
+    @click.command()
+    @dom_options
+    @add_options(dem_options)
+    def cmd(dom_path, dem_path, dem_datum, geoid):
+        seen.update(dom=dom_path, dem=dem_path)
+
+    runner = CliRunner()
+    assert runner.invoke(cmd, ["--dom", "a.TIF", "--dom", "b.TIF", "--dom-band", "B4", "--dom-qa", "q.TIF",
+                               "--dom-qa-layout", "landsat-c1", "--dom-scale", "2e-5", "--dom-offset", "-0.1",
+                               "--dem", "x.hgt", "--dem", "y.hgt"]).exit_code == 0
+    assert seen["dom"] == DomSource(items=("a.TIF", "b.TIF"), band="B4", qa=("q.TIF",), qa_layout="landsat-c1",
+                                    scale=2e-5, offset=-0.1, use_qa=True)
+    assert seen["dem"] == ("x.hgt", "y.hgt")
+    assert runner.invoke(cmd, ["--dom", "a.TIF", "--no-dom-qa", "--dem", "x.hgt"]).exit_code == 0
+    assert seen["dom"].use_qa is False and seen["dem"] == "x.hgt"
+    assert runner.invoke(cmd, ["--dom", "a.TIF"]).exit_code == 0 and seen["dem"] is None
+    assert runner.invoke(cmd, ["--dem", "x.hgt"]).exit_code == 2  # --dom is required
+    assert runner.invoke(cmd, ["--dom", "a.TIF", "--dom-qa-layout", "landsat-c9"]).exit_code == 2

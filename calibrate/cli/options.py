@@ -15,8 +15,8 @@ import numpy as np
 from calibrate._json import json_default
 from sensor_models.errors import InputError
 
-__all__ = ["add_options", "dem_options", "dom_options", "echo_json", "echo_warnings", "float_list", "json_option", "out_dir_option",
-           "progress_printer", "quiet_of", "verbosity_options"]
+__all__ = ["add_options", "dem_options", "dom_options", "echo_json", "echo_warnings", "float_list", "json_option",
+           "out_dir_option", "progress_printer", "quiet_of", "verbosity_options"]
 
 def _tiles(ctx, param, value):
     """A repeatable path option's value: None when absent, the path when one, a tuple when several."""
