@@ -485,3 +485,37 @@ def test_dem_and_dom_options_hand_over_tiles_and_a_dom_source():
     assert runner.invoke(cmd, ["--dom", "a.TIF"]).exit_code == 0 and seen["dem"] is None
     assert runner.invoke(cmd, ["--dem", "x.hgt"]).exit_code == 2  # --dom is required
     assert runner.invoke(cmd, ["--dom", "a.TIF", "--dom-qa-layout", "landsat-c9"]).exit_code == 2
+
+
+def test_match_with_dem_tiles_reads_only_the_footprint_and_equals_the_single_file(scene, tmp_path):
+    from calibrate.actions._io import open_dem
+    from calibrate.cli import main
+    from sensor_models.readers import open_model
+
+    with rasterio.open(scene / "reference" / "dem.tif") as ds:
+        heights, transform, crs, tags = ds.read(1), ds.transform, ds.crs, ds.tags()
+    tiles = _split_in_four(heights, transform, tmp_path / "dem", rows=300, cols=400, crs=crs)
+    far = _write(tmp_path / "dem" / "tile_far.tif", np.full((100, 100), 1234.0, np.float32),
+                 transform * Affine.translation(832 + 5000, 0), crs=crs)  # 150 km east, on the same grid
+    for tile in tiles + [far]:
+        with rasterio.open(tile, "r+") as ds:
+            ds.update_tags(VERTICAL_DATUM=tags["VERTICAL_DATUM"])
+    lab = open_model(scene / "manifest.json")
+    with rasterio.open(mosaic_path(tmp_path / "dem")) as ds:
+        mosaic_size, far_x = ds.width * ds.height, ds.bounds.right
+    bounded = open_dem(tmp_path / "dem", model=lab)
+    assert bounded.heights_m.size < mosaic_size / 4  # the far tile stretches the mosaic; it is not read
+    far_lon = pyproj.Transformer.from_crs(crs.to_wkt(), "EPSG:4326", always_xy=True).transform(far_x - 3000.0,
+                                                                                              transform.f)[0]
+    assert bounded.bounds_lonlat[2] < far_lon - 1.0
+    lon = np.linspace(bounded.bounds_lonlat[0] + 0.01, bounded.bounds_lonlat[2] - 0.01, 7)
+    lat = np.linspace(bounded.bounds_lonlat[1] + 0.01, bounded.bounds_lonlat[3] - 0.01, 7)
+    single = Dem.open(scene / "reference" / "dem.tif")
+    np.testing.assert_array_equal(bounded.height_m(lon, lat), single.height_m(lon, lat))
+    summaries = []
+    for name, dem in (("tiles", str(tmp_path / "dem")), ("single", str(scene / "reference" / "dem.tif"))):
+        out = tmp_path / f"{name}.csv"
+        assert main(["-q", "match", str(scene / "manifest.json"), "--dom", str(scene / "reference" / "dom.tif"),
+                     "--dem", dem, "--out", str(out), "--spacing", "48"]) == 0
+        summaries.append((out.read_text(), json.loads(out.with_suffix(".summary.json").read_text())["gcps"]))
+    assert summaries[0] == summaries[1]

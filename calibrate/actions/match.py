@@ -73,7 +73,7 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         model = crop_to_raster(model, image, scene.shape)
     if geotiff_path is not None:  # before any work: the GeoTIFF's size limit, from the window count
         _check_geotiff_capacity(model, band, options, geotiff_path)
-    dem = open_dem(dem_path, dem_datum, geoid)
+    dem = open_dem(dem_path, dem_datum, geoid, model=model, band=band)
     dom, dom_found = open_dom(dom_path)
     mask = None
     if mask_path is not None:
