@@ -168,9 +168,13 @@ def _band_inputs(source: DomSource) -> list:
     files = []
     for item in source.items:
         if os.path.isdir(item):
-            files += [f for f in _band_files(item, band, source.band) if f not in files]
-        else:
-            files += [f for f in raster_inputs(item, what="DOM") if f not in files]
+            found = _band_files(item, band, source.band)
+        else:  # files, comma lists and globs: those named as the band
+            found = [f for f in raster_inputs(item, what="DOM") if (_band_of(os.path.basename(f)) or ("",))[0] == band]
+            if not found:
+                raise InputError(f"names no file of band {source.band} (*_B{band}.TIF, *_B{band:0>2}.jp2)", path=item,
+                                 field="dom_band")
+        files += [f for f in found if f not in files]
     return files
 
 

@@ -304,6 +304,10 @@ def test_sentinel2_l1c_safe_band_scale_offset_and_nodata(tmp_path):
     np.testing.assert_allclose(image.read_decimated(0, 4, 0, 4, (2, 2)), [[0.2, 0.2], [0.2, np.nan]], rtol=1e-6)
     with pytest.raises(InputError, match="several bands"):
         resolve_dom(DomSource(items=(str(img),)))
+    glob_b08 = resolve_dom(DomSource(items=(str(img / "*.jp2"),), band="B08"))  # a glob, filtered by the band
+    assert [os.path.basename(f) for f in glob_b08.files] == ["T18SUJ_20220301T000000_B08.jp2"]
+    with pytest.raises(InputError, match="names no file of band B08"):
+        resolve_dom(DomSource(items=(str(img / "T18SUJ_20220301T000000_B04.jp2"),), band="B08"))
     with pytest.raises(InputError, match="no file of band B02"):
         resolve_dom(DomSource(items=(str(safe),), band="B02"))
 
