@@ -125,6 +125,25 @@ def test_srtm_hgt_tiles_form_one_dem_with_a_void_between(tmp_path):
     np.testing.assert_array_equal(np.nan_to_num(same.heights_m, nan=-1), np.nan_to_num(dem.heights_m, nan=-1))
 
 
+def test_copernicus_glo30_tile_names_by_folder_and_glob(tmp_path):
+    step = 1.0 / 36  # a coarse stand-in for 1 arc-second: the names and the tiling are what matter
+    for lat in (44, 45):
+        for lon in (5, 6):
+            name = f"Copernicus_DSM_COG_10_N{lat:02d}_00_E{lon:03d}_00_DEM.tif"
+            _write(tmp_path / name, np.full((36, 36), 10.0 * lat + lon, np.float32),
+                   Affine(step, 0, lon, 0, -step, lat + 1), crs="EPSG:4326")
+    for form in (tmp_path, str(tmp_path / "Copernicus_DSM_COG_10_*_DEM.tif")):
+        dem = Dem.open(form, vertical_datum="ellipsoid")
+        assert dem.heights_m.shape == (72, 72)
+        np.testing.assert_allclose(dem.height_m(np.array([5.5, 6.5, 5.5, 6.5]), np.array([44.5, 44.5, 45.5, 45.5])),
+                                   [445.0, 446.0, 455.0, 456.0])
+    # GLO-30 tiles north of 50 degrees have wider columns: such a mix is refused, naming the tile
+    _write(tmp_path / "Copernicus_DSM_COG_10_N50_00_E005_00_DEM.tif", np.zeros((36, 24), np.float32),
+           Affine(1.5 * step, 0, 5, 0, -step, 51), crs="EPSG:4326")
+    with pytest.raises(InputError, match="N50_00_E005_00_DEM.tif: the DEM tiles differ in pixel width"):
+        Dem.open(tmp_path, vertical_datum="ellipsoid")
+
+
 def test_dem_tiles_keep_the_vertical_datum_they_all_declare(tmp_path):
     heights = np.linspace(200.0, 400.0, 40 * 60, dtype=np.float32).reshape(40, 60)
     tiles = _split_in_four(heights, Affine(30.0, 0, 600000.0, 0, -30.0, 4900000.0), tmp_path / "t", rows=20, cols=30)
