@@ -50,8 +50,8 @@ __all__ = ["COLUMNS", "Site", "calibration_manifest", "read_sites", "summarize_r
            "validate_sites"]
 
 _REQUIRED = ("name", "scene", "dom", "dem")
-_OPTIONAL = ("dem_datum", "geoid", "site", "band")
-_PATHS = ("scene", "dom", "dem", "geoid")
+_OPTIONAL = ("dem_datum", "geoid", "site", "band", "dom_band", "dom_qa")
+_PATHS = ("scene", "dom", "dem", "geoid", "dom_qa")
 
 #: Columns of a result row, in table order (``*_px`` pixels, ``*_m`` metres; ``lab_*``: the
 #: scene's LAB model, the rest: the calibrated model).
@@ -88,6 +88,10 @@ class Site:
         Free label of the place (table column "site"); default empty.
     band : str or None
         Band to match (default: the scene's reference band).
+    dom_band : str or None
+        Band of a DOM product folder (``B04``, ``B4``; :mod:`sensor_models.dom_inputs`).
+    dom_qa : Path or None
+        QA raster masking the DOM (default: the one beside the band, when found).
     """
 
     name: str
@@ -98,6 +102,8 @@ class Site:
     geoid: Path | None = None
     site: str = ""
     band: str | None = None
+    dom_band: str | None = None
+    dom_qa: Path | None = None
 
 
 def read_sites(path) -> list[Site]:
@@ -106,7 +112,7 @@ def read_sites(path) -> list[Site]:
     Two formats, told by the extension:
 
     * YAML (``.yaml``, ``.yml``): a list of mappings with keys ``name, scene, dom, dem`` and
-      optionally ``dem_datum, geoid, site, band``;
+      optionally ``dem_datum, geoid, site, band, dom_band, dom_qa``;
     * CSV (``.csv``): a header ``name,scene,dom,dem`` with any of the optional columns, one
       scene per line; an empty optional cell means "not given".
 
@@ -325,8 +331,8 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     from calibrate.from_gcps import points_of
     from gcpmatch.extract import extract_gcps, read_band
     from gcpmatch.options import MatchOptions
+    from sensor_models.dom_inputs import DomSource, open_dom
     from sensor_models.readers import open_model, open_scene
-    from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
     lab = open_scene(site.scene)
@@ -337,11 +343,12 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     if band not in model.bands:
         raise InputError(f"the scene has no band {band!r}", path=str(site.scene), field="band")
     for what, p in (("DOM", site.dom), ("DEM", site.dem)):
-        if not Path(p).is_file():
+        if not (Path(p).exists() or set("*?[") & set(str(p))):  # a file, a folder of tiles or a glob
             raise InputError(f"no such {what} file", path=str(p))
     image = read_band(model, band)
     dem = Dem.open(site.dem, vertical_datum=site.dem_datum, geoid=site.geoid)
-    dom = MapImage.open(site.dom)
+    dom, _ = open_dom(DomSource(items=(str(site.dom),), band=site.dom_band,
+                                qa=() if site.dom_qa is None else (str(site.dom_qa),)))
     n_rows, n_cols = model.image_shape
     lon, lat, _ = model.image_to_ground([0.5 * n_rows], [0.5 * n_cols], dem=dem, band=band)
     out["center_lon_deg"], out["center_lat_deg"] = float(lon[0]), float(lat[0])

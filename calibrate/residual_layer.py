@@ -63,8 +63,8 @@ _WKB_POINT_Z = np.dtype([("order", "u1"), ("type", "<u4"), ("x", "<f8"), ("y", "
 
 def _ccd_names(model, col, band, ccd_names):
     """Per point: the table's CCD name, or the name of the array whose columns hold ``col``."""
-    names = np.asarray(ccd_names, dtype=object).astype(str)
-    blank = names == ""
+    names = np.array([str(n) for n in np.asarray(ccd_names, dtype=object).ravel()], dtype=object)
+    blank = names == ""  # object array: the names filled in below are not cut to the blanks' width
     for b in np.unique(band[blank]) if blank.any() else ():
         sel = blank & (band == b)
         arrays = model.detector_arrays(str(b) or None)

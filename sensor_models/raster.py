@@ -1,14 +1,16 @@
 """Single-band rasters on map grids (reference DOMs), read by windows and resampled at node indices.
 
 * :class:`MapImage`: a DOM (or any single-band map raster) in memory or on disk, read by
-  windows; nodata becomes NaN.
+  windows; nodata becomes NaN, values are scaled (``DN * scale + offset``), and pixels a QA
+  raster marks (:mod:`sensor_models.reference_qa`) become NaN. Several tiles, a folder, a glob
+  or a ``.vrt`` open as one mosaic (:mod:`sensor_models.mosaic`); products (Landsat,
+  Sentinel-2) are resolved by :mod:`sensor_models.dom_inputs`.
 * :func:`sample_map_image`: blur (Gaussian, no-data aware) and sample bilinearly at the node
   indices that :func:`sensor_models.locate.locate_block` returns.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,12 +37,22 @@ class MapImage:
         The file read by windows (None for an image held in memory).
     nodata : float or None
         The file's no-data value, read as NaN.
+    scale, offset : float
+        Values read are ``DN * scale + offset`` (e.g. Sentinel-2 reflectance).
+    qa_path : str or None
+        QA raster in the same CRS (any pixel size): its flagged pixels read as NaN.
+    qa_layout : str or None
+        How ``qa_path`` is coded (:data:`sensor_models.reference_qa.QA_LAYOUTS`).
     """
 
     grid: MapGrid
     _array: np.ndarray | None = None
     path: str | None = None
     nodata: float | None = None
+    scale: float = 1.0
+    offset: float = 0.0
+    qa_path: str | None = None
+    qa_layout: str | None = None
 
     @classmethod
     def from_array(cls, values, transform, crs) -> "MapImage":
@@ -63,15 +75,26 @@ class MapImage:
         return cls(MapGrid(Affine(*tuple(transform)[:6]), pyproj.CRS.from_user_input(crs), values.shape), values)
 
     @classmethod
-    def open(cls, path, *, what: str = "DOM") -> "MapImage":
+    def open(cls, path, *, what: str = "DOM", nodata=None, scale: float = 1.0, offset: float = 0.0,
+             qa_path=None, qa_layout: str | None = None) -> "MapImage":
         """A map image on disk, read lazily by windows (band 1).
 
         Parameters
         ----------
-        path : str or os.PathLike
-            A raster file GDAL reads, with a coordinate reference system.
+        path : str, os.PathLike or sequence of them
+            A raster file GDAL reads, with a coordinate reference system; or several tiles, a
+            comma list, a folder, a glob or a ``.vrt`` (:func:`sensor_models.mosaic.mosaic_path`).
         what : str
             What the file is, for error messages.
+        nodata : float, optional
+            No-data value when the file declares none (Sentinel-2: 0).
+        scale, offset : float
+            Values read are ``DN * scale + offset``.
+        qa_path : str, os.PathLike or sequence of them, optional
+            QA raster (or tiles) in the DOM's CRS; pixels it flags read as NaN.
+        qa_layout : str, optional
+            Layout of the QA raster; from its name or values when None
+            (:func:`sensor_models.reference_qa.qa_layout_of`).
 
         Returns
         -------
@@ -82,21 +105,14 @@ class MapImage:
         InputError
             The file is missing, unreadable or declares no CRS.
         """
-        import rasterio
-        from rasterio.errors import RasterioError
+        from sensor_models.mosaic import mosaic_path
 
-        path = os.fspath(path)
-        if not os.path.isfile(path):
-            raise InputError(f"{what} file not found", path=path)
-        try:
-            with rasterio.open(path) as ds:
-                if ds.crs is None:
-                    raise InputError(f"the {what} declares no coordinate reference system", path=path)
-                grid = MapGrid(ds.transform, pyproj.CRS.from_wkt(ds.crs.to_wkt()), (ds.height, ds.width))
-                nodata = ds.nodata
-        except RasterioError as exc:
-            raise InputError(f"cannot be read as a {what} raster ({exc})", path=path) from None
-        return cls(grid, None, path, nodata)
+        path = mosaic_path(path, what=what, nodata=nodata)
+        grid, declared = _open_grid(path, what=what)
+        image = cls(grid, None, path, declared if declared is not None else nodata, float(scale), float(offset))
+        if qa_path is not None:
+            image.qa_path, image.qa_layout = _open_qa(qa_path, qa_layout, grid, what=what)
+        return image
 
     def read_decimated(self, row0: int, row1: int, col0: int, col1: int, out_shape) -> np.ndarray:
         """Pixels ``[row0:row1, col0:col1]`` (inside the raster) averaged down to ``out_shape``.
@@ -131,9 +147,7 @@ class MapImage:
         else:
             full = self._array[row0:row1, col0:col1].astype(np.float32)
             block = cv2.resize(full, (int(out_shape[1]), int(out_shape[0])), interpolation=cv2.INTER_AREA)
-        if self.nodata is not None and not np.isnan(self.nodata):
-            block[block == self.nodata] = np.nan
-        return block
+        return self._finish(block, row0, row1, col0, col1)
 
     def read(self, row0: int, row1: int, col0: int, col1: int) -> np.ndarray:
         """Pixels ``[row0:row1, col0:col1]`` (clipped to the raster) as float32; NaN = no data.
@@ -163,10 +177,77 @@ class MapImage:
             with rasterio.open(self.path) as ds:
                 block = ds.read(1, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
                 block = np.ma.filled(block.astype(np.float32), np.nan)
+        out[r0 - row0 : r1 - row0, c0 - col0 : c1 - col0] = self._finish(block, r0, r1, c0, c1)
+        return out
+
+    def _finish(self, block: np.ndarray, row0: int, row1: int, col0: int, col1: int) -> np.ndarray:
+        """``block`` (pixels ``[row0:row1, col0:col1]`` at any shape) with nodata and QA as NaN, scaled."""
         if self.nodata is not None and not np.isnan(self.nodata):
             block[block == self.nodata] = np.nan
-        out[r0 - row0 : r1 - row0, c0 - col0 : c1 - col0] = block
-        return out
+        if self.qa_path is not None:
+            block[self.qa_invalid(row0, row1, col0, col1, block.shape)] = np.nan
+        if self.scale != 1.0 or self.offset != 0.0:
+            block = (block * np.float32(self.scale) + np.float32(self.offset)).astype(np.float32)
+        return block
+
+    def qa_invalid(self, row0: int, row1: int, col0: int, col1: int, out_shape) -> np.ndarray:
+        """Where the QA raster flags the pixels ``[row0:row1, col0:col1]``, sampled at ``out_shape``.
+
+        Each output pixel takes the QA pixel under its centre (nearest neighbour, the QA may
+        have another pixel size). A large window is read from the QA decimated (nearest) so
+        that at most about four QA pixels per output pixel are read. Outside the QA raster
+        every pixel counts as flagged (its quality is unknown).
+
+        Parameters
+        ----------
+        row0, row1, col0, col1 : int
+            Half-open window in DOM pixels.
+        out_shape : (int, int)
+            Rows and columns of the output (the window's shape, or smaller when decimated).
+
+        Returns
+        -------
+        ndarray of bool, shape ``out_shape``
+            True where the DOM pixel must not be used; all False without a QA raster.
+        """
+        from sensor_models._qa_sampling import sample_qa_invalid
+
+        if self.qa_path is None:
+            return np.zeros(tuple(out_shape), dtype=bool)
+        return sample_qa_invalid(self.qa_path, self.qa_layout, self.grid.transform, (row0, row1, col0, col1),
+                                 tuple(out_shape))
+
+
+def _open_grid(path: str, *, what: str):
+    """The grid and declared no-data value of a raster file; errors become InputError."""
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    try:
+        with rasterio.open(path) as ds:
+            if ds.crs is None:
+                raise InputError(f"the {what} declares no coordinate reference system", path=path)
+            grid = MapGrid(ds.transform, pyproj.CRS.from_wkt(ds.crs.to_wkt()), (ds.height, ds.width))
+            return grid, ds.nodata
+    except RasterioError as exc:
+        raise InputError(f"cannot be read as a {what} raster ({exc})", path=path) from None
+
+
+def _open_qa(qa_path, qa_layout, grid: MapGrid, *, what: str):
+    """``(path GDAL opens, layout)`` of a QA raster or its tiles, checked against the DOM's CRS."""
+    from sensor_models.mosaic import mosaic_path, raster_inputs
+    from sensor_models.reference_qa import qa_layout_of
+
+    files = raster_inputs(qa_path, what=f"{what} QA")
+    layouts = {qa_layout_of(f, layout=qa_layout) for f in files}
+    if len(layouts) > 1:
+        raise InputError(f"the QA tiles have different layouts ({', '.join(sorted(layouts))})", path=files[0])
+    qa = mosaic_path(files, what=f"{what}-QA")
+    qa_grid, _ = _open_grid(qa, what=f"{what} QA")
+    if not qa_grid.crs.equals(grid.crs, ignore_axis_order=True):
+        raise InputError(f"the QA raster's CRS ({qa_grid.crs.name}) differs from the {what}'s ({grid.crs.name})",
+                         path=files[0])
+    return qa, layouts.pop()
 
 
 def sample_map_image(image: MapImage, u, v, *, sigma_px: float = 0.0) -> np.ndarray:

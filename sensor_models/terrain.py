@@ -62,7 +62,7 @@ from sensor_models.errors import DemError, GeoidGridMissingError, InputError
 from sensor_models.geodesy import WGS84_A_M, WGS84_B_M, ecef_to_geodetic, geodetic_to_ecef
 
 __all__ = ["MAX_FOOTPRINT_VOID_FRACTION", "MIN_FOOTPRINT_COVERAGE", "Dem", "Geoid", "VERTICAL_DATUMS",
-           "check_dem_footprint", "footprint_sample_lonlat", "intersect_ellipsoid"]
+           "check_dem_footprint", "find_egm96_grid", "footprint_sample_lonlat", "intersect_ellipsoid", "proj_data_dirs"]
 
 #: Least share of a scene's footprint a DEM must cover; below it a command refuses the DEM, above
 #: it (and below 1) the command says how much is covered. Half, not all: the footprint of an
@@ -151,6 +151,27 @@ def _read_raster(path, *, what, window_from=None, missing_error=DemError):
     if scale != 1.0 or offset != 0.0:
         values = values * scale + offset
     return np.ascontiguousarray(values), transform, crs
+
+
+def _dem_source(path):
+    """``(path GDAL opens, name for messages)`` of a DEM file, or of the tiles named by ``path``.
+
+    Several tiles are mosaicked through a GDAL VRT (:func:`sensor_models.mosaic.mosaic_path`);
+    messages then name the first tile and their count, not the private VRT.
+    """
+    from sensor_models.errors import GcpcalError
+    from sensor_models.mosaic import mosaic_path, raster_inputs
+
+    if isinstance(path, (str, os.PathLike)) and Path(path).is_file():
+        return os.fspath(path), os.fspath(path)
+    try:
+        files = raster_inputs(path, what="DEM")
+        label = files[0] if len(files) == 1 else f"{files[0]} (and {len(files) - 1} more DEM tiles)"
+        return mosaic_path(files, what="DEM"), label
+    except GcpcalError as exc:
+        if isinstance(path, (str, os.PathLike)) and "not found" in str(exc):
+            raise DemError(f"{os.fspath(path)}: DEM file not found") from None
+        raise
 
 
 def _as_affine(transform) -> Affine:
@@ -295,12 +316,59 @@ class Geoid:
         return f"Geoid(shape={self._values.shape}, source={self.source!r})"
 
 
+#: File names of the EGM96 15' undulation grid in PROJ's data directories (PROJ-data's current
+#: GeoTIFF name first, then the older GTX name).
+PROJ_EGM96_NAMES = ("us_nga_egm96_15.tif", "egm96_15.gtx")
+
+
+def proj_data_dirs() -> list[str]:
+    """PROJ's data directories, in the order PROJ searches them.
+
+    Returns
+    -------
+    list of str
+        ``pyproj.datadir.get_data_dir()`` (may list several, separated by ``os.pathsep``) and
+        ``pyproj.datadir.get_user_data_dir()``.
+    """
+    from pyproj import datadir
+
+    dirs = [d for d in datadir.get_data_dir().split(os.pathsep) if d]
+    dirs.append(datadir.get_user_data_dir())
+    return list(dict.fromkeys(dirs))
+
+
+def find_egm96_grid(dirs=None) -> str | None:
+    """The EGM96 undulation grid installed in PROJ's data directories, or None.
+
+    Parameters
+    ----------
+    dirs : sequence of str, optional
+        Folders to look in (default :func:`proj_data_dirs`).
+
+    Returns
+    -------
+    str or None
+        The first of :data:`PROJ_EGM96_NAMES` found in the first folder holding one.
+    """
+    for folder in proj_data_dirs() if dirs is None else dirs:
+        for name in PROJ_EGM96_NAMES:
+            candidate = os.path.join(folder, name)
+            if os.path.isfile(candidate):
+                return candidate
+    return None
+
+
 def _as_geoid(geoid, *, dem_source) -> Geoid:
     if geoid is None:
+        found = find_egm96_grid()
+        if found is not None:
+            return Geoid.open(found)
         where = f"{dem_source}: " if dem_source else ""
         raise GeoidGridMissingError(
-            f"{where}heights are EGM96 orthometric; pass geoid=<path of an EGM96 undulation "
-            "grid, e.g. egm96_15.gtx from PROJ-data> to convert them to ellipsoidal heights"
+            f"{where}heights are EGM96 orthometric and no geoid grid was given; none of "
+            f"{', '.join(PROJ_EGM96_NAMES)} is in PROJ's data directories ({', '.join(proj_data_dirs())}); "
+            "give one with --geoid GRID (geoid=<path> in Python), e.g. egm96_15.gtx from PROJ-data, or install it "
+            "there (projsync --file us_nga_egm96_15.tif)"
         )
     if isinstance(geoid, Geoid):
         return geoid
@@ -637,14 +705,18 @@ class Dem:
 
         Parameters
         ----------
-        path : str or os.PathLike
+        path : str, os.PathLike or sequence of them
+            A raster; or tiles (SRTM ``.hgt``, Copernicus GLO-30 ``*_DEM.tif``, any GeoTIFF)
+            given as a list, a comma list, a folder, a glob or a ``.vrt``: mosaicked through a
+            GDAL VRT (:func:`sensor_models.mosaic.mosaic_path`) and read by window.
         vertical_datum : {"ellipsoid", "egm96"}, optional
             What the heights refer to. When None it is taken from the raster's CRS if that
             declares one (a compound CRS whose vertical part is EPSG:5773 "EGM96 height", or a
             3-D geographic CRS meaning ellipsoidal heights); SRTM ``.hgt`` declares nothing, so
             the caller must say ``"egm96"``. A value contradicting the metadata is an error.
         geoid : str, os.PathLike or Geoid, optional
-            EGM96 undulation grid; required for EGM96 heights, refused when the caller says
+            EGM96 undulation grid for EGM96 heights (default: :func:`find_egm96_grid` in PROJ's
+            data directories; an error naming them when absent), refused when the caller says
             ``"ellipsoid"``, unused when the file itself declares ellipsoidal heights.
         bounds : tuple of 4 floats, optional
             ``(lon_min, lat_min, lon_max, lat_max)`` in WGS84 degrees: read only the part of
@@ -666,19 +738,19 @@ class Dem:
         InputError
             Unknown ``vertical_datum``, malformed ``bounds``, a geoid with ``"ellipsoid"``.
         """
-        source = os.fspath(path)
+        gdal_path, source = _dem_source(path)
         datum = _check_datum_name(vertical_datum)
         if datum == "ellipsoid" and geoid is not None:
             raise InputError("geoid is only used with vertical_datum='egm96'", path=source)
         window_from = None
         if bounds is not None:
             window_from = _window_for_bounds(bounds, margin_deg, source=source)
-        values, transform, crs = _read_raster(source, what="DEM", window_from=window_from)
+        values, transform, crs = _read_raster(gdal_path, what="DEM", window_from=window_from)
         if crs is None:
             raise DemError(f"{source}: the DEM declares no coordinate reference system")
         declared = _declared_datum(crs, source=source)
         if declared is None:
-            declared = _tagged_datum(source)
+            declared = _tagged_datum(gdal_path)
         if datum is None:
             if declared is None:
                 raise DemError(

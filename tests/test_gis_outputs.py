@@ -354,3 +354,22 @@ def test_pleiades_residual_metres_follow_its_half_metre_pixels(ventoux):
         gsd.append(GEOD.inv(lo[0][0], lo[1][0], hi[0][0], hi[1][0])[2])
     np.testing.assert_allclose(layer["resid_along_m"] / shift[0], gsd, rtol=0.01)
     assert 0.4 < np.median(layer["gsd_along_m"]) < 1.0 and 0.4 < np.median(layer["gsd_across_m"]) < 1.0
+
+
+def test_layer_names_each_point_s_ccd_when_the_table_names_none(tmp_path):
+    """A GCP table without a ``ccd`` column: the layer finds each point's CCD from its column."""
+    truth = open_model(FIXTURE / "truth_manifest.json")
+    rows, cols = np.meshgrid(np.linspace(20.5, 492.5, 12), np.linspace(20.5, 748.5, 24), indexing="ij")
+    lon, lat, h = truth.image_to_ground(rows.ravel(), cols.ravel(), height=np.full(rows.size, 200.0), band="B2")
+    lines = ["id,row,col,lon,lat,h,kind"] + [
+        f"p{i},{float(r)!r},{float(c)!r},{float(x)!r},{float(y)!r},{float(z)!r},{'check' if i % 4 == 0 else 'gcp'}"
+        for i, (r, c, x, y, z) in enumerate(zip(rows.ravel(), cols.ravel(), lon, lat, h))]
+    (tmp_path / "gcps.csv").write_text("\n".join(lines) + "\n")
+    assert main(["-q", "calibrate", str(SCENE), "--gcps", str(tmp_path / "gcps.csv"), "--out", str(tmp_path / "cal"),
+                 "--no-report"]) == 4  # partial: the other bands are left to relative
+    layer = read_residual_layer(tmp_path / "cal" / "residuals.gpkg")
+    names = [a.name for a in truth.detector_arrays("B2")]
+    want = np.array(names, dtype=object)[truth.detector_index(cols.ravel(), band="B2")]
+    assert sorted(set(layer["ccd"])) == sorted(names)
+    order = np.argsort([int(i[1:]) for i in layer["id"]])
+    assert list(np.asarray(layer["ccd"])[order]) == list(want)

@@ -58,25 +58,60 @@ def write_summary(path, summary: dict) -> Path:
     return Path(path)
 
 
-def open_dem(dem_path, datum=None, geoid=None):
+#: Heights (m above the ellipsoid) at which a scene's footprint is localized to bound a DEM read.
+_FOOTPRINT_HEIGHTS_M = (-500.0, 9000.0)
+#: Margin around that footprint, as a share of its larger side (at least 0.1 degree): room for an
+#: uncalibrated model that is off by hundreds of pixels.
+_FOOTPRINT_MARGIN = 0.5
+
+
+def open_dem(dem_path, datum=None, geoid=None, *, model=None, band=None):
     """Open a DEM, its vertical datum declared when the file does not say.
 
     Parameters
     ----------
-    dem_path : str or Path
-        DEM raster (any CRS rasterio reads).
+    dem_path : str, Path or sequence of them
+        DEM raster (any CRS rasterio reads), or tiles: a list, a comma list, a folder, a glob
+        or a ``.vrt`` (mosaicked through a GDAL VRT, :mod:`sensor_models.mosaic`).
     datum : {"ellipsoid", "egm96"} or None
         Vertical datum of the heights when the file does not declare it.
     geoid : str or Path or None
-        Geoid grid for EGM96 heights.
+        Geoid grid for EGM96 heights (default: the EGM96 grid in PROJ's data directories,
+        :func:`sensor_models.terrain.find_egm96_grid`).
+    model : SensorModel, optional
+        The scene's model. With several tiles (or a ``.vrt``), only the part of the mosaic
+        under the scene's footprint (localized from -500 to 9000 m, plus half its size, at
+        least 0.1 degree, on each side) is read. A single file is read whole, as before.
+    band : str, optional
+        Band of ``model`` whose footprint counts (default: its reference band).
 
     Returns
     -------
     sensor_models.terrain.Dem
     """
+    from sensor_models.mosaic import raster_inputs
     from sensor_models.terrain import Dem
 
-    return Dem.open(dem_path, vertical_datum=datum, geoid=geoid)
+    bounds, margin = None, 0.0
+    if model is not None:
+        files = raster_inputs(dem_path, what="DEM")
+        if len(files) > 1 or files[0].lower().endswith(".vrt"):
+            bounds, margin = _footprint_box(model, band)
+    return Dem.open(dem_path, vertical_datum=datum, geoid=geoid, bounds=bounds, margin_deg=margin)
+
+
+def _footprint_box(model, band):
+    """``(lon_min, lat_min, lon_max, lat_max), margin_deg`` around a model's footprint, or ``(None, 0)``."""
+    import numpy as np
+
+    from sensor_models.terrain import footprint_sample_lonlat
+
+    lon, lat = zip(*(footprint_sample_lonlat(model, h, n_side=9, band=band) for h in _FOOTPRINT_HEIGHTS_M))
+    lon, lat = np.concatenate(lon), np.concatenate(lat)
+    if lon.size == 0 or np.ptp(lon) > 180.0:  # off the Earth, or across the antimeridian: read it all
+        return None, 0.0
+    margin = max(0.1, _FOOTPRINT_MARGIN * max(np.ptp(lon), np.ptp(lat)))
+    return (float(lon.min()), float(lat.min()), float(lon.max()), float(lat.max())), margin
 
 
 def _nearest_existing(path: Path) -> Path:
@@ -108,10 +143,21 @@ def _written_by_gcpcal(folder: Path) -> bool:
     return any(p.name.endswith("summary.json") for p in folder.iterdir())
 
 
-def _refuse_inputs_inside(out_dir: Path, inputs) -> None:
+def _input_paths(inputs):
+    """The paths of ``inputs``: a path, a sequence of paths, or a value with ``paths`` (a DOM source)."""
     for item in inputs:
         if item is None:
             continue
+        if hasattr(item, "paths"):
+            yield from _input_paths(item.paths)
+        elif isinstance(item, (list, tuple)):
+            yield from _input_paths(item)
+        else:
+            yield item
+
+
+def _refuse_inputs_inside(out_dir: Path, inputs) -> None:
+    for item in _input_paths(inputs):
         resolved = Path(item).resolve()
         if resolved == out_dir or out_dir in resolved.parents:
             raise InputError(f"the output folder would replace the input {item}: choose another --out",

@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.actions._io import check_output_files, staged_files
+from calibrate.actions._io import check_output_files, open_dem, staged_files
 from calibrate.actions._l1a import scene_raster
 from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
+from sensor_models.dom_inputs import dom_description, masked_fraction, open_dom
 from sensor_models.errors import InputError
 
 __all__ = ["match_scene", "residual_layer_path"]
@@ -42,8 +43,11 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     scene_path : str or Path
         SCENE in any form :func:`sensor_models.readers.open_scene` reads (manifest, model file
         with its raster, raster with an RPC).
-    dom_path, dem_path : str or Path
-        Reference orthoimage and DEM (any CRS).
+    dom_path : str, Path, sequence of them or sensor_models.dom_inputs.DomSource
+        Reference orthoimage (any CRS): a raster, tiles, a Landsat or Sentinel-2 band or product
+        folder with its band, QA and radiometry (:func:`sensor_models.dom_inputs.open_dom`).
+    dem_path : str, Path or sequence of them
+        DEM (any CRS), or tiles (:func:`calibrate.actions._io.open_dem`).
     out_path : str or Path
         GCP table (CSV); ``out_path.with_suffix(".summary.json")`` goes beside it.
     geoid : str or Path, optional
@@ -79,8 +83,6 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     from calibrate.residual_layer import model_residual_layer, write_residual_layer
     from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
     from sensor_models.readers import open_scene
-    from sensor_models.raster import MapImage
-    from sensor_models.terrain import Dem
 
     options.validate()  # before any work: e.g. --backend gpu without CUDA
     residuals_path = residual_layer_path(out_path)
@@ -90,8 +92,8 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     scene = read_band(model, band, image)
     if geotiff_path is not None:  # before any work: the GeoTIFF's size limit, from the window count
         _check_geotiff_capacity(model, band, options, geotiff_path)
-    dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
-    dom = MapImage.open(dom_path)
+    dem = open_dem(dem_path, dem_datum, geoid, model=model, band=band)
+    dom, dom_found = open_dom(dom_path)
     mask = None
     if mask_path is not None:
         mask = read_band(model, band, mask_path)
@@ -101,6 +103,7 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
     if table is not None and len(table) > 0:
         summary["residual_layer"] = str(residuals_path)
+    summary.update(_dom_summary(dom, dom_found, model, band, dem))
     # every file moves in together at the end; with no GCP only the summary (an older table goes)
     staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path)
     with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp, residuals_tmp):
@@ -128,3 +131,19 @@ def _check_geotiff_capacity(model, band, options: MatchOptions, geotiff_path) ->
     if n_windows > GEOTIFF_MAX_GCPS:
         raise InputError(f"{geotiff_path}: up to {n_windows} GCPs ({n_windows} windows) and a GeoTIFF holds at most "
                          f"{GEOTIFF_MAX_GCPS}: raise --spacing or write --gpkg instead", path=str(geotiff_path))
+
+
+def _dom_summary(dom, dom_found, model, band, dem) -> dict:
+    """What the DOM was resolved to, and the share of it under the footprint that its QA masks."""
+    from sensor_models.terrain import footprint_sample_lonlat
+
+    fields = dom_description(dom_found)
+    share = None
+    if dom.qa_path is not None:
+        lon, lat = footprint_sample_lonlat(model, float(np.mean(dem.height_range_m)), band=band)
+        share = masked_fraction(dom, lon, lat)
+    fields["dom_masked_fraction"] = share
+    if share is not None:
+        fields["dom_note"] = (f"the DOM's QA ({dom_found.qa_layout}) masks {100 * share:.0f} % of the reference under "
+                              "the scene (cloud, shadow, cirrus, fill): windows there have no reference")
+    return fields

@@ -153,7 +153,8 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
     scene_path : str or Path
         Scene manifest.
     dom_path, dem_path : str or Path
-        Reference orthoimage and DEM.
+        Reference orthoimage and DEM; also tiles, products and a
+        :class:`sensor_models.dom_inputs.DomSource` (:func:`calibrate.actions.match.match_scene`).
     out_dir : str or Path
         Output folder: ``gcps.csv``, ``calibration/`` or ``stars/``, ``run.summary.json``.
     star_frames : str or Path, optional

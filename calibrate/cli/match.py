@@ -7,7 +7,7 @@ import click
 from calibrate.actions.match import match_scene
 from calibrate.config import MatchOptions
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import add_options, dem_options, echo_json, json_option
+from calibrate.cli.options import add_options, dem_options, dom_options, echo_json, json_option
 from sensor_models.errors import InputError
 
 __all__ = ["command"]
@@ -15,7 +15,7 @@ __all__ = ["command"]
 
 @click.command("match")
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
-@click.option("--dom", "dom_path", required=True, type=click.Path(dir_okay=False), help="Reference orthoimage (any CRS).")
+@dom_options
 @add_options(dem_options)
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="GCP table (CSV); a .summary.json goes beside it.")
 @click.option("--gpkg", "gpkg_path", type=click.Path(dir_okay=False), help="Also write the GCPs as a GeoPackage layer.")
@@ -66,7 +66,7 @@ def _print_summary(out_path, summary) -> None:
     click.echo(f"{out_path}: {summary['gcps']} GCPs + {summary['check_points']} check points from "
                f"{summary['windows']} windows ({100 * summary['usable_fraction']:.0f} % usable, "
                f"{_percent(summary['cloud_fraction'], 'cloud')}) in {summary['timings']['total_s']:.1f} s")
-    for key in ("note", "cloud_note"):
+    for key in ("note", "cloud_note", "dom_note"):
         if summary.get(key):
             click.echo(f"  note: {summary[key]}")
     for c in summary.get("per_ccd", []):

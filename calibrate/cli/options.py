@@ -6,6 +6,7 @@ value of :mod:`calibrate.config` are read from there.
 
 from __future__ import annotations
 
+import functools
 import json
 
 import click
@@ -14,20 +15,34 @@ import numpy as np
 from calibrate._json import json_default
 from sensor_models.errors import InputError
 
-__all__ = ["add_options", "apply_verbosity", "constant_height_option", "dem_options", "echo_json", "echo_warnings",
-           "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source",
+__all__ = ["add_options", "apply_verbosity", "constant_height_option", "dem_options", "dom_options", "echo_json",
+           "echo_warnings", "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source",
            "out_dir_option", "progress_printer", "quiet_of", "verbosity_options"]
+
+
+def _tiles(ctx, param, value):
+    """A repeatable path option's value: None when absent, the path when one, a tuple when several."""
+    if not value:
+        return None
+    return value[0] if len(value) == 1 else tuple(value)
+
+
+_TILE_FORMS = "repeat the option, or give a comma list, a folder, a glob (quoted) or a .vrt"
 
 #: ``--dem``, ``--dem-datum``, ``--geoid`` (keywords ``dem_path``, ``dem_datum``, ``geoid``).
 dem_options = [
-    click.option("--dem", "dem_path", type=click.Path(dir_okay=False), help="DEM raster (any CRS rasterio reads)."),
+    click.option("--dem", "dem_path", multiple=True, callback=_tiles, type=click.Path(),
+                 help=f"DEM raster (any CRS rasterio reads), or tiles mosaicked on the fly (SRTM .hgt, Copernicus "
+                      f"GLO-30): {_TILE_FORMS}."),
     click.option(
         "--dem-datum",
         type=click.Choice(["ellipsoid", "egm96"]),
         default=None,
         help="Vertical datum of the DEM heights when the file does not declare it.",
     ),
-    click.option("--geoid", type=click.Path(dir_okay=False), help="Geoid grid (e.g. egm96_15.gtx) for egm96 heights."),
+    click.option("--geoid", type=click.Path(dir_okay=False),
+                 help="Geoid grid (e.g. egm96_15.gtx) for egm96 heights; default: us_nga_egm96_15.tif or "
+                      "egm96_15.gtx in PROJ's data directories."),
 ]
 
 # The height family (docs/cli.md, "Terrain heights"): one spelling and one meaning in every command
@@ -70,6 +85,56 @@ def one_height_source(**given) -> str | None:
         raise click.UsageError("give one of " + ", ".join("--" + n.replace("_", "-") for n in given) + ", not "
                                + " and ".join("--" + n.replace("_", "-") for n in named))
     return named[0] if named else None
+
+
+
+def _dom_option_list():
+    from sensor_models.reference_qa import QA_LAYOUTS
+
+    return [
+        click.option("--dom", "dom_items", multiple=True, required=True, type=click.Path(),
+                     help="Reference orthoimage: a raster, a Landsat band GeoTIFF, a Sentinel-2 JP2, a .SAFE or "
+                          f"IMG_DATA folder (with --dom-band), or tiles: {_TILE_FORMS}."),
+        click.option("--dom-band", help="Band of a product folder or of tiles, e.g. B04 (Sentinel-2) or B4 (Landsat)."),
+        click.option("--dom-qa", multiple=True, type=click.Path(),
+                     help="QA raster(s) masking the DOM (Landsat QA_PIXEL or BQA, Sentinel-2 SCL); default: the one "
+                          "beside the band, when found."),
+        click.option("--dom-qa-layout", type=click.Choice(QA_LAYOUTS),
+                     help="Bit layout of --dom-qa when its name does not tell (QA_PIXEL, BQA, SCL)."),
+        click.option("--no-dom-qa", is_flag=True, help="Use no QA mask, not even one found beside the band."),
+        click.option("--dom-scale", type=float,
+                     help="DOM value = DN * scale + offset (overrides the product's metadata)."),
+        click.option("--dom-offset", type=float, help="See --dom-scale."),
+    ]
+
+
+def dom_options(func):
+    """Decorator: the reference-orthoimage options, handed to the command as ``dom_path``.
+
+    Adds ``--dom`` (repeatable), ``--dom-band``, ``--dom-qa`` (repeatable), ``--dom-qa-layout``,
+    ``--no-dom-qa``, ``--dom-scale`` and ``--dom-offset``; the command receives them as one
+    :class:`sensor_models.dom_inputs.DomSource` in its ``dom_path`` argument.
+
+    Parameters
+    ----------
+    func : callable
+        The command's callback.
+
+    Returns
+    -------
+    callable
+        The callback with the options attached.
+    """
+    from sensor_models.dom_inputs import DomSource
+
+    @functools.wraps(func)
+    def wrapper(*args, dom_items, dom_band, dom_qa, dom_qa_layout, no_dom_qa, dom_scale, dom_offset, **kwargs):
+        kwargs["dom_path"] = DomSource(items=tuple(dom_items), band=dom_band, qa=tuple(dom_qa),
+                                       qa_layout=dom_qa_layout, scale=dom_scale, offset=dom_offset,
+                                       use_qa=not no_dom_qa)
+        return func(*args, **kwargs)
+
+    return add_options(_dom_option_list())(wrapper)
 
 
 #: ``-v/--verbose`` (count) and ``-q/--quiet``: on the group and, the same, on every command.

@@ -7,8 +7,8 @@ import click
 from calibrate.actions.run import MIN_COVERAGE, MIN_GCPS, run_scene
 from calibrate.cli._errors import EXIT_FAILED
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, exit_with_status, json_option,
-                                   out_dir_option)
+from calibrate.cli.options import (add_options, dem_options, dom_options, echo_json, echo_warnings, exit_with_status,
+                                   json_option, out_dir_option)
 from sensor_models.errors import InputError
 
 __all__ = ["command"]
@@ -16,7 +16,7 @@ __all__ = ["command"]
 
 @click.command("run")
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
-@click.option("--dom", "dom_path", required=True, type=click.Path(dir_okay=False), help="Reference orthoimage.")
+@dom_options
 @add_options(dem_options)
 @click.option("--star-frames", type=click.Path(), help="Star sequence (frames.json or its folder) for the fallback.")
 @out_dir_option()
