@@ -25,6 +25,14 @@ ALTITUDE_M = 700e3
 # ---------------------------------------------------------------------------------------------
 
 
+
+@pytest.fixture(autouse=True)
+def _no_installed_geoid(monkeypatch):
+    """These tests say what happens without a geoid: hide any EGM96 grid installed in PROJ's folders."""
+    import sensor_models.terrain as terrain
+
+    monkeypatch.setattr(terrain, "proj_data_dirs", lambda: [])
+
 def rays_through(lon, lat, h, incidence_deg, azimuth_deg, altitude_m=ALTITUDE_M):
     """Rays from a satellite ``altitude_m`` above ground points, passing through them.
 
