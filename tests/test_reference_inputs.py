@@ -542,3 +542,34 @@ def test_match_with_dem_tiles_reads_only_the_footprint_and_equals_the_single_fil
                      "--dem", dem, "--out", str(out), "--spacing", "48"]) == 0
         summaries.append((out.read_text(), json.loads(out.with_suffix(".summary.json").read_text())["gcps"]))
     assert summaries[0] == summaries[1]
+
+
+def test_ortho_localize_and_rpc_on_dem_tiles_equal_the_single_dem(tmp_path):
+    """The embedded fixture's DEM cut into two tiles gives the same ortho, localization and RPC range."""
+    import json
+
+    from calibrate.cli import main
+
+    from pathlib import Path
+
+    fixture = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
+    with rasterio.open(fixture / "reference" / "dem.tif") as ds:
+        values, transform, crs, nodata = ds.read(1), ds.transform, ds.crs, ds.nodata
+    half = values.shape[1] // 2
+    _write(tmp_path / "west.tif", values[:, :half], transform, crs=crs, nodata=nodata)
+    _write(tmp_path / "east.tif", values[:, half:], transform * Affine.translation(half, 0), crs=crs,
+           nodata=nodata)
+    single = ["--dem", str(fixture / "reference" / "dem.tif")]
+    tiles = ["--dem", str(tmp_path / "west.tif"), "--dem", str(tmp_path / "east.tif"), "--dem-datum", "ellipsoid"]
+    scene = str(fixture / "manifest.json")
+    for name, dem in (("single", single), ("tiles", tiles)):
+        assert main(["-q", "ortho", scene, *dem, "--out", str(tmp_path / f"{name}.tif")]) == 0
+        assert main(["-q", "localize", scene, "--rows", "10.5,300.5", "--cols", "20.5,700.5", *dem,
+                     "--out", str(tmp_path / f"{name}.csv")]) == 0
+        assert main(["-q", "rpc", scene, "--ccd", "cam1_ccd1", *dem, "--out", str(tmp_path / f"{name}_RPC.TXT")]) == 0
+    with rasterio.open(tmp_path / "single.tif") as a, rasterio.open(tmp_path / "tiles.tif") as b:
+        assert a.transform == b.transform and np.array_equal(a.read(1), b.read(1), equal_nan=True)
+    assert (tmp_path / "single.csv").read_text() == (tmp_path / "tiles.csv").read_text()
+    ranges = [json.loads((tmp_path / f"{n}_RPC.TXT.summary.json").read_text())["height_range_m"]
+              for n in ("single", "tiles")]
+    assert np.allclose(ranges[0], ranges[1])

@@ -219,7 +219,7 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     if direction == "direct":
         r, c = points["row"], points["col"]
         if dem_path is not None:
-            dem = open_dem(dem_path, dem_datum, geoid)
+            dem = open_dem(dem_path, dem_datum, geoid, model=model)  # tiles: only under the scene
             _check_dem_under_points(model, r, c, dem, kwargs)
             lo, la, hh = model.image_to_ground(r, c, dem=dem, **kwargs)
             _check_dem_heights(hh, dem)

@@ -69,7 +69,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
                              f"px image, the scene {scene.image_shape[0]} x {scene.image_shape[1]}",
                              path=str(calib_file))
     band, image = _band_and_image(scene, geometry, band, image, scene_path)
-    dem = open_dem(dem_path, dem_datum, geoid)
+    dem = open_dem(dem_path, dem_datum, geoid, model=geometry, band=band)  # tiles: only under the scene
     dem_figures = _dem_under_scene(geometry, dem, band)
     say = progress or (lambda done, total: None)
     with staged_files(out_path, summary_path) as (tif_tmp, summary_tmp):

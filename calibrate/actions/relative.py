@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate._json import json_safe
-from calibrate.actions._io import staged_folder
+from calibrate.actions._io import open_dem, staged_folder
 from calibrate.config import CalibrationOptions
 from sensor_models.errors import InputError
 
@@ -74,7 +74,7 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
         Missing or malformed files, unknown band, a calibration of another scene.
     """
     from calibrate.relative import relative_calibration
-    from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
+    from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
 
     from calibrate.actions._status import open_usable_calibration
 
@@ -83,7 +83,7 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     inputs = [p for p in (scene_path, calibration, dem_path, geoid) if p is not None]
     with staged_folder(out_dir, ".relative-", inputs=inputs) as stage:  # checks the output path first
         scene, reference_band = _open_scene(scene_path, calibrated, cal_path, reference_band)
-        dem = Dem.open(dem_path, vertical_datum=dem_datum, geoid=geoid)
+        dem = open_dem(dem_path, dem_datum, geoid, model=calibrated)  # tiles: only under the scene
         check_dem_footprint(dem, *footprint_sample_lonlat(calibrated, float(np.mean(dem.height_range_m))))
         images = _LazyBands(scene)  # the reference band and one other band in memory at a time
         result = relative_calibration(calibrated, images, dem, reference_band=reference_band, window_px=window_px,

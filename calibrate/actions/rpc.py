@@ -68,7 +68,7 @@ def out_is_folder(out_path) -> bool:
 def _height_range(model, dem_path, dem_datum, geoid, height_range):
     """``(height range, DEM footprint figures)``; the DEM must cover the model's footprint."""
     if dem_path is not None:
-        dem = open_dem(dem_path, dem_datum, geoid)
+        dem = open_dem(dem_path, dem_datum, geoid, model=model)  # tiles: only under the scene
         h_lo, h_hi = dem.height_range_m
         lon, lat = footprint_sample_lonlat(model, 0.5 * (h_lo + h_hi))
         coverage = check_dem_footprint(dem, lon, lat)
