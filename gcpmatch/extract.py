@@ -218,7 +218,8 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
     tally.per_ccd.append(_ccd_report(look, n, keep.size, cloud_px, cover, counts, sigma,
                                      (r_c, c_c - look.first_col), img.shape, dem, dom))
     if progress:
-        line = f"CCD {look.name}: {keep.size} GCPs from {n} windows"
+        line = f"CCD {look.name}: {keep.size} GCPs from {n} windows" if look.name else \
+            f"image: {keep.size} GCPs from {n} windows"
         cause = tally.per_ccd[-1]["cause"]
         progress(line + (f" ({cause})" if cause else ""))
 

@@ -754,9 +754,9 @@ class Dem:
         if datum is None:
             if declared is None:
                 raise DemError(
-                    f"{source}: the DEM does not declare its vertical datum; pass "
-                    "vertical_datum='egm96' (orthometric, e.g. SRTM; on the command line "
-                    "--dem-datum egm96 --geoid GRID) or 'ellipsoid' (heights above WGS84)"
+                    f"{source}: the DEM does not declare its vertical datum; say --dem-datum egm96 "
+                    "(orthometric heights, e.g. SRTM) or --dem-datum ellipsoid (heights above WGS84); "
+                    "in Python: vertical_datum='egm96' or 'ellipsoid'"
                 )
             datum = declared
         elif declared is not None and declared != datum:
@@ -864,6 +864,36 @@ class Dem:
     def height_range_m(self) -> tuple[float, float]:
         """``(min, max)`` of the valid ellipsoidal heights in metres."""
         return (self._h_min, self._h_max)
+
+    def height_range_over_m(self, lon_deg, lat_deg, *, margin_nodes: int = 2) -> tuple[float, float] | None:
+        """``(min, max)`` of the valid node heights over the node box that holds the given points.
+
+        Parameters
+        ----------
+        lon_deg, lat_deg : array_like, shape (N,)
+            WGS84 degrees (e.g. a footprint localized at the DEM's lowest and highest heights).
+        margin_nodes : int
+            Nodes added on every side of the points' bounding box in node indices.
+
+        Returns
+        -------
+        tuple of float or None
+            Metres above the ellipsoid; None when no point maps onto the grid or the box holds
+            no valid node.
+        """
+        col, row = self._lonlat_to_index(np.ravel(np.asarray(lon_deg, dtype=np.float64)),
+                                         np.ravel(np.asarray(lat_deg, dtype=np.float64)))
+        ok = np.isfinite(col) & np.isfinite(row)
+        if not ok.any():
+            return None
+        n_rows, n_cols = self.shape
+        c0 = int(np.clip(np.floor(col[ok].min()) - margin_nodes, 0, n_cols))
+        c1 = int(np.clip(np.ceil(col[ok].max()) + margin_nodes + 1, 0, n_cols))
+        r0 = int(np.clip(np.floor(row[ok].min()) - margin_nodes, 0, n_rows))
+        r1 = int(np.clip(np.ceil(row[ok].max()) + margin_nodes + 1, 0, n_rows))
+        z = self._z[r0:r1, c0:c1]
+        z = z[np.isfinite(z)]
+        return None if z.size == 0 else (float(z.min()), float(z.max()))
 
     @property
     def resolution_m(self) -> float:

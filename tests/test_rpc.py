@@ -514,3 +514,19 @@ def test_image_shape_of_standalone_files(left, tmp_path):
     tif = left.write(tmp_path / "x.tif")
     with pytest.raises(RpcError, match="contradicts"):
         RpcModel.read(tif, image_shape=(10, 10))
+
+
+@pytest.mark.shared_data
+def test_rpc_height_range_is_the_terrain_under_the_scene_not_the_whole_tile(shared_data, tmp_path):
+    """A 250 m Pleiades crop over a 1-degree SRTM tile (-54..2946 m): the fit spans the heights under the crop."""
+    import json
+
+    from calibrate.cli import main
+
+    folder, dem = shared_data / "pleiades_ventoux", shared_data / "dem"
+    argv = ["-q", "rpc", str(folder / "left_image.tif"), "--dem", str(dem / "N44E005.hgt"), "--dem-datum", "egm96",
+            "--geoid", str(dem / "egm96_15.gtx"), "--out", str(tmp_path / "l_RPC.TXT")]
+    assert main(argv) == 0
+    lo, hi = json.loads((tmp_path / "l_RPC.TXT.summary.json").read_text())["height_range_m"]
+    # SRTM under the crop: 441-505 m above EGM96, about +51 m to the ellipsoid (../shared/data/README.md)
+    assert 250.0 < lo < 490.0 and 560.0 < hi < 900.0

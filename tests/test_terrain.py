@@ -404,7 +404,7 @@ def test_srtm_windowed_read_matches_full_tile(srtm):
 
 def test_srtm_datum_errors(srtm, tmp_path):
     hgt, _, _, _ = srtm
-    with pytest.raises(DemError, match="vertical_datum='egm96'"):
+    with pytest.raises(DemError, match="--dem-datum egm96"):
         Dem.open(hgt)
     with pytest.raises(GeoidGridMissingError, match="geoid="):
         Dem.open(hgt, vertical_datum="egm96")

@@ -21,6 +21,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numpy as np
+
 from calibrate.actions._io import (check_output_files, check_output_folder, open_dem, staged_files, staged_folder,
                                    write_summary)
 from calibrate.actions._l1a import scene_raster, write_l1a_with_rpc
@@ -72,6 +74,11 @@ def _height_range(model, dem_path, dem_datum, geoid, height_range):
         h_lo, h_hi = dem.height_range_m
         lon, lat = footprint_sample_lonlat(model, 0.5 * (h_lo + h_hi))
         coverage = check_dem_footprint(dem, lon, lat)
+        # the heights under the scene, not the whole file's: the footprint at the file's extremes
+        ends = [footprint_sample_lonlat(model, h) for h in (h_lo, h_hi)]
+        under = dem.height_range_over_m(np.concatenate([e[0] for e in ends]), np.concatenate([e[1] for e in ends]))
+        if under is not None:
+            h_lo, h_hi = under
         pad = max(50.0, 0.05 * (h_hi - h_lo))
         return (h_lo - pad, h_hi + pad), coverage
     return (DEFAULT_HEIGHT_RANGE_M if height_range is None else height_range), {"warnings": []}

@@ -71,7 +71,7 @@ def _print_summary(out_path, summary) -> None:
             click.echo(f"  note: {summary[key]}")
     for c in summary.get("per_ccd", []):
         dom = c.get("dom_coverage")
-        line = (f"  CCD {c['ccd'] or 'image'}: {c['gcps']} GCPs; DEM {100 * c.get('dem_coverage', 0.0):.0f} %, "
+        line = (f"  {'CCD ' + c['ccd'] if c['ccd'] else 'image'}: {c['gcps']} GCPs; DEM {100 * c.get('dem_coverage', 0.0):.0f} %, "
                 f"DOM {'-' if dom is None else f'{100 * dom:.0f} %'}, {_percent(c.get('cloud_fraction'), 'cloud')}, "
                 f"{100 * c.get('no_texture_fraction', 0.0):.0f} % no texture")
         click.echo(line + (f"; cause: {c['cause']}" if c.get("cause") else ""))
