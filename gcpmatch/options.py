@@ -81,6 +81,12 @@ class MatchOptions:
         per CCD: the robust spread of the residuals about a smooth correction) or ``"window"``
         (per window: the matching noise predicted from its correlation score, combined with
         ``reference_sigma_m``).
+    phase_eps : float
+        Floor of the cross-power normalization of :func:`gcpmatch.phase.phase_correlate`
+        (``eps``), relative to each pair's mean cross-power magnitude; >= 0.
+    lowpass_cycles_px : float or None
+        Standard deviation, cycles/px, of a Gaussian weight on the cross-power spectrum
+        (``lowpass`` of :func:`gcpmatch.phase.phase_correlate`); None for none; > 0.
     reference_sigma_m : float
         Geolocation accuracy of the reference DOM (and its DEM's effect), metres per axis (1
         sigma), as its producer states it; used by ``sigma_model="window"``; >= 0.
@@ -98,6 +104,8 @@ class MatchOptions:
     batch: int = 2048
     radiometry: str = "none"
     sigma_model: str = "ccd"
+    phase_eps: float = 0.5
+    lowpass_cycles_px: float | None = None
     reference_sigma_m: float = 0.0
 
     def validate(self) -> MatchOptions:
@@ -143,6 +151,12 @@ class MatchOptions:
         if self.sigma_model not in SIGMA_MODELS:
             raise InputError(f"sigma model must be one of {', '.join(SIGMA_MODELS)}, got {self.sigma_model!r}",
                              field="sigma_model")
+        if not _is_real(self.phase_eps) or not self.phase_eps >= 0:
+            raise InputError(f"phase eps must be >= 0, got {self.phase_eps!r}", field="phase_eps")
+        if self.lowpass_cycles_px is not None and (not _is_real(self.lowpass_cycles_px)
+                                                   or not self.lowpass_cycles_px > 0):
+            raise InputError(f"low-pass must be > 0 cycles/px or None, got {self.lowpass_cycles_px!r}",
+                             field="lowpass_cycles_px")
         if not _is_real(self.reference_sigma_m) or not self.reference_sigma_m >= 0:
             raise InputError(f"reference sigma must be >= 0 metres, got {self.reference_sigma_m!r}",
                              field="reference_sigma_m")

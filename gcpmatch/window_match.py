@@ -57,8 +57,8 @@ def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOpti
         Further keywords of :func:`gcpmatch.phase.phase_correlate` (``eps``, ``lowpass``, ...),
         for experiments (``bench/bench_matcher_realism.py``).
     options : MatchOptions
-        ``radiometry`` (window preparation), ``backend``; the largest shift accepted is a
-        quarter of the window.
+        ``radiometry`` (window preparation), ``phase_eps``, ``lowpass_cycles_px``, ``backend``;
+        the largest shift accepted is a quarter of the window.
 
     Returns
     -------
@@ -69,9 +69,10 @@ def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOpti
     if n == 0:
         return PairMatches(np.zeros((0, 2)), np.zeros(0, dtype=object), {"score": np.zeros(0), "peak_ratio": np.zeros(0)})
     ref, mov = prepare_windows(reference, scene, method=options.radiometry)
+    kwargs = {"eps": options.phase_eps, "lowpass": options.lowpass_cycles_px, **(phase_options or {})}
     pm = phase_correlate(ref, mov, max_shift_px=w / 4.0,
                          backend="torch" if options.backend in ("gpu", "torch") else "cpu",
-                         device="cuda" if options.backend == "gpu" else None, **(phase_options or {}))
+                         device="cuda" if options.backend == "gpu" else None, **kwargs)
     status = np.array([_PHASE_REASON[Reject(r)] for r in pm.reason], dtype=object)
     return PairMatches(shift_px=pm.shift_px, status=status,
                        quality={"score": pm.score, "peak_ratio": pm.peak_ratio})
