@@ -161,7 +161,7 @@ def run_variant(win: dict, options, phase_options: dict | None = None) -> dict:
     """Correlate, reject and assign sigma with ``options``; the kept windows' errors and sigmas."""
     from gcpmatch.extract import correlate_pairs, reject_outliers
 
-    seconds, err, sig = 0.0, [], []
+    seconds, err, sig, score = 0.0, [], [], []
     for i, (n_r, n_c) in enumerate(win["grid"]):
         sel = np.flatnonzero(win["ccd"] == i)
         status = win["status"][sel].copy()
@@ -181,7 +181,21 @@ def run_variant(win: dict, options, phase_options: dict | None = None) -> dict:
         ok = np.isfinite(win["true_shift"][sel[keep]]).all(axis=1)
         err.append((shift[keep] - win["true_shift"][sel[keep]])[ok])
         sig.append(sigma[ok])
-    return {"err": np.concatenate(err), "sigma": np.concatenate(sig), "seconds": seconds}
+        score.append(quality["score"][keep][ok])
+    return {"err": np.concatenate(err), "sigma": np.concatenate(sig), "score": np.concatenate(score),
+            "seconds": seconds}
+
+
+def score_fit(err: np.ndarray, score: np.ndarray) -> dict:
+    """Least-squares fit ``e^2 = a^2 (1 - s) / s + f^2`` of the squared per-axis truth errors.
+
+    The constants of :mod:`gcpmatch.uncertainty` (``SCORE_SIGMA_PX`` = a, ``MATCH_FLOOR_PX`` = f)
+    come from this fit on the ``realistic_no_dom_error`` scene.
+    """
+    g2 = (1.0 - score) / score
+    y = np.mean(err**2, axis=1)
+    coef = np.linalg.lstsq(np.stack([g2, np.ones_like(g2)], axis=1), y, rcond=None)[0]
+    return {"a_px": float(np.sqrt(max(coef[0], 0.0))), "f_px": float(np.sqrt(max(coef[1], 0.0))), "n": int(y.size)}
 
 
 def metrics(run: dict) -> dict:
@@ -205,6 +219,7 @@ def metrics(run: dict) -> dict:
         "sigma_px_median": float(np.median(sig)),
         "sigma_deciles": deciles,
         "correlate_s": run["seconds"],
+        "score_sigma_fit": score_fit(err, run["score"]),
     }
 
 

@@ -113,8 +113,11 @@ def test_rank_transform_removes_gain_offset_and_gamma():
     pm = phase_correlate(r, m)
     err = np.hypot(pm.shift_row_px - 0.3, pm.shift_col_px + 0.45)
     assert pm.valid.all()
-    assert np.sqrt(np.mean(err**2)) < 0.05  # measured 0.01-0.02 px: rank quantization on 64 x 64 px
-    assert np.sqrt(np.mean(err**2)) > 1e-4  # the transform is not exact on resampled windows
+    rms_rank = np.sqrt(np.mean(err**2))
+    assert 1e-4 < rms_rank < 0.015  # measured 0.005 px (the scene side is not a grey-level map of the reference)
+    raw = phase_correlate(changed, mov)  # without the transform: measured 0.022 px
+    rms_raw = np.sqrt(np.mean((raw.shift_row_px - 0.3) ** 2 + (raw.shift_col_px + 0.45) ** 2))
+    assert rms_raw > 2.0 * rms_rank
 
 
 def test_prepare_windows_rejects_an_unknown_method():
@@ -138,7 +141,7 @@ def test_score_sigma_falls_with_the_score_down_to_the_floor():
     sig = score_sigma_px(s)
     assert np.all(np.diff(sig) < 0)
     assert sig[-1] == pytest.approx(MATCH_FLOOR_PX)
-    assert 0.07 < sig[0] < 0.1  # hypot(0.073, 0.037) at s = 0.5
+    assert 0.07 < sig[0] < 0.1  # hypot(0.074, 0.037) at s = 0.5
     assert score_sigma_px(s, window_px=32)[2] == pytest.approx(2 * sig[2])
 
 
