@@ -16,6 +16,9 @@ error rms / median / p95 (px, 2-D), the share of kept GCPs off by more than 1 px
 calibration: rms of (truth error / sigma_px) per axis and the truth-error rms per decile of
 sigma_px.
 
+``--calibrate`` variants also go through ``match`` and ``gcpcal calibrate`` on the realistic
+scenes: the calibration's variance factor and check RMSE.
+
 Usage: ``python bench/bench_matcher_realism.py --cache /tmp/mr [--variants a,b] [--out FILE]``
 (default ``--out bench/results/matcher_realism.json``).
 """
@@ -262,6 +265,22 @@ def variants() -> dict:
     }
 
 
+def calibration_chain(cache: Path, profile: str, name: str, options) -> dict:
+    """``match`` (the library action, with ``options``) then ``gcpcal calibrate`` on a cached scene:
+    the calibration's variance factor and check RMSE, the figures the sigma model must serve."""
+    from calibrate.actions.match import match_scene
+
+    scene, out = cache / profile, cache / f"chain_{profile}_{name}"
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    match_scene(scene / "manifest.json", dom_path=scene / "reference" / "dom.tif",
+                dem_path=scene / "reference" / "dem.tif", out_path=out / "gcps.csv", options=options)
+    _gcpcal("calibrate", scene / "manifest.json", "--gcps", out / "gcps.csv", "--out", out / "cal", "--no-report")
+    cal = json.loads((out / "cal" / "calibration.json").read_text())
+    after = ((cal.get("check_accuracy") or {}).get("after") or {}).get("absolute") or {}
+    return {"variance_factor": cal.get("variance_factor"), "check_rmse_px": after.get("rmse_px")}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", type=Path, required=True)
@@ -269,6 +288,8 @@ def main() -> None:
     ap.add_argument("--gsd", type=float, default=20.0)
     ap.add_argument("--source", default=str(S2_RED) if S2_RED.exists() else "procedural")
     ap.add_argument("--variants", default=None, help="Comma-separated names (default: all).")
+    ap.add_argument("--calibrate", default="baseline,sigma_window_ref1.3",
+                    help="Variants also run through match + calibrate on the realistic scenes ('' for none).")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     source = None if args.source == "procedural" else args.source
@@ -286,6 +307,13 @@ def main() -> None:
                   f"p95 {m['truth_error_px']['p95']:.4f} out {100 * m['outlier_share_gt_1px']:.1f} %  "
                   f"z-rms row {m['normalized_rms']['row']:.2f} col {m['normalized_rms']['col']:.2f}  "
                   f"({m['correlate_s']:.1f} s)", flush=True)
+    results["calibration"] = {}
+    for name in filter(None, args.calibrate.split(",")):
+        for p in ("realistic", "realistic_procedural"):
+            c = calibration_chain(args.cache, p, name, table[name][0])
+            results["calibration"].setdefault(name, {})[p] = c
+            print(f"{name:>22} {p:>9}: calibration variance factor {c['variance_factor']:.2f}, "
+                  f"check RMSE {c['check_rmse_px']:.3f} px", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=1))
 

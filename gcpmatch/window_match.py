@@ -67,7 +67,8 @@ def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOpti
     """
     n, w = reference.shape[0], reference.shape[-1]
     if n == 0:
-        return PairMatches(np.zeros((0, 2)), np.zeros(0, dtype=object), {"score": np.zeros(0), "peak_ratio": np.zeros(0)})
+        empty = {"score": np.zeros(0), "peak_ratio": np.zeros(0)}
+        return PairMatches(np.zeros((0, 2)), np.zeros(0, dtype=object), empty)
     ref, mov = prepare_windows(reference, scene, method=options.radiometry)
     kwargs = {"eps": options.phase_eps, "lowpass": options.lowpass_cycles_px, **(phase_options or {})}
     pm = phase_correlate(ref, mov, max_shift_px=w / 4.0,
