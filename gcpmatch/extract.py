@@ -30,16 +30,15 @@ from gcpmatch.coverage import reference_coverage
 from gcpmatch.gcps import GcpTable
 from gcpmatch.options import MatchOptions
 from gcpmatch.outliers import local_consistency, smooth_residuals
-from gcpmatch.phase import Reject, phase_correlate
-from gcpmatch.reference import reference_for_ccd, reference_for_image
+from gcpmatch.reference import reference_for_ccd, reference_for_image, scene_gsd_m
+from gcpmatch.uncertainty import window_sigma
+from gcpmatch.window_match import correlate_pairs
 from sensor_models.errors import InputError
 
-__all__ = ["MatchOptions", "extract_gcps", "read_band", "window_count"]
+__all__ = ["MatchOptions", "correlate_pairs", "extract_gcps", "read_band", "reject_outliers", "window_count"]
 
 REASONS = ("no_reference", "no_data", "cloud", "no_texture", "flat", "not_finite", "out_of_range",
            "low_score", "low_peak_ratio", "inconsistent", "model_residual")
-_PHASE_REASON = {Reject.FLAT: "flat", Reject.NOT_FINITE: "not_finite", Reject.OUT_OF_RANGE: "out_of_range",
-                 Reject.LOW_SCORE: "low_score", Reject.LOW_PEAK_RATIO: "low_peak_ratio"}
 
 
 def _grid_starts(n: int, window: int, spacing: int) -> np.ndarray:
@@ -120,7 +119,9 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
     model_pc = coarse.model
     if progress:
         progress(f"coarse stage: {coarse.n_inliers} SIFT matches, model pre-corrected")
-    tally = _Tally(height_m=scene_height_m(model_pc, dem, band=band), mask_given=mask is not None)
+    height_m = scene_height_m(model_pc, dem, band=band)
+    gsd_m = scene_gsd_m(model_pc, band=band, height_m=height_m) if opt.reference_sigma_m > 0 else float("nan")
+    tally = _Tally(height_m=height_m, gsd_m=gsd_m, mask_given=mask is not None)
     for i, look in enumerate(model_pc.detector_arrays(band)):
         # an array that is a model of its own (a CCD) is rendered alone; a whole image at once
         split = model_pc.detector_view(band, i) is not model_pc
@@ -143,6 +144,7 @@ class _Tally:
     cloud_sum: float = 0.0
     cloud_cols: int = 0  # detector columns whose cloud fraction is known
     height_m: float = 0.0  # localization height of the coverage grids
+    gsd_m: float = float("nan")  # scene ground sample distance (reference_sigma_m to pixels)
     mask_given: bool = False
     n_windows: int = 0
     t_ref: float = 0.0
@@ -203,9 +205,11 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
     n = rr.size
     tally.n_windows += n
     t1 = time.perf_counter()
-    status, std_r, shift, score = _correlate_windows(img, ref, msk, rr, cc, opt)
+    status, std_r, shift, quality = _correlate_windows(img, ref, msk, rr, cc, opt)
     tally.t_phase += time.perf_counter() - t1
-    keep, r_c, c_c, sigma = _reject_outliers(status, std_r, shift, rr, cc, (rs.size, cs.size), look.first_col, opt)
+    keep, r_c, c_c, sigma = reject_outliers(status, std_r, shift, rr, cc, (rs.size, cs.size), look.first_col, opt,
+                                            quality=quality, gsd_m=tally.gsd_m)
+    score = quality.get("score", np.full(n, np.nan))
     for r in REASONS:
         tally.reasons[r] += int(np.sum(status == r))
     if keep.size:
@@ -215,7 +219,8 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
         tally.cloud_sum += cloud_px * look.n_detectors
         tally.cloud_cols += look.n_detectors
     counts = {r: int(np.sum(status == r)) for r in REASONS}
-    tally.per_ccd.append(_ccd_report(look, n, keep.size, cloud_px, cover, counts, sigma,
+    sigma_ccd = float(np.sqrt(np.mean(sigma**2))) if sigma.size else float("nan")
+    tally.per_ccd.append(_ccd_report(look, n, keep.size, cloud_px, cover, counts, sigma_ccd,
                                      (r_c, c_c - look.first_col), img.shape, dem, dom))
     if progress:
         line = f"CCD {look.name}: {keep.size} GCPs from {n} windows" if look.name else \
@@ -279,8 +284,9 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
         Standard deviation of each reference window (NaN where it has no data).
     shift : ndarray of float64, shape (n, 2)
         Scene minus reference shift (row, col), pixels; NaN where not correlated.
-    score : ndarray of float64, shape (n,)
-        Phase-correlation score; NaN where not correlated.
+    quality : dict of str -> ndarray of float64, shape (n,)
+        Per-window quality figures of :func:`correlate_pairs` (``score``, ...); NaN where not
+        correlated.
     """
     w, n = opt.window_px, rr.size
     win_s = sliding_window_view(img, (w, w))
@@ -288,7 +294,7 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
     status = np.full(n, "", dtype=object)
     std_r = np.full(n, np.nan)
     shift = np.full((n, 2), np.nan)
-    score = np.full(n, np.nan)
+    quality = {}
     for a in range(0, n, opt.batch):
         b = min(n, a + opt.batch)
         ws = win_s[rr[a:b], cc[a:b]]
@@ -304,19 +310,39 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
         go = np.flatnonzero(status[a:b] == "")
         if go.size == 0:
             continue
-        pm = phase_correlate(wr[go], ws[go], max_shift_px=w / 4.0,
-                             backend="torch" if opt.backend in ("gpu", "torch") else "cpu",
-                             device="cuda" if opt.backend == "gpu" else None)
-        shift[a + go, 0] = pm.shift_row_px
-        shift[a + go, 1] = pm.shift_col_px
-        score[a + go] = pm.score
-        for code, name in _PHASE_REASON.items():
-            status[a + go[pm.reason == code]] = name
-    return status, std_r, shift, score
+        pm = correlate_pairs(wr[go], ws[go], opt)
+        shift[a + go] = pm.shift_px
+        status[a + go] = pm.status
+        for k, v in pm.quality.items():
+            quality.setdefault(k, np.full(n, np.nan))[a + go] = v
+    return status, std_r, shift, quality
 
 
-def _reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, opt: MatchOptions):
-    """Mark featureless, locally inconsistent and model-residual outliers in ``status`` (in place).
+def reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, opt: MatchOptions, *,
+                    quality: dict | None = None, gsd_m: float = float("nan")):
+    """Mark featureless, locally inconsistent and model-residual outliers; the kept GCPs' sigma.
+
+    Parameters
+    ----------
+    status : ndarray of object (str), shape (n,)
+        ``""`` for a match so far, else a rejection reason; updated in place.
+    std_r : ndarray of float64, shape (n,)
+        Standard deviation of each reference window (the texture test).
+    shift : ndarray of float64, shape (n, 2)
+        Scene minus reference shift (row, col), pixels.
+    rr, cc : ndarray of int, shape (n,)
+        Upper-left corners of the windows in the CCD image, on a grid of ``grid_shape``
+        (row-major).
+    grid_shape : (int, int)
+        Window-grid rows and columns.
+    first_col : int
+        The CCD's first column in the whole scene.
+    opt : MatchOptions
+        ``window_px``, ``texture_fraction``, ``sigma_model``.
+    quality : dict of str -> ndarray (n,), optional
+        Per-window quality of :func:`correlate_pairs` (``score``), for ``sigma_model="window"``.
+    gsd_m : float
+        Ground sample distance, metres: converts ``opt.reference_sigma_m`` to pixels.
 
     Returns
     -------
@@ -324,8 +350,8 @@ def _reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, o
         Indices of the kept windows.
     r_c, c_c : ndarray, shape (len(keep),)
         Their centres in whole-scene continuous pixel coordinates.
-    sigma : float
-        Robust spread of the residuals about a smooth per-CCD correction, pixels (NaN if none).
+    sigma_px : ndarray of float64, shape (len(keep),)
+        Each kept GCP's standard deviation per axis, pixels (:func:`gcpmatch.uncertainty.window_sigma`).
     """
     half = opt.window_px // 2
     # water and other featureless ground, judged on the whole CCD
@@ -338,20 +364,24 @@ def _reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, o
     keep = np.flatnonzero(status == "")
     r_c = rr[keep] + half  # window centres (continuous coordinates)
     c_c = cc[keep] + half + first_col
-    sigma = float("nan")
-    if keep.size:
-        inl, sigma, _ = smooth_residuals(r_c, c_c, shift[keep, 0], shift[keep, 1])
-        status[keep[~inl]] = "model_residual"
-        keep, r_c, c_c = keep[inl], r_c[inl], c_c[inl]
-    return keep, r_c, c_c, sigma
+    if not keep.size:
+        return keep, r_c, c_c, np.zeros(0)
+    inl, sigma, residual = smooth_residuals(r_c, c_c, shift[keep, 0], shift[keep, 1])
+    status[keep[~inl]] = "model_residual"
+    keep, r_c, c_c = keep[inl], r_c[inl], c_c[inl]
+    kept_quality = {k: v[keep] for k, v in (quality or {}).items()}
+    ref_px = opt.reference_sigma_m / gsd_m if opt.reference_sigma_m > 0 else 0.0
+    return keep, r_c, c_c, window_sigma(sigma, residual[inl], kept_quality, model=opt.sigma_model,
+                                        reference_sigma_px=ref_px, window_px=opt.window_px)
 
 
 def _ccd_gcps(model_pc, dem, band, look, r_c, c_c, shift, score, sigma, ccd_kw) -> dict:
-    """GCP columns of one CCD: the ground seen at each window centre, observed at centre + shift."""
+    """GCP columns of one CCD: the ground seen at each window centre, observed at centre + shift
+    (``sigma``: per GCP, pixels)."""
     lon, lat, h = model_pc.image_to_ground(r_c.astype(np.float64), c_c.astype(np.float64), dem=dem,
                                            band=band, **ccd_kw)
     ok = np.isfinite(lon)
-    sig = np.full(ok.sum(), max(sigma, 0.01) if np.isfinite(sigma) else 0.1)
+    sig = sigma[ok]
     return {
         "row": r_c[ok] + shift[ok, 0], "col": c_c[ok] + shift[ok, 1],
         "lon": lon[ok], "lat": lat[ok], "h": h[ok], "sigma_px": sig,

@@ -13,9 +13,10 @@ from dataclasses import dataclass
 
 from sensor_models.errors import InputError
 
-__all__ = ["BACKENDS", "MatchOptions", "require_cuda"]
+__all__ = ["BACKENDS", "SIGMA_MODELS", "MatchOptions", "require_cuda"]
 
 BACKENDS = ("cpu", "gpu", "torch")  # numpy/scipy; torch on CUDA; torch on the CPU
+SIGMA_MODELS = ("ccd", "window")
 
 
 def require_cuda() -> None:
@@ -71,6 +72,24 @@ class MatchOptions:
         Seed of the random draws (RANSAC, check-point split); >= 0.
     batch : int
         Windows phase-correlated per batch (bounds memory); >= 1.
+    radiometry : str
+        Preparation of each window pair before correlation (:mod:`gcpmatch.radiometry`):
+        ``"none"``, ``"rank"`` (rank transform: invariant to any monotonic grey-level change) or
+        ``"gradient"`` (gradient magnitude).
+    sigma_model : str
+        How each GCP's ``sigma_px`` is set (docs/matching.md, "sigma_px"): ``"ccd"`` (one value
+        per CCD: the robust spread of the residuals about a smooth correction) or ``"window"``
+        (per window: the matching noise predicted from its correlation score, combined with
+        ``reference_sigma_m``).
+    phase_eps : float
+        Floor of the cross-power normalization of :func:`gcpmatch.phase.phase_correlate`
+        (``eps``), relative to each pair's mean cross-power magnitude; >= 0.
+    lowpass_cycles_px : float or None
+        Standard deviation, cycles/px, of a Gaussian weight on the cross-power spectrum
+        (``lowpass`` of :func:`gcpmatch.phase.phase_correlate`); None for none; > 0.
+    reference_sigma_m : float
+        Geolocation accuracy of the reference DOM (and its DEM's effect), metres per axis (1
+        sigma), as its producer states it; used by ``sigma_model="window"``; >= 0.
     """
 
     window_px: int = 64
@@ -83,6 +102,11 @@ class MatchOptions:
     psf_sigma_px: float = 0.45
     seed: int = 0
     batch: int = 2048
+    radiometry: str = "none"
+    sigma_model: str = "ccd"
+    phase_eps: float = 0.5
+    lowpass_cycles_px: float | None = None
+    reference_sigma_m: float = 0.0
 
     def validate(self) -> MatchOptions:
         """Check every field; return ``self`` unchanged.
@@ -119,4 +143,21 @@ class MatchOptions:
             raise InputError(f"seed must be an integer >= 0, got {self.seed!r}", field="seed")
         if not _is_int(self.batch) or self.batch < 1:
             raise InputError(f"batch must be an integer >= 1 window, got {self.batch!r}", field="batch")
+        from gcpmatch.radiometry import METHODS
+
+        if self.radiometry not in METHODS:
+            raise InputError(f"radiometry must be one of {', '.join(METHODS)}, got {self.radiometry!r}",
+                             field="radiometry")
+        if self.sigma_model not in SIGMA_MODELS:
+            raise InputError(f"sigma model must be one of {', '.join(SIGMA_MODELS)}, got {self.sigma_model!r}",
+                             field="sigma_model")
+        if not _is_real(self.phase_eps) or not self.phase_eps >= 0:
+            raise InputError(f"phase eps must be >= 0, got {self.phase_eps!r}", field="phase_eps")
+        if self.lowpass_cycles_px is not None and (not _is_real(self.lowpass_cycles_px)
+                                                   or not self.lowpass_cycles_px > 0):
+            raise InputError(f"low-pass must be > 0 cycles/px or None, got {self.lowpass_cycles_px!r}",
+                             field="lowpass_cycles_px")
+        if not _is_real(self.reference_sigma_m) or not self.reference_sigma_m >= 0:
+            raise InputError(f"reference sigma must be >= 0 metres, got {self.reference_sigma_m!r}",
+                             field="reference_sigma_m")
         return self

@@ -1,0 +1,322 @@
+"""Measure matcher variants on cached ideal and realistic scenes, against the TRUE model.
+
+The expensive steps run once per scene and are cached in ``--cache``: ``gcpcal simulate
+pushbroom`` (demo size at ``--gsd`` m, as ``bench/bench_profiles.py``: the realistic profile with
+the Sentinel-2 red band as source radiance when present), the coarse SIFT pre-correction, the
+reference chips per CCD, the window screening (no reference, no data, clouds) and, per window,
+the TRUE shift: the ground point that the pre-corrected model sees at the window centre (DEM
+intersection on the user's DEM, as :func:`gcpmatch.extract.extract_gcps` does) projected
+through ``truth_manifest.json``, minus the centre. A GCP's truth error is then its measured
+shift minus this true shift: exactly its error as an observation of the true model.
+
+Each variant then correlates the cached windows (:func:`gcpmatch.extract.correlate_windows` with
+its :class:`~gcpmatch.options.MatchOptions`) and runs the production outlier rejection and sigma
+(:func:`gcpmatch.extract.reject_outliers`); the bench reports per variant: GCP count, truth
+error rms / median / p95 (px, 2-D), the share of kept GCPs off by more than 1 px, and the sigma
+calibration: rms of (truth error / sigma_px) per axis and the truth-error rms per decile of
+sigma_px.
+
+``--calibrate`` variants also go through ``match`` and ``gcpcal calibrate`` on the realistic
+scenes: the calibration's variance factor and check RMSE.
+
+Usage: ``python bench/bench_matcher_realism.py --cache /tmp/mr [--variants a,b] [--out FILE]``
+(default ``--out bench/results/matcher_realism.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+S2_RED = ROOT.parent / "shared" / "data" / "real_textures" / "sentinel2" / "s2_B04.jp2"
+#: ``realistic_no_dom_error``: realistic with the DOM's geolocation error switched off (as
+#: ``bench_profiles.py``'s ``no_dom_error`` ablation), so that what remains of the truth error is
+#: the matcher's own (radiometric change, MTF, DEM error, resampling)
+#: ``realistic_procedural``: realistic on the procedural source texture (the sigma model's
+#: constants were fitted on the Sentinel-2 source: this scene checks them out of sample)
+PROFILES = ("ideal", "realistic", "realistic_no_dom_error", "realistic_procedural")
+
+
+def _gcpcal(*args) -> None:
+    cmd = [shutil.which("gcpcal") or "gcpcal", "-q", *map(str, args)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env)
+    if done.returncode not in (0, 4):
+        raise SystemExit(f"{' '.join(cmd)} -> {done.returncode}\n{done.stderr[-2000:]}")
+
+
+def simulate_once(cache: Path, profile: str, gsd_m: float, source) -> Path:
+    """The scene folder of ``profile`` in ``cache``, simulated only when it is not there yet."""
+    scene = cache / profile
+    if (scene / "truth_manifest.json").exists():
+        return scene
+    config = cache / "config.json"
+    config.write_text(json.dumps({"scene": {"gsd_m": gsd_m}, "reference": {"margin_m": 1000.0, "relief_m": 600.0}}))
+    if profile == "realistic_no_dom_error":
+        from sensor_models.simulate.config import load_config
+        from sensor_models.simulate.profiles import PROFILES as SIM_PROFILES, Sourced
+        from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
+
+        off = {"dom_bias_m": Sourced((0.0, 0.0), "bench: DOM error off"), "dom_field_rms_m": Sourced(0.0, "bench")}
+        simulate_pushbroom(scene, config=load_config(config), profile=replace(SIM_PROFILES["realistic"], name=profile,
+                                                                               **off), dom=source)
+        return scene
+    sim = ["simulate", "pushbroom", "--out", scene, "--config", config, "--profile", profile.split("_")[0]]
+    if profile in ("realistic",) and source is not None:
+        sim += ["--dom", source]
+    _gcpcal(*sim)
+    return scene
+
+
+def prepare_windows(scene: Path, options) -> dict:
+    """Coarse stage, reference chips, screened windows and TRUE shifts of one scene (arrays).
+
+    Every window of every CCD's grid is kept, in grid order, CCD after CCD.
+
+    Returns
+    -------
+    dict
+        ``ws``, ``wr`` (n, w, w) float32 scene and reference windows (0 where they have no data);
+        ``status`` (n,) str: ``""`` or the screening reason (no_reference, no_data, cloud);
+        ``std_r`` (n,) reference standard deviation; ``true_shift`` (n, 2) px (NaN where the
+        truth cannot project); ``rr``, ``cc`` (n,) window corners in the CCD image; ``ccd``
+        (n,); ``grid`` (n_ccd, 2) grid shape per CCD; ``first_col`` (n_ccd,).
+    """
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    from gcpmatch.clouds import detect_clouds
+    from gcpmatch.extract import _coarse_stage, _grid_starts, read_band
+    from gcpmatch.reference import reference_for_ccd, scene_gsd_m
+    from sensor_models.raster import MapImage
+    from sensor_models.readers import open_model, open_scene
+    from sensor_models.terrain import Dem
+
+    model = open_scene(scene / "manifest.json")
+    truth = open_model(scene / "truth_manifest.json")
+    band = model.reference_band
+    img_all = read_band(model, band)
+    dem = Dem.open(scene / "reference" / "dem.tif")
+    dom = MapImage.open(scene / "reference" / "dom.tif")
+    model_pc = _coarse_stage(img_all, model, dem, dom, band, options).model
+    w, half = options.window_px, options.window_px // 2
+    out = {k: [] for k in ("ws", "wr", "status", "std_r", "true_shift", "rr", "cc", "ccd")}
+    grids, first_cols = [], []
+    for i, look in enumerate(model_pc.detector_arrays(band)):
+        ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=i, psf_sigma_px=options.psf_sigma_px)
+        img = img_all[:, look.first_col:look.first_col + look.n_detectors]
+        msk, _ = detect_clouds(img, ref)
+        rs = _grid_starts(img.shape[0], w, options.spacing_px)
+        cs = _grid_starts(img.shape[1], w, options.spacing_px)
+        rr, cc = (a.ravel() for a in np.meshgrid(rs, cs, indexing="ij"))
+        wr = sliding_window_view(ref, (w, w))[rr, cc]
+        ws = sliding_window_view(img, (w, w))[rr, cc]
+        status = np.full(rr.size, "", dtype=object)
+        status[~(np.isfinite(ws).all(axis=(1, 2)) & (ws > 0).all(axis=(1, 2)))] = "no_data"
+        status[~np.isfinite(wr).all(axis=(1, 2))] = "no_reference"
+        cloudy = sliding_window_view(msk, (w, w))[rr, cc].mean(axis=(1, 2)) > options.cloud_window_fraction
+        status[(status == "") & cloudy] = "cloud"
+        r_c, c_c = rr + half, cc + half + look.first_col
+        lon, lat, h = model_pc.image_to_ground(r_c.astype(float), c_c.astype(float), dem=dem, band=band, array=i)
+        fin = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(h)
+        r_t, c_t = np.full(lon.size, np.nan), np.full(lon.size, np.nan)
+        r_t[fin], c_t[fin] = truth.ground_to_image(lon[fin], lat[fin], h[fin], band=band,
+                                                   ccd=np.full(fin.sum(), look.name, dtype=object))
+        with np.errstate(invalid="ignore"):
+            out["std_r"].append(wr.std(axis=(1, 2)))
+        out["ws"].append(np.nan_to_num(ws).astype(np.float32))
+        out["wr"].append(np.nan_to_num(wr).astype(np.float32))
+        out["status"].append(status.astype(str))
+        out["true_shift"].append(np.stack([r_t - r_c, c_t - c_c], axis=1))
+        out["rr"].append(rr)
+        out["cc"].append(cc)
+        out["ccd"].append(np.full(rr.size, i))
+        grids.append((rs.size, cs.size))
+        first_cols.append(look.first_col)
+    arrays = {k: np.concatenate(v) for k, v in out.items()}
+    arrays["grid"] = np.array(grids)
+    arrays["first_col"] = np.array(first_cols)
+    arrays["gsd_m"] = np.array(scene_gsd_m(model_pc, band=band))
+    return arrays
+
+
+def load_windows(cache: Path, profile: str, gsd_m: float, source, options) -> dict:
+    """:func:`prepare_windows` of the cached scene, itself cached as ``PROFILE_windows.npz``."""
+    path = cache / f"{profile}_w{options.window_px}_s{options.spacing_px}_psf{options.psf_sigma_px}_windows.npz"
+    if not path.exists():
+        scene = simulate_once(cache, profile, gsd_m, source)
+        np.savez(path, **prepare_windows(scene, options))
+    with np.load(path) as data:
+        win = dict(data)
+    win["status"] = win["status"].astype(object)
+    return win
+
+
+def run_variant(win: dict, options, phase_options: dict | None = None) -> dict:
+    """Correlate, reject and assign sigma with ``options``; the kept windows' errors and sigmas."""
+    from gcpmatch.extract import correlate_pairs, reject_outliers
+
+    seconds, err, sig, score = 0.0, [], [], []
+    for i, (n_r, n_c) in enumerate(win["grid"]):
+        sel = np.flatnonzero(win["ccd"] == i)
+        status = win["status"][sel].copy()
+        shift = np.full((sel.size, 2), np.nan)
+        go = np.flatnonzero(status == "")
+        t0 = time.perf_counter()
+        res = correlate_pairs(win["wr"][sel[go]], win["ws"][sel[go]], options, phase_options=phase_options)
+        seconds += time.perf_counter() - t0
+        shift[go] = res.shift_px
+        status[go] = res.status
+        quality = {k: np.full(sel.size, np.nan) for k in res.quality}
+        for k, v in res.quality.items():
+            quality[k][go] = v
+        keep, _, _, sigma = reject_outliers(status, win["std_r"][sel], shift, win["rr"][sel], win["cc"][sel],
+                                            (int(n_r), int(n_c)), int(win["first_col"][i]), options, quality=quality,
+                                            gsd_m=float(win["gsd_m"]))
+        ok = np.isfinite(win["true_shift"][sel[keep]]).all(axis=1)
+        err.append((shift[keep] - win["true_shift"][sel[keep]])[ok])
+        sig.append(sigma[ok])
+        score.append(quality["score"][keep][ok])
+    return {"err": np.concatenate(err), "sigma": np.concatenate(sig), "score": np.concatenate(score),
+            "seconds": seconds}
+
+
+def score_fit(err: np.ndarray, score: np.ndarray) -> dict:
+    """Least-squares fit ``e^2 = a^2 (1 - s) / s + f^2`` of the squared per-axis truth errors.
+
+    The constants of :mod:`gcpmatch.uncertainty` (``SCORE_SIGMA_PX`` = a, ``MATCH_FLOOR_PX`` = f)
+    come from this fit on the ``realistic_no_dom_error`` scene.
+    """
+    g2 = (1.0 - score) / score
+    y = np.mean(err**2, axis=1)
+    coef = np.linalg.lstsq(np.stack([g2, np.ones_like(g2)], axis=1), y, rcond=None)[0]
+    return {"a_px": float(np.sqrt(max(coef[0], 0.0))), "f_px": float(np.sqrt(max(coef[1], 0.0))), "n": int(y.size)}
+
+
+def metrics(run: dict) -> dict:
+    """GCP count, truth-error statistics (px) and sigma calibration of one variant's kept GCPs."""
+    err, sig = run["err"], run["sigma"]
+    dist = np.hypot(err[:, 0], err[:, 1])
+    good = dist <= 1.0
+    z = err / sig[:, None]
+    order = np.argsort(sig)
+    deciles = [{"sigma_px": float(np.median(sig[b])), "truth_rms_px_per_axis": float(np.sqrt(np.mean(err[b] ** 2)))}
+               for b in np.array_split(order, 10) if b.size]
+    return {
+        "gcps": int(dist.size),
+        "truth_error_px": {"rms": float(np.sqrt(np.mean(dist**2))), "median": float(np.median(dist)),
+                           "p95": float(np.percentile(dist, 95)),
+                           "rms_without_outliers": float(np.sqrt(np.mean(dist[good] ** 2)))},
+        "outlier_share_gt_1px": float(1.0 - good.mean()),
+        "normalized_rms": {"row": float(np.sqrt(np.mean(z[:, 0] ** 2))), "col": float(np.sqrt(np.mean(z[:, 1] ** 2)))},
+        "normalized_rms_without_outliers": {
+            "row": float(np.sqrt(np.mean(z[good, 0] ** 2))), "col": float(np.sqrt(np.mean(z[good, 1] ** 2)))},
+        "sigma_px_median": float(np.median(sig)),
+        "sigma_deciles": deciles,
+        "correlate_s": run["seconds"],
+        "score_sigma_fit": score_fit(err, run["score"]),
+    }
+
+
+#: the realistic profile's DOM geolocation error per axis, metres: bias (1.2, -0.9) m and a
+#: smooth field of 0.8 m rms per axis (sensor_models/simulate/profiles.py), what a user reads in
+#: the reference's specification: sqrt((1.2^2 + 0.9^2) / 2 + 0.8^2) = 1.3 m
+REALISTIC_REFERENCE_SIGMA_M = 1.3
+
+
+def variants() -> dict:
+    """Named (:class:`~gcpmatch.options.MatchOptions`, phase-correlation keywords) to measure."""
+    from gcpmatch.options import MatchOptions
+
+    base = MatchOptions()
+    window = replace(base, sigma_model="window")
+    return {
+        "baseline": (base, None),
+        "rank": (replace(base, radiometry="rank"), None),
+        "gradient": (replace(base, radiometry="gradient"), None),
+        "phase_only_eps1e-6": (base, {"eps": 1e-6}),
+        "eps_0.2": (base, {"eps": 0.2}),
+        "eps_1.0": (base, {"eps": 1.0}),
+        "lowpass_0.25": (base, {"lowpass": 0.25}),
+        "eps_2.0": (base, {"eps": 2.0}),
+        "lowpass_0.2": (base, {"lowpass": 0.2}),
+        "lowpass_0.15": (base, {"lowpass": 0.15}),
+        "eps_1.0_lowpass_0.25": (replace(base, phase_eps=1.0, lowpass_cycles_px=0.25), None),
+        "eps_1.0_lowpass_0.2": (base, {"eps": 1.0, "lowpass": 0.2}),
+        "follow_0": (base, {"follow": 0}),
+        "follow_2": (base, {"follow": 2}),
+        "tukey_window": (base, {"window": "tukey"}),
+        "psf_0.6": (replace(base, psf_sigma_px=0.6), None),
+        "psf_0.3": (replace(base, psf_sigma_px=0.3), None),
+        "min_score_0.8": (base, {"min_score": 0.8}),
+        "window_48": (replace(base, window_px=48, spacing_px=32), None),
+        "window_96": (replace(base, window_px=96, spacing_px=32), None),
+        "sigma_window_ref0": (window, None),
+        "sigma_window_ref0.65": (replace(window, reference_sigma_m=0.65), None),
+        "sigma_window_ref1.3": (replace(window, reference_sigma_m=REALISTIC_REFERENCE_SIGMA_M), None),
+    }
+
+
+def calibration_chain(cache: Path, profile: str, name: str, options) -> dict:
+    """``match`` (the library action, with ``options``) then ``gcpcal calibrate`` on a cached scene:
+    the calibration's variance factor and check RMSE, the figures the sigma model must serve."""
+    from calibrate.actions.match import match_scene
+
+    scene, out = cache / profile, cache / f"chain_{profile}_{name}"
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    match_scene(scene / "manifest.json", dom_path=scene / "reference" / "dom.tif",
+                dem_path=scene / "reference" / "dem.tif", out_path=out / "gcps.csv", options=options)
+    _gcpcal("calibrate", scene / "manifest.json", "--gcps", out / "gcps.csv", "--out", out / "cal", "--no-report")
+    cal = json.loads((out / "cal" / "calibration.json").read_text())
+    after = ((cal.get("check_accuracy") or {}).get("after") or {}).get("absolute") or {}
+    return {"variance_factor": cal.get("variance_factor"), "check_rmse_px": after.get("rmse_px")}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "matcher_realism.json")
+    ap.add_argument("--gsd", type=float, default=20.0)
+    ap.add_argument("--source", default=str(S2_RED) if S2_RED.exists() else "procedural")
+    ap.add_argument("--variants", default=None, help="Comma-separated names (default: all).")
+    ap.add_argument("--calibrate", default="baseline,sigma_window_ref1.3",
+                    help="Variants also run through match + calibrate on the realistic scenes ('' for none).")
+    args = ap.parse_args()
+    args.cache.mkdir(parents=True, exist_ok=True)
+    source = None if args.source == "procedural" else args.source
+    table = variants()
+    names = args.variants.split(",") if args.variants else list(table)
+    results = {"gsd_m": args.gsd, "source": args.source, "variants": {}}
+    for name in names:
+        results["variants"][name] = {}
+        options, phase_options = table[name]
+        for p in PROFILES:
+            win = load_windows(args.cache, p, args.gsd, source, options)
+            m = metrics(run_variant(win, options, phase_options))
+            results["variants"][name][p] = m
+            print(f"{name:>22} {p:>9}: {m['gcps']:4d} GCPs  truth rms {m['truth_error_px']['rms']:.4f} "
+                  f"p95 {m['truth_error_px']['p95']:.4f} out {100 * m['outlier_share_gt_1px']:.1f} %  "
+                  f"z-rms row {m['normalized_rms']['row']:.2f} col {m['normalized_rms']['col']:.2f}  "
+                  f"({m['correlate_s']:.1f} s)", flush=True)
+    results["calibration"] = {}
+    for name in filter(None, args.calibrate.split(",")):
+        for p in ("realistic", "realistic_procedural"):
+            c = calibration_chain(args.cache, p, name, table[name][0])
+            results["calibration"].setdefault(name, {})[p] = c
+            print(f"{name:>22} {p:>9}: calibration variance factor {c['variance_factor']:.2f}, "
+                  f"check RMSE {c['check_rmse_px']:.3f} px", flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""Each GCP's ``sigma_px``: the standard deviation per axis of its matched position.
+
+Two models (:data:`gcpmatch.options.SIGMA_MODELS`; docs/matching.md, section "sigma_px"):
+
+* ``"ccd"``: one value per CCD, the robust (MAD) spread per axis of the matches' residuals about
+  a smooth per-CCD correction (:func:`gcpmatch.outliers.smooth_residuals`). It measures the
+  matching noise *plus* whatever the smooth correction cannot follow (attitude jitter, lens
+  terms), and nothing of the errors that all matches share (the reference's geolocation error).
+* ``"window"``: per window, the matching noise predicted from its phase-correlation score
+  ``s`` (the coherent share of the cross-power), a floor of the matching itself, and the
+  reference's stated geolocation accuracy::
+
+      sigma_px^2 = (SCORE_SIGMA_PX sqrt((1 - s) / s))^2 + MATCH_FLOOR_PX^2 + (reference_sigma_m / gsd_m)^2
+
+  The phase noise of a cross-power bin grows as the coherent share falls (for a small phase
+  noise of variance ``v``, ``s ~ 1 - v / 2``), and the shift's variance grows with it. The
+  floor is what a window match misses whatever its score on imagery of another sensor and date
+  (resampling of a coarser reference, the window averaging a shift that varies inside it).
+  Both constants are measured (``bench/bench_matcher_realism.py``) on the realistic profile
+  with the DOM's geolocation error switched off, where every remaining error is the matcher's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["FALLBACK_SIGMA_PX", "MATCH_FLOOR_PX", "MIN_SIGMA_PX", "SCORE_SIGMA_PX", "score_sigma_px", "window_sigma"]
+
+#: ``sigma_px`` when a CCD has too few matches (< 10) for a residual spread, pixels
+FALLBACK_SIGMA_PX = 0.1
+#: smallest ``sigma_px``, pixels
+MIN_SIGMA_PX = 0.01
+#: matching noise per axis, pixels, of a 64 px window whose score is 0.5 (``sqrt((1 - s) / s) =
+#: 1``): least-squares fit ``e^2 = a^2 (1 - s) / s + f^2`` of the squared per-axis truth errors
+#: of the 233 kept GCPs of the realistic profile without DOM error (a = 0.074 px, f = 0.037 px); on
+#: the ideal scene the same fit gives a = 0.127 px, f = 0.005 px (bench/results/matcher_realism.json)
+SCORE_SIGMA_PX = 0.074
+#: matching floor per axis, pixels (64 px windows), from the same fit
+MATCH_FLOOR_PX = 0.037
+
+
+def score_sigma_px(score: np.ndarray, *, window_px: int = 64) -> np.ndarray:
+    """Matching noise per axis predicted from the phase-correlation score, pixels.
+
+    Parameters
+    ----------
+    score : ndarray of float, shape (n,)
+        :attr:`gcpmatch.phase.PhaseMatches.score`, in (0, 1].
+    window_px : int
+        Window side, pixels; the noise scales as ``64 / window_px`` (the shift's variance falls
+        as the number of pixels, the score's null spread as its square root).
+
+    Returns
+    -------
+    ndarray of float64, shape (n,)
+        ``hypot(SCORE_SIGMA_PX sqrt((1 - s) / s), MATCH_FLOOR_PX) * 64 / window_px``.
+    """
+    s = np.clip(np.asarray(score, dtype=float), 1e-3, 1.0)
+    return np.hypot(SCORE_SIGMA_PX * np.sqrt((1.0 - s) / s), MATCH_FLOOR_PX) * (64.0 / window_px)
+
+
+def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *, model: str = "ccd",
+                 reference_sigma_px: float = 0.0, window_px: int = 64) -> np.ndarray:
+    """Per-GCP standard deviation per axis, pixels, for the kept matches of one CCD.
+
+    Parameters
+    ----------
+    sigma_ccd_px : float
+        Robust spread per axis of the CCD's residuals about a smooth correction, pixels
+        (:func:`gcpmatch.outliers.smooth_residuals`); NaN with too few matches.
+    residual_px : ndarray of float64, shape (n, 2)
+        The kept matches' residuals about that correction (row, col), pixels.
+    quality : dict of str -> ndarray (n,)
+        Per-window quality of the kept matches (``score``, needed by ``"window"``).
+    model : {"ccd", "window"}
+        See the module docstring.
+    reference_sigma_px : float
+        The reference's geolocation accuracy per axis in scene pixels (``"window"`` only).
+    window_px : int
+        Window side, pixels.
+
+    Returns
+    -------
+    ndarray of float64, shape (n,)
+        ``sigma_px`` of each kept GCP (at least :data:`MIN_SIGMA_PX`).
+    """
+    n = residual_px.shape[0]
+    if model == "window" and "score" in quality:
+        match = score_sigma_px(quality["score"], window_px=window_px)
+        return np.maximum(np.hypot(match, reference_sigma_px), MIN_SIGMA_PX)
+    base = max(sigma_ccd_px, MIN_SIGMA_PX) if np.isfinite(sigma_ccd_px) else FALLBACK_SIGMA_PX
+    return np.full(n, base)

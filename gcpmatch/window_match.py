@@ -1,0 +1,79 @@
+"""One batch of window pairs matched as :func:`gcpmatch.extract.extract_gcps` does.
+
+:func:`correlate_pairs` turns reference and scene windows into shifts, a rejection reason per
+pair and the per-window quality figures that the outlier tests and the sigma model
+(:mod:`gcpmatch.uncertainty`) read. The radiometric preparation of the windows
+(:mod:`gcpmatch.radiometry`) and the phase-correlation settings come from
+:class:`~gcpmatch.options.MatchOptions`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gcpmatch.options import MatchOptions
+from gcpmatch.phase import Reject, phase_correlate
+from gcpmatch.radiometry import prepare_windows
+
+__all__ = ["PairMatches", "correlate_pairs"]
+
+_PHASE_REASON = {Reject.OK: "", Reject.FLAT: "flat", Reject.NOT_FINITE: "not_finite",
+                 Reject.OUT_OF_RANGE: "out_of_range", Reject.LOW_SCORE: "low_score",
+                 Reject.LOW_PEAK_RATIO: "low_peak_ratio"}
+
+
+@dataclass(frozen=True)
+class PairMatches:
+    """Result of :func:`correlate_pairs` for ``n`` window pairs.
+
+    Attributes
+    ----------
+    shift_px : ndarray of float64, shape (n, 2)
+        Scene minus reference shift ``(row, col)``, pixels (the :mod:`gcpmatch.phase` sign).
+    status : ndarray of object (str), shape (n,)
+        ``""`` for a match, else the phase-correlation rejection (``flat``, ``not_finite``,
+        ``out_of_range``, ``low_score``, ``low_peak_ratio``).
+    quality : dict of str -> ndarray of float64, shape (n,)
+        ``score`` (coherent share of the cross-power, in [0, 1]) and ``peak_ratio``.
+    """
+
+    shift_px: np.ndarray
+    status: np.ndarray
+    quality: dict
+
+
+def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOptions = MatchOptions(), *,
+                    phase_options: dict | None = None) -> PairMatches:
+    """Phase-correlate window pairs after the options' radiometric preparation.
+
+    Parameters
+    ----------
+    reference, scene : ndarray of float, shape (n, w, w)
+        Reference windows (DOM resampled into scene geometry) and scene windows at the same
+        place; finite.
+    phase_options : dict, optional
+        Further keywords of :func:`gcpmatch.phase.phase_correlate` (``eps``, ``lowpass``, ...),
+        for experiments (``bench/bench_matcher_realism.py``).
+    options : MatchOptions
+        ``radiometry`` (window preparation), ``phase_eps``, ``lowpass_cycles_px``, ``backend``;
+        the largest shift accepted is a quarter of the window.
+
+    Returns
+    -------
+    PairMatches
+        Shifts (pixels), statuses and quality figures.
+    """
+    n, w = reference.shape[0], reference.shape[-1]
+    if n == 0:
+        empty = {"score": np.zeros(0), "peak_ratio": np.zeros(0)}
+        return PairMatches(np.zeros((0, 2)), np.zeros(0, dtype=object), empty)
+    ref, mov = prepare_windows(reference, scene, method=options.radiometry)
+    kwargs = {"eps": options.phase_eps, "lowpass": options.lowpass_cycles_px, **(phase_options or {})}
+    pm = phase_correlate(ref, mov, max_shift_px=w / 4.0,
+                         backend="torch" if options.backend in ("gpu", "torch") else "cpu",
+                         device="cuda" if options.backend == "gpu" else None, **kwargs)
+    status = np.array([_PHASE_REASON[Reject(r)] for r in pm.reason], dtype=object)
+    return PairMatches(shift_px=pm.shift_px, status=status,
+                       quality={"score": pm.score, "peak_ratio": pm.peak_ratio})
