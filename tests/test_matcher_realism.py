@@ -171,3 +171,24 @@ def test_correlate_pairs_applies_the_phase_options():
     assert not np.array_equal(got.shift_px, default.shift_px)
     assert np.all(got.status == "")
     assert np.sqrt(np.mean((got.shift_px - [1.2, 0.7]) ** 2)) < 0.05
+
+
+def test_match_command_takes_the_sigma_model(tmp_path):
+    """``gcpcal match --sigma-model window --reference-sigma-m M`` reaches the matcher: larger sigmas."""
+    import json
+    from pathlib import Path
+
+    from calibrate.cli import main
+    from gcpmatch.gcps import read_gcps
+
+    fixture = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
+    base = ["-q", "match", str(fixture / "manifest.json"), "--dom", str(fixture / "reference" / "dom.tif"),
+            "--dem", str(fixture / "reference" / "dem.tif"), "--spacing", "64"]
+    assert main([*base, "--out", str(tmp_path / "ccd.csv")]) == 0
+    assert main([*base, "--sigma-model", "window", "--reference-sigma-m", "15", "--out",
+                 str(tmp_path / "win.csv")]) == 0
+    options = json.loads((tmp_path / "win.summary.json").read_text())["options"]
+    assert options["sigma_model"] == "window" and options["reference_sigma_m"] == 15.0
+    ccd, win = read_gcps(tmp_path / "ccd.csv"), read_gcps(tmp_path / "win.csv")
+    # 15 m of DOM error on the ~30 m GSD adds about 0.5 px in quadrature to every window's sigma
+    assert np.all(win.sigma_px > 0.45) and np.median(win.sigma_px) > 2 * np.median(ccd.sigma_px)

@@ -6,6 +6,7 @@ import click
 
 from calibrate.actions.match import match_scene
 from calibrate.config import MatchOptions
+from gcpmatch.options import SIGMA_MODELS
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import add_options, dem_options, dom_options, echo_json, json_option
 from sensor_models.errors import InputError
@@ -33,10 +34,16 @@ __all__ = ["command"]
               help="Largest expected model error, pixels.")
 @click.option("--backend", type=click.Choice(["cpu", "gpu"]), default=MatchOptions.backend, show_default=True,
               help="Phase correlation on CPU (numpy) or GPU (torch).")
+@click.option("--sigma-model", type=click.Choice(SIGMA_MODELS), default=MatchOptions.sigma_model, show_default=True,
+              help="Per-GCP sigma: 'ccd' (the spread of each CCD's matches) or 'window' (from each window's "
+                   "correlation score plus the reference's accuracy, docs/matching.md).")
+@click.option("--reference-sigma-m", type=click.FloatRange(min=0.0), default=MatchOptions.reference_sigma_m,
+              show_default=True, help="Geolocation accuracy of the DOM (1-sigma per axis, m), as its producer states "
+                                      "it; used by --sigma-model window.")
 @json_option
 @click.pass_context
 def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_path, geotiff_path, band, image,
-            mask_path, check_fraction, window, spacing, max_offset, backend, as_json):
+            mask_path, check_fraction, window, spacing, max_offset, backend, sigma_model, reference_sigma_m, as_json):
     """Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation).
 
     SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
@@ -46,7 +53,8 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpk
     if dem_path is None:
         raise InputError("--dem is required: GCPs need terrain heights")
     options = MatchOptions(window_px=window, spacing_px=spacing, max_offset_px=max_offset,
-                           check_fraction=check_fraction, backend=backend)
+                           check_fraction=check_fraction, backend=backend, sigma_model=sigma_model,
+                           reference_sigma_m=reference_sigma_m)
     with stage_progress(ctx, "gcpcal match", as_json) as progress:
         summary = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=out_path, geoid=geoid,
                               dem_datum=dem_datum, band=band, image=image, mask_path=mask_path, gpkg_path=gpkg_path,
