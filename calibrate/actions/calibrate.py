@@ -228,6 +228,10 @@ def _write_model(calibrated, original, tmp: Path, out_dir: Path, *, failed=False
         return "manifest.json"
     if failed:
         return None
+    crop = getattr(original, "crop_of_full_scene", None)
+    if crop is not None:  # GCPs measured in a crop: the RPC file, like the product's, is the full scene's
+        row0, col0, full_shape = crop
+        calibrated = calibrated.cropped(-row0, -col0, full_shape)
     name = f"{Path(getattr(original, 'source', 'model') or 'model').stem}_RPC.TXT"
     calibrated.write(tmp / name)
     return name

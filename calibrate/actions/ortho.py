@@ -64,6 +64,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     geometry, calib_file, calib_warning = scene, None, None
     if calibration is not None:
         geometry, calib_file, calib_warning = open_usable_calibration(calibration, command="ortho")
+        geometry = _crop_like_scene(geometry, scene)
         if tuple(geometry.image_shape) != tuple(scene.image_shape):
             raise InputError(f"the calibrated model describes a {geometry.image_shape[0]} x {geometry.image_shape[1]} "
                              f"px image, the scene {scene.image_shape[0]} x {scene.image_shape[1]}",
@@ -93,6 +94,17 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
         summary["summary"] = str(summary_path)
         write_summary(summary_tmp, summary)
     return summary
+
+
+def _crop_like_scene(geometry, scene):
+    """The calibrated full-scene model cropped as the scene's raster is (a crop with a pixel geotransform)."""
+    crop = getattr(scene, "crop_of_full_scene", None)
+    if crop is None or not hasattr(geometry, "cropped") or tuple(geometry.image_shape) == tuple(scene.image_shape):
+        return geometry
+    status = getattr(geometry, "calibration", None)
+    geometry = geometry.cropped(crop[0], crop[1], tuple(scene.image_shape))
+    geometry.calibration = status
+    return geometry
 
 
 def _band_and_image(scene, geometry, band, image, scene_path):

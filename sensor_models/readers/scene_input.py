@@ -166,7 +166,9 @@ def crop_to_raster(model, image, shape):
     Returns
     -------
     SensorModel
-        The model of the crop.
+        The model of the crop, with ``crop_of_full_scene = (row0, col0, full_shape)``: where the
+        crop lies in the full scene and the full model's ``image_shape`` (so that a model
+        calibrated in crop pixels can be written back in the full scene's pixels).
 
     Raises
     ------
@@ -176,7 +178,9 @@ def crop_to_raster(model, image, shape):
     t, crs = _raster_info(image)[1:]
     pixel = crs is None and abs(t.a - 1) < 1e-12 and abs(t.e - 1) < 1e-12 and t.b == 0 and t.d == 0
     if pixel and hasattr(model, "cropped"):
-        return model.cropped(t.f, t.c, shape)
+        cropped = model.cropped(t.f, t.c, shape)
+        cropped.crop_of_full_scene = (float(t.f), float(t.c), tuple(model.image_shape))
+        return cropped
     described = tuple(model.image_shape)
     why = ("a crop must carry a pixel geotransform (1, 0, col0, 0, 1, row0)" if hasattr(model, "cropped")
            else f"a {model.kind} model cannot be cropped; give the full scene raster")
