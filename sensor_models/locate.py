@@ -39,10 +39,17 @@ from sensor_models.errors import InputError
 from sensor_models.pushbroom import _catmull_rom_weights
 from sensor_models.terrain import Dem
 
-__all__ = ["MapGrid", "MapProjector", "PixelGround", "catmull_rom_matrix", "dem_planes", "locate_block"]
+__all__ = ["HEIGHT_TOLERANCE_M", "MapGrid", "MapProjector", "PixelGround", "catmull_rom_matrix", "dem_planes", "locate_block"]
 
 #: DEM intersection steps: two Newton then two chord steps (< 1 cm on the test terrains)
 NEWTON_ITERATIONS = 4
+#: adaptive intersection: the fixed-step solution on every ``COARSE_STEP``-th pixel (odd, so that
+#: ``cv2.resize`` puts the coarse samples on pixel centres) starts every pixel
+COARSE_STEP = 5
+#: adaptive intersection: a pixel is done once its last height step is below this (metres)
+HEIGHT_TOLERANCE_M = 1e-3
+#: adaptive intersection: Newton steps at most on the pixels that have not converged
+MAX_REFINE_STEPS = 6
 
 
 @dataclass(frozen=True)
@@ -166,6 +173,24 @@ def _interp_cols(a, taps) -> np.ndarray:
     return out
 
 
+def _interp_rows(a, taps) -> np.ndarray:
+    """Interpolate the rows of ``a`` (n_nodes, cols) at the tap positions: C-contiguous (n_out, cols).
+
+    Row gathers of a C-ordered array keep every full-size temporary C-ordered, so the per-pixel
+    arithmetic that follows runs at memory speed (column gathers of the full-size block gave
+    Fortran-ordered layers and strided loops).
+    """
+    first, w = taps
+    out = a[first]
+    out *= w[:, 0, None]
+    tmp = np.empty_like(out)
+    for j in range(1, 4):
+        np.take(a, first + j, axis=0, out=tmp)
+        tmp *= w[:, j, None]
+        out += tmp
+    return out
+
+
 class MapProjector:
     """WGS84 longitude and latitude -> node indices ``(u, v)`` of one map grid.
 
@@ -216,6 +241,7 @@ def locate_block(
     node_step: int = 16,
     height_margin_m: float = 50.0,
     newton_iterations: int = NEWTON_ITERATIONS,
+    tolerance_m: float | None = None,
 ) -> PixelGround:
     """DEM intersection of the pixel centres of lines ``row0..row1-1`` of one CCD and band.
 
@@ -243,6 +269,12 @@ def locate_block(
         Margin added to the DEM's height range for the two localization layers, metres.
     newton_iterations : int
         Steps of the per-pixel DEM intersection (two Newton, then chord steps).
+    tolerance_m : float, optional
+        None (default): ``newton_iterations`` fixed steps on every pixel. A height in metres
+        (e.g. :data:`HEIGHT_TOLERANCE_M`): the adaptive solver of
+        :func:`sensor_models.locate_adaptive.intersect_dem_adaptive` (coarse-grid start, one
+        step everywhere, more steps only where the last one exceeded ``tolerance_m``), about
+        3x faster at the same accuracy (``bench/bench_match.py --stages``).
 
     Returns
     -------
@@ -260,7 +292,13 @@ def locate_block(
     own = [g for g in grids if not g.crs.equals(dem.crs)]
     projectors = [MapProjector(MapGrid.of_dem(dem))] + [MapProjector(g) for g in own]
     layers = _pixel_layers(model, kw, projectors, row0, row1, col0, col1, float(max(1, node_step)), h_lo, h_hi)
-    h, u_dem, v_dem = _intersect_dem(dem, *layers[0], np.float32(h_lo), newton_iterations)
+    if tolerance_m is None:
+        h, u_dem, v_dem = _intersect_dem(dem, *layers[0], np.float32(h_lo), newton_iterations)
+    else:
+        from sensor_models.locate_adaptive import intersect_dem_adaptive
+
+        h, u_dem, v_dem = intersect_dem_adaptive(dem, *layers[0], np.float32(h_lo), tolerance_m=tolerance_m,
+                                                 coarse_step=COARSE_STEP, max_refine_steps=MAX_REFINE_STEPS)
     dh = h - np.float32(h_lo)
     uv, k = [], 1
     for g in grids:
@@ -286,13 +324,13 @@ def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_h
 
     The model localizes a node grid (every ``step`` pixels, one node beyond each side) at the
     heights ``h_lo`` and ``h_hi``; the node values are interpolated to every pixel centre by
-    separable Catmull-Rom cubics.
+    separable Catmull-Rom cubics (columns on the node rows first, then rows: C-ordered layers).
     """
     n_lines, n_cols = row1 - row0, col1 - col0
     # nodes: one before the first pixel centre and enough to pass the last one plus one
     r_nodes = row0 + 0.5 + step * np.arange(-1, int(np.ceil((n_lines - 1) / step)) + 3)
     c_nodes = col0 + 0.5 + step * np.arange(-1, int(np.ceil((n_cols - 1) / step)) + 3)
-    wr = catmull_rom_matrix(1.0 + np.arange(n_lines) / step, r_nodes.size).astype(np.float32)
+    row_taps = _catmull_rom_taps(1.0 + np.arange(n_lines) / step, r_nodes.size)
     col_taps = _catmull_rom_taps(1.0 + np.arange(n_cols) / step, c_nodes.size)
     rr, cc = np.meshgrid(r_nodes, c_nodes, indexing="ij")
     ground = [
@@ -305,7 +343,8 @@ def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_h
         u_lo, v_lo = proj(*ground[0])
         u_hi, v_hi = proj(*ground[1])
         nodes = (u_lo, v_lo, (u_hi - u_lo) / span, (v_hi - v_lo) / span)
-        layers.append([_interp_cols(wr @ a.reshape(rr.shape).astype(np.float32), col_taps) for a in nodes])
+        layers.append([_interp_rows(np.ascontiguousarray(_interp_cols(a.reshape(rr.shape).astype(np.float32), col_taps)),
+                                    row_taps) for a in nodes])
     return layers
 
 
