@@ -291,7 +291,9 @@ def locate_block(
     # grids in the DEM's CRS follow from the DEM indices by an affine map; others need PROJ
     own = [g for g in grids if not g.crs.equals(dem.crs)]
     projectors = [MapProjector(MapGrid.of_dem(dem))] + [MapProjector(g) for g in own]
-    layers = _pixel_layers(model, kw, projectors, row0, row1, col0, col1, float(max(1, node_step)), h_lo, h_hi)
+    # the fixed solver keeps its layers bit for bit (simulated scenes are pinned by digests)
+    layers = _pixel_layers(model, kw, projectors, row0, row1, col0, col1, float(max(1, node_step)), h_lo, h_hi,
+                           rows_last=tolerance_m is not None)
     if tolerance_m is None:
         h, u_dem, v_dem = _intersect_dem(dem, *layers[0], np.float32(h_lo), newton_iterations)
     else:
@@ -319,18 +321,21 @@ def _block_columns(model, band: str, ccd: int):
     return array.first_col, array.n_detectors, {"band": band, "array": ccd}
 
 
-def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_hi):
+def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_hi, rows_last: bool = True):
     """Per projector, full-resolution float32 ``u_lo, v_lo, du/dh, dv/dh`` of the block's pixels.
 
     The model localizes a node grid (every ``step`` pixels, one node beyond each side) at the
     heights ``h_lo`` and ``h_hi``; the node values are interpolated to every pixel centre by
-    separable Catmull-Rom cubics (columns on the node rows first, then rows: C-ordered layers).
+    separable Catmull-Rom cubics. ``rows_last``: columns on the node rows first, then rows by
+    row gathers (faster); otherwise rows by a matrix product, then columns (the original order,
+    whose float32 rounding the fixed solver keeps). Either way the layers are C-ordered.
     """
     n_lines, n_cols = row1 - row0, col1 - col0
     # nodes: one before the first pixel centre and enough to pass the last one plus one
     r_nodes = row0 + 0.5 + step * np.arange(-1, int(np.ceil((n_lines - 1) / step)) + 3)
     c_nodes = col0 + 0.5 + step * np.arange(-1, int(np.ceil((n_cols - 1) / step)) + 3)
     row_taps = _catmull_rom_taps(1.0 + np.arange(n_lines) / step, r_nodes.size)
+    wr = None if rows_last else catmull_rom_matrix(1.0 + np.arange(n_lines) / step, r_nodes.size).astype(np.float32)
     col_taps = _catmull_rom_taps(1.0 + np.arange(n_cols) / step, c_nodes.size)
     rr, cc = np.meshgrid(r_nodes, c_nodes, indexing="ij")
     ground = [
@@ -343,8 +348,12 @@ def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_h
         u_lo, v_lo = proj(*ground[0])
         u_hi, v_hi = proj(*ground[1])
         nodes = (u_lo, v_lo, (u_hi - u_lo) / span, (v_hi - v_lo) / span)
-        layers.append([_interp_rows(np.ascontiguousarray(_interp_cols(a.reshape(rr.shape).astype(np.float32), col_taps)),
-                                    row_taps) for a in nodes])
+        if rows_last:
+            layers.append([_interp_rows(np.ascontiguousarray(_interp_cols(a.reshape(rr.shape).astype(np.float32),
+                                                                          col_taps)), row_taps) for a in nodes])
+        else:
+            layers.append([np.ascontiguousarray(_interp_cols(wr @ a.reshape(rr.shape).astype(np.float32), col_taps))
+                           for a in nodes])
     return layers
 
 
