@@ -87,3 +87,73 @@ def test_adaptive_intersection_rejects_a_tolerance_of_zero(layers, scene):
     lay, h_lo = layers
     with pytest.raises(ValueError, match="tolerance_m"):
         intersect_dem_adaptive(dem, *lay, h_lo, tolerance_m=0.0)
+
+
+# ---------------------------------------------------------------- cloud detector on block means
+
+
+@pytest.fixture(scope="module")
+def ccd_pairs(scene):
+    """Scene band B2 of each CCD of the fixture (a real GeoTIFF through the reader) and its
+    reference chips rendered through the TRUE model (the coarse stage's stand-in)."""
+    from gcpmatch.extract import read_band
+    from gcpmatch.reference import reference_for_ccd
+
+    truth, dem, dom = scene
+    img = read_band(open_model(FIXTURE / "manifest.json"), BAND)
+    pairs = []
+    for c, look in enumerate(truth.detector_arrays(BAND)):
+        ref = reference_for_ccd(truth, dem, dom, band=BAND, ccd=c)
+        pairs.append((np.ascontiguousarray(img[:, look.first_col : look.first_col + look.n_detectors]), ref))
+    return pairs
+
+
+def _paint_clouds(image, cover: float, seed: int):
+    """Opaque bright clouds with soft edges over ``cover`` of the image: (cloudy, true mask)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    field = cv2.GaussianBlur(rng.standard_normal(image.shape).astype(np.float32), (0, 0), 12.0)
+    thr = np.quantile(field, 1.0 - cover)
+    alpha = np.clip((field - thr) / (0.1 * field.std()) + 0.5, 0.0, 1.0)
+    return (image * (1 - alpha) + 3200.0 * alpha).astype(np.float32), alpha > 0.5
+
+
+def test_decimated_cloud_detector_agrees_with_the_full_resolution_one(ccd_pairs):
+    """Per CCD (512 x 192), on the cloud-free fixture and with 30 % painted clouds: the
+    decimated detector's cloud fraction is within 0.005 of the full-resolution detector's
+    (measured: 0.0014 at worst over 8 cloudy cases) and within 0.05 of the painted truth, its
+    mask overlaps it (IoU > 0.95); on clear ground both flag under 1 %. Not vacuous: the painted
+    clouds are found (fraction > 0.2), and blocks of 4 with a 9-block box gave 0.025 here."""
+    from gcpmatch.clouds import detect_clouds
+
+    for i, (img, ref) in enumerate(ccd_pairs):
+        clear_fast = detect_clouds(img, ref)[1]
+        clear_full = detect_clouds(img, ref, decimation=1)[1]
+        assert clear_fast is not None and clear_full is not None
+        assert clear_fast < 0.01 and clear_full < 0.01
+        cloudy, truth = _paint_clouds(img, 0.3, seed=i)
+        m_fast, f_fast = detect_clouds(cloudy, ref)
+        m_full, f_full = detect_clouds(cloudy, ref, decimation=1)
+        valid = np.isfinite(ref) & (img > 0)
+        true_fraction = truth[valid].mean()
+        assert f_fast > 0.2 and abs(f_fast - f_full) < 0.005 and abs(f_fast - true_fraction) < 0.05
+        iou = np.count_nonzero(m_fast & m_full) / np.count_nonzero(m_fast | m_full)
+        assert iou > 0.95
+
+
+def test_opening_by_bands_equals_the_opening_of_the_whole_image():
+    """Bright specks, lines and blobs next to band edges and image edges: identical results."""
+    from gcpmatch.clouds import _open, _open_where_bright
+
+    rng = np.random.default_rng(4)
+    bright = rng.random((700, 300)) > 0.97  # specks (removed by the opening)
+    bright[120:140, 50:90] = True  # a blob across the band edge at line 128
+    bright[0:6, 200:260] = True  # at the first line
+    bright[694:700, 0:40] = True  # at the last line
+    bright[380:384, :] = True  # a thin line (removed)
+    ref = _open(bright, 5)
+    assert ref.any() and np.count_nonzero(ref) < np.count_nonzero(bright)
+    for band in (128, 64, 37):
+        assert np.array_equal(_open_where_bright(bright, 5, band_lines=band), ref)
+    assert not _open_where_bright(np.zeros((50, 40), bool), 5).any()
