@@ -179,7 +179,7 @@ def _sift_matches_opencv(img_a, mask_a, img_b, mask_b, n_features):
 
 def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None, max_offset_px: float = 1000.0,
                  target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
-                 seed: int = 0, backend: str = "cpu", device=None) -> CoarseResult:
+                 seed: int = 0, backend: str = "cpu", device=None, skip_within_px: float | None = None) -> CoarseResult:
     """Pre-correct ``model`` so that it lands within a few pixels of the truth (see module doc).
 
     Parameters
@@ -210,6 +210,11 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         matching and homography RANSAC on the torch ``device`` (``None``: CUDA if available).
     device : str or torch.device, optional
         Torch device of the ``"torch"`` backend.
+    skip_within_px : float, optional
+        The fine stage's search radius, pixels: when a few windows' phase correlation shows
+        the model already within half of it, SIFT is skipped and ``model`` is returned
+        unchanged, with the note "coarse stage skipped: model within N px"
+        (:func:`gcpmatch.coarse_skip.skipped_if_within`); else SIFT runs. None: always SIFT.
 
     Returns
     -------
@@ -230,6 +235,13 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     test in true ground coordinates, independent of the model's error), so whatever the DOM
     the same part is searched; the result's ``note`` says so, an error names the coverage.
     """
+    if skip_within_px is not None:
+        from gcpmatch.coarse_skip import skipped_if_within
+
+        skipped = skipped_if_within(scene, model, dem, dom, band=band or model.reference_band,
+                                    radius_px=float(skip_within_px))
+        if skipped is not None:
+            return skipped
     n_rows, n_cols = scene.shape
     small, small_valid, f = _reduce_scene(scene, target_px)
     h_mid = scene_height_m(model, dem, band=band)

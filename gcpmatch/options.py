@@ -71,6 +71,9 @@ class MatchOptions:
         Seed of the random draws (RANSAC, check-point split); >= 0.
     batch : int
         Windows phase-correlated per batch (bounds memory); >= 1.
+    coarse_skip : bool
+        Skip the coarse SIFT stage when a cheap check finds the model already within the fine
+        search radius (``window_px / 4``); ``gcpcal validate`` sets it (default False).
     """
 
     window_px: int = 64
@@ -83,6 +86,7 @@ class MatchOptions:
     psf_sigma_px: float = 0.45
     seed: int = 0
     batch: int = 2048
+    coarse_skip: bool = False
 
     def validate(self) -> MatchOptions:
         """Check every field; return ``self`` unchanged.
@@ -119,4 +123,6 @@ class MatchOptions:
             raise InputError(f"seed must be an integer >= 0, got {self.seed!r}", field="seed")
         if not _is_int(self.batch) or self.batch < 1:
             raise InputError(f"batch must be an integer >= 1 window, got {self.batch!r}", field="batch")
+        if not isinstance(self.coarse_skip, bool):
+            raise InputError(f"coarse_skip must be true or false, got {self.coarse_skip!r}", field="coarse_skip")
         return self

@@ -123,12 +123,16 @@ def test_validation_table_against_the_truth(series, tmp_path):
         assert 200.0 < r["lab_rmse_planar_px"] < 330.0
         assert r["date"] == truth["epoch_utc"][:10]
         assert abs(r["center_lon_deg"] - truth["center_lon_deg"]) < 0.15  # the true look is ~0.1 deg off nadir
+        # a calibrated model is a few pixels off: the coarse SIFT stage is skipped, and says so
+        assert r["coarse"].startswith("coarse stage skipped: model within "), r["coarse"]
+        assert abs(float(r["coarse"].split("within ")[1].split(" px")[0]) - exp["planar"]) < 1.0
     cloudy, clear = by[names[2]], by[names[0]]
     assert cloudy["cloud_fraction"] > 0.1 > clear["cloud_fraction"]
     assert cloudy["points"] < clear["points"]
 
     # summary: mean over the scenes that succeeded (seed 003 table 5's mean row)
     assert summary["ok"] == 3 and summary["failed"] == 3 and summary["workers"] == 2
+    assert summary["coarse_skipped"] == 3 and set(summary["coarse"]) == set(names[:3])
     mean = summary["mean"]["rmse_planar_px"]
     assert math.isfinite(mean)
     assert mean == pytest.approx(np.mean([by[n]["rmse_planar_px"] for n in names[:3]]))

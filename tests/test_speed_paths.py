@@ -157,3 +157,53 @@ def test_opening_by_bands_equals_the_opening_of_the_whole_image():
     for band in (128, 64, 37):
         assert np.array_equal(_open_where_bright(bright, 5, band_lines=band), ref)
     assert not _open_where_bright(np.zeros((50, 40), bool), 5).any()
+
+
+# ---------------------------------------------------------------- coarse stage skipped when close
+
+
+@pytest.fixture(scope="module")
+def fixture_scene(scene):
+    from gcpmatch.extract import read_band
+
+    truth, dem, dom = scene
+    lab = open_model(FIXTURE / "manifest.json")
+    return truth, lab, dem, dom, read_band(lab, BAND)
+
+
+@pytest.mark.parametrize("shift_rows, skipped", [(0, True), (3, True), (10, False)])
+def test_coarse_stage_is_skipped_only_within_half_the_fine_radius(fixture_scene, shift_rows, skipped):
+    """The TRUE model against its scene moved by 0, 3 and 10 lines (radius 16 px): the check
+    measures the offset (within 0.3 px) and skips SIFT below 8 px only; the note says so."""
+    from gcpmatch.coarse_skip import model_offset_px, skipped_if_within
+
+    truth, _, dem, dom, img = fixture_scene
+    moved = np.full_like(img, np.nan)
+    moved[shift_rows:] = img[: img.shape[0] - shift_rows]
+    shifts, n = model_offset_px(moved, truth, dem, dom, band=BAND, radius_px=16.0)
+    assert n >= 12 and shifts.shape[0] >= 6
+    assert np.abs(np.median(np.hypot(*shifts.T)) - shift_rows) < 0.3
+    result = skipped_if_within(moved, truth, dem, dom, band=BAND, radius_px=16.0)
+    assert (result is not None) == skipped
+    if skipped:
+        assert result.model is truth and result.note.startswith(f"coarse stage skipped: model within {shift_rows}.")
+
+
+def test_coarse_match_falls_back_to_sift_when_the_model_is_far(fixture_scene):
+    """The LAB model (hundreds of pixels off): the check cannot confirm it, SIFT runs and
+    corrects it; the skip note is absent."""
+    from gcpmatch.coarse import coarse_match
+
+    truth, lab, dem, dom, img = fixture_scene
+    result = coarse_match(img, lab, dem, dom, band=BAND, skip_within_px=16.0)
+    assert result.n_inliers > 6 and result.model is not lab
+    assert "skipped" not in result.note
+
+
+def test_match_options_reject_a_non_boolean_coarse_skip():
+    from gcpmatch.options import MatchOptions
+    from sensor_models.errors import InputError
+
+    assert MatchOptions(coarse_skip=True).validate().coarse_skip is True
+    with pytest.raises(InputError, match="coarse_skip"):
+        MatchOptions(coarse_skip="yes").validate()
