@@ -275,7 +275,7 @@ def _accuracy_columns(acc, prefix: str) -> dict:
 
 
 def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: int = 32,
-                   threads: int | None = None) -> dict:
+                   threads: int | None = None, coarse_skip: bool = True) -> dict:
     """Validate one scene with a calibration (module docstring, steps 1-3); never raises.
 
     Parameters
@@ -291,6 +291,9 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
         Matching window grid spacing, pixels.
     threads : int, optional
         OpenCV threads in this process (1 on single-threaded Dask workers).
+    coarse_skip : bool
+        Skip the coarse SIFT stage when a cheap check finds the calibrated model within the
+        fine search radius (:func:`gcpmatch.coarse_skip.skipped_if_within`); False: always SIFT.
 
     Returns
     -------
@@ -306,7 +309,7 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
             import cv2
 
             cv2.setNumThreads(int(threads))
-        _validate(site, Path(calibration), write_points, spacing_px, row)
+        _validate(site, Path(calibration), write_points, spacing_px, row, coarse_skip=coarse_skip)
         row["status"], row["reason"] = "ok", ""
     except GcpcalError as exc:
         row["reason"] = str(exc)
@@ -319,7 +322,8 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
     return json_safe(row)
 
 
-def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out: dict) -> None:
+def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out: dict, *,
+              coarse_skip: bool = True) -> None:
     """Fill ``out`` (a row) step by step, so a failure keeps what was learnt before it."""
     from calibrate.accuracy import check_point_accuracy
     from calibrate.from_gcps import points_of
@@ -348,7 +352,7 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     # a calibrated model is usually within the fine search radius: the coarse SIFT stage is
     # skipped when a few windows show it (and runs when they do not)
     table, summary = extract_gcps(model, image, dem, dom, band=band,
-                                  options=MatchOptions(spacing_px=spacing_px, check_fraction=0.0, coarse_skip=True))
+                                  options=MatchOptions(spacing_px=spacing_px, check_fraction=0.0, coarse_skip=coarse_skip))
     out["coarse"] = _coarse_line(summary)
     out["cloud_fraction"] = summary.get("cloud_fraction")
     if table is None or len(table) == 0:
