@@ -66,11 +66,11 @@ def calibration(out: Path) -> Path:
     manifest = out / "manifest.json"
     if manifest.is_file():
         return manifest
-    out.mkdir(parents=True, exist_ok=True)
+    gcps = out.parent / f"{out.name}_gcps.csv"  # beside the output folder: calibrate refuses inputs inside it
     match_scene(FIXTURE / "manifest.json", dom_path=FIXTURE / "reference" / "dom.tif",
-                dem_path=FIXTURE / "reference" / "dem.tif", out_path=out / "gcps.csv",
+                dem_path=FIXTURE / "reference" / "dem.tif", out_path=gcps,
                 options=MatchOptions(spacing_px=16))
-    summary = calibrate_scene(FIXTURE / "manifest.json", out / "gcps.csv", out, report=False)
+    summary = calibrate_scene(FIXTURE / "manifest.json", gcps, out, report=False)
     print(f"calibrated the fixture sensor: check RMSE {summary['check_rmse_px']['before']:.1f} -> "
           f"{summary['check_rmse_px']['after']:.3f} px")
     return manifest

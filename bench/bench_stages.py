@@ -62,7 +62,7 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
     """Reference chips, locate_block and the DEM intersection: base revision vs current."""
     import gcpmatch.reference as reference
     import sensor_models.locate as locate
-    from sensor_models.locate_adaptive import intersect_dem_adaptive
+    from sensor_models.dem_intersect import intersect_dem_adaptive
 
     base = load_baseline("sensor_models/locate.py")
     locate.dem_planes(dem)

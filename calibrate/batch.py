@@ -293,7 +293,7 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
         OpenCV threads in this process (1 on single-threaded Dask workers).
     coarse_skip : bool
         Skip the coarse SIFT stage when a cheap check finds the calibrated model within the
-        fine search radius (:func:`gcpmatch.coarse_skip.skipped_if_within`); False: always SIFT.
+        fine search radius (:func:`gcpmatch.coarse_skip.within_fine_radius`); False: always SIFT.
 
     Returns
     -------

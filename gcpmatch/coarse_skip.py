@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MAX_SPREAD_PX", "MIN_WINDOWS", "model_offset_px", "skipped_if_within"]
+__all__ = ["MAX_SPREAD_PX", "MIN_WINDOWS", "model_offset_px", "within_fine_radius"]
 
 #: fewest valid windows for a decision
 MIN_WINDOWS = 6
@@ -87,8 +87,9 @@ def model_offset_px(scene: np.ndarray, model, dem, dom, *, band: str, window_px:
     return np.asarray(result.shift_px)[result.valid], len(refs)
 
 
-def skipped_if_within(scene: np.ndarray, model, dem, dom, *, band: str, radius_px: float, window_px: int = 64):
-    """A :class:`~gcpmatch.coarse.CoarseResult` that keeps ``model`` when it is within the radius.
+def within_fine_radius(scene: np.ndarray, model, dem, dom, *, band: str, radius_px: float,
+                       window_px: int = 64) -> str | None:
+    """The note "coarse stage skipped: ..." when ``model`` is within half the fine radius.
 
     Parameters
     ----------
@@ -101,13 +102,11 @@ def skipped_if_within(scene: np.ndarray, model, dem, dom, *, band: str, radius_p
 
     Returns
     -------
-    CoarseResult or None
-        The unchanged model with zero match counts and ``note`` "coarse stage skipped: model
-        within N px (fine search radius R px; K windows)"; None when the check cannot tell or
-        the model is not within half the radius (run SIFT).
+    str or None
+        "coarse stage skipped: model within N px (fine search radius R px; K of M windows
+        agree)", or None when the check cannot tell or the model is not within half the radius
+        (run SIFT).
     """
-    from gcpmatch.coarse import CoarseResult
-
     shifts, n_windows = model_offset_px(scene, model, dem, dom, band=band, window_px=window_px, radius_px=radius_px)
     if shifts.shape[0] < max(MIN_WINDOWS, 0.5 * n_windows):
         return None
@@ -116,7 +115,5 @@ def skipped_if_within(scene: np.ndarray, model, dem, dom, *, band: str, radius_p
     worst = float(np.hypot(*shifts.T).max())
     if spread.max() > MAX_SPREAD_PX or worst >= 0.5 * radius_px:
         return None
-    note = (f"coarse stage skipped: model within {worst:.1f} px (fine search radius {radius_px:g} px; "
+    return (f"coarse stage skipped: model within {worst:.1f} px (fine search radius {radius_px:g} px; "
             f"{shifts.shape[0]} of {n_windows} windows agree)")
-    return CoarseResult(model=model, n_keypoints_scene=0, n_keypoints_dom=0, n_matches=0, n_ransac_inliers=0,
-                        n_inliers=0, rms_m=float("nan"), factor=1, note=note)

@@ -30,11 +30,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 import pyproj
 from affine import Affine
 
+from sensor_models.dem_intersect import _intersect_dem, dem_planes, intersect_dem_adaptive
 from sensor_models.errors import InputError
 from sensor_models.pushbroom import _catmull_rom_weights
 from sensor_models.terrain import Dem
@@ -272,7 +272,7 @@ def locate_block(
     tolerance_m : float, optional
         None (default): ``newton_iterations`` fixed steps on every pixel. A height in metres
         (e.g. :data:`HEIGHT_TOLERANCE_M`): the adaptive solver of
-        :func:`sensor_models.locate_adaptive.intersect_dem_adaptive` (coarse-grid start, one
+        :func:`sensor_models.dem_intersect.intersect_dem_adaptive` (coarse-grid start, one
         step everywhere, more steps only where the last one exceeded ``tolerance_m``), about
         3x faster at the same accuracy (``bench/bench_match.py --stages``).
 
@@ -297,8 +297,6 @@ def locate_block(
     if tolerance_m is None:
         h, u_dem, v_dem = _intersect_dem(dem, *layers[0], np.float32(h_lo), newton_iterations)
     else:
-        from sensor_models.locate_adaptive import intersect_dem_adaptive
-
         h, u_dem, v_dem = intersect_dem_adaptive(dem, *layers[0], np.float32(h_lo), tolerance_m=tolerance_m,
                                                  coarse_step=COARSE_STEP, max_refine_steps=MAX_REFINE_STEPS)
     dh = h - np.float32(h_lo)
@@ -355,85 +353,3 @@ def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_h
             layers.append([np.ascontiguousarray(_interp_cols(wr @ a.reshape(rr.shape).astype(np.float32), col_taps))
                            for a in nodes])
     return layers
-
-
-def dem_planes(dem: Dem) -> np.ndarray:
-    """Heights of a DEM and their node gradients, stacked for one-pass bilinear sampling.
-
-    Built on first use and cached on the DEM (derived data only); call it once before
-    sharing a DEM between threads so that they do not all build it.
-
-    Parameters
-    ----------
-    dem : Dem
-        Terrain (ellipsoidal heights in metres, NaN for no data).
-
-    Returns
-    -------
-    ndarray of float32, shape (n_rows, n_cols, 3), C-contiguous
-        ``[..., 0]`` the height (m), ``[..., 1]`` and ``[..., 2]`` its central-difference
-        derivatives along columns (``dh/du``) and rows (``dh/dv``), metres per node.
-    """
-    cached = getattr(dem, "_render_planes", None)
-    if cached is None:
-        z = np.asarray(dem.heights_m, dtype=np.float64)
-        gv, gu = np.gradient(np.where(np.isfinite(z), z, np.nan))
-        cached = np.ascontiguousarray(np.stack([z, gu, gv], axis=-1).astype(np.float32))
-        dem._render_planes = cached  # derived data only; the DEM itself is immutable
-    return cached
-
-
-def _intersect_dem(dem: Dem, u_lo, v_lo, du, dv, h_lo, iterations: int):
-    """Per-pixel Newton solution of ``h = D(u_lo + (h - h_lo) du, v_lo + (h - h_lo) dv)``.
-
-    The first two steps are full Newton steps (height and gradient sampled); the later ones
-    reuse the last slope (chord method: linear convergence at the rate of the slope's change,
-    one single-channel sample per step). Returns ``h`` and the DEM node indices ``u, v`` of
-    the solution (float32; NaN outside the DEM).
-    """
-    planes = dem_planes(dem)
-    heights = _dem_heights(dem)
-    rows, cols = planes.shape[:2]
-    h_min, h_max = dem.height_range_m
-    h = np.full(u_lo.shape, 0.5 * (h_min + h_max) - h_lo, dtype=np.float32)  # h - h_lo
-    u = np.empty_like(u_lo)
-    v = np.empty_like(v_lo)
-    slope = None
-    for it in range(iterations):
-        np.multiply(h, du, out=u)
-        u += u_lo
-        np.multiply(h, dv, out=v)
-        v += v_lo
-        if it < 2:
-            s = cv2.remap(planes, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                          borderValue=(np.nan, np.nan, np.nan))
-            d_h = s[..., 0]
-            slope = 1.0 - (s[..., 1] * du + s[..., 2] * dv)
-            # safeguard: grazing rays (slope -> 0) fall back to a plain fixed-point step
-            slope[~(slope > 0.25)] = 1.0
-        else:
-            d_h = cv2.remap(heights, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                            borderValue=np.nan)
-        d_h = d_h - h_lo
-        d_h -= h
-        d_h /= slope
-        h += d_h
-    np.multiply(h, du, out=u)
-    u += u_lo
-    np.multiply(h, dv, out=v)
-    v += v_lo
-    h += h_lo
-    bad = ~((u >= 0) & (u <= cols - 1) & (v >= 0) & (v <= rows - 1) & np.isfinite(h))
-    h[bad] = np.nan
-    u[bad] = np.nan
-    v[bad] = np.nan
-    return h, u, v
-
-
-def _dem_heights(dem: Dem):
-    """The height plane of :func:`dem_planes` as its own contiguous float32 array (cached)."""
-    cached = getattr(dem, "_render_heights", None)
-    if cached is None:
-        cached = np.ascontiguousarray(dem_planes(dem)[..., 0])
-        dem._render_heights = cached
-    return cached

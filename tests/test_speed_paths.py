@@ -1,6 +1,6 @@
 """The fast paths of the matcher against the slow ones they replace, with accuracy bounds.
 
-* The adaptive DEM intersection (:mod:`sensor_models.locate_adaptive`: coarse-grid start, one
+* The adaptive DEM intersection (:mod:`sensor_models.dem_intersect`: coarse-grid start, one
   chord step everywhere, Newton steps only where the convergence mask says so) against the fixed
   four-step solver, on the embedded fixture (``fixtures/hy1c_czi``, heights 0..1500 m).
 """
@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensor_models.locate import HEIGHT_TOLERANCE_M, MapGrid, MapProjector, _intersect_dem, _pixel_layers, dem_planes, locate_block
-from sensor_models.locate_adaptive import intersect_dem_adaptive
+from sensor_models.dem_intersect import _intersect_dem
+from sensor_models.locate import HEIGHT_TOLERANCE_M, MapGrid, MapProjector, _pixel_layers, dem_planes, locate_block
+from sensor_models.dem_intersect import intersect_dem_adaptive
 from sensor_models.raster import MapImage
 from sensor_models.readers import open_model
 from sensor_models.terrain import Dem
@@ -175,7 +176,7 @@ def fixture_scene(scene):
 def test_coarse_stage_is_skipped_only_within_half_the_fine_radius(fixture_scene, shift_rows, skipped):
     """The TRUE model against its scene moved by 0, 3 and 10 lines (radius 16 px): the check
     measures the offset (within 0.3 px) and skips SIFT below 8 px only; the note says so."""
-    from gcpmatch.coarse_skip import model_offset_px, skipped_if_within
+    from gcpmatch.coarse_skip import model_offset_px, within_fine_radius
 
     truth, _, dem, dom, img = fixture_scene
     moved = np.full_like(img, np.nan)
@@ -183,10 +184,10 @@ def test_coarse_stage_is_skipped_only_within_half_the_fine_radius(fixture_scene,
     shifts, n = model_offset_px(moved, truth, dem, dom, band=BAND, radius_px=16.0)
     assert n >= 12 and shifts.shape[0] >= 6
     assert np.abs(np.median(np.hypot(*shifts.T)) - shift_rows) < 0.3
-    result = skipped_if_within(moved, truth, dem, dom, band=BAND, radius_px=16.0)
-    assert (result is not None) == skipped
+    note = within_fine_radius(moved, truth, dem, dom, band=BAND, radius_px=16.0)
+    assert (note is not None) == skipped
     if skipped:
-        assert result.model is truth and result.note.startswith(f"coarse stage skipped: model within {shift_rows}.")
+        assert note.startswith(f"coarse stage skipped: model within {shift_rows}.")
 
 
 def test_coarse_match_falls_back_to_sift_when_the_model_is_far(fixture_scene):
@@ -207,3 +208,13 @@ def test_match_options_reject_a_non_boolean_coarse_skip():
     assert MatchOptions(coarse_skip=True).validate().coarse_skip is True
     with pytest.raises(InputError, match="coarse_skip"):
         MatchOptions(coarse_skip="yes").validate()
+
+
+def test_coarse_match_keeps_a_model_within_the_radius_and_says_so(fixture_scene):
+    """The TRUE model: coarse_match returns it unchanged, with no SIFT counts and the note."""
+    from gcpmatch.coarse import coarse_match
+
+    truth, _, dem, dom, img = fixture_scene
+    result = coarse_match(img, truth, dem, dom, band=BAND, skip_within_px=16.0)
+    assert result.model is truth and result.n_inliers == 0
+    assert result.note.startswith("coarse stage skipped: model within 0.")

@@ -1,6 +1,7 @@
-"""Adaptive per-pixel DEM intersection: a coarse-grid start, then steps only where needed.
+"""Per-pixel DEM intersection of straight-ray layers: the fixed solver and the adaptive one.
 
-The fixed solver of :mod:`sensor_models.locate` runs four steps (two of them sampling the
+Used by :func:`sensor_models.locate.locate_block`. :func:`dem_planes` holds the DEM's heights
+and gradients for one-pass bilinear sampling. The fixed solver (:func:`_intersect_dem`) runs four steps (two of them sampling the
 height and its gradient) on every pixel of a block, from one mid-height start. Most of that work
 is wasted: the intersection height varies smoothly from pixel to pixel wherever the terrain does.
 Here, for the same straight-ray layers ``u(h) = u_lo + (h - h_lo) du/dh`` (and ``v``):
@@ -30,7 +31,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["intersect_dem_adaptive"]
+__all__ = ["dem_planes", "intersect_dem_adaptive"]
 
 #: pixels per row of the compact arrays the refinement steps sample (cv2.remap needs < 32767)
 _COMPACT_WIDTH = 4096
@@ -66,8 +67,6 @@ def intersect_dem_adaptive(dem, u_lo, v_lo, du, dv, h_lo, *, tolerance_m: float 
     u, v : ndarray of float32, shape (n_lines, n_cols)
         DEM node indices of the intersection (NaN outside the DEM).
     """
-    from sensor_models.locate import _dem_heights, _intersect_dem
-
     if not tolerance_m > 0:
         raise ValueError(f"tolerance_m must be > 0, got {tolerance_m}")
     h_lo = np.float32(h_lo)
@@ -109,8 +108,6 @@ def _coarse_start(dem, u_lo, v_lo, du, dv, h_lo, step, fixed_solver):
     Pixels whose interpolated start is not finite (next to the DEM's edge) start at mid-height
     with slope 1, as the fixed solver does.
     """
-    from sensor_models.locate import dem_planes
-
     n_lines, n_cols = u_lo.shape
     h_min, h_max = dem.height_range_m
     if step <= 1 or n_lines < 2 * step or n_cols < 2 * step:
@@ -138,8 +135,6 @@ def _coarse_start(dem, u_lo, v_lo, du, dv, h_lo, step, fixed_solver):
 
 def _refine(dem, t, u_lo, v_lo, du, dv, h_lo, todo, tolerance_m, max_steps):
     """Newton steps on the flat pixel indices ``todo`` of ``t`` (updated in place) until converged."""
-    from sensor_models.locate import dem_planes
-
     planes = dem_planes(dem)
     tf = t.reshape(-1)
     ul, vl, dul, dvl = (a.reshape(-1) for a in (u_lo, v_lo, du, dv))
@@ -168,3 +163,85 @@ def _sample_compact(planes, u, v):
     s = cv2.remap(planes, pu.reshape(rows, width), pv.reshape(rows, width), cv2.INTER_LINEAR,
                   borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan, np.nan, np.nan))
     return s.reshape(-1, 3)[:n]
+
+
+def dem_planes(dem) -> np.ndarray:
+    """Heights of a DEM and their node gradients, stacked for one-pass bilinear sampling.
+
+    Built on first use and cached on the DEM (derived data only); call it once before
+    sharing a DEM between threads so that they do not all build it.
+
+    Parameters
+    ----------
+    dem : Dem
+        Terrain (ellipsoidal heights in metres, NaN for no data).
+
+    Returns
+    -------
+    ndarray of float32, shape (n_rows, n_cols, 3), C-contiguous
+        ``[..., 0]`` the height (m), ``[..., 1]`` and ``[..., 2]`` its central-difference
+        derivatives along columns (``dh/du``) and rows (``dh/dv``), metres per node.
+    """
+    cached = getattr(dem, "_render_planes", None)
+    if cached is None:
+        z = np.asarray(dem.heights_m, dtype=np.float64)
+        gv, gu = np.gradient(np.where(np.isfinite(z), z, np.nan))
+        cached = np.ascontiguousarray(np.stack([z, gu, gv], axis=-1).astype(np.float32))
+        dem._render_planes = cached  # derived data only; the DEM itself is immutable
+    return cached
+
+
+def _intersect_dem(dem, u_lo, v_lo, du, dv, h_lo, iterations: int):
+    """Per-pixel Newton solution of ``h = D(u_lo + (h - h_lo) du, v_lo + (h - h_lo) dv)``.
+
+    The first two steps are full Newton steps (height and gradient sampled); the later ones
+    reuse the last slope (chord method: linear convergence at the rate of the slope's change,
+    one single-channel sample per step). Returns ``h`` and the DEM node indices ``u, v`` of
+    the solution (float32; NaN outside the DEM).
+    """
+    planes = dem_planes(dem)
+    heights = _dem_heights(dem)
+    rows, cols = planes.shape[:2]
+    h_min, h_max = dem.height_range_m
+    h = np.full(u_lo.shape, 0.5 * (h_min + h_max) - h_lo, dtype=np.float32)  # h - h_lo
+    u = np.empty_like(u_lo)
+    v = np.empty_like(v_lo)
+    slope = None
+    for it in range(iterations):
+        np.multiply(h, du, out=u)
+        u += u_lo
+        np.multiply(h, dv, out=v)
+        v += v_lo
+        if it < 2:
+            s = cv2.remap(planes, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                          borderValue=(np.nan, np.nan, np.nan))
+            d_h = s[..., 0]
+            slope = 1.0 - (s[..., 1] * du + s[..., 2] * dv)
+            # safeguard: grazing rays (slope -> 0) fall back to a plain fixed-point step
+            slope[~(slope > 0.25)] = 1.0
+        else:
+            d_h = cv2.remap(heights, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                            borderValue=np.nan)
+        d_h = d_h - h_lo
+        d_h -= h
+        d_h /= slope
+        h += d_h
+    np.multiply(h, du, out=u)
+    u += u_lo
+    np.multiply(h, dv, out=v)
+    v += v_lo
+    h += h_lo
+    bad = ~((u >= 0) & (u <= cols - 1) & (v >= 0) & (v <= rows - 1) & np.isfinite(h))
+    h[bad] = np.nan
+    u[bad] = np.nan
+    v[bad] = np.nan
+    return h, u, v
+
+
+def _dem_heights(dem):
+    """The height plane of :func:`dem_planes` as its own contiguous float32 array (cached)."""
+    cached = getattr(dem, "_render_heights", None)
+    if cached is None:
+        cached = np.ascontiguousarray(dem_planes(dem)[..., 0])
+        dem._render_heights = cached
+    return cached
