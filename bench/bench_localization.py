@@ -126,6 +126,19 @@ def bench_rpc_dem(model, dem, n: int, repeat: int = 3) -> dict:
     return result
 
 
+def rpc_only(n: int) -> None:
+    """``--rpc-only``: the RPC-over-DEM comparison alone, written to ``localization_rpc.json``."""
+    dem, dem_name = load_dem()
+    model = example_pushbroom_model(n_rows=2000, installation=Installation(0.0, 0.0, np.radians(3.55)))
+    r = bench_rpc_dem(model, dem, n)
+    r.update(dem=dem_name, command=f"python bench/bench_localization.py --rpc-only --points {n}",
+             machine=platform.machine())
+    print(json.dumps(r, indent=1))
+    out = ROOT / "bench" / "results" / "localization_rpc.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(r, indent=1) + "\n")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=1_000_000)
@@ -136,15 +149,7 @@ def main():
     args = parser.parse_args()
     n = args.points
     if args.rpc_only:
-        dem, dem_name = load_dem()
-        model = example_pushbroom_model(n_rows=2000, installation=Installation(0.0, 0.0, np.radians(3.55)))
-        r = bench_rpc_dem(model, dem, n)
-        r.update(dem=dem_name, command=f"python bench/bench_localization.py --rpc-only --points {n}",
-                 machine=platform.machine())
-        print(json.dumps(r, indent=1))
-        out = ROOT / "bench" / "results" / "localization_rpc.json"
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(r, indent=1) + "\n")
+        rpc_only(n)
         return
     rng = np.random.default_rng(42)
 

@@ -111,7 +111,8 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
                                                                   tolerance_m=locate.HEIGHT_TOLERANCE_M)}, repeat * 3)
     t_lay, _ = alternate({"before": lambda: base._pixel_layers(model, kw, [base.MapProjector(base.MapGrid.of_dem(dem))],
                                                               0, 512, c0, c1, 16.0, float(h_lo), h_hi),
-                          "after": lambda: locate._pixel_layers(model, kw, [locate.MapProjector(locate.MapGrid.of_dem(dem))],
+                          "after": lambda: locate._pixel_layers(model, kw,
+                                                               [locate.MapProjector(locate.MapGrid.of_dem(dem))],
                                                                0, 512, c0, c1, 16.0, float(h_lo), h_hi)}, repeat * 3)
     return {
         "pixels": int(sum(a.size for a in chips_out["after"])),

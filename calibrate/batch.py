@@ -352,7 +352,8 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     # a calibrated model is usually within the fine search radius: the coarse SIFT stage is
     # skipped when a few windows show it (and runs when they do not)
     table, summary = extract_gcps(model, image, dem, dom, band=band,
-                                  options=MatchOptions(spacing_px=spacing_px, check_fraction=0.0, coarse_skip=coarse_skip))
+                                  options=MatchOptions(spacing_px=spacing_px, check_fraction=0.0,
+                                                       coarse_skip=coarse_skip))
     out["coarse"] = _coarse_line(summary)
     out["cloud_fraction"] = summary.get("cloud_fraction")
     if table is None or len(table) == 0:

@@ -88,7 +88,8 @@ def detect_clouds(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, n
 
     With ``decimation`` > 1 the land mask (the local cross-correlation, five box filters) is
     computed on images averaged over ``decimation`` x ``decimation`` blocks, with a box of the
-    same ground size (``box_px // decimation``, odd, at least 7 blocks); the relation is still fitted on full-resolution pixels (those
+    same ground size (``box_px // decimation``, odd, at least 7 blocks); the relation is still
+    fitted on full-resolution pixels (those
     at the centres of land blocks), the bright test is made on every pixel, and the opening runs
     only on the bands of lines that hold bright pixels (:func:`_open_where_bright`: identical to
     opening the whole image). On a cloud-free 2000 x 512 CCD this is about 4x faster

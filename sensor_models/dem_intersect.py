@@ -1,7 +1,8 @@
 """Per-pixel DEM intersection of straight-ray layers: the fixed solver and the adaptive one.
 
 Used by :func:`sensor_models.locate.locate_block`. :func:`dem_planes` holds the DEM's heights
-and gradients for one-pass bilinear sampling. The fixed solver (:func:`_intersect_dem`) runs four steps (two of them sampling the
+and gradients for one-pass bilinear sampling. The fixed solver (:func:`_intersect_dem`) runs
+four steps (two of them sampling the
 height and its gradient) on every pixel of a block, from one mid-height start. Most of that work
 is wasted: the intersection height varies smoothly from pixel to pixel wherever the terrain does.
 Here, for the same straight-ray layers ``u(h) = u_lo + (h - h_lo) du/dh`` (and ``v``):

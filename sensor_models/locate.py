@@ -39,7 +39,8 @@ from sensor_models.errors import InputError
 from sensor_models.pushbroom import _catmull_rom_weights
 from sensor_models.terrain import Dem
 
-__all__ = ["HEIGHT_TOLERANCE_M", "MapGrid", "MapProjector", "PixelGround", "catmull_rom_matrix", "dem_planes", "locate_block"]
+__all__ = ["HEIGHT_TOLERANCE_M", "MapGrid", "MapProjector", "PixelGround", "catmull_rom_matrix", "dem_planes",
+           "locate_block"]
 
 #: DEM intersection steps: two Newton then two chord steps (< 1 cm on the test terrains)
 NEWTON_ITERATIONS = 4
@@ -299,18 +300,22 @@ def locate_block(
     else:
         h, u_dem, v_dem = intersect_dem_adaptive(dem, *layers[0], np.float32(h_lo), tolerance_m=tolerance_m,
                                                  coarse_step=COARSE_STEP, max_refine_steps=MAX_REFINE_STEPS)
-    dh = h - np.float32(h_lo)
-    uv, k = [], 1
+    return PixelGround(h, _grid_indices(grids, dem, layers[1:], h - np.float32(h_lo), u_dem, v_dem))
+
+
+def _grid_indices(grids, dem, other_layers, dh, u_dem, v_dem) -> list:
+    """Node indices in each grid: by an affine map of the DEM's in its CRS, else on the layers."""
+    uv, k = [], 0
     for g in grids:
         if g.crs.equals(dem.crs):
             a = g.index_affine() @ dem.transform @ Affine.translation(0.5, 0.5)
             uv.append(((a.a * u_dem + a.b * v_dem + a.c).astype(np.float32),
                        (a.d * u_dem + a.e * v_dem + a.f).astype(np.float32)))
         else:
-            u_lo, v_lo, du, dv = layers[k]
+            u_lo, v_lo, du, dv = other_layers[k]
             k += 1
             uv.append((u_lo + dh * du, v_lo + dh * dv))
-    return PixelGround(h, uv)
+    return uv
 
 
 def _block_columns(model, band: str, ccd: int):
