@@ -153,6 +153,24 @@ def test_validation_table_against_the_truth(series, tmp_path):
     assert not list(out.glob(".validate-*"))
 
 
+def test_validation_with_and_without_the_coarse_skip_agrees(series):
+    """One clear scene validated with SIFT forced and with the skip: the rows say which ran,
+    and the calibrated model's check-point figures agree within 0.05 px (the fine stage sees
+    the same offsets either way)."""
+    from calibrate.batch import calibration_manifest, validate_scene
+
+    site = read_sites(series["root"] / "all_sites.yaml")[0]
+    calibrated = calibration_manifest(series["calibration"])
+    sift = validate_scene(site, calibrated, threads=1, coarse_skip=False)
+    skip = validate_scene(site, calibrated, threads=1, coarse_skip=True)
+    assert sift["status"] == skip["status"] == "ok", (sift["reason"], skip["reason"])
+    assert sift["coarse"].startswith("coarse stage: SIFT, ") and int(sift["coarse"].split(", ")[1].split()[0]) > 6
+    assert skip["coarse"].startswith("coarse stage skipped: model within ")
+    for key in ("mean_along_px", "mean_across_px", "rmse_planar_px"):
+        assert abs(sift[key] - skip[key]) < 0.05, key
+    assert abs(sift["points"] - skip["points"]) <= 0.1 * sift["points"]
+
+
 def test_cli_validate_reports_failures(series, tmp_path, capsys):
     sites = tmp_path / "sites.csv"
     sites.write_text("name,scene,dom,dem,site\n"
