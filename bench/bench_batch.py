@@ -12,7 +12,11 @@ outputs) with 1 and with 2 single-threaded worker processes, alternated ``--repe
 the best wall time of each gives the speed ratio (target >= 1.7 on 2 cores). The load average
 before and after each run is recorded: the machine may be shared.
 
-Usage: ``python bench/bench_batch.py [--scenes 12] [--repeats 2] [--out bench/results/batch.json]``
+With ``--coarse-skip`` it instead validates each scene in this process with the coarse SIFT
+stage always run and with it skipped when the model is within the fine radius, alternated, and
+writes ``bench/results/batch_coarse_skip.json`` (times, skip notes, accuracy of both).
+
+Usage: ``python bench/bench_batch.py [--scenes 12] [--repeats 2] [--out bench/results/batch.json] [--coarse-skip]``
 """
 
 from __future__ import annotations
@@ -62,11 +66,11 @@ def calibration(out: Path) -> Path:
     manifest = out / "manifest.json"
     if manifest.is_file():
         return manifest
-    out.mkdir(parents=True, exist_ok=True)
+    gcps = out.parent / f"{out.name}_gcps.csv"  # beside the output folder: calibrate refuses inputs inside it
     match_scene(FIXTURE / "manifest.json", dom_path=FIXTURE / "reference" / "dom.tif",
-                dem_path=FIXTURE / "reference" / "dem.tif", out_path=out / "gcps.csv",
+                dem_path=FIXTURE / "reference" / "dem.tif", out_path=gcps,
                 options=MatchOptions(spacing_px=16))
-    summary = calibrate_scene(FIXTURE / "manifest.json", out / "gcps.csv", out, report=False)
+    summary = calibrate_scene(FIXTURE / "manifest.json", gcps, out, report=False)
     print(f"calibrated the fixture sensor: check RMSE {summary['check_rmse_px']['before']:.1f} -> "
           f"{summary['check_rmse_px']['after']:.3f} px")
     return manifest
@@ -96,17 +100,63 @@ def run_once(sites, calib: Path, out: Path, workers: int) -> dict:
     }
 
 
+def coarse_skip_compare(sites, calib: Path, repeats: int) -> dict:
+    """Per scene, in this process: validation with the coarse SIFT stage always run (before)
+    and skipped when the check allows (after), alternated; best times and accuracy of both."""
+    from calibrate.batch import validate_scene
+
+    per_scene, best = [], {"before": 0.0, "after": 0.0}
+    for site in sites:
+        t = {"before": float("inf"), "after": float("inf")}
+        rows = {}
+        for _ in range(repeats):
+            for key, skip in (("before", False), ("after", True)):
+                rows[key] = validate_scene(site, calib, threads=1, coarse_skip=skip)
+                t[key] = min(t[key], rows[key]["seconds"])
+        if rows["before"]["status"] != "ok" or rows["after"]["status"] != "ok":
+            continue
+        best["before"] += t["before"]
+        best["after"] += t["after"]
+        per_scene.append({"name": site.name, "seconds": t, "coarse": rows["after"]["coarse"],
+                          "rmse_planar_px": {k: rows[k]["rmse_planar_px"] for k in rows},
+                          "mean_along_px": {k: rows[k]["mean_along_px"] for k in rows},
+                          "mean_across_px": {k: rows[k]["mean_across_px"] for k in rows},
+                          "points": {k: rows[k]["points"] for k in rows}})
+        print(f"  {site.name}: {t['before']:.2f} s -> {t['after']:.2f} s; planar "
+              f"{rows['before']['rmse_planar_px']:.3f} -> {rows['after']['rmse_planar_px']:.3f} px; "
+              f"{rows['after']['coarse']}", flush=True)
+    return {"scenes": len(per_scene), "seconds_sum": best,
+            "speedup": best["before"] / best["after"] if best["after"] else None,
+            "skipped": sum(1 for p in per_scene if p["coarse"].startswith("coarse stage skipped")),
+            "max_planar_rmse_change_px": max((abs(p["rmse_planar_px"]["after"] - p["rmse_planar_px"]["before"])
+                                              for p in per_scene), default=None),
+            "per_scene": per_scene}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=12)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "batch.json")
+    parser.add_argument("--coarse-skip", action="store_true",
+                        help="compare validation with and without the coarse-stage skip (one process) "
+                             "and write bench/results/batch_coarse_skip.json instead")
     args = parser.parse_args()
     from calibrate.batch import read_sites
 
     results = ROOT / "bench" / "results"
     sites = read_sites(series(results / "batch_series", args.scenes))
     calib = calibration(results / "batch_calibration")
+    if args.coarse_skip:
+        doc = coarse_skip_compare(sites, calib, args.repeats)
+        doc.update(command=f"python bench/bench_batch.py --coarse-skip --scenes {args.scenes} --repeats {args.repeats}",
+                   machine=platform.platform(), cpu_count=os.cpu_count())
+        out = results / "batch_coarse_skip.json"
+        out.write_text(json.dumps(doc, indent=1) + "\n")
+        print(f"validation of {doc['scenes']} scenes: x{doc['speedup']:.2f} with the coarse skip "
+              f"({doc['skipped']} skipped), planar RMSE changed by {doc['max_planar_rmse_change_px']:.3f} px at most; "
+              f"wrote {out}")
+        return
     runs = []
     for rep in range(args.repeats):
         for workers in (1, 2):

@@ -4,7 +4,11 @@ Prints figures and writes JSON (default ``bench/results/localization.json``). Ru
 (BLAS threads pinned to 1). Uses the real SRTM tile from ``../shared/data/dem`` when present,
 else a synthetic DEM of the same size and relief.
 
-Usage: ``python bench/bench_localization.py [--points 1000000] [--out FILE]``
+Also RPC localization over the DEM, side by side: the base revision, the current code and GDAL's
+RPC transformer (``bench_rpc_dem``; ``--rpc-only`` runs just that and writes
+``bench/results/localization_rpc.json``).
+
+Usage: ``python bench/bench_localization.py [--points 1000000] [--out FILE] [--rpc-only]``
 """
 
 from __future__ import annotations
@@ -58,12 +62,95 @@ def timed(func, *args, repeat=1, **kwargs):
     return best, out
 
 
+def bench_rpc_dem(model, dem, n: int, repeat: int = 3) -> dict:
+    """RPC localization over the DEM: base revision, current code and GDAL, side by side.
+
+    The RPC is fitted to CCD 0 of ``model``; GDAL's RPC transformer (rasterio
+    ``RPCTransformer``, ``RPC_DEM`` = the same ellipsoidal heights as a GeoTIFF, bilinear,
+    ``RPC_PIXEL_ERROR_THRESHOLD`` 1e-4 px) localizes the same pixels. Timings alternate, best of
+    ``repeat``. Accuracy: reprojection residual (max norm, px) of each method's ground point
+    through the RPC at its height, the DEM misfit ``|DEM(lon, lat) - h|`` (ours), and the ground
+    distance to the base revision's solution (1e-9 px inversions), metres and pixels.
+    """
+    import sys
+    import tempfile
+
+    import rasterio
+    from rasterio.transform import RPCTransformer
+
+    sys.path.insert(0, str(ROOT / "bench"))
+    from baseline import BASE_REV, load_baseline
+
+    h_lo, h_hi = dem.height_range_m
+    rpc, _ = fit_rpc(model.ccd_view(0), height_range_m=(h_lo, h_hi))
+    base_rpc = load_baseline("sensor_models/rpc.py").RpcModel(**rpc._init_kwargs())
+    rng = np.random.default_rng(7)
+    rows = rng.uniform(300.0, 1700.0, n)
+    cols = rng.uniform(50.0, rpc.image_shape[1] - 50.0, n)
+    z = np.asarray(dem.heights_m, dtype=np.float32)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "dem_ellipsoid.tif"
+        with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1, dtype="float32",
+                           crs=dem.crs.to_wkt(), transform=dem.transform, nodata=np.nan) as ds:
+            ds.write(z, 1)
+        with RPCTransformer(rpc.to_rasterio(), RPC_DEM=str(path), RPC_DEMINTERPOLATION="bilinear",
+                            RPC_PIXEL_ERROR_THRESHOLD=1e-4) as gdal:
+            funcs = {"before": lambda: base_rpc.image_to_ground(rows, cols, dem=dem),
+                     "after": lambda: rpc.image_to_ground(rows, cols, dem=dem),
+                     "gdal": lambda: gdal.xy(rows, cols, offset="ul")}
+            best = {k: np.inf for k in funcs}
+            out = {}
+            for _ in range(repeat):
+                for k, f in funcs.items():
+                    t0 = time.perf_counter()
+                    out[k] = f()
+                    best[k] = min(best[k], time.perf_counter() - t0)
+    ref_lon, ref_lat, ref_h = out["before"]
+    result = {"points": n, "base_rev": BASE_REV, "points_per_s": {k: n / v for k, v in best.items()},
+              "speedup_vs_before": best["before"] / best["after"], "ratio_vs_gdal": best["gdal"] / best["after"]}
+    lon_g, lat_g = (np.asarray(v, dtype=np.float64) for v in out["gdal"])
+    for key, (lon, lat, h) in (("after", out["after"]), ("gdal", (lon_g, lat_g, None))):
+        ok = np.isfinite(lon) & np.isfinite(ref_lon)
+        d_m = np.hypot((lon - ref_lon)[ok] * np.cos(np.radians(ref_lat[ok])), (lat - ref_lat)[ok]) * 111_320.0
+        hh = ref_h[ok] if h is None else h[ok]  # GDAL gives no height: reproject at the reference's
+        r2, c2 = rpc.ground_to_image(lon[ok], lat[ok], hh)
+        # the ground offset to the reference solution, in image pixels (both at its height)
+        r3, c3 = rpc.ground_to_image(lon[ok], lat[ok], ref_h[ok])
+        r4, c4 = rpc.ground_to_image(ref_lon[ok], ref_lat[ok], ref_h[ok])
+        result[key] = {"found": float(np.isfinite(lon).mean()), "distance_to_before_m_max": float(d_m.max()),
+                       "distance_to_before_px_max": float(np.max(np.hypot(r3 - r4, c3 - c4))),
+                       "reprojection_px_max": float(np.max(np.maximum(abs(r2 - rows[ok]), abs(c2 - cols[ok]))))}
+        if h is not None:
+            result[key]["dem_misfit_m_max"] = float(np.nanmax(np.abs(dem.height_m(lon[ok], lat[ok]) - h[ok])))
+    result["before"] = {"found": float(np.isfinite(ref_lon).mean())}
+    return result
+
+
+def rpc_only(n: int) -> None:
+    """``--rpc-only``: the RPC-over-DEM comparison alone, written to ``localization_rpc.json``."""
+    dem, dem_name = load_dem()
+    model = example_pushbroom_model(n_rows=2000, installation=Installation(0.0, 0.0, np.radians(3.55)))
+    r = bench_rpc_dem(model, dem, n)
+    r.update(dem=dem_name, command=f"python bench/bench_localization.py --rpc-only --points {n}",
+             machine=platform.machine())
+    print(json.dumps(r, indent=1))
+    out = ROOT / "bench" / "results" / "localization_rpc.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(r, indent=1) + "\n")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=1_000_000)
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "localization.json")
+    parser.add_argument("--rpc-only", action="store_true",
+                        help="only the RPC-over-DEM comparison (base revision, current, GDAL); writes "
+                             "bench/results/localization_rpc.json")
     args = parser.parse_args()
     n = args.points
+    if args.rpc_only:
+        rpc_only(n)
+        return
     rng = np.random.default_rng(42)
 
     model = example_pushbroom_model(
@@ -125,6 +212,11 @@ def main():
         key = "rpc_fit" if m is model else "rpc_fit_no_jitter"
         results[key] = {"seconds": t, "check_max_px": report["check_max_px"], "check_rms_px": report["check_rms_px"]}
         print(f"RPC fit ({label}) {t:.2f} s   check max {report['check_max_px']:.1e} px, rms {report['check_rms_px']:.1e} px")
+
+    results["rpc_dem"] = r = bench_rpc_dem(model, dem, min(n, 200_000))
+    print(f"RPC over DEM       {r['points_per_s']['after']:12,.0f} points/s   x{r['speedup_vs_before']:.2f} vs before, "
+          f"x{r['ratio_vs_gdal']:.2f} vs GDAL; reprojection max {r['after']['reprojection_px_max']:.1e} px "
+          f"(GDAL {r['gdal']['reprojection_px_max']:.1e} px)")
 
     results["max_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"peak memory {results['max_rss_mb']:.0f} MB")

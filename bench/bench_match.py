@@ -32,7 +32,12 @@ def main():
     ap.add_argument("--gsd", type=float, default=16.0)
     ap.add_argument("--spacing", type=int, default=64)
     ap.add_argument("--backend", default="cpu")
+    ap.add_argument("--baseline", action="store_true",
+                    help="match with the base revision's DEM intersection (locate_block) and cloud detector "
+                         "(bench/baseline.py), for the time shares before issue 17; writes match_baseline.json")
     args = ap.parse_args()
+    if args.baseline:
+        _use_baseline_stages()
 
     from gcpmatch.extract import extract_gcps, read_band
     from gcpmatch.options import MatchOptions
@@ -76,8 +81,24 @@ def main():
         "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2,
         "target": "10000 GCPs in <= 60 s on 2 cores",
     }
+    result["code"] = "base revision's locate_block and detect_clouds" if args.baseline else "current"
+    result["shares"] = {k: v / summary["timings"]["total_s"] for k, v in summary["timings"].items() if k != "total_s"}
     print(json.dumps(result, indent=1))
-    (ROOT / "bench" / "results" / "match.json").write_text(json.dumps(result, indent=1) + "\n")
+    name = "match_baseline.json" if args.baseline else "match.json"
+    (ROOT / "bench" / "results" / name).write_text(json.dumps(result, indent=1) + "\n")
+
+
+def _use_baseline_stages() -> None:
+    """Patch the matcher to use the base revision's DEM intersection and cloud detector."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from baseline import load_baseline
+
+    import gcpmatch.extract as extract
+    import gcpmatch.reference as reference
+
+    base_locate = load_baseline("sensor_models/locate.py")
+    reference.locate_block = lambda *a, tolerance_m=None, **k: base_locate.locate_block(*a, **k)
+    extract.detect_clouds = load_baseline("gcpmatch/clouds.py").detect_clouds
 
 
 if __name__ == "__main__":

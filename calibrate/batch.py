@@ -281,7 +281,7 @@ def _accuracy_columns(acc, prefix: str) -> dict:
 
 
 def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: int = 32,
-                   threads: int | None = None) -> dict:
+                   threads: int | None = None, coarse_skip: bool = True) -> dict:
     """Validate one scene with a calibration (module docstring, steps 1-3); never raises.
 
     Parameters
@@ -297,6 +297,9 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
         Matching window grid spacing, pixels.
     threads : int, optional
         OpenCV threads in this process (1 on single-threaded Dask workers).
+    coarse_skip : bool
+        Skip the coarse SIFT stage when a cheap check finds the calibrated model within the
+        fine search radius (:func:`gcpmatch.coarse_skip.within_fine_radius`); False: always SIFT.
 
     Returns
     -------
@@ -312,7 +315,7 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
             import cv2
 
             cv2.setNumThreads(int(threads))
-        _validate(site, Path(calibration), write_points, spacing_px, row)
+        _validate(site, Path(calibration), write_points, spacing_px, row, coarse_skip=coarse_skip)
         row["status"], row["reason"] = "ok", ""
     except GcpcalError as exc:
         row["reason"] = str(exc)
@@ -325,7 +328,8 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
     return json_safe(row)
 
 
-def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out: dict) -> None:
+def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out: dict, *,
+              coarse_skip: bool = True) -> None:
     """Fill ``out`` (a row) step by step, so a failure keeps what was learnt before it."""
     from calibrate.accuracy import check_point_accuracy
     from calibrate.from_gcps import points_of
@@ -352,8 +356,12 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     n_rows, n_cols = model.image_shape
     lon, lat, _ = model.image_to_ground([0.5 * n_rows], [0.5 * n_cols], dem=dem, band=band)
     out["center_lon_deg"], out["center_lat_deg"] = float(lon[0]), float(lat[0])
+    # a calibrated model is usually within the fine search radius: the coarse SIFT stage is
+    # skipped when a few windows show it (and runs when they do not)
     table, summary = extract_gcps(model, image, dem, dom, band=band,
-                                  options=MatchOptions(spacing_px=spacing_px, check_fraction=0.0))
+                                  options=MatchOptions(spacing_px=spacing_px, check_fraction=0.0,
+                                                       coarse_skip=coarse_skip))
+    out["coarse"] = _coarse_line(summary)
     out["cloud_fraction"] = summary.get("cloud_fraction")
     if table is None or len(table) == 0:
         raise InputError(summary.get("message", "no GCP"), path=str(site.scene))
@@ -368,6 +376,15 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     out["points"] = int(acc.absolute.n)
     out.update(_accuracy_columns(acc, ""))
     out.update(_accuracy_columns(acc_lab, "lab_"))
+
+
+def _coarse_line(summary: dict) -> str:
+    """What the coarse stage did, in one line: its skip note, or the SIFT inlier count."""
+    coarse = summary.get("coarse") or {}
+    note = str(coarse.get("note") or "")
+    if note.startswith("coarse stage skipped"):
+        return note
+    return f"coarse stage: SIFT, {coarse.get('inliers', 0)} inliers"
 
 
 # --------------------------------------------------------------------------- Dask orchestration
@@ -522,7 +539,9 @@ def summarize_rows(rows) -> dict:
     -------
     dict
         ``scenes``, ``ok``, ``failed``, the ``mean`` of the error columns over the successful
-        rows, summed task wall and CPU seconds, and the reason of every failure by scene.
+        rows, summed task wall and CPU seconds, the reason of every failure by scene,
+        ``coarse_skipped`` (scenes whose coarse SIFT stage was skipped) and ``coarse`` (by
+        scene: "coarse stage skipped: model within N px ..." or "coarse stage: SIFT, K inliers").
     """
     ok = [r for r in rows if r["status"] == "ok"]
 
@@ -539,4 +558,6 @@ def summarize_rows(rows) -> dict:
         "task_seconds": float(sum(r["seconds"] or 0.0 for r in rows)),
         "task_cpu_seconds": float(sum(r["cpu_seconds"] or 0.0 for r in rows)),
         "failures": {r["name"]: r["reason"] for r in rows if r["status"] != "ok"},
+        "coarse_skipped": sum(1 for r in rows if str(r.get("coarse") or "").startswith("coarse stage skipped")),
+        "coarse": {r["name"]: r["coarse"] for r in rows if r.get("coarse")},
     }

@@ -17,6 +17,10 @@ __all__ = ["bright_outliers", "cloud_pixels", "detect_clouds", "low_texture"]
 
 #: fewest land pixels (scene and reference correlating) the detector needs to fit its relation
 MIN_LAND_PX = 100
+#: block size of the images on which the detector finds land (1: full resolution)
+DECIMATION = 2
+#: land pixels (at most, about) that fit the scene-versus-reference relation with decimation
+LAND_SAMPLES = 10_000
 
 
 def _local_ncc(a: np.ndarray, b: np.ndarray, size: int) -> np.ndarray:
@@ -74,7 +78,7 @@ def cloud_pixels(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, nc
 
 
 def detect_clouds(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, ncc_land: float = 0.5,
-                  box_px: int = 15, min_size_px: int = 5):
+                  box_px: int = 15, min_size_px: int = 5, decimation: int = DECIMATION):
     """Cloud mask of :func:`cloud_pixels` and the cloud fraction, or None where it cannot tell.
 
     The detector needs :data:`MIN_LAND_PX` pixels where scene and reference correlate (land)
@@ -82,12 +86,27 @@ def detect_clouds(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, n
     under it, a reference of another place) it cannot estimate the cloud cover: the fraction
     is then None ("unknown"), never 0.
 
+    With ``decimation`` > 1 the land mask (the local cross-correlation, five box filters) is
+    computed on images averaged over ``decimation`` x ``decimation`` blocks, with a box of the
+    same ground size (``box_px // decimation``, odd, at least 7 blocks); the relation is still
+    fitted on full-resolution pixels (those
+    at the centres of land blocks), the bright test is made on every pixel, and the opening runs
+    only on the bands of lines that hold bright pixels (:func:`_open_where_bright`: identical to
+    opening the whole image). On a cloud-free 2000 x 512 CCD this is about 4x faster
+    (``bench/bench_stages.py --stages clouds``); cloud fractions agree with ``decimation=1``
+    (the original full-resolution detector) within 0.005 (``tests/test_speed_paths.py``).
+    Blocks of 4 were tried and rejected: their coarser land mask shifted the fitted relation
+    and the fraction by up to 0.05.
+
     Parameters
     ----------
     scene, reference : ndarray, shape (n_rows, n_cols)
         As :func:`cloud_pixels`.
     k, ncc_land, box_px, min_size_px
         As :func:`cloud_pixels`.
+    decimation : int
+        Block size of the land mask's images (1: full resolution, the original detector; images
+        smaller than three decimated boxes on a side use full resolution).
 
     Returns
     -------
@@ -97,8 +116,15 @@ def detect_clouds(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, n
         Cloud pixels over the pixels with scene and reference data, in [0, 1]; None when the
         detector cannot estimate.
     """
-    import cv2
+    f = int(decimation)
+    box_d = max(7, (box_px // max(f, 1)) | 1)  # the same ground footprint; 7 x 7 blocks at least
+    if f > 1 and min(scene.shape) >= 3 * box_d * f:
+        return _detect_decimated(scene, reference, f, k=k, ncc_land=ncc_land, box_d=box_d, min_size_px=min_size_px)
+    return _detect_full(scene, reference, k=k, ncc_land=ncc_land, box_px=box_px, min_size_px=min_size_px)
 
+
+def _detect_full(scene, reference, *, k, ncc_land, box_px, min_size_px):
+    """The original detector: land from the full-resolution cross-correlation."""
     ok = np.isfinite(scene) & np.isfinite(reference) & (scene > 0)
     out = np.zeros(scene.shape, bool)
     s32 = np.where(ok, scene, 0.0).astype(np.float32)
@@ -108,21 +134,103 @@ def detect_clouds(scene: np.ndarray, reference: np.ndarray, *, k: float = 5.0, n
         return out, None
     # a regular subsample of at most ~50 000 land pixels is plenty for two coefficients
     land = land[:: max(1, land.size // 50_000)]
-    x, y = r32.ravel()[land].astype(np.float64), s32.ravel()[land].astype(np.float64)
+    coef, s = _fit_land(r32.ravel()[land].astype(np.float64), s32.ravel()[land].astype(np.float64))
+    bright = ok & (s32 - (np.float32(coef[0]) * r32 + np.float32(coef[1])) > np.float32(k * s))
+    mask = _open(bright, min_size_px)
+    return mask, float(mask[ok].mean())
+
+
+def _detect_decimated(scene, reference, f: int, *, k, ncc_land, box_d, min_size_px):
+    """The detector with land found on ``f`` x ``f`` block means (see :func:`detect_clouds`).
+
+    Full-resolution work is kept to a few passes without copies of the images: the data mask,
+    the bright test and the opening of the line bands that hold bright pixels.
+    """
+    scene = np.asarray(scene, dtype=np.float32)
+    reference = np.asarray(reference, dtype=np.float32)
+    ok = np.isfinite(reference)
+    ok &= scene > 0
+    ok &= scene < np.inf
+    land, n_land = _land_decimated(scene, reference, ok, f, ncc_land, box_d)
+    if n_land < MIN_LAND_PX or land.size < 10:
+        return np.zeros(scene.shape, bool), None
+    land = land[:: max(1, land.size // LAND_SAMPLES)]
+    coef, s = _fit_land(reference.ravel()[land].astype(np.float64), scene.ravel()[land].astype(np.float64))
+    threshold = reference * np.float32(coef[0])
+    threshold += np.float32(coef[1] + k * s)
+    bright = scene > threshold  # False on NaN
+    bright &= ok
+    mask = _open_where_bright(bright, min_size_px)
+    n_ok = np.count_nonzero(ok)
+    return mask, (float(np.count_nonzero(mask)) / n_ok if n_ok else 0.0)
+
+
+def _fit_land(x, y):
+    """Robust line ``y ~ a x + b`` of land pixels and the robust residual spread ``s``."""
     w = _darker_half_start(x, y)
     for it in range(9):
-        a = np.stack([x, np.ones_like(x)], axis=-1) * np.sqrt(w)[:, None]
-        coef = np.linalg.lstsq(a, y * np.sqrt(w), rcond=None)[0]
+        coef = _line_fit(x, y, w)
         res = y - (coef[0] * x + coef[1])
         s = 1.4826 * np.median(np.abs(res[w > 0])) + 1e-9
         w = np.where(np.abs(res) <= 1.345 * s, 1.0, 1.345 * s / np.abs(res))
         # haze and cloud edges still correlate with the ground but are brighter: trim the
         # bright side (one-sided contamination) so that they cannot pull the fit
         w[res > 2.5 * s] = 0.0
-    bright = (ok & (s32 - (np.float32(coef[0]) * r32 + np.float32(coef[1])) > np.float32(k * s))).astype(np.uint8)
+    return coef, s
+
+
+def _open(bright: np.ndarray, min_size_px: int) -> np.ndarray:
+    """Morphological opening of a boolean image by an ellipse of ``min_size_px`` (bool)."""
+    import cv2
+
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (min_size_px, min_size_px))
-    mask = cv2.morphologyEx(bright, cv2.MORPH_OPEN, kernel).astype(bool)
-    return mask, float(mask[ok].mean())
+    return cv2.morphologyEx(bright.astype(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)
+
+
+def _open_where_bright(bright: np.ndarray, min_size_px: int, band_lines: int = 128) -> np.ndarray:
+    """:func:`_open` computed only on the bands of ``band_lines`` lines that hold bright pixels.
+
+    Each band is opened with ``min_size_px`` lines of real neighbours on both sides (an opening
+    reaches ``min_size_px - 1`` lines), so the result equals the opening of the whole image.
+    """
+    out = np.zeros(bright.shape, bool)
+    n = bright.shape[0]
+    rows_hit = np.flatnonzero(bright.any(axis=1))
+    if not rows_hit.size:
+        return out
+    pad = int(min_size_px)
+    for b0 in np.unique(rows_hit // band_lines) * band_lines:
+        b1 = min(n, b0 + band_lines)
+        lo, hi = max(0, b0 - pad), min(n, b1 + pad)
+        out[b0:b1] = _open(bright[lo:hi], min_size_px)[b0 - lo : b1 - lo]
+    return out
+
+
+def _land_decimated(scene, reference, ok, f: int, ncc_land: float, box_px: int):
+    """Land pixels from the cross-correlation (box of ``box_px`` blocks) of ``f`` x ``f`` block means.
+
+    Only blocks whose pixels all have data count. Returns the flat full-resolution indices of
+    the centre pixels of land blocks (where that pixel has data) and the number of
+    full-resolution pixels the land blocks cover.
+    """
+    import cv2
+
+    n_rows, n_cols = (scene.shape[0] // f) * f, (scene.shape[1] // f) * f
+    size = (n_cols // f, n_rows // f)
+    crop = ok[:n_rows, :n_cols]
+    full = crop[::f, ::f].copy()  # blocks whose f x f pixels all have data (strided ANDs: fast)
+    for a in range(f):
+        for b in range(f):
+            full &= crop[a::f, b::f]
+    means = []
+    for image in (scene, reference):
+        m = cv2.resize(image[:n_rows, :n_cols], size, interpolation=cv2.INTER_AREA)  # a view: no copy
+        means.append(np.where(full, m, np.float32(0.0)))  # no NaN into the running box sums
+    land_d = full & (_local_ncc(means[0], means[1], box_px) > ncc_land)
+    i, j = np.nonzero(land_d)
+    flat = (i * f + f // 2) * scene.shape[1] + (j * f + f // 2)
+    flat = flat[ok.ravel()[flat]]
+    return flat, i.size * f * f
 
 
 def _darker_half_start(x, y, rounds: int = 3) -> np.ndarray:
@@ -133,13 +241,28 @@ def _darker_half_start(x, y, rounds: int = 3) -> np.ndarray:
     and the clouds are missed. The contamination is one-sided, so the darker half about the
     current line is refitted a few times, which settles on the ground's relation.
     """
-    a = np.stack([x, np.ones_like(x)], axis=-1)
-    low = np.ones(x.size, bool)
+    low = np.ones(x.size)
     for _ in range(rounds):
-        coef = np.linalg.lstsq(a[low], y[low], rcond=None)[0]
-        res = y - a @ coef
-        low = res <= np.median(res)
-    return low.astype(np.float64)
+        coef = _line_fit(x, y, low)
+        res = y - (coef[0] * x + coef[1])
+        low = (res <= np.median(res)).astype(np.float64)
+    return low
+
+
+def _line_fit(x, y, w):
+    """Weighted least-squares line ``y ~ a x + b`` from the 2 x 2 normal equations: ``(a, b)``.
+
+    ``x`` is centred first, so the equations stay well conditioned (DN values of thousands);
+    the sums are numpy's, not BLAS dot products (BLAS threads stall on a busy machine).
+    """
+    sw = w.sum()
+    wx = w * x
+    xm = wx.sum() / sw
+    wxc = wx - w * xm
+    sxx = (wxc * (x - xm)).sum()
+    a = (wxc * y).sum() / sxx if sxx > 0 else 0.0
+    b = (w * y).sum() / sw - a * xm
+    return a, b
 
 
 def bright_outliers(mean_scene: np.ndarray, mean_ref: np.ndarray, *, k: float = 4.0) -> np.ndarray:

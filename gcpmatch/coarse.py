@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 import pyproj
 
+from gcpmatch.coarse_skip import within_fine_radius
 from gcpmatch.precorrect import fit_ccd_offsets, fit_exterior_in_ground
 from gcpmatch.reference import grid_resolution_m, scene_gsd_m
 from sensor_models.errors import GcpcalError
@@ -179,7 +180,7 @@ def _sift_matches_opencv(img_a, mask_a, img_b, mask_b, n_features):
 
 def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None, max_offset_px: float = 1000.0,
                  target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
-                 seed: int = 0, backend: str = "cpu", device=None) -> CoarseResult:
+                 seed: int = 0, backend: str = "cpu", device=None, skip_within_px: float | None = None) -> CoarseResult:
     """Pre-correct ``model`` so that it lands within a few pixels of the truth (see module doc).
 
     Parameters
@@ -210,6 +211,11 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         matching and homography RANSAC on the torch ``device`` (``None``: CUDA if available).
     device : str or torch.device, optional
         Torch device of the ``"torch"`` backend.
+    skip_within_px : float, optional
+        The fine stage's search radius, pixels: when a few windows' phase correlation shows
+        the model already within half of it, SIFT is skipped and ``model`` is returned
+        unchanged, with the note "coarse stage skipped: model within N px"
+        (:func:`gcpmatch.coarse_skip.within_fine_radius`); else SIFT runs. None: always SIFT.
 
     Returns
     -------
@@ -230,6 +236,12 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     test in true ground coordinates, independent of the model's error), so whatever the DOM
     the same part is searched; the result's ``note`` says so, an error names the coverage.
     """
+    if skip_within_px is not None:
+        note = within_fine_radius(scene, model, dem, dom, band=band or model.reference_band,
+                                  radius_px=float(skip_within_px))
+        if note is not None:  # the model as it is, no match counts, the note saying so
+            return CoarseResult(model=model, n_keypoints_scene=0, n_keypoints_dom=0, n_matches=0, n_ransac_inliers=0,
+                                n_inliers=0, rms_m=float("nan"), factor=1, note=note)
     n_rows, n_cols = scene.shape
     small, small_valid, f = _reduce_scene(scene, target_px)
     h_mid = scene_height_m(model, dem, band=band)

@@ -175,7 +175,8 @@ def _coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
     torch_backend = opt.backend in ("gpu", "torch")
     device = "cuda" if opt.backend == "gpu" else ("cpu" if torch_backend else None)
     return coarse_match(scene, model, dem, dom, band=band, max_offset_px=opt.max_offset_px, seed=opt.seed,
-                        backend="torch" if torch_backend else "cpu", device=device)
+                        backend="torch" if torch_backend else "cpu", device=device,
+                        skip_within_px=opt.window_px / 4.0 if opt.coarse_skip else None)
 
 
 def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, look, opt: MatchOptions,

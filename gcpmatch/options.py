@@ -90,6 +90,9 @@ class MatchOptions:
     reference_sigma_m : float
         Geolocation accuracy of the reference DOM (and its DEM's effect), metres per axis (1
         sigma), as its producer states it; used by ``sigma_model="window"``; >= 0.
+    coarse_skip : bool
+        Skip the coarse SIFT stage when a cheap check finds the model already within the fine
+        search radius (``window_px / 4``); ``gcpcal validate`` sets it (default False).
     """
 
     window_px: int = 64
@@ -107,6 +110,7 @@ class MatchOptions:
     phase_eps: float = 0.5
     lowpass_cycles_px: float | None = None
     reference_sigma_m: float = 0.0
+    coarse_skip: bool = False
 
     def validate(self) -> MatchOptions:
         """Check every field; return ``self`` unchanged.
@@ -160,4 +164,6 @@ class MatchOptions:
         if not _is_real(self.reference_sigma_m) or not self.reference_sigma_m >= 0:
             raise InputError(f"reference sigma must be >= 0 metres, got {self.reference_sigma_m!r}",
                              field="reference_sigma_m")
+        if not isinstance(self.coarse_skip, bool):
+            raise InputError(f"coarse_skip must be true or false, got {self.coarse_skip!r}", field="coarse_skip")
         return self

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sensor_models.locate import locate_block
+from sensor_models.locate import HEIGHT_TOLERANCE_M, locate_block
 from sensor_models.psf import psf_sigma_dom_px
 from sensor_models.raster import MapImage, sample_map_image
 
@@ -101,7 +101,7 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
 
     def render(a):
         b = min(row1, a + block_lines)
-        pg = locate_block(model, dem, [dom.grid], band=band, ccd=ccd, row0=a, row1=b)
+        pg = locate_block(model, dem, [dom.grid], band=band, ccd=ccd, row0=a, row1=b, tolerance_m=HEIGHT_TOLERANCE_M)
         u, v = pg.uv[0]
         out[a - row0 : b - row0] = sample_map_image(dom, u, v, sigma_px=sigma)
 

@@ -30,19 +30,27 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 import pyproj
 from affine import Affine
 
+from sensor_models.dem_intersect import _intersect_dem, dem_planes, intersect_dem_adaptive
 from sensor_models.errors import InputError
 from sensor_models.pushbroom import _catmull_rom_weights
 from sensor_models.terrain import Dem
 
-__all__ = ["MapGrid", "MapProjector", "PixelGround", "catmull_rom_matrix", "dem_planes", "locate_block"]
+__all__ = ["HEIGHT_TOLERANCE_M", "MapGrid", "MapProjector", "PixelGround", "catmull_rom_matrix", "dem_planes",
+           "locate_block"]
 
 #: DEM intersection steps: two Newton then two chord steps (< 1 cm on the test terrains)
 NEWTON_ITERATIONS = 4
+#: adaptive intersection: the fixed-step solution on every ``COARSE_STEP``-th pixel (odd, so that
+#: ``cv2.resize`` puts the coarse samples on pixel centres) starts every pixel
+COARSE_STEP = 5
+#: adaptive intersection: a pixel is done once its last height step is below this (metres)
+HEIGHT_TOLERANCE_M = 1e-3
+#: adaptive intersection: Newton steps at most on the pixels that have not converged
+MAX_REFINE_STEPS = 6
 
 
 @dataclass(frozen=True)
@@ -166,6 +174,24 @@ def _interp_cols(a, taps) -> np.ndarray:
     return out
 
 
+def _interp_rows(a, taps) -> np.ndarray:
+    """Interpolate the rows of ``a`` (n_nodes, cols) at the tap positions: C-contiguous (n_out, cols).
+
+    Row gathers of a C-ordered array keep every full-size temporary C-ordered, so the per-pixel
+    arithmetic that follows runs at memory speed (column gathers of the full-size block gave
+    Fortran-ordered layers and strided loops).
+    """
+    first, w = taps
+    out = a[first]
+    out *= w[:, 0, None]
+    tmp = np.empty_like(out)
+    for j in range(1, 4):
+        np.take(a, first + j, axis=0, out=tmp)
+        tmp *= w[:, j, None]
+        out += tmp
+    return out
+
+
 class MapProjector:
     """WGS84 longitude and latitude -> node indices ``(u, v)`` of one map grid.
 
@@ -216,6 +242,7 @@ def locate_block(
     node_step: int = 16,
     height_margin_m: float = 50.0,
     newton_iterations: int = NEWTON_ITERATIONS,
+    tolerance_m: float | None = None,
 ) -> PixelGround:
     """DEM intersection of the pixel centres of lines ``row0..row1-1`` of one CCD and band.
 
@@ -243,6 +270,12 @@ def locate_block(
         Margin added to the DEM's height range for the two localization layers, metres.
     newton_iterations : int
         Steps of the per-pixel DEM intersection (two Newton, then chord steps).
+    tolerance_m : float, optional
+        None (default): ``newton_iterations`` fixed steps on every pixel. A height in metres
+        (e.g. :data:`HEIGHT_TOLERANCE_M`): the adaptive solver of
+        :func:`sensor_models.dem_intersect.intersect_dem_adaptive` (coarse-grid start, one
+        step everywhere, more steps only where the last one exceeded ``tolerance_m``), about
+        3x faster at the same accuracy (``bench/bench_match.py --stages``).
 
     Returns
     -------
@@ -259,20 +292,30 @@ def locate_block(
     # grids in the DEM's CRS follow from the DEM indices by an affine map; others need PROJ
     own = [g for g in grids if not g.crs.equals(dem.crs)]
     projectors = [MapProjector(MapGrid.of_dem(dem))] + [MapProjector(g) for g in own]
-    layers = _pixel_layers(model, kw, projectors, row0, row1, col0, col1, float(max(1, node_step)), h_lo, h_hi)
-    h, u_dem, v_dem = _intersect_dem(dem, *layers[0], np.float32(h_lo), newton_iterations)
-    dh = h - np.float32(h_lo)
-    uv, k = [], 1
+    # the fixed solver keeps its layers bit for bit (simulated scenes are pinned by digests)
+    layers = _pixel_layers(model, kw, projectors, row0, row1, col0, col1, float(max(1, node_step)), h_lo, h_hi,
+                           rows_last=tolerance_m is not None)
+    if tolerance_m is None:
+        h, u_dem, v_dem = _intersect_dem(dem, *layers[0], np.float32(h_lo), newton_iterations)
+    else:
+        h, u_dem, v_dem = intersect_dem_adaptive(dem, *layers[0], np.float32(h_lo), tolerance_m=tolerance_m,
+                                                 coarse_step=COARSE_STEP, max_refine_steps=MAX_REFINE_STEPS)
+    return PixelGround(h, _grid_indices(grids, dem, layers[1:], h - np.float32(h_lo), u_dem, v_dem))
+
+
+def _grid_indices(grids, dem, other_layers, dh, u_dem, v_dem) -> list:
+    """Node indices in each grid: by an affine map of the DEM's in its CRS, else on the layers."""
+    uv, k = [], 0
     for g in grids:
         if g.crs.equals(dem.crs):
             a = g.index_affine() @ dem.transform @ Affine.translation(0.5, 0.5)
             uv.append(((a.a * u_dem + a.b * v_dem + a.c).astype(np.float32),
                        (a.d * u_dem + a.e * v_dem + a.f).astype(np.float32)))
         else:
-            u_lo, v_lo, du, dv = layers[k]
+            u_lo, v_lo, du, dv = other_layers[k]
             k += 1
             uv.append((u_lo + dh * du, v_lo + dh * dv))
-    return PixelGround(h, uv)
+    return uv
 
 
 def _block_columns(model, band: str, ccd: int):
@@ -281,18 +324,21 @@ def _block_columns(model, band: str, ccd: int):
     return array.first_col, array.n_detectors, {"band": band, "array": ccd}
 
 
-def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_hi):
+def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_hi, rows_last: bool = True):
     """Per projector, full-resolution float32 ``u_lo, v_lo, du/dh, dv/dh`` of the block's pixels.
 
     The model localizes a node grid (every ``step`` pixels, one node beyond each side) at the
     heights ``h_lo`` and ``h_hi``; the node values are interpolated to every pixel centre by
-    separable Catmull-Rom cubics.
+    separable Catmull-Rom cubics. ``rows_last``: columns on the node rows first, then rows by
+    row gathers (faster); otherwise rows by a matrix product, then columns (the original order,
+    whose float32 rounding the fixed solver keeps). Either way the layers are C-ordered.
     """
     n_lines, n_cols = row1 - row0, col1 - col0
     # nodes: one before the first pixel centre and enough to pass the last one plus one
     r_nodes = row0 + 0.5 + step * np.arange(-1, int(np.ceil((n_lines - 1) / step)) + 3)
     c_nodes = col0 + 0.5 + step * np.arange(-1, int(np.ceil((n_cols - 1) / step)) + 3)
-    wr = catmull_rom_matrix(1.0 + np.arange(n_lines) / step, r_nodes.size).astype(np.float32)
+    row_taps = _catmull_rom_taps(1.0 + np.arange(n_lines) / step, r_nodes.size)
+    wr = None if rows_last else catmull_rom_matrix(1.0 + np.arange(n_lines) / step, r_nodes.size).astype(np.float32)
     col_taps = _catmull_rom_taps(1.0 + np.arange(n_cols) / step, c_nodes.size)
     rr, cc = np.meshgrid(r_nodes, c_nodes, indexing="ij")
     ground = [
@@ -305,87 +351,10 @@ def _pixel_layers(model, kw, projectors, row0, row1, col0, col1, step, h_lo, h_h
         u_lo, v_lo = proj(*ground[0])
         u_hi, v_hi = proj(*ground[1])
         nodes = (u_lo, v_lo, (u_hi - u_lo) / span, (v_hi - v_lo) / span)
-        layers.append([_interp_cols(wr @ a.reshape(rr.shape).astype(np.float32), col_taps) for a in nodes])
-    return layers
-
-
-def dem_planes(dem: Dem) -> np.ndarray:
-    """Heights of a DEM and their node gradients, stacked for one-pass bilinear sampling.
-
-    Built on first use and cached on the DEM (derived data only); call it once before
-    sharing a DEM between threads so that they do not all build it.
-
-    Parameters
-    ----------
-    dem : Dem
-        Terrain (ellipsoidal heights in metres, NaN for no data).
-
-    Returns
-    -------
-    ndarray of float32, shape (n_rows, n_cols, 3), C-contiguous
-        ``[..., 0]`` the height (m), ``[..., 1]`` and ``[..., 2]`` its central-difference
-        derivatives along columns (``dh/du``) and rows (``dh/dv``), metres per node.
-    """
-    cached = getattr(dem, "_render_planes", None)
-    if cached is None:
-        z = np.asarray(dem.heights_m, dtype=np.float64)
-        gv, gu = np.gradient(np.where(np.isfinite(z), z, np.nan))
-        cached = np.ascontiguousarray(np.stack([z, gu, gv], axis=-1).astype(np.float32))
-        dem._render_planes = cached  # derived data only; the DEM itself is immutable
-    return cached
-
-
-def _intersect_dem(dem: Dem, u_lo, v_lo, du, dv, h_lo, iterations: int):
-    """Per-pixel Newton solution of ``h = D(u_lo + (h - h_lo) du, v_lo + (h - h_lo) dv)``.
-
-    The first two steps are full Newton steps (height and gradient sampled); the later ones
-    reuse the last slope (chord method: linear convergence at the rate of the slope's change,
-    one single-channel sample per step). Returns ``h`` and the DEM node indices ``u, v`` of
-    the solution (float32; NaN outside the DEM).
-    """
-    planes = dem_planes(dem)
-    heights = _dem_heights(dem)
-    rows, cols = planes.shape[:2]
-    h_min, h_max = dem.height_range_m
-    h = np.full(u_lo.shape, 0.5 * (h_min + h_max) - h_lo, dtype=np.float32)  # h - h_lo
-    u = np.empty_like(u_lo)
-    v = np.empty_like(v_lo)
-    slope = None
-    for it in range(iterations):
-        np.multiply(h, du, out=u)
-        u += u_lo
-        np.multiply(h, dv, out=v)
-        v += v_lo
-        if it < 2:
-            s = cv2.remap(planes, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                          borderValue=(np.nan, np.nan, np.nan))
-            d_h = s[..., 0]
-            slope = 1.0 - (s[..., 1] * du + s[..., 2] * dv)
-            # safeguard: grazing rays (slope -> 0) fall back to a plain fixed-point step
-            slope[~(slope > 0.25)] = 1.0
+        if rows_last:
+            layers.append([_interp_rows(np.ascontiguousarray(_interp_cols(a.reshape(rr.shape).astype(np.float32),
+                                                                          col_taps)), row_taps) for a in nodes])
         else:
-            d_h = cv2.remap(heights, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                            borderValue=np.nan)
-        d_h = d_h - h_lo
-        d_h -= h
-        d_h /= slope
-        h += d_h
-    np.multiply(h, du, out=u)
-    u += u_lo
-    np.multiply(h, dv, out=v)
-    v += v_lo
-    h += h_lo
-    bad = ~((u >= 0) & (u <= cols - 1) & (v >= 0) & (v <= rows - 1) & np.isfinite(h))
-    h[bad] = np.nan
-    u[bad] = np.nan
-    v[bad] = np.nan
-    return h, u, v
-
-
-def _dem_heights(dem: Dem):
-    """The height plane of :func:`dem_planes` as its own contiguous float32 array (cached)."""
-    cached = getattr(dem, "_render_heights", None)
-    if cached is None:
-        cached = np.ascontiguousarray(dem_planes(dem)[..., 0])
-        dem._render_heights = cached
-    return cached
+            layers.append([np.ascontiguousarray(_interp_cols(wr @ a.reshape(rr.shape).astype(np.float32), col_taps))
+                           for a in nodes])
+    return layers

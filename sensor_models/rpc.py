@@ -118,6 +118,9 @@ _UNITS_TXT = {
 
 _CHUNK = 1 << 12  # points per block in vectorized evaluation (bounds temporary memory)
 _NEWTON_TOL_PX = 1e-9
+#: image-space tolerance of the inversions inside the DEM intersection: every returned point
+#: reprojects within it (max norm, pixels); the height search itself stops at _DEM_TOL_M
+_DEM_NEWTON_TOL_PX = 1e-4
 _NEWTON_MAX_ITER = 30
 _DEM_TOL_M = 1e-3
 _DEM_MAX_ITER = 100
@@ -543,27 +546,27 @@ class RpcModel(SensorModel):
         return row, col, full
 
     # -- inverse ------------------------------------------------------------------------------
-    def _invert_at_height(self, row_rpc, col_rpc, H, L0=None, P0=None):
+    def _invert_at_height(self, row_rpc, col_rpc, H, L0=None, P0=None, tol_px=_NEWTON_TOL_PX):
         """Newton solve of the pure RPC for normalized (L, P) at normalized heights H.
 
-        Returns ``L, P`` (NaN where the iteration did not reach 1e-9 px). Blocks of points
-        bound the temporary memory.
+        Returns ``L, P`` (NaN where the iteration did not reach ``tol_px``, max norm, pixels).
+        Blocks of points bound the temporary memory.
         """
         n = row_rpc.shape[0]
         block = 16 * _CHUNK
         if n <= block:
-            return self._invert_block(row_rpc, col_rpc, H, L0, P0)
+            return self._invert_block(row_rpc, col_rpc, H, L0, P0, tol_px)
         L = np.empty(n)
         P = np.empty(n)
         for s in range(0, n, block):
             sl = slice(s, s + block)
             L[sl], P[sl] = self._invert_block(
                 row_rpc[sl], col_rpc[sl], H[sl],
-                None if L0 is None else L0[sl], None if P0 is None else P0[sl],
+                None if L0 is None else L0[sl], None if P0 is None else P0[sl], tol_px,
             )  # fmt: skip
         return L, P
 
-    def _invert_block(self, row_rpc, col_rpc, H, L0, P0):
+    def _invert_block(self, row_rpc, col_rpc, H, L0, P0, tol_px=_NEWTON_TOL_PX):
         n = row_rpc.shape[0]
         L = np.zeros(n) if L0 is None else np.where(np.isfinite(L0), L0, 0.0)
         P = np.zeros(n) if P0 is None else np.where(np.isfinite(P0), P0, 0.0)
@@ -572,11 +575,16 @@ class RpcModel(SensorModel):
         for _ in range(_NEWTON_MAX_ITER):
             if active.size == 0:
                 break
-            La, Pa, Ha = L[active], P[active], H[active]
-            r, c, jac = self._rpc_rowcol_normalized(La, Pa, Ha, derivatives=True)
+            # residuals first (no derivatives): from a good start most points stop here
+            r, c = self._rpc_rowcol_normalized(L[active], P[active], H[active])
             fr, fc = r - row_rpc[active], c - col_rpc[active]
-            conv = np.maximum(np.abs(fr), np.abs(fc)) <= _NEWTON_TOL_PX
+            conv = np.maximum(np.abs(fr), np.abs(fc)) <= tol_px
             done[active[conv]] = True
+            if conv.all():
+                break
+            active, fr, fc = active[~conv], fr[~conv], fc[~conv]
+            conv = np.zeros(active.size, dtype=bool)
+            jac = self._rpc_rowcol_normalized(L[active], P[active], H[active], derivatives=True)[2]
             j00, j01 = jac[:, 0, 0], jac[:, 0, 1]
             j10, j11 = jac[:, 1, 0], jac[:, 1, 1]
             det = j00 * j11 - j01 * j10
@@ -604,7 +612,9 @@ class RpcModel(SensorModel):
         At a given height, the RPC is inverted by Newton's method on normalized (lon, lat),
         to 1e-9 px. On a DEM, the height along each image point's line of sight is found by a
         bracketed secant search (Illinois false position) on ``f(h) = dem(lon(h), lat(h)) - h``
-        between the DEM's minimum and maximum heights, to 1e-3 m; the bracket keeps it stable on
+        between the DEM's minimum and maximum heights, to 1e-3 m, with inversions to 1e-4 px
+        (every returned point reprojects within 1e-4 px, max norm; each height step starts
+        from the previous solution moved along the line of sight); the bracket keeps it stable on
         slopes where the plain fixed point ``h <- dem(lon(h), lat(h))`` would oscillate. When
         several intersections lie in that bracket, one of them is returned (not necessarily the
         one nearest the sensor).
@@ -671,7 +681,7 @@ class RpcModel(SensorModel):
             return (h - self.height_off) / self.height_scale
 
         def f(h, idx, L0=None, P0=None):
-            L, P = self._invert_at_height(row_rpc[idx], col_rpc[idx], to_norm(h), L0, P0)
+            L, P = self._invert_at_height(row_rpc[idx], col_rpc[idx], to_norm(h), L0, P0, _DEM_NEWTON_TOL_PX)
             lon, lat = self._denormalize_lonlat(L, P)
             with np.errstate(invalid="ignore"):
                 z = np.asarray(dem.height_m(lon, lat), dtype=np.float64).reshape(-1)
@@ -692,12 +702,19 @@ class RpcModel(SensorModel):
         with np.errstate(invalid="ignore"):
             active = np.flatnonzero(np.isnan(out_h) & (fa * fb < 0.0))
         a, b, fa, fb = a[active], b[active], fa[active], fb[active]
-        Lc, Pc = La[active], Pa[active]
+        Lc, Pc, hc = La[active], Pa[active], a.copy()
+        # the line of sight is nearly straight in normalized (L, P, h): each height step starts
+        # from the last solution moved along the bracket ends' slope, so that one residual
+        # evaluation usually confirms it (Newton steps only where it does not)
+        with np.errstate(invalid="ignore"):
+            dL_dh = (Lb[active] - La[active]) / (h_hi - h_lo)
+            dP_dh = (Pb[active] - Pa[active]) / (h_hi - h_lo)
         for _ in range(_DEM_MAX_ITER):
             if active.size == 0:
                 break
             c = b - fb * (b - a) / (fb - fa)
-            fc, Lc, Pc = f(c, active, Lc, Pc)
+            fc, Lc, Pc = f(c, active, Lc + (c - hc) * dL_dh, Pc + (c - hc) * dP_dh)
+            hc = c
             good = np.isfinite(fc)
             conv = good & ((np.abs(fc) <= _DEM_TOL_M) | (np.abs(b - a) <= _DEM_TOL_M))
             ids = active[conv]
@@ -708,7 +725,8 @@ class RpcModel(SensorModel):
             a, fa = np.where(keep_a, a, b), np.where(keep_a, 0.5 * fa, fb)
             b, fb = c, fc
             keep = good & ~conv
-            active, a, b, fa, fb, Lc, Pc = (x[keep] for x in (active, a, b, fa, fb, Lc, Pc))
+            active, a, b, fa, fb, Lc, Pc, hc, dL_dh, dP_dh = (
+                x[keep] for x in (active, a, b, fa, fb, Lc, Pc, hc, dL_dh, dP_dh))
         lon, lat = self._denormalize_lonlat(out_L, out_P)
         bad = ~(np.isfinite(lon) & np.isfinite(lat))
         out_h[bad] = np.nan

@@ -123,12 +123,16 @@ def test_validation_table_against_the_truth(series, tmp_path):
         assert 200.0 < r["lab_rmse_planar_px"] < 330.0
         assert r["date"] == truth["epoch_utc"][:10]
         assert abs(r["center_lon_deg"] - truth["center_lon_deg"]) < 0.15  # the true look is ~0.1 deg off nadir
+        # a calibrated model is a few pixels off: the coarse SIFT stage is skipped, and says so
+        assert r["coarse"].startswith("coarse stage skipped: model within "), r["coarse"]
+        assert abs(float(r["coarse"].split("within ")[1].split(" px")[0]) - exp["planar"]) < 1.0
     cloudy, clear = by[names[2]], by[names[0]]
     assert cloudy["cloud_fraction"] > 0.1 > clear["cloud_fraction"]
     assert cloudy["points"] < clear["points"]
 
     # summary: mean over the scenes that succeeded (seed 003 table 5's mean row)
     assert summary["ok"] == 3 and summary["failed"] == 3 and summary["workers"] == 2
+    assert summary["coarse_skipped"] == 3 and set(summary["coarse"]) == set(names[:3])
     mean = summary["mean"]["rmse_planar_px"]
     assert math.isfinite(mean)
     assert mean == pytest.approx(np.mean([by[n]["rmse_planar_px"] for n in names[:3]]))
@@ -147,6 +151,24 @@ def test_validation_table_against_the_truth(series, tmp_path):
     assert (out / "validation_planar.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.stem for p in (out / "points").glob("*.csv")) == sorted(names[:3])
     assert not list(out.glob(".validate-*"))
+
+
+def test_validation_with_and_without_the_coarse_skip_agrees(series):
+    """One clear scene validated with SIFT forced and with the skip: the rows say which ran,
+    and the calibrated model's check-point figures agree within 0.05 px (the fine stage sees
+    the same offsets either way)."""
+    from calibrate.batch import calibration_manifest, validate_scene
+
+    site = read_sites(series["root"] / "all_sites.yaml")[0]
+    calibrated = calibration_manifest(series["calibration"])
+    sift = validate_scene(site, calibrated, threads=1, coarse_skip=False)
+    skip = validate_scene(site, calibrated, threads=1, coarse_skip=True)
+    assert sift["status"] == skip["status"] == "ok", (sift["reason"], skip["reason"])
+    assert sift["coarse"].startswith("coarse stage: SIFT, ") and int(sift["coarse"].split(", ")[1].split()[0]) > 6
+    assert skip["coarse"].startswith("coarse stage skipped: model within ")
+    for key in ("mean_along_px", "mean_across_px", "rmse_planar_px"):
+        assert abs(sift[key] - skip[key]) < 0.05, key
+    assert abs(sift["points"] - skip["points"]) <= 0.1 * sift["points"]
 
 
 def test_cli_validate_reports_failures(series, tmp_path, capsys):

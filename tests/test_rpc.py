@@ -441,7 +441,8 @@ def test_dem_intersection_on_steep_slopes(frame_fit):
     assert np.all(np.isfinite(h))
     assert np.max(np.abs(dem.height_m(lon, lat) - h)) <= 1e-3
     r2, c2 = rpc.ground_to_image(lon, lat, h)
-    assert np.max(np.abs(r2 - r)) <= 1e-6 and np.max(np.abs(c2 - c)) <= 1e-6
+    # inversions inside the DEM search stop at 1e-4 px (issue 17: converge only as far as needed)
+    assert np.max(np.abs(r2 - r)) <= 1e-4 and np.max(np.abs(c2 - c)) <= 1e-4
     # the plain fixed point h <- dem(lon(h), lat(h)) does not converge here (slope x tan(view))
     hh = np.full(r.shape, 1000.0)
     for _ in range(50):
@@ -452,7 +453,8 @@ def test_dem_intersection_on_steep_slopes(frame_fit):
     shifted = rpc.with_parameters([5.0, 1e-4, 0, -3.0, 0, 2e-4])
     lon, lat, h = shifted.image_to_ground(r, c, dem=dem)
     r2, c2 = shifted.ground_to_image(lon, lat, h)
-    assert np.max(np.abs(r2 - r)) <= 1e-6 and np.max(np.abs(c2 - c)) <= 1e-6
+    # 1e-4 px in the RPC's own pixels, scaled by the bias (1 + 2e-4 at most here)
+    assert np.max(np.abs(r2 - r)) <= 1.001e-4 and np.max(np.abs(c2 - c)) <= 1.001e-4
     lon, lat, h = rpc.image_to_ground(r, c, dem=SteepDem(7.0, 44.14))  # DEM elsewhere
     assert np.all(np.isnan(lon) & np.isnan(lat) & np.isnan(h))
 

@@ -1,0 +1,166 @@
+"""Stage benchmarks of ``gcpcal match``, before and after, side by side in one run.
+
+The machine is shared and noisy, so each stage is timed for the code of the base revision
+(:mod:`bench.baseline`, ``git show``) and for the current code in alternation, ``--repeat``
+times, and the best time of each is kept; the figure is their ratio. Accuracy is compared on
+the same inputs. Stages:
+
+* ``reference``: the matcher's reference chips (:func:`gcpmatch.reference.reference_for_ccd`
+  on every CCD, one worker), its ``locate_block`` share and the DEM intersection alone;
+* ``clouds``: the cloud detector (:func:`gcpmatch.clouds.detect_clouds`) on every CCD of the
+  (cloud-free) scene against its reference, and on a copy with synthetic clouds.
+
+The scene is the one :mod:`bench.bench_match` simulates (``--rows``, ``--detectors``).
+
+Usage: ``python bench/bench_stages.py [--rows 2000] [--detectors 512] [--repeat 3] [--stages reference,clouds]``
+Writes ``bench/results/match_stages.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from baseline import BASE_REV, load_baseline  # noqa: E402
+
+
+def alternate(funcs: dict, repeat: int) -> dict:
+    """Best wall time (s) of each callable, run in alternation ``repeat`` times; plus results."""
+    best = {k: np.inf for k in funcs}
+    out = {}
+    for _ in range(repeat):
+        for k, f in funcs.items():
+            t = time.perf_counter()
+            out[k] = f()
+            best[k] = min(best[k], time.perf_counter() - t)
+    return best, out
+
+
+def open_scene(rows: int, detectors: int):
+    from sensor_models.raster import MapImage
+    from sensor_models.readers import open_model
+    from sensor_models.terrain import Dem
+
+    scene = ROOT / "bench" / "results" / f"match_scene_{rows}x{detectors}"
+    if not (scene / "summary.json").exists():
+        raise SystemExit(f"no scene at {scene}: run bench/bench_match.py --rows {rows} --detectors {detectors} first")
+    return (open_model(scene / "manifest.json"), Dem.open(scene / "reference" / "dem.tif"),
+            MapImage.open(scene / "reference" / "dom.tif"), scene)
+
+
+def bench_reference(model, dem, dom, repeat: int) -> dict:
+    """Reference chips, locate_block and the DEM intersection: base revision vs current."""
+    import gcpmatch.reference as reference
+    import sensor_models.locate as locate
+    from sensor_models.dem_intersect import intersect_dem_adaptive
+
+    base = load_baseline("sensor_models/locate.py")
+    locate.dem_planes(dem)
+    base.dem_planes(dem)
+    band, n_ccd = "B2", len(model.detector_arrays("B2"))
+
+    def chips(use_base):
+        def run():
+            saved = reference.locate_block
+            if use_base:
+                reference.locate_block = lambda *a, tolerance_m=None, **k: base.locate_block(*a, **k)
+            try:
+                return [reference.reference_for_ccd(model, dem, dom, band=band, ccd=c, workers=1) for c in range(n_ccd)]
+            finally:
+                reference.locate_block = saved
+        return run
+
+    t_chips, chips_out = alternate({"before": chips(True), "after": chips(False)}, repeat)
+    diff = np.concatenate([np.abs(a - b).ravel() for a, b in zip(chips_out["before"], chips_out["after"])])
+    scale = float(np.nanstd(np.concatenate([a.ravel() for a in chips_out["before"]])))
+
+    rows = model.image_shape[0]
+    blocks = [(c, a, min(rows, a + 512)) for c in range(n_ccd) for a in range(0, rows, 512)]
+
+    def loc(fn, **kw):
+        return lambda: [fn(model, dem, [dom.grid], band=band, ccd=c, row0=a, row1=b, **kw) for c, a, b in blocks]
+
+    t_loc, loc_out = alternate({"before": loc(base.locate_block),
+                                "after": loc(locate.locate_block, tolerance_m=locate.HEIGHT_TOLERANCE_M)}, repeat)
+    d_uv = np.concatenate([np.hypot(p.uv[0][0] - q.uv[0][0], p.uv[0][1] - q.uv[0][1]).ravel()
+                           for p, q in zip(loc_out["before"], loc_out["after"])])
+    d_h = np.concatenate([(p.h_m - q.h_m).ravel() for p, q in zip(loc_out["before"], loc_out["after"])])
+
+    # the intersection alone, on the layers each version builds
+    h_lo = np.float32(dem.height_range_m[0] - 50.0)
+    h_hi = dem.height_range_m[1] + 50.0
+    kw = {"band": band, "array": 1}
+    look = model.detector_arrays(band)[1]
+    c0, c1 = look.first_col, look.first_col + look.n_detectors
+    lay_b = base._pixel_layers(model, kw, [base.MapProjector(base.MapGrid.of_dem(dem))], 0, 512, c0, c1, 16.0,
+                               float(h_lo), h_hi)[0]
+    lay_a = locate._pixel_layers(model, kw, [locate.MapProjector(locate.MapGrid.of_dem(dem))], 0, 512, c0, c1, 16.0,
+                                 float(h_lo), h_hi)[0]
+    t_int, _ = alternate({"before": lambda: base._intersect_dem(dem, *lay_b, h_lo, 4),
+                          "after": lambda: intersect_dem_adaptive(dem, *lay_a, h_lo,
+                                                                  tolerance_m=locate.HEIGHT_TOLERANCE_M)}, repeat * 3)
+    t_lay, _ = alternate({"before": lambda: base._pixel_layers(model, kw, [base.MapProjector(base.MapGrid.of_dem(dem))],
+                                                              0, 512, c0, c1, 16.0, float(h_lo), h_hi),
+                          "after": lambda: locate._pixel_layers(model, kw,
+                                                               [locate.MapProjector(locate.MapGrid.of_dem(dem))],
+                                                               0, 512, c0, c1, 16.0, float(h_lo), h_hi)}, repeat * 3)
+    return {
+        "pixels": int(sum(a.size for a in chips_out["after"])),
+        "reference_chips_s": t_chips, "reference_chips_speedup": t_chips["before"] / t_chips["after"],
+        "locate_block_s": t_loc, "locate_block_speedup": t_loc["before"] / t_loc["after"],
+        "intersection_512_lines_s": t_int, "intersection_speedup": t_int["before"] / t_int["after"],
+        "pixel_layers_512_lines_s": t_lay, "pixel_layers_speedup": t_lay["before"] / t_lay["after"],
+        "accuracy_vs_before": {
+            "uv_dom_px_max": float(np.nanmax(d_uv)), "uv_dom_px_rms": float(np.sqrt(np.nanmean(d_uv**2))),
+            "h_m_max": float(np.nanmax(np.abs(d_h))), "h_m_rms": float(np.sqrt(np.nanmean(d_h**2))),
+            "nan_pixels_differ": int(np.count_nonzero(np.isnan(d_h) != np.isnan(d_uv))),
+            "chip_dn_max": float(np.nanmax(diff)), "chip_dn_std": scale,
+        },
+    }
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rows", type=int, default=2000)
+    ap.add_argument("--detectors", type=int, default=512)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--stages", default="reference,clouds")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "match_stages.json")
+    args = ap.parse_args()
+    import cv2
+
+    model, dem, dom, scene = open_scene(args.rows, args.detectors)
+    result = {"scene": str(scene.name), "image_shape": [int(v) for v in model.image_shape], "base_rev": BASE_REV,
+              "repeat": args.repeat, "opencv_threads": cv2.getNumThreads(), "machine": platform.machine(),
+              "command": " ".join(["python"] + sys.argv)}
+    stages = args.stages.split(",")
+    if "reference" in stages:
+        result["reference"] = r = bench_reference(model, dem, dom, args.repeat)
+        print(f"reference chips  {r['reference_chips_s']['before']:.2f} s -> {r['reference_chips_s']['after']:.2f} s"
+              f"  x{r['reference_chips_speedup']:.2f}   (locate_block x{r['locate_block_speedup']:.2f}, "
+              f"intersection x{r['intersection_speedup']:.2f}, layers x{r['pixel_layers_speedup']:.2f})")
+        print(f"   vs before: uv max {r['accuracy_vs_before']['uv_dom_px_max']:.1e} DOM px, "
+              f"h max {r['accuracy_vs_before']['h_m_max'] * 1e3:.2f} mm")
+    if "clouds" in stages:
+        from bench_clouds import bench_clouds
+
+        result["clouds"] = c = bench_clouds(model, dem, dom, scene, args.repeat)
+        print(f"clouds (cloud-free) x{c['clear_speedup']:.2f}, (cloudy) x{c['cloudy_speedup']:.2f}; "
+              f"fractions {c['fractions']}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
