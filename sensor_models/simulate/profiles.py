@@ -213,7 +213,7 @@ PAPER003_SCALE = {
 
 # --------------------------------------------------------------------------- other seeds
 HIPPARCOS = "ESA 1997, The Hipparcos and Tycho Catalogues, ESA SP-1200 (about 1 mas and 1 mas/yr at Hp < 9)"
-JIA = ("Jia, Yang, Zhang, Wang 2010, Systematic error analysis and compensation for high accuracy star centroid "
+JIA = ("Jia et al. 2010, Systematic error analysis and compensation for high accuracy star centroid "
        "estimation of star tracker, Sci. China Tech. Sci. 53(11):3145-3152 (S-curve pixel-phase error)")
 SEED000 = "seed 000 (geostationary staring camera, star tracks, August 2-21, 437 tracks, tables 1-4)"
 SEED002 = "seed 002 (Xiao et al. 2023, Appl. Sci. 13, 9688: tables 1-3, section 3.3 figure 11)"
