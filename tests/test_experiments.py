@@ -158,7 +158,6 @@ def test_unknown_seed_or_profile_is_a_usage_or_input_error(tmp_path, capsys):
     assert not (tmp_path / "y").exists()
 
 
-@pytest.mark.slow
 def test_experiment_002_quick(tmp_path, capsys):
     ideal = _run(tmp_path, "002", "ideal", capsys)
     real = _run(tmp_path, "002", "realistic", capsys)
