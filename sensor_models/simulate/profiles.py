@@ -199,7 +199,8 @@ def _paper003() -> PushbroomProfile:
     return replace(_realistic(), name="paper-003")
 
 
-#: every named push-broom profile (``gcpcal simulate pushbroom --profile``)
+#: every named push-broom profile (``gcpcal simulate pushbroom --profile`` offers ideal and realistic;
+#: ``paper-003`` is run by ``gcpcal experiment 003``)
 PROFILES = {"ideal": _ideal(), "realistic": _realistic(), "paper-003": _paper003()}
 
 #: seed 003's acquisition (HY-1C CZI), for the ``paper-003`` experiment's scale
