@@ -24,10 +24,10 @@ import shutil
 import subprocess
 from pathlib import Path
 
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 S2_RED = ROOT.parent / "shared" / "data" / "real_textures" / "sentinel2" / "s2_B04.jp2"
+# the end-to-end chain as a library (``gcpcal experiment 003``): calibrate/experiments/seed003.py
 
 
 def _gcpcal(*args) -> None:
@@ -39,20 +39,13 @@ def _gcpcal(*args) -> None:
 
 
 def gcp_truth_error(scene: Path, gcps_csv: Path) -> dict:
-    """RMS / max of (matched row, col) minus the TRUE model's projection of each GCP's ground point."""
+    """RMS / max of (matched row, col) minus the TRUE model's projection of each GCP's ground point
+    (:func:`calibrate.experiments.seed003.gcp_truth_error`)."""
+    from calibrate.experiments.seed003 import gcp_truth_error as _gcp_truth_error
     from gcpmatch.gcps import read_gcps
     from sensor_models.readers import open_model
 
-    truth = open_model(scene / "truth_manifest.json")
-    table = read_gcps(gcps_csv)
-    band = str(table.band[0]) or None
-    ccd = table.ccd if all(str(c) for c in table.ccd) else None
-    r_t, c_t = truth.ground_to_image(table.lon, table.lat, table.h, band=band, ccd=ccd)
-    rows, cols = table.row, table.col
-    err = np.hypot(rows - r_t, cols - c_t)
-    err = err[np.isfinite(err)]
-    return {"n": int(err.size), "rms_px": float(np.sqrt(np.mean(err**2))), "median_px": float(np.median(err)),
-            "max_px": float(err.max())}
+    return _gcp_truth_error(open_model(scene / "truth_manifest.json"), read_gcps(gcps_csv))
 
 
 #: ``realistic`` with groups of its errors switched off, to explain the figures point by point

@@ -18,8 +18,8 @@ import threading
 
 import click
 
-from calibrate.cli import (calibrate, compensate, demo, localize, match, oalr, ortho, relative, rpc, run, simulate,
-                           stars, thermal, truth, validate)
+from calibrate.cli import (calibrate, compensate, demo, experiment, localize, match, oalr, ortho, relative, rpc, run,
+                           simulate, stars, thermal, truth, validate)
 from calibrate.cli._errors import quiet_cluster_logs, run_guarded
 from calibrate.cli.options import add_options, apply_verbosity, verbosity_options
 from sensor_models import __version__
@@ -52,7 +52,7 @@ def cli(ctx, verbose, quiet):
 
 #: Every command module, registered explicitly in this order (``gcpcal --help`` sorts them).
 COMMAND_MODULES = (localize, rpc, demo, match, calibrate, run, relative, validate, ortho, stars, compensate, thermal,
-                   oalr, truth, simulate)
+                   oalr, truth, simulate, experiment)
 
 
 def _accept_verbosity(command: click.Command) -> None:

@@ -534,7 +534,7 @@ def _row(name, description, errors, installation_rad, success=True, message="", 
 
 def run_seed002(*, step_px: float = 100.0, start_px: float = 0.0, stop_px: float | None = 10000.0,
                 noise_px: float = 0.0, seed: int = 0, schemes=None, robust: str = "none",
-                image_shape=(10240, 10240)) -> CompensationStudy:
+                image_shape=(10240, 10240), models=None) -> CompensationStudy:
     """Seed 002's simulation (tables 1-3) on a GF-4-like staring camera.
 
     TRUE model: GF-4-like camera with the table 1 distortion and the table 2 installation
@@ -558,6 +558,10 @@ def run_seed002(*, step_px: float = 100.0, start_px: float = 0.0, stop_px: float
         Loss of the fits.
     image_shape : (int, int)
         Frame shape (rows, cols).
+    models : (StaringLab, GeoStaringModel, GeoStaringModel), optional
+        ``(true_lab, truth, lab)`` to use instead of seed 002's (e.g. a TRUE model evaluating
+        the physical lens, :mod:`sensor_models.simulate.staring_truth`); ``image_shape`` must
+        be theirs. Default: :func:`seed002_true_lab` fitted by the cubic, as today.
 
     Returns
     -------
@@ -568,7 +572,7 @@ def run_seed002(*, step_px: float = 100.0, start_px: float = 0.0, stop_px: float
     t_all = time.perf_counter()
     image_shape = tuple(int(x) for x in image_shape)
     stop = None if stop_px is None else min(float(stop_px), min(image_shape) - 1.0)
-    true_lab, truth, lab = _seed002_models(image_shape)
+    true_lab, truth, lab = _seed002_models(image_shape) if models is None else models
     t0 = time.perf_counter()
     vcp = virtual_control_points(truth, step_px=step_px, start_px=start_px, stop_px=stop, noise_px=noise_px, seed=seed)
     check = check_grid(truth, step_px=step_px, start_px=start_px, stop_px=stop)

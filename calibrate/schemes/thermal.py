@@ -400,7 +400,7 @@ class ThermalSeries:
 
 def simulate_thermal_series(lab, times_s, drift: ThermalDrift = ThermalDrift(), *, n_points: int = 400,
                             sigma_px: float = 0.1, height_m: float = 0.0, seed: int = 0,
-                            solver: str = "direct") -> ThermalSeries:
+                            solver: str = "direct", truth_offsets_rad=None) -> ThermalSeries:
     """Per-epoch exterior solutions of a staring camera whose installation drifts thermally.
 
     At each epoch the TRUE model is ``lab`` with installation ``drift`` (+ epoch noise);
@@ -416,6 +416,9 @@ def simulate_thermal_series(lab, times_s, drift: ThermalDrift = ThermalDrift(), 
         Epochs, seconds (``t = 0`` is midnight of the first day for the drift's harmonics).
     solver : {"direct", "calibrate_model"}
         :func:`fit_installation` or ``calibrate.absolute.calibrate_model(scheme="exterior")``.
+    truth_offsets_rad : array_like, shape (N, 3), optional
+        Added to the TRUE installation at each epoch and to no model of it: e.g. the
+        day-to-day variation of :mod:`sensor_models.simulate.thermal_truth`. Default: none.
 
     Returns
     -------
@@ -432,6 +435,11 @@ def simulate_thermal_series(lab, times_s, drift: ThermalDrift = ThermalDrift(), 
     rng = np.random.default_rng(seed)
     smooth = drift.smooth_angles(t)
     true = smooth + rng.normal(0.0, drift.noise_arcsec * ARCSEC, smooth.shape)
+    if truth_offsets_rad is not None:
+        offsets = np.asarray(truth_offsets_rad, dtype=np.float64)
+        if offsets.shape != true.shape or not np.all(np.isfinite(offsets)):
+            raise InputError(f"must be finite with shape {true.shape}", field="truth_offsets_rad")
+        true = true + offsets
     temps = drift.temperature(t, rng)
     n_rows, n_cols = lab.image_shape
     est = np.full((t.size, 3), np.nan)

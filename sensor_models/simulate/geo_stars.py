@@ -209,8 +209,10 @@ def frame_models(model: GeoStaringModel, seconds) -> list:
     return [model.at_frame(float(t)) for t in np.asarray(seconds, dtype=np.float64).reshape(-1)]
 
 
-def _attitudes(cfg: GeoStarsConfig, t_att: np.ndarray, rng):
-    """True and measured body -> orbital attitude (roll, pitch, yaw, Rz Ry Rx)."""
+def _attitudes(cfg: GeoStarsConfig, t_att: np.ndarray, rng, wobble_rad=None):
+    """True and measured body -> orbital attitude (roll, pitch, yaw, Rz Ry Rx).
+
+    ``wobble_rad`` (N, 3), when given, is added to the TRUE angles only (unmeasured)."""
     phase = rng.uniform(0.0, 2.0 * np.pi, 3)
     angles = (
         np.asarray(cfg.attitude_bias_arcsec)[None, :]
@@ -218,9 +220,10 @@ def _attitudes(cfg: GeoStarsConfig, t_att: np.ndarray, rng):
         + np.asarray(cfg.attitude_jitter_arcsec)[None, :]
         * np.sin(2.0 * np.pi * cfg.attitude_jitter_hz * t_att[:, None] + phase[None, :])
     ) * ARCSEC
-    true_rot = Rotation.from_euler("ZYX", angles[:, ::-1])
+    known_rot = Rotation.from_euler("ZYX", angles[:, ::-1])
+    true_rot = known_rot if wobble_rad is None else Rotation.from_euler("ZYX", (angles + wobble_rad)[:, ::-1])
     noise = rng.normal(0.0, cfg.attitude_noise_arcsec * ARCSEC, (t_att.size, 3))
-    measured = true_rot * Rotation.from_rotvec(noise)
+    measured = known_rot * Rotation.from_rotvec(noise)
     return Attitude(t_att, true_rot.as_quat(), frame="orbital"), Attitude(t_att, measured.as_quat(), frame="orbital")
 
 
@@ -267,17 +270,29 @@ def _installation_error(cfg: GeoStarsConfig, lab: GeoStaringModel, truth0: GeoSt
     return d
 
 
-def _build_models(cfg: GeoStarsConfig, rng):
+def _build_models(cfg: GeoStarsConfig, rng, errors=None):
+    """LAB and TRUE models and the installation error; ``errors`` (StarTruthErrors) beyond today's."""
     n_rows, n_cols = (int(x) for x in cfg.image_shape)
     t_end = (int(cfg.n_frames) - 1) * float(cfg.frame_interval_s)
     t0, t1 = -60.0, t_end + 60.0
     epoch = np.datetime64(cfg.epoch_utc, "ns")
-    orbit = geostationary_orbit(epoch, np.linspace(t0, t1, max(4, int(np.ceil((t1 - t0) / 60.0)) + 1)), lon_deg=cfg.lon_deg)
-    true_att, measured_att = _attitudes(cfg, np.linspace(t0, t1, int(np.ceil(t1 - t0)) + 1), rng)
+    t_orbit = np.linspace(t0, t1, max(4, int(np.ceil((t1 - t0) / 60.0)) + 1))
+    orbit = geostationary_orbit(epoch, t_orbit, lon_deg=cfg.lon_deg)
+    t_att = np.linspace(t0, t1, int(np.ceil(t1 - t0)) + 1)
+    wobble, lab_orbit = None, orbit
+    if errors is not None:
+        from sensor_models.simulate.star_truth import wobble_angles
+
+        wobble = wobble_angles(t_att, errors.wobble_arcsec, errors.wobble_period_s,
+                               np.random.default_rng([int(cfg.seed), 1]))
+        dlon = np.degrees(errors.orbit_bias_m / np.linalg.norm(orbit.position_m[0]))
+        lab_orbit = geostationary_orbit(epoch, t_orbit, lon_deg=cfg.lon_deg + dlon)
+    true_att, measured_att = _attitudes(cfg, t_att, rng, wobble)
     mirror = PointingMirror(FOLD_NORMAL_CAM, 0.5 * np.radians(cfg.view_north_deg), 0.0)
     nominal = Installation(np.pi / 2.0, 0.0, 0.0)
     common = dict(image_shape=(n_rows, n_cols), orbit=orbit, frame_seconds=0.0, mirror=mirror)
-    lab = GeoStaringModel.from_lab(SEED000_CAMERA, attitude=measured_att, installation=nominal, name="geo_stars_lab", **common)
+    lab = GeoStaringModel.from_lab(SEED000_CAMERA, attitude=measured_att, installation=nominal, name="geo_stars_lab",
+                                   **{**common, "orbit": lab_orbit})
     truth0 = GeoStaringModel.from_lab(_true_lab(cfg), attitude=true_att, installation=nominal, name="geo_stars_truth", **common)
     d = _installation_error(cfg, lab, truth0)
     p = truth0.parameters().values.copy()
@@ -290,7 +305,7 @@ def _build_models(cfg: GeoStarsConfig, rng):
 # --------------------------------------------------------------------------- rendering
 def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frames: int | None = None,
                        frame_interval_s: float | None = None, seed: int | None = None,
-                       mag_limit: float | None = None, image_shape=None) -> dict:
+                       mag_limit: float | None = None, image_shape=None, profile=None) -> dict:
     """Render a star-field sequence of a geostationary staring camera (module docstring).
 
     Parameters
@@ -301,6 +316,11 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
         All settings; the keyword arguments below override its fields.
     n_frames, frame_interval_s, seed, mag_limit, image_shape
         Shortcuts for the :class:`GeoStarsConfig` fields of the same names.
+    profile : StarsProfile, optional
+        Error profile (:mod:`sensor_models.simulate.profiles`): its attitude noise, jitter and
+        drift replace the configuration's, and its errors beyond today's
+        (:mod:`sensor_models.simulate.star_truth`) are injected. None or ``ideal``: today's
+        sequence, byte for byte.
 
     Returns
     -------
@@ -313,8 +333,14 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
     t_start = time.perf_counter()
     cfg = _resolved_config(config, n_frames=n_frames, frame_interval_s=frame_interval_s, seed=seed,
                            mag_limit=mag_limit, image_shape=image_shape)
+    errors = None
+    if profile is not None and not profile.is_ideal:
+        from sensor_models.simulate.star_truth import truth_errors
+
+        cfg = _profile_config(cfg, profile)
+        errors = truth_errors(profile)
     rng = np.random.default_rng(int(cfg.seed))
-    lab, truth, d_inst = _build_models(cfg, rng)
+    lab, truth, d_inst = _build_models(cfg, rng, errors)
     catalog, unit_icrs, mags = _star_catalog(cfg)
     shape = truth.image_shape
 
@@ -322,7 +348,7 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}-", dir=out_dir.parent)).resolve()
     try:
-        frames, rendered, n_per_frame = _render_frames(tmp, cfg, truth, catalog, unit_icrs, mags, rng)
+        frames, rendered, n_per_frame = _render_frames(tmp, cfg, truth, catalog, unit_icrs, mags, rng, errors)
         write_geo_manifest(lab, tmp / "manifest.json")
         write_geo_manifest(truth, tmp / "truth_manifest.json")
         frames_doc = {"format_version": 1, "kind": FRAMES_KIND, "epoch_utc": str(np.datetime64(lab.epoch, "ms")),
@@ -341,6 +367,8 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
             "initial_error_centre_px": truth_doc["initial_error_centre_px"],
             "seconds": round(time.perf_counter() - t_start, 3),
         }
+        if profile is not None:
+            summary["profile"] = profile.name
         for name, doc in (("frames.json", frames_doc), ("truth.json", truth_doc), ("summary.json", summary)):
             (tmp / name).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         if not out_dir.exists():
@@ -361,6 +389,12 @@ def _resolved_config(config, **overrides) -> GeoStarsConfig:
     return cfg.validate()
 
 
+def _profile_config(cfg: GeoStarsConfig, profile) -> GeoStarsConfig:
+    """``cfg`` with the attitude magnitudes of a stars profile."""
+    return GeoStarsConfig(**{**asdict(cfg), **{k: profile.value(k) for k in (
+        "attitude_noise_arcsec", "attitude_jitter_arcsec", "attitude_jitter_hz", "attitude_drift_arcsec_s")}}).validate()
+
+
 def _star_catalog(cfg: GeoStarsConfig):
     """The catalogue to render, its ICRS unit vectors and the magnitudes in the camera's band."""
     from sensor_models.stars import StarCatalog
@@ -375,7 +409,7 @@ def _star_catalog(cfg: GeoStarsConfig):
     return catalog, unit_icrs, mags
 
 
-def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, mags, rng):
+def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, mags, rng, errors=None):
     """Render and write every frame under ``tmp/frames``; the frame list, stars drawn, counts inside."""
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning
@@ -390,13 +424,21 @@ def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, ma
     frames, rendered = [], []
     profile = dict(driver="GTiff", width=shape[1], height=shape[0], count=1, dtype="uint16")
     n_per_frame = []
+    unit_icrs, gain = _truth_sky(cfg, unit_icrs, shape, errors)
     for k, t in enumerate(seconds):
         model_t = truth.at_frame(float(t))
         idx, _, row, col = catalog_stars_in_frame(model_t, catalog, unit_icrs, margin)
         flux = cfg.flux_ref_adu * 10.0 ** (-0.4 * (mags[idx] - cfg.ref_mag))
-        img = render_stars(shape, np.stack([row, col], -1), flux, sigma_px=cfg.psf_sigma_px,
+        at = np.stack([row, col], -1)
+        if errors is not None and errors.pixel_phase_px:
+            from sensor_models.simulate.star_truth import pixel_phase_shift
+
+            at = at + pixel_phase_shift(at, errors.pixel_phase_px)
+        img = render_stars(shape, at, flux, sigma_px=cfg.psf_sigma_px,
                            background=cfg.background_adu, gain_e_per_adu=cfg.gain_e_per_adu,
                            read_noise_e=cfg.read_noise_e, rng=rng)
+        if gain is not None:
+            img = cfg.background_adu + (img - cfg.background_adu) * gain
         dn = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
         name = f"frames/frame_{k:04d}.tif"
         with warnings.catch_warnings():
@@ -409,6 +451,19 @@ def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, ma
         rendered.append({"seconds": float(t), "hip": catalog.hip[idx].tolist(), "row": row.tolist(),
                          "col": col.tolist(), "mag": mags[idx].round(3).tolist()})
     return frames, rendered, n_per_frame
+
+
+def _truth_sky(cfg: GeoStarsConfig, unit_icrs, shape, errors):
+    """Catalogue directions as the TRUE sky has them, and the PRNU gain map (None: none)."""
+    if errors is None:
+        return unit_icrs, None
+    from sensor_models.simulate.star_truth import perturb_catalogue, prnu_map
+
+    year = 1970.0 + np.datetime64(cfg.epoch_utc, "s").astype(np.int64) / (365.25 * 86400.0)
+    unit_icrs = perturb_catalogue(unit_icrs, errors.catalogue_position_mas, errors.proper_motion_error_mas_yr, year,
+                                  np.random.default_rng([int(cfg.seed), 2]))
+    gain = prnu_map(shape, errors.prnu_rms, np.random.default_rng([int(cfg.seed), 3])) if errors.prnu_rms else None
+    return unit_icrs, gain
 
 
 def _truth_doc(cfg: GeoStarsConfig, lab, truth, d_inst, rendered) -> dict:

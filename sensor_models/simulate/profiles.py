@@ -11,8 +11,13 @@ turns a profile into the rows of ``docs/error_budget.md``.
   simulator's own (:mod:`sensor_models.simulate.kernel`) and the reference DOM and DEM differ
   from what rendered the scene (:mod:`sensor_models.simulate.reference_pair`).
 
-Later profiles (stars, thermal, ``paper-*``) register another dataclass in :data:`PROFILES`;
-callers look profiles up by name with :func:`get_profile` and test ``profile.kind``.
+Profiles of the other seeds are other dataclasses, one per kind of experiment, in
+:data:`KIND_PROFILES` (``kind`` -> name -> profile): :class:`StaringProfile` (seed 002 staring
+camera), :class:`ThermalProfile` (seed 002 section 3.3 thermal installation), :class:`StarsProfile`
+(seed 000 star tracks), :class:`OalrProfile` (seed 004 autocollimation) and the push-broom one
+(seed 003). Each kind has ``ideal`` (today's numbers), ``realistic`` and the ``paper-*`` profile
+of its seed. :data:`PROFILES` stays the push-broom table (``gcpcal simulate pushbroom``);
+:func:`get_profile` looks up any kind.
 """
 
 from __future__ import annotations
@@ -21,7 +26,8 @@ from dataclasses import dataclass, field, fields
 
 from sensor_models.errors import InputError
 
-__all__ = ["PROFILES", "PushbroomProfile", "Sourced", "get_profile", "profile_table"]
+__all__ = ["KIND_PROFILES", "OalrProfile", "PROFILES", "PushbroomProfile", "Sourced", "StaringProfile", "StarsProfile",
+           "ThermalProfile", "get_profile", "profile_table"]
 
 TODAY = "today's simulator default (sensor_models/simulate/config.py)"
 ISSUE13 = "issue 13 (project's realistic range)"
@@ -186,31 +192,241 @@ def _realistic() -> PushbroomProfile:
     )
 
 
-#: every named profile
-PROFILES = {"ideal": _ideal(), "realistic": _realistic()}
+def _paper003() -> PushbroomProfile:
+    """Seed 003's setting: the realistic magnitudes; its scale is :data:`PAPER003_SCALE`."""
+    from dataclasses import replace
+
+    return replace(_realistic(), name="paper-003")
 
 
-def get_profile(name: str):
-    """The profile called ``name``.
+#: every named push-broom profile (``gcpcal simulate pushbroom --profile`` offers ideal and realistic;
+#: ``paper-003`` is run by ``gcpcal experiment 003``)
+PROFILES = {"ideal": _ideal(), "realistic": _realistic(), "paper-003": _paper003()}
+
+#: seed 003's acquisition (HY-1C CZI), for the ``paper-003`` experiment's scale
+PAPER003_SCALE = {
+    "n_cameras": Sourced(2, "seed 003 section 2 (two cameras)"),
+    "ccds_per_camera": Sourced(2, "seed 003 section 2 (two CCDs per camera)"),
+    "detectors_total": Sourced(21800, "seed 003 (about 21 800 detectors over the swath)"),
+    "field_of_view_deg": Sourced(62.0, "seed 003 (+-31 degrees)"),
+    "duration_s": Sourced(60.0, "seed 003 (about 60 s of imaging)"),
+}
+
+# --------------------------------------------------------------------------- other seeds
+HIPPARCOS = "ESA 1997, The Hipparcos and Tycho Catalogues, ESA SP-1200 (about 1 mas and 1 mas/yr at Hp < 9)"
+JIA = ("Jia et al. 2010, Systematic error analysis and compensation for high accuracy star centroid "
+       "estimation of star tracker, Sci. China Tech. Sci. 53(11):3145-3152 (S-curve pixel-phase error)")
+SEED000 = "seed 000 (geostationary staring camera, star tracks, August 2-21, 437 tracks, tables 1-4)"
+SEED002 = "seed 002 (Xiao et al. 2023, Appl. Sci. 13, 9688: tables 1-3, section 3.3 figure 11)"
+SEED004 = "seed 004 (OALR autocollimation, table 3: sigma_k 0.430 px lab, 0.144 px flight)"
+NOT_SIMULATED = "not simulated in this profile"
+
+
+@dataclass(frozen=True)
+class StaringProfile:
+    """Error magnitudes of seed 002's staring-camera compensation study; every field a :class:`Sourced`."""
+
+    name: str
+    physical_truth: Sourced = _f("bool", "TRUE interior evaluated from the physical lens at every pixel (else its 20-coefficient fit)")
+    radial_k2_corner_px: Sourced = _f("px at the frame corner", "k2 r^5 radial term of the TRUE lens (Brown-Conrady)")
+    radial_k3_corner_px: Sourced = _f("px at the frame corner", "k3 r^7 radial term of the TRUE lens")
+    vcp_noise_px: Sourced = _f("px (1 sigma, per axis)", "Gaussian noise on the virtual control points' image coordinates")
+    kind: str = "staring"
+
+    @property
+    def is_ideal(self) -> bool:
+        """True for the profile that takes today's path."""
+        return self.name == "ideal"
+
+    def value(self, name: str):
+        """The magnitude of field ``name`` (its :attr:`Sourced.value`)."""
+        return getattr(self, name).value
+
+
+@dataclass(frozen=True)
+class ThermalProfile:
+    """Error magnitudes of seed 002's thermal installation series; every field a :class:`Sourced`."""
+
+    name: str
+    day_to_day_arcsec: Sourced = _f("arcsec per day (1 sigma step, per axis)", "random walk of the TRUE installation from day to day, smooth within a day")
+    epoch_noise_arcsec: Sourced = _f("arcsec (1 sigma, per axis)", "white epoch-to-epoch noise of the TRUE installation")
+    vcp_noise_px: Sourced = _f("px (1 sigma, per axis)", "noise on each epoch's control points")
+    kind: str = "thermal"
+
+    @property
+    def is_ideal(self) -> bool:
+        """True for the profile that takes today's path."""
+        return self.name == "ideal"
+
+    def value(self, name: str):
+        """The magnitude of field ``name`` (its :attr:`Sourced.value`)."""
+        return getattr(self, name).value
+
+
+@dataclass(frozen=True)
+class StarsProfile:
+    """Error magnitudes of seed 000's star-track calibration; every field a :class:`Sourced`."""
+
+    name: str
+    attitude_noise_arcsec: Sourced = _f("arcsec (1 sigma, per axis)", "white noise of the measured attitude (1 s samples) the LAB model uses")
+    attitude_jitter_arcsec: Sourced = _f("arcsec (roll, pitch, yaw)", "sinusoid in the TRUE attitude, also in the measured one")
+    attitude_jitter_hz: Sourced = _f("Hz", "its frequency")
+    attitude_drift_arcsec_s: Sourced = _f("arcsec/s (roll, pitch, yaw)", "linear drift, TRUE and measured")
+    wobble_arcsec: Sourced = _f("arcsec (per axis, random phase)", "sinusoid in the TRUE attitude only: unknown to the LAB model")
+    wobble_period_s: Sourced = _f("s", "its period")
+    catalogue_position_mas: Sourced = _f("mas (1 sigma, per axis)", "catalogue position error at its epoch: the rendered star is displaced")
+    proper_motion_error_mas_yr: Sourced = _f("mas/yr (1 sigma, per axis)", "proper-motion error, times the years from J1991.25 to the frame epoch")
+    pixel_phase_px: Sourced = _f("px (amplitude)", "centroid S-curve: rendered photocentre moved by a sin(2 pi frac(x))")
+    prnu_rms: Sourced = _f("relative gain, rms", "per-pixel gain on the star signal")
+    orbit_bias_m: Sourced = _f("m (along track)", "the LAB orbit is displaced along the GEO arc")
+    sessions: Sourced = _f("daily 20-min sessions", "independent sequences (another date, noise and wobble each)")
+    kind: str = "stars"
+
+    @property
+    def is_ideal(self) -> bool:
+        """True for the profile that takes today's path."""
+        return self.name == "ideal"
+
+    def value(self, name: str):
+        """The magnitude of field ``name`` (its :attr:`Sourced.value`)."""
+        return getattr(self, name).value
+
+
+@dataclass(frozen=True)
+class OalrProfile:
+    """Error magnitudes of seed 004's autocollimation (OALR) measurement; every field a :class:`Sourced`."""
+
+    name: str
+    amplitude_e: Sourced = _f("electrons (peak)", "cross-mark signal on the SMCCD")
+    background_e: Sourced = _f("electrons", "background (stray light, dark)")
+    read_noise_e: Sourced = _f("electrons rms", "read noise")
+    psf_sigma_px: Sourced = _f("px", "Gaussian PSF of the mark")
+    prnu_rms: Sourced = _f("relative gain, rms", "per-pixel gain of the SMCCD")
+    mount_drift_px: Sourced = _f("px (1 sigma, per channel and axis)", "motion of the SMCCD itself between the two frames, unknown to eq. 2-5")
+    centroid_sigma_px: Sourced = _f("px (1 sigma)", "given centroid noise added to every mark coordinate (paper's sigma_k); 0: from the rendering")
+    kind: str = "oalr"
+
+    @property
+    def is_ideal(self) -> bool:
+        """True for the profile that takes today's path."""
+        return self.name == "ideal"
+
+    def value(self, name: str):
+        """The magnitude of field ``name`` (its :attr:`Sourced.value`)."""
+        return getattr(self, name).value
+
+
+def _staring_profiles() -> dict:
+    none = lambda v: Sourced(v, NOT_SIMULATED)  # noqa: E731
+    vcp_match = "seed 003: SIFT/phase matches against Landsat 0.3-0.5 px, taken for the VCPs' source; issue 13"
+    return {
+        "ideal": StaringProfile("ideal", physical_truth=Sourced(False, "today: TRUE interior = 20-coefficient fit"),
+                                radial_k2_corner_px=none(0.0), radial_k3_corner_px=none(0.0),
+                                vcp_noise_px=Sourced(0.0, "today's `gcpcal compensate` default")),
+        "realistic": StaringProfile("realistic", physical_truth=Sourced(True, "issue 13 item 3"),
+                                    radial_k2_corner_px=Sourced(1.0, ASSUMPTION),
+                                    radial_k3_corner_px=Sourced(-0.3, ASSUMPTION),
+                                    vcp_noise_px=Sourced(0.3, vcp_match)),
+        "paper-002": StaringProfile("paper-002", physical_truth=Sourced(True, f"{SEED002}: table 1 lens"),
+                                    radial_k2_corner_px=Sourced(0.0, f"{SEED002}: table 1 has k1 only"),
+                                    radial_k3_corner_px=Sourced(0.0, f"{SEED002}: table 1 has k1 only"),
+                                    vcp_noise_px=Sourced(0.0, f"{SEED002}: no noise stated for the VCPs")),
+    }
+
+
+def _thermal_profiles() -> dict:
+    return {
+        "ideal": ThermalProfile("ideal", day_to_day_arcsec=Sourced(0.0, NOT_SIMULATED),
+                                epoch_noise_arcsec=Sourced(0.3, "today's ThermalDrift default"),
+                                vcp_noise_px=Sourced(0.1, "today's `gcpcal thermal` default")),
+        "realistic": ThermalProfile("realistic", day_to_day_arcsec=Sourced(4.0, f"{ISSUE13}: 3-6 arcsec a day"),
+                                    epoch_noise_arcsec=Sourced(0.3, "today's ThermalDrift default"),
+                                    vcp_noise_px=Sourced(0.3, "as the staring profile's VCP noise")),
+        "paper-002": ThermalProfile("paper-002", day_to_day_arcsec=Sourced(0.0, f"{SEED002}: figure 11 is one daily curve"),
+                                    epoch_noise_arcsec=Sourced(0.3, "today's ThermalDrift default"),
+                                    vcp_noise_px=Sourced(0.0, f"{SEED002}: no noise stated for the VCPs")),
+    }
+
+
+def _stars_ideal() -> StarsProfile:
+    s = lambda v: Sourced(v, "today's GeoStarsConfig default")  # noqa: E731
+    none = lambda v: Sourced(v, NOT_SIMULATED)  # noqa: E731
+    return StarsProfile(
+        "ideal", attitude_noise_arcsec=s(0.1), attitude_jitter_arcsec=s((0.2, 0.2, 0.2)), attitude_jitter_hz=s(0.02),
+        attitude_drift_arcsec_s=s((0.002, -0.002, 0.004)), wobble_arcsec=none(0.0), wobble_period_s=none(1200.0),
+        catalogue_position_mas=none(0.0), proper_motion_error_mas_yr=none(0.0), pixel_phase_px=none(0.0),
+        prnu_rms=none(0.0), orbit_bias_m=none(0.0), sessions=s(1))
+
+
+def _stars_profiles() -> dict:
+    from dataclasses import replace
+
+    ideal = _stars_ideal()
+    realistic = replace(
+        ideal, name="realistic",
+        attitude_noise_arcsec=Sourced(1.0, f"{ISSUE13}: 1 arcsec of attitude noise; {LIEBE}"),
+        wobble_arcsec=Sourced(2.0, f"{ISSUE13}: unmeasured 2 arcsec wobble over 20 min"),
+        wobble_period_s=Sourced(1200.0, f"{ISSUE13}: 20 min; {SEED000}: 20-min daily sessions"),
+        catalogue_position_mas=Sourced(1.0, HIPPARCOS),
+        proper_motion_error_mas_yr=Sourced(1.0, HIPPARCOS),
+        pixel_phase_px=Sourced(0.05, f"{JIA}; {ASSUMPTION}"),
+        prnu_rms=Sourced(0.01, f"SWIR focal plane after non-uniformity correction; {ASSUMPTION}"),
+        orbit_bias_m=Sourced(200.0, f"GEO orbit determination by ranging, hundreds of m; {ASSUMPTION}"))
+    paper = replace(realistic, name="paper-000",
+                    sessions=Sourced(20, f"{SEED000}: 20 days (the experiment states the number it ran)"))
+    return {"ideal": ideal, "realistic": realistic, "paper-000": paper}
+
+
+def _oalr_profiles() -> dict:
+    from dataclasses import replace
+
+    s = lambda v: Sourced(v, "today's render_cross default (calibrate/schemes/autocollimation.py)")  # noqa: E731
+    none = lambda v: Sourced(v, NOT_SIMULATED)  # noqa: E731
+    ideal = OalrProfile("ideal", amplitude_e=s(1000.0), background_e=s(50.0), read_noise_e=s(10.0),
+                        psf_sigma_px=s(0.8), prnu_rms=none(0.0), mount_drift_px=none(0.0),
+                        centroid_sigma_px=none(0.0))
+    realistic = replace(ideal, name="realistic",
+                        amplitude_e=Sourced(300.0, f"flight: fainter mark through the camera's optics; {ASSUMPTION}"),
+                        background_e=Sourced(200.0, f"stray light in flight; {ASSUMPTION}"),
+                        read_noise_e=Sourced(15.0, ASSUMPTION), psf_sigma_px=Sourced(1.0, ASSUMPTION),
+                        prnu_rms=Sourced(0.01, ASSUMPTION),
+                        mount_drift_px=Sourced(0.05, f"SMCCD mount stability; {ASSUMPTION}"))
+    paper = replace(ideal, name="paper-004", centroid_sigma_px=Sourced(0.144, f"{SEED004}: flight sigma_k"),
+                    amplitude_e=Sourced(1000.0, "rendered noise is replaced by the paper's sigma_k"))
+    return {"ideal": ideal, "realistic": realistic, "paper-004": paper}
+
+
+#: every profile by experiment kind, then name
+KIND_PROFILES = {"pushbroom": PROFILES, "staring": _staring_profiles(), "thermal": _thermal_profiles(),
+                 "stars": _stars_profiles(), "oalr": _oalr_profiles()}
+
+
+def get_profile(name: str, kind: str = "pushbroom"):
+    """The profile called ``name`` of experiment kind ``kind``.
 
     Parameters
     ----------
     name : str
-        A key of :data:`PROFILES`.
+        A key of ``KIND_PROFILES[kind]`` (:data:`PROFILES` for the push-broom).
+    kind : {"pushbroom", "staring", "thermal", "stars", "oalr"}
+        The kind of experiment.
 
     Returns
     -------
-    PushbroomProfile
+    PushbroomProfile, StaringProfile, ThermalProfile, StarsProfile or OalrProfile
 
     Raises
     ------
     InputError
-        Unknown name (the message lists the known ones).
+        Unknown kind or name (the message lists the known ones).
     """
+    if kind not in KIND_PROFILES:
+        raise InputError(f"unknown profile kind {kind!r} (known: {', '.join(KIND_PROFILES)})", field="kind")
+    table = KIND_PROFILES[kind]
     try:
-        return PROFILES[name]
+        return table[name]
     except KeyError:
-        raise InputError(f"unknown profile {name!r} (known: {', '.join(PROFILES)})", field="profile") from None
+        raise InputError(f"unknown profile {name!r} (known: {', '.join(table)})", field="profile") from None
 
 
 def profile_table(profile) -> list:
@@ -218,7 +434,7 @@ def profile_table(profile) -> list:
 
     Parameters
     ----------
-    profile : PushbroomProfile
+    profile : PushbroomProfile, StaringProfile, ThermalProfile, StarsProfile or OalrProfile
 
     Returns
     -------
@@ -230,3 +446,4 @@ def profile_table(profile) -> list:
         if isinstance(v, Sourced):
             rows.append((f.name, str(v.value), f.metadata["unit"], f.metadata["model"], v.source))
     return rows
+

@@ -1,0 +1,47 @@
+"""Stage action of ``gcpcal experiment``: run a seed experiment and write its folder.
+
+Simulated data go to a scratch folder beside the output (removed afterwards); the outputs
+(``experiment.json``, ``sensitivity/*.json|png``, ``report.html``) are staged and moved into
+``OUT`` whole (:func:`calibrate.actions._io.staged_folder`).
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from pathlib import Path
+
+from calibrate.actions._io import staged_folder
+
+__all__ = ["experiment_stage"]
+
+
+def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool = False) -> dict:
+    """Run experiment ``seed`` under ``profile`` and write ``out_dir``.
+
+    Parameters
+    ----------
+    seed : str
+        ``000``, ``002``, ``003`` or ``004``.
+    out_dir : str or Path
+        Output folder (replaced whole on success).
+    profile : str
+        ``ideal``, ``realistic`` or the seed's ``paper-*``.
+    quick : bool
+        The reduced run.
+
+    Returns
+    -------
+    dict
+        The document written to ``experiment.json``.
+    """
+    from calibrate.experiments.registry import run_experiment
+    from calibrate.experiments.report import write_experiment
+
+    with staged_folder(out_dir, ".experiment-") as stage:
+        work = Path(tempfile.mkdtemp(prefix=".experiment-work-", dir=stage.parent))
+        try:
+            result = run_experiment(seed, profile, quick=quick, work_dir=work)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        return write_experiment(result, stage)

@@ -1,0 +1,62 @@
+"""Seed name -> experiment module, and the profiles each accepts."""
+
+from __future__ import annotations
+
+import importlib
+
+from sensor_models.errors import InputError
+
+__all__ = ["EXPERIMENTS", "PROFILE_CHOICES", "profiles_of", "run_experiment"]
+
+#: seed -> (module under calibrate.experiments, its ``paper-*`` profile)
+EXPERIMENTS = {"000": ("seed000", "paper-000"), "002": ("seed002", "paper-002"), "003": ("seed003", "paper-003"),
+               "004": ("seed004", "paper-004")}
+#: every profile name the command accepts (each seed takes ideal, realistic and its own paper-*)
+PROFILE_CHOICES = ("ideal", "realistic", "paper-000", "paper-002", "paper-003", "paper-004")
+
+
+def profiles_of(seed: str) -> tuple:
+    """The profiles seed ``seed`` runs under.
+
+    Parameters
+    ----------
+    seed : str
+        A key of :data:`EXPERIMENTS`.
+
+    Returns
+    -------
+    tuple of str
+    """
+    return ("ideal", "realistic", EXPERIMENTS[seed][1])
+
+
+def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=None):
+    """Run one experiment.
+
+    Parameters
+    ----------
+    seed : str
+        ``000``, ``002``, ``003`` or ``004``.
+    profile : str
+        ``ideal``, ``realistic`` or the seed's ``paper-*``.
+    quick : bool
+        The reduced run.
+    work_dir : Path
+        Scratch folder for simulated data.
+
+    Returns
+    -------
+    ExperimentResult
+
+    Raises
+    ------
+    InputError
+        Unknown seed, or a profile the seed does not take.
+    """
+    if seed not in EXPERIMENTS:
+        raise InputError(f"unknown experiment {seed!r} (known: {', '.join(EXPERIMENTS)})", field="seed")
+    if profile not in profiles_of(seed):
+        raise InputError(f"experiment {seed} takes the profiles {', '.join(profiles_of(seed))}, not {profile!r}",
+                         field="profile")
+    module = importlib.import_module(f"calibrate.experiments.{EXPERIMENTS[seed][0]}")
+    return module.run(profile, quick=quick, work_dir=work_dir)

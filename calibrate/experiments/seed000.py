@@ -1,0 +1,189 @@
+"""Seed 000 experiment: calibration of a geostationary staring camera from star tracks.
+
+Each session is one 20-minute sequence (seed 000: a specific time on consecutive days; 1024 x
+1024 frames of the 1250 mm / 25 um camera every 10 s) rendered by
+:func:`sensor_models.simulate.geo_stars.simulate_geo_stars` under the stars profile (``ideal``:
+today's; ``realistic``/``paper-000``: 1 arcsec attitude noise, an unmeasured 2 arcsec wobble
+over 20 min, Hipparcos-level catalogue errors, pixel-phase and PRNU centroid systematics, orbit
+error: :mod:`sensor_models.simulate.star_truth`), then processed by
+:func:`calibrate.stars.process_frames` (detection, identification, tracks, stepwise calibration,
+five held-out points per track). Accuracy is seed 000's: mean absolute RA/DE error of the
+held-out points (table 3) and the 2-sigma bound of their normal fit (table 4), pixels.
+
+Scale: the paper pools 20 days (437 tracks). A session here is one day with its own noise,
+wobble and date; ``paper-000`` runs :data:`FULL_SESSIONS` of them (``quick``: one short one), and
+the result states the number.
+
+Sensitivity: accuracy against the attitude noise (the observation-noise analogue for stars) and
+against the unmeasured wobble amplitude (jitter). DEM and DOM errors do not apply to stars.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from calibrate.experiments.results import ExperimentResult, PaperTable, SensitivityCurve
+from sensor_models.simulate.profiles import Sourced, get_profile, profile_table
+
+__all__ = ["FULL_SESSIONS", "PAPER", "run", "run_session"]
+
+#: sessions of a full ``paper-000`` run (the paper: 20 days; a session takes ~40 s here)
+FULL_SESSIONS = 5
+#: seed 000 table 3 (mean of 20 days) and table 4 (normal fit), pixels
+PAPER = {"ra_before_px": -6.795, "de_before_px": -21.004, "ra_mean_abs_px": 0.84175, "de_mean_abs_px": 0.8534,
+         "ra_two_sigma_px": 2.24, "de_two_sigma_px": 2.35, "tracks": 437}
+
+
+def run_session(work: Path, profile, *, day: int, n_frames: int) -> dict:
+    """Simulate and calibrate one session; its held-out accuracy.
+
+    Parameters
+    ----------
+    work : Path
+        Scratch folder for the frames.
+    profile : StarsProfile
+    day : int
+        Day index (the date and the noise seed).
+    n_frames : int
+        Frames, 10 s apart.
+
+    Returns
+    -------
+    dict
+        ``success``, ``tracks``, ``ra/de_before_px`` (mean), ``ra/de_mean_abs_px``,
+        ``ra/de_two_sigma_px``.
+    """
+    from calibrate.config import StarOptions
+    from calibrate.stars import load_frame, process_frames, read_frame_list
+    from sensor_models.readers.geo_manifest import read_geo_manifest
+    from sensor_models.simulate.geo_stars import GeoStarsConfig, simulate_geo_stars
+
+    epoch = str(np.datetime64("2023-08-02T14:40:00") + np.timedelta64(int(day), "D"))
+    folder = work / f"{profile.name}_day{day:02d}_{n_frames}"
+    config = GeoStarsConfig(n_frames=int(n_frames), epoch_utc=epoch, seed=int(day))
+    simulate_geo_stars(folder, config=config, profile=profile)
+    paths, seconds, manifest = read_frame_list(folder)
+    lab = read_geo_manifest(manifest)
+    r = process_frames([load_frame(p) for p in paths], seconds, lab,
+                       options=StarOptions(mag_limit=10.5, compare_joint=False))
+    a = r.accuracy
+    out = {"success": bool(r.success), "tracks": int(r.frames["n_tracks"])}
+    for k in ("ra", "de"):
+        out[f"{k}_before_px"] = a["before"][k].get("mean_px")
+        out[f"{k}_mean_abs_px"] = a["after"][k].get("mean_abs_px")
+        out[f"{k}_two_sigma_px"] = a["after"][k].get("two_sigma_px")
+    return out
+
+
+def _pooled(sessions: list) -> dict:
+    keys = [k for k in sessions[0] if k.endswith("_px")]
+    out = {k: float(np.mean([s[k] for s in sessions if s[k] is not None])) for k in keys}
+    out["tracks"] = int(sum(s["tracks"] for s in sessions))
+    out["sessions"] = len(sessions)
+    out["success"] = all(s["success"] for s in sessions)
+    return out
+
+
+def _table(pooled: dict) -> PaperTable:
+    rows = [["RA mean error before (px)", PAPER["ra_before_px"], pooled["ra_before_px"]],
+            ["DE mean error before (px)", PAPER["de_before_px"], pooled["de_before_px"]],
+            ["mean |RA| after (px)", PAPER["ra_mean_abs_px"], pooled["ra_mean_abs_px"]],
+            ["mean |DE| after (px)", PAPER["de_mean_abs_px"], pooled["de_mean_abs_px"]],
+            ["RA 2-sigma after (px)", PAPER["ra_two_sigma_px"], pooled["ra_two_sigma_px"]],
+            ["DE 2-sigma after (px)", PAPER["de_two_sigma_px"], pooled["de_two_sigma_px"]],
+            ["tracks", PAPER["tracks"], pooled["tracks"]]]
+    return PaperTable("Held-out positioning error before and after calibration",
+                      "seed 000 table 3 (means over 20 days), table 4 (2-sigma of the normal fit), section 4 "
+                      "(437 tracks)", ("quantity", "paper", "ours"), rows)
+
+
+def _magnitudes(profile) -> tuple:
+    """The profile's magnitudes (not its name): equal tuples render the same session."""
+    return tuple(str(row[1]) for row in profile_table(profile))
+
+
+def _curves(work, profile, n_frames, quick, first: dict) -> list:
+    """Sensitivity curves; ``first`` is the day-0 session of ``profile`` at ``n_frames`` (reused)."""
+    cache = {(_magnitudes(profile), n_frames): first}
+
+    def acc(p):
+        key = (_magnitudes(p), n_frames)
+        if key not in cache:
+            cache[key] = run_session(work, p, day=0, n_frames=n_frames)
+        s = cache[key]
+        return 0.5 * (s["ra_mean_abs_px"] + s["de_mean_abs_px"]), 0.5 * (s["ra_two_sigma_px"] + s["de_two_sigma_px"])
+
+    base = profile if not profile.is_ideal else replace(profile, name="ideal-varied")
+    own = {"attitude_noise_arcsec": profile.value("attitude_noise_arcsec"), "wobble_arcsec": profile.value("wobble_arcsec")}
+    curves = []
+    for field, xs, label in (("attitude_noise_arcsec", [0.1, 1.0] if quick else [0.1, 0.5, 1.0, 2.0],
+                              "measured-attitude noise (arcsec, 1 sigma)"),
+                             ("wobble_arcsec", [0.0, 2.0] if quick else [0.0, 1.0, 2.0, 4.0],
+                              "unmeasured wobble amplitude (arcsec, 20 min period)")):
+        if quick:  # the profile's own value and one other
+            xs = sorted({float(own[field]), xs[1] if float(own[field]) == xs[0] else xs[0]})
+        mean_abs, two_sigma = [], []
+        for x in xs:
+            p = replace(base, name=f"{profile.name}-{field}-{x:g}", **{field: Sourced(x, "sensitivity")})
+            m, t = acc(p)
+            mean_abs.append(m)
+            two_sigma.append(t)
+        curves.append(SensitivityCurve(field.replace("_arcsec", ""), label, "held-out error (px)", xs,
+                                       {"mean |RA|,|DE| px": mean_abs, "2-sigma px": two_sigma},
+                                       f"one session of {n_frames} frames per point; other magnitudes: {profile.name}"))
+    return curves
+
+
+def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentResult:
+    """Run the seed 000 experiment (module docstring).
+
+    Parameters
+    ----------
+    profile_name : str
+        ``ideal``, ``realistic`` or ``paper-000``.
+    quick : bool
+        One session of 30 frames; two points per sensitivity curve (one of them the profile's own).
+    work_dir : Path
+        Scratch folder (frames).
+
+    Returns
+    -------
+    ExperimentResult
+    """
+    t0 = time.perf_counter()
+    profile = get_profile(profile_name, "stars")
+    work = Path(work_dir)
+    n_frames = 30 if quick else 120
+    wanted = int(profile.value("sessions"))
+    n_sessions = 1 if quick else min(wanted, FULL_SESSIONS)
+    sessions = [run_session(work, profile, day=d, n_frames=n_frames) for d in range(n_sessions)]
+    pooled = _pooled(sessions)
+    result = ExperimentResult(
+        "000", profile_name, quick, "Seed 000: geostationary staring camera calibrated from the relative motion of stars",
+        scale={"frames_per_session": n_frames, "frame_interval_s": 10.0, "image_shape": [1024, 1024],
+               "sessions_run": n_sessions, "sessions_of_profile": wanted, "paper_days": 20, "paper_tracks": 437},
+        tables=[_table(pooled)], curves=_curves(work, profile, n_frames, quick, sessions[0]),
+        headline={**{k: v for k, v in pooled.items() if k.endswith("_px")}, "tracks": pooled["tracks"],
+                  "success": pooled["success"]},
+        profile_rows=[(profile.name, *row) for row in profile_table(profile)], notes=NOTES)
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+NOTES = [
+    "Before: ours is set to the paper's table 3 means by construction (installation error chosen to give "
+    "-7/-21 px at the centre): not a result.",
+    "After, ideal: ~0.02 px, 40x better than the paper: today's truth has 0.1 arcsec attitude noise, no "
+    "unmeasured motion, a perfect catalogue and an unbiased centroid.",
+    "After, realistic (full 120-frame sessions, measured): the unmeasured 2 arcsec wobble and the 1 arcsec "
+    "attitude noise share the error (0.32 px; 0.20 px without the wobble, 0.26 px with 0.1 arcsec noise); "
+    "catalogue errors (~32 mas with the proper-motion epoch error, ~0.01 px), the 0.05 px pixel-phase S-curve "
+    "and PRNU are small by their magnitudes (not ablated one by one), and a GEO orbit error moves no star.",
+    "The paper's 2-sigma (2.2-2.4 px) pools 20 days of real data with day-to-day thermal change of the "
+    "installation (seed 000 section 4); our sessions are calibrated one at a time, so that change is not in "
+    "our figure: the main remaining gap.",
+]
