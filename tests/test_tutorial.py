@@ -14,7 +14,8 @@ stdout, stderr and exit status recorded. The tests then hold the document to wha
   the level-1A's RPC, and the two orthoimages are identical.
 
 Uses ``../shared/data`` in place and skips when it is absent; 20 commands of gcpcal (three
-matches of the real pair, about 2.5 min on 2 busy cores), hence ``slow``.
+matches of the real pair: about 1 min on 2 idle cores, 2.5 min on busy ones); they run in CI,
+so the tutorial cannot drift from what the commands do.
 """
 
 from __future__ import annotations
@@ -78,6 +79,10 @@ def split_commands(body: str) -> list[tuple[str, int]]:
     return commands
 
 
+#: a figure below 1e-6 in exponent notation (e.g. an RPC fit error of 5.9e-09 px)
+_TINY = re.compile(r"\b\d\.\d+e-(?:0[7-9]|[1-9]\d)\b")
+
+
 def normalized(text: str, *, data: Path | None = None, work: Path | None = None) -> list[str]:
     """Lines with the folders written as placeholders, timings as ``N s`` and spaces collapsed."""
     if work is not None:
@@ -85,6 +90,7 @@ def normalized(text: str, *, data: Path | None = None, work: Path | None = None)
     if data is not None:
         text = text.replace(str(data), DATA_PLACEHOLDER)
     text = _TIMING.sub("N s", text)
+    text = _TINY.sub("<1e-6", text)  # fit errors at the rounding floor change with the last bits
     return [" ".join(line.split()) for line in text.splitlines() if line.strip()]
 
 
@@ -150,6 +156,7 @@ def test_normalized_masks_timings_and_folders_only():
     assert normalized(line, data=Path("/d/x"), work=Path("/w/v")) == [
         "wrote /path/to/shared/data/ref/a.tif: 533 x 514 px at 0.5 m, check max 0.0000 px, N s; in N s of "
         "/path/to/ventoux/out"]
+    assert normalized("fit max 5.87e-09 px, rms 1.2e-05 px, 3.1e-12") == ["fit max <1e-6 px, rms 1.2e-05 px, <1e-6"]
 
 
 def test_the_document_has_commands_outputs_and_figures():
@@ -166,7 +173,6 @@ def test_the_document_has_commands_outputs_and_figures():
 
 # ----------------------------------------------------------------------------- the run
 @pytest.mark.shared_data
-@pytest.mark.slow
 def test_every_command_exits_as_announced(tutorial):
     wrong = [(s.command.splitlines()[0], s.expected, s.rc, s.err.strip()[-300:])
              for s in tutorial.steps if s.rc != s.expected]
@@ -180,7 +186,6 @@ def test_every_command_exits_as_announced(tutorial):
 
 
 @pytest.mark.shared_data
-@pytest.mark.slow
 def test_text_blocks_are_what_the_commands_printed(tutorial):
     checked = 0
     for b, (lang, body) in enumerate(tutorial.blocks):
@@ -261,7 +266,6 @@ def _measured(tutorial) -> dict[str, list[float]]:
 
 
 @pytest.mark.shared_data
-@pytest.mark.slow
 def test_figures_table_equals_the_outputs(tutorial):
     quoted, measured = figures_table(tutorial.markdown), _measured(tutorial)
     assert set(quoted) == set(measured)
@@ -274,7 +278,6 @@ def test_figures_table_equals_the_outputs(tutorial):
 
 
 @pytest.mark.shared_data
-@pytest.mark.slow
 def test_the_sixty_lines_come_back_down_to_the_srtm_floor(tutorial):
     m = _measured(tutorial)
     assert abs(m["recovered bias (lines)"][0] - 60.0) < 2.0  # the bias put into right_image_bias.geom
@@ -289,7 +292,6 @@ def test_the_sixty_lines_come_back_down_to_the_srtm_floor(tutorial):
 
 
 @pytest.mark.shared_data
-@pytest.mark.slow
 def test_gis_products_are_georeferenced_and_agree(tutorial):
     work = tutorial.work
     # the calibrated RPC file is the full scene's, as the product's .geom (its offsets near the product's)
