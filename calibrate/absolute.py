@@ -43,10 +43,11 @@ over ``parameters`` (default: all of the model's parameters).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from calibrate import attitude as _attitude
 from calibrate._json import json_safe
 from calibrate.config import CalibrationOptions
 from calibrate.lsq import PROBE_POINTS, Chunk, LsqResult, Prior, robust_weights, solve
@@ -100,6 +101,10 @@ class CalibrationResult:
         Band name and CCD index of each point (``None`` / -1 for models without them).
     skipped : list of dict
         CCDs whose interior was not estimated: ``band, ccd, n_points, needed, span, reason``.
+    attitude : dict or None
+        Time-varying attitude (``CalibrationOptions.attitude`` other than ``"static"`` on a
+        push-broom model): ``mode``, ``selected`` (``kind``, ``n_terms``) and the BIC of each
+        candidate (:func:`calibrate.attitude.select_correction`); None otherwise.
     sigma0, scale : float
         Of the last step (:class:`calibrate.lsq.LsqResult`): ``sigma0`` is the a-posteriori
         standard deviation of unit weight (robust form of ``sqrt(sum w r~^2 / (n - p))`` over
@@ -130,6 +135,7 @@ class CalibrationResult:
     sigma0: float = float("nan")
     scale: float = float("nan")
     robust: str = "huber"
+    attitude: dict | None = None
 
     @property
     def variance_factor(self) -> float:
@@ -231,6 +237,8 @@ class CalibrationResult:
             "steps": list(self.steps),
             "statistics": {"before": self.statistics("before"), "after": self.statistics("after")},
         }
+        if self.attitude is not None:
+            out["attitude"] = self.attitude
         if points:
             out["points"] = {
                 "band": [None if b is None else str(b) for b in self.band],
@@ -294,7 +302,7 @@ def parameter_unit(name: str) -> str:
     str
         ``"rad"``, ``"px"``, ``"px/px"``, ``"1"``, ``"detector^-k"``, or ``""`` when unknown.
     """
-    if name.startswith("installation."):
+    if name.startswith(("installation.", "attitude.")):
         return "rad"
     if name.startswith("interior.tan_psi_"):  # staring camera: coefficients of normalized u^i v^j
         return "1"
@@ -546,6 +554,7 @@ class _Problem:
         self.groups = groups
         self.chunk_points = int(chunk_points)
         self.all_names = tuple(model.parameters().names)
+        self.exterior = _EXTERIOR + tuple(model.parameter_groups().get("attitude", ()))
         self.lookup = {n: i for i, n in enumerate(self.all_names)}
         layout = model.interior_layout
         self.pushbroom = layout == "per_array"  # one interior per detector array (CCD)
@@ -581,7 +590,7 @@ class _Problem:
             if not active(g):
                 plan.append((g, (), np.zeros(0, dtype=np.intp), False))  # evaluated, not fitted
                 continue
-            names = [n for n in free if n in _EXTERIOR] if self.staged else list(free)
+            names = [n for n in free if n in self.exterior] if self.staged else list(free)
             if self.staged and g.estimable:
                 names += [n for n in g.interior if n in position]
             cols = np.array([position[n] for n in names], dtype=np.intp)
@@ -691,7 +700,43 @@ def calibrate_model(
     problem = _Problem(model, points, weight, groups, options.chunk_points)
     stepper = _Stepper(problem, options)
     unsettled = _run_scheme(stepper, model, groups, options)
-    return _assemble(model, problem, stepper, skipped, options, bands, ccd_idx, unsettled)
+    result = _assemble(model, problem, stepper, skipped, options, bands, ccd_idx, unsettled)
+    if options.attitude == "static" or not hasattr(model, "with_attitude_correction") or not result.success:
+        return result
+    return _time_varying(model, result, points, weight, groups, skipped, options, bands, ccd_idx)
+
+
+def _time_varying(model, static, points, weight, groups, skipped, options, bands, ccd_idx):
+    """Choose the attitude basis around the static solution; solve it with exterior and interior."""
+    fitted = static.model
+    n = points["row"].size
+    jac_delta = np.full((n, 2, 3), np.nan)
+    for g in groups:
+        _, _, jac_delta[g.idx] = fitted.attitude_angle_jacobian(
+            points["lon"][g.idx], points["lat"][g.idx], points["h"][g.idx], band=g.band, array=g.ccd)
+    seconds = fitted.line_timing.seconds(points["row"])
+    t0, t1 = sorted(float(t) for t in fitted.line_timing.seconds(np.array(fitted.row_range)))
+    w = weight * np.where(static.inlier, static.weights, 0.0)
+    candidates = _attitude.candidate_corrections(options.attitude, t0, t1, n_points=int(np.sum(w > 0)),
+                                                 n_lines=float(np.diff(fitted.row_range)[0]))
+    chosen, table = _attitude.select_correction(jac_delta, seconds, static.residuals_after, w, candidates)
+    info = {"mode": options.attitude, "candidates": table,
+            "selected": {"kind": "static", "n_terms": 0} if chosen is None
+            else {"kind": chosen.kind, "n_terms": chosen.n_terms, "knot_spacing_s": chosen.knot_spacing_s}}
+    if chosen is None:
+        return replace(static, attitude=info)
+    start = model.with_attitude_correction(chosen)
+    problem = _Problem(start, points, weight, groups, options.chunk_points)
+    stepper = _Stepper(problem, options)
+    stepper.theta = np.concatenate([static.model.parameters().values, np.zeros(len(chosen.names()))])
+    # from the static solution one pass of the scheme settles (the static run already did)
+    once = options.replace(max_outer=1)
+    unsettled = _run_scheme(stepper, start, groups, once)
+    result = _assemble(start, problem, stepper, skipped, once, bands, ccd_idx, unsettled)
+    if not result.success:  # keep the static solution, say why
+        info["failed"] = result.message
+        return replace(static, attitude=info)
+    return replace(result, residuals_before=static.residuals_before, attitude=info)
 
 
 def _blank_to_none(column: np.ndarray):
@@ -777,6 +822,7 @@ class _Stepper:
         opt = self.options
         free = tuple(free)
         idx = np.array([self.problem.lookup[n] for n in free], dtype=np.intp)
+        prior = _with_attitude_ridge(prior, free)
         chunks = self.problem.chunks_for(self.theta, free, active, opt.max_extrapolation)
         # after the first step the model is close: a redescending loss can start at once
         result = solve(chunks, self.theta[idx], names=free, prior=prior, warm_start=bool(self.runs),
@@ -792,11 +838,23 @@ class _Stepper:
         return self.theta[[self.problem.lookup[n] for n in names]].copy()
 
 
+def _with_attitude_ridge(prior, free):
+    """``prior`` plus ``c = 0 +- REGULARIZATION_SIGMA_RAD`` on the free attitude coefficients."""
+    ridge = [j for j, n in enumerate(free) if n.startswith("attitude.")]
+    if not ridge:
+        return prior
+    extra = Prior.fixed(ridge, np.zeros(len(ridge)), np.full(len(ridge), _attitude.REGULARIZATION_SIGMA_RAD), len(free))
+    if prior is None:
+        return extra
+    return Prior(np.vstack([prior.matrix, extra.matrix]), np.concatenate([prior.value, extra.value]),
+                 np.concatenate([prior.sigma, extra.sigma]))
+
+
 def _run_scheme(stepper, model, groups, options):
     """Run the steps of ``options.scheme``; a message when the stepwise schemes did not settle."""
     problem = stepper.problem
     staged = problem.staged
-    exterior = list(_EXTERIOR) if staged else []
+    exterior = list(problem.exterior) if staged else []
     interior = [n for g in groups if g.estimable for n in g.interior]
     scheme = options.scheme
     if scheme == "joint":

@@ -166,8 +166,36 @@ class AttitudeCorrection:
         v = np.asarray(values, dtype=np.float64).reshape(3, self.n_coefficients)
         return AttitudeCorrection(self.kind, self.t0_s, self.t1_s, self.n_terms, v)
 
+    def basis_sparse(self, seconds):
+        """The basis functions that do not vanish at each time, and their time derivatives.
+
+        Parameters
+        ----------
+        seconds : array_like, shape (N,)
+            Seconds since the model's epoch.
+
+        Returns
+        -------
+        index : ndarray of intp, shape (N, M)
+            Coefficient indices (``M = 4`` for a spline, ``K`` for a drift).
+        b, db_dt : ndarray, shape (N, M)
+            Values and derivatives per second.
+        """
+        t = np.asarray(seconds, dtype=np.float64).reshape(-1)
+        span = self.t1_s - self.t0_s
+        tau = (t - self.t0_s) / span
+        if self.kind == "drift":
+            x = 2.0 * tau - 1.0
+            k = np.arange(1, self.n_terms + 1)
+            index = np.broadcast_to(np.arange(self.n_terms), (t.size, self.n_terms))
+            return index, x[:, None] ** k, k * x[:, None] ** (k - 1) * (2.0 / span)
+        u = tau * self.n_terms
+        j = np.clip(np.floor(u).astype(np.intp), 0, self.n_terms - 1)
+        w, dw = _bspline_weights(u - j)
+        return j[:, None] + np.arange(4), w, dw * (self.n_terms / span)
+
     def basis(self, seconds):
-        """Basis functions and their time derivatives at ``seconds``.
+        """Basis functions and their time derivatives at ``seconds`` (dense).
 
         Parameters
         ----------
@@ -180,24 +208,13 @@ class AttitudeCorrection:
         db_dt : ndarray, shape (N, K)
             Per second.
         """
-        t = np.asarray(seconds, dtype=np.float64).reshape(-1)
-        span = self.t1_s - self.t0_s
-        tau = (t - self.t0_s) / span
-        if self.kind == "drift":
-            x = 2.0 * tau - 1.0
-            k = np.arange(1, self.n_terms + 1)
-            b = x[:, None] ** k
-            db = k * x[:, None] ** (k - 1) * (2.0 / span)
-            return b, db
-        u = tau * self.n_terms
-        j = np.clip(np.floor(u).astype(np.intp), 0, self.n_terms - 1)
-        w, dw = _bspline_weights(u - j)
-        b = np.zeros((t.size, self.n_coefficients))
+        index, w, dw = self.basis_sparse(seconds)
+        n = index.shape[0]
+        b = np.zeros((n, self.n_coefficients))
         db = np.zeros_like(b)
-        rows = np.arange(t.size)[:, None]
-        cols = j[:, None] + np.arange(4)
-        b[rows, cols] = w
-        db[rows, cols] = dw * (self.n_terms / span)
+        rows = np.arange(n)[:, None]
+        b[rows, index] = w
+        db[rows, index] = dw
         return b, db
 
     def angles(self, seconds, *, derivative: bool = False):
@@ -216,9 +233,10 @@ class AttitudeCorrection:
         rates_rad_s : ndarray, shape (N, 3)
             Only with ``derivative=True``.
         """
-        b, db = self.basis(seconds)
-        angles = b @ self.coefficients_rad.T
-        return (angles, db @ self.coefficients_rad.T) if derivative else angles
+        index, w, dw = self.basis_sparse(seconds)
+        coef = self.coefficients_rad[:, index]  # (3, N, M)
+        angles = np.einsum("nm,anm->na", w, coef)
+        return (angles, np.einsum("nm,anm->na", dw, coef)) if derivative else angles
 
     def to_dict(self) -> dict:
         """JSON form (the manifest's ``attitude_correction``, docs/manifest.md).

@@ -408,16 +408,13 @@ class PushbroomModel(SensorModel):
 
     # ------------------------------------------------------------------ attitude correction
     def _correction_at(self, row):
-        """``C(delta(t))`` (N,3,3), ``dC/ddelta`` (3,N,3,3), ``ddelta/drow`` (N,3), basis, or None."""
+        """``C(delta(t))`` (N,3,3), ``dC/ddelta`` (3,N,3,3), ``ddelta/drow`` (N,3), or None."""
         corr = self.attitude_correction
         if corr is None:
             return None
-        seconds = self.line_timing.seconds(row)
-        basis, dbasis = corr.basis(seconds)
-        angles = basis @ corr.coefficients_rad.T
-        rates_per_row = (dbasis @ corr.coefficients_rad.T) * self.line_timing.line_period_s
+        angles, rates = corr.angles(self.line_timing.seconds(row), derivative=True)
         c, dc = rotation_matrices(angles)
-        return c, dc, rates_per_row, basis
+        return c, dc, rates * self.line_timing.line_period_s
 
     def _frame(self, row, *, derivative: bool = False):
         """``P_itrf`` and the corrected ``R_body_to_itrf`` (and row derivatives) at ``row``."""
@@ -426,7 +423,7 @@ class PushbroomModel(SensorModel):
         corr = self._correction_at(row)
         if corr is None:
             return out
-        c, dc, rates, _ = corr
+        c, dc, rates = corr
         if not derivative:
             p, r = out
             return p, r @ c
@@ -909,7 +906,8 @@ class PushbroomModel(SensorModel):
 
     def _angle_partials(self, row, cam, body):
         """``dF/ddelta`` (N,2,3) of the correction angles and the basis (N,K) at ``row``."""
-        c, dc, _, basis = self._correction_at(row)
+        c, dc, _ = self._correction_at(row)
+        basis, _ = self.attitude_correction.basis(self.line_timing.seconds(row))
         body0 = np.einsum("nij,nj->ni", c, body)  # R^T (G - P) without the correction
         r_inst = self.installation.matrix()
         dfdd = np.empty((row.size, 2, 3))

@@ -1,0 +1,250 @@
+"""Time-varying attitude in the calibration: candidate bases, selection by BIC, ridge, spectrum.
+
+The push-broom model carries an optional body-frame attitude correction ``delta(t)``
+(:mod:`sensor_models.attitude_correction`): a drift (rate, optionally quadratic) or a cubic
+B-spline in time. :func:`calibrate.absolute.calibrate_model` first calibrates the static model,
+then (``CalibrationOptions.attitude`` other than ``"static"``) chooses the basis here and solves
+it with the exterior and interior (docs/attitude.md).
+
+Selection. Around the static solution the image residuals ``r_i`` (2,) of GCP ``i`` observed at
+time ``t_i`` respond linearly to the angles: ``r_i ~ J_i delta(t_i)``, ``J_i = d(row, col)/d
+delta`` (2, 3) (:meth:`PushbroomModel.attitude_angle_jacobian`). For a candidate basis
+``phi_k(t)`` (plus a constant, which is the installation's freedom) the weighted least-squares
+fit of ``sum_k c_k phi_k(t_i) J_i`` to ``r_i`` gives a residual sum ``RSS`` and effective number
+of parameters ``p`` (trace of the ridge hat matrix); the candidate of least
+
+.. math::  BIC = m \\ln(RSS / m) + p \\ln m
+
+over ``m = 2 n`` residuals (Schwarz 1978) is chosen. The static model is a candidate, so a scene
+without time-varying attitude error keeps the static solution.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sensor_models.attitude_correction import AXES, AttitudeCorrection
+
+__all__ = [
+    "MAX_SEGMENTS",
+    "REGULARIZATION_SIGMA_RAD",
+    "candidate_corrections",
+    "correction_band",
+    "jitter_spectrum",
+    "select_correction",
+]
+
+#: standard deviation of the ridge pseudo-observation ``c = 0`` of every correction coefficient,
+#: radians: far above the micro-radian corrections, it only pins the spline's constant mode
+#: (the installation's) and segments without GCPs
+REGULARIZATION_SIGMA_RAD = 1e-4
+#: most spline segments tried (the chunked normal equations hold 3 (n + 3) columns)
+MAX_SEGMENTS = 64
+#: fewest GCPs per spline coefficient and axis for a candidate to be tried
+MIN_POINTS_PER_COEFFICIENT = 20
+#: fewest lines per spline segment
+MIN_LINES_PER_SEGMENT = 8
+
+
+def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int, n_lines: float):
+    """The bases tried by ``--attitude MODE``.
+
+    Parameters
+    ----------
+    mode : {"static", "drift", "spline", "auto"}
+        ``drift``: static, rate, rate + quadratic; ``spline``: static and cubic B-splines of
+        2, 3, 4, 6, 8, 11, 16, ... segments; ``auto``: all of them.
+    t0_s, t1_s : float
+        Time span of the basis, seconds since the model's epoch.
+    n_points : int
+        GCPs used (bounds the number of coefficients).
+    n_lines : float
+        Image lines in the span (bounds the segment length).
+
+    Returns
+    -------
+    list of AttitudeCorrection or None
+        None is the static model.
+    """
+    out = [None]
+    if mode in ("drift", "auto"):
+        out += [AttitudeCorrection("drift", t0_s, t1_s, d) for d in (1, 2)]
+    if mode in ("spline", "auto"):
+        limit = min(MAX_SEGMENTS, n_points // MIN_POINTS_PER_COEFFICIENT - 3, int(n_lines // MIN_LINES_PER_SEGMENT))
+        n_seg = sorted({int(round(2 ** (k / 2))) for k in range(2, 2 * int(np.log2(MAX_SEGMENTS)) + 1)})
+        out += [AttitudeCorrection("spline", t0_s, t1_s, n) for n in n_seg if n <= limit]
+    return out
+
+
+def _design(jac_delta, basis):
+    """Columns ``J_i phi_k(t_i)`` (N, 2, 3 K), axis-major as the correction's names."""
+    return (jac_delta[:, :, :, None] * basis[:, None, None, :]).reshape(jac_delta.shape[0], 2, -1)
+
+
+def _normal_equations(jac_delta, seconds, residuals, weights, correction, chunk=20_000):
+    """``X^T W X``, ``X^T W r`` of a candidate with a constant per axis (the installation's)."""
+    n = seconds.size
+    k = 1 if correction is None else correction.n_coefficients + (correction.kind == "drift")
+    normal = np.zeros((3 * k, 3 * k))
+    rhs = np.zeros(3 * k)
+    for a in range(0, n, chunk):
+        t = seconds[a : a + chunk]
+        if correction is None:
+            basis = np.ones((t.size, 1))
+        else:
+            basis, _ = correction.basis(t)
+            if correction.kind == "drift":
+                basis = np.concatenate([np.ones((t.size, 1)), basis], axis=1)
+        x = _design(jac_delta[a : a + chunk], basis) * np.sqrt(weights[a : a + chunk])[:, None, None]
+        r = residuals[a : a + chunk] * np.sqrt(weights[a : a + chunk])[:, None]
+        normal += np.einsum("nip,niq->pq", x, x)
+        rhs += np.einsum("nip,ni->p", x, r)
+    return normal, rhs, k
+
+
+def _ridge(correction, k):
+    """Diagonal ridge weights of a candidate's columns (none on a drift's constants)."""
+    ridge = np.full((3, k), 1.0 / REGULARIZATION_SIGMA_RAD**2)
+    if correction is None or correction.kind == "drift":
+        ridge[:, 0] = 0.0
+    return ridge.reshape(-1)
+
+
+def select_correction(jac_delta, seconds, residuals, weights, candidates):
+    """Choose the candidate basis of least BIC (module docstring).
+
+    Parameters
+    ----------
+    jac_delta : ndarray, shape (N, 2, 3)
+        ``d(row, col)/d(roll, pitch, yaw)`` at each GCP, pixels per radian.
+    seconds : ndarray, shape (N,)
+        Time of each GCP's line, seconds since the model's epoch.
+    residuals : ndarray, shape (N, 2)
+        Observed minus computed ``(row, col)`` of the static solution, pixels.
+    weights : ndarray, shape (N,)
+        Final weights of the static solution (0 for outliers and unused points), 1/px^2.
+    candidates : list of AttitudeCorrection or None
+        From :func:`candidate_corrections`.
+
+    Returns
+    -------
+    chosen : AttitudeCorrection or None
+        Zero coefficients; None: static.
+    table : list of dict
+        Per candidate ``kind``, ``n_terms``, ``n_parameters``, ``rss``, ``bic``, ``chosen``.
+    """
+    ok = np.isfinite(residuals).all(axis=1) & np.isfinite(jac_delta).all(axis=(1, 2)) & (weights > 0)
+    jac_delta, seconds, residuals, weights = jac_delta[ok], seconds[ok], residuals[ok], weights[ok]
+    m = 2 * int(ok.sum())
+    rss0 = float(np.sum(weights[:, None] * residuals**2))
+    table = []
+    for cand in candidates:
+        normal, rhs, k = _normal_equations(jac_delta, seconds, residuals, weights, cand)
+        ridge = _ridge(cand, k)
+        # equilibrated, then an eigen-decomposition: the solution and the hat matrix's trace
+        d = 1.0 / np.sqrt(np.maximum(np.diag(normal) + ridge, 1e-300))
+        val, vec = np.linalg.eigh(d[:, None] * (normal + np.diag(ridge)) * d[None, :])
+        inv = (vec / np.maximum(val, val.max() * 1e-14)) @ vec.T
+        coef = d * (inv @ (d * rhs))
+        rss = max(rss0 - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
+        dof = float(np.sum(inv * (d[:, None] * normal * d[None, :])))
+        bic = m * np.log(rss / m) + dof * np.log(m)
+        table.append({"kind": "static" if cand is None else cand.kind,
+                      "n_terms": 0 if cand is None else cand.n_terms,
+                      "n_parameters": round(dof, 2), "rss": float(rss), "bic": float(bic), "chosen": False})
+    best = int(np.argmin([row["bic"] for row in table]))
+    table[best]["chosen"] = True
+    return candidates[best], table
+
+
+def correction_band(correction: AttitudeCorrection, covariance, seconds):
+    """Correction angles and their standard deviations at ``seconds``.
+
+    Parameters
+    ----------
+    correction : AttitudeCorrection
+    covariance : ndarray, shape (3 K, 3 K) or None
+        Covariance of the coefficients (axis-major), rad^2.
+    seconds : ndarray, shape (T,)
+
+    Returns
+    -------
+    angles_urad, sigma_urad : ndarray, shape (T, 3)
+        ``sigma_urad`` is NaN without a covariance.
+    """
+    basis, _ = correction.basis(seconds)
+    angles = basis @ correction.coefficients_rad.T * 1e6
+    sigma = np.full_like(angles, np.nan)
+    if covariance is not None:
+        k = correction.n_coefficients
+        for a in range(3):
+            block = covariance[a * k : (a + 1) * k, a * k : (a + 1) * k]
+            sigma[:, a] = np.sqrt(np.clip(np.einsum("tk,kl,tl->t", basis, block, basis), 0.0, None)) * 1e6
+    return angles, sigma
+
+
+def _fit_sinusoid(t, y, f0):
+    """Least squares ``a + b t + A sin(2 pi f t + phi)`` from a starting frequency; (A, f, phi)."""
+    from scipy.optimize import least_squares
+
+    tc = t - t.mean()
+
+    def linear_part(f):
+        x = np.stack([np.ones_like(tc), tc, np.sin(2 * np.pi * f * tc), np.cos(2 * np.pi * f * tc)], axis=1)
+        return x, np.linalg.lstsq(x, y, rcond=None)[0]
+
+    def resid(p):
+        x, c = linear_part(p[0])
+        return x @ c - y
+
+    f = float(least_squares(resid, [f0], bounds=([f0 * 0.5], [f0 * 1.5])).x[0])
+    _, c = linear_part(f)
+    return float(np.hypot(c[2], c[3])), f, float(np.arctan2(c[3], c[2]))
+
+
+def jitter_spectrum(correction: AttitudeCorrection, t_lo_s: float, t_hi_s: float, *, n_samples: int = 2048):
+    """Amplitude spectrum of the recovered correction and its dominant sinusoid per axis.
+
+    The correction is sampled over the image's time span, a linear trend (bias and drift) is
+    removed, and its amplitude spectrum is taken (Hann window, amplitude-normalized, zero-padded
+    eight times). The highest peak above the lowest resolvable frequency starts a least-squares
+    fit of ``a + b t + A sin(2 pi f t + phi)`` to the samples, which gives the amplitude and
+    frequency reported.
+
+    Parameters
+    ----------
+    correction : AttitudeCorrection
+    t_lo_s, t_hi_s : float
+        Time span of the image lines, seconds since the epoch.
+    n_samples : int
+        Samples over the span.
+
+    Returns
+    -------
+    dict
+        ``frequency_hz`` (F,), per axis ``spectrum_urad`` (F,) and ``peak``
+        (``amplitude_urad``, ``frequency_hz``, ``phase_rad``; None when the span holds less
+        than one and a half periods of any resolvable frequency).
+    """
+    t = np.linspace(t_lo_s, t_hi_s, n_samples)
+    angles = correction.angles(t) * 1e6
+    span = t_hi_s - t_lo_s
+    dt = t[1] - t[0]
+    n_fft = 8 * n_samples
+    freq = np.fft.rfftfreq(n_fft, dt)
+    window = np.hanning(n_samples)
+    out = {"frequency_hz": freq, "axes": {}}
+    keep = freq <= 0.25 / dt
+    out["frequency_hz"] = freq[keep]
+    for a, name in enumerate(AXES):
+        y = angles[:, a]
+        detrended = y - np.polyval(np.polyfit(t - t.mean(), y, 1), t - t.mean())
+        spec = 2.0 * np.abs(np.fft.rfft(detrended * window, n_fft)) / window.sum()
+        low = freq >= 1.5 / span
+        peak = None
+        if np.any(low & keep) and np.max(spec[low & keep]) > 0:
+            f0 = float(freq[low & keep][np.argmax(spec[low & keep])])
+            amp, f, phase = _fit_sinusoid(t, y, f0)
+            peak = {"amplitude_urad": amp, "frequency_hz": f, "phase_rad": phase}
+        out["axes"][name] = {"spectrum_urad": spec[keep], "peak": peak}
+    return out
