@@ -547,14 +547,14 @@ def _check_estimable(model, group, weight, points, min_points_factor, min_span_f
 class _Problem:
     """GCPs grouped by band and CCD, and the chunked residual/Jacobian function of a step."""
 
-    def __init__(self, model, points, weight, groups, chunk_points):
+    def __init__(self, model, points, weight, groups, chunk_points, *, attitude_free=True):
         self.model = model
         self.points = points
         self.weight = weight
         self.groups = groups
         self.chunk_points = int(chunk_points)
         self.all_names = tuple(model.parameters().names)
-        self.exterior = _EXTERIOR + tuple(model.parameter_groups().get("attitude", ()))
+        self.exterior = _EXTERIOR + (tuple(model.parameter_groups().get("attitude", ())) if attitude_free else ())
         self.lookup = {n: i for i, n in enumerate(self.all_names)}
         layout = model.interior_layout
         self.pushbroom = layout == "per_array"  # one interior per detector array (CCD)
@@ -719,17 +719,27 @@ def _time_varying(model, static, points, weight, groups, skipped, options, bands
     w = weight * np.where(static.inlier, static.weights, 0.0)
     candidates = _attitude.candidate_corrections(options.attitude, t0, t1, n_points=int(np.sum(w > 0)),
                                                  n_lines=float(np.diff(fitted.row_range)[0]))
-    chosen, table = _attitude.select_correction(jac_delta, seconds, static.residuals_after, w, candidates)
+    chosen, covariance, table = _attitude.select_correction(jac_delta, seconds, static.residuals_after, w,
+                                                            candidates)
     info = {"mode": options.attitude, "candidates": table,
             "selected": {"kind": "static", "n_terms": 0} if chosen is None
             else {"kind": chosen.kind, "n_terms": chosen.n_terms, "knot_spacing_s": chosen.knot_spacing_s}}
     if chosen is None:
         return replace(static, attitude=info)
-    start = model.with_attitude_correction(chosen)
-    problem = _Problem(start, points, weight, groups, options.chunk_points)
+    # the correction's mean over the GCPs is a constant rotation: the installation takes it
+    mean = np.average(chosen.angles(seconds), axis=0, weights=w)
+    if chosen.kind == "spline":  # the B-splines sum to one
+        chosen = chosen.with_coefficients(chosen.coefficients_rad - mean[:, None])
+    info["coefficients_covariance_rad2"] = covariance
+    t_img = sorted(float(t) for t in fitted.line_timing.seconds(np.array([0.0, float(fitted.n_rows)])))
+    spectrum = _attitude.jitter_spectrum(chosen, *t_img)
+    info["jitter"] = {axis: v["peak"] for axis, v in spectrum["axes"].items()}
+    start = fitted.with_attitude_correction(chosen)
+    # one pass of the scheme with the correction held, from the static solution (the exterior
+    # takes the correction's mean; the interior sheds what the attitude error had bent it by)
+    problem = _Problem(start, points, weight, groups, options.chunk_points, attitude_free=False)
     stepper = _Stepper(problem, options)
-    stepper.theta = np.concatenate([static.model.parameters().values, np.zeros(len(chosen.names()))])
-    # from the static solution one pass of the scheme settles (the static run already did)
+    stepper.theta0 = np.concatenate([model.parameters().values, chosen.coefficients_rad.reshape(-1)])
     once = options.replace(max_outer=1)
     unsettled = _run_scheme(stepper, start, groups, once)
     result = _assemble(start, problem, stepper, skipped, once, bands, ccd_idx, unsettled)

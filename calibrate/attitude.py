@@ -76,42 +76,73 @@ def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int,
     return out
 
 
-def _design(jac_delta, basis):
-    """Columns ``J_i phi_k(t_i)`` (N, 2, 3 K), axis-major as the correction's names."""
-    return (jac_delta[:, :, :, None] * basis[:, None, None, :]).reshape(jac_delta.shape[0], 2, -1)
+def _sparse_basis(correction, seconds):
+    """Non-zero basis functions ``(index (N, M), value (N, M))`` of a candidate, with a constant.
 
-
-def _normal_equations(jac_delta, seconds, residuals, weights, correction, chunk=20_000):
-    """``X^T W X``, ``X^T W r`` of a candidate with a constant per axis (the installation's)."""
+    Column 0 of a drift (and of the static candidate) is the constant (the installation's
+    freedom); a spline's basis sums to one and holds the constant itself.
+    """
     n = seconds.size
-    k = 1 if correction is None else correction.n_coefficients + (correction.kind == "drift")
-    normal = np.zeros((3 * k, 3 * k))
-    rhs = np.zeros(3 * k)
-    for a in range(0, n, chunk):
-        t = seconds[a : a + chunk]
-        if correction is None:
-            basis = np.ones((t.size, 1))
-        else:
-            basis, _ = correction.basis(t)
-            if correction.kind == "drift":
-                basis = np.concatenate([np.ones((t.size, 1)), basis], axis=1)
-        x = _design(jac_delta[a : a + chunk], basis) * np.sqrt(weights[a : a + chunk])[:, None, None]
-        r = residuals[a : a + chunk] * np.sqrt(weights[a : a + chunk])[:, None]
-        normal += np.einsum("nip,niq->pq", x, x)
-        rhs += np.einsum("nip,ni->p", x, r)
-    return normal, rhs, k
+    if correction is None:
+        return np.zeros((n, 1), dtype=np.intp), np.ones((n, 1))
+    index, value, _ = correction.basis_sparse(seconds)
+    if correction.kind == "drift":
+        index = np.concatenate([np.zeros((n, 1), dtype=np.intp), index + 1], axis=1)
+        value = np.concatenate([np.ones((n, 1)), value], axis=1)
+    return index, value
+
+
+def _n_columns(correction):
+    """Coefficients per axis of a candidate in the selection (a drift adds its constant)."""
+    return 1 if correction is None else correction.n_coefficients + (correction.kind == "drift")
+
+
+def _normal_equations(jac_delta, seconds, residuals, weights, correction):
+    """``X^T W X`` (3K, 3K) and ``X^T W r`` (3K,), axis-major, from per-point 3x3 blocks.
+
+    Column ``(a, j)`` of point ``i`` is ``phi_j(t_i) J_i[:, a]``, so the normal matrix is
+    ``sum_i phi_j phi_l (J_i^T W_i J_i)[a, b]``: it is accumulated with ``bincount`` over the
+    few basis functions that do not vanish at each point (4 for a spline).
+    """
+    k = _n_columns(correction)
+    index, value = _sparse_basis(correction, seconds)
+    block = np.einsum("n,nia,nib->nab", weights, jac_delta, jac_delta)  # (N, 3, 3)
+    grad = np.einsum("n,nia,ni->na", weights, jac_delta, residuals)  # (N, 3)
+    normal = np.zeros((3, k, 3, k))
+    rhs = np.zeros((3, k))
+    m = index.shape[1]
+    for p in range(m):
+        for a in range(3):
+            rhs[a] += np.bincount(index[:, p], value[:, p] * grad[:, a], minlength=k)
+        for q in range(m):
+            flat = index[:, p] * k + index[:, q]
+            vv = value[:, p] * value[:, q]
+            for a in range(3):
+                for b in range(3):
+                    normal[a, :, b, :] += np.bincount(flat, vv * block[:, a, b], minlength=k * k).reshape(k, k)
+    return normal.reshape(3 * k, 3 * k), rhs.reshape(-1), k
 
 
 def _ridge(correction, k):
-    """Diagonal ridge weights of a candidate's columns (none on a drift's constants)."""
+    """Diagonal ridge weights of a candidate's columns (none on the constants of a drift)."""
     ridge = np.full((3, k), 1.0 / REGULARIZATION_SIGMA_RAD**2)
     if correction is None or correction.kind == "drift":
         ridge[:, 0] = 0.0
     return ridge.reshape(-1)
 
 
+def _ridge_solution(normal, rhs, ridge):
+    """Coefficients, ``(N + R)^-1`` and the hat matrix's trace of a ridge least squares."""
+    d = 1.0 / np.sqrt(np.maximum(np.diag(normal) + ridge, 1e-300))
+    val, vec = np.linalg.eigh(d[:, None] * (normal + np.diag(ridge)) * d[None, :])
+    inv = (vec / np.maximum(val, val.max() * 1e-14)) @ vec.T
+    coef = d * (inv @ (d * rhs))
+    dof = float(np.sum(inv * (d[:, None] * normal * d[None, :])))
+    return coef, d[:, None] * inv * d[None, :], dof
+
+
 def select_correction(jac_delta, seconds, residuals, weights, candidates):
-    """Choose the candidate basis of least BIC (module docstring).
+    """Choose the candidate basis of least BIC and its linearized solution (module docstring).
 
     Parameters
     ----------
@@ -129,32 +160,39 @@ def select_correction(jac_delta, seconds, residuals, weights, candidates):
     Returns
     -------
     chosen : AttitudeCorrection or None
-        Zero coefficients; None: static.
+        With the least-squares coefficients (radians; a drift's constant left out); None:
+        static.
+    covariance : ndarray, shape (3 K, 3 K) or None
+        Of the chosen coefficients, scaled by the a-posteriori variance factor, rad^2.
     table : list of dict
-        Per candidate ``kind``, ``n_terms``, ``n_parameters``, ``rss``, ``bic``, ``chosen``.
+        Per candidate ``kind``, ``n_terms``, ``n_parameters`` (effective), ``rss``
+        (weighted, px^2), ``bic``, ``chosen``.
     """
     ok = np.isfinite(residuals).all(axis=1) & np.isfinite(jac_delta).all(axis=(1, 2)) & (weights > 0)
     jac_delta, seconds, residuals, weights = jac_delta[ok], seconds[ok], residuals[ok], weights[ok]
     m = 2 * int(ok.sum())
     rss0 = float(np.sum(weights[:, None] * residuals**2))
-    table = []
+    table, solutions = [], []
     for cand in candidates:
         normal, rhs, k = _normal_equations(jac_delta, seconds, residuals, weights, cand)
-        ridge = _ridge(cand, k)
-        # equilibrated, then an eigen-decomposition: the solution and the hat matrix's trace
-        d = 1.0 / np.sqrt(np.maximum(np.diag(normal) + ridge, 1e-300))
-        val, vec = np.linalg.eigh(d[:, None] * (normal + np.diag(ridge)) * d[None, :])
-        inv = (vec / np.maximum(val, val.max() * 1e-14)) @ vec.T
-        coef = d * (inv @ (d * rhs))
+        coef, inv, dof = _ridge_solution(normal, rhs, _ridge(cand, k))
         rss = max(rss0 - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
-        dof = float(np.sum(inv * (d[:, None] * normal * d[None, :])))
         bic = m * np.log(rss / m) + dof * np.log(m)
+        solutions.append((coef, inv * rss / max(m - dof, 1.0), k))
         table.append({"kind": "static" if cand is None else cand.kind,
                       "n_terms": 0 if cand is None else cand.n_terms,
                       "n_parameters": round(dof, 2), "rss": float(rss), "bic": float(bic), "chosen": False})
     best = int(np.argmin([row["bic"] for row in table]))
     table[best]["chosen"] = True
-    return candidates[best], table
+    cand = candidates[best]
+    if cand is None:
+        return None, None, table
+    coef, cov, k = solutions[best]
+    keep = np.arange(3 * k).reshape(3, k)
+    if cand.kind == "drift":
+        keep = keep[:, 1:]
+    keep = keep.reshape(-1)
+    return cand.with_coefficients(coef[keep]), cov[np.ix_(keep, keep)], table
 
 
 def correction_band(correction: AttitudeCorrection, covariance, seconds):

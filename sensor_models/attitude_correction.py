@@ -48,45 +48,45 @@ def _bspline_weights(x):
     return w, dw
 
 
-def rotation_matrices(angles_rad):
-    """``C = Rz(yaw) Ry(pitch) Rx(roll)`` and its derivatives in each angle.
+def rotation_matrices(angles_rad, *, derivatives: bool = True):
+    """``C = Rz(yaw) Ry(pitch) Rx(roll)`` and its derivatives in each angle (closed form).
 
     Parameters
     ----------
     angles_rad : ndarray, shape (N, 3)
         Roll, pitch, yaw, radians.
+    derivatives : bool
+        Also return the derivatives.
 
     Returns
     -------
     c : ndarray, shape (N, 3, 3)
     dc : ndarray, shape (3, N, 3, 3)
-        ``dC/droll``, ``dC/dpitch``, ``dC/dyaw``.
+        ``dC/droll``, ``dC/dpitch``, ``dC/dyaw``; only with ``derivatives=True``.
     """
     a = np.asarray(angles_rad, dtype=np.float64).reshape(-1, 3)
-    n = a.shape[0]
-    cs, sn = np.cos(a), np.sin(a)
+    ca, cb, cc = np.cos(a).T
+    sa, sb, sc = np.sin(a).T
+    zero = np.zeros_like(ca)
 
-    def rot(axis, c, s, deriv):
-        m = np.zeros((n, 3, 3))
-        i, j = [(1, 2), (0, 2), (0, 1)][axis]
-        k = 3 - i - j
-        if deriv:
-            m[:, i, i] = -s
-            m[:, j, j] = -s
-        else:
-            m[:, i, i] = c
-            m[:, j, j] = c
-            m[:, k, k] = 1.0
-        sign = -1.0 if axis == 1 else 1.0  # Ry has +sin above the diagonal
-        m[:, i, j] = -sign * (c if deriv else s)
-        m[:, j, i] = sign * (c if deriv else s)
-        return m
+    def mat(*entries):
+        return np.stack(entries, axis=-1).reshape(-1, 3, 3)
 
-    rx, ry, rz = (rot(k, cs[:, k], sn[:, k], False) for k in range(3))
-    dx, dy, dz = (rot(k, cs[:, k], sn[:, k], True) for k in range(3))
-    c = rz @ ry @ rx
-    dc = np.stack([rz @ ry @ dx, rz @ dy @ rx, dz @ ry @ rx])
-    return c, dc
+    c = mat(cb * cc, sa * sb * cc - ca * sc, ca * sb * cc + sa * sc,
+            cb * sc, sa * sb * sc + ca * cc, ca * sb * sc - sa * cc,
+            -sb, sa * cb, ca * cb)  # fmt: skip
+    if not derivatives:
+        return c
+    d_roll = mat(zero, ca * sb * cc + sa * sc, -sa * sb * cc + ca * sc,
+                 zero, ca * sb * sc - sa * cc, -sa * sb * sc - ca * cc,
+                 zero, ca * cb, -sa * cb)  # fmt: skip
+    d_pitch = mat(-sb * cc, sa * cb * cc, ca * cb * cc,
+                  -sb * sc, sa * cb * sc, ca * cb * sc,
+                  -cb, -sa * sb, -ca * sb)  # fmt: skip
+    d_yaw = mat(-cb * sc, -sa * sb * sc - ca * cc, -ca * sb * sc + sa * cc,
+                cb * cc, sa * sb * cc - ca * sc, ca * sb * cc + sa * sc,
+                zero, zero, zero)  # fmt: skip
+    return c, np.stack([d_roll, d_pitch, d_yaw])
 
 
 @dataclass(frozen=True)

@@ -407,12 +407,16 @@ class PushbroomModel(SensorModel):
         return np.argmin(np.maximum(dist, 0.0) + 1e-9 * np.arange(len(ccds)), axis=1).reshape(col.shape)
 
     # ------------------------------------------------------------------ attitude correction
-    def _correction_at(self, row):
-        """``C(delta(t))`` (N,3,3), ``dC/ddelta`` (3,N,3,3), ``ddelta/drow`` (N,3), or None."""
+    def _correction_at(self, row, *, derivative: bool = True):
+        """``C(delta(t))`` (N,3,3) and, with ``derivative``, ``dC/ddelta`` (3,N,3,3) and
+        ``ddelta/drow`` (N,3); None without a correction."""
         corr = self.attitude_correction
         if corr is None:
             return None
-        angles, rates = corr.angles(self.line_timing.seconds(row), derivative=True)
+        seconds = self.line_timing.seconds(row)
+        if not derivative:
+            return rotation_matrices(corr.angles(seconds), derivatives=False)
+        angles, rates = corr.angles(seconds, derivative=True)
         c, dc = rotation_matrices(angles)
         return c, dc, rates * self.line_timing.line_period_s
 
@@ -420,13 +424,13 @@ class PushbroomModel(SensorModel):
         """``P_itrf`` and the corrected ``R_body_to_itrf`` (and row derivatives) at ``row``."""
         row = np.asarray(row, dtype=np.float64).reshape(-1)
         out = self._table.evaluate(row, derivative=derivative)
-        corr = self._correction_at(row)
+        corr = self._correction_at(row, derivative=derivative)
         if corr is None:
             return out
-        c, dc, rates = corr
         if not derivative:
             p, r = out
-            return p, r @ c
+            return p, r @ corr
+        c, dc, rates = corr
         p, r, dp, dr = out
         dc_row = np.einsum("anij,na->nij", dc, rates)
         return p, r @ c, dp, dr @ c + r @ dc_row
