@@ -717,8 +717,11 @@ def _time_varying(model, static, points, weight, groups, skipped, options, bands
     seconds = fitted.line_timing.seconds(points["row"])
     t0, t1 = sorted(float(t) for t in fitted.line_timing.seconds(np.array(fitted.row_range)))
     w = weight * np.where(static.inlier, static.weights, 0.0)
-    candidates = _attitude.candidate_corrections(options.attitude, t0, t1, n_points=int(np.sum(w > 0)),
-                                                 n_lines=float(np.diff(fitted.row_range)[0]))
+    used = (w > 0) & np.isfinite(seconds)
+    t_img = sorted(float(t) for t in fitted.line_timing.seconds(np.array([0.0, float(fitted.n_rows)])))
+    candidates = _attitude.candidate_corrections(
+        options.attitude, t0, t1, n_points=int(np.sum(used)), n_lines=float(np.diff(fitted.row_range)[0]),
+        seconds=seconds[used], image_span_s=t_img[1] - t_img[0], min_span_fraction=options.min_span_fraction)
     chosen, covariance, table = _attitude.select_correction(jac_delta, seconds, static.residuals_after, w,
                                                             candidates)
     info = {"mode": options.attitude, "candidates": table,
@@ -731,7 +734,6 @@ def _time_varying(model, static, points, weight, groups, skipped, options, bands
     if chosen.kind == "spline":  # the B-splines sum to one
         chosen = chosen.with_coefficients(chosen.coefficients_rad - mean[:, None])
     info["coefficients_covariance_rad2"] = covariance
-    t_img = sorted(float(t) for t in fitted.line_timing.seconds(np.array([0.0, float(fitted.n_rows)])))
     spectrum = _attitude.jitter_spectrum(chosen, *t_img)
     info["jitter"] = {axis: v["peak"] for axis, v in spectrum["axes"].items()}
     start = fitted.with_attitude_correction(chosen)

@@ -44,9 +44,12 @@ MAX_SEGMENTS = 64
 MIN_POINTS_PER_COEFFICIENT = 20
 #: fewest lines per spline segment
 MIN_LINES_PER_SEGMENT = 8
+#: fewest GCPs in each spline segment between the first and the last GCP
+MIN_POINTS_PER_SEGMENT = 10
 
 
-def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int, n_lines: float):
+def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int, n_lines: float,
+                          seconds=None, image_span_s=None, min_span_fraction: float = 0.5):
     """The bases tried by ``--attitude MODE``.
 
     Parameters
@@ -60,6 +63,14 @@ def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int,
         GCPs used (bounds the number of coefficients).
     n_lines : float
         Image lines in the span (bounds the segment length).
+    seconds : ndarray, shape (N,), optional
+        Times of the GCPs used. When given, time-varying candidates need GCPs over at least
+        ``min_span_fraction`` of ``image_span_s`` (seconds), and a spline needs at least
+        ``MIN_POINTS_PER_SEGMENT`` GCPs in every segment between the first and last GCP.
+    image_span_s : float, optional
+        Duration of the image lines, seconds.
+    min_span_fraction : float
+        See ``seconds``.
 
     Returns
     -------
@@ -67,13 +78,26 @@ def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int,
         None is the static model.
     """
     out = [None]
+    if seconds is not None and image_span_s:
+        if np.ptp(seconds) < min_span_fraction * image_span_s:
+            return out  # GCPs on a few lines do not observe a function of time
     if mode in ("drift", "auto"):
         out += [AttitudeCorrection("drift", t0_s, t1_s, d) for d in (1, 2)]
     if mode in ("spline", "auto"):
         limit = min(MAX_SEGMENTS, n_points // MIN_POINTS_PER_COEFFICIENT - 3, int(n_lines // MIN_LINES_PER_SEGMENT))
         n_seg = sorted({int(round(2 ** (k / 2))) for k in range(2, 2 * int(np.log2(MAX_SEGMENTS)) + 1)})
-        out += [AttitudeCorrection("spline", t0_s, t1_s, n) for n in n_seg if n <= limit]
+        out += [AttitudeCorrection("spline", t0_s, t1_s, n) for n in n_seg
+                if n <= limit and _segments_filled(seconds, t0_s, t1_s, n)]
     return out
+
+
+def _segments_filled(seconds, t0_s, t1_s, n_segments):
+    """Every segment between the first and the last GCP holds ``MIN_POINTS_PER_SEGMENT`` GCPs."""
+    if seconds is None:
+        return True
+    seg = np.clip(((seconds - t0_s) / (t1_s - t0_s) * n_segments).astype(np.intp), 0, n_segments - 1)
+    counts = np.bincount(seg, minlength=n_segments)[seg.min() : seg.max() + 1]
+    return bool(counts.min() >= MIN_POINTS_PER_SEGMENT)
 
 
 def _sparse_basis(correction, seconds):
