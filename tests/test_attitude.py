@@ -138,13 +138,19 @@ def test_projection_round_trip_with_a_correction(lab):
 
 
 # ------------------------------------------------------------------ recovery
-def test_recovers_an_injected_sinusoid(lab):
+@pytest.fixture(scope="module")
+def jitter_case(lab):
     truth = example_pushbroom_model(
         n_rows=N_ROWS, installation=INSTALLATION_ERROR,
         attitude_kwargs=dict(jitter_amplitude_rad=(JITTER_RAD, JITTER_RAD, 0.0), jitter_frequency_hz=JITTER_HZ, seed=3))
     gcps = _gcps(truth)
     static = calibrate_model(lab, gcps, options=CalibrationOptions(attitude="static"))
     auto = calibrate_model(lab, gcps, options=CalibrationOptions(attitude="auto"))
+    return truth, static, auto
+
+
+def test_recovers_an_injected_sinusoid(jitter_case):
+    truth, static, auto = jitter_case
     assert static.success and auto.success
     assert static.model.attitude_correction is None and auto.attitude["selected"]["kind"] == "spline"
     rms_static, max_static = _truth_error(truth, static.model)
@@ -195,6 +201,23 @@ def test_candidates_follow_the_mode_and_the_data():
     assert max(c.n_terms for c in few[1:]) <= 200 // 20 - 3
     many = candidate_corrections("auto", 0.0, 10.0, n_points=100_000, n_lines=2000)
     assert max(c.n_terms for c in many if c is not None and c.kind == "spline") == 64
+
+
+def test_report_shows_the_correction_and_its_spectrum(jitter_case, tmp_path):
+    from calibrate.report.attitude import figure_attitude, section_attitude
+
+    _, static, auto = jitter_case
+    fig = figure_attitude(auto, tmp_path)
+    png = tmp_path / "attitude.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    html = section_attitude(auto, fig)
+    assert "spline" in html and "attitude.png" in html and "frequency (Hz)" in html
+    assert figure_attitude(static, tmp_path / "none") is None
+    assert "Static attitude" in section_attitude(static, None)
+    doc = auto.to_dict(points=False)
+    assert doc["attitude"]["selected"]["kind"] == "spline"
+    assert abs(doc["attitude"]["jitter"]["pitch"]["amplitude_urad"] - JITTER_RAD * 1e6) < 0.2 * JITTER_RAD * 1e6
+    json.dumps(doc)  # strict JSON
 
 
 # ------------------------------------------------------------------ manifest
