@@ -547,7 +547,7 @@ def _check_estimable(model, group, weight, points, min_points_factor, min_span_f
 class _Problem:
     """GCPs grouped by band and CCD, and the chunked residual/Jacobian function of a step."""
 
-    def __init__(self, model, points, weight, groups, chunk_points, *, attitude_free=True):
+    def __init__(self, model, points, weight, groups, chunk_points, *, attitude_free=False):
         self.model = model
         self.points = points
         self.weight = weight
@@ -670,7 +670,11 @@ def calibrate_model(
         failure, except with ``max_outer=1`` (a single pass, as in seed 003). The default
         Cauchy loss starts with Huber iterations and is as efficient on clean data; with 40 %
         gross mismatches it keeps the accuracy of a clean fit where Huber loses a factor of
-        about five (tests).
+        about five (tests). ``options.attitude`` other than ``"static"`` adds a time-varying
+        attitude correction to a push-broom model, chosen and solved after the static
+        calibration (:mod:`calibrate.attitude`, docs/attitude.md); a correction the model
+        already carries is then estimated afresh, while ``"static"`` and the interior-only
+        scheme hold it.
 
     Returns
     -------
@@ -696,12 +700,15 @@ def calibrate_model(
     groups, bands, ccd_idx = _group_points(model, points, fitted, options)
     if not np.any(weight > 0.0):
         raise InputError("every GCP has zero weight", field="score")
+    time_varying = options.attitude != "static" and options.scheme != "interior" and hasattr(model, "with_attitude_correction")
+    if time_varying and model.attitude_correction is not None:
+        model = model.with_attitude_correction(None)  # estimated afresh below
     skipped = _mark_estimable(model, groups, weight, points, options)
     problem = _Problem(model, points, weight, groups, options.chunk_points)
     stepper = _Stepper(problem, options)
     unsettled = _run_scheme(stepper, model, groups, options)
     result = _assemble(model, problem, stepper, skipped, options, bands, ccd_idx, unsettled)
-    if options.attitude == "static" or not hasattr(model, "with_attitude_correction") or not result.success:
+    if not time_varying or not result.success:
         return result
     return _time_varying(model, result, points, weight, groups, skipped, options, bands, ccd_idx)
 
@@ -739,7 +746,7 @@ def _time_varying(model, static, points, weight, groups, skipped, options, bands
     start = fitted.with_attitude_correction(chosen)
     # one pass of the scheme with the correction held, from the static solution (the exterior
     # takes the correction's mean; the interior sheds what the attitude error had bent it by)
-    problem = _Problem(start, points, weight, groups, options.chunk_points, attitude_free=False)
+    problem = _Problem(start, points, weight, groups, options.chunk_points)
     stepper = _Stepper(problem, options)
     stepper.theta0 = np.concatenate([model.parameters().values, chosen.coefficients_rad.reshape(-1)])
     once = options.replace(max_outer=1)
