@@ -59,21 +59,27 @@ def _gcps(truth, n, seed=0, noise_px=0.1):
 
 
 def every_line_error(truth, model, *, band=None, col_step=None, dem=None, height_m=500.0) -> dict:
-    """RMS / max (px) of ``model`` against ``truth`` over every image line of one band."""
+    """RMS / max (px) of ``model`` against ``truth`` over every image line of one band.
+
+    Per CCD (forced, as :func:`sensor_models.compare.model_difference` does: CCDs overlap), the
+    pixels of every line at columns every ``col_step`` (default: 6 per CCD) are localized by the
+    truth (on ``dem`` or at ``height_m``) and projected back by ``model``.
+    """
     band = band or truth.reference_band
-    n_cols = max(c.last_col for c in truth.band_ccds(band))
-    cols = np.arange(0.5, n_cols, col_step) if col_step else np.linspace(0.5, n_cols - 0.5, 24)
-    rows, cols = np.meshgrid(np.arange(0.5, truth.n_rows, 1.0), cols)
-    rows, cols = rows.ravel(), cols.ravel()
-    if dem is not None:
-        lon, lat, h = truth.image_to_ground(rows, cols, dem=dem, band=band)
-    else:
-        lon, lat, h = truth.image_to_ground(rows, cols, height=height_m, band=band)
-    ok = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(h)
-    rows, cols, lon, lat, h = rows[ok], cols[ok], lon[ok], lat[ok], h[ok]
-    r, c = model.ground_to_image(lon, lat, h, band=band)
-    e = np.hypot(r - rows, c - cols)
-    e = e[np.isfinite(e)]
+    errors = []
+    for i, ccd in enumerate(truth.band_ccds(band)):
+        step = col_step or ccd.n_detectors / 6.0
+        cols = ccd.first_col + np.arange(0.5, ccd.n_detectors, step)
+        rows, cols = (a.ravel() for a in np.meshgrid(np.arange(0.5, truth.n_rows, 1.0), cols))
+        if dem is not None:
+            lon, lat, h = truth.image_to_ground(rows, cols, dem=dem, band=band, array=i)
+        else:
+            lon, lat, h = truth.image_to_ground(rows, cols, height=height_m, band=band, array=i)
+        ok = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(h)
+        r, c = model.ground_to_image(lon[ok], lat[ok], h[ok], band=band, array=i)
+        e = np.hypot(r - rows[ok], c - cols[ok])
+        errors.append(e[np.isfinite(e)])
+    e = np.concatenate(errors)
     return {"rms_px": float(np.sqrt(np.mean(e**2))), "max_px": float(e.max()), "n_points": int(e.size)}
 
 

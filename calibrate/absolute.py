@@ -862,7 +862,9 @@ def _with_attitude_ridge(prior, free):
     ridge = [j for j, n in enumerate(free) if n.startswith("attitude.")]
     if not ridge:
         return prior
-    extra = Prior.fixed(ridge, np.zeros(len(ridge)), np.full(len(ridge), _attitude.REGULARIZATION_SIGMA_RAD), len(free))
+    axis = [("roll", "pitch", "yaw").index(free[j].split(".")[1]) for j in ridge]
+    sigma = np.asarray(_attitude.REGULARIZATION_SIGMA_RAD, dtype=float)[axis]
+    extra = Prior.fixed(ridge, np.zeros(len(ridge)), sigma, len(free))
     if prior is None:
         return extra
     return Prior(np.vstack([prior.matrix, extra.matrix]), np.concatenate([prior.value, extra.value]),

@@ -37,7 +37,7 @@ __all__ = [
 #: standard deviation of the ridge pseudo-observation ``c = 0`` of every correction coefficient,
 #: radians: far above the micro-radian corrections, it only pins the spline's constant mode
 #: (the installation's) and segments without GCPs
-REGULARIZATION_SIGMA_RAD = 1e-4
+REGULARIZATION_SIGMA_RAD = (1e-4, 1e-4, 1e-4)
 #: most spline segments tried (the chunked normal equations hold 3 (n + 3) columns)
 MAX_SEGMENTS = 64
 #: fewest GCPs per spline coefficient and axis for a candidate to be tried
@@ -149,7 +149,7 @@ def _normal_equations(jac_delta, seconds, residuals, weights, correction):
 
 def _ridge(correction, k):
     """Diagonal ridge weights of a candidate's columns (none on the constants of a drift)."""
-    ridge = np.full((3, k), 1.0 / REGULARIZATION_SIGMA_RAD**2)
+    ridge = np.repeat(1.0 / np.asarray(REGULARIZATION_SIGMA_RAD, dtype=float)[:, None] ** 2, k, axis=1)
     if correction is None or correction.kind == "drift":
         ridge[:, 0] = 0.0
     return ridge.reshape(-1)

@@ -34,15 +34,16 @@ def _span(model):
     return sorted(float(t) for t in model.line_timing.seconds(np.array(model.row_range)))
 
 
-def _gcps(truth, n=4000, noise_px=0.05, seed=0):
+def _gcps(truth, n=4000, noise_px=0.05, seed=0, named=False):
     """GCPs of ``truth`` at random pixels and heights, observed with Gaussian noise."""
     rng = np.random.default_rng(seed)
     band = truth.reference_band
     rows = rng.uniform(1.0, N_ROWS - 1.0, n)
     cols = rng.uniform(1.0, truth.n_cols - 1.0, n)
     lon, lat, h = truth.image_to_ground(rows, cols, height=rng.uniform(0.0, 1500.0, n), band=band)
+    ccd = np.array([c.name for c in truth.band_ccds(band)])[truth.ccd_index(cols, band=band)] if named else None
     return GcpTable.from_arrays(rows + rng.normal(0, noise_px, n), cols + rng.normal(0, noise_px, n), lon, lat, h,
-                                band=np.full(n, band))  # fmt: skip
+                                band=np.full(n, band), ccd=ccd)  # fmt: skip
 
 
 def _truth_error(truth, model):
@@ -247,3 +248,27 @@ def test_manifest_round_trip(lab, tmp_path):
     with pytest.raises(ManifestError) as err:
         read_pushbroom_manifest(tmp_path / "bad.json")
     assert "attitude_correction.knots" in str(err.value)
+
+
+# ------------------------------------------------------------------ command line
+def test_calibrate_command_writes_the_correction(jitter_case, lab, tmp_path, capsys):
+    from calibrate.cli import main
+    from gcpmatch.gcps import write_gcps_csv
+
+    truth, _, _ = jitter_case
+    scene = write_manifest(lab, tmp_path / "lab.json")
+    gcps = tmp_path / "gcps.csv"
+    write_gcps_csv(_gcps(truth, n=2500, seed=9, named=True), gcps)
+    for mode in ("static", "auto"):
+        code = main(["-q", "calibrate", str(scene), "--gcps", str(gcps), "--out", str(tmp_path / mode),
+                     "--attitude", mode, "--no-report"])  # fmt: skip
+        assert code in (0, 4), capsys.readouterr().err
+    static = json.loads((tmp_path / "static" / "manifest.json").read_text())
+    auto = json.loads((tmp_path / "auto" / "manifest.json").read_text())
+    assert "attitude_correction" not in static and auto["attitude_correction"]["kind"] == "spline"
+    cal = json.loads((tmp_path / "auto" / "calibration.json").read_text())
+    assert cal["attitude"]["selected"]["kind"] == "spline" and cal["attitude"]["mode"] == "auto"
+    calibrated = read_pushbroom_manifest(tmp_path / "auto" / "manifest.json")
+    assert _truth_error(truth, calibrated)[0] < 0.1 < _truth_error(truth, read_pushbroom_manifest(
+        tmp_path / "static" / "manifest.json"))[0]  # fmt: skip
+    assert main(["calibrate", str(scene), "--gcps", str(gcps), "--out", str(tmp_path / "x"), "--attitude", "wobbly"]) == 2
