@@ -713,8 +713,8 @@ def calibrate_model(
     return _time_varying(model, result, points, weight, groups, skipped, options, bands, ccd_idx)
 
 
-def _time_varying(model, static, points, weight, groups, skipped, options, bands, ccd_idx):
-    """Choose the attitude basis around the static solution; solve it with exterior and interior."""
+def _select_attitude(static, points, weight, groups, options):
+    """Candidate bases fitted to the static residuals; the chosen one (calibrate.attitude)."""
     fitted = static.model
     n = points["row"].size
     jac_delta = np.full((n, 2, 3), np.nan)
@@ -731,6 +731,12 @@ def _time_varying(model, static, points, weight, groups, skipped, options, bands
         seconds=seconds[used], image_span_s=t_img[1] - t_img[0], min_span_fraction=options.min_span_fraction)
     chosen, covariance, table = _attitude.select_correction(jac_delta, seconds, static.residuals_after, w,
                                                             candidates)
+    return chosen, covariance, table, seconds, w, t_img
+
+
+def _time_varying(model, static, points, weight, groups, skipped, options, bands, ccd_idx):
+    """Choose the attitude basis around the static solution; solve it with exterior and interior."""
+    chosen, covariance, table, seconds, w, t_img = _select_attitude(static, points, weight, groups, options)
     info = {"mode": options.attitude, "candidates": table,
             "selected": {"kind": "static", "n_terms": 0} if chosen is None
             else {"kind": chosen.kind, "n_terms": chosen.n_terms, "knot_spacing_s": chosen.knot_spacing_s}}
@@ -743,7 +749,7 @@ def _time_varying(model, static, points, weight, groups, skipped, options, bands
     info["coefficients_covariance_rad2"] = covariance
     spectrum = _attitude.jitter_spectrum(chosen, *t_img)
     info["jitter"] = {axis: v["peak"] for axis, v in spectrum["axes"].items()}
-    start = fitted.with_attitude_correction(chosen)
+    start = static.model.with_attitude_correction(chosen)
     # one pass of the scheme with the correction held, from the static solution (the exterior
     # takes the correction's mean; the interior sheds what the attitude error had bent it by)
     problem = _Problem(start, points, weight, groups, options.chunk_points)

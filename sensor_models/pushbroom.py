@@ -950,16 +950,21 @@ class PushbroomModel(SensorModel):
         band = model._band(band)
         lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
         ground = geodetic_to_ecef(lon.reshape(-1), lat.reshape(-1), h.reshape(-1))
-        row, col, idx = model._ground_to_image_chunk(ground, band, ccd)
-        jac = np.full((ground.shape[0], 2, 3), np.nan)
+        n = ground.shape[0]
+        row, col = np.full(n, np.nan), np.full(n, np.nan)
+        jac = np.full((n, 2, 3), np.nan)
         r_inst = model.installation.matrix()
-        for i, c in enumerate(model.band_ccds(band)):
-            sel = np.nonzero((idx == i) & np.isfinite(row))[0]
-            if sel.size:
-                s = col[sel] - c.first_col - 0.5
-                _, jrs, cam = model._collinearity(row[sel], s, ground[sel], c, r_inst)
-                dfdd, _ = model._angle_partials(row[sel], cam, cam @ r_inst.T)
-                jac[sel] = -np.einsum("nij,njp->nip", np.linalg.inv(jrs), dfdd)
+        for a in range(0, n, CHUNK):
+            g = ground[a : a + CHUNK]
+            r_c, c_c, idx = model._ground_to_image_chunk(g, band, _chunk_of(ccd, a, a + CHUNK))
+            row[a : a + CHUNK], col[a : a + CHUNK] = r_c, c_c
+            for i, c in enumerate(model.band_ccds(band)):
+                sel = np.nonzero((idx == i) & np.isfinite(r_c))[0]
+                if sel.size:
+                    s = c_c[sel] - c.first_col - 0.5
+                    _, jrs, cam = model._collinearity(r_c[sel], s, g[sel], c, r_inst)
+                    dfdd, _ = model._angle_partials(r_c[sel], cam, cam @ r_inst.T)
+                    jac[a + sel] = -np.einsum("nij,njp->nip", np.linalg.inv(jrs), dfdd)
         return row, col, jac
         return row, col, jac
 
