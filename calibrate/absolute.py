@@ -43,10 +43,11 @@ over ``parameters`` (default: all of the model's parameters).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from calibrate import attitude as _attitude
 from calibrate._json import json_safe
 from calibrate.config import CalibrationOptions
 from calibrate.lsq import PROBE_POINTS, Chunk, LsqResult, Prior, robust_weights, solve
@@ -100,6 +101,10 @@ class CalibrationResult:
         Band name and CCD index of each point (``None`` / -1 for models without them).
     skipped : list of dict
         CCDs whose interior was not estimated: ``band, ccd, n_points, needed, span, reason``.
+    attitude : dict or None
+        Time-varying attitude (``CalibrationOptions.attitude`` other than ``"static"`` on a
+        push-broom model): ``mode``, ``selected`` (``kind``, ``n_terms``) and the BIC of each
+        candidate (:func:`calibrate.attitude.select_correction`); None otherwise.
     sigma0, scale : float
         Of the last step (:class:`calibrate.lsq.LsqResult`): ``sigma0`` is the a-posteriori
         standard deviation of unit weight (robust form of ``sqrt(sum w r~^2 / (n - p))`` over
@@ -130,6 +135,7 @@ class CalibrationResult:
     sigma0: float = float("nan")
     scale: float = float("nan")
     robust: str = "huber"
+    attitude: dict | None = None
 
     @property
     def variance_factor(self) -> float:
@@ -231,6 +237,8 @@ class CalibrationResult:
             "steps": list(self.steps),
             "statistics": {"before": self.statistics("before"), "after": self.statistics("after")},
         }
+        if self.attitude is not None:
+            out["attitude"] = self.attitude
         if points:
             out["points"] = {
                 "band": [None if b is None else str(b) for b in self.band],
@@ -294,7 +302,7 @@ def parameter_unit(name: str) -> str:
     str
         ``"rad"``, ``"px"``, ``"px/px"``, ``"1"``, ``"detector^-k"``, or ``""`` when unknown.
     """
-    if name.startswith("installation."):
+    if name.startswith(("installation.", "attitude.")):
         return "rad"
     if name.startswith("interior.tan_psi_"):  # staring camera: coefficients of normalized u^i v^j
         return "1"
@@ -539,13 +547,14 @@ def _check_estimable(model, group, weight, points, min_points_factor, min_span_f
 class _Problem:
     """GCPs grouped by band and CCD, and the chunked residual/Jacobian function of a step."""
 
-    def __init__(self, model, points, weight, groups, chunk_points):
+    def __init__(self, model, points, weight, groups, chunk_points, *, attitude_free=False):
         self.model = model
         self.points = points
         self.weight = weight
         self.groups = groups
         self.chunk_points = int(chunk_points)
         self.all_names = tuple(model.parameters().names)
+        self.exterior = _EXTERIOR + (tuple(model.parameter_groups().get("attitude", ())) if attitude_free else ())
         self.lookup = {n: i for i, n in enumerate(self.all_names)}
         layout = model.interior_layout
         self.pushbroom = layout == "per_array"  # one interior per detector array (CCD)
@@ -581,7 +590,7 @@ class _Problem:
             if not active(g):
                 plan.append((g, (), np.zeros(0, dtype=np.intp), False))  # evaluated, not fitted
                 continue
-            names = [n for n in free if n in _EXTERIOR] if self.staged else list(free)
+            names = [n for n in free if n in self.exterior] if self.staged else list(free)
             if self.staged and g.estimable:
                 names += [n for n in g.interior if n in position]
             cols = np.array([position[n] for n in names], dtype=np.intp)
@@ -661,7 +670,11 @@ def calibrate_model(
         failure, except with ``max_outer=1`` (a single pass, as in seed 003). The default
         Cauchy loss starts with Huber iterations and is as efficient on clean data; with 40 %
         gross mismatches it keeps the accuracy of a clean fit where Huber loses a factor of
-        about five (tests).
+        about five (tests). ``options.attitude`` other than ``"static"`` adds a time-varying
+        attitude correction to a push-broom model, chosen and solved after the static
+        calibration (:mod:`calibrate.attitude`, docs/attitude.md); a correction the model
+        already carries is then estimated afresh, while ``"static"`` and the interior-only
+        scheme hold it.
 
     Returns
     -------
@@ -687,11 +700,68 @@ def calibrate_model(
     groups, bands, ccd_idx = _group_points(model, points, fitted, options)
     if not np.any(weight > 0.0):
         raise InputError("every GCP has zero weight", field="score")
+    time_varying = options.attitude != "static" and options.scheme != "interior" and hasattr(model, "with_attitude_correction")
+    if time_varying and model.attitude_correction is not None:
+        model = model.with_attitude_correction(None)  # estimated afresh below
     skipped = _mark_estimable(model, groups, weight, points, options)
     problem = _Problem(model, points, weight, groups, options.chunk_points)
     stepper = _Stepper(problem, options)
     unsettled = _run_scheme(stepper, model, groups, options)
-    return _assemble(model, problem, stepper, skipped, options, bands, ccd_idx, unsettled)
+    result = _assemble(model, problem, stepper, skipped, options, bands, ccd_idx, unsettled)
+    if not time_varying or not result.success:
+        return result
+    return _time_varying(model, result, points, weight, groups, skipped, options, bands, ccd_idx)
+
+
+def _select_attitude(static, points, weight, groups, options):
+    """Candidate bases fitted to the static residuals; the chosen one (calibrate.attitude)."""
+    fitted = static.model
+    n = points["row"].size
+    jac_delta = np.full((n, 2, 3), np.nan)
+    for g in groups:
+        _, _, jac_delta[g.idx] = fitted.attitude_angle_jacobian(
+            points["lon"][g.idx], points["lat"][g.idx], points["h"][g.idx], band=g.band, array=g.ccd)
+    seconds = fitted.line_timing.seconds(points["row"])
+    t0, t1 = sorted(float(t) for t in fitted.line_timing.seconds(np.array(fitted.row_range)))
+    w = weight * np.where(static.inlier, static.weights, 0.0)
+    used = (w > 0) & np.isfinite(seconds)
+    t_img = sorted(float(t) for t in fitted.line_timing.seconds(np.array([0.0, float(fitted.n_rows)])))
+    candidates = _attitude.candidate_corrections(
+        options.attitude, t0, t1, n_points=int(np.sum(used)), n_lines=float(np.diff(fitted.row_range)[0]),
+        seconds=seconds[used], image_span_s=t_img[1] - t_img[0], min_span_fraction=options.min_span_fraction)
+    chosen, covariance, table = _attitude.select_correction(jac_delta, seconds, static.residuals_after, w,
+                                                            candidates)
+    return chosen, covariance, table, seconds, w, t_img
+
+
+def _time_varying(model, static, points, weight, groups, skipped, options, bands, ccd_idx):
+    """Choose the attitude basis around the static solution; solve it with exterior and interior."""
+    chosen, covariance, table, seconds, w, t_img = _select_attitude(static, points, weight, groups, options)
+    info = {"mode": options.attitude, "candidates": table,
+            "selected": {"kind": "static", "n_terms": 0} if chosen is None
+            else {"kind": chosen.kind, "n_terms": chosen.n_terms, "knot_spacing_s": chosen.knot_spacing_s}}
+    if chosen is None:
+        return replace(static, attitude=info)
+    # the correction's mean over the GCPs is a constant rotation: the installation takes it
+    mean = np.average(chosen.angles(seconds), axis=0, weights=w)
+    if chosen.kind == "spline":  # the B-splines sum to one
+        chosen = chosen.with_coefficients(chosen.coefficients_rad - mean[:, None])
+    info["coefficients_covariance_rad2"] = covariance
+    spectrum = _attitude.jitter_spectrum(chosen, *t_img)
+    info["jitter"] = {axis: v["peak"] for axis, v in spectrum["axes"].items()}
+    start = static.model.with_attitude_correction(chosen)
+    # one pass of the scheme with the correction held, from the static solution (the exterior
+    # takes the correction's mean; the interior sheds what the attitude error had bent it by)
+    problem = _Problem(start, points, weight, groups, options.chunk_points)
+    stepper = _Stepper(problem, options)
+    stepper.theta0 = np.concatenate([model.parameters().values, chosen.coefficients_rad.reshape(-1)])
+    once = options.replace(max_outer=1)
+    unsettled = _run_scheme(stepper, start, groups, once)
+    result = _assemble(start, problem, stepper, skipped, once, bands, ccd_idx, unsettled)
+    if not result.success:  # keep the static solution, say why
+        info["failed"] = result.message
+        return replace(static, attitude=info)
+    return replace(result, residuals_before=static.residuals_before, attitude=info)
 
 
 def _blank_to_none(column: np.ndarray):
@@ -777,6 +847,7 @@ class _Stepper:
         opt = self.options
         free = tuple(free)
         idx = np.array([self.problem.lookup[n] for n in free], dtype=np.intp)
+        prior = _with_attitude_ridge(prior, free)
         chunks = self.problem.chunks_for(self.theta, free, active, opt.max_extrapolation)
         # after the first step the model is close: a redescending loss can start at once
         result = solve(chunks, self.theta[idx], names=free, prior=prior, warm_start=bool(self.runs),
@@ -792,11 +863,25 @@ class _Stepper:
         return self.theta[[self.problem.lookup[n] for n in names]].copy()
 
 
+def _with_attitude_ridge(prior, free):
+    """``prior`` plus ``c = 0 +- REGULARIZATION_SIGMA_RAD`` on the free attitude coefficients."""
+    ridge = [j for j, n in enumerate(free) if n.startswith("attitude.")]
+    if not ridge:
+        return prior
+    axis = [("roll", "pitch", "yaw").index(free[j].split(".")[1]) for j in ridge]
+    sigma = np.asarray(_attitude.REGULARIZATION_SIGMA_RAD, dtype=float)[axis]
+    extra = Prior.fixed(ridge, np.zeros(len(ridge)), sigma, len(free))
+    if prior is None:
+        return extra
+    return Prior(np.vstack([prior.matrix, extra.matrix]), np.concatenate([prior.value, extra.value]),
+                 np.concatenate([prior.sigma, extra.sigma]))
+
+
 def _run_scheme(stepper, model, groups, options):
     """Run the steps of ``options.scheme``; a message when the stepwise schemes did not settle."""
     problem = stepper.problem
     staged = problem.staged
-    exterior = list(_EXTERIOR) if staged else []
+    exterior = list(problem.exterior) if staged else []
     interior = [n for g in groups if g.estimable for n in g.interior]
     scheme = options.scheme
     if scheme == "joint":

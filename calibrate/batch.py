@@ -255,6 +255,8 @@ def _calibrated_scene_model(scene, calibrated):
     if getattr(scene, "kind", None) != "pushbroom":
         raise InputError(f"calibration does not fit this sensor (the scene is a {getattr(scene, 'kind', '?')} model, "
                          "the calibration a push-broom one)")
+    if getattr(calibrated, "attitude_correction", None) is not None:
+        calibrated = calibrated.with_attitude_correction(None)  # a function of that scene's time only
     if layout(scene) != layout(calibrated):
         raise InputError("calibration does not fit this sensor (its bands and CCDs differ from the scene's)")
     names_s, names_c = scene.parameter_names(), calibrated.parameter_names()

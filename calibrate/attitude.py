@@ -1,0 +1,312 @@
+"""Time-varying attitude in the calibration: candidate bases, selection by BIC, ridge, spectrum.
+
+The push-broom model carries an optional body-frame attitude correction ``delta(t)``
+(:mod:`sensor_models.attitude_correction`): a drift (rate, optionally quadratic) or a cubic
+B-spline in time. :func:`calibrate.absolute.calibrate_model` first calibrates the static model,
+then (``CalibrationOptions.attitude`` other than ``"static"``) chooses the basis here and solves
+it with the exterior and interior (docs/attitude.md).
+
+Selection. Around the static solution the image residuals ``r_i`` (2,) of GCP ``i`` observed at
+time ``t_i`` respond linearly to the angles: ``r_i ~ J_i delta(t_i)``, ``J_i = d(row, col)/d
+delta`` (2, 3) (:meth:`PushbroomModel.attitude_angle_jacobian`). For a candidate basis
+``phi_k(t)`` (plus a constant, which is the installation's freedom) the weighted least-squares
+fit of ``sum_k c_k phi_k(t_i) J_i`` to ``r_i`` gives a residual sum ``RSS`` and effective number
+of parameters ``p`` (trace of the ridge hat matrix); the candidate of least
+
+.. math::  BIC = m \\ln(RSS / m) + p \\ln m
+
+over ``m = 2 n`` residuals (Schwarz 1978) is chosen. The static model is a candidate, so a scene
+without time-varying attitude error keeps the static solution.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sensor_models.attitude_correction import AXES, AttitudeCorrection
+
+__all__ = [
+    "MAX_SEGMENTS",
+    "REGULARIZATION_SIGMA_RAD",
+    "candidate_corrections",
+    "correction_band",
+    "jitter_spectrum",
+    "select_correction",
+]
+
+#: standard deviation of the ridge pseudo-observation ``c = 0`` of every correction coefficient,
+#: radians: far above the micro-radian corrections, it only pins the spline's constant mode
+#: (the installation's) and segments without GCPs
+REGULARIZATION_SIGMA_RAD = (1e-4, 1e-4, 1e-4)
+#: most spline segments tried (the chunked normal equations hold 3 (n + 3) columns)
+MAX_SEGMENTS = 64
+#: fewest GCPs per spline coefficient and axis for a candidate to be tried
+MIN_POINTS_PER_COEFFICIENT = 20
+#: fewest lines per spline segment
+MIN_LINES_PER_SEGMENT = 8
+#: fewest GCPs in each spline segment between the first and the last GCP
+MIN_POINTS_PER_SEGMENT = 10
+
+
+def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int, n_lines: float,
+                          seconds=None, image_span_s=None, min_span_fraction: float = 0.5):
+    """The bases tried by ``--attitude MODE``.
+
+    Parameters
+    ----------
+    mode : {"static", "drift", "spline", "auto"}
+        ``drift``: static, rate, rate + quadratic; ``spline``: static and cubic B-splines of
+        2, 3, 4, 6, 8, 11, 16, ... segments; ``auto``: all of them.
+    t0_s, t1_s : float
+        Time span of the basis, seconds since the model's epoch.
+    n_points : int
+        GCPs used (bounds the number of coefficients).
+    n_lines : float
+        Image lines in the span (bounds the segment length).
+    seconds : ndarray, shape (N,), optional
+        Times of the GCPs used. When given, time-varying candidates need GCPs over at least
+        ``min_span_fraction`` of ``image_span_s`` (seconds), and a spline needs at least
+        ``MIN_POINTS_PER_SEGMENT`` GCPs in every segment between the first and last GCP.
+    image_span_s : float, optional
+        Duration of the image lines, seconds.
+    min_span_fraction : float
+        See ``seconds``.
+
+    Returns
+    -------
+    list of AttitudeCorrection or None
+        None is the static model.
+    """
+    out = [None]
+    if seconds is not None and image_span_s:
+        if np.ptp(seconds) < min_span_fraction * image_span_s:
+            return out  # GCPs on a few lines do not observe a function of time
+    if mode in ("drift", "auto"):
+        out += [AttitudeCorrection("drift", t0_s, t1_s, d) for d in (1, 2)]
+    if mode in ("spline", "auto"):
+        limit = min(MAX_SEGMENTS, n_points // MIN_POINTS_PER_COEFFICIENT - 3, int(n_lines // MIN_LINES_PER_SEGMENT))
+        n_seg = sorted({int(round(2 ** (k / 2))) for k in range(2, 2 * int(np.log2(MAX_SEGMENTS)) + 1)})
+        out += [AttitudeCorrection("spline", t0_s, t1_s, n) for n in n_seg
+                if n <= limit and _segments_filled(seconds, t0_s, t1_s, n)]
+    return out
+
+
+def _segments_filled(seconds, t0_s, t1_s, n_segments):
+    """Every segment between the first and the last GCP holds ``MIN_POINTS_PER_SEGMENT`` GCPs."""
+    if seconds is None:
+        return True
+    seg = np.clip(((seconds - t0_s) / (t1_s - t0_s) * n_segments).astype(np.intp), 0, n_segments - 1)
+    counts = np.bincount(seg, minlength=n_segments)[seg.min() : seg.max() + 1]
+    return bool(counts.min() >= MIN_POINTS_PER_SEGMENT)
+
+
+def _sparse_basis(correction, seconds):
+    """Non-zero basis functions ``(index (N, M), value (N, M))`` of a candidate, with a constant.
+
+    Column 0 of a drift (and of the static candidate) is the constant (the installation's
+    freedom); a spline's basis sums to one and holds the constant itself.
+    """
+    n = seconds.size
+    if correction is None:
+        return np.zeros((n, 1), dtype=np.intp), np.ones((n, 1))
+    index, value, _ = correction.basis_sparse(seconds)
+    if correction.kind == "drift":
+        index = np.concatenate([np.zeros((n, 1), dtype=np.intp), index + 1], axis=1)
+        value = np.concatenate([np.ones((n, 1)), value], axis=1)
+    return index, value
+
+
+def _n_columns(correction):
+    """Coefficients per axis of a candidate in the selection (a drift adds its constant)."""
+    return 1 if correction is None else correction.n_coefficients + (correction.kind == "drift")
+
+
+def _normal_equations(jac_delta, seconds, residuals, weights, correction):
+    """``X^T W X`` (3K, 3K) and ``X^T W r`` (3K,), axis-major, from per-point 3x3 blocks.
+
+    Column ``(a, j)`` of point ``i`` is ``phi_j(t_i) J_i[:, a]``, so the normal matrix is
+    ``sum_i phi_j phi_l (J_i^T W_i J_i)[a, b]``: it is accumulated with ``bincount`` over the
+    few basis functions that do not vanish at each point (4 for a spline).
+    """
+    k = _n_columns(correction)
+    index, value = _sparse_basis(correction, seconds)
+    block = np.einsum("n,nia,nib->nab", weights, jac_delta, jac_delta)  # (N, 3, 3)
+    grad = np.einsum("n,nia,ni->na", weights, jac_delta, residuals)  # (N, 3)
+    normal = np.zeros((3, k, 3, k))
+    rhs = np.zeros((3, k))
+    m = index.shape[1]
+    for p in range(m):
+        for a in range(3):
+            rhs[a] += np.bincount(index[:, p], value[:, p] * grad[:, a], minlength=k)
+        for q in range(m):
+            flat = index[:, p] * k + index[:, q]
+            vv = value[:, p] * value[:, q]
+            for a in range(3):
+                for b in range(3):
+                    normal[a, :, b, :] += np.bincount(flat, vv * block[:, a, b], minlength=k * k).reshape(k, k)
+    return normal.reshape(3 * k, 3 * k), rhs.reshape(-1), k
+
+
+def _ridge(correction, k):
+    """Diagonal ridge weights of a candidate's columns (none on the constants of a drift)."""
+    ridge = np.repeat(1.0 / np.asarray(REGULARIZATION_SIGMA_RAD, dtype=float)[:, None] ** 2, k, axis=1)
+    if correction is None or correction.kind == "drift":
+        ridge[:, 0] = 0.0
+    return ridge.reshape(-1)
+
+
+def _ridge_solution(normal, rhs, ridge):
+    """Coefficients, ``(N + R)^-1`` and the hat matrix's trace of a ridge least squares."""
+    d = 1.0 / np.sqrt(np.maximum(np.diag(normal) + ridge, 1e-300))
+    val, vec = np.linalg.eigh(d[:, None] * (normal + np.diag(ridge)) * d[None, :])
+    inv = (vec / np.maximum(val, val.max() * 1e-14)) @ vec.T
+    coef = d * (inv @ (d * rhs))
+    dof = float(np.sum(inv * (d[:, None] * normal * d[None, :])))
+    return coef, d[:, None] * inv * d[None, :], dof
+
+
+def select_correction(jac_delta, seconds, residuals, weights, candidates):
+    """Choose the candidate basis of least BIC and its linearized solution (module docstring).
+
+    Parameters
+    ----------
+    jac_delta : ndarray, shape (N, 2, 3)
+        ``d(row, col)/d(roll, pitch, yaw)`` at each GCP, pixels per radian.
+    seconds : ndarray, shape (N,)
+        Time of each GCP's line, seconds since the model's epoch.
+    residuals : ndarray, shape (N, 2)
+        Observed minus computed ``(row, col)`` of the static solution, pixels.
+    weights : ndarray, shape (N,)
+        Final weights of the static solution (0 for outliers and unused points), 1/px^2.
+    candidates : list of AttitudeCorrection or None
+        From :func:`candidate_corrections`.
+
+    Returns
+    -------
+    chosen : AttitudeCorrection or None
+        With the least-squares coefficients (radians; a drift's constant left out); None:
+        static.
+    covariance : ndarray, shape (3 K, 3 K) or None
+        Of the chosen coefficients, scaled by the a-posteriori variance factor, rad^2.
+    table : list of dict
+        Per candidate ``kind``, ``n_terms``, ``n_parameters`` (effective), ``rss``
+        (weighted, px^2), ``bic``, ``chosen``.
+    """
+    ok = np.isfinite(residuals).all(axis=1) & np.isfinite(jac_delta).all(axis=(1, 2)) & (weights > 0)
+    jac_delta, seconds, residuals, weights = jac_delta[ok], seconds[ok], residuals[ok], weights[ok]
+    m = 2 * int(ok.sum())
+    rss0 = float(np.sum(weights[:, None] * residuals**2))
+    table, solutions = [], []
+    for cand in candidates:
+        normal, rhs, k = _normal_equations(jac_delta, seconds, residuals, weights, cand)
+        coef, inv, dof = _ridge_solution(normal, rhs, _ridge(cand, k))
+        rss = max(rss0 - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
+        bic = m * np.log(rss / m) + dof * np.log(m)
+        solutions.append((coef, inv * rss / max(m - dof, 1.0), k))
+        table.append({"kind": "static" if cand is None else cand.kind,
+                      "n_terms": 0 if cand is None else cand.n_terms,
+                      "n_parameters": round(dof, 2), "rss": float(rss), "bic": float(bic), "chosen": False})
+    best = int(np.argmin([row["bic"] for row in table]))
+    table[best]["chosen"] = True
+    cand = candidates[best]
+    if cand is None:
+        return None, None, table
+    coef, cov, k = solutions[best]
+    keep = np.arange(3 * k).reshape(3, k)
+    if cand.kind == "drift":
+        keep = keep[:, 1:]
+    keep = keep.reshape(-1)
+    return cand.with_coefficients(coef[keep]), cov[np.ix_(keep, keep)], table
+
+
+def correction_band(correction: AttitudeCorrection, covariance, seconds):
+    """Correction angles and their standard deviations at ``seconds``.
+
+    Parameters
+    ----------
+    correction : AttitudeCorrection
+    covariance : ndarray, shape (3 K, 3 K) or None
+        Covariance of the coefficients (axis-major), rad^2.
+    seconds : ndarray, shape (T,)
+
+    Returns
+    -------
+    angles_urad, sigma_urad : ndarray, shape (T, 3)
+        ``sigma_urad`` is NaN without a covariance.
+    """
+    basis, _ = correction.basis(seconds)
+    angles = basis @ correction.coefficients_rad.T * 1e6
+    sigma = np.full_like(angles, np.nan)
+    if covariance is not None:
+        k = correction.n_coefficients
+        for a in range(3):
+            block = covariance[a * k : (a + 1) * k, a * k : (a + 1) * k]
+            sigma[:, a] = np.sqrt(np.clip(np.einsum("tk,kl,tl->t", basis, block, basis), 0.0, None)) * 1e6
+    return angles, sigma
+
+
+def _fit_sinusoid(t, y, f0):
+    """Least squares ``a + b t + A sin(2 pi f t + phi)`` from a starting frequency; (A, f, phi)."""
+    from scipy.optimize import least_squares
+
+    tc = t - t.mean()
+
+    def linear_part(f):
+        x = np.stack([np.ones_like(tc), tc, np.sin(2 * np.pi * f * tc), np.cos(2 * np.pi * f * tc)], axis=1)
+        return x, np.linalg.lstsq(x, y, rcond=None)[0]
+
+    def resid(p):
+        x, c = linear_part(p[0])
+        return x @ c - y
+
+    f = float(least_squares(resid, [f0], bounds=([f0 * 0.5], [f0 * 1.5])).x[0])
+    _, c = linear_part(f)
+    return float(np.hypot(c[2], c[3])), f, float(np.arctan2(c[3], c[2]))
+
+
+def jitter_spectrum(correction: AttitudeCorrection, t_lo_s: float, t_hi_s: float, *, n_samples: int = 2048):
+    """Amplitude spectrum of the recovered correction and its dominant sinusoid per axis.
+
+    The correction is sampled over the image's time span, a linear trend (bias and drift) is
+    removed, and its amplitude spectrum is taken (Hann window, amplitude-normalized, zero-padded
+    eight times). The highest peak above the lowest resolvable frequency starts a least-squares
+    fit of ``a + b t + A sin(2 pi f t + phi)`` to the samples, which gives the amplitude and
+    frequency reported.
+
+    Parameters
+    ----------
+    correction : AttitudeCorrection
+    t_lo_s, t_hi_s : float
+        Time span of the image lines, seconds since the epoch.
+    n_samples : int
+        Samples over the span.
+
+    Returns
+    -------
+    dict
+        ``frequency_hz`` (F,), per axis ``spectrum_urad`` (F,) and ``peak``
+        (``amplitude_urad``, ``frequency_hz``, ``phase_rad``; None when the span holds less
+        than one and a half periods of any resolvable frequency).
+    """
+    t = np.linspace(t_lo_s, t_hi_s, n_samples)
+    angles = correction.angles(t) * 1e6
+    span = t_hi_s - t_lo_s
+    dt = t[1] - t[0]
+    n_fft = 8 * n_samples
+    freq = np.fft.rfftfreq(n_fft, dt)
+    window = np.hanning(n_samples)
+    out = {"frequency_hz": freq, "axes": {}}
+    keep = freq <= 0.25 / dt
+    out["frequency_hz"] = freq[keep]
+    for a, name in enumerate(AXES):
+        y = angles[:, a]
+        detrended = y - np.polyval(np.polyfit(t - t.mean(), y, 1), t - t.mean())
+        spec = 2.0 * np.abs(np.fft.rfft(detrended * window, n_fft)) / window.sum()
+        low = freq >= 1.5 / span
+        peak = None
+        if np.any(low & keep) and np.max(spec[low & keep]) > 0:
+            f0 = float(freq[low & keep][np.argmax(spec[low & keep])])
+            amp, f, phase = _fit_sinusoid(t, y, f0)
+            peak = {"amplitude_urad": amp, "frequency_hz": f, "phase_rad": phase}
+        out["axes"][name] = {"spectrum_urad": spec[keep], "peak": peak}
+    return out

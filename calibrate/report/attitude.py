@@ -1,0 +1,116 @@
+"""Attitude section of the calibration report: the time-varying correction and its spectrum.
+
+:func:`figure_attitude` draws, per axis (roll, pitch, yaw), the correction ``delta(t)`` the
+calibration estimated (:mod:`calibrate.attitude`) against the time of the image lines with a
+one-sigma band from the coefficients' covariance, and its amplitude spectrum (linear trend
+removed) with the fitted dominant sinusoid. :func:`section_attitude` writes the basis chosen,
+the BIC of each candidate and the recovered jitter (amplitude, frequency) per axis.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calibrate.attitude import correction_band, jitter_spectrum
+from calibrate.report._html import escape as _e, figure_html as _figure_html, fmt as _fmt
+from calibrate.report._html import new_figure as _new_figure, save_figure as _save, table as _table
+from sensor_models.attitude_correction import AXES
+
+__all__ = ["figure_attitude", "section_attitude"]
+
+_COLORS = {"roll": "#c0392b", "pitch": "#1f5fa8", "yaw": "#2e7d32"}
+
+
+def _image_seconds(model):
+    """Time span of the image lines, seconds since the epoch (ascending)."""
+    t = model.line_timing.seconds(np.array([0.0, float(model.n_rows)]))
+    return float(t.min()), float(t.max())
+
+
+def figure_attitude(result, fig_dir) -> dict | None:
+    """Correction against time with its uncertainty band, and its spectrum, per axis.
+
+    Parameters
+    ----------
+    result : calibrate.absolute.CalibrationResult
+        A result whose model carries an attitude correction.
+    fig_dir : Path
+        Folder of the PNG.
+
+    Returns
+    -------
+    dict or None
+        ``{"src", "caption"}``; None when the model has no correction.
+    """
+    corr = getattr(result.model, "attitude_correction", None)
+    if corr is None:
+        return None
+    t_lo, t_hi = _image_seconds(result.model)
+    t = np.linspace(t_lo, t_hi, 600)
+    cov = (result.attitude or {}).get("coefficients_covariance_rad2")
+    angles, sigma = correction_band(corr, None if cov is None else np.asarray(cov, dtype=float), t)
+    spectrum = jitter_spectrum(corr, t_lo, t_hi)
+    fig = _new_figure(12.0, 4.2, wspace=0.3, top=0.5)
+    ax_t, ax_f = fig.subplots(1, 2)
+    for a, name in enumerate(AXES):
+        color = _COLORS[name]
+        ax_t.plot(t - t_lo, angles[:, a], color=color, lw=1.2, label=name)
+        if np.all(np.isfinite(sigma[:, a])):
+            ax_t.fill_between(t - t_lo, angles[:, a] - sigma[:, a], angles[:, a] + sigma[:, a], color=color, alpha=0.2)
+        ax_f.plot(spectrum["frequency_hz"], spectrum["axes"][name]["spectrum_urad"], color=color, lw=1.0, label=name)
+        peak = spectrum["axes"][name]["peak"]
+        if peak is not None:
+            ax_f.plot([peak["frequency_hz"]], [peak["amplitude_urad"]], "o", color=color, ms=4)
+    ax_t.set_xlabel("time since the first line (s)")
+    ax_t.set_ylabel("correction (µrad)")
+    ax_t.set_title(f"attitude correction: {corr.kind}, {corr.n_terms} {'segments' if corr.kind == 'spline' else 'degree'}",
+                   loc="left", fontsize=10)
+    ax_f.set_xlabel("frequency (Hz)")
+    ax_f.set_ylabel("amplitude (µrad)")
+    ax_f.set_xlim(0.0, min(float(spectrum["frequency_hz"][-1]), 4.0 / max(corr.knot_spacing_s, 1e-9)))
+    ax_f.set_title("amplitude spectrum (trend removed); dots: fitted sinusoid", loc="left", fontsize=10)
+    for ax in (ax_t, ax_f):
+        ax.grid(True, lw=0.3, alpha=0.5)
+        ax.legend(fontsize=8, loc="upper right")
+    caption = ("Left: the body-frame attitude correction (roll, pitch, yaw; µrad) estimated with the exterior "
+               "against time over the image lines, its mean taken by the installation; shaded: one standard "
+               "deviation from the coefficients' covariance (a posteriori). Right: its amplitude spectrum after "
+               "removing a linear trend (Hann window); dots: amplitude and frequency of the sinusoid fitted to "
+               "each axis. Yaw is weakly observed by a narrow field of view.")
+    return {"src": _save(fig, fig_dir, "attitude.png"), "caption": caption}
+
+
+def section_attitude(result, figure) -> str:
+    """HTML of the attitude section: selection table, recovered jitter, figure.
+
+    Parameters
+    ----------
+    result : calibrate.absolute.CalibrationResult
+        With ``result.attitude`` (None: the section says the attitude was held static).
+    figure : dict or None
+        Of :func:`figure_attitude`.
+
+    Returns
+    -------
+    str
+        HTML.
+    """
+    info = result.attitude
+    if not info:
+        return "<p>Static attitude (<code>--attitude static</code> or a model without a time axis).</p>"
+    sel = info["selected"]
+    chosen = "static (no correction)" if sel["kind"] == "static" else f"{sel['kind']} ({sel['n_terms']})"
+    intro = (f"<p>Mode <code>{_e(info['mode'])}</code>: candidate bases were fitted to the static solution's "
+             f"residuals and the one of least BIC kept: <b>{_e(chosen)}</b> (docs/attitude.md).</p>")
+    rows = [[_e(c["kind"]), str(c["n_terms"]), _fmt(c["n_parameters"]), _fmt(c["rss"]), _fmt(c["bic"], 6),
+             "yes" if c["chosen"] else ""] for c in info["candidates"]]
+    table = _table(["basis", "terms", "parameters (effective)", "weighted RSS (px²)", "BIC", "chosen"], rows)
+    jitter = info.get("jitter") or {}
+    if jitter:
+        jrows = [[_e(a), _fmt((p or {}).get("amplitude_urad")), _fmt((p or {}).get("frequency_hz"))]
+                 for a, p in jitter.items()]
+        table += "<p>Dominant sinusoid of the correction per axis:</p>" + _table(
+            ["axis", "amplitude (µrad)", "frequency (Hz)"], jrows)
+    if info.get("failed"):
+        table += f"<p>The time-varying solve failed, the static solution is kept: {_e(info['failed'])}</p>"
+    return intro + table + (_figure_html(figure) if figure else "")
