@@ -27,7 +27,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 S2_RED = ROOT.parent / "shared" / "data" / "real_textures" / "sentinel2" / "s2_B04.jp2"
-# the end-to-end chain as a library (``gcpcal experiment 003``): calibrate/experiments/seed003.py
+# the end-to-end chain as a library (``gcpcal experiment 003``): calibrate/experiments/simulate_seed003.py
 
 
 def _gcpcal(*args) -> None:
@@ -40,8 +40,8 @@ def _gcpcal(*args) -> None:
 
 def gcp_truth_error(scene: Path, gcps_csv: Path) -> dict:
     """RMS / max of (matched row, col) minus the TRUE model's projection of each GCP's ground point
-    (:func:`calibrate.experiments.seed003.gcp_truth_error`)."""
-    from calibrate.experiments.seed003 import gcp_truth_error as _gcp_truth_error
+    (:func:`calibrate.experiments.simulate_seed003.gcp_truth_error`)."""
+    from calibrate.experiments.simulate_seed003 import gcp_truth_error as _gcp_truth_error
     from gcpmatch.gcps import read_gcps
     from sensor_models.readers import open_model
 

@@ -98,10 +98,9 @@ def _is_cli(module: str) -> bool:
 
 
 def _simulation_module(module: str) -> bool:
-    """Modules allowed to import the simulator: the simulator itself, ``*simulate*`` commands and the
-    seed experiments (``calibrate/experiments/``: simulations by nature)."""
-    return (module == SIMULATOR or module.startswith(SIMULATOR + ".") or "simulate" in module.rsplit(".", 1)[-1]
-            or module == "calibrate.experiments" or module.startswith("calibrate.experiments."))
+    """Modules allowed to import the simulator: the simulator itself and ``*simulate*`` modules (the
+    ``simulate`` commands and the seed experiments ``calibrate/experiments/simulate_seed*``)."""
+    return module == SIMULATOR or module.startswith(SIMULATOR + ".") or "simulate" in module.rsplit(".", 1)[-1]
 
 
 def _strongly_connected(graph: dict[str, dict[str, int]]) -> list[list[str]]:

@@ -9,8 +9,9 @@ from sensor_models.errors import InputError
 __all__ = ["EXPERIMENTS", "PROFILE_CHOICES", "profiles_of", "run_experiment"]
 
 #: seed -> (module under calibrate.experiments, its ``paper-*`` profile)
-EXPERIMENTS = {"000": ("seed000", "paper-000"), "002": ("seed002", "paper-002"), "003": ("seed003", "paper-003"),
-               "004": ("seed004", "paper-004")}
+EXPERIMENTS = {"000": ("simulate_seed000", "paper-000"), "002": ("simulate_seed002", "paper-002"),
+               "003": ("simulate_seed003", "paper-003"),
+               "004": ("simulate_seed004", "paper-004")}
 #: every profile name the command accepts (each seed takes ideal, realistic and its own paper-*)
 PROFILE_CHOICES = ("ideal", "realistic", "paper-000", "paper-002", "paper-003", "paper-004")
 

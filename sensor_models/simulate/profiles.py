@@ -61,8 +61,31 @@ def _f(unit: str, model: str):
     return field(metadata={"unit": unit, "model": model})
 
 
+class _ProfileFields:
+    """What every profile offers: whether it is ``ideal``, and a field's magnitude."""
+
+    @property
+    def is_ideal(self) -> bool:
+        """True for the profile that takes today's path (the simulator's historical one)."""
+        return self.name == "ideal"
+
+    def value(self, name: str):
+        """The magnitude of field ``name`` (its :attr:`Sourced.value`).
+
+        Parameters
+        ----------
+        name : str
+            A field of this profile.
+
+        Returns
+        -------
+        float, tuple or str
+        """
+        return getattr(self, name).value
+
+
 @dataclass(frozen=True)
-class PushbroomProfile:
+class PushbroomProfile(_ProfileFields):
     """Error magnitudes of a push-broom scene (seed 003 kind); every field a :class:`Sourced`."""
 
     name: str
@@ -108,24 +131,6 @@ class PushbroomProfile:
     dem_void_fraction: Sourced = _f("share of nodes", "voids (nodata) in blobs")
     kind: str = "pushbroom"
 
-    @property
-    def is_ideal(self) -> bool:
-        """True for the profile that takes the simulator's historical path."""
-        return self.name == "ideal"
-
-    def value(self, name: str):
-        """The magnitude of field ``name`` (its :attr:`Sourced.value`).
-
-        Parameters
-        ----------
-        name : str
-            A field of this profile.
-
-        Returns
-        -------
-        float, tuple or str
-        """
-        return getattr(self, name).value
 
 
 def _ideal() -> PushbroomProfile:
@@ -223,7 +228,7 @@ NOT_SIMULATED = "not simulated in this profile"
 
 
 @dataclass(frozen=True)
-class StaringProfile:
+class StaringProfile(_ProfileFields):
     """Error magnitudes of seed 002's staring-camera compensation study; every field a :class:`Sourced`."""
 
     name: str
@@ -233,18 +238,9 @@ class StaringProfile:
     vcp_noise_px: Sourced = _f("px (1 sigma, per axis)", "Gaussian noise on the virtual control points' image coordinates")
     kind: str = "staring"
 
-    @property
-    def is_ideal(self) -> bool:
-        """True for the profile that takes today's path."""
-        return self.name == "ideal"
-
-    def value(self, name: str):
-        """The magnitude of field ``name`` (its :attr:`Sourced.value`)."""
-        return getattr(self, name).value
-
 
 @dataclass(frozen=True)
-class ThermalProfile:
+class ThermalProfile(_ProfileFields):
     """Error magnitudes of seed 002's thermal installation series; every field a :class:`Sourced`."""
 
     name: str
@@ -253,18 +249,9 @@ class ThermalProfile:
     vcp_noise_px: Sourced = _f("px (1 sigma, per axis)", "noise on each epoch's control points")
     kind: str = "thermal"
 
-    @property
-    def is_ideal(self) -> bool:
-        """True for the profile that takes today's path."""
-        return self.name == "ideal"
-
-    def value(self, name: str):
-        """The magnitude of field ``name`` (its :attr:`Sourced.value`)."""
-        return getattr(self, name).value
-
 
 @dataclass(frozen=True)
-class StarsProfile:
+class StarsProfile(_ProfileFields):
     """Error magnitudes of seed 000's star-track calibration; every field a :class:`Sourced`."""
 
     name: str
@@ -282,18 +269,9 @@ class StarsProfile:
     sessions: Sourced = _f("daily 20-min sessions", "independent sequences (another date, noise and wobble each)")
     kind: str = "stars"
 
-    @property
-    def is_ideal(self) -> bool:
-        """True for the profile that takes today's path."""
-        return self.name == "ideal"
-
-    def value(self, name: str):
-        """The magnitude of field ``name`` (its :attr:`Sourced.value`)."""
-        return getattr(self, name).value
-
 
 @dataclass(frozen=True)
-class OalrProfile:
+class OalrProfile(_ProfileFields):
     """Error magnitudes of seed 004's autocollimation (OALR) measurement; every field a :class:`Sourced`."""
 
     name: str
@@ -305,15 +283,6 @@ class OalrProfile:
     mount_drift_px: Sourced = _f("px (1 sigma, per channel and axis)", "motion of the SMCCD itself between the two frames, unknown to eq. 2-5")
     centroid_sigma_px: Sourced = _f("px (1 sigma)", "given centroid noise added to every mark coordinate (paper's sigma_k); 0: from the rendering")
     kind: str = "oalr"
-
-    @property
-    def is_ideal(self) -> bool:
-        """True for the profile that takes today's path."""
-        return self.name == "ideal"
-
-    def value(self, name: str):
-        """The magnitude of field ``name`` (its :attr:`Sourced.value`)."""
-        return getattr(self, name).value
 
 
 def _staring_profiles() -> dict:
