@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
+from calibrate.actions._io import check_output_files, staged_files, write_summary
 from calibrate.actions._status import open_usable_calibration, require_usable, status_fields
 from calibrate.config import OrthoOptions
 from sensor_models.errors import InputError
@@ -52,6 +52,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
         The summary written to ``OUT.summary.json``.
     """
     from sensor_models.ortho import orthorectify_to_file
+    from sensor_models.ortho_dem import open_ortho_dem
 
     t0 = time.perf_counter()
     out_path = Path(out_path)
@@ -69,29 +70,42 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
                              f"px image, the scene {scene.image_shape[0]} x {scene.image_shape[1]}",
                              path=str(calib_file))
     band, image = _band_and_image(scene, geometry, band, image, scene_path)
-    dem = open_dem(dem_path, dem_datum, geoid)
-    dem_figures = _dem_under_scene(geometry, dem, band)
-    say = progress or (lambda done, total: None)
-    with staged_files(out_path, summary_path) as (tif_tmp, summary_tmp):
-        result = orthorectify_to_file(geometry, image, dem, tif_tmp, crs=options.crs,
-                                      resolution_m=options.resolution_m, band=band, resampling=options.resampling,
-                                      block=options.block, progress=say)
-        result["output"] = str(out_path)
-        summary = {
-            "command": "ortho",
-            "scene": str(scene_path),
-            "calibration": None if calib_file is None else str(calib_file),
-            "model_kind": geometry.kind,
-            "image": str(image[0]) if isinstance(image, tuple) else str(image),
-            "dem": str(dem_path),
-            **status_fields(geometry, scene_warning, calib_warning),
-            **dem_figures,
-            **result,
-            "ortho_seconds": result["seconds"],
-            "seconds": round(time.perf_counter() - t0, 3),
-        }
-        summary["summary"] = str(summary_path)
-        write_summary(summary_tmp, summary)
+    dem, dem_windows = open_ortho_dem(dem_path, vertical_datum=dem_datum, geoid=geoid)  # windows when large
+    try:
+        dem_figures = _dem_under_scene(geometry, dem, band)
+        say = progress or (lambda done, total: None)
+        with staged_files(out_path, summary_path) as (tif_tmp, summary_tmp):
+            result = orthorectify_to_file(geometry, image, dem, tif_tmp, crs=options.crs,
+                                          resolution_m=options.resolution_m, band=band,
+                                          resampling=options.resampling, block=options.block, progress=say,
+                                          dem_windows=dem_windows)
+            summary = _summary(result, out_path, summary_path, scene_path, calib_file, geometry, image, dem_path,
+                               status_fields(geometry, scene_warning, calib_warning), dem_figures, t0)
+            write_summary(summary_tmp, summary)
+    finally:
+        if dem_windows is not None:
+            dem_windows.close()
+    return summary
+
+
+def _summary(result, out_path, summary_path, scene_path, calib_file, geometry, image, dem_path, status, dem_figures,
+             t0) -> dict:
+    """The JSON summary of ``gcpcal ortho``."""
+    result["output"] = str(out_path)
+    summary = {
+        "command": "ortho",
+        "scene": str(scene_path),
+        "calibration": None if calib_file is None else str(calib_file),
+        "model_kind": geometry.kind,
+        "image": str(image[0]) if isinstance(image, tuple) else str(image),
+        "dem": str(dem_path),
+        **status,
+        **dem_figures,
+        **result,
+        "ortho_seconds": result["seconds"],
+        "seconds": round(time.perf_counter() - t0, 3),
+    }
+    summary["summary"] = str(summary_path)
     return summary
 
 
