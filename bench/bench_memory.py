@@ -134,9 +134,12 @@ def simulate_config(rows: int, cols: int, gsd_m: float, cheap: bool):
 
     cfg = SimConfig()
     camera = replace(cfg.camera, detectors_per_ccd=cols // 4, overlap_detectors=16)
+    radiometry = cfg.radiometry
     if cheap:
-        camera = replace(camera, bands=["B2"], band_offsets_px=[0.0], reference_band="B2")
-    return replace(cfg, scene=replace(cfg.scene, n_rows=rows, gsd_m=gsd_m), camera=camera).validate()
+        camera = replace(camera, bands=("B2",), band_offsets_px=(0.0,), reference_band="B2")
+        radiometry = replace(radiometry, band_gain=(1.0,), band_offset_dn=(40.0,), band_gamma=(1.0,))
+    return replace(cfg, scene=replace(cfg.scene, n_rows=rows, gsd_m=gsd_m), camera=camera,
+                   radiometry=radiometry).validate()
 
 
 def prepare_simulate(folder: Path, rows: int, cols: int, gsd_m: float, cheap: bool) -> dict:

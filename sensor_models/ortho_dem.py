@@ -88,7 +88,9 @@ class DemWindows:
     shape : (int, int)
         Nodes of the whole raster.
     nodes_read : int
-        Nodes read so far (for the summary and the tests).
+        Nodes read so far.
+    largest_window_nodes : int
+        Nodes of the largest window read so far (what one block needed).
     """
 
     def __init__(self, path, datum: str, geoid=None):
@@ -106,6 +108,7 @@ class DemWindows:
         self._geoid = geoid if datum == "egm96" else None
         self._geometry = _GridGeometry(self.transform, self.crs, self.shape)
         self.nodes_read = 0
+        self.largest_window_nodes = 0
 
     def read(self, row0: int, row1: int, col0: int, col1: int) -> np.ndarray:
         """Ellipsoidal heights (float64, NaN = no data) of nodes ``[row0:row1, col0:col1]``.
@@ -131,6 +134,7 @@ class DemWindows:
             lon, lat = self._geometry.index_to_lonlat(cols, rows)
             values = values + self._geoid.undulation_m(lon, lat)
         self.nodes_read += values.size
+        self.largest_window_nodes = max(self.largest_window_nodes, values.size)
         return values
 
     def heights(self, u, v) -> np.ndarray:
