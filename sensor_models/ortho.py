@@ -48,7 +48,10 @@ renames that onto the target: there is never a partial output. Memory per block 
 ``O(block^2)`` and does not grow with the output size: ``bench/bench_ortho.py`` measured a peak
 RSS of 436, 444 and 442 MiB for outputs of 5000, 10000 and 20000 px a side (about 135 MiB of it
 for 1024-pixel blocks), and 5.5 output Mpx/s on one core for the largest (70 s, 13 s of it in
-the COG copy).
+the COG copy). That bench holds a small DEM in memory; a DEM file as large as the scene (SRTM-1
+under a 30 m scene) is read by windows too: with ``dem_windows``
+(:func:`sensor_models.ortho_dem.open_ortho_dem`, which ``gcpcal ortho`` uses) each block reads
+only the DEM nodes its pixels need, with the same heights to the bit (docs/memory.md).
 
 OpenCV's ``remap`` quantizes sample positions to 1/32 pixel (a zero-mean error of at most
 1/64 px per axis). Bilinear interpolation reproduces a linear ramp exactly; OpenCV's cubic

@@ -13,7 +13,10 @@ of the image border, the default resolution, the DEM coverage figures). So
   global steps, and :class:`DemWindows`, which reads, per output block, only the DEM window
   the block's pixels need and interpolates it exactly as :class:`Dem` would (same nodes, same
   datum conversion, same bilinear formula), so the heights of every output pixel are the ones
-  of the full-resolution DEM.
+  of the full-resolution DEM. The output grid, though, comes from the footprint on the coarse
+  DEM: its bounding box can move by a pixel against the whole DEM's when the output pixel is
+  much finer than the coarse nodes (a 0.5 m Pleiades crop over a coarsened SRTM tile moves by
+  4 rows), which is why DEMs up to :data:`MAX_DEM_NODES` stay whole.
 """
 
 from __future__ import annotations
@@ -27,8 +30,10 @@ from sensor_models.errors import InputError
 
 __all__ = ["MAX_DEM_NODES", "DemWindows", "bilinear_nodes", "open_ortho_dem"]
 
-#: DEMs up to this many nodes are loaded whole (float64 grid 8 MB, ~90 MB while it is built)
-MAX_DEM_NODES = 1_000_000
+#: DEMs up to this many nodes are loaded whole, as before: an SRTM-1 1 x 1 degree tile (3601 x 3601
+#: nodes) still is, so orthoimages over such tiles keep their grid to the bit (~1.1 GB while it is
+#: built); larger DEMs (a mosaic under a large scene) are read by windows
+MAX_DEM_NODES = 13_000_000
 
 
 def bilinear_nodes(z: np.ndarray, u, v, *, shape=None, row0: int = 0, col0: int = 0) -> np.ndarray:
