@@ -18,6 +18,8 @@ What runs at each size (all synthetic, seeded; the files go to ``--tmp``):
   same GSD; the DOM is a uint16 tiled UTM raster at twice the GSD's resolution (half the pixel
   size), the DEM a 3 arc-second (~90 m, SRTM-3 spacing) geographic GeoTIFF. At 20000 x 20000
   the configuration is the cheap one: one band (``B2``) instead of four.
+* ``simulate-procedural`` (only when asked, ``--which``): the same configuration without
+  ``--dom``/``--dem``, so the simulator generates its procedural reference (the issue's command).
 
 Usage::
 
@@ -236,8 +238,28 @@ def run_size(size: str, which, code: Path, tmp: Path, timeout_s: float) -> dict:
             cases["simulate"].update({k: doc.get(k) for k in ("render_seconds", "phase_seconds", "seconds")})
         shutil.rmtree(out, ignore_errors=True)
         print(f"{size} simulate: {cases['simulate']['peak_rss_mib']:.0f} MiB, {cases['simulate']['wall_s']:.0f} s")
+    if "simulate-procedural" in which:
+        cases["simulate-procedural"] = _procedural_case(folder, rows, cols, gsd, code, timeout_s)
     shutil.rmtree(folder, ignore_errors=True)
     return cases
+
+
+def _procedural_case(folder: Path, rows: int, cols: int, gsd: float, code: Path, timeout_s: float) -> dict:
+    """``gcpcal simulate pushbroom`` with its procedural reference (no --dom/--dem): the issue's command."""
+    cfg = simulate_config(rows, cols, gsd, cheap=False)
+    config = folder / "config_procedural.json"
+    config.write_text(json.dumps(cfg.to_dict(), indent=1))
+    out = folder / "sim_procedural"
+    shutil.rmtree(out, ignore_errors=True)
+    cmd = _gcpcal() + ["simulate", "pushbroom", "--out", str(out), "--config", str(config), "--workers", "2"]
+    case = {"inputs": {"config": str(config), "reference": "procedural"}, **run_child(cmd, code, timeout_s)}
+    summary = out / "summary.json"
+    if summary.is_file():
+        doc = json.loads(summary.read_text())
+        case.update({k: doc.get(k) for k in ("render_seconds", "phase_seconds", "seconds")})
+    shutil.rmtree(out, ignore_errors=True)
+    print(f"{rows}x{cols} simulate (procedural reference): {case['peak_rss_mib']:.0f} MiB, {case['wall_s']:.0f} s")
+    return case
 
 
 def main(argv=None):

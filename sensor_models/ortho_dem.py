@@ -9,8 +9,8 @@ of the image border, the default resolution, the DEM coverage figures). So
 
 * for a DEM of at most ``max_nodes`` nodes: the ordinary :class:`Dem` and no windows (the
   orthoimage is exactly what it was before this module existed);
-* for a larger DEM: a coarse :class:`Dem` (block-averaged to at most ``max_nodes`` nodes) for the
-  global steps, and :class:`DemWindows`, which reads, per output block, only the DEM window
+* for a larger DEM: a coarse :class:`Dem` (block-averaged to at most ``coarse_nodes`` nodes) for
+  the global steps, and :class:`DemWindows`, which reads, per output block, only the DEM window
   the block's pixels need and interpolates it exactly as :class:`Dem` would (same nodes, same
   datum conversion, same bilinear formula), so the heights of every output pixel are the ones
   of the full-resolution DEM. The output grid, though, comes from the footprint on the coarse
@@ -28,12 +28,14 @@ import pyproj
 
 from sensor_models.errors import InputError
 
-__all__ = ["MAX_DEM_NODES", "DemWindows", "bilinear_nodes", "open_ortho_dem"]
+__all__ = ["COARSE_DEM_NODES", "MAX_DEM_NODES", "DemWindows", "bilinear_nodes", "open_ortho_dem"]
 
 #: DEMs up to this many nodes are loaded whole, as before: an SRTM-1 1 x 1 degree tile (3601 x 3601
 #: nodes) still is, so orthoimages over such tiles keep their grid to the bit (~1.1 GB while it is
 #: built); larger DEMs (a mosaic under a large scene) are read by windows
 MAX_DEM_NODES = 13_000_000
+#: nodes of the coarse copy of a larger DEM (footprint, default resolution, coverage): ~90 MB built
+COARSE_DEM_NODES = 1_000_000
 
 
 def bilinear_nodes(z: np.ndarray, u, v, *, shape=None, row0: int = 0, col0: int = 0) -> np.ndarray:
@@ -171,7 +173,8 @@ class DemWindows:
         self._ds.close()
 
 
-def open_ortho_dem(path, *, vertical_datum=None, geoid=None, max_nodes: int = MAX_DEM_NODES):
+def open_ortho_dem(path, *, vertical_datum=None, geoid=None, max_nodes: int = MAX_DEM_NODES,
+                   coarse_nodes: int = COARSE_DEM_NODES):
     """The DEM of an orthorectification: whole when small, else coarse plus windows.
 
     Parameters
@@ -184,11 +187,13 @@ def open_ortho_dem(path, *, vertical_datum=None, geoid=None, max_nodes: int = MA
         EGM96 undulation grid.
     max_nodes : int
         Largest DEM loaded whole.
+    coarse_nodes : int
+        Most nodes of the coarse copy of a larger DEM (at most ``max_nodes``).
 
     Returns
     -------
     dem : sensor_models.terrain.Dem
-        The whole DEM, or a block-averaged copy of at most ``max_nodes`` nodes.
+        The whole DEM, or a block-averaged copy of at most ``min(coarse_nodes, max_nodes)`` nodes.
     windows : DemWindows or None
         Full-resolution heights by windows; None when ``dem`` is the whole DEM.
 
@@ -212,7 +217,7 @@ def open_ortho_dem(path, *, vertical_datum=None, geoid=None, max_nodes: int = MA
         return Dem.open(source, vertical_datum=vertical_datum, geoid=geoid), None
     datum = _checked_datum(source, vertical_datum, geoid)
     grid = _as_geoid_or_none(geoid, datum, source)
-    values, transform, crs = _read_coarse(source, max_nodes)
+    values, transform, crs = _read_coarse(source, min(int(coarse_nodes), int(max_nodes)))
     if crs is None:
         raise DemError(f"{source}: the DEM declares no coordinate reference system")
     coarse = Dem._with_datum(values, transform, crs, datum, grid, source=source)
