@@ -16,8 +16,9 @@ What runs at each size (all synthetic, seeded; the files go to ``--tmp``):
 * ``simulate``: ``gcpcal simulate pushbroom --config CFG --dom DOM --dem DEM --workers 2`` with
   the default camera (2 cameras x 2 CCDs) of ``COLS / 4`` detectors per CCD, ``ROWS`` lines, the
   same GSD; the DOM is a uint16 tiled UTM raster at twice the GSD's resolution (half the pixel
-  size), the DEM a 3 arc-second (~90 m, SRTM-3 spacing) geographic GeoTIFF. At 20000 x 20000
-  the configuration is the cheap one: one band (``B2``) instead of four.
+  size), the DEM a 3 arc-second (~90 m, SRTM-3 spacing; ``--sim-dem-arcsec``) geographic
+  GeoTIFF. At 20000 x 20000 the configuration is the cheap one: one band (``B2``) instead of
+  four, and the DOM at the GSD.
 * ``simulate-procedural`` (only when asked, ``--which``): the same configuration without
   ``--dom``/``--dem``, so the simulator generates its procedural reference (the issue's command).
 
@@ -144,7 +145,7 @@ def simulate_config(rows: int, cols: int, gsd_m: float, cheap: bool):
                    radiometry=radiometry).validate()
 
 
-def prepare_simulate(folder: Path, rows: int, cols: int, gsd_m: float, cheap: bool) -> dict:
+def prepare_simulate(folder: Path, rows: int, cols: int, gsd_m: float, cheap: bool, dem_arcsec: float = 3.0) -> dict:
     """Configuration, DOM (UTM, half the GSD) and 3" DEM of the simulate case."""
     import pyproj
     from affine import Affine
@@ -158,12 +159,14 @@ def prepare_simulate(folder: Path, rows: int, cols: int, gsd_m: float, cheap: bo
     lon, lat = footprint_lonlat(model, (-500.0, 2500.0))
     crs = pyproj.CRS.from_epsg(32631)
     x, y = pyproj.Transformer.from_crs(4326, crs, always_xy=True).transform(lon, lat)
-    res = 0.5 * gsd_m
+    res = gsd_m if cheap else 0.5 * gsd_m
     x0, y1 = float(np.min(x)) - 3000.0, float(np.max(y)) + 3000.0
     nx, ny = int((np.max(x) + 3000.0 - x0) / res), int((y1 - np.min(y) + 3000.0) / res)
     write_tiled_uint16(folder / "dom.tif", ny, nx, crs=crs.to_wkt(), transform=Affine(res, 0, x0, 0, -res, y1), seed=1)
-    dem_shape = write_dem(folder / "dem_3s.tif", (lon.min(), lon.max()), (lat.min(), lat.max()), 3.0 / 3600.0)
-    return {"config": str(folder / "config.json"), "dom": str(folder / "dom.tif"), "dem": str(folder / "dem_3s.tif"),
+    dem = folder / f"dem_{dem_arcsec:g}s.tif"
+    dem_shape = write_dem(dem, (lon.min(), lon.max()), (lat.min(), lat.max()), dem_arcsec / 3600.0)
+    return {"config": str(folder / "config.json"), "dom": str(folder / "dom.tif"), "dem": str(dem),
+            "dem_arcsec": dem_arcsec,
             "dom_px": [ny, nx], "dem_nodes": list(dem_shape), "bands": list(cfg.camera.bands), "gsd_m": gsd_m}
 
 
@@ -203,7 +206,7 @@ def _gcpcal() -> list[str]:
     return [sys.executable, "-c", "import sys; from calibrate.cli import main; sys.exit(main())"]
 
 
-def run_size(size: str, which, code: Path, tmp: Path, timeout_s: float) -> dict:
+def run_size(size: str, which, code: Path, tmp: Path, timeout_s: float, dem_arcsec: float = 3.0) -> dict:
     """Prepare and measure the cases of one size."""
     rows, cols = _size(size)
     gsd = _gsd(size)
@@ -226,7 +229,7 @@ def run_size(size: str, which, code: Path, tmp: Path, timeout_s: float) -> dict:
         print(f"{size} ortho: {cases['ortho']['peak_rss_mib']:.0f} MiB, {cases['ortho']['wall_s']:.0f} s")
     if "simulate" in which:
         cheap = rows * cols > 50_000_000
-        inputs = prepare_simulate(folder, rows, cols, gsd, cheap)
+        inputs = prepare_simulate(folder, rows, cols, gsd, cheap, dem_arcsec)
         out = folder / "sim"
         shutil.rmtree(out, ignore_errors=True)
         cmd = _gcpcal() + ["simulate", "pushbroom", "--out", str(out), "--config", inputs["config"],
@@ -270,6 +273,7 @@ def main(argv=None):
     ap.add_argument("--label", default="after")
     ap.add_argument("--tmp", type=Path, default=Path("/tmp/bench_memory"))
     ap.add_argument("--timeout", type=float, default=3600.0, help="Seconds per command.")
+    ap.add_argument("--sim-dem-arcsec", type=float, default=3.0, help="Node spacing of the simulate case's DEM.")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "memory.json")
     ap.add_argument("--measure-one", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -279,7 +283,7 @@ def main(argv=None):
     which = set(args.which.split(","))
     runs = {}
     for size in args.sizes.split(","):
-        runs[size] = run_size(size, which, args.code.resolve(), args.tmp, args.timeout)
+        runs[size] = run_size(size, which, args.code.resolve(), args.tmp, args.timeout, args.sim_dem_arcsec)
     doc = json.loads(args.out.read_text()) if args.out.is_file() else {"benchmark": "memory"}
     doc["machine"] = {"platform": platform.platform(), "python": platform.python_version(),
                       "cpus": os.cpu_count(), "note": "shared machine, 2 cores"}
