@@ -23,6 +23,8 @@ __all__ = ["PhaseClock", "check_covers", "footprint_lonlat", "render_scene", "st
 
 #: set-up steps counted by the progress callback before the blocks (models, reference)
 SETUP_STEPS = 2
+#: GDAL block cache while rendering (MB): written blocks wait there until the file is closed
+GDAL_CACHE_MB = 64
 
 
 class PhaseClock:
@@ -156,7 +158,17 @@ def render_scene(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lines
     """Render every block of lines into ``tmp/<band>.tif`` (and ``cloud_mask.tif`` with clouds).
 
     Returns ``(cloud pixels in the reference band, whether a cloud mask was written)``.
+    GDAL's block cache is capped at :data:`GDAL_CACHE_MB` meanwhile.
     """
+    import rasterio
+
+    # GDAL keeps written blocks in its cache until the file closes (by default 5 % of the RAM):
+    # without a cap the whole compressed scene would sit in memory
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
+        return _render_blocks(renderer, model, tmp, bands, ref_band, n_ccd, block_lines, workers, progress)
+
+
+def _render_blocks(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lines, workers, progress):
     from rasterio.errors import NotGeoreferencedWarning
     from rasterio.windows import Window
 
