@@ -254,7 +254,8 @@ def _read_coarse(source: str, max_nodes: int):
     import rasterio
     from rasterio.enums import Resampling
 
-    with rasterio.open(source) as ds:
+    # GDAL caps its block cache at 5 % of the RAM by default; a decimated read would fill it
+    with rasterio.Env(GDAL_CACHEMAX=64), rasterio.open(source) as ds:
         factor = int(np.ceil(np.sqrt(ds.width * ds.height / float(max_nodes))))
         out_shape = (max(2, ds.height // factor), max(2, ds.width // factor))
         band = ds.read(1, out_shape=out_shape, masked=True, resampling=Resampling.average)

@@ -33,6 +33,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pyproj
+import rasterio
 
 from sensor_models.atomic import move_tree_into
 from sensor_models.errors import InputError
@@ -41,7 +42,7 @@ from sensor_models.psf import psf_sigma_dom_px
 from sensor_models.raster import MapImage, sample_map_image
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.radiometry import smooth_field, to_dn
-from sensor_models.simulate.render_io import (PhaseClock, check_covers, footprint_lonlat, render_scene,
+from sensor_models.simulate.render_io import (GDAL_CACHE_MB, PhaseClock, check_covers, footprint_lonlat, render_scene,
                                              step_progress, utm_crs, write_outputs)
 from sensor_models.simulate.scene import SceneModels, build_models
 from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
@@ -212,8 +213,11 @@ def simulate_pushbroom(
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
     try:
-        summary = _simulate(cfg, out_dir, tmp, dom, dem, geoid, workers, block_lines, progress, t_start,
-                            record_timings)
+        # a decimated read of a large DOM (its scale) goes through GDAL's block cache (5 % of the
+        # RAM by default): capped, the pixels are the same and the memory stays bounded
+        with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
+            summary = _simulate(cfg, out_dir, tmp, dom, dem, geoid, workers, block_lines, progress, t_start,
+                                record_timings)
         move_tree_into(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
