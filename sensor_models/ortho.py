@@ -48,7 +48,10 @@ renames that onto the target: there is never a partial output. Memory per block 
 ``O(block^2)`` and does not grow with the output size: ``bench/bench_ortho.py`` measured a peak
 RSS of 436, 444 and 442 MiB for outputs of 5000, 10000 and 20000 px a side (about 135 MiB of it
 for 1024-pixel blocks), and 5.5 output Mpx/s on one core for the largest (70 s, 13 s of it in
-the COG copy).
+the COG copy). That bench holds a small DEM in memory; a DEM file as large as the scene (SRTM-1
+under a 30 m scene) is read by windows too: with ``dem_windows``
+(:func:`sensor_models.ortho_dem.open_ortho_dem`, which ``gcpcal ortho`` uses) each block reads
+only the DEM nodes its pixels need, with the same heights to the bit (docs/memory.md).
 
 OpenCV's ``remap`` quantizes sample positions to 1/32 pixel (a zero-mean error of at most
 1/64 px per axis). Bilinear interpolation reproduces a linear ramp exactly; OpenCV's cubic
@@ -71,6 +74,7 @@ import pyproj
 from affine import Affine
 
 from sensor_models.errors import InputError
+from sensor_models.ortho_dem import bilinear_nodes
 
 __all__ = [
     "BlockGeometry",
@@ -290,9 +294,12 @@ class OrthoGeometry:
     node_step_px : float
         Node spacing in image pixels (converted to output pixels with the grid's scale, and
         at least :data:`MIN_NODE_STEP` output pixels).
+    dem_windows : sensor_models.ortho_dem.DemWindows, optional
+        Full-resolution heights read by windows, block by block; ``dem`` is then a coarse copy
+        used only for the mean height. None: the pixels' heights come from ``dem``.
     """
 
-    def __init__(self, model, dem, grid, *, band=None, node_step_px: float = 16.0):
+    def __init__(self, model, dem, grid, *, band=None, node_step_px: float = 16.0, dem_windows=None):
         if not node_step_px > 0:
             raise InputError(f"must be positive, got {node_step_px}", field="node_step_px")
         self.model = model
@@ -301,10 +308,14 @@ class OrthoGeometry:
         self.band = band
         self.n_rows, self.n_cols = (int(v) for v in model.image_shape)
         self.solvers = _solvers(model, band)
+        self.dem_windows = dem_windows
+        heights_grid = dem if dem_windows is None else dem_windows  # where the pixels' heights come from
         self._to_lonlat = pyproj.Transformer.from_crs(grid.crs, "EPSG:4326", always_xy=True)
-        self._same_crs = grid.crs.equals(dem.crs)
-        self._to_dem = None if self._same_crs else pyproj.Transformer.from_crs(grid.crs, dem.crs, always_xy=True)
-        self._dem_index = Affine.translation(-0.5, -0.5) @ ~dem.transform  # DEM CRS -> node index
+        self._same_crs = grid.crs.equals(heights_grid.crs)
+        self._to_dem = (None if self._same_crs
+                        else pyproj.Transformer.from_crs(grid.crs, heights_grid.crs, always_xy=True))
+        # DEM CRS -> node index
+        self._dem_index = Affine.translation(-0.5, -0.5) @ ~heights_grid.transform
         self._z = np.asarray(dem.heights_m, dtype=np.float64)
         self.scale = self._scale()
         # node_step_px image pixels, but at least MIN_NODE_STEP output pixels (coarse outputs)
@@ -332,21 +343,9 @@ class OrthoGeometry:
 
     def _heights(self, u, v):
         """Bilinear DEM heights at node indices ``(u, v)`` (NaN outside or next to no-data)."""
-        z = self._z
-        n_r, n_c = z.shape
-        inside = (u >= 0.0) & (u <= n_c - 1) & (v >= 0.0) & (v <= n_r - 1)
-        u = np.where(inside, u, 0.0)
-        v = np.where(inside, v, 0.0)
-        i = np.minimum(u.astype(np.intp), n_c - 2)
-        j = np.minimum(v.astype(np.intp), n_r - 2)
-        fu, fv = u - i, v - j
-        k = j * n_c + i
-        zf = z.reshape(-1)
-        z00, z01, z10, z11 = zf.take(k), zf.take(k + 1), zf.take(k + n_c), zf.take(k + n_c + 1)
-        top = z00 + fu * (z01 - z00)
-        out = top + fv * (z10 + fu * (z11 - z10) - top)
-        out[~inside] = np.nan
-        return out
+        if self.dem_windows is not None:
+            return self.dem_windows.heights(u, v)
+        return bilinear_nodes(self._z, u, v)
 
     def _solve(self, solver: _Solver, lon, lat, h):
         kw = _kw(self.band)
@@ -702,7 +701,7 @@ def _block_size(block: int, scale: float) -> int:
 def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=None, band=None,
                          resampling: str = "bilinear", block: int = 1024, nodata=0, dtype=None,
                          node_step_px: float = 16.0, check_points: int = 256, seed: int = 0,
-                         progress=None) -> dict:
+                         progress=None, dem_windows=None) -> dict:
     """Orthorectify one band into a Cloud-Optimized GeoTIFF, block by block, atomically.
 
     Parameters
@@ -737,6 +736,11 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
     seed : int
         Seed of the check-point draw.
     progress : callable(done_blocks, total_blocks), optional
+        Called after each output block is written.
+    dem_windows : sensor_models.ortho_dem.DemWindows, optional
+        Read the pixels' heights from the DEM file block by block
+        (:func:`sensor_models.ortho_dem.open_ortho_dem`); ``dem`` then only serves the
+        footprint, the default resolution and the mean height.
 
     Returns
     -------
@@ -765,7 +769,7 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
             raise InputError(f"the image is {source.shape[0]} x {source.shape[1]} px, the model describes "
                              f"{model.image_shape[0]} x {model.image_shape[1]}", path=source.path)
         grid = ortho_grid(model, dem, crs=crs, resolution_m=resolution_m, band=band)
-        geometry = OrthoGeometry(model, dem, grid, band=band, node_step_px=node_step_px)
+        geometry = OrthoGeometry(model, dem, grid, band=band, node_step_px=node_step_px, dem_windows=dem_windows)
         out_dtype = _output_dtype(dtype, source.dtype)
         _check_nodata(nodata, out_dtype)
         step = _block_size(block, geometry.scale)
@@ -813,6 +817,7 @@ def _summary(plan: "_BlockPlan", out_path: Path, *, band, resampling, step) -> d
         "geometry_check_points": err["n"],
         "geometry_check_max_px": err["max"],
         "geometry_check_rms_px": err["rms"],
+        "dem_read": "whole" if geometry.dem_windows is None else "windows",
     }
 
 

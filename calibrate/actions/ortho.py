@@ -70,29 +70,42 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
                              f"px image, the scene {scene.image_shape[0]} x {scene.image_shape[1]}",
                              path=str(calib_file))
     band, image = _band_and_image(scene, geometry, band, image, scene_path)
-    dem = open_dem(dem_path, dem_datum, geoid, model=geometry, band=band)  # tiles: only under the scene
-    dem_figures = _dem_under_scene(geometry, dem, band)
-    say = progress or (lambda done, total: None)
-    with staged_files(out_path, summary_path) as (tif_tmp, summary_tmp):
-        result = orthorectify_to_file(geometry, image, dem, tif_tmp, crs=options.crs,
-                                      resolution_m=options.resolution_m, band=band, resampling=options.resampling,
-                                      block=options.block, progress=say)
-        result["output"] = str(out_path)
-        summary = {
-            "command": "ortho",
-            "scene": str(scene_path),
-            "calibration": None if calib_file is None else str(calib_file),
-            "model_kind": geometry.kind,
-            "image": str(image[0]) if isinstance(image, tuple) else str(image),
-            "dem": str(dem_path),
-            **status_fields(geometry, scene_warning, calib_warning),
-            **dem_figures,
-            **result,
-            "ortho_seconds": result["seconds"],
-            "seconds": round(time.perf_counter() - t0, 3),
-        }
-        summary["summary"] = str(summary_path)
-        write_summary(summary_tmp, summary)
+    dem, dem_windows = _open_dem(dem_path, dem_datum, geoid, geometry, band)
+    try:
+        dem_figures = _dem_under_scene(geometry, dem, band)
+        say = progress or (lambda done, total: None)
+        with staged_files(out_path, summary_path) as (tif_tmp, summary_tmp):
+            result = orthorectify_to_file(geometry, image, dem, tif_tmp, crs=options.crs,
+                                          resolution_m=options.resolution_m, band=band,
+                                          resampling=options.resampling, block=options.block, progress=say,
+                                          dem_windows=dem_windows)
+            summary = _summary(result, out_path, summary_path, scene_path, calib_file, geometry, image, dem_path,
+                               status_fields(geometry, scene_warning, calib_warning), dem_figures, t0)
+            write_summary(summary_tmp, summary)
+    finally:
+        if dem_windows is not None:
+            dem_windows.close()
+    return summary
+
+
+def _summary(result, out_path, summary_path, scene_path, calib_file, geometry, image, dem_path, status, dem_figures,
+             t0) -> dict:
+    """The JSON summary of ``gcpcal ortho``."""
+    result["output"] = str(out_path)
+    summary = {
+        "command": "ortho",
+        "scene": str(scene_path),
+        "calibration": None if calib_file is None else str(calib_file),
+        "model_kind": geometry.kind,
+        "image": str(image[0]) if isinstance(image, tuple) else str(image),
+        "dem": str(dem_path),
+        **status,
+        **dem_figures,
+        **result,
+        "ortho_seconds": result["seconds"],
+        "seconds": round(time.perf_counter() - t0, 3),
+    }
+    summary["summary"] = str(summary_path)
     return summary
 
 
@@ -135,3 +148,15 @@ def _dem_under_scene(geometry, dem, band) -> dict:
     lon, lat = footprint_sample_lonlat(geometry, float(np.mean(dem.height_range_m)), **kwargs)
     figures = check_dem_footprint(dem, lon, lat)
     return {"dem_coverage": figures["dem_coverage"], "dem_void_fraction": figures["dem_void_fraction"]}
+
+
+def _open_dem(dem_path, dem_datum, geoid, geometry, band):
+    """``(Dem, DemWindows or None)``: tiles are read under the scene only (:func:`open_dem`); one large
+    file is read by windows per output block (:func:`sensor_models.ortho_dem.open_ortho_dem`)."""
+    from sensor_models.mosaic import raster_inputs
+    from sensor_models.ortho_dem import open_ortho_dem
+
+    files = raster_inputs(dem_path, what="DEM")
+    if len(files) > 1 or files[0].lower().endswith(".vrt"):
+        return open_dem(dem_path, dem_datum, geoid, model=geometry, band=band), None
+    return open_ortho_dem(files[0], vertical_datum=dem_datum, geoid=geoid)

@@ -33,6 +33,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pyproj
+import rasterio
 
 from sensor_models.atomic import move_tree_into
 from sensor_models.errors import InputError
@@ -41,7 +42,8 @@ from sensor_models.psf import psf_sigma_dom_px
 from sensor_models.raster import MapImage, sample_map_image
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.radiometry import smooth_field, to_dn
-from sensor_models.simulate.render_io import check_covers, footprint_lonlat, render_scene, utm_crs, write_outputs
+from sensor_models.simulate.render_io import (GDAL_CACHE_MB, PhaseClock, check_covers, footprint_lonlat, render_scene,
+                                             step_progress, utm_crs, write_outputs)
 from sensor_models.simulate.scene import SceneModels, build_models
 from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
 
@@ -180,7 +182,8 @@ def simulate_pushbroom(
     block_lines : int
         Lines rendered per block (memory ~ block_lines x columns x 40 bytes per worker).
     progress : callable, optional
-        ``progress(done_blocks, total_blocks)``.
+        ``progress(done, total)``: two set-up steps (models; reference and sampling planes),
+        then one step per block of lines written.
     record_timings : bool
         Write render times into ``summary.json`` (False: every output file is a function of
         the configuration and inputs only, e.g. for committed fixtures).
@@ -210,8 +213,11 @@ def simulate_pushbroom(
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
     try:
-        summary = _simulate(cfg, out_dir, tmp, dom, dem, geoid, workers, block_lines, progress, t_start,
-                            record_timings)
+        # a decimated read of a large DOM (its scale) goes through GDAL's block cache (5 % of the
+        # RAM by default): capped, the pixels are the same and the memory stays bounded
+        with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
+            summary = _simulate(cfg, out_dir, tmp, dom, dem, geoid, workers, block_lines, progress, t_start,
+                                record_timings)
         move_tree_into(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -238,21 +244,26 @@ def _simulate_with_profile(out_dir, cfg, profile, dom, dem, geoid, workers, bloc
 def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines, progress, t_start, record_timings):
     from sensor_models.simulate.truth import truth_error
 
+    clock = PhaseClock(t_start)
+    setup_done, block_progress = step_progress(progress, cfg.scene.n_rows, block_lines)
     models = build_models(cfg)
     model = models.true_model
+    clock.mark("models")
+    setup_done(1)
     dom, dem, reference_files, dem_figures = _reference(cfg, models, tmp, dom_path, dem_path, geoid)
     renderer = _Renderer(cfg, models, dem, dom)
     dem_planes(dem)  # build the shared sampling planes once, before the threads
-    n_rows, n_cols = model.image_shape
+    clock.mark("reference")
+    setup_done(2)
     bands = list(cfg.camera.bands)
     n_ccd = len(model.band_ccds(cfg.camera.reference_band))
-    t_render = time.perf_counter()
     cloud_pixels, has_mask = _render_scene(renderer, model, tmp, bands, cfg.camera.reference_band, n_ccd,
-                                           block_lines, workers, progress)
-    render_seconds = time.perf_counter() - t_render
+                                           block_lines, workers, block_progress)
+    render_seconds = clock.mark("blocks")  # the whole render: models, reference and blocks
     initial = truth_error(model, models.lab_model, dem=dem, step_px=32)
+    clock.mark("truth_error")
     return _write_outputs(cfg, models, tmp, initial, reference_files, dem_figures, (cloud_pixels, has_mask),
-                          render_seconds, workers, t_start, record_timings)
+                          render_seconds, workers, t_start, record_timings, phases=clock)
 
 
 def _reference(cfg, models: SceneModels, tmp: Path, dom_path, dem_path, geoid):

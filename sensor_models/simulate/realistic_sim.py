@@ -34,8 +34,8 @@ from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.kernel import (detector_response, footprint_offsets, integrate_footprint, optics_kernel,
                                            system_mtf)
 from sensor_models.simulate.profiles import profile_table
-from sensor_models.simulate.render_io import (check_covers, footprint_lonlat, render_scene, utm_crs,
-                                              write_outputs)
+from sensor_models.simulate.render_io import (PhaseClock, check_covers, footprint_lonlat, render_scene, step_progress,
+                                              utm_crs, write_outputs)
 from sensor_models.simulate.reference_pair import DEM_NODATA, degrade_dem, degrade_dom, write_raster
 from sensor_models.simulate.scene import build_models
 from sensor_models.simulate.true_lens import cubic_residual_px, lens_extras
@@ -257,14 +257,20 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     if cfg.clouds.cover > 0:
         raise InputError(f"clouds are not simulated under the {profile.name} profile yet", field="clouds.cover")
     tmp = Path(tmp)
+    clock = PhaseClock(t_start)
+    setup_done, block_progress = step_progress(progress, cfg.scene.n_rows, block_lines)
     cfg, models, lens, source, true_dem, data = _setup(cfg, profile, dom_path)
+    clock.mark("models")
+    setup_done(1)
     reference_files, degraded = _write_reference(tmp, cfg, profile, source, data)
     renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, source, lens)
     dem_planes(true_dem)
-    t_render = time.perf_counter()
+    clock.mark("reference")
+    setup_done(2)
     clouds = render_scene(renderer, models.true_model, tmp, list(cfg.camera.bands), cfg.camera.reference_band,
-                          len(models.true_model.band_ccds(cfg.camera.reference_band)), block_lines, workers, progress)
-    render_seconds = time.perf_counter() - t_render
+                          len(models.true_model.band_ccds(cfg.camera.reference_band)), block_lines, workers,
+                          block_progress)
+    render_seconds = clock.mark("blocks")  # the whole render: models, reference and blocks
     user_dem = Dem.open(tmp / "reference" / "dem.tif")
     g_lon, g_lat = footprint_sample_lonlat(models.true_model, float(np.mean(true_dem.height_range_m)), n_side=65)
     dem_figures = check_dem_footprint(user_dem, g_lon, g_lat, min_coverage=1.0)
@@ -273,9 +279,10 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
                 **degraded, "source_radiance": str(Path(dom_path).resolve()) if dom_path else "procedural"}
     # the LAB model's error over the TRUE terrain (the user's DEM has voids)
     initial = truth_error(models.true_model, models.lab_model, dem=true_dem, step_px=32)
+    clock.mark("truth_error")
     return write_outputs(cfg, models, tmp, initial, reference_files, dem_figures, clouds, render_seconds, workers,
                          t_start, record_timings, extra_truth=_truth_record(cfg, profile, models, lens, injected),
-                         extra_summary={"profile": profile.name, "injected": injected})
+                         extra_summary={"profile": profile.name, "injected": injected}, phases=clock)
 
 
 def _setup(cfg: SimConfig, profile, dom_path):

@@ -18,7 +18,78 @@ import pyproj
 from sensor_models.errors import InputError
 from sensor_models.locate import MapGrid
 
-__all__ = ["check_covers", "footprint_lonlat", "render_scene", "utm_crs", "write_outputs"]
+__all__ = ["PhaseClock", "check_covers", "footprint_lonlat", "render_scene", "step_progress", "utm_crs",
+           "write_outputs"]
+
+#: set-up steps counted by the progress callback before the blocks (models, reference)
+SETUP_STEPS = 2
+#: GDAL block cache while rendering (MB): written blocks wait there until the file is closed
+GDAL_CACHE_MB = 64
+
+
+class PhaseClock:
+    """Wall-clock seconds of the phases of a simulation, in order.
+
+    Parameters
+    ----------
+    t_start : float, optional
+        ``time.perf_counter()`` at the start of the command (default: now).
+
+    Attributes
+    ----------
+    seconds : dict of str to float
+        Seconds of each phase marked so far, rounded to the millisecond.
+    """
+
+    def __init__(self, t_start: float | None = None):
+        self.t_start = time.perf_counter() if t_start is None else t_start
+        self._last = self.t_start
+        self.seconds: dict[str, float] = {}
+
+    def mark(self, name: str) -> float:
+        """End phase ``name`` now.
+
+        Parameters
+        ----------
+        name : str
+            Phase name (a later mark of the same name adds to it).
+
+        Returns
+        -------
+        float
+            Seconds since the start.
+        """
+        now = time.perf_counter()
+        self.seconds[name] = round(self.seconds.get(name, 0.0) + now - self._last, 3)
+        self._last = now
+        return now - self.t_start
+
+
+def step_progress(progress, n_rows: int, block_lines: int):
+    """Progress over the set-up steps and the blocks: ``(setup(k), blocks)`` callbacks.
+
+    Parameters
+    ----------
+    progress : callable(done, total) or None
+        The caller's callback; it sees ``total = SETUP_STEPS + blocks`` and ``done`` advancing
+        once per set-up step (models, reference) and once per block of lines.
+    n_rows : int
+        Image lines.
+    block_lines : int
+        Lines per block.
+
+    Returns
+    -------
+    setup : callable(int)
+        ``setup(k)`` reports set-up step ``k`` (1-based) done.
+    blocks : callable(done_blocks, total_blocks) or None
+        The callback :func:`render_scene` takes.
+    """
+    if progress is None:
+        return (lambda k: None), None
+    n_blocks = -(-int(n_rows) // max(1, int(block_lines)))
+    total = SETUP_STEPS + n_blocks
+    return (lambda k: progress(k, total)), (lambda done, _: progress(SETUP_STEPS + done, total))
 
 
 def footprint_lonlat(model, heights_m, *, step_px: int = 32):
@@ -87,7 +158,17 @@ def render_scene(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lines
     """Render every block of lines into ``tmp/<band>.tif`` (and ``cloud_mask.tif`` with clouds).
 
     Returns ``(cloud pixels in the reference band, whether a cloud mask was written)``.
+    GDAL's block cache is capped at :data:`GDAL_CACHE_MB` meanwhile.
     """
+    import rasterio
+
+    # GDAL keeps written blocks in its cache until the file closes (by default 5 % of the RAM):
+    # without a cap the whole compressed scene would sit in memory
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
+        return _render_blocks(renderer, model, tmp, bands, ref_band, n_ccd, block_lines, workers, progress)
+
+
+def _render_blocks(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lines, workers, progress):
     from rasterio.errors import NotGeoreferencedWarning
     from rasterio.windows import Window
 
@@ -127,7 +208,7 @@ def render_scene(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lines
 
 
 def write_outputs(cfg, models, tmp: Path, initial, reference_files, dem_figures, clouds, render_seconds, workers,
-                   t_start, record_timings, *, extra_truth=None, extra_summary=None) -> dict:
+                   t_start, record_timings, *, extra_truth=None, extra_summary=None, phases=None) -> dict:
     """Write the manifests, ``truth.json`` and ``summary.json`` of a rendered scene; return the summary.
 
     Parameters
@@ -147,7 +228,8 @@ def write_outputs(cfg, models, tmp: Path, initial, reference_files, dem_figures,
     clouds : (int, bool)
         Cloud pixels of the reference band, whether a mask was written.
     render_seconds : float
-        Rendering time.
+        Rendering time: from the start of the command to the last block written (models,
+        reference and blocks).
     workers : int
         Rendering threads.
     t_start : float
@@ -156,6 +238,9 @@ def write_outputs(cfg, models, tmp: Path, initial, reference_files, dem_figures,
         Keep the timings in ``summary.json``.
     extra_truth, extra_summary : dict, optional
         Appended to ``truth.json`` and ``summary.json``.
+    phases : PhaseClock, optional
+        Phase times so far; ``outputs`` is marked here and ``phase_seconds`` added to the summary
+        (with the other timings, only when ``record_timings``).
 
     Returns
     -------
@@ -203,11 +288,15 @@ def write_outputs(cfg, models, tmp: Path, initial, reference_files, dem_figures,
         "render_seconds": render_seconds,
         "pixels_per_second": pixels / render_seconds,
         "workers": workers,
-        "seconds": time.perf_counter() - t_start,
     }
     _write_json(tmp / "truth.json", truth)
+    if phases is not None:
+        phases.mark("outputs")
+        summary["phase_seconds"] = dict(phases.seconds)
+    summary["seconds"] = time.perf_counter() - t_start
     if not record_timings:
-        summary = {k: v for k, v in summary.items() if k not in ("render_seconds", "pixels_per_second", "seconds")}
+        timings = ("render_seconds", "pixels_per_second", "seconds", "phase_seconds")
+        summary = {k: v for k, v in summary.items() if k not in timings}
     _write_json(tmp / "summary.json", summary)
     return summary
 
