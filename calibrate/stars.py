@@ -137,7 +137,12 @@ def read_frame_list(path):
         frames.append(path.parent / e["path"])
         seconds.append(float(e["seconds"]))
     manifest = path.parent / doc["manifest"] if doc.get("manifest") else None
-    return frames, _check_seconds(seconds, len(frames)), manifest
+    try:
+        checked = _check_seconds(seconds, len(frames))
+    except InputError as exc:  # name the frame list: the times are its fields
+        raise InputError(exc.reason, path=str(path),
+                         field="frames[].seconds") from None
+    return frames, checked, manifest
 
 
 #: Largest relative difference of the pixel angle (IFOV) between the camera of a star sequence

@@ -148,7 +148,14 @@ def test_cli_round_trip_and_one_line_errors(sequence, tmp_path, capsys):
         f["path"] = str(out / f["path"])
     (tmp_path / "bad.json").write_text(json.dumps({**bad, "manifest": str(out / "manifest.json")}))
     assert main(["stars", str(tmp_path / "bad.json"), "--out", str(tmp_path / "y")]) == 1
-    assert "out of time order" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "out of time order" in err and "bad.json: field 'frames[].seconds'" in err  # the file and the field
+    bad["frames"][1]["seconds"] = float("nan")
+    (tmp_path / "nan.json").write_text(json.dumps({**bad, "manifest": str(out / "manifest.json")}))
+    assert main(["stars", str(tmp_path / "nan.json"), "--out", str(tmp_path / "z")]) == 1
+    err = capsys.readouterr().err
+    assert "nan.json: field 'frames[].seconds': frame times must be finite" in err and err.count("\n") == 1
+    assert not (tmp_path / "y").exists() and not (tmp_path / "z").exists()
 
 
 def test_simulation_is_deterministic(tmp_path):
