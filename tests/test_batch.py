@@ -186,6 +186,24 @@ def test_cli_validate_reports_failures(series, tmp_path, capsys):
     assert (tmp_path / "o" / "validation.html").is_file()
 
 
+def test_cli_validate_one_good_one_failed_scene_is_partial(series, tmp_path, capsys):
+    """A good scene and one of another sensor: exit 4, the reason on stderr even under -q, both rows."""
+    good = read_sites(series["root"] / "sites.yaml")[0]
+    sites = tmp_path / "sites.csv"
+    sites.write_text("name,scene,dom,dem,site\n"
+                     f"good,{good.scene},{good.dom},{good.dem},{good.site}\n"
+                     f"foreign,{FOREIGN / 'manifest.json'},{FOREIGN / 'reference/dom.tif'},"
+                     f"{FOREIGN / 'reference/dem.tif'},nowhere\n")
+    code = main(["-q", "validate", str(sites), "--calibration", str(series["calibration"]), "--out",
+                 str(tmp_path / "o"), "--workers", "1", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 4, err
+    doc = json.loads(out)
+    assert doc["failed"] == 1 and len(doc["rows"]) == 2
+    assert err.strip().splitlines()[-1].startswith("gcpcal: partial:")
+    assert (tmp_path / "o" / "validation.html").is_file()
+
+
 def test_unreachable_scheduler_is_a_one_line_error(series, tmp_path, capsys):
     sites = read_sites(series["root"] / "sites.yaml")
     t0 = time.perf_counter()
