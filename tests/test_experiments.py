@@ -209,3 +209,20 @@ def test_experiment_003_quick(tmp_path, capsys):
     assert gi < 0.05 and 2.0 < gr / gi < 20.0
     assert real["headline"]["truth_error_rms_px"] > ideal["headline"]["truth_error_rms_px"]
     assert {c["name"] for c in real["curves"]} == {"gcp_noise", "jitter", "dem_error", "dom_error"}
+
+
+def test_source_radiance_is_an_option_of_the_realistic_003_run(tmp_path):
+    """The product names no data path: ``--source`` is given, and refused where it does not apply."""
+    from calibrate.cli import main
+    from calibrate.experiments.registry import run_experiment
+    from sensor_models.errors import InputError
+
+    with pytest.raises(InputError, match="applies to experiment 003"):
+        run_experiment("000", "realistic", quick=True, work_dir=tmp_path, source=tmp_path / "x.tif")
+    with pytest.raises(InputError, match="realistic profile's source radiance"):
+        run_experiment("003", "ideal", work_dir=tmp_path, source=tmp_path / "x.tif")
+    with pytest.raises(InputError, match="no such file"):
+        run_experiment("003", "realistic", work_dir=tmp_path, source=tmp_path / "missing.jp2")
+    assert main(["-q", "experiment", "003", "--quick", "--source", str(tmp_path / "x.tif"),
+                 "--out", str(tmp_path / "o")]) == 1
+    assert not (tmp_path / "o").exists()

@@ -16,7 +16,7 @@ from calibrate.actions._io import staged_folder
 __all__ = ["experiment_stage"]
 
 
-def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool = False) -> dict:
+def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool = False, source=None) -> dict:
     """Run experiment ``seed`` under ``profile`` and write ``out_dir``.
 
     Parameters
@@ -29,6 +29,8 @@ def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool 
         ``ideal``, ``realistic`` or the seed's ``paper-*``.
     quick : bool
         The reduced run.
+    source : str or Path, optional
+        Source radiance raster of experiment 003's ``realistic`` scene (default: procedural).
 
     Returns
     -------
@@ -41,7 +43,7 @@ def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool 
     with staged_folder(out_dir, ".experiment-") as stage:
         work = Path(tempfile.mkdtemp(prefix=".experiment-work-", dir=stage.parent))
         try:
-            result = run_experiment(seed, profile, quick=quick, work_dir=work)
+            result = run_experiment(seed, profile, quick=quick, work_dir=work, source=source)
         finally:
             shutil.rmtree(work, ignore_errors=True)
         return write_experiment(result, stage)

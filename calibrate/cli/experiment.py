@@ -17,15 +17,18 @@ __all__ = ["command"]
               help="Error profile: ideal (today's simulator), realistic, or the seed's paper-* setting.")
 @out_dir_option()
 @click.option("--quick", is_flag=True, help="Reduced run (under about a minute): fewer frames, points and trials.")
+@click.option("--source", type=click.Path(dir_okay=False),
+              help="Experiment 003, realistic profile: the scene's source radiance raster (e.g. a Sentinel-2 "
+                   "band); default: the procedural texture.")
 @json_option
-def command(seed, profile, out_dir, quick, as_json):
+def command(seed, profile, out_dir, quick, source, as_json):
     """Run seed SEED's experiment (000 stars, 002 staring schemes + thermal, 003 push-broom, 004 OALR).
 
     Writes OUT/experiment.json (the paper's tables beside ours, headline figures, the profile with
     its sources), OUT/sensitivity/*.json and *.png (accuracy against each error magnitude) and
     OUT/report.html. Each seed takes ideal, realistic and its own paper-* profile.
     """
-    doc = experiment_stage(seed, out_dir, profile=profile, quick=quick)
+    doc = experiment_stage(seed, out_dir, profile=profile, quick=quick, source=source)
     if as_json:
         echo_json({"seed": seed, "profile": profile, "quick": quick, "headline": doc["headline"]})
         return

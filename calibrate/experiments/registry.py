@@ -31,7 +31,7 @@ def profiles_of(seed: str) -> tuple:
     return ("ideal", "realistic", EXPERIMENTS[seed][1])
 
 
-def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=None):
+def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=None, source=None):
     """Run one experiment.
 
     Parameters
@@ -44,6 +44,8 @@ def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=Non
         The reduced run.
     work_dir : Path
         Scratch folder for simulated data.
+    source : str or Path, optional
+        Source radiance raster of experiment 003's ``realistic`` scene.
 
     Returns
     -------
@@ -59,5 +61,8 @@ def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=Non
     if profile not in profiles_of(seed):
         raise InputError(f"experiment {seed} takes the profiles {', '.join(profiles_of(seed))}, not {profile!r}",
                          field="profile")
+    if source is not None and seed != "003":
+        raise InputError("--source applies to experiment 003 (the push-broom scene's radiance)", field="source")
     module = importlib.import_module(f"calibrate.experiments.{EXPERIMENTS[seed][0]}")
-    return module.run(profile, quick=quick, work_dir=work_dir)
+    kwargs = {} if source is None else {"source": source}
+    return module.run(profile, quick=quick, work_dir=work_dir, **kwargs)

@@ -10,8 +10,9 @@ after calibration, check points against the DOM) is set beside our check-point R
 our truth error (which the paper cannot measure).
 
 Scale: the demo camera (2 cameras x 2 CCDs x 192 detectors, 512 lines; ``quick``: 256 lines) at
-20 m GSD on the Sentinel-2 red crop of ``../shared/data/real_textures`` when present
-(``ideal`` and ``quick`` use the procedural texture); ``paper-003`` keeps the seed's layout (2 x 2
+20 m GSD; ``realistic`` renders from the source radiance raster the user gives (``--source``,
+e.g. the Sentinel-2 red crop of the shared test data), else from the procedural texture
+(``ideal`` and ``quick`` always use the procedural texture); ``paper-003`` keeps the seed's layout (2 x 2
 CCDs) and GSD (50 m) with the demo's detector count and 1024 lines (at 50 m, 512 lines leave a CCD with
 fewer GCPs than its interior needs): the seed's 21 800 detectors over +-31
 degrees and 60 s (about 8000 lines) are ~4000 times more pixels than runs in minutes here.
@@ -31,11 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.experiments.results import ExperimentResult, PaperTable, SensitivityCurve
+from sensor_models.errors import InputError
 from sensor_models.simulate.profiles import PAPER003_SCALE, get_profile, profile_table
 
-__all__ = ["PAPER_TABLE4", "S2_RED", "gcp_sensitivity", "gcp_truth_error", "run", "run_chain", "scene_config"]
+__all__ = ["PAPER_TABLE4", "gcp_sensitivity", "gcp_truth_error", "run", "run_chain", "scene_config"]
 
-S2_RED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real_textures" / "sentinel2" / "s2_B04.jp2"
 #: seed 003 table 4: CCD -> (along before, along after, across before, across after, planar before, planar after), px
 PAPER_TABLE4 = {
     "CCD1": (129.55, 0.342, 350.59, 0.407, 373.76, 0.532),
@@ -257,7 +258,7 @@ def _table4(chain: dict) -> PaperTable:
          "ours across after", "ours planar before", "ours planar after", "ours truth error B2"), rows)
 
 
-def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentResult:
+def run(profile_name: str, *, quick: bool = False, work_dir=None, source=None) -> ExperimentResult:
     """Run the seed 003 experiment (module docstring).
 
     Parameters
@@ -268,17 +269,29 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
         256 lines on the procedural texture; two points per sensitivity curve.
     work_dir : Path
         Scratch folder (scene, GCPs, calibration).
+    source : str or Path, optional
+        Source radiance raster of the ``realistic`` scene (e.g. a Sentinel-2 band); default: the
+        procedural texture. Only the full ``realistic`` run takes one.
 
     Returns
     -------
     ExperimentResult
+
+    Raises
+    ------
+    InputError
+        ``source`` with another profile or ``quick``, or a source that does not exist.
     """
     t0 = time.perf_counter()
+    if source is not None:
+        if quick or profile_name != "realistic":
+            raise InputError("--source is the realistic profile's source radiance (a full run)", field="source")
+        if not Path(source).is_file():
+            raise InputError("no such file", path=str(source), field="source")
     profile = get_profile(profile_name, "pushbroom")
     work = Path(work_dir)
     config = scene_config(profile_name, quick=quick)
-    use_s2 = not quick and profile_name == "realistic" and S2_RED.exists()
-    chain = run_chain(work, profile, config=config, source=S2_RED if use_s2 else None)
+    chain = run_chain(work, profile, config=config, source=source)
     gsd = config["scene"]["gsd_m"]
     jitter_hz = float(profile.value("jitter_frequency_hz"))
     curves = gcp_sensitivity(chain["paths"]["scene"], chain["paths"]["gcps"], quick=quick, gsd_m=gsd,
@@ -286,7 +299,7 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
     result = ExperimentResult(
         "003", profile_name, quick, "Seed 003: push-broom absolute calibration from dense GCPs against a DOM and DEM",
         scale={"cameras_x_ccds": [2, 2], "detectors_per_ccd": 192, "lines": config["scene"]["n_rows"],
-               "gsd_m": gsd, "source": "Sentinel-2 red crop" if use_s2 else "procedural texture",
+               "gsd_m": gsd, "source": str(source) if source is not None else "procedural texture",
                "paper": {k: v.value for k, v in PAPER003_SCALE.items()}},
         tables=[_table4(chain)], curves=curves,
         headline={"check_rmse_before_px": chain["check_rmse_px"]["before"],
