@@ -12,8 +12,8 @@ but:
   degraded copies (:mod:`sensor_models.simulate.reference_pair`); the source radiance and the
   TRUE DEM are kept in ``reference/truth/`` for inspection.
 
-The source radiance is a given raster (``dom``: e.g. the Sentinel-2 red band of
-``../shared/data/real_textures``; the scene is then centred on it) or the procedural texture
+The source radiance is a given raster (``dom``: e.g. a real Sentinel-2 red band, see
+docs/error_budget.md; the scene is then centred on it) or the procedural texture
 (:func:`sensor_models.simulate.procedural.generate_reference`). The TRUE DEM is procedural.
 Clouds are not simulated under this profile yet.
 """
