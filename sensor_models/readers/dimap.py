@@ -34,7 +34,6 @@ attitude is given as body -> ITRF rotations sampled densely over the scene.
 from __future__ import annotations
 
 import re
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,6 +41,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sensor_models.errors import InputError, ManifestError
+from sensor_models.readers._xml import StrictXml
 
 __all__ = [
     "DimapAngles",
@@ -285,27 +285,11 @@ class DimapMetadata:
 # strict XML access
 
 
-class _Xml:
+class _Xml(StrictXml):
     """Strict typed access to the DIMAP tree; errors name the file and the XML path."""
 
-    def __init__(self, path: Path):
-        self.path = str(path)
-        try:
-            tree = ET.parse(path)
-        except OSError as exc:
-            raise ManifestError(f"cannot read: {exc.strerror or exc}", path=self.path) from None
-        except ET.ParseError as exc:
-            raise ManifestError(f"is not well-formed XML ({exc})", path=self.path) from None
-        self.root = tree.getroot()
-        if self.root.tag != _ROOT:
-            raise ManifestError(
-                f"root element is <{self.root.tag}>, expected <{_ROOT}>: not a DIMAP document",
-                path=self.path,
-                field=self.root.tag,
-            )
-
-    def error(self, where: str, message: str) -> ManifestError:
-        return ManifestError(message, path=self.path, field=where)
+    ROOT = _ROOT
+    DOCUMENT = "DIMAP document"
 
     def nodes(self, parent, rel: str, where: str, *, minimum: int = 1):
         found = parent.findall(rel)
@@ -313,47 +297,6 @@ class _Xml:
             what = "is missing" if not found else f"needs at least {minimum} entries, got {len(found)}"
             raise self.error(where, what)
         return found
-
-    def node(self, parent, rel: str, where: str, *, optional: bool = False):
-        found = parent.findall(rel)
-        if not found:
-            if optional:
-                return None
-            raise self.error(where, "is missing")
-        return found[0]
-
-    def text(self, parent, rel: str, where: str, *, optional: bool = False):
-        el = self.node(parent, rel, where, optional=optional)
-        if el is None:
-            return None
-        value = (el.text or "").strip()
-        if not value:
-            raise self.error(where, "is empty")
-        return value
-
-    def number(self, parent, rel: str, where: str, *, optional: bool = False):
-        value = self.text(parent, rel, where, optional=optional)
-        if value is None:
-            return None
-        try:
-            x = float(value)
-        except ValueError:
-            raise self.error(where, f"must be a number, got {value!r}") from None
-        if not np.isfinite(x):
-            raise self.error(where, f"must be finite, got {value!r}")
-        return x
-
-    def integer(self, parent, rel: str, where: str, *, optional: bool = False, minimum=None):
-        value = self.text(parent, rel, where, optional=optional)
-        if value is None:
-            return None
-        try:
-            x = int(value.lstrip("+"))
-        except ValueError:
-            raise self.error(where, f"must be an integer, got {value!r}") from None
-        if minimum is not None and x < minimum:
-            raise self.error(where, f"must be >= {minimum}, got {x}")
-        return x
 
     def flag(self, parent, rel: str, where: str, *, optional: bool = False):
         value = self.text(parent, rel, where, optional=optional)

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from sensor_models.errors import InputError, ManifestError
+from sensor_models.readers._xml import StrictXml
 
 __all__ = [
     "WorldViewBand",
@@ -249,64 +250,14 @@ class WorldViewMetadata:
 # strict XML access
 
 
-class _Xml:
+class _Xml(StrictXml):
     """Strict typed access to the ``<isd>`` tree; errors name the file and the XML path."""
 
-    def __init__(self, path):
-        self.path = str(path)
-        try:
-            self.root = ET.parse(path).getroot()
-        except OSError as exc:
-            raise ManifestError(f"cannot read: {exc.strerror or exc}", path=self.path) from None
-        except ET.ParseError as exc:
-            raise ManifestError(f"is not well-formed XML ({exc})", path=self.path) from None
-        if self.root.tag != _ROOT:
-            raise ManifestError(f"root element is <{self.root.tag}>, expected <{_ROOT}>: not a "
-                                "DigitalGlobe level-1B XML", path=self.path, field=self.root.tag)
+    ROOT = _ROOT
+    DOCUMENT = "DigitalGlobe level-1B XML"
 
-    def error(self, where: str, message: str) -> ManifestError:
-        return ManifestError(message, path=self.path, field=where)
-
-    def node(self, parent, rel: str, where: str, *, optional: bool = False):
-        found = parent.find(rel)
-        if found is None and not optional:
-            raise self.error(f"{where}/{rel}", "is missing")
-        return found
-
-    def text(self, parent, rel: str, where: str, *, optional: bool = False):
-        el = self.node(parent, rel, where, optional=optional)
-        if el is None:
-            return None
-        value = (el.text or "").strip()
-        if not value:
-            raise self.error(f"{where}/{rel}", "is empty")
-        return value
-
-    def number(self, parent, rel: str, where: str, *, optional: bool = False, positive=False):
-        value = self.text(parent, rel, where, optional=optional)
-        if value is None:
-            return None
-        try:
-            x = float(value)
-        except ValueError:
-            raise self.error(f"{where}/{rel}", f"must be a number, got {value!r}") from None
-        if not np.isfinite(x):
-            raise self.error(f"{where}/{rel}", f"must be finite, got {value!r}")
-        if positive and not x > 0.0:
-            raise self.error(f"{where}/{rel}", f"must be positive, got {value!r}")
-        return x
-
-    def integer(self, parent, rel: str, where: str, *, optional: bool = False, minimum=None):
-        value = self.text(parent, rel, where, optional=optional)
-        if value is None:
-            return None
-        try:
-            x = int(value.lstrip("+"))
-        except ValueError:
-            raise self.error(f"{where}/{rel}", f"must be an integer, got {value!r}") from None
-        if minimum is not None and x < minimum:
-            raise self.error(f"{where}/{rel}", f"must be >= {minimum}, got {x}")
-        return x
+    def field_path(self, where: str, rel: str) -> str:
+        return f"{where}/{rel}"
 
     def time(self, parent, rel: str, where: str) -> np.datetime64:
         from sensor_models.timescales import parse_utc
