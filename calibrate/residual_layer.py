@@ -18,12 +18,10 @@ sum of squares of the two only when rows and columns are perpendicular on the gr
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
-from sensor_models.atomic import temporary_beside
 from sensor_models.errors import InputError
 
 __all__ = ["KINDS", "RESIDUAL_FIELDS", "concatenate_layers", "model_residual_layer", "read_residual_layer", "residual_layer",
@@ -217,32 +215,14 @@ def write_residual_layer(columns: dict, path, *, layer: str = "residuals") -> Pa
     InputError
         A missing column or GDAL could not write the file.
     """
-    import pyogrio.raw
-    from pyogrio.errors import DataSourceError, DataLayerError, FieldError, GeometryError
+    from gcpmatch.gcps import write_point_layer
 
     missing = [k for k in RESIDUAL_FIELDS if k not in columns]
     if missing:
         raise InputError(f"residual layer lacks the columns {missing}", path=str(path))
     cols = {k: _column(k, columns[k]) for k in RESIDUAL_FIELDS}
-    points = np.zeros(cols["lon"].size, dtype=_WKB_POINT_Z)
-    points["order"], points["type"] = 1, 1001
-    points["x"], points["y"], points["z"] = cols["lon"], cols["lat"], cols["h"]
-    geometry = np.array(points.view(f"V{_WKB_POINT_Z.itemsize}").tolist(), dtype=object)
-    path = Path(path)
-    tmp = temporary_beside(path, ".gpkg")
-    try:
-        tmp.unlink()  # GDAL creates the file itself
-        pyogrio.raw.write(tmp, geometry, list(cols.values()), fields=list(cols), layer=layer, driver="GPKG",
-                          crs="EPSG:4326", geometry_type="Point Z", dataset_options={"VERSION": "1.3"},
-                          layer_options={"SPATIAL_INDEX": "NO", "FID": "fid", "GEOMETRY_NAME": "geom",
-                                         "DESCRIPTION": _DESCRIPTION})
-        os.replace(tmp, path)
-    except (DataSourceError, DataLayerError, FieldError, GeometryError) as exc:
-        raise InputError(f"GDAL could not write the residual layer: {exc}", path=str(path)) from None
-    finally:
-        for suffix in ("", "-journal", "-wal", "-shm"):
-            Path(str(tmp) + suffix).unlink(missing_ok=True)
-    return path
+    return write_point_layer(path, cols["lon"], cols["lat"], cols["h"], cols, layer=layer, description=_DESCRIPTION,
+                             what="the residual layer")
 
 
 def read_residual_layer(path, *, layer: str = "residuals") -> dict[str, np.ndarray]:

@@ -95,6 +95,7 @@ __all__ = [
     "write_gcps_csv",
     "write_gcps_geotiff",
     "write_gcps_gpkg",
+    "write_point_layer",
 ]
 
 REQUIRED_COLUMNS = ("id", "row", "col", "lon", "lat", "h")
@@ -1127,36 +1128,67 @@ def write_gcps_gpkg(table: GcpTable, path, *, layer: str = "gcps") -> Path:
         raise InputError(f"layer name {layer!r} must be letters, digits and underscores, not "
                          "starting with a digit, gpkg_, rtree_ or sqlite_",
                          path=str(path))  # fmt: skip
-    gdal_errors = _pyogrio_errors()
+    return write_point_layer(path, table.lon, table.lat, table.h, table.as_dict(), layer=layer,
+                             description=_GPKG_DESCRIPTION, what="the GeoPackage")
+
+
+def write_point_layer(path, lon, lat, h, columns: dict, *, layer: str, description: str,
+                      what: str = "the layer") -> Path:
+    """Write points as a GeoPackage 1.3 layer (EPSG:4326 POINT Z, ``fid``, ``geom``); atomically.
+
+    One GDAL call (:func:`pyogrio.raw.write`, inserts batched in transactions) into a temporary
+    file beside ``path``, renamed at the end; on any error nothing is left and an existing file
+    is untouched.
+
+    Parameters
+    ----------
+    path : Path
+        Destination (``*.gpkg``); its folder must exist.
+    lon, lat, h : array_like, shape (N,)
+        WGS84 degrees and metres above the ellipsoid of each point.
+    columns : dict of str to array_like, shape (N,)
+        The attribute fields, in order (numpy text columns are written as free-length TEXT).
+    layer : str
+        Layer (table) name.
+    description : str
+        The layer's ``gpkg_contents`` description.
+    what : str
+        What the file is, for the error message.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    InputError
+        GDAL could not write the file.
+    """
+    import pyogrio.raw
+
+    path = Path(path)
+    points = np.zeros(np.asarray(lon).size, dtype=_WKB_POINT_Z)
+    points["order"], points["type"] = 1, 1001
+    points["x"], points["y"], points["z"] = lon, lat, h
+    geometry = np.array(points.view(f"V{_WKB_POINT_Z.itemsize}").tolist(), dtype=object)
+    # text as Python str objects: a numpy "U<w>" column would become a TEXT(<w>) field
+    fields = [a.astype(object) if a.dtype.kind == "U" else a for a in (np.asarray(v) for v in columns.values())]
     tmp = temporary_beside(path, ".gpkg")
     try:
         tmp.unlink()  # GDAL creates the file itself; the unique name stays reserved to us
-        _write_gpkg_layer(tmp, table, layer)
+        pyogrio.raw.write(tmp, geometry, fields, fields=list(columns), layer=layer, driver="GPKG",
+                          crs="EPSG:4326", geometry_type="Point Z", dataset_options={"VERSION": "1.3"},
+                          layer_options={"SPATIAL_INDEX": "NO", "FID": "fid", "GEOMETRY_NAME": "geom",
+                                         "DESCRIPTION": description})  # fmt: skip
         os.replace(tmp, path)
-    except gdal_errors as exc:
+    except _pyogrio_errors() as exc:
         _remove_sqlite_files(tmp)
-        raise InputError(f"GDAL could not write the GeoPackage: {exc}", path=str(path)) from None
+        raise InputError(f"GDAL could not write {what}: {exc}", path=str(path)) from None
     except BaseException:
         _remove_sqlite_files(tmp)
         raise
     return path
-
-
-def _write_gpkg_layer(tmp: Path, table: GcpTable, layer: str) -> None:
-    """One GDAL call writing the whole table (GDAL batches the inserts in transactions)."""
-    import pyogrio.raw
-
-    points = np.zeros(len(table), dtype=_WKB_POINT_Z)
-    points["order"], points["type"] = 1, 1001
-    points["x"], points["y"], points["z"] = table.lon, table.lat, table.h
-    geometry = np.array(points.view(f"V{_WKB_POINT_Z.itemsize}").tolist(), dtype=object)
-    # text as Python str objects: a numpy "U<w>" column would become a TEXT(<w>) field
-    fields = [a.astype(object) if a.dtype.kind == "U" else a for a in table.as_dict().values()]
-    pyogrio.raw.write(tmp, geometry, fields, fields=list(COLUMNS), layer=layer, driver="GPKG",
-                      crs="EPSG:4326", geometry_type="Point Z",
-                      dataset_options={"VERSION": "1.3"},
-                      layer_options={"SPATIAL_INDEX": "NO", "FID": "fid", "GEOMETRY_NAME": "geom",
-                                     "DESCRIPTION": _GPKG_DESCRIPTION})  # fmt: skip
 
 
 def _remove_sqlite_files(tmp: Path) -> None:
