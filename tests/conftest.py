@@ -24,9 +24,14 @@ def shared_data() -> Path:
 
 @pytest.fixture(scope="session")
 def demo_folder(tmp_path_factory):
-    """``gcpcal demo``'s output folder, run once per session (about 10-15 s); tests only read it."""
+    """``gcpcal demo --fixture ideal``'s output folder, run once per session (about 15-30 s); tests only read it.
+
+    The ``ideal`` fixture (``fixtures/hy1c_czi``): the tests using this folder (test_demo,
+    test_report, test_report_render, test_ortho) hold the ideal scene's figures and compare with
+    its DOM. The default ``realistic`` demo is tested in ``tests/test_demo_realistic.py``.
+    """
     from calibrate.cli import main
 
     out = tmp_path_factory.mktemp("demo-session") / "demo"
-    assert main(["-q", "demo", "--out", str(out), "--json"]) == 0
+    assert main(["-q", "demo", "--fixture", "ideal", "--out", str(out), "--json"]) == 0
     return out

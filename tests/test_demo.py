@@ -1,4 +1,7 @@
-"""The main job end to end on the embedded fixture, and the calibrate command's bad input."""
+"""The main job end to end on the embedded ``ideal`` fixture (``gcpcal demo --fixture ideal``), and the calibrate command's bad input.
+
+The default demo, on the ``realistic`` fixture, is tested in ``tests/test_demo_realistic.py``.
+"""
 
 from __future__ import annotations
 
@@ -19,6 +22,8 @@ def test_demo_calibrates_the_fixture_from_hundreds_of_pixels_to_a_tenth(demo_run
     out, s = demo_run
     for key in ("gcps", "check_points", "check_rmse_px", "truth_error_px", "seconds"):
         assert key in s
+    # the ideal scene: its user DEM is the TRUE DEM, graded as such
+    assert (s["fixture"], s["profile"], s["truth_dem"]) == ("hy1c_czi", "ideal", "reference/dem.tif")
     print(f"demo: check RMSE {s['check_rmse_px']['before']:.1f} -> {s['check_rmse_px']['after']:.3f} px, "
           f"truth rms {s['truth_error_px']['rms']:.3f} max {s['truth_error_px']['max']:.3f} px, {s['seconds']:.0f} s")
     assert s["check_rmse_px"]["before"] > 100.0

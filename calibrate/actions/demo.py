@@ -1,23 +1,35 @@
-"""Stage action of ``gcpcal demo``: the main job, end to end, on the embedded HY-1C-like scene.
+"""Stage action of ``gcpcal demo``: the main job, end to end, on an embedded HY-1C-like scene.
 
-``fixtures/hy1c_czi`` holds a simulated level-1A scene (two cameras x two CCDs, four bands)
-whose LAB model is about 260 px off, its procedural reference DOM and DEM, and the TRUE model
-that rendered it. The demo does what an analyst does with a new scene, then grades it against
-the truth:
+Two embedded fixtures (:data:`FIXTURES`, ``fixtures/make_hy1c_fixture.py``) hold a simulated
+level-1A scene (two cameras x two CCDs x 192 detectors, four bands, 512 lines, 30 m) whose LAB
+model is about 260 px off, the reference DOM and DEM a user matches against, and the TRUE model
+that rendered it:
+
+* ``realistic`` (the default, ``fixtures/hy1c_czi_realistic``): the ``realistic`` error profile
+  (docs/error_budget.md): the scene rendered by the simulator's own kernel with attitude jitter, an
+  orbit bias and a lens beyond the cubic; the user's DOM is another date and sensor at 30 m with
+  1-3 m of geolocation error, the user's DEM SRTM-like (90 m, 8 m error, voids); the TRUE DEM is
+  kept apart (``reference/truth/dem_true.tif``);
+* ``ideal`` (``fixtures/hy1c_czi``): the ``ideal`` profile, whose DOM and DEM are what rendered the
+  scene: a unit-test scene, not an accuracy claim.
+
+The demo does what an analyst does with a new scene, then grades it against the truth:
 
 1. **match** the reference band against the DOM and DEM (coarse SIFT pre-correction, dense phase
    correlation), a fifth of the matches kept apart as check points (``gcps.csv``);
-2. **calibrate** the reference band: exterior (installation roll, pitch, yaw) then interior
+2. **calibrate** the reference band: exterior (installation roll, pitch, yaw, and the
+   time-varying attitude correction chosen by BIC, :mod:`calibrate.attitude`) then interior
    (directional angles of each CCD), iterated (seed 003 section 2.2.1); then every other band
    against the calibrated reference band from dense band-to-band tie points (seed 003 section
    2.2.2, :mod:`calibrate.relative`);
-3. **report**: check-point accuracy before and after (never used in a fit), per CCD, the HTML
-   report with figures (band-to-band section per band, error against the TRUE model per band
-   and CCD with its curve against the detector), and ``summary.json`` with ``gcps``, ``check_points``,
-   ``check_rmse_px {before, after}``, ``truth_error_px {rms, max}`` (calibrated model against
-   the TRUE model over a dense grid of every CCD and band, on the DEM), ``status`` (the coverage
-   gate of the reference band's calibration, :mod:`calibrate.coverage`: the demo must end
-   ``calibrated``), ``variance_factor``, ``coverage`` and ``seconds``.
+3. **report**: check-point accuracy before and after (never used in a fit), overall and per CCD,
+   the HTML report with figures, and ``summary.json`` with ``fixture``, ``profile``, ``gcps``,
+   ``check_points``, ``check_rmse_px {before, after}``, ``check_rmse_per_ccd_px``,
+   ``truth_error_px {rms, max}`` (the calibrated model of every CCD and band against the TRUE
+   model over a dense grid, both localizing on the TRUE DEM named by ``truth_dem``, never on the
+   user's DEM), ``status`` (the coverage gate of the reference band's calibration,
+   :mod:`calibrate.coverage`, made ``partial`` when a band-to-band calibration fails),
+   ``variance_factor``, ``attitude`` (the correction selected), ``coverage`` and ``seconds``.
 """
 
 from __future__ import annotations
@@ -30,21 +42,51 @@ import numpy as np
 from calibrate.actions._io import staged_output, write_summary
 from calibrate.config import CalibrationOptions
 
-__all__ = ["FIXTURE_DIR", "run_demo"]
+__all__ = ["DEFAULT_FIXTURE", "FIXTURES", "FIXTURE_DIR", "TRUE_DEM", "fixture_profile", "run_demo"]
 
-FIXTURE_DIR = Path(__file__).resolve().parents[2] / "fixtures" / "hy1c_czi"
+_FIXTURES_ROOT = Path(__file__).resolve().parents[2] / "fixtures"
+#: the embedded scenes by name (``gcpcal demo --fixture NAME``), written by ``fixtures/make_hy1c_fixture.py``
+FIXTURES = {"realistic": _FIXTURES_ROOT / "hy1c_czi_realistic", "ideal": _FIXTURES_ROOT / "hy1c_czi"}
+#: the scene ``gcpcal demo`` calibrates without ``--fixture``
+DEFAULT_FIXTURE = "realistic"
+FIXTURE_DIR = FIXTURES[DEFAULT_FIXTURE]
+#: a fixture's TRUE DEM, relative to the fixture, when the user's ``reference/dem.tif`` is not it
+TRUE_DEM = Path("reference") / "truth" / "dem_true.tif"
+
+
+def fixture_profile(fixture_dir) -> str:
+    """The error profile a simulated scene was rendered with.
+
+    Parameters
+    ----------
+    fixture_dir : str or Path
+        A folder written by ``gcpcal simulate pushbroom`` (``summary.json``).
+
+    Returns
+    -------
+    str
+        ``summary.json``'s ``profile`` (``"ideal"`` when absent: the simulator writes none for it).
+    """
+    import json
+
+    summary = json.loads((Path(fixture_dir) / "summary.json").read_text(encoding="utf-8"))
+    return str(summary.get("profile", "ideal"))
 
 
 def _open_fixture(fixture_dir: Path) -> dict:
-    """The LAB and TRUE models, DEM, DOM and band order of the fixture."""
+    """The LAB and TRUE models, the user's DEM and DOM, the TRUE DEM and the band order of the fixture."""
     from sensor_models.readers import open_model
     from sensor_models.raster import MapImage
     from sensor_models.terrain import Dem
 
     lab = open_model(fixture_dir / "manifest.json")
     reference_band = lab.reference_band
-    return {"lab": lab, "truth": open_model(fixture_dir / "truth_manifest.json"),
-            "dem": Dem.open(fixture_dir / "reference" / "dem.tif"),
+    dem = Dem.open(fixture_dir / "reference" / "dem.tif")
+    # under the ideal profile the user's DEM is the one that rendered the scene
+    true_dem_path = TRUE_DEM if (fixture_dir / TRUE_DEM).exists() else Path("reference") / "dem.tif"
+    return {"lab": lab, "truth": open_model(fixture_dir / "truth_manifest.json"), "dem": dem,
+            "true_dem": Dem.open(fixture_dir / true_dem_path) if true_dem_path == TRUE_DEM else dem,
+            "true_dem_path": true_dem_path.as_posix(), "profile": fixture_profile(fixture_dir),
             "dom": MapImage.open(fixture_dir / "reference" / "dom.tif"),
             "reference_band": reference_band,
             "bands": [reference_band] + [b for b in lab.bands if b != reference_band]}
@@ -104,14 +146,15 @@ def _score(fx: dict, merged, model, ref_pts, step) -> dict:
     from calibrate.from_gcps import points_of
     from sensor_models.compare import model_difference
 
-    lab, truth, dem = fx["lab"], fx["truth"], fx["dem"]
+    lab, truth, true_dem = fx["lab"], fx["truth"], fx["true_dem"]
     step("scoring on check points and against the true model")
     checks = points_of(merged.checks(), lab)
     acc = {name: check_point_accuracy(m, checks["row"], checks["col"], checks["lon"], checks["lat"], checks["h"],
                                       band=checks["band"], ccd=checks["ccd"])
            for name, m in (("before", lab), ("after", model))}
-    t_err = model_difference(truth, model, dem=dem, step_px=8)
-    t_err_lab = model_difference(truth, lab, dem=dem, step_px=32)
+    # both models localize on the TRUE terrain: the user's DEM errors are part of what is graded
+    t_err = model_difference(truth, model, dem=true_dem, step_px=8)
+    t_err_lab = model_difference(truth, lab, dem=true_dem, step_px=32)
     n_ref = int(ref_pts["row"].size)
     counts = sorted({c for c in (20, 50, 100, 200, 400, n_ref) if c <= n_ref})
     step("error versus number of GCPs")
@@ -120,8 +163,11 @@ def _score(fx: dict, merged, model, ref_pts, step) -> dict:
             "truth_lab": t_err_lab, "evc": evc}
 
 
-def _gate(lab, merged, result, sc: dict) -> dict:
-    """Coverage gate of the reference band's calibration (:mod:`calibrate.coverage`)."""
+def _gate(lab, merged, result, band_results: dict, sc: dict) -> dict:
+    """Coverage gate of the reference band's calibration (:mod:`calibrate.coverage`), then the other bands.
+
+    A band whose band-to-band calibration failed makes a calibrated run ``partial``, named.
+    """
     from calibrate.coverage import calibration_coverage, calibration_status
     from calibrate.from_gcps import points_of
 
@@ -129,28 +175,53 @@ def _gate(lab, merged, result, sc: dict) -> dict:
     rows = calibration_coverage(lab, fitted, sc["checks"], success=bool(result.success), skipped=result.skipped,
                                 weight=fitted["score"])
     status = calibration_status(bool(result.success), result.message, rows)
-    return {"status": status.status, "status_message": status.message,
+    state, message = status.status, status.message
+    failed = [f"{band} ({r['message']})" for band, r in band_results.items() if not r["success"]]
+    if failed and state != "failed":
+        text = "band-to-band calibration failed: " + "; ".join(failed)
+        state, message = "partial", text if state == "calibrated" else f"{message}; {text}"
+    return {"status": state, "status_message": message,
             "variance_factor": result.variance_factor, "coverage": [c.to_dict() for c in rows]}
 
 
-def _summary(fixture_dir: Path, merged, result, band_results, match_summaries, sc: dict, lab=None) -> dict:
+def _attitude_selection(result) -> dict:
+    """The time-varying attitude correction the calibration chose (:mod:`calibrate.attitude`)."""
+    info = result.attitude
+    if info is None:
+        return {"mode": "static", "selected": {"kind": "static", "n_terms": 0}}
+    return {k: info[k] for k in ("mode", "selected", "jitter", "failed") if k in info}
+
+
+def _per_ccd(sc: dict) -> dict:
+    """Check RMSE before and after of every band and CCD (``"B2.cam1_ccd1"``), px."""
+    names = sorted(k for k in sc["after"].groups if "." in k)
+    return {name: {w: (sc[w].groups[name].rmse_px if name in sc[w].groups else None) for w in ("before", "after")}
+            for name in names}
+
+
+def _summary(fx: dict, fixture_dir: Path, merged, result, band_results, match_summaries, sc: dict) -> dict:
     before, after = sc["before"].absolute, sc["after"].absolute
-    gate = _gate(lab, merged, result, sc) if lab is not None else {}
     return {
         "kind": "gcpcal.demo",
         "scene": str(fixture_dir / "manifest.json"),
-        **gate,
+        "fixture": fixture_dir.name,
+        "profile": fx["profile"],
+        **_gate(fx["lab"], merged, result, band_results, sc),
         "gcps": int(np.sum(merged.kind == "gcp")),
         "check_points": int(np.sum(merged.kind == "check")),
         "check_rmse_px": {"before": before.rmse_px, "after": after.rmse_px},
         "check_rmse_row_px": {"before": before.rmse_row_px, "after": after.rmse_row_px},
         "check_rmse_col_px": {"before": before.rmse_col_px, "after": after.rmse_col_px},
         "check_rmse_m": {"before": before.rmse_m, "after": after.rmse_m},
-        "truth_error_px": {"rms": sc["truth"]["rms_px"], "max": sc["truth"]["max_px"]},
+        "check_rmse_per_ccd_px": _per_ccd(sc),
+        "truth_dem": fx["true_dem_path"],
+        "truth_error_px": {"rms": sc["truth"]["rms_px"], "max": sc["truth"]["max_px"],
+                           "mean_row": sc["truth"]["mean_row_px"], "mean_col": sc["truth"]["mean_col_px"]},
         "truth_error_before_px": {"rms": sc["truth_lab"]["rms_px"], "max": sc["truth_lab"]["max_px"]},
         "truth_error_per_ccd": [{k: r[k] for k in ("band", "ccd", "rms_px", "max_px")} for r in sc["truth"]["per_ccd"]],
         "per_ccd_after": {k: v.rmse_px for k, v in sc["after"].groups.items()},
         "calibration": band_results,
+        "attitude": _attitude_selection(result),
         "installation_arcsec": {
             n.split(".")[1]: float(v) * 180 * 3600 / np.pi
             for n, v in zip(result.names, result.values) if n.startswith("installation.")
@@ -179,7 +250,8 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
         Output folder: ``gcps.csv``, ``manifest.json``, ``report.html``, ``figures/``,
         ``summary.json``.
     fixture_dir : Path
-        The fixture (default: the embedded ``fixtures/hy1c_czi``).
+        The scene (default: :data:`FIXTURE_DIR`, the embedded ``realistic`` fixture; any folder
+        written by ``gcpcal simulate pushbroom`` will do).
     progress : callable(str), optional
         Receives progress messages.
     spacing_px : int
@@ -201,12 +273,13 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
     merged, match_summaries = _match(fx, out_dir, spacing_px)
     result, relative, ref_pts, band_results = _calibrate(fx, merged, out_dir, step)
     sc = _score(fx, merged, relative.model, ref_pts, step)
-    summary = _summary(fixture_dir, merged, result, band_results, match_summaries, sc, lab=fx["lab"])
+    summary = _summary(fx, fixture_dir, merged, result, band_results, match_summaries, sc)
     step("writing the report")
     write_report(out_dir, result=result, accuracy_before=sc["before"], accuracy_after=sc["after"],
                  initial_model=fx["lab"], gcps=ref_pts, checks=sc["checks"], error_vs_count=sc["evc"],
-                 truth_model=fx["truth"], title="gcpcal demo: HY-1C-like scene",
-                 extra={k: summary[k] for k in ("gcps", "check_points")}, relative=relative,
+                 truth_model=fx["truth"], title=f"gcpcal demo: HY-1C-like scene, profile {summary['profile']}",
+                 extra={k: summary[k] for k in ("fixture", "profile", "truth_dem", "gcps", "check_points", "attitude")},
+                 relative=relative,
                  truth_error={"after": sc["truth"], "before": sc["truth_lab"]}, coverage=_report_coverage(summary["coverage"], sc),
                  status=CalibrationStatus(summary["status"], summary["status_message"]))
     summary["report"] = "report.html"

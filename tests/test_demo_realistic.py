@@ -1,0 +1,136 @@
+"""``gcpcal demo`` on its default scene, the ``realistic`` fixture (``fixtures/hy1c_czi_realistic``).
+
+The bounds come from one measured run (profile ``realistic``, this fixture, see README "Quick
+start") with about 40 % margin on each side: the realistic profile is still being extended
+(sun-angle shadows, broadband jitter), and the fixture is regenerated when it is. They bracket
+the figures from both sides, so a scene that became ideal again (truth error 0.029 px) or a
+pipeline that broke fails.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+from calibrate.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURE = ROOT / "fixtures" / "hy1c_czi_realistic"
+
+#: measured on 2026-11-24 (profile realistic, fixtures/hy1c_czi_realistic): ``gcpcal demo``
+MEASURED = {"truth_rms_px": 0.094, "truth_max_px": 0.535, "check_after_px": 0.036, "gcps": 687}
+MARGIN = 0.4
+
+
+def _bracket(value: float, measured: float) -> bool:
+    return (1.0 - MARGIN) * measured < value < (1.0 + MARGIN) * measured
+
+
+@pytest.fixture(scope="module")
+def realistic_demo(tmp_path_factory):
+    """The default demo, run once through the CLI (about 15-20 s): exit code, stdout, stderr, summary."""
+    out = tmp_path_factory.mktemp("demo-realistic") / "demo"
+    capture = pytest.MonkeyPatch()
+    stdout, stderr = io.StringIO(), io.StringIO()
+    capture.setattr(sys, "stdout", stdout)
+    capture.setattr(sys, "stderr", stderr)
+    try:
+        rc = main(["-q", "demo", "--out", str(out)])
+    finally:
+        capture.undo()
+    return rc, stdout.getvalue(), stderr.getvalue(), json.loads((out / "summary.json").read_text()), out
+
+
+def test_default_demo_is_the_realistic_scene_and_names_it(realistic_demo):
+    rc, stdout, _, s, out = realistic_demo
+    assert (s["fixture"], s["profile"]) == ("hy1c_czi_realistic", "realistic")
+    # graded on the TRUE DEM, not on the user's SRTM-like one
+    assert s["truth_dem"] == "reference/truth/dem_true.tif"
+    assert "profile realistic" in stdout and "reference/truth/dem_true.tif" in stdout
+    assert "not the user's DEM" in stdout
+    html = (out / "report.html").read_text(encoding="utf-8")
+    assert "profile realistic" in html
+
+
+def test_realistic_truth_error_is_bracketed_and_above_the_check_points(realistic_demo):
+    _, _, _, s, _ = realistic_demo
+    t, c = s["truth_error_px"], s["check_rmse_px"]
+    print(f"realistic demo: {s['gcps']} GCPs, {s['check_points']} checks, check RMSE {c['before']:.1f} -> "
+          f"{c['after']:.4f} px, truth rms {t['rms']:.4f} max {t['max']:.4f} px, status {s['status']}, "
+          f"{s['seconds']:.1f} s")
+    assert _bracket(t["rms"], MEASURED["truth_rms_px"]), t
+    assert _bracket(t["max"], MEASURED["truth_max_px"]), t
+    assert _bracket(c["after"], MEASURED["check_after_px"]), c
+    assert c["before"] > 100.0  # the LAB model is about 260 px off
+    # the check points share the reference's errors (DOM geolocation, another date and sensor):
+    # they see less than the truth does (measured ratio 2.6)
+    assert t["rms"] > 1.3 * c["after"]
+    assert s["gcps"] > (1.0 - MARGIN) * MEASURED["gcps"] and s["check_points"] > 100
+    # every CCD of every band graded; every CCD of the reference band checked before and after
+    assert len(s["truth_error_per_ccd"]) == 16 and all(r["rms_px"] < 0.3 for r in s["truth_error_per_ccd"])
+    per_ccd = s["check_rmse_per_ccd_px"]
+    assert len(per_ccd) == 4 and all(v["before"] > 100.0 and v["after"] < 0.1 for v in per_ccd.values())
+
+
+def test_realistic_demo_status_exit_code_and_budget(realistic_demo):
+    rc, stdout, stderr, s, _ = realistic_demo
+    assert s["status"] in ("calibrated", "partial")
+    assert rc == {"calibrated": 0, "partial": 4}[s["status"]]
+    if rc == 4:  # partial: said on stderr, with the CCDs named
+        assert stderr.startswith("gcpcal: partial:") and s["status_message"].split(";")[0] in stderr
+    else:
+        assert stderr == "" and all(c["calibrated"] and c["verified"] for c in s["coverage"])
+    assert s["attitude"]["selected"]["kind"] in ("static", "drift", "spline")
+    assert np.isfinite(s["variance_factor"]) and s["variance_factor"] > 0
+    assert f"status: {s['status']}" in stdout
+    assert 0 < s["seconds"] < 180.0  # the demo's budget: 3 min on 2 cores
+
+
+def test_unknown_fixture_is_a_usage_error(tmp_path, capsys):
+    rc = main(["demo", "--fixture", "perfect", "--out", str(tmp_path / "d")])
+    assert rc == 2 and "perfect" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
+
+
+# ------------------------------------------------------------------------------ the fixture itself
+def test_realistic_fixture_is_small_self_contained_and_degraded():
+    size = sum(p.stat().st_size for p in FIXTURE.rglob("*") if p.is_file())
+    assert 2.0e6 < size < 4.5e6, size  # 4.32 MB when written
+    summary = json.loads((FIXTURE / "summary.json").read_text())
+    assert summary["profile"] == "realistic" and summary["injected"]["source_radiance"] == "procedural"
+    manifest = json.loads((FIXTURE / "manifest.json").read_text())
+    assert sorted(manifest["image"]["rasters"]) == ["B1", "B2", "B3", "B4"]
+    for ref in manifest["image"]["rasters"].values():
+        path = (FIXTURE / ref["path"]).resolve()
+        assert path.is_file() and FIXTURE.resolve() in path.parents
+    with rasterio.open(FIXTURE / "reference" / "dom.tif") as dom:
+        assert abs(dom.res[0] - 30.0) < 0.5 and dom.dtypes[0] == "uint16"
+    with rasterio.open(FIXTURE / "reference" / "dem.tif") as dem, \
+            rasterio.open(FIXTURE / "reference" / "truth" / "dem_true.tif") as true_dem:
+        assert abs(dem.res[0] - 90.0) < 1.5 and abs(true_dem.res[0] - 30.0) < 0.5
+        voids = dem.read(1, masked=True).mask.mean()
+        assert 0.0005 < voids < 0.02  # SRTM-like voids (0.3 % drawn)
+        assert not true_dem.read(1, masked=True).mask.any()
+
+
+def test_realistic_fixture_regenerates_byte_for_byte(tmp_path):
+    """``make_hy1c_fixture.py --profile realistic`` reproduces the committed files (same library versions).
+
+    Fails when the simulator changed without the fixture being regenerated.
+    """
+    out = tmp_path / "regen"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}  # this checkout's simulator, not an installed one
+    subprocess.run([sys.executable, str(ROOT / "fixtures" / "make_hy1c_fixture.py"), "--profile", "realistic",
+                    "--out", str(out)], check=True, capture_output=True, cwd=ROOT, env=env)
+    committed = sorted(p.relative_to(FIXTURE) for p in FIXTURE.rglob("*") if p.is_file())
+    assert sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file()) == committed
+    different = [str(p) for p in committed if (out / p).read_bytes() != (FIXTURE / p).read_bytes()]
+    assert not different, f"regenerate the fixture: python fixtures/make_hy1c_fixture.py --profile realistic ({different})"
