@@ -94,6 +94,40 @@ def test_realistic_demo_status_exit_code_and_budget(realistic_demo):
     assert 0 < s["seconds"] < 180.0  # the demo's budget: 3 min on 2 cores
 
 
+@pytest.mark.slow
+def test_a_ccd_without_gcps_ends_partial_and_is_named(tmp_path, monkeypatch, capsys):
+    """The realistic scene with B2's last CCD blanked (no texture, no GCP): exit 4, the CCD named.
+
+    About 15-40 s: the whole demo on a copy of the fixture, through the CLI.
+    """
+    import shutil
+    import warnings
+
+    from calibrate.actions import demo as demo_action
+    from rasterio.errors import NotGeoreferencedWarning
+
+    scene = tmp_path / "scene"
+    shutil.copytree(FIXTURE, scene)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(scene / "B2.tif") as src:
+            profile, b2 = src.profile, src.read(1)
+        b2[:, 576:] = 1000  # cam2_ccd2: detectors 576..767 of the reference band see a flat field
+        with rasterio.open(scene / "B2.tif", "w", **profile) as dst:
+            dst.write(b2, 1)
+    monkeypatch.setitem(demo_action.FIXTURES, "realistic", scene)
+    rc = main(["-q", "demo", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert rc == 4 and s["status"] == "partial"
+    assert err.startswith("gcpcal: partial:") and "B2.cam2_ccd2" in err and err.count("\n") == 1
+    calibrated = {c["ccd"]: c["calibrated"] for c in s["coverage"]}
+    assert calibrated == {"cam1_ccd1": True, "cam1_ccd2": True, "cam2_ccd1": True, "cam2_ccd2": False}
+    # and the truth says so too: the uncalibrated CCD is pixels off, the others are not
+    truth = {r["ccd"]: r["rms_px"] for r in s["truth_error_per_ccd"] if r["band"] == "B2"}
+    assert truth["cam2_ccd2"] > 1.0 and max(truth[k] for k in ("cam1_ccd1", "cam1_ccd2")) < 0.3
+
+
 def test_unknown_fixture_is_a_usage_error(tmp_path, capsys):
     rc = main(["demo", "--fixture", "perfect", "--out", str(tmp_path / "d")])
     assert rc == 2 and "perfect" in capsys.readouterr().err

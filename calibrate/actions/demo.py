@@ -133,8 +133,10 @@ def _calibrate(fx: dict, merged, out_dir: Path, step):
     relative = relative_calibration(result.model, {b: read_band(lab, b) for b in fx["bands"]}, fx["dem"],
                                     reference_band=reference_band)
     for band, r in relative.bands.items():
+        skipped = [] if r.calibration is None else r.calibration.skipped
         band_results[band] = {"success": bool(r.success), "message": r.message,
-                              "tie_rms_before_px": r.before.get("rms_px"), "tie_rms_after_px": r.after.get("rms_px")}
+                              "tie_rms_before_px": r.before.get("rms_px"), "tie_rms_after_px": r.after.get("rms_px"),
+                              "ccds_not_calibrated": [f"{band}.{k['ccd']}" for k in skipped]}
     write_manifest(relative.model, out_dir / "manifest.json",
                    rasters={b: ref["path"] for b, ref in (lab.rasters or {}).items()})
     return result, relative, ref_pts, band_results
@@ -166,7 +168,8 @@ def _score(fx: dict, merged, model, ref_pts, step) -> dict:
 def _gate(lab, merged, result, band_results: dict, sc: dict) -> dict:
     """Coverage gate of the reference band's calibration (:mod:`calibrate.coverage`), then the other bands.
 
-    A band whose band-to-band calibration failed makes a calibrated run ``partial``, named.
+    A band whose band-to-band calibration failed, or a CCD whose interior it could not estimate,
+    makes a calibrated run ``partial``, named.
     """
     from calibrate.coverage import calibration_coverage, calibration_status
     from calibrate.from_gcps import points_of
@@ -177,8 +180,11 @@ def _gate(lab, merged, result, band_results: dict, sc: dict) -> dict:
     status = calibration_status(bool(result.success), result.message, rows)
     state, message = status.status, status.message
     failed = [f"{band} ({r['message']})" for band, r in band_results.items() if not r["success"]]
-    if failed and state != "failed":
-        text = "band-to-band calibration failed: " + "; ".join(failed)
+    left = [name for r in band_results.values() if r["success"] for name in r.get("ccds_not_calibrated", ())]
+    texts = ([f"band-to-band calibration failed: {'; '.join(failed)}"] if failed else []) + \
+        ([f"not calibrated by band-to-band: {', '.join(left)}"] if left else [])
+    if texts and state != "failed":
+        text = "; ".join(texts)
         state, message = "partial", text if state == "calibrated" else f"{message}; {text}"
     return {"status": state, "status_message": message,
             "variance_factor": result.variance_factor, "coverage": [c.to_dict() for c in rows]}
