@@ -28,7 +28,8 @@ The demo does what an analyst does with a new scene, then grades it against the 
    ``truth_error_px {rms, max}`` (the calibrated model of every CCD and band against the TRUE
    model over a dense grid, both localizing on the TRUE DEM named by ``truth_dem``, never on the
    user's DEM), ``status`` (the coverage gate of the reference band's calibration,
-   :mod:`calibrate.coverage`, made ``partial`` when a band-to-band calibration fails),
+   :mod:`calibrate.coverage`, made ``partial`` when a band-to-band calibration fails or
+   leaves a CCD's interior unestimated),
    ``variance_factor``, ``attitude`` (the correction selected), ``coverage`` and ``seconds``.
 """
 
