@@ -26,8 +26,8 @@ The demo does what an analyst does with a new scene, then grades it against the 
    the HTML report with figures, and ``summary.json`` with ``fixture``, ``profile``, ``gcps``,
    ``check_points``, ``check_rmse_px {before, after}``, ``check_rmse_per_ccd_px``,
    ``truth_error_px {rms, max}`` (the calibrated model of every CCD and band against the TRUE
-   model over a dense grid, both localizing on the TRUE DEM named by ``truth_dem``, never on the
-   user's DEM), ``status`` (the coverage gate of the reference band's calibration,
+   model over a dense grid, both localizing on the TRUE DEM named by ``truth_dem``: the user's DEM
+   only under the ``ideal`` profile, where it is the TRUE one), ``status`` (the coverage gate of the reference band's calibration,
    :mod:`calibrate.coverage`, made ``partial`` when a band-to-band calibration fails or
    leaves a CCD's interior unestimated),
    ``variance_factor``, ``attitude`` (the correction selected), ``coverage`` and ``seconds``.
