@@ -60,8 +60,20 @@ ABLATIONS = {
     "no_lens": {"radial_k2_px": 0.0, "radial_k3_px": 0.0, "focal_plane_curvature_px": 0.0, "ccd_bending_px": 0.0,
                 "detector_irregularity_px": 0.0},
 }
+#: issue 13 items 1-4 of session 5, one at a time (each: realistic minus it)
+NO_SUN = {"sun_scene_date_time": None, "sun_dom_date_time": None}
+NO_BROADBAND = {"jitter_line2_amplitude_urad": (0.0, 0.0, 0.0), "jitter_floor_rms_urad": (0.0, 0.0, 0.0)}
+ABLATIONS.update({"no_sun": NO_SUN, "no_broadband_jitter": NO_BROADBAND,
+                  "no_astigmatism": {"astigmatism_edge_px": (0.0, 0.0)}})
+ABLATIONS["no_date_sensor"] = {**ABLATIONS["no_date_sensor"], **NO_SUN}
+ABLATIONS["no_reference_change"] = {**ABLATIONS["no_reference_change"], **NO_SUN}
+ABLATIONS["no_attitude_orbit"] = {**ABLATIONS["no_attitude_orbit"], **NO_BROADBAND}
 #: kernel and reference resolution only: every other group of realistic switched off
 ABLATIONS["kernel_only"] = {**ABLATIONS["no_reference_change"], **ABLATIONS["no_attitude_orbit"], **ABLATIONS["no_lens"]}
+#: a cloudy realistic scene (``clouds.cover`` of the configuration), with and without the clouds' shadows
+CLOUDY = {"cloudy": {}, "cloudy_no_shadow": {"cloud_shadow": 0.0}}
+CLOUD_COVER = 0.2
+ABLATIONS.update(CLOUDY)
 
 
 def _simulate(scene: Path, name: str, config: Path, source) -> None:
@@ -75,7 +87,10 @@ def _simulate(scene: Path, name: str, config: Path, source) -> None:
 
         changes = {k: Sourced(v, f"ablation {name}") for k, v in ABLATIONS[name].items()}
         profile = replace(PROFILES["realistic"], name=f"realistic-{name}", **changes)
-        simulate_pushbroom(scene, config=load_config(config), profile=profile, dom=source)
+        cfg = load_config(config)
+        if name in CLOUDY:
+            cfg = replace(cfg, clouds=replace(cfg.clouds, cover=CLOUD_COVER))
+        simulate_pushbroom(scene, config=cfg, profile=profile, dom=source)
         return
     sim = ["simulate", "pushbroom", "--out", scene, "--config", config, "--profile", name]
     if name != "ideal" and source is not None:
