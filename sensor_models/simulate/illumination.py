@@ -106,7 +106,8 @@ def cast_shadow(dem_m: np.ndarray, resolution_m: float, sun: Sun, *, max_steps: 
     span = float(np.nanmax(h) - np.nanmin(h))
     steps = int(min(max_steps, np.ceil(span / (resolution_m * tan_e)) + 1))
     az = np.radians(sun.azimuth_deg)
-    d_col, d_row = np.float32(np.sin(az)), np.float32(-np.cos(az))  # north is up: rows grow southwards
+    # north is up: rows grow southwards; rounded so that a due east/west/north/south sun stays on its row/column
+    d_col, d_row = np.float32(round(np.sin(az), 9)), np.float32(round(-np.cos(az), 9))
     filled = np.where(finite, h, np.float32(-1e9))
     rows, cols = np.mgrid[0 : h.shape[0], 0 : h.shape[1]].astype(np.float32)
     horizon = np.full(h.shape, -np.inf, np.float32)  # highest h(q) - |q - p| tan e so far
