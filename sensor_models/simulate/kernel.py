@@ -8,7 +8,10 @@ Signal chain of one detector sample, in order:
 
 1. optics: the source radiance is convolved once with the optical PSF, a uniform disk of radius
    ``defocus_radius_px`` (geometric defocus) plus a Gaussian halo of width ``halo_sigma_px``
-   holding ``halo_fraction`` of the energy (:func:`optics_kernel`);
+   holding ``halo_fraction`` of the energy (:func:`optics_kernel`); with astigmatism the disk is
+   an ellipse of other radii along and across track (``defocus_radius_row_px``), and the
+   renderer filters the radiance with the field centre's and the swath edge's PSF and blends
+   them per detector (:func:`sensor_models.simulate.realistic_sim.field_weights`);
 2. detector footprint: the radiance is integrated over the detector box (1 x 1 px) and the
    along-track motion during integration (``motion_smear_lines``) by ``n x n x n_smear``
    sub-pixel samples (:func:`footprint_offsets`), mapped into the source raster through the
