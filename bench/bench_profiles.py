@@ -73,6 +73,7 @@ ABLATIONS["kernel_only"] = {**ABLATIONS["no_reference_change"], **ABLATIONS["no_
 #: a cloudy realistic scene (``clouds.cover`` of the configuration), with and without the clouds' shadows
 CLOUDY = {"cloudy": {}, "cloudy_no_shadow": {"cloud_shadow": 0.0}}
 CLOUD_COVER = 0.2
+CLOUD_SCALE_M = 1000.0
 ABLATIONS.update(CLOUDY)
 
 
@@ -88,8 +89,8 @@ def _simulate(scene: Path, name: str, config: Path, source) -> None:
         changes = {k: Sourced(v, f"ablation {name}") for k, v in ABLATIONS[name].items()}
         profile = replace(PROFILES["realistic"], name=f"realistic-{name}", **changes)
         cfg = load_config(config)
-        if name in CLOUDY:
-            cfg = replace(cfg, clouds=replace(cfg.clouds, cover=CLOUD_COVER))
+        if name in CLOUDY:  # a field of small clouds, so that each layer holds some
+            cfg = replace(cfg, clouds=replace(cfg.clouds, cover=CLOUD_COVER, scale_m=CLOUD_SCALE_M))
         simulate_pushbroom(scene, config=cfg, profile=profile, dom=source)
         return
     sim = ["simulate", "pushbroom", "--out", scene, "--config", config, "--profile", name]

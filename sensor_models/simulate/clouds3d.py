@@ -2,7 +2,8 @@
 
 The cloud cover is drawn as in the ``ideal`` simulator (a smooth random field thresholded to the
 requested cover, soft edges), but on the ground grid of the source radiance and with a height:
-every connected cloud is put in one of ``n_layers`` layers, each layer with its own top height
+every cloud (a connected core of opacity > 0.5 with the soft edge nearest to it) is put in one of
+``n_layers`` layers, each layer with its own top height
 drawn uniformly in ``heights_km`` (:func:`cloud_layers`). A layer's opacity map ``o_k(p)`` holds
 the cloud at the map position ``p`` of its nadir.
 
@@ -85,7 +86,13 @@ def cloud_layers(shape, resolution_m: float, *, cover: float, scale_m: float, he
     f = smooth_field(shape, scale_m / resolution_m, s_field)
     thr = float(np.quantile(f, 1.0 - cover)) if cover < 1 else -np.inf
     op = np.clip((f - thr) / 0.3 + 0.5, 0.0, 1.0).astype(np.float32)
-    n_labels, labels = cv2.connectedComponents((op > 0).astype(np.uint8), connectivity=8)
+    # one cloud = one connected core (opacity > 0.5); its soft edge belongs to the nearest core
+    n_labels, labels = cv2.connectedComponents((op > 0.5).astype(np.uint8), connectivity=8)
+    if n_labels > 1:
+        from scipy.ndimage import distance_transform_edt
+
+        _, (ri, ci) = distance_transform_edt(labels == 0, return_distances=True, return_indices=True)
+        labels = labels[ri, ci]
     rng = np.random.default_rng(s_draw)
     layer_of_label = rng.integers(0, max(1, n_layers), n_labels)
     heights = np.sort(rng.uniform(heights_km[0], heights_km[1], max(1, n_layers))) * 1000.0 + mean_ground_m
