@@ -263,3 +263,17 @@ def test_cloud_shadow_can_be_switched_off(tmp_path):
     s = simulate_pushbroom(tmp_path, config=cfg, profile=prof, record_timings=False)
     assert s["injected"]["shadow_mask_fraction"] == 0.0
     assert s["injected"]["cloud_mask_fraction"] > 0.1
+
+
+def test_cloud_layers_split_the_cover_between_heights_in_range():
+    from sensor_models.simulate.clouds3d import cloud_layers
+
+    layers = cloud_layers((400, 400), 15.0, cover=0.25, scale_m=600.0, heights_km=(1.0, 8.0), n_layers=3,
+                          mean_ground_m=350.0, seed=9)
+    above = layers.heights_m - 350.0
+    assert np.all((1000.0 <= above) & (above <= 8000.0)) and np.all(np.diff(above) > 0)
+    cover = [float((o > 0.5).mean()) for o in layers.opacity]
+    assert 0.22 < sum(cover) < 0.28  # the requested cover, split between the layers
+    assert sum(c > 0.01 for c in cover) >= 2  # several clouds at several heights
+    total = layers.opacity.sum(axis=0)
+    assert total.max() <= 1.0 + 1e-6  # every cloud pixel belongs to exactly one layer
