@@ -11,7 +11,11 @@ user has) projected through ``truth_manifest.json``, minus the matched (row, col
 of ``../shared/data/real_textures``, when present; ``procedural`` for the procedural texture).
 The ideal profile always uses today's procedural reference (its DOM rendered the scene).
 
-Usage: ``python bench/bench_profiles.py --out /tmp/profiles [--gsd 20] [--source procedural]``
+Usage: ``python bench/bench_profiles.py --out /tmp/profiles [--gsd 20] [--source procedural] [--relief 600]``
+
+Ablations (``--profiles``) switch groups of ``realistic`` off one at a time (:data:`ABLATIONS`),
+among them ``no_sun``, ``no_broadband_jitter``, ``no_astigmatism``; ``cloudy`` and
+``cloudy_no_shadow`` add 20 % of 1 km clouds with and without their shadows.
 Writes ``OUT/profiles.json`` and prints one line per profile.
 """
 
@@ -131,15 +135,16 @@ def main() -> None:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--gsd", type=float, default=20.0, help="Scene GSD, m (20: the scene fits the Sentinel-2 crop).")
     ap.add_argument("--source", default=str(S2_RED) if S2_RED.exists() else "procedural")
+    ap.add_argument("--relief", type=float, default=600.0, help="reference.relief_m of the TRUE DEM, m.")
     ap.add_argument("--profiles", default="ideal,realistic",
                     help=f"Profiles and ablations of realistic ({', '.join(ABLATIONS)}), comma-separated.")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     config = args.out / "config.json"
     config.write_text(json.dumps({"scene": {"gsd_m": args.gsd},
-                                  "reference": {"margin_m": 1000.0, "relief_m": 600.0}}))
+                                  "reference": {"margin_m": 1000.0, "relief_m": args.relief}}))
     source = None if args.source == "procedural" else args.source
-    results = {"gsd_m": args.gsd, "source": args.source, "profiles": {}}
+    results = {"gsd_m": args.gsd, "source": args.source, "relief_m": args.relief, "profiles": {}}
     for p in args.profiles.split(","):
         r = run_profile(args.out, p, config, source)
         results["profiles"][p] = r
