@@ -11,7 +11,11 @@ user has) projected through ``truth_manifest.json``, minus the matched (row, col
 of ``../shared/data/real_textures``, when present; ``procedural`` for the procedural texture).
 The ideal profile always uses today's procedural reference (its DOM rendered the scene).
 
-Usage: ``python bench/bench_profiles.py --out /tmp/profiles [--gsd 20] [--source procedural]``
+Usage: ``python bench/bench_profiles.py --out /tmp/profiles [--gsd 20] [--source procedural] [--relief 600]``
+
+Ablations (``--profiles``) switch groups of ``realistic`` off one at a time (:data:`ABLATIONS`),
+among them ``no_sun``, ``no_broadband_jitter``, ``no_astigmatism``; ``cloudy`` and
+``cloudy_no_shadow`` add 20 % of 1 km clouds with and without their shadows.
 Writes ``OUT/profiles.json`` and prints one line per profile.
 """
 
@@ -60,8 +64,21 @@ ABLATIONS = {
     "no_lens": {"radial_k2_px": 0.0, "radial_k3_px": 0.0, "focal_plane_curvature_px": 0.0, "ccd_bending_px": 0.0,
                 "detector_irregularity_px": 0.0},
 }
+#: issue 13 items 1-4 of session 5, one at a time (each: realistic minus it)
+NO_SUN = {"sun_scene_date_time": None, "sun_dom_date_time": None}
+NO_BROADBAND = {"jitter_line2_amplitude_urad": (0.0, 0.0, 0.0), "jitter_floor_rms_urad": (0.0, 0.0, 0.0)}
+ABLATIONS.update({"no_sun": NO_SUN, "no_broadband_jitter": NO_BROADBAND,
+                  "no_astigmatism": {"astigmatism_edge_px": (0.0, 0.0)}})
+ABLATIONS["no_date_sensor"] = {**ABLATIONS["no_date_sensor"], **NO_SUN}
+ABLATIONS["no_reference_change"] = {**ABLATIONS["no_reference_change"], **NO_SUN}
+ABLATIONS["no_attitude_orbit"] = {**ABLATIONS["no_attitude_orbit"], **NO_BROADBAND}
 #: kernel and reference resolution only: every other group of realistic switched off
 ABLATIONS["kernel_only"] = {**ABLATIONS["no_reference_change"], **ABLATIONS["no_attitude_orbit"], **ABLATIONS["no_lens"]}
+#: a cloudy realistic scene (``clouds.cover`` of the configuration), with and without the clouds' shadows
+CLOUDY = {"cloudy": {}, "cloudy_no_shadow": {"cloud_shadow": 0.0}}
+CLOUD_COVER = 0.2
+CLOUD_SCALE_M = 1000.0
+ABLATIONS.update(CLOUDY)
 
 
 def _simulate(scene: Path, name: str, config: Path, source) -> None:
@@ -75,7 +92,10 @@ def _simulate(scene: Path, name: str, config: Path, source) -> None:
 
         changes = {k: Sourced(v, f"ablation {name}") for k, v in ABLATIONS[name].items()}
         profile = replace(PROFILES["realistic"], name=f"realistic-{name}", **changes)
-        simulate_pushbroom(scene, config=load_config(config), profile=profile, dom=source)
+        cfg = load_config(config)
+        if name in CLOUDY:  # a field of small clouds, so that each layer holds some
+            cfg = replace(cfg, clouds=replace(cfg.clouds, cover=CLOUD_COVER, scale_m=CLOUD_SCALE_M))
+        simulate_pushbroom(scene, config=cfg, profile=profile, dom=source)
         return
     sim = ["simulate", "pushbroom", "--out", scene, "--config", config, "--profile", name]
     if name != "ideal" and source is not None:
@@ -115,15 +135,16 @@ def main() -> None:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--gsd", type=float, default=20.0, help="Scene GSD, m (20: the scene fits the Sentinel-2 crop).")
     ap.add_argument("--source", default=str(S2_RED) if S2_RED.exists() else "procedural")
+    ap.add_argument("--relief", type=float, default=600.0, help="reference.relief_m of the TRUE DEM, m.")
     ap.add_argument("--profiles", default="ideal,realistic",
                     help=f"Profiles and ablations of realistic ({', '.join(ABLATIONS)}), comma-separated.")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     config = args.out / "config.json"
     config.write_text(json.dumps({"scene": {"gsd_m": args.gsd},
-                                  "reference": {"margin_m": 1000.0, "relief_m": 600.0}}))
+                                  "reference": {"margin_m": 1000.0, "relief_m": args.relief}}))
     source = None if args.source == "procedural" else args.source
-    results = {"gsd_m": args.gsd, "source": args.source, "profiles": {}}
+    results = {"gsd_m": args.gsd, "source": args.source, "relief_m": args.relief, "profiles": {}}
     for p in args.profiles.split(","):
         r = run_profile(args.out, p, config, source)
         results["profiles"][p] = r

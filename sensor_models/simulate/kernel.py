@@ -8,7 +8,10 @@ Signal chain of one detector sample, in order:
 
 1. optics: the source radiance is convolved once with the optical PSF, a uniform disk of radius
    ``defocus_radius_px`` (geometric defocus) plus a Gaussian halo of width ``halo_sigma_px``
-   holding ``halo_fraction`` of the energy (:func:`optics_kernel`);
+   holding ``halo_fraction`` of the energy (:func:`optics_kernel`); with astigmatism the disk is
+   an ellipse of other radii along and across track (``defocus_radius_row_px``), and the
+   renderer filters the radiance with the field centre's and the swath edge's PSF and blends
+   them per detector (:func:`sensor_models.simulate.realistic_sim.field_weights`);
 2. detector footprint: the radiance is integrated over the detector box (1 x 1 px) and the
    along-track motion during integration (``motion_smear_lines``) by ``n x n x n_smear``
    sub-pixel samples (:func:`footprint_offsets`), mapped into the source raster through the
@@ -31,13 +34,16 @@ __all__ = ["detector_response", "footprint_offsets", "integrate_footprint", "opt
 
 
 def optics_kernel(defocus_radius_px: float, halo_fraction: float, halo_sigma_px: float, *,
-                  source_px_per_px: float) -> np.ndarray:
+                  source_px_per_px: float, defocus_radius_row_px: float | None = None) -> np.ndarray:
     """The optical PSF sampled on the source raster (sums to 1).
 
     Parameters
     ----------
     defocus_radius_px : float
-        Disk radius, detector pitches.
+        Disk radius, detector pitches (across track: along the columns).
+    defocus_radius_row_px : float, optional
+        Radius along track (along the rows), detector pitches: the disk becomes an ellipse
+        (astigmatism: the sagittal and tangential foci differ). None: a circle.
     halo_fraction : float
         Share of the energy in the Gaussian halo, ``[0, 1)``.
     halo_sigma_px : float
@@ -51,14 +57,15 @@ def optics_kernel(defocus_radius_px: float, halo_fraction: float, halo_sigma_px:
         The kernel (disk integrated over each source pixel by 8 x 8 sub-samples).
     """
     r = defocus_radius_px * source_px_per_px
+    r_row = r if defocus_radius_row_px is None else defocus_radius_row_px * source_px_per_px
     sig = halo_sigma_px * source_px_per_px
-    m = int(np.ceil(max(r + 1.0, 4.0 * sig if halo_fraction > 0 else 0.0, 1.0)))
+    m = int(np.ceil(max(max(r, r_row) + 1.0, 4.0 * sig if halo_fraction > 0 else 0.0, 1.0)))
     sub = (np.arange(8) + 0.5) / 8.0 - 0.5
     g = np.arange(-m, m + 1, dtype=np.float64)
     yy = (g[:, None, None, None] + sub[None, None, :, None])
     xx = (g[None, :, None, None] + sub[None, None, None, :])
-    if r > 0:
-        disk = (np.hypot(yy, xx) <= r).mean(axis=(2, 3))
+    if r > 0 and r_row > 0:
+        disk = (np.hypot(yy / r_row, xx / r) <= 1.0).mean(axis=(2, 3))
     else:
         disk = np.zeros((g.size, g.size))
         disk[m, m] = 1.0
@@ -93,7 +100,8 @@ def footprint_offsets(n: int, smear_lines: float):
 
 
 def system_mtf(freq_cyc_px, *, defocus_radius_px: float, halo_fraction: float, halo_sigma_px: float,
-               supersampling: int, smear_lines: float, source_px_per_px: float, axis: str = "col"):
+               supersampling: int, smear_lines: float, source_px_per_px: float, axis: str = "col",
+               defocus_radius_row_px: float | None = None):
     """Modulation transfer of the kernel (optics, footprint sampling, source interpolation).
 
     Evaluated from the very kernels the renderer uses: the DFT of :func:`optics_kernel` along one
@@ -114,6 +122,8 @@ def system_mtf(freq_cyc_px, *, defocus_radius_px: float, halo_fraction: float, h
         Source-raster pixels per detector pitch.
     axis : {"col", "row"}
         Across track (``col``) or along track (``row``, with the smear).
+    defocus_radius_row_px : float, optional
+        Along-track disk radius (astigmatism, :func:`optics_kernel`); None: ``defocus_radius_px``.
 
     Returns
     -------
@@ -121,9 +131,11 @@ def system_mtf(freq_cyc_px, *, defocus_radius_px: float, halo_fraction: float, h
         MTF (modulus) at ``freq_cyc_px``.
     """
     f = np.atleast_1d(np.asarray(freq_cyc_px, dtype=np.float64))
-    kern = optics_kernel(defocus_radius_px, halo_fraction, halo_sigma_px, source_px_per_px=source_px_per_px)
+    kern = optics_kernel(defocus_radius_px, halo_fraction, halo_sigma_px, source_px_per_px=source_px_per_px,
+                         defocus_radius_row_px=defocus_radius_row_px)
     m = kern.shape[0] // 2
-    line = kern.sum(axis=0).astype(np.float64)  # line spread function along the other axis
+    # line spread function along ``axis``: the PSF summed over the other axis
+    line = kern.sum(axis=0 if axis == "col" else 1).astype(np.float64)
     x = (np.arange(kern.shape[0]) - m) / source_px_per_px  # detector pitches
     optics = np.abs(np.exp(-2j * np.pi * f[:, None] * x[None, :]) @ line)
     dr, dc = footprint_offsets(int(supersampling), smear_lines)
@@ -138,8 +150,9 @@ def integrate_footprint(radiance: np.ndarray, u, v, d_row, d_col, *, irregular_r
 
     Parameters
     ----------
-    radiance : ndarray of float32, shape (H, W)
-        Source radiance already convolved with :func:`optics_kernel`.
+    radiance : ndarray of float32, shape (H, W) or (H, W, C)
+        Source radiance already convolved with :func:`optics_kernel` (``C`` channels: e.g. the
+        same radiance through the PSFs of two field positions, integrated in one pass).
     u, v : ndarray of float32, shape (L, N)
         Source-raster column and row (0 at the first pixel's centre) of the pixel centres of
         ``L`` lines of ``N`` detectors (``L >= 2``, ``N >= 2``).
@@ -150,7 +163,7 @@ def integrate_footprint(radiance: np.ndarray, u, v, d_row, d_col, *, irregular_r
 
     Returns
     -------
-    ndarray of float32, shape (L, N)
+    ndarray of float32, shape (L, N) or (L, N, C)
         NaN where a sample leaves the source raster.
     """
     u = np.asarray(u, dtype=np.float32)
@@ -161,7 +174,7 @@ def integrate_footprint(radiance: np.ndarray, u, v, d_row, d_col, *, irregular_r
     n_det = u.shape[1]
     ir = np.zeros(n_det, np.float32) if irregular_row is None else np.asarray(irregular_row, np.float32)
     ic = np.zeros(n_det, np.float32) if irregular_col is None else np.asarray(irregular_col, np.float32)
-    acc = np.zeros(u.shape, np.float32)
+    acc = np.zeros(u.shape + radiance.shape[2:], np.float32)
     for a, b in zip(d_row, d_col):
         rr = np.float32(a) + ir[None, :]
         cc = np.float32(b) + ic[None, :]

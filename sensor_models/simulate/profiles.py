@@ -38,6 +38,14 @@ TONG = ("Tong et al. 2015, ZY-3 image distortions caused by attitude oscillation
 FARR = "Farr et al. 2007, The Shuttle Radar Topography Mission, Rev. Geophys. 45, RG2004 (16 m absolute, 90 %)"
 RODRIGUEZ = "Rodriguez et al. 2006, An assessment of the SRTM topographic products, PE&RS 72(3):249-260 (5-9 m)"
 SEED003 = "seed 003 (HY-1C CZI: Landsat 8 DOM, SRTM DEM, level-1A radiometrically corrected)"
+SEIDEL = ("Smith, Modern Optical Engineering, 4th ed. 2008, ch. 3 (third-order astigmatism and field curvature "
+          "grow as the square of the field angle)")
+SUNSYNC = ("sun-synchronous 10:30 local time (Sentinel-2 MSI; HY-1C, seed 003); sun from Cooper's declination and the "
+           "hour angle (Iqbal 1983, An Introduction to Solar Radiation, ch. 1)")
+LANDSAT_TIME = "Landsat 8 descending node 10:00 +- 15 min (USGS Landsat 8 Data Users Handbook)"
+IQBAL = "Iqbal 1983, An Introduction to Solar Radiation, Academic Press"
+ISCCP = ("Rossow and Schiffer 1999, Advances in understanding clouds from ISCCP, BAMS 80(11):2261-2287 "
+         "(cloud-top classes: low below ~3 km, middle ~3-6.5 km, high above)")
 S2_MTF = "Sentinel-2 MSI image-quality requirement, MTF at Nyquist 0.15-0.30 (ESA Sentinel-2 User Handbook)"
 
 
@@ -96,6 +104,11 @@ class PushbroomProfile(_ProfileFields):
     attitude_drift_arcsec_s: Sourced = _f("arcsec/s (roll, pitch, yaw)", "linear drift of the TRUE attitude")
     orbit_bias_m: Sourced = _f("m (norm)", "constant ITRF offset of the measured orbit, seeded direction")
     orbit_noise_m: Sourced = _f("m (1 sigma, per axis)", "white noise on the measured orbit, 1 s samples")
+    jitter_line2_amplitude_urad: Sourced = _f("urad (roll, pitch, yaw)", "second sinusoid in the TRUE attitude, random phase")
+    jitter_line2_frequency_hz: Sourced = _f("Hz", "frequency of that second sinusoid")
+    jitter_floor_rms_urad: Sourced = _f("urad rms (roll, pitch, yaw)", "coloured-noise floor of the TRUE attitude")
+    jitter_floor_exponent: Sourced = _f("a in PSD ~ 1/f^a", "slope of that floor")
+    jitter_floor_band_hz: Sourced = _f("Hz (low, high)", "band outside which the floor has no power")
     # -- TRUE lens beyond the cubic in detector index -----------------------------------------
     radial_k2_px: Sourced = _f("px at the array end", "k2 r^5 radial term of the TRUE camera")
     radial_k3_px: Sourced = _f("px at the array end", "k3 r^7 radial term of the TRUE camera")
@@ -108,6 +121,8 @@ class PushbroomProfile(_ProfileFields):
     defocus_radius_px: Sourced = _f("px", "uniform-disk PSF (geometric defocus)")
     halo_fraction: Sourced = _f("share of energy", "Gaussian halo (stray light / scatter)")
     halo_sigma_px: Sourced = _f("px", "halo width")
+    astigmatism_edge_px: Sourced = _f("px (along, across track) at the swath edge",
+                                      "defocus radius added to the disk, growing as (field / half field)^2")
     psf_sigma_px: Sourced = _f("px", "Gaussian PSF of the shared kernel (ideal path only)")
     prnu_rms: Sourced = _f("relative gain, rms", "per-detector gain")
     striping_dn: Sourced = _f("DN rms", "per-detector offset")
@@ -129,6 +144,13 @@ class PushbroomProfile(_ProfileFields):
     dem_error_rms_m: Sourced = _f("m rms", "smooth height error field")
     dem_error_scale_m: Sourced = _f("m", "correlation length of that field")
     dem_void_fraction: Sourced = _f("share of nodes", "voids (nodata) in blobs")
+    # -- illumination and clouds (sensor_models.simulate.illumination, clouds3d) ---------------
+    sun_scene_date_time: Sourced = _f("(day of year, local solar hour)", "sun of the scene: hill shading and cast shadows on its radiance")
+    sun_dom_date_time: Sourced = _f("(day of year, local solar hour)", "sun of the reference DOM: its own shading and shadows")
+    skylight_fraction: Sourced = _f("share of irradiance on flat ground", "diffuse light, which reaches shadows")
+    cloud_top_height_km: Sourced = _f("km (lowest, highest)", "uniform range of the cloud layers' top heights (parallax, shadow offset)")
+    cloud_layers: Sourced = _f("layers", "distinct cloud heights per scene (each cloud in one layer)")
+    cloud_shadow: Sourced = _f("share of the direct sun a cloud blocks", "cloud shadow on the ground, offset along the sun azimuth")
     kind: str = "pushbroom"
 
 
@@ -152,6 +174,12 @@ def _ideal() -> PushbroomProfile:
         dom_bias_m=none((0.0, 0.0)), dom_field_rms_m=none(0.0), dom_field_scale_m=none(0.0),
         dem_resolution_m=Sourced(30.0, "user DEM is the rendering DEM itself"), dem_error_rms_m=none(0.0),
         dem_error_scale_m=none(0.0), dem_void_fraction=none(0.0),
+        jitter_line2_amplitude_urad=none((0.0, 0.0, 0.0)), jitter_line2_frequency_hz=none(0.0),
+        jitter_floor_rms_urad=none((0.0, 0.0, 0.0)), jitter_floor_exponent=none(0.0),
+        jitter_floor_band_hz=none((0.0, 0.0)), astigmatism_edge_px=none((0.0, 0.0)),
+        sun_scene_date_time=none(None), sun_dom_date_time=none(None), skylight_fraction=none(0.0),
+        cloud_top_height_km=Sourced((0.0, 0.0), "today's clouds lie on the ground (no parallax, no shadow)"),
+        cloud_layers=none(0), cloud_shadow=none(0.0),
     )
 
 
@@ -194,6 +222,18 @@ def _realistic() -> PushbroomProfile:
         dem_error_rms_m=Sourced(8.0, f"{RODRIGUEZ}; {FARR}"),
         dem_error_scale_m=Sourced(1000.0, ASSUMPTION),
         dem_void_fraction=Sourced(0.003, f"{FARR}: voids in steep and dry terrain; {ASSUMPTION}"),
+        jitter_line2_amplitude_urad=Sourced((1.5, 1.5, 0.5), f"{TONG}: the line; amplitude: {ASSUMPTION}"),
+        jitter_line2_frequency_hz=Sourced(0.65, TONG),
+        jitter_floor_rms_urad=Sourced((1.0, 1.0, 0.5), f"{ISSUE13} brief: ~1 urad; {ASSUMPTION}"),
+        jitter_floor_exponent=Sourced(1.0, f"pink (1/f) floor; {ASSUMPTION}"),
+        jitter_floor_band_hz=Sourced((0.05, 5.0), f"{ISSUE13} brief: 0.05-5 Hz"),
+        astigmatism_edge_px=Sourced((0.25, 0.08), f"{SEIDEL}; magnitude: {ASSUMPTION}"),
+        sun_scene_date_time=Sourced((288, 10.5), f"{SUNSYNC}: 10:30 descending node, mid-October"),
+        sun_dom_date_time=Sourced((213, 10.0), f"{LANDSAT_TIME}, early August (growing season)"),
+        skylight_fraction=Sourced(0.15, f"{IQBAL}: diffuse share of clear-sky irradiance; {ASSUMPTION}"),
+        cloud_top_height_km=Sourced((1.0, 8.0), ISCCP),
+        cloud_layers=Sourced(3, ASSUMPTION),
+        cloud_shadow=Sourced(0.9, f"optically thick cloud: the direct beam is almost all scattered; {ASSUMPTION}"),
     )
 
 

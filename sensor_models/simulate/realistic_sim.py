@@ -15,7 +15,11 @@ but:
 The source radiance is a given raster (``dom``: e.g. a real Sentinel-2 red band, see
 docs/error_budget.md; the scene is then centred on it) or the procedural texture
 (:func:`sensor_models.simulate.procedural.generate_reference`). The TRUE DEM is procedural.
-Clouds are not simulated under this profile yet.
+The scene and the DOM are lit by their own suns (hill shading, cast shadows:
+:mod:`sensor_models.simulate.illumination`); clouds (``clouds.cover``) have heights, parallax and
+shadows (:mod:`sensor_models.simulate.clouds3d`); the TRUE attitude carries a jitter spectrum
+(:mod:`sensor_models.simulate.jitter`) and the optics an astigmatic PSF that worsens towards the
+swath edge (:func:`field_weights`).
 """
 
 from __future__ import annotations
@@ -31,18 +35,21 @@ import pyproj
 from sensor_models.errors import InputError
 from sensor_models.locate import MapGrid, dem_planes, locate_block
 from sensor_models.simulate.config import SimConfig
+from sensor_models.simulate.clouds3d import apparent_clouds, cloud_layers, ground_shadow, ray_slope
+from sensor_models.simulate.illumination import Sun, resample_to_grid, sun_angles_deg, terrain_light_on_grid
+from sensor_models.simulate.jitter import jitter_spectrum
 from sensor_models.simulate.kernel import (detector_response, footprint_offsets, integrate_footprint, optics_kernel,
                                            system_mtf)
 from sensor_models.simulate.profiles import profile_table
 from sensor_models.simulate.render_io import (PhaseClock, check_covers, footprint_lonlat, render_scene, step_progress,
                                               utm_crs, write_outputs)
 from sensor_models.simulate.reference_pair import DEM_NODATA, degrade_dem, degrade_dom, write_raster
-from sensor_models.simulate.scene import build_models
+from sensor_models.simulate.scene import build_models, ccd_layout
 from sensor_models.simulate.true_lens import cubic_residual_px, lens_extras
 from sensor_models.simulate.truth import truth_error
 from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
 
-__all__ = ["apply_profile", "detector_gains", "simulate_realistic"]
+__all__ = ["apply_profile", "detector_gains", "field_weights", "mtf_nyquist", "simulate_realistic"]
 
 
 def apply_profile(cfg: SimConfig, profile) -> SimConfig:
@@ -89,19 +96,19 @@ def _read_source(path):
     return a / np.float32(np.percentile(valid, 99.5)), transform, crs
 
 
-def _centred_models(cfg: SimConfig, lens, orbit_bias_m: float, centre_lonlat):
+def _centred_models(cfg: SimConfig, lens, orbit_bias_m: float, centre_lonlat, jitter=None):
     """Models whose TRUE footprint centre lies on ``centre_lonlat`` (None: the configured centre)."""
     if centre_lonlat is None:
-        return cfg, build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m)
+        return cfg, build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m, jitter=jitter)
     lon, lat = centre_lonlat
     for _ in range(3):
         cfg = replace(cfg, scene=replace(cfg.scene, center_lon_deg=float(lon), center_lat_deg=float(lat))).validate()
-        models = build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m)
+        models = build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m, jitter=jitter)
         m = models.true_model
         tl, tb, _ = m.image_to_ground([m.n_rows / 2], [m.n_cols / 2], height=cfg.reference.mean_height_m)
         lon += centre_lonlat[0] - float(tl[0])
         lat += centre_lonlat[1] - float(tb[0])
-    return cfg, build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m)
+    return cfg, build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m, jitter=jitter)
 
 
 def _source_and_dem(cfg: SimConfig, models, given_source):
@@ -156,22 +163,49 @@ def detector_gains(profile, seed: int, band_index: int, ccd: int, n_detectors: i
     return (prnu * ccd_gain).astype(np.float32), stripes.astype(np.float32)
 
 
+def field_weights(cfg: SimConfig) -> list:
+    """``(y / Y)^2`` of every detector of every CCD: its squared across-track field position.
+
+    Parameters
+    ----------
+    cfg : SimConfig
+        Camera layout (:func:`sensor_models.simulate.scene.ccd_layout`).
+
+    Returns
+    -------
+    list of ndarray of float32, shape (n_detectors,)
+        Per CCD, 0 on the optical axis, 1 at the swath edge.
+    """
+    layout = ccd_layout(cfg)
+    n = cfg.camera.detectors_per_ccd
+    half = 0.5 * (layout[-1][3] - layout[0][3] + n)
+    s = np.arange(n, dtype=np.float64)
+    return [np.clip(((y0 + s) / half) ** 2, 0.0, 1.0).astype(np.float32) for _, _, _, y0 in layout]
+
+
 class _KernelRenderer:
     """Renders one (band, CCD, block of lines) task with :mod:`sensor_models.simulate.kernel`."""
 
     clouds = None
+    shadows = None
 
-    def __init__(self, cfg: SimConfig, profile, model, dem: Dem, source, lens):
+    def __init__(self, cfg: SimConfig, profile, model, dem: Dem, source, lens, sky=None):
         v = profile.value
         radiance, transform, crs = source
         self.cfg, self.model, self.dem, self.lens = cfg, model, dem, lens
         self.grid = MapGrid(transform, crs, radiance.shape)
         self.scale = cfg.scene.gsd_m / abs(transform.a)
-        kern = optics_kernel(v("defocus_radius_px"), v("halo_fraction"), v("halo_sigma_px"), source_px_per_px=self.scale)
-        self.radiance = cv2.filter2D(np.nan_to_num(radiance, nan=0.0), cv2.CV_32F, kern, borderType=cv2.BORDER_REFLECT)
+        filled = np.nan_to_num(radiance, nan=0.0)
+        self.radiance = None
+        for kern in _field_kernels(profile, self.scale):  # centre (and edge, with astigmatism)
+            f = cv2.filter2D(filled, cv2.CV_32F, kern, borderType=cv2.BORDER_REFLECT)
+            self.radiance = f if self.radiance is None else np.dstack([self.radiance, f])
+        self.weights = field_weights(cfg)
         self.offsets = footprint_offsets(int(v("supersampling")), float(v("motion_smear_lines")))
         self.profile = profile
         self.band_index = {b: i for i, b in enumerate(cfg.camera.bands)}
+        if sky is not None and sky.get("layers") is not None:
+            self.clouds, self.shadows = sky["layers"], sky["cloud_shadow"]
 
     def task(self, band: str, ccd: int, row0: int, row1: int):
         cfg, r, v = self.cfg, self.cfg.radiometry, self.profile.value
@@ -182,12 +216,84 @@ class _KernelRenderer:
         n = u.shape[1]
         ir, ic = self.lens.irregularity(b, ccd, n)
         rad = integrate_footprint(self.radiance, u, v_, *self.offsets, irregular_row=ir, irregular_col=ic)
-        rad = rad[row0 - lo : row0 - lo + (row1 - row0)]
+        if rad.ndim == 3:  # the PSF changes across the field: blend centre and edge by (y / Y)^2
+            w = self.weights[ccd][None, :]
+            rad = (1.0 - w) * rad[..., 0] + w * rad[..., 1]
+        keep = slice(row0 - lo, row0 - lo + (row1 - row0))
+        rad, alpha, shadow = rad[keep], None, None
+        if self.clouds is not None:
+            du, dv = ray_slope(self.model, self.grid, band=band, ccd=ccd, row=0.5 * (row0 + row1))
+            alpha, tex = apparent_clouds(self.clouds, u[keep], v_[keep], pg.h_m[keep], du, dv)
+            rad = (1.0 - alpha) * rad + alpha * (CLOUD_RADIANCE * (1.0 + 0.06 * tex))
+            ground = cv2.remap(self.shadows, u[keep], v_[keep], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                               borderValue=0.0)
+            shadow = ((ground > 0.5) & (alpha <= 0.5)).astype(np.uint8)
         gain, stripes = detector_gains(self.profile, cfg.seed, b, ccd, n, len(self.model.band_ccds(band)))
         dn = detector_response(rad, gain=r.band_gain[b], gamma=r.band_gamma[b], offset_dn=r.band_offset_dn[b],
                                nonlinearity=v("nonlinearity"), pixel_gain=gain, pixel_offset_dn=stripes, snr=r.snr,
                                bits=r.bits, rng=np.random.default_rng([cfg.pass_seed, 33, b, ccd, row0]))
-        return dn, None
+        return dn, alpha, shadow
+
+
+#: radiance of a thick cloud top (the source radiance is 1 at its 99.5th percentile)
+CLOUD_RADIANCE = 1.1
+
+
+def _field_kernels(profile, scale: float) -> list:
+    """Optical PSFs on the source raster: the centre's, and the swath edge's when astigmatic."""
+    v = profile.value
+    r0 = v("defocus_radius_px")
+    kw = dict(halo_fraction=v("halo_fraction"), halo_sigma_px=v("halo_sigma_px"), source_px_per_px=scale)
+    kernels = [optics_kernel(r0, **kw)]
+    along, across = v("astigmatism_edge_px")
+    if along or across:
+        kernels.append(optics_kernel(r0 + across, defocus_radius_row_px=r0 + along, **kw))
+    return kernels
+
+
+def _sun(profile, key: str, lat_deg: float):
+    """The :class:`Sun` of ``sun_scene_date_time`` or ``sun_dom_date_time`` (None: not simulated)."""
+    when = profile.value(key)
+    return None if when is None else sun_angles_deg(lat_deg, float(when[0]), float(when[1]))
+
+
+def _lit_sources(cfg: SimConfig, profile, source, data):
+    """Scene and DOM radiance under their own suns, with the scene's clouds and their shadows.
+
+    Returns ``(scene source, DOM source, sky)``: sources as ``(radiance, transform, crs)``;
+    ``sky`` holds ``layers`` (:class:`CloudLayers` or None), ``cloud_shadow`` (ground map) and
+    JSON-safe ``figures``.
+    """
+    radiance, transform, crs = source
+    v, res = profile.value, abs(transform.a)
+    sun_s, sun_d = _sun(profile, "sun_scene_date_time", cfg.scene.center_lat_deg), \
+        _sun(profile, "sun_dom_date_time", cfg.scene.center_lat_deg)
+    scene, dom, figures = radiance, radiance, {}
+    k = float(v("skylight_fraction"))
+    if sun_s is not None and sun_d is not None:
+        lights = {}
+        for name, sun in (("scene", sun_s), ("dom", sun_d)):
+            light, shadow = terrain_light_on_grid(data.dem_m, data.dem_transform, radiance.shape, transform, sun,
+                                                  skylight=k)
+            lights[name] = light
+            figures[f"sun_{name}"] = {**sun.to_dict(), "cast_shadow_fraction": round(float((shadow > 0.5).mean()), 5)}
+        scene, dom = radiance * lights["scene"], radiance * lights["dom"]
+        figures["light_ratio_rms"] = round(float(np.std(np.log(lights["scene"] / lights["dom"]))), 4)
+    sky = {"layers": None, "cloud_shadow": None, "figures": figures}
+    if cfg.clouds.cover > 0 and int(v("cloud_layers")) <= 0:
+        raise InputError(f"clouds need cloud layers under the {profile.name} profile (cloud_layers = 0)",
+                         field="clouds.cover")
+    if cfg.clouds.cover > 0 and int(v("cloud_layers")) > 0:
+        ground = resample_to_grid(data.dem_m, data.dem_transform, radiance.shape, transform,
+                                  fill=float(np.nanmean(data.dem_m)))
+        layers = cloud_layers(radiance.shape, res, cover=cfg.clouds.cover, scale_m=cfg.clouds.scale_m,
+                              heights_km=v("cloud_top_height_km"), n_layers=int(v("cloud_layers")),
+                              mean_ground_m=float(np.nanmean(data.dem_m)), seed=cfg.pass_seed)
+        shade = ground_shadow(layers, ground, res, sun_s or Sun(89.9, 180.0)) * np.float32(v("cloud_shadow"))
+        scene = scene * (1.0 - np.float32(1.0 - k) * shade)
+        sky.update(layers=layers, cloud_shadow=shade)
+        figures["clouds"] = {**layers.to_dict(), "ground_shadow_fraction": round(float((shade > 0.5).mean()), 4)}
+    return (scene.astype(np.float32), transform, crs), (dom.astype(np.float32), transform, crs), sky
 
 
 def _write_reference(tmp: Path, cfg, profile, source, data):
@@ -206,18 +312,53 @@ def _write_reference(tmp: Path, cfg, profile, source, data):
     return files, {"dom": dom.figures, "dem": dem.figures}
 
 
+def mtf_nyquist(profile, source_px_per_px: float) -> dict:
+    """System MTF at Nyquist across (``col``) and along (``row``) track, at the field centre and edge.
+
+    Parameters
+    ----------
+    profile : PushbroomProfile
+        Optics and footprint magnitudes (``defocus_radius_px``, ``astigmatism_edge_px``, ...).
+    source_px_per_px : float
+        Source-raster pixels per detector pitch.
+
+    Returns
+    -------
+    dict
+        ``{"centre": {"col", "row"}, "edge": {"col", "row"}}``.
+    """
+    v = profile.value
+    along, across = v("astigmatism_edge_px")
+    r0 = v("defocus_radius_px")
+    kw = dict(halo_fraction=v("halo_fraction"), halo_sigma_px=v("halo_sigma_px"), supersampling=int(v("supersampling")),
+              smear_lines=v("motion_smear_lines"), source_px_per_px=source_px_per_px)
+    out = {}
+    for where, (r_col, r_row) in (("centre", (r0, r0)), ("edge", (r0 + across, r0 + along))):
+        out[where] = {ax: float(system_mtf([0.5], defocus_radius_px=r_col, defocus_radius_row_px=r_row, axis=ax,
+                                           **kw)[0]) for ax in ("col", "row")}
+    return out
+
+
+def _scene_masks(tmp: Path) -> dict:
+    """Shares of the scene under cloud and under cloud shadow (when the masks were written)."""
+    import rasterio
+
+    out = {}
+    for name in ("cloud_mask", "shadow_mask"):
+        if (tmp / f"{name}.tif").exists():
+            with rasterio.open(tmp / f"{name}.tif") as ds:
+                out[f"{name}_fraction"] = round(float((ds.read(1) > 0).mean()), 5)
+    return out
+
+
 def _figures(cfg, profile, models, lens, true_dem: Dem, user_dem_path: Path, source_scale: float) -> dict:
     """What the profile injected, measured: MTF at Nyquist, lens residual, DEM error."""
-    v = profile.value
-    mtf = {ax: float(system_mtf([0.5], defocus_radius_px=v("defocus_radius_px"), halo_fraction=v("halo_fraction"),
-                                halo_sigma_px=v("halo_sigma_px"), supersampling=int(v("supersampling")),
-                                smear_lines=v("motion_smear_lines"), source_px_per_px=source_scale, axis=ax)[0])
-           for ax in ("col", "row")}
+    mtf = mtf_nyquist(profile, source_scale)
     user = Dem.open(user_dem_path)
     lon, lat = footprint_sample_lonlat(models.true_model, cfg.reference.mean_height_m, n_side=33)
     dh = user.height_m(lon, lat) - true_dem.height_m(lon, lat)
     dh = dh[np.isfinite(dh)]
-    return {"mtf_nyquist": mtf, "lens_beyond_cubic_px": cubic_residual_px(models, lens),
+    return {"mtf_nyquist": mtf["centre"], "mtf_nyquist_edge": mtf["edge"], "lens_beyond_cubic_px": cubic_residual_px(models, lens),
             "dem_error_under_footprint_m": {"rms": float(np.sqrt(np.mean(dh**2))), "max": float(np.abs(dh).max())}}
 
 
@@ -254,16 +395,15 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     if dem_path is not None or geoid is not None:
         raise InputError(f"the {profile.name} profile derives the user's DEM from a procedural TRUE DEM: give --dom "
                          "only (the scene's source radiance)", field="dem")
-    if cfg.clouds.cover > 0:
-        raise InputError(f"clouds are not simulated under the {profile.name} profile yet", field="clouds.cover")
     tmp = Path(tmp)
     clock = PhaseClock(t_start)
     setup_done, block_progress = step_progress(progress, cfg.scene.n_rows, block_lines)
     cfg, models, lens, source, true_dem, data = _setup(cfg, profile, dom_path)
     clock.mark("models")
     setup_done(1)
-    reference_files, degraded = _write_reference(tmp, cfg, profile, source, data)
-    renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, source, lens)
+    scene_source, dom_source, sky = _lit_sources(cfg, profile, source, data)
+    reference_files, degraded = _write_reference(tmp, cfg, profile, dom_source, data)
+    renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, scene_source, lens, sky)
     dem_planes(true_dem)
     clock.mark("reference")
     setup_done(2)
@@ -276,7 +416,9 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     dem_figures = check_dem_footprint(user_dem, g_lon, g_lat, min_coverage=1.0)
     dem_figures["warnings"] = [w.replace(f"{tmp}/", "") for w in dem_figures["warnings"]]  # no temporary path
     injected = {**_figures(cfg, profile, models, lens, true_dem, tmp / "reference" / "dem.tif", renderer.scale),
-                **degraded, "source_radiance": str(Path(dom_path).resolve()) if dom_path else "procedural"}
+                **degraded, **sky["figures"], **_scene_masks(tmp),
+                "jitter_spectrum": models.truth.get("jitter_spectrum"),
+                "source_radiance": str(Path(dom_path).resolve()) if dom_path else "procedural"}
     # the LAB model's error over the TRUE terrain (the user's DEM has voids)
     initial = truth_error(models.true_model, models.lab_model, dem=true_dem, step_px=32)
     clock.mark("truth_error")
@@ -295,7 +437,7 @@ def _setup(cfg: SimConfig, profile, dom_path):
         cx = transform.c + 0.5 * radiance.shape[1] * transform.a
         cy = transform.f + 0.5 * radiance.shape[0] * transform.e
         centre = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(cx, cy)
-    cfg, models = _centred_models(cfg, lens, float(profile.value("orbit_bias_m")), centre)
+    cfg, models = _centred_models(cfg, lens, float(profile.value("orbit_bias_m")), centre, jitter_spectrum(profile))
     source, data = _source_and_dem(cfg, models, given)
     true_dem = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
     lon, lat = footprint_lonlat(models.true_model, true_dem.height_range_m)

@@ -179,6 +179,9 @@ def _render_blocks(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lin
         writers = {b: _open_writer(tmp / f"{b}.tif", n_rows, n_cols, "uint16") for b in bands}
         mask_writer = (_open_writer(tmp / "cloud_mask.tif", n_rows, n_cols, "uint8")
                        if renderer.clouds is not None else None)
+        # cloud shadows on the ground (realistic profile's clouds with height)
+        shadow_writer = (_open_writer(tmp / "shadow_mask.tif", n_rows, n_cols, "uint8")
+                         if getattr(renderer, "shadows", None) is not None else None)
     cloud_pixels = 0
     try:
         with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
@@ -188,15 +191,21 @@ def _render_blocks(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lin
                 for b in bands:
                     block = np.zeros((r1 - r0, n_cols), dtype=np.uint16)
                     mask = np.zeros((r1 - r0, n_cols), dtype=np.uint8) if b == ref_band else None
+                    shadow = np.zeros((r1 - r0, n_cols), dtype=np.uint8) if b == ref_band else None
                     for c, look in enumerate(model.band_ccds(b)):
-                        dn, alpha = jobs[(b, c)].result()
-                        block[:, look.first_col : look.first_col + look.n_detectors] = dn
+                        dn, alpha, *rest = jobs[(b, c)].result()
+                        cols = slice(look.first_col, look.first_col + look.n_detectors)
+                        block[:, cols] = dn
                         if mask is not None and alpha is not None:
-                            mask[:, look.first_col : look.first_col + look.n_detectors] = alpha > 0.5
+                            mask[:, cols] = alpha > 0.5
+                        if shadow is not None and rest and rest[0] is not None:
+                            shadow[:, cols] = rest[0]
                     writers[b].write(block, 1, window=Window(0, r0, n_cols, r1 - r0))
                     if mask is not None and mask_writer is not None:
                         mask_writer.write(mask, 1, window=Window(0, r0, n_cols, r1 - r0))
                         cloud_pixels += int(mask.sum())
+                    if shadow is not None and shadow_writer is not None:
+                        shadow_writer.write(shadow, 1, window=Window(0, r0, n_cols, r1 - r0))
                 if progress is not None:
                     progress(k + 1, len(blocks))
     finally:
@@ -204,6 +213,8 @@ def _render_blocks(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lin
             w.close()
         if mask_writer is not None:
             mask_writer.close()
+        if shadow_writer is not None:
+            shadow_writer.close()
     return cloud_pixels, mask_writer is not None
 
 

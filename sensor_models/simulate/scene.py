@@ -232,7 +232,7 @@ def _attitude_quaternions(seconds, angles_rad):
     return Rotation.from_euler("ZYX", angles_rad[:, ::-1]).as_quat()
 
 
-def _true_attitude(cfg: SimConfig, seconds) -> tuple[Attitude, dict]:
+def _true_attitude(cfg: SimConfig, seconds, jitter=None) -> tuple[Attitude, dict]:
     e = cfg.errors
     rng = _rng(cfg.pass_seed, 2)
     phase = rng.uniform(0.0, 2.0 * np.pi, 3)
@@ -242,11 +242,17 @@ def _true_attitude(cfg: SimConfig, seconds) -> tuple[Attitude, dict]:
         + np.asarray(e.attitude_drift_arcsec_s) * ARCSEC * t
         + np.asarray(e.jitter_amplitude_urad) * 1e-6 * np.sin(2 * np.pi * e.jitter_frequency_hz * t + phase)
     )
+    info = {"jitter_phase_rad": phase.tolist()}
+    if jitter is not None:  # broadband jitter (realistic): a second line and a coloured floor
+        from sensor_models.simulate.jitter import jitter_angles
+
+        extra, info["jitter_spectrum"] = jitter_angles(jitter, seconds, cfg.pass_seed)
+        angles = angles + extra
     r_att = Rotation.from_euler("ZYX", angles[:, ::-1])
     thermal = np.asarray(e.thermal_drift_arcsec_s) * ARCSEC * t
     r_thermal = Rotation.from_euler("ZYX", thermal[:, ::-1])
     quat = (r_att * r_thermal).as_quat()
-    return Attitude(seconds, quat, frame="orbital"), {"jitter_phase_rad": phase.tolist()}
+    return Attitude(seconds, quat, frame="orbital"), info
 
 
 def _measured_attitude(cfg: SimConfig, seconds) -> Attitude:
@@ -266,7 +272,7 @@ def _measured_orbit(cfg: SimConfig, orbit: Orbit, bias_m: float = 0.0) -> Orbit:
     return Orbit(orbit.epoch, orbit.seconds, pos, vel, frame=orbit.frame)
 
 
-def build_models(cfg: SimConfig, *, lens=None, orbit_bias_m: float = 0.0) -> SceneModels:
+def build_models(cfg: SimConfig, *, lens=None, orbit_bias_m: float = 0.0, jitter=None) -> SceneModels:
     """TRUE and LAB models of the configured scene, centred on ``scene.center_lon/lat_deg``.
 
     Parameters
@@ -277,6 +283,9 @@ def build_models(cfg: SimConfig, *, lens=None, orbit_bias_m: float = 0.0) -> Sce
         TRUE lens terms beyond the cubic (``realistic`` profile); None: none.
     orbit_bias_m : float
         Norm of a constant offset of the measured orbit, metres (0: none).
+    jitter : JitterSpectrum, optional
+        Broadband jitter added to the TRUE attitude (:mod:`sensor_models.simulate.jitter`);
+        None: the configuration's single sinusoid per axis only.
 
     Returns
     -------
@@ -319,7 +328,7 @@ def build_models(cfg: SimConfig, *, lens=None, orbit_bias_m: float = 0.0) -> Sce
         arg_lat += (s.center_lat_deg - float(lat[0])) / np.sin(inc)
     orbit = circular_orbit(epoch, t_orbit, altitude_m=s.altitude_m, inclination_deg=s.inclination_deg,
                            raan_deg=raan, argument_of_latitude_deg=arg_lat)
-    true_att, att_info = _true_attitude(cfg, t_true_att)
+    true_att, att_info = _true_attitude(cfg, t_true_att, jitter)
     true_model = model(orbit, true_att, true_bands, inst_true, "truth")
     lab_model = model(_measured_orbit(cfg, orbit, orbit_bias_m), _measured_attitude(cfg, t_meas_att), lab_bands,
                       Installation(), "simulated")
