@@ -38,6 +38,8 @@ FULL_SESSIONS = 20
 QUICK_SESSIONS = 2
 #: the star processing of every session (seed 000: tracks of > 25 points, five held out per track)
 OPTIONS = StarOptions(mag_limit=10.5, compare_joint=False)
+#: sessions pooled per point of the day-to-day sensitivity curve
+CURVE_SESSIONS = 5
 #: seed of the day-to-day installation offsets (one draw per day index)
 DAY_TO_DAY_SEED = 17
 #: seed 000 table 3 (mean of 20 days) and table 4 (normal fit), pixels
@@ -129,9 +131,10 @@ def _day_offsets_arcsec(profile, n_sessions: int) -> np.ndarray:
     return out
 
 
-def _run_sessions(work, profile, n_sessions: int, n_frames: int) -> list:
-    """Session 0 as the simulator sets it; the others share its installation plus a daily offset."""
-    first = run_session(work, profile, day=0, n_frames=n_frames)
+def _run_sessions(work, profile, n_sessions: int, n_frames: int, first=None) -> list:
+    """Session 0 as the simulator sets it (or ``first``, already run); the others share its
+    installation plus a daily offset."""
+    first = first if first is not None else run_session(work, profile, day=0, n_frames=n_frames)
     sessions = [first]
     base = np.asarray(first["installation_error_arcsec"], dtype=np.float64)
     offsets = _day_offsets_arcsec(profile, n_sessions)
@@ -139,6 +142,29 @@ def _run_sessions(work, profile, n_sessions: int, n_frames: int) -> list:
         sessions.append(run_session(work, profile, day=day, n_frames=n_frames,
                                     installation_error_arcsec=tuple(base + offsets[day])))
     return sessions
+
+
+def _day_to_day_curve(work, profile, n_frames: int, sessions: list, quick: bool) -> SensitivityCurve:
+    """Pooled held-out error against the day-to-day installation change (``CURVE_SESSIONS`` days
+    per point; day 0 is shared, its installation has no offset)."""
+    own = float(profile.value("installation_day_to_day_arcsec"))
+    xs = sorted({own, 4.0 if quick else 0.0} | (set() if quick else {2.0, 4.0}))
+    k = min(len(sessions), 2 if quick else CURVE_SESSIONS)
+    mean_abs, two_sigma = [], []
+    for x in xs:
+        if x == own:
+            run_k = sessions[:k]
+        else:
+            varied = replace(profile, name=f"{profile.name}-day{x:g}",
+                             installation_day_to_day_arcsec=Sourced(x, "sensitivity"))
+            run_k = _run_sessions(work, varied, k, n_frames, first=sessions[0])
+        doc = _pooled_figures(run_k)
+        mean_abs.append(0.5 * (doc["ra_mean_abs_px"] + doc["de_mean_abs_px"]))
+        two_sigma.append(0.5 * (doc["ra_two_sigma_px"] + doc["de_two_sigma_px"]))
+    return SensitivityCurve("installation_day_to_day", "day-to-day installation change (arcsec, 1 sigma per axis)",
+                            "held-out error, one calibration of all sessions (px)", xs,
+                            {"mean |RA|,|DE| px": mean_abs, "2-sigma px": two_sigma},
+                            f"{k} sessions of {n_frames} frames pooled per point; other magnitudes: {profile.name}")
 
 
 def _pooled_figures(sessions: list) -> dict:
@@ -232,7 +258,9 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
         scale={"frames_per_session": n_frames, "frame_interval_s": 10.0, "image_shape": [1024, 1024],
                "sessions_run": n_sessions, "sessions_of_profile": wanted, "paper_days": 20, "paper_tracks": 437,
                "day_to_day_installation_arcsec": float(profile.value("installation_day_to_day_arcsec"))},
-        tables=[_table(alone, pooled)], curves=_curves(work, profile, n_frames, quick, sessions[0]),
+        tables=[_table(alone, pooled)],
+        curves=_curves(work, profile, n_frames, quick, sessions[0])
+        + ([_day_to_day_curve(work, profile, n_frames, sessions, quick)] if pooled is not None else []),
         headline=headline, profile_rows=[(profile.name, *row) for row in profile_table(profile)], notes=NOTES)
     result.seconds = time.perf_counter() - t0
     return result
