@@ -79,6 +79,7 @@ __all__ = [
     "load_frame",
     "predict_catalog",
     "process_frames",
+    "radec_accuracy",
     "radec_errors_px",
     "read_frame_list",
 ]
@@ -704,7 +705,21 @@ def radec_errors_px(model0: GeoStaringModel, body_to_gcrf, row, col, vectors_gcr
     return dra / pix_deg, (de1 - de0) / pix_deg, dra * np.cos(np.radians(de0)) / pix_deg
 
 
-def _accuracy(ra_px, de_px) -> dict:
+def radec_accuracy(ra_px, de_px) -> dict:
+    """Seed 000's accuracy figures of held-out RA/DE errors (tables 3-4).
+
+    Parameters
+    ----------
+    ra_px, de_px : ndarray, shape (N,)
+        RA and DE errors, pixels (non-finite values are left out).
+
+    Returns
+    -------
+    dict
+        ``n`` and, per ``ra``/``de``: ``mean_px``, ``mean_abs_px``, ``rms_px``, ``max_abs_px`` and,
+        with two points or more, the normal fit (``std_px``, ``two_sigma_px``, bounds and
+        confidence intervals, :func:`calibrate.accuracy.fit_normal`).
+    """
     from calibrate.accuracy import fit_normal
 
     out = {"n": int(ra_px.size)}
@@ -961,14 +976,14 @@ def _calibrate_and_score(obs, models, base, options, versus_points, t0):
     b_chk = b_all[obs.frame[chk]]
     before = radec_errors_px(model0, b_chk, obs.row[chk], obs.col[chk], obs.vectors_gcrf[chk], pixel_rad=pixel)
     after = radec_errors_px(calibrated, b_chk, obs.row[chk], obs.col[chk], obs.vectors_gcrf[chk], pixel_rad=pixel)
-    accuracy = {"before": _accuracy(before[0], before[1]), "after": _accuracy(after[0], after[1])}
+    accuracy = {"before": radec_accuracy(before[0], before[1]), "after": radec_accuracy(after[0], after[1])}
     if options.compare_joint and options.scheme != "joint":
         t5 = time.perf_counter()
         theta_j, runs_j, last_j = calibrate_tracks(model0, obs.virtual_gcrf[cal], obs.row_smooth[cal],
                                                    obs.col_smooth[cal], scheme="joint", **kw)
         joint = radec_errors_px(model0.with_parameters(theta_j), b_chk, obs.row[chk], obs.col[chk],
                                 obs.vectors_gcrf[chk], pixel_rad=pixel)
-        accuracy["joint_after"] = _accuracy(joint[0], joint[1])
+        accuracy["joint_after"] = radec_accuracy(joint[0], joint[1])
         accuracy["joint_after"]["success"] = bool(last_j.success)
         timings["joint_s"] = time.perf_counter() - t5
     versus = []
@@ -1030,7 +1045,7 @@ def error_versus_track_points(model0, obs: StarObservations, body_to_gcrf_frames
                                           obs.col_smooth[pick], scheme=scheme, **kw)
         ra, de, _ = radec_errors_px(model0.with_parameters(theta), b_chk, obs.row[chk], obs.col[chk],
                                     obs.vectors_gcrf[chk], pixel_rad=model0.ifov_rad)
-        acc = _accuracy(ra, de)
+        acc = radec_accuracy(ra, de)
         out.append({"points_per_track": int(n), "n_points": int(pick.size),
                     "success": all(r["success"] for r in runs),
                     "ra_mean_abs_px": acc["ra"]["mean_abs_px"], "de_mean_abs_px": acc["de"]["mean_abs_px"],

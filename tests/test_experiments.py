@@ -226,3 +226,17 @@ def test_source_radiance_is_an_option_of_the_realistic_003_run(tmp_path):
     assert main(["-q", "experiment", "003", "--quick", "--source", str(tmp_path / "x.tif"),
                  "--out", str(tmp_path / "o")]) == 1
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_experiment_000_paper_pools_its_sessions(tmp_path, capsys):
+    """paper-000 (quick: two sessions) reports each session alone and one calibration of both,
+    with the day-to-day installation curve."""
+    paper = _run(tmp_path, "000", "paper-000", capsys)
+    h = paper["headline"]
+    assert paper["scale"]["sessions_run"] == 2 and paper["scale"]["day_to_day_installation_arcsec"] == 1.0
+    for k in ("ra", "de"):
+        assert 0.05 < h[f"pooled_{k}_mean_abs_px"] < 2.0
+        assert 0.05 < h[f"{k}_mean_abs_px"] < 2.0
+    assert _cell(paper, "mean |RA| after (px)", "ours, one calibration of all sessions") == h["pooled_ra_mean_abs_px"]
+    assert "installation_day_to_day" in {c["name"] for c in paper["curves"]}

@@ -26,19 +26,28 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.config import StarOptions
 from calibrate.experiments.results import ExperimentResult, PaperTable, SensitivityCurve
 from sensor_models.simulate.profiles import Sourced, get_profile, profile_table
 
 __all__ = ["FULL_SESSIONS", "PAPER", "run", "run_session"]
 
-#: sessions of a full ``paper-000`` run (the paper: 20 days; a session takes ~40 s here)
-FULL_SESSIONS = 5
+#: sessions of a full ``paper-000`` run: the paper's 20 days (a session takes ~40 s on a quiet core)
+FULL_SESSIONS = 20
+#: sessions of a quick run of a profile with several sessions (enough to exercise the pooling)
+QUICK_SESSIONS = 2
+#: the star processing of every session (seed 000: tracks of > 25 points, five held out per track)
+OPTIONS = StarOptions(mag_limit=10.5, compare_joint=False)
+#: sessions pooled per point of the day-to-day sensitivity curve
+CURVE_SESSIONS = 5
+#: seed of the day-to-day installation offsets (one draw per day index)
+DAY_TO_DAY_SEED = 17
 #: seed 000 table 3 (mean of 20 days) and table 4 (normal fit), pixels
 PAPER = {"ra_before_px": -6.795, "de_before_px": -21.004, "ra_mean_abs_px": 0.84175, "de_mean_abs_px": 0.8534,
          "ra_two_sigma_px": 2.24, "de_two_sigma_px": 2.35, "tracks": 437}
 
 
-def run_session(work: Path, profile, *, day: int, n_frames: int) -> dict:
+def run_session(work: Path, profile, *, day: int, n_frames: int, installation_error_arcsec=()) -> dict:
     """Simulate and calibrate one session; its held-out accuracy.
 
     Parameters
@@ -50,28 +59,34 @@ def run_session(work: Path, profile, *, day: int, n_frames: int) -> dict:
         Day index (the date and the noise seed).
     n_frames : int
         Frames, 10 s apart.
+    installation_error_arcsec : (float, float, float) or ()
+        The session's TRUE installation error (roll, pitch, yaw); empty: the simulator's
+        choice for seed 000's initial error at the centre.
 
     Returns
     -------
     dict
         ``success``, ``tracks``, ``ra/de_before_px`` (mean), ``ra/de_mean_abs_px``,
-        ``ra/de_two_sigma_px``.
+        ``ra/de_two_sigma_px``, ``installation_error_arcsec`` (the TRUE one) and ``session``
+        (a :class:`calibrate.star_pooling.StarSession`, for pooling; not JSON).
     """
-    from calibrate.config import StarOptions
+    from calibrate.star_pooling import StarSession
     from calibrate.stars import load_frame, process_frames, read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
     from sensor_models.simulate.geo_stars import GeoStarsConfig, simulate_geo_stars
 
     epoch = str(np.datetime64("2023-08-02T14:40:00") + np.timedelta64(int(day), "D"))
-    folder = work / f"{profile.name}_day{day:02d}_{n_frames}"
-    config = GeoStarsConfig(n_frames=int(n_frames), epoch_utc=epoch, seed=int(day))
-    simulate_geo_stars(folder, config=config, profile=profile)
+    inst = tuple(float(x) for x in installation_error_arcsec)
+    folder = work / f"{profile.name}_day{day:02d}_{n_frames}" if not inst else work / f"{profile.name}_day{day:02d}_{n_frames}_i"
+    config = GeoStarsConfig(n_frames=int(n_frames), epoch_utc=epoch, seed=int(day), installation_error_arcsec=inst)
+    simulated = simulate_geo_stars(folder, config=config, profile=profile)
     paths, seconds, manifest = read_frame_list(folder)
     lab = read_geo_manifest(manifest)
-    r = process_frames([load_frame(p) for p in paths], seconds, lab,
-                       options=StarOptions(mag_limit=10.5, compare_joint=False))
+    r = process_frames([load_frame(p) for p in paths], seconds, lab, options=OPTIONS)
     a = r.accuracy
-    out = {"success": bool(r.success), "tracks": int(r.frames["n_tracks"])}
+    out = {"success": bool(r.success), "tracks": int(r.frames["n_tracks"]),
+           "installation_error_arcsec": simulated["installation_error_arcsec"],
+           "session": StarSession.from_result(r, lab, seconds)}
     for k in ("ra", "de"):
         out[f"{k}_before_px"] = a["before"][k].get("mean_px")
         out[f"{k}_mean_abs_px"] = a["after"][k].get("mean_abs_px")
@@ -79,7 +94,8 @@ def run_session(work: Path, profile, *, day: int, n_frames: int) -> dict:
     return out
 
 
-def _pooled(sessions: list) -> dict:
+def _session_mean(sessions: list) -> dict:
+    """Mean of the per-session figures (each session calibrated alone)."""
     keys = [k for k in sessions[0] if k.endswith("_px")]
     out = {k: float(np.mean([s[k] for s in sessions if s[k] is not None])) for k in keys}
     out["tracks"] = int(sum(s["tracks"] for s in sessions))
@@ -88,17 +104,85 @@ def _pooled(sessions: list) -> dict:
     return out
 
 
-def _table(pooled: dict) -> PaperTable:
-    rows = [["RA mean error before (px)", PAPER["ra_before_px"], pooled["ra_before_px"]],
-            ["DE mean error before (px)", PAPER["de_before_px"], pooled["de_before_px"]],
-            ["mean |RA| after (px)", PAPER["ra_mean_abs_px"], pooled["ra_mean_abs_px"]],
-            ["mean |DE| after (px)", PAPER["de_mean_abs_px"], pooled["de_mean_abs_px"]],
-            ["RA 2-sigma after (px)", PAPER["ra_two_sigma_px"], pooled["ra_two_sigma_px"]],
-            ["DE 2-sigma after (px)", PAPER["de_two_sigma_px"], pooled["de_two_sigma_px"]],
-            ["tracks", PAPER["tracks"], pooled["tracks"]]]
+def _table(alone: dict, pooled: dict | None) -> PaperTable:
+    """Seed 000 tables 3-4 beside ours: each session calibrated alone, and one calibration of all."""
+    def cell(doc, key):
+        return None if doc is None else doc.get(key)
+
+    rows = []
+    for label, key in (("RA mean error before (px)", "ra_before_px"), ("DE mean error before (px)", "de_before_px"),
+                       ("mean |RA| after (px)", "ra_mean_abs_px"), ("mean |DE| after (px)", "de_mean_abs_px"),
+                       ("RA 2-sigma after (px)", "ra_two_sigma_px"), ("DE 2-sigma after (px)", "de_two_sigma_px")):
+        rows.append([label, PAPER[key], alone[key], cell(pooled, key)])
+    rows.append(["tracks", PAPER["tracks"], alone["tracks"], cell(pooled, "tracks")])
     return PaperTable("Held-out positioning error before and after calibration",
                       "seed 000 table 3 (means over 20 days), table 4 (2-sigma of the normal fit), section 4 "
-                      "(437 tracks)", ("quantity", "paper", "ours"), rows)
+                      "(437 tracks of the 20 days verify one model)",
+                      ("quantity", "paper", "ours, each session alone (mean)", "ours, one calibration of all sessions"),
+                      rows)
+
+
+def _day_offsets_arcsec(profile, n_sessions: int) -> np.ndarray:
+    """Day-to-day installation offsets (roll, pitch, yaw, arcsec) of each session; day 0 none."""
+    sigma = float(profile.value("installation_day_to_day_arcsec"))
+    out = np.zeros((n_sessions, 3))
+    for day in range(1, n_sessions):
+        out[day] = np.random.default_rng([DAY_TO_DAY_SEED, day]).normal(0.0, sigma, 3)
+    return out
+
+
+def _run_sessions(work, profile, n_sessions: int, n_frames: int, first=None) -> list:
+    """Session 0 as the simulator sets it (or ``first``, already run); the others share its
+    installation plus a daily offset."""
+    first = first if first is not None else run_session(work, profile, day=0, n_frames=n_frames)
+    sessions = [first]
+    base = np.asarray(first["installation_error_arcsec"], dtype=np.float64)
+    offsets = _day_offsets_arcsec(profile, n_sessions)
+    for day in range(1, n_sessions):
+        sessions.append(run_session(work, profile, day=day, n_frames=n_frames,
+                                    installation_error_arcsec=tuple(base + offsets[day])))
+    return sessions
+
+
+def _day_to_day_curve(work, profile, n_frames: int, sessions: list, quick: bool) -> SensitivityCurve:
+    """Pooled held-out error against the day-to-day installation change (``CURVE_SESSIONS`` days
+    per point; day 0 is shared, its installation has no offset)."""
+    own = float(profile.value("installation_day_to_day_arcsec"))
+    xs = sorted({own, 4.0 if quick else 0.0} | (set() if quick else {2.0, 4.0}))
+    k = min(len(sessions), 2 if quick else CURVE_SESSIONS)
+    mean_abs, two_sigma = [], []
+    for x in xs:
+        if x == own:
+            run_k = sessions[:k]
+        else:
+            varied = replace(profile, name=f"{profile.name}-day{x:g}",
+                             installation_day_to_day_arcsec=Sourced(x, "sensitivity"))
+            run_k = _run_sessions(work, varied, k, n_frames, first=sessions[0])
+        doc = _pooled_figures(run_k)
+        mean_abs.append(0.5 * (doc["ra_mean_abs_px"] + doc["de_mean_abs_px"]))
+        two_sigma.append(0.5 * (doc["ra_two_sigma_px"] + doc["de_two_sigma_px"]))
+    return SensitivityCurve("installation_day_to_day", "day-to-day installation change (arcsec, 1 sigma per axis)",
+                            "held-out error, one calibration of all sessions (px)", xs,
+                            {"mean |RA|,|DE| px": mean_abs, "2-sigma px": two_sigma},
+                            f"{k} sessions of {n_frames} frames pooled per point; other magnitudes: {profile.name}")
+
+
+def _pooled_figures(sessions: list) -> dict:
+    """One calibration of every session's tracks, scored on every held-out point."""
+    from calibrate.star_pooling import calibrate_pooled
+
+    doc = calibrate_pooled([s["session"] for s in sessions], options=OPTIONS)
+    out = {"success": bool(doc["success"]), "tracks": int(sum(s["tracks"] for s in sessions)),
+           "sessions": int(doc["sessions"])}
+    if not doc["success"] and "after" not in doc:
+        return out
+    for k in ("ra", "de"):
+        out[f"{k}_before_px"] = doc["before"][k].get("mean_px")
+        out[f"{k}_mean_abs_px"] = doc["after"][k].get("mean_abs_px")
+        out[f"{k}_two_sigma_px"] = doc["after"][k].get("two_sigma_px")
+    per_session = [0.5 * (p["ra_mean_abs_px"] + p["de_mean_abs_px"]) for p in doc["per_session"]]
+    out["worst_session_mean_abs_px"] = float(max(per_session))
+    return out
 
 
 def _magnitudes(profile) -> tuple:
@@ -146,7 +230,8 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
     profile_name : str
         ``ideal``, ``realistic`` or ``paper-000``.
     quick : bool
-        One session of 30 frames; two points per sensitivity curve (one of them the profile's own).
+        Sessions of 30 frames (one, or two for a profile of several sessions, so that the pooling
+        runs); two points per sensitivity curve (one of them the profile's own).
     work_dir : Path
         Scratch folder (frames).
 
@@ -159,20 +244,26 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
     work = Path(work_dir)
     n_frames = 30 if quick else 120
     wanted = int(profile.value("sessions"))
-    n_sessions = 1 if quick else min(wanted, FULL_SESSIONS)
-    sessions = [run_session(work, profile, day=d, n_frames=n_frames) for d in range(n_sessions)]
-    pooled = _pooled(sessions)
+    n_sessions = min(wanted, QUICK_SESSIONS if quick else FULL_SESSIONS)
+    sessions = _run_sessions(work, profile, n_sessions, n_frames)
+    alone = _session_mean(sessions)
+    pooled = _pooled_figures(sessions) if n_sessions > 1 else None
+    headline = {**{k: v for k, v in alone.items() if k.endswith("_px")}, "tracks": alone["tracks"],
+                "success": alone["success"]}
+    if pooled is not None:
+        headline.update({f"pooled_{k}": v for k, v in pooled.items() if k.endswith("_px")})
+        headline["pooled_success"] = pooled["success"]
     result = ExperimentResult(
         "000", profile_name, quick, "Seed 000: geostationary staring camera calibrated from the relative motion of stars",
         scale={"frames_per_session": n_frames, "frame_interval_s": 10.0, "image_shape": [1024, 1024],
-               "sessions_run": n_sessions, "sessions_of_profile": wanted, "paper_days": 20, "paper_tracks": 437},
-        tables=[_table(pooled)], curves=_curves(work, profile, n_frames, quick, sessions[0]),
-        headline={**{k: v for k, v in pooled.items() if k.endswith("_px")}, "tracks": pooled["tracks"],
-                  "success": pooled["success"]},
-        profile_rows=[(profile.name, *row) for row in profile_table(profile)], notes=NOTES)
+               "sessions_run": n_sessions, "sessions_of_profile": wanted, "paper_days": 20, "paper_tracks": 437,
+               "day_to_day_installation_arcsec": float(profile.value("installation_day_to_day_arcsec"))},
+        tables=[_table(alone, pooled)],
+        curves=_curves(work, profile, n_frames, quick, sessions[0])
+        + ([_day_to_day_curve(work, profile, n_frames, sessions, quick)] if pooled is not None else []),
+        headline=headline, profile_rows=[(profile.name, *row) for row in profile_table(profile)], notes=NOTES)
     result.seconds = time.perf_counter() - t0
     return result
-
 
 NOTES = [
     "Before: ours is set to the paper's table 3 means by construction (installation error chosen to give "
@@ -183,7 +274,9 @@ NOTES = [
     "attitude noise share the error (0.32 px; 0.20 px without the wobble, 0.26 px with 0.1 arcsec noise); "
     "catalogue errors (~32 mas with the proper-motion epoch error, ~0.01 px), the 0.05 px pixel-phase S-curve "
     "and PRNU are small by their magnitudes (not ablated one by one), and a GEO orbit error moves no star.",
-    "The paper's 2-sigma (2.2-2.4 px) pools 20 days of real data with day-to-day thermal change of the "
-    "installation (seed 000 section 4); our sessions are calibrated one at a time, so that change is not in "
-    "our figure: the main remaining gap.",
+    "The paper verifies one model on 20 days (437 tracks) in which the installation changes thermally from day "
+    "to day. paper-000 runs 20 sessions that share one TRUE installation plus a daily offset "
+    "(installation_day_to_day_arcsec, 1 arcsec: an assumption) and reports each session calibrated alone and "
+    "one calibration of all (pooled). The day-to-day sensitivity curve shows the paper's figures at about 4 "
+    "arcsec a day, inside the 3-6 arcsec thermal budget: the main remaining gap, not tuned away.",
 ]

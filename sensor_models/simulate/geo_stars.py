@@ -117,6 +117,11 @@ class GeoStarsConfig:
         RA and DE errors (pixels) of the LAB model at the array centre (seed 000 table 3).
     boresight_rotation_arcsec : float
         Installation error about the boresight (not visible at the centre).
+    installation_error_arcsec : (float, float, float) or ()
+        The TRUE installation error (roll, pitch, yaw, arcsec) given outright; empty (default):
+        chosen from ``initial_error_px`` and ``boresight_rotation_arcsec`` for this session's
+        attitude. A series of sessions of one camera gives one value (plus its day-to-day
+        change) so that the sessions share one installation.
     focal_length_mm, principal_point_offset_px, radial_k1, decentering_p, tilt_arcsec,
     rotation_arcsec : interior truth (see :class:`~sensor_models.geo_staring.StaringLab`).
     attitude_bias_arcsec, attitude_drift_arcsec_s, attitude_jitter_arcsec,
@@ -140,6 +145,7 @@ class GeoStarsConfig:
     mag_limit: float = 10.0
     initial_error_px: tuple = (-7.0, -21.0)
     boresight_rotation_arcsec: float = 40.0
+    installation_error_arcsec: tuple = ()
     focal_length_mm: float = 1250.8
     principal_point_offset_px: tuple = (0.6, -0.4)
     radial_k1: float = 1.5e-8
@@ -185,6 +191,10 @@ class GeoStarsConfig:
             raise InputError("must be 9.5..60 degrees (past the Earth's limb)", field="view_north_deg")
         if not np.isfinite(self.mag_limit):
             raise InputError("must be finite", field="mag_limit")
+        inst = np.asarray(self.installation_error_arcsec, dtype=np.float64).reshape(-1)
+        if inst.size not in (0, 3) or not np.all(np.isfinite(inst)):
+            raise InputError(f"must be empty or three finite angles, got {self.installation_error_arcsec}",
+                             field="installation_error_arcsec")
         if self.extra:
             raise InputError(f"unknown settings {sorted(self.extra)}", field="extra")
         return self
@@ -294,7 +304,10 @@ def _build_models(cfg: GeoStarsConfig, rng, errors=None):
     lab = GeoStaringModel.from_lab(SEED000_CAMERA, attitude=measured_att, installation=nominal, name="geo_stars_lab",
                                    **{**common, "orbit": lab_orbit})
     truth0 = GeoStaringModel.from_lab(_true_lab(cfg), attitude=true_att, installation=nominal, name="geo_stars_truth", **common)
-    d = _installation_error(cfg, lab, truth0)
+    if len(cfg.installation_error_arcsec):
+        d = np.asarray(cfg.installation_error_arcsec, dtype=np.float64) * ARCSEC
+    else:
+        d = _installation_error(cfg, lab, truth0)
     p = truth0.parameters().values.copy()
     p[:3] += d
     truth = truth0.with_parameters(p)
@@ -471,7 +484,8 @@ def _truth_doc(cfg: GeoStarsConfig, lab, truth, d_inst, rendered) -> dict:
     shape = truth.image_shape
     initial = _radec_error_px(lab, truth, [0.5 * shape[0]], [0.5 * shape[1]])[0]
     return {
-        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items() if k != "extra"},
+        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()
+                   if k != "extra" and not (k == "installation_error_arcsec" and not len(v))},
         "parameter_names": list(truth.parameter_names()),
         "true_parameters": truth.parameters().values.tolist(),
         "lab_parameters": lab.parameters().values.tolist(),
