@@ -257,6 +257,9 @@ def _reference_px(tally: _Tally, model_pc, band, look, ccd) -> np.ndarray:
                                      n_detectors=look.n_detectors, height_m=tally.height_m, array=ccd))
     if not np.all(np.isfinite(px)):  # the CCD centre does not localize: the scene's mean GSD
         px = np.full(2, acc.per_axis_m / scene_gsd_m(model_pc, band=band, height_m=tally.height_m))
+    if not np.all(np.isfinite(px)):
+        raise InputError(f"cannot convert the reference accuracy ({acc.per_axis_m:.1f} m) into pixels of "
+                         f"{look.name or 'the image'}: its centre does not localize; give --sigma-model ccd")
     return px
 
 
