@@ -128,7 +128,7 @@ def test_reference_sigma_px_projects_east_and_north():
     assert row == pytest.approx(np.hypot(row_n, row_e), rel=1e-6)
 
 
-def test_match_reads_the_dom_tag_and_the_option_wins(tmp_path):
+def test_match_reads_the_dom_tag_and_the_option_wins(tmp_path, capsys):
     """``gcpcal match`` on the ideal fixture with a tagged copy of its DOM: the summary names the tag;
     ``--reference-sigma-m`` overrides it."""
     from calibrate.cli import main
@@ -137,15 +137,16 @@ def test_match_reads_the_dom_tag_and_the_option_wins(tmp_path):
     shutil.copy(FIXTURE / "reference" / "dom.tif", dom)
     with rasterio.open(dom, "r+") as ds:
         ds.update_tags(**{ACCURACY_TAG_X: "3.0", ACCURACY_TAG_Y: "9.0"})
-    base = ["-q", "match", str(FIXTURE / "manifest.json"), "--dom", str(dom), "--dem",
+    base = ["match", str(FIXTURE / "manifest.json"), "--dom", str(dom), "--dem",
             str(FIXTURE / "reference" / "dem.tif"), "--spacing", "96"]
     assert main([*base, "--out", str(tmp_path / "tag.csv")]) == 0
+    assert f"reference accuracy: 3 m east, 9 m north (1 sigma, from tag {dom})" in capsys.readouterr().out
     tag = json.loads((tmp_path / "tag.summary.json").read_text())
     assert tag["reference_accuracy"] == {"east_m": 3.0, "north_m": 9.0, "source": f"tag {dom}", "assumed": False}
     assert "reference_note" not in tag
     ref = np.array([c["reference_sigma_px"] for c in tag["per_ccd"]])  # (row, col) per CCD
     assert np.all(ref[:, 0] > 2 * ref[:, 1]), ref  # the 9 m north error lands in rows (near-polar orbit)
-    assert main([*base, "--reference-sigma-m", "0", "--out", str(tmp_path / "opt.csv")]) == 0
+    assert main(["-q", *base, "--reference-sigma-m", "0", "--out", str(tmp_path / "opt.csv")]) == 0
     opt = json.loads((tmp_path / "opt.summary.json").read_text())
     assert opt["reference_accuracy"]["source"] == "option" and opt["reference_accuracy"]["east_m"] == 0.0
     assert np.all(np.array([c["reference_sigma_px"] for c in opt["per_ccd"]]) == 0.0)

@@ -80,6 +80,10 @@ def _print_summary(out_path, summary) -> None:
     for key in ("note", "cloud_note", "dom_note", "reference_note"):
         if summary.get(key):
             click.echo(f"  note: {summary[key]}")
+    acc = summary.get("reference_accuracy")
+    if acc and not acc["assumed"]:
+        click.echo(f"  reference accuracy: {acc['east_m']:g} m east, {acc['north_m']:g} m north (1 sigma, from "
+                   f"{acc['source']})")
     for c in summary.get("per_ccd", []):
         dom = c.get("dom_coverage")
         line = (f"  {'CCD ' + c['ccd'] if c['ccd'] else 'image'}: {c['gcps']} GCPs; DEM {100 * c.get('dem_coverage', 0.0):.0f} %, "
