@@ -16,11 +16,22 @@ error rms / median / p95 (px, 2-D), the share of kept GCPs off by more than 1 px
 calibration: rms of (truth error / sigma_px) per axis and the truth-error rms per decile of
 sigma_px.
 
+A variant whose ``reference_sigma_m`` is None takes the reference accuracy as production does
+(:func:`sensor_models.dom_inputs.reference_accuracy`: the tags the simulator writes into the
+realistic DOM), projected per CCD into rows and columns through the pre-corrected model
+(:func:`gcpmatch.uncertainty.reference_sigma_px`).
+
 ``--calibrate`` variants also go through ``match`` and ``gcpcal calibrate`` on the realistic
-scenes: the calibration's variance factor and check RMSE.
+scenes: the calibration's variance factor and check RMSE, and the installation angles against
+those of the same calibration on exact observations (each GCP's ground point projected through
+the TRUE model, same points and weights: the model family's best fit to the truth), as z =
+difference / reported sigma. ``--coverage-seeds`` repeats that chain on more realistic scenes
+(Sentinel-2 and procedural source, one per seed) for the coverage of the 95 % intervals.
 
 Usage: ``python bench/bench_matcher_realism.py --cache /tmp/mr [--variants a,b] [--out FILE]``
-(default ``--out bench/results/matcher_realism.json``).
+(default ``--out bench/results/matcher_realism.json``; the session-5 sigma run:
+``--variants default,ccd,window_ref0 --calibrate default,ccd --coverage-seeds 3,5,7,9
+--out bench/results/matcher_realism_sigma.json``).
 """
 
 from __future__ import annotations
@@ -43,7 +54,10 @@ S2_RED = ROOT.parent / "shared" / "data" / "real_textures" / "sentinel2" / "s2_B
 #: the matcher's own (radiometric change, MTF, DEM error, resampling)
 #: ``realistic_procedural``: realistic on the procedural source texture (the sigma model's
 #: constants were fitted on the Sentinel-2 source: this scene checks them out of sample)
-PROFILES = ("ideal", "realistic", "realistic_no_dom_error", "realistic_procedural")
+#: ``*_heldout``: the same on another seed (7), nothing fitted on it
+PROFILES = ("ideal", "realistic", "realistic_no_dom_error", "realistic_procedural", "realistic_heldout",
+            "realistic_procedural_heldout")
+HELDOUT_SEED = 7
 
 
 def _gcpcal(*args) -> None:
@@ -61,6 +75,10 @@ def simulate_once(cache: Path, profile: str, gsd_m: float, source) -> Path:
         return scene
     config = cache / "config.json"
     config.write_text(json.dumps({"scene": {"gsd_m": gsd_m}, "reference": {"margin_m": 1000.0, "relief_m": 600.0}}))
+    seed = HELDOUT_SEED if profile.endswith("_heldout") else None
+    if "_seed" in profile:  # coverage scenes: realistic[_procedural]_seedN
+        seed = int(profile.rsplit("_seed", 1)[1])
+    profile_name = profile.replace("_heldout", "").split("_seed")[0]
     if profile == "realistic_no_dom_error":
         from sensor_models.simulate.config import load_config
         from sensor_models.simulate.profiles import PROFILES as SIM_PROFILES, Sourced
@@ -71,8 +89,10 @@ def simulate_once(cache: Path, profile: str, gsd_m: float, source) -> Path:
                                                                                **off), dom=source)
         return scene
     sim = ["simulate", "pushbroom", "--out", scene, "--config", config, "--profile", profile.split("_")[0]]
-    if profile in ("realistic",) and source is not None:
+    if profile_name == "realistic" and source is not None:
         sim += ["--dom", source]
+    if seed is not None:
+        sim += ["--seed", seed]
     _gcpcal(*sim)
     return scene
 
@@ -89,13 +109,16 @@ def prepare_windows(scene: Path, options) -> dict:
         ``status`` (n,) str: ``""`` or the screening reason (no_reference, no_data, cloud);
         ``std_r`` (n,) reference standard deviation; ``true_shift`` (n, 2) px (NaN where the
         truth cannot project); ``rr``, ``cc`` (n,) window corners in the CCD image; ``ccd``
-        (n,); ``grid`` (n_ccd, 2) grid shape per CCD; ``first_col`` (n_ccd,).
+        (n,); ``grid`` (n_ccd, 2) grid shape per CCD; ``first_col`` (n_ccd,); ``ref_px_per_m``
+        (n_ccd, 2, 2): (row, col) pixels per metre of east and north reference error.
     """
     from numpy.lib.stride_tricks import sliding_window_view
 
     from gcpmatch.clouds import detect_clouds
     from gcpmatch.extract import _coarse_stage, _grid_starts, read_band
+    from gcpmatch.coarse import scene_height_m
     from gcpmatch.reference import reference_for_ccd, scene_gsd_m
+    from gcpmatch.uncertainty import reference_sigma_px
     from sensor_models.raster import MapImage
     from sensor_models.readers import open_model, open_scene
     from sensor_models.terrain import Dem
@@ -109,8 +132,11 @@ def prepare_windows(scene: Path, options) -> dict:
     model_pc = _coarse_stage(img_all, model, dem, dom, band, options).model
     w, half = options.window_px, options.window_px // 2
     out = {k: [] for k in ("ws", "wr", "status", "std_r", "true_shift", "rr", "cc", "ccd")}
-    grids, first_cols = [], []
+    grids, first_cols, per_m = [], [], []
+    height_m = scene_height_m(model_pc, dem, band=band)
     for i, look in enumerate(model_pc.detector_arrays(band)):
+        kw = dict(band=band, first_col=look.first_col, n_detectors=look.n_detectors, height_m=height_m, array=i)
+        per_m.append(np.array([reference_sigma_px(model_pc, 1.0, 0.0, **kw), reference_sigma_px(model_pc, 0.0, 1.0, **kw)]).T)
         ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=i, psf_sigma_px=options.psf_sigma_px)
         img = img_all[:, look.first_col:look.first_col + look.n_detectors]
         msk, _ = detect_clouds(img, ref)
@@ -144,18 +170,22 @@ def prepare_windows(scene: Path, options) -> dict:
     arrays = {k: np.concatenate(v) for k, v in out.items()}
     arrays["grid"] = np.array(grids)
     arrays["first_col"] = np.array(first_cols)
+    arrays["ref_px_per_m"] = np.array(per_m)
     arrays["gsd_m"] = np.array(scene_gsd_m(model_pc, band=band))
     return arrays
 
 
 def load_windows(cache: Path, profile: str, gsd_m: float, source, options) -> dict:
     """:func:`prepare_windows` of the cached scene, itself cached as ``PROFILE_windows.npz``."""
+    from sensor_models.dom_inputs import reference_accuracy
+
     path = cache / f"{profile}_w{options.window_px}_s{options.spacing_px}_psf{options.psf_sigma_px}_windows.npz"
+    scene = simulate_once(cache, profile, gsd_m, source)
     if not path.exists():
-        scene = simulate_once(cache, profile, gsd_m, source)
         np.savez(path, **prepare_windows(scene, options))
     with np.load(path) as data:
         win = dict(data)
+    win["stated_accuracy"] = reference_accuracy([str(scene / "reference" / "dom.tif")])
     win["status"] = win["status"].astype(object)
     return win
 
@@ -164,6 +194,11 @@ def run_variant(win: dict, options, phase_options: dict | None = None) -> dict:
     """Correlate, reject and assign sigma with ``options``; the kept windows' errors and sigmas."""
     from gcpmatch.extract import correlate_pairs, reject_outliers
 
+    from sensor_models.dom_inputs import reference_accuracy
+
+    acc = win["stated_accuracy"] if options.reference_sigma_m is None else reference_accuracy(
+        [], given_m=options.reference_sigma_m)
+    ref_px = np.sqrt(np.mean((win["ref_px_per_m"] ** 2) @ np.array([acc.east_m**2, acc.north_m**2]), axis=1))
     seconds, err, sig, score = 0.0, [], [], []
     for i, (n_r, n_c) in enumerate(win["grid"]):
         sel = np.flatnonzero(win["ccd"] == i)
@@ -180,7 +215,7 @@ def run_variant(win: dict, options, phase_options: dict | None = None) -> dict:
             quality[k][go] = v
         keep, _, _, sigma = reject_outliers(status, win["std_r"][sel], shift, win["rr"][sel], win["cc"][sel],
                                             (int(n_r), int(n_c)), int(win["first_col"][i]), options, quality=quality,
-                                            gsd_m=float(win["gsd_m"]))
+                                            reference_sigma_px=float(ref_px[i]) if options.sigma_model == "window" else 0.0)
         ok = np.isfinite(win["true_shift"][sel[keep]]).all(axis=1)
         err.append((shift[keep] - win["true_shift"][sel[keep]])[ok])
         sig.append(sigma[ok])
@@ -216,7 +251,8 @@ def metrics(run: dict) -> dict:
                            "p95": float(np.percentile(dist, 95)),
                            "rms_without_outliers": float(np.sqrt(np.mean(dist[good] ** 2)))},
         "outlier_share_gt_1px": float(1.0 - good.mean()),
-        "normalized_rms": {"row": float(np.sqrt(np.mean(z[:, 0] ** 2))), "col": float(np.sqrt(np.mean(z[:, 1] ** 2)))},
+        "normalized_rms": {"row": float(np.sqrt(np.mean(z[:, 0] ** 2))), "col": float(np.sqrt(np.mean(z[:, 1] ** 2))),
+                           "pooled": float(np.sqrt(np.mean(z**2)))},
         "normalized_rms_without_outliers": {
             "row": float(np.sqrt(np.mean(z[good, 0] ** 2))), "col": float(np.sqrt(np.mean(z[good, 1] ** 2)))},
         "sigma_px_median": float(np.median(sig)),
@@ -236,9 +272,12 @@ def variants() -> dict:
     """Named (:class:`~gcpmatch.options.MatchOptions`, phase-correlation keywords) to measure."""
     from gcpmatch.options import MatchOptions
 
-    base = MatchOptions()
+    base = MatchOptions(sigma_model="ccd")  # the matcher candidates of session 4, with the sigma model they had
     window = replace(base, sigma_model="window")
     return {
+        "default": (MatchOptions(), None),  # window model, the reference accuracy the DOM states
+        "ccd": (base, None),
+        "window_ref0": (replace(MatchOptions(), reference_sigma_m=0.0), None),
         "baseline": (base, None),
         "rank": (replace(base, radiometry="rank"), None),
         "gradient": (replace(base, radiometry="gradient"), None),
@@ -265,9 +304,37 @@ def variants() -> dict:
     }
 
 
+INSTALLATION = ("installation.roll", "installation.pitch", "installation.yaw")
+
+
+def _calibrate(scene: Path, gcps: Path, out: Path) -> dict:
+    """``gcpcal calibrate`` of ``scene`` on ``gcps`` into ``out``; its calibration.json."""
+    _gcpcal("calibrate", scene / "manifest.json", "--gcps", gcps, "--out", out, "--no-report")
+    return json.loads((out / "calibration.json").read_text())
+
+
+def _exact_gcps(scene: Path, gcps: Path, out: Path) -> None:
+    """The same GCPs (ground points, sigma, kind) observed exactly: projected through the TRUE model."""
+    from gcpmatch.gcps import GcpTable, read_gcps, write_gcps_csv
+    from sensor_models.readers import open_model
+
+    table = read_gcps(gcps)
+    truth = open_model(scene / "truth_manifest.json")
+    row, col = truth.ground_to_image(table.lon, table.lat, table.h, band=str(table.band[0]), ccd=table.ccd)
+    ok = np.isfinite(row) & np.isfinite(col)
+    cols = {k: np.asarray(getattr(table, k))[ok] for k in ("lon", "lat", "h", "sigma_px", "band", "ccd", "score",
+                                                         "kind", "id")}
+    write_gcps_csv(GcpTable.from_arrays(row[ok], col[ok], **cols), out)
+
+
+def _installation(cal: dict) -> dict:
+    return {p["name"]: (p["value"], p["sigma"]) for p in cal["parameters"] if p["name"] in INSTALLATION}
+
+
 def calibration_chain(cache: Path, profile: str, name: str, options) -> dict:
     """``match`` (the library action, with ``options``) then ``gcpcal calibrate`` on a cached scene:
-    the calibration's variance factor and check RMSE, the figures the sigma model must serve."""
+    the calibration's variance factor and check RMSE, the figures the sigma model must serve, and
+    z = (installation angle - its value calibrated on exact observations) / reported sigma."""
     from calibrate.actions.match import match_scene
 
     scene, out = cache / profile, cache / f"chain_{profile}_{name}"
@@ -275,10 +342,56 @@ def calibration_chain(cache: Path, profile: str, name: str, options) -> dict:
     out.mkdir(parents=True)
     match_scene(scene / "manifest.json", dom_path=scene / "reference" / "dom.tif",
                 dem_path=scene / "reference" / "dem.tif", out_path=out / "gcps.csv", options=options)
-    _gcpcal("calibrate", scene / "manifest.json", "--gcps", out / "gcps.csv", "--out", out / "cal", "--no-report")
-    cal = json.loads((out / "cal" / "calibration.json").read_text())
+    cal = _calibrate(scene, out / "gcps.csv", out / "cal")
+    _exact_gcps(scene, out / "gcps.csv", out / "exact.csv")
+    exact = _installation(_calibrate(scene, out / "exact.csv", out / "cal_exact"))
+    est = _installation(cal)
+    z = {k.split(".")[1]: (est[k][0] - exact[k][0]) / est[k][1] for k in INSTALLATION}
+    sigma_arcsec = {k.split(".")[1]: est[k][1] * 206264.806 for k in INSTALLATION}
     after = ((cal.get("check_accuracy") or {}).get("after") or {}).get("absolute") or {}
-    return {"variance_factor": cal.get("variance_factor"), "check_rmse_px": after.get("rmse_px")}
+    return {"variance_factor": cal.get("variance_factor"), "check_rmse_px": after.get("rmse_px"),
+            "installation_z": z, "installation_sigma_arcsec": sigma_arcsec}
+
+
+ARCSEC_PER_RAD = 206264.806
+
+
+def reference_floor_arcsec(scene: Path) -> float:
+    """The angle that the DOM's stated accuracy (per axis) subtends from the orbit, arcsec: the
+    part of a roll or pitch error that all GCPs share (their common reference error)."""
+    from sensor_models.dom_inputs import reference_accuracy
+
+    altitude_m = json.loads((scene / "truth.json").read_text())["orbit"]["altitude_m"]
+    return reference_accuracy([str(scene / "reference" / "dom.tif")]).per_axis_m / altitude_m * ARCSEC_PER_RAD
+
+
+def coverage(results: dict, floors: dict | None = None) -> dict:
+    """Share of the installation angles' 95 % intervals (|z| <= 1.96) holding the exact-observation value:
+    as reported; with the covariance not scaled by a variance factor below 1; and with that plus the
+    reference's common error (``floors``, arcsec per scene, on roll and pitch) added in quadrature."""
+    z, z_unscaled, z_floor = [], [], []
+    for p, c in results.items():
+        vf = max(c["variance_factor"], 1.0) / c["variance_factor"]  # undo a down-scaling only
+        for k, zk in c["installation_z"].items():
+            sig = c["installation_sigma_arcsec"][k]
+            diff = zk * sig
+            z.append(zk)
+            z_unscaled.append(diff / (sig * np.sqrt(vf)))
+            floor = (floors or {}).get(p, 0.0) if k in ("roll", "pitch") else 0.0
+            z_floor.append(diff / np.hypot(sig * np.sqrt(vf), floor))
+
+    def share(v):
+        v = np.abs(np.array(v))
+        return {"covered_95": float(np.mean(v <= 1.96)), "rms_z": float(np.sqrt(np.mean(v**2)))}
+
+    return {"angles": len(z), "as_reported": share(z), "unscaled": share(z_unscaled),
+            "unscaled_with_reference_floor": share(z_floor)}
+
+
+def _print_chain(name: str, profile: str, c: dict) -> None:
+    z = " ".join(f"{k} {v:+.2f}" for k, v in c["installation_z"].items())
+    print(f"{name:>22} {profile:>9}: calibration variance factor {c['variance_factor']:.2f}, "
+          f"check RMSE {c['check_rmse_px']:.3f} px, installation z {z}", flush=True)
 
 
 def main() -> None:
@@ -288,7 +401,8 @@ def main() -> None:
     ap.add_argument("--gsd", type=float, default=20.0)
     ap.add_argument("--source", default=str(S2_RED) if S2_RED.exists() else "procedural")
     ap.add_argument("--variants", default=None, help="Comma-separated names (default: all).")
-    ap.add_argument("--calibrate", default="baseline,sigma_window_ref1.3",
+    ap.add_argument("--coverage-seeds", default="", help="Comma-separated seeds of the coverage scenes ('' for none).")
+    ap.add_argument("--calibrate", default="default,ccd",
                     help="Variants also run through match + calibrate on the realistic scenes ('' for none).")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
@@ -305,15 +419,29 @@ def main() -> None:
             results["variants"][name][p] = m
             print(f"{name:>22} {p:>9}: {m['gcps']:4d} GCPs  truth rms {m['truth_error_px']['rms']:.4f} "
                   f"p95 {m['truth_error_px']['p95']:.4f} out {100 * m['outlier_share_gt_1px']:.1f} %  "
-                  f"z-rms row {m['normalized_rms']['row']:.2f} col {m['normalized_rms']['col']:.2f}  "
+                  f"z-rms row {m['normalized_rms']['row']:.2f} col {m['normalized_rms']['col']:.2f} "
+                  f"pooled {m['normalized_rms']['pooled']:.2f}  "
                   f"({m['correlate_s']:.1f} s)", flush=True)
     results["calibration"] = {}
+    scenes = ("realistic", "realistic_procedural", "realistic_heldout", "realistic_procedural_heldout")
     for name in filter(None, args.calibrate.split(",")):
-        for p in ("realistic", "realistic_procedural"):
+        for p in scenes:
+            simulate_once(args.cache, p, args.gsd, source)
             c = calibration_chain(args.cache, p, name, table[name][0])
             results["calibration"].setdefault(name, {})[p] = c
-            print(f"{name:>22} {p:>9}: calibration variance factor {c['variance_factor']:.2f}, "
-                  f"check RMSE {c['check_rmse_px']:.3f} px", flush=True)
+            _print_chain(name, p, c)
+    seeds = [int(x) for x in filter(None, args.coverage_seeds.split(","))]
+    if seeds:
+        runs = {}
+        for seed in seeds:
+            for texture in ("realistic", "realistic_procedural"):
+                p = f"{texture}_seed{seed}"
+                simulate_once(args.cache, p, args.gsd, source)
+                runs[p] = calibration_chain(args.cache, p, "default", table["default"][0])
+                _print_chain("default", p, runs[p])
+        floors = {p: reference_floor_arcsec(args.cache / p) for p in runs}
+        results["coverage"] = {"runs": runs, "reference_floor_arcsec": floors, **coverage(runs, floors)}
+        print("coverage of the 95 % installation intervals:", coverage(runs, floors), flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=1))
 

@@ -13,7 +13,9 @@ summary:
    against a smooth per-CCD correction (:mod:`gcpmatch.outliers`);
 5. each kept window gives a GCP: the ground point that the pre-corrected model sees at the
    window centre ``p`` (DEM intersection) observed at ``p + shift`` in the scene;
-   ``sigma_px`` is the CCD's robust residual spread; a stratified fraction becomes check points.
+   ``sigma_px`` comes from the window's correlation score and the reference DOM's stated accuracy
+   (:mod:`gcpmatch.uncertainty`; ``sigma_model="ccd"``: the CCD's robust residual spread); a
+   stratified fraction becomes check points.
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ from gcpmatch.gcps import GcpTable
 from gcpmatch.options import MatchOptions
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.reference import reference_for_ccd, reference_for_image, scene_gsd_m
-from gcpmatch.uncertainty import window_sigma
+from gcpmatch.uncertainty import reference_sigma_px, window_sigma
+from sensor_models.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs
 from sensor_models.errors import InputError
 
@@ -73,7 +76,7 @@ def window_count(model, band: str, options: MatchOptions) -> int:
 
 
 def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndarray | None = None,
-                 options: MatchOptions = MatchOptions(), progress=None):
+                 options: MatchOptions = MatchOptions(), progress=None, accuracy: ReferenceAccuracy | None = None):
     """Dense GCPs of one band of a scene (see the module docstring).
 
     Parameters
@@ -97,6 +100,10 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
         Window size and spacing, coarse search range, backend, check share, seed, ...
     progress : callable(str), optional
         Called with one line after the coarse stage and after each CCD.
+    accuracy : ReferenceAccuracy, optional
+        The DOM's geolocation accuracy (``sigma_model="window"``); ``options.reference_sigma_m``
+        wins when set; default: what ``dom.path`` states, else assumed
+        (:func:`sensor_models.dom_inputs.reference_accuracy`).
 
     Returns
     -------
@@ -120,8 +127,7 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
     if progress:
         progress(f"coarse stage: {coarse.n_inliers} SIFT matches, model pre-corrected")
     height_m = scene_height_m(model_pc, dem, band=band)
-    gsd_m = scene_gsd_m(model_pc, band=band, height_m=height_m) if opt.reference_sigma_m > 0 else float("nan")
-    tally = _Tally(height_m=height_m, gsd_m=gsd_m, mask_given=mask is not None)
+    tally = _Tally(height_m=height_m, mask_given=mask is not None, accuracy=_accuracy(dom, opt, accuracy))
     for i, look in enumerate(model_pc.detector_arrays(band)):
         # an array that is a model of its own (a CCD) is rendered alone; a whole image at once
         split = model_pc.detector_view(band, i) is not model_pc
@@ -134,6 +140,16 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
     return table, _summary(band, table, tally, coarse, opt, timings, n_cols=scene.shape[1])
 
 
+def _accuracy(dom, opt: MatchOptions, accuracy):
+    """The reference's accuracy for ``sigma_model="window"`` (None for ``"ccd"``): option, given, stated, assumed."""
+    if opt.sigma_model != "window":
+        return None
+    if opt.reference_sigma_m is not None or accuracy is None:
+        path = getattr(dom, "path", None)
+        return reference_accuracy([path] if isinstance(path, str) else [], given_m=opt.reference_sigma_m)
+    return accuracy
+
+
 @dataclass
 class _Tally:
     """What the per-CCD passes add up: rejection counts, per-CCD reports, GCP columns, seconds."""
@@ -144,7 +160,7 @@ class _Tally:
     cloud_sum: float = 0.0
     cloud_cols: int = 0  # detector columns whose cloud fraction is known
     height_m: float = 0.0  # localization height of the coverage grids
-    gsd_m: float = float("nan")  # scene ground sample distance (reference_sigma_m to pixels)
+    accuracy: ReferenceAccuracy | None = None  # the reference's, for sigma_model="window"
     mask_given: bool = False
     n_windows: int = 0
     t_ref: float = 0.0
@@ -208,8 +224,9 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
     t1 = time.perf_counter()
     status, std_r, shift, quality = _correlate_windows(img, ref, msk, rr, cc, opt)
     tally.t_phase += time.perf_counter() - t1
+    ref_rc_px = _reference_px(tally, model_pc, band, look, ccd)
     keep, r_c, c_c, sigma = reject_outliers(status, std_r, shift, rr, cc, (rs.size, cs.size), look.first_col, opt,
-                                            quality=quality, gsd_m=tally.gsd_m)
+                                            quality=quality, reference_sigma_px=float(np.sqrt(np.mean(ref_rc_px**2))))
     score = quality.get("score", np.full(n, np.nan))
     for r in REASONS:
         tally.reasons[r] += int(np.sum(status == r))
@@ -223,11 +240,27 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
     sigma_ccd = float(np.sqrt(np.mean(sigma**2))) if sigma.size else float("nan")
     tally.per_ccd.append(_ccd_report(look, n, keep.size, cloud_px, cover, counts, sigma_ccd,
                                      (r_c, c_c - look.first_col), img.shape, dem, dom))
+    tally.per_ccd[-1]["reference_sigma_px"] = [float(v) for v in ref_rc_px]  # (row, col)
     if progress:
         line = f"CCD {look.name}: {keep.size} GCPs from {n} windows" if look.name else \
             f"image: {keep.size} GCPs from {n} windows"
         cause = tally.per_ccd[-1]["cause"]
         progress(line + (f" ({cause})" if cause else ""))
+
+
+def _reference_px(tally: _Tally, model_pc, band, look, ccd) -> np.ndarray:
+    """The reference's accuracy in this CCD's (row, col) pixels (zeros without one)."""
+    acc = tally.accuracy
+    if acc is None or (acc.east_m == 0 and acc.north_m == 0):
+        return np.zeros(2)
+    px = np.array(reference_sigma_px(model_pc, acc.east_m, acc.north_m, band=band, first_col=look.first_col,
+                                     n_detectors=look.n_detectors, height_m=tally.height_m, array=ccd))
+    if not np.all(np.isfinite(px)):  # the CCD centre does not localize: the scene's mean GSD
+        px = np.full(2, acc.per_axis_m / scene_gsd_m(model_pc, band=band, height_m=tally.height_m))
+    if not np.all(np.isfinite(px)):
+        raise InputError(f"cannot convert the reference accuracy ({acc.per_axis_m:.1f} m) into pixels of "
+                         f"{look.name or 'the image'}: its centre does not localize; give --sigma-model ccd")
+    return px
 
 
 #: a CCD with fewer usable windows than this fraction gets a ``cause``
@@ -320,7 +353,7 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
 
 
 def reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, opt: MatchOptions, *,
-                    quality: dict | None = None, gsd_m: float = float("nan")):
+                    quality: dict | None = None, reference_sigma_px: float = 0.0):
     """Mark featureless, locally inconsistent and model-residual outliers; the kept GCPs' sigma.
 
     Parameters
@@ -342,8 +375,8 @@ def reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, op
         ``window_px``, ``texture_fraction``, ``sigma_model``.
     quality : dict of str -> ndarray (n,), optional
         Per-window quality of :func:`correlate_pairs` (``score``), for ``sigma_model="window"``.
-    gsd_m : float
-        Ground sample distance, metres: converts ``opt.reference_sigma_m`` to pixels.
+    reference_sigma_px : float
+        The reference's geolocation accuracy per axis in this CCD's pixels (``sigma_model="window"``).
 
     Returns
     -------
@@ -371,9 +404,8 @@ def reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, op
     status[keep[~inl]] = "model_residual"
     keep, r_c, c_c = keep[inl], r_c[inl], c_c[inl]
     kept_quality = {k: v[keep] for k, v in (quality or {}).items()}
-    ref_px = opt.reference_sigma_m / gsd_m if opt.reference_sigma_m > 0 else 0.0
     return keep, r_c, c_c, window_sigma(sigma, residual[inl], kept_quality, model=opt.sigma_model,
-                                        reference_sigma_px=ref_px, window_px=opt.window_px)
+                                        reference_sigma_px=reference_sigma_px, window_px=opt.window_px)
 
 
 def _ccd_gcps(model_pc, dem, band, look, r_c, c_c, shift, score, sigma, ccd_kw) -> dict:
@@ -426,6 +458,10 @@ def _summary(band, table, tally: _Tally, coarse, opt: MatchOptions, timings: dic
         summary["cloud_note"] = ("cloud fraction unknown" if not tally.cloud_cols else
                                  f"cloud fraction over the {100 * tally.cloud_cols / n_cols:.0f} % of the columns "
                                  "where the detector could estimate it") + "; give --mask for a known cover"
+    if tally.accuracy is not None:
+        summary["reference_accuracy"] = tally.accuracy.to_dict()
+        if tally.accuracy.note:
+            summary["reference_note"] = tally.accuracy.note
     if coarse.note:
         summary["note"] = coarse.note
     if n_gcp == 0:

@@ -16,7 +16,7 @@ from sensor_models.errors import InputError
 __all__ = ["BACKENDS", "SIGMA_MODELS", "MatchOptions", "require_cuda"]
 
 BACKENDS = ("cpu", "gpu", "torch")  # numpy/scipy; torch on CUDA; torch on the CPU
-SIGMA_MODELS = ("ccd", "window")
+SIGMA_MODELS = ("window", "ccd")  # the first is the default
 
 
 def require_cuda() -> None:
@@ -77,19 +77,21 @@ class MatchOptions:
         ``"none"``, ``"rank"`` (rank transform: invariant to any monotonic grey-level change) or
         ``"gradient"`` (gradient magnitude).
     sigma_model : str
-        How each GCP's ``sigma_px`` is set (docs/matching.md, "sigma_px"): ``"ccd"`` (one value
-        per CCD: the robust spread of the residuals about a smooth correction) or ``"window"``
-        (per window: the matching noise predicted from its correlation score, combined with
-        ``reference_sigma_m``).
+        How each GCP's ``sigma_px`` is set (docs/matching.md, "sigma_px"): ``"window"`` (default;
+        per window: the matching noise predicted from its correlation score, combined with the
+        reference DOM's geolocation accuracy) or ``"ccd"`` (one value per CCD: the robust spread
+        of the residuals about a smooth correction).
     phase_eps : float
         Floor of the cross-power normalization of :func:`gcpmatch.phase.phase_correlate`
         (``eps``), relative to each pair's mean cross-power magnitude; >= 0.
     lowpass_cycles_px : float or None
         Standard deviation, cycles/px, of a Gaussian weight on the cross-power spectrum
         (``lowpass`` of :func:`gcpmatch.phase.phase_correlate`); None for none; > 0.
-    reference_sigma_m : float
+    reference_sigma_m : float or None
         Geolocation accuracy of the reference DOM (and its DEM's effect), metres per axis (1
-        sigma), as its producer states it; used by ``sigma_model="window"``; >= 0.
+        sigma), as its producer states it; >= 0. None (default): what the DOM states
+        (:func:`sensor_models.dom_inputs.reference_accuracy`: its GDAL tags or a Landsat MTL),
+        else an assumed value that the summary names. Used by ``sigma_model="window"``.
     coarse_skip : bool
         Skip the coarse SIFT stage when a cheap check finds the model already within the fine
         search radius (``window_px / 4``); ``gcpcal validate`` sets it (default False).
@@ -106,10 +108,10 @@ class MatchOptions:
     seed: int = 0
     batch: int = 2048
     radiometry: str = "none"
-    sigma_model: str = "ccd"
+    sigma_model: str = "window"
     phase_eps: float = 0.5
     lowpass_cycles_px: float | None = None
-    reference_sigma_m: float = 0.0
+    reference_sigma_m: float | None = None
     coarse_skip: bool = False
 
     def validate(self) -> MatchOptions:
@@ -161,7 +163,8 @@ class MatchOptions:
                                                    or not self.lowpass_cycles_px > 0):
             raise InputError(f"low-pass must be > 0 cycles/px or None, got {self.lowpass_cycles_px!r}",
                              field="lowpass_cycles_px")
-        if not _is_real(self.reference_sigma_m) or not self.reference_sigma_m >= 0:
+        if self.reference_sigma_m is not None and (not _is_real(self.reference_sigma_m)
+                                                   or not self.reference_sigma_m >= 0):
             raise InputError(f"reference sigma must be >= 0 metres, got {self.reference_sigma_m!r}",
                              field="reference_sigma_m")
         if not isinstance(self.coarse_skip, bool):

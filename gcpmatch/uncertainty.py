@@ -6,11 +6,15 @@ Two models (:data:`gcpmatch.options.SIGMA_MODELS`; docs/matching.md, section "si
   a smooth per-CCD correction (:func:`gcpmatch.outliers.smooth_residuals`). It measures the
   matching noise *plus* whatever the smooth correction cannot follow (attitude jitter, lens
   terms), and nothing of the errors that all matches share (the reference's geolocation error).
-* ``"window"``: per window, the matching noise predicted from its phase-correlation score
-  ``s`` (the coherent share of the cross-power), a floor of the matching itself, and the
-  reference's stated geolocation accuracy::
+* ``"window"`` (default): per window, the matching noise predicted from its phase-correlation
+  score ``s`` (the coherent share of the cross-power), a floor of the matching itself, and the
+  reference's stated geolocation accuracy (:func:`sensor_models.dom_inputs.reference_accuracy`)::
 
-      sigma_px^2 = (SCORE_SIGMA_PX sqrt((1 - s) / s))^2 + MATCH_FLOOR_PX^2 + (reference_sigma_m / gsd_m)^2
+      sigma_px^2 = (SCORE_SIGMA_PX sqrt((1 - s) / s))^2 + MATCH_FLOOR_PX^2 + sigma_ref_px^2
+
+  with ``sigma_ref_px`` the DOM's east / north accuracy projected into the CCD's rows and
+  columns through the model's local ground -> image Jacobian (:func:`reference_sigma_px`),
+  taken as the rms of the two axes (a GCP carries one ``sigma_px`` for both axes).
 
   The phase noise of a cross-power bin grows as the coherent share falls (for a small phase
   noise of variance ``v``, ``s ~ 1 - v / 2``), and the shift's variance grows with it. The
@@ -24,7 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FALLBACK_SIGMA_PX", "MATCH_FLOOR_PX", "MIN_SIGMA_PX", "SCORE_SIGMA_PX", "score_sigma_px", "window_sigma"]
+__all__ = ["FALLBACK_SIGMA_PX", "MATCH_FLOOR_PX", "MIN_SIGMA_PX", "SCORE_SIGMA_PX", "reference_sigma_px",
+           "score_sigma_px", "window_sigma"]
 
 #: ``sigma_px`` when a CCD has too few matches (< 10) for a residual spread, pixels
 FALLBACK_SIGMA_PX = 0.1
@@ -90,3 +95,50 @@ def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *,
         return np.maximum(np.hypot(match, reference_sigma_px), MIN_SIGMA_PX)
     base = max(sigma_ccd_px, MIN_SIGMA_PX) if np.isfinite(sigma_ccd_px) else FALLBACK_SIGMA_PX
     return np.full(n, base)
+
+
+def reference_sigma_px(model, east_m: float, north_m: float, *, band, first_col: float, n_detectors: int,
+                       height_m: float = 0.0, array=None) -> tuple:
+    """A reference's east / north geolocation error projected into image rows and columns, pixels.
+
+    The ground -> image Jacobian ``J`` (px per m) is the inverse of the image -> ground one,
+    measured by finite differences of one pixel at the detector array's centre (on the
+    ellipsoid at ``height_m``); the image covariance is ``J diag(east^2, north^2) J^T``.
+
+    Parameters
+    ----------
+    model : SensorModel
+        The (pre-corrected) scene model.
+    east_m, north_m : float
+        The reference's 1-sigma error along east and north, metres.
+    band : str
+        Band of ``model``.
+    first_col : float
+        The detector array's first column in the whole scene.
+    n_detectors : int
+        Its width, pixels.
+    height_m : float
+        Ellipsoidal height of the localization, metres.
+    array : int or str, optional
+        The detector array whose geometry maps the points (:meth:`SensorModel.image_to_ground`).
+
+    Returns
+    -------
+    sigma_row_px, sigma_col_px : float
+        Standard deviations along rows and columns, pixels (NaN where the model cannot localize).
+    """
+    from sensor_models.geodesy import enu_basis, geodetic_to_ecef
+
+    r0, c0 = model.image_shape[0] / 2.0, first_col + n_detectors / 2.0
+    kw = {} if array is None else {"array": array}
+    lon, lat, h = model.image_to_ground(r0 + np.array([0.0, 1.0, 0.0]), c0 + np.array([0.0, 0.0, 1.0]),
+                                        height=height_m, band=band, **kw)
+    xyz = geodetic_to_ecef(lon, lat, h)
+    east, north, _ = enu_basis(lon[0], lat[0])
+    d = xyz[1:] - xyz[0]  # (2, 3): one row step, one column step, metres
+    ground_per_px = np.array([[d[0] @ east, d[1] @ east], [d[0] @ north, d[1] @ north]])
+    if not np.all(np.isfinite(ground_per_px)):
+        return float("nan"), float("nan")
+    px_per_ground = np.linalg.inv(ground_per_px)
+    cov = px_per_ground @ np.diag([east_m**2, north_m**2]) @ px_per_ground.T
+    return float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))

@@ -22,6 +22,12 @@
    used: ``<id>_QA_PIXEL.TIF`` or ``<id>_BQA.TIF`` for Landsat, ``*_SCL_20m.jp2`` (or
    ``*_SCL*``) of the same Sentinel-2 granule. Its layout comes from ``--dom-qa-layout``, the
    file name, or its values (:mod:`sensor_models.reference_qa`).
+4. **Stated geolocation accuracy** (:func:`reference_accuracy`, docs/matching.md "sigma_px"):
+   the user's value (``--reference-sigma-m``); else the DOM's own statement: the GDAL metadata
+   items :data:`ACCURACY_TAG` (one value per axis) or :data:`ACCURACY_TAG_X` /
+   :data:`ACCURACY_TAG_Y` (east / north) of the band file, or ``GEOMETRIC_RMSE_MODEL_X`` /
+   ``_Y`` of a Landsat ``*_MTL.txt`` beside it [2]_; else :data:`ASSUMED_REFERENCE_SIGMA_M`,
+   marked as assumed.
 
 References
 ----------
@@ -29,6 +35,13 @@ References
    sections on the radiometric offset introduced with processing baseline 04.00 (25 January
    2022): ``L1C reflectance = (DN + RADIO_ADD_OFFSET) / QUANTIFICATION_VALUE``, likewise L2A
    with ``BOA_ADD_OFFSET``.
+.. [2] USGS, "Landsat 8-9 Calibration and Validation (Cal/Val) Algorithm Description Document"
+   and "Landsat 8-9 OLI/TIRS Collection 2 Level 1 Data Format Control Book" (LSDS-1822): the
+   MTL group ``LEVEL1_PROCESSING_RECORD`` gives ``GEOMETRIC_RMSE_MODEL_X`` / ``_Y``, the RMSE
+   in metres of the ground control points about the precision model, per map axis.
+.. [3] J. Storey, M. Choate, K. Lee, "Landsat 8 Operational Land Imager On-Orbit Geometric
+   Calibration and Performance", Remote Sens. 6(11):11127-11152, 2014, Table 1: L1T product
+   (terrain corrected with ground control) accuracy requirement 12 m CE90.
 """
 
 from __future__ import annotations
@@ -43,8 +56,9 @@ import numpy as np
 from sensor_models.errors import InputError
 from sensor_models.mosaic import RASTER_SUFFIXES, raster_inputs
 
-__all__ = ["DomSource", "ResolvedDom", "S2_BAND_IDS", "dom_description", "masked_fraction", "open_dom", "resolve_dom",
-           "s2_radiometry"]
+__all__ = ["ACCURACY_TAG", "ACCURACY_TAG_X", "ACCURACY_TAG_Y", "ASSUMED_REFERENCE_SIGMA_M", "DomSource",
+           "ReferenceAccuracy", "ResolvedDom", "S2_BAND_IDS", "dom_description", "masked_fraction", "open_dom",
+           "reference_accuracy", "resolve_dom", "s2_radiometry", "stated_accuracy"]
 
 #: Sentinel-2 band names in the order of the MTD files' ``band_id`` (0 to 12).
 S2_BAND_IDS = ("B01", "B02", "B03", "B04", "B05", "B06", "B07", "B08", "B8A", "B09", "B10", "B11", "B12")
@@ -419,3 +433,168 @@ def masked_fraction(image, lon_deg, lat_deg, *, max_side: int = 512):
         return None
     shape = (min(max_side, r1 - r0), min(max_side, c1 - c0))
     return float(image.qa_invalid(r0, r1, c0, c1, shape).mean())
+
+
+#: GDAL metadata item (default domain) of a DOM: its geolocation accuracy, metres, 1 sigma (RMSE)
+#: per horizontal axis
+ACCURACY_TAG = "GEOLOCATION_RMSE_M"
+#: GDAL metadata items of a DOM: its geolocation RMSE along the map's x (east) and y (north) axes,
+#: metres (the names of the Landsat MTL items without ``_MODEL``); both or neither
+ACCURACY_TAG_X = "GEOMETRIC_RMSE_X"
+ACCURACY_TAG_Y = "GEOMETRIC_RMSE_Y"
+#: per-axis accuracy assumed for a DOM that states none, metres: Landsat 8 L1T's 12 m CE90
+#: requirement (Storey et al. 2014, Table 1; module references) as a circular normal error,
+#: CE90 = 2.146 sigma
+ASSUMED_REFERENCE_SIGMA_M = 12.0 / 2.146
+
+
+@dataclass(frozen=True)
+class ReferenceAccuracy:
+    """The geolocation accuracy of a reference DOM, metres (1 sigma per axis), and where it came from.
+
+    Attributes
+    ----------
+    east_m, north_m : float
+        RMSE along east (map x) and north (map y), metres, >= 0.
+    source : str
+        ``"option"``, ``"tag <file>"``, ``"mtl <file>"`` or ``"assumed"``.
+    assumed : bool
+        True when nothing stated it (:data:`ASSUMED_REFERENCE_SIGMA_M`).
+    """
+
+    east_m: float
+    north_m: float
+    source: str
+    assumed: bool = False
+
+    @property
+    def per_axis_m(self) -> float:
+        """The per-axis rms of east and north, metres: ``sqrt((east^2 + north^2) / 2)``."""
+        return float(np.sqrt(0.5 * (self.east_m**2 + self.north_m**2)))
+
+    @property
+    def note(self) -> str | None:
+        """The summary's line when the value is assumed, else None."""
+        if not self.assumed:
+            return None
+        return (f"reference accuracy unknown: assumed {self.per_axis_m:.1f} m per axis (Landsat 8 L1T, 12 m CE90); "
+                "give --reference-sigma-m")
+
+    def to_dict(self) -> dict:
+        """JSON-ready: ``east_m``, ``north_m``, ``source``, ``assumed``."""
+        return {"east_m": self.east_m, "north_m": self.north_m, "source": self.source, "assumed": self.assumed}
+
+
+def _accuracy_value(text, what: str, path: str) -> float:
+    try:
+        value = float(str(text).strip().strip('"'))
+    except ValueError:
+        value = float("nan")
+    if not np.isfinite(value) or value < 0:
+        raise InputError(f"{what} must be a number of metres >= 0, got {text!r}", path=path, field=what)
+    return value
+
+
+def _tag_accuracy(path: str):
+    """``ReferenceAccuracy`` from the GDAL metadata items of one raster, or None."""
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    try:
+        with rasterio.open(path) as ds:
+            tags = ds.tags()
+    except RasterioError:
+        return None
+    if ACCURACY_TAG_X in tags or ACCURACY_TAG_Y in tags:
+        if not (ACCURACY_TAG_X in tags and ACCURACY_TAG_Y in tags):
+            raise InputError(f"the DOM states {ACCURACY_TAG_X} or {ACCURACY_TAG_Y} alone; give both", path=path,
+                             field=ACCURACY_TAG_X)
+        return ReferenceAccuracy(_accuracy_value(tags[ACCURACY_TAG_X], ACCURACY_TAG_X, path),
+                                 _accuracy_value(tags[ACCURACY_TAG_Y], ACCURACY_TAG_Y, path), f"tag {path}")
+    if ACCURACY_TAG in tags:
+        value = _accuracy_value(tags[ACCURACY_TAG], ACCURACY_TAG, path)
+        return ReferenceAccuracy(value, value, f"tag {path}")
+    return None
+
+
+def _mtl_beside(path: str):
+    """The Landsat ``<id>_MTL.txt`` of a band file, else the one ``*_MTL.txt`` beside it, or None."""
+    folder = os.path.dirname(os.path.abspath(path))
+    ident = _landsat_id(path)
+    if ident is not None and os.path.isfile(os.path.join(folder, f"{ident[0]}_MTL.txt")):
+        return os.path.join(folder, f"{ident[0]}_MTL.txt")
+    found = [n for n in sorted(os.listdir(folder)) if n.upper().endswith("_MTL.TXT")] if os.path.isdir(folder) else []
+    return os.path.join(folder, found[0]) if len(found) == 1 else None
+
+
+def _mtl_accuracy(path: str):
+    """``ReferenceAccuracy`` from ``GEOMETRIC_RMSE_MODEL_X/Y`` of the MTL beside a band file, or None."""
+    mtl = _mtl_beside(path)
+    if mtl is None:
+        return None
+    items = {}
+    with open(mtl, encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            name, _, value = line.partition("=")
+            items.setdefault(name.strip(), value)
+    x, y = items.get("GEOMETRIC_RMSE_MODEL_X"), items.get("GEOMETRIC_RMSE_MODEL_Y")
+    if x is None or y is None:
+        return None
+    return ReferenceAccuracy(_accuracy_value(x, "GEOMETRIC_RMSE_MODEL_X", mtl),
+                             _accuracy_value(y, "GEOMETRIC_RMSE_MODEL_Y", mtl), f"mtl {mtl}")
+
+
+def stated_accuracy(files):
+    """What the DOM's files state of their geolocation accuracy (tags, then a Landsat MTL), or None.
+
+    Over several files (tiles) the largest statement per axis is kept.
+
+    Parameters
+    ----------
+    files : sequence of str
+        The DOM's band files (:attr:`ResolvedDom.files`).
+
+    Returns
+    -------
+    ReferenceAccuracy or None
+        None when no file states it.
+
+    Raises
+    ------
+    InputError
+        A stated value that is not a number >= 0, or one of the x / y items without the other.
+    """
+    found = []
+    for path in files:
+        if not os.path.isfile(path):
+            continue
+        acc = _tag_accuracy(path) or _mtl_accuracy(path)
+        if acc is not None:
+            found.append(acc)
+    if not found:
+        return None
+    worst = max(found, key=lambda a: a.per_axis_m)
+    return ReferenceAccuracy(max(a.east_m for a in found), max(a.north_m for a in found), worst.source)
+
+
+def reference_accuracy(files, *, given_m: float | None = None) -> ReferenceAccuracy:
+    """The DOM's geolocation accuracy per axis, in the order of the module docstring (step 4).
+
+    Parameters
+    ----------
+    files : sequence of str
+        The DOM's band files.
+    given_m : float or None
+        The user's value, metres per axis (``--reference-sigma-m``); wins when given.
+
+    Returns
+    -------
+    ReferenceAccuracy
+        ``assumed`` is True when neither the user nor the files state it.
+    """
+    if given_m is not None:
+        return ReferenceAccuracy(float(given_m), float(given_m), "option")
+    stated = stated_accuracy(files)
+    if stated is not None:
+        return stated
+    return ReferenceAccuracy(ASSUMED_REFERENCE_SIGMA_M, ASSUMED_REFERENCE_SIGMA_M, "assumed", assumed=True)

@@ -1,10 +1,11 @@
 """The matcher on the realistic profile: honest per-GCP sigma, window preparation, options.
 
-The sigma test simulates a small realistic scene (Sentinel-2 red band as source radiance, seed
-other than the bench's), extracts GCPs through the production pipeline and measures each GCP's
-error against the TRUE model (its ground point projected through ``truth_manifest.json``), as
-``bench/bench_matcher_realism.py`` does; ``sigma_px`` is honest when the error over sigma has
-unit RMS per axis.
+The sigma tests simulate a small realistic scene (Sentinel-2 red band as source radiance, seed
+other than the bench's), extract GCPs through the production pipeline with the DEFAULT options
+(the window model, the reference accuracy that the simulated DOM states in its tags) and measure
+each GCP's error against the TRUE model (its ground point projected through
+``truth_manifest.json``), as ``bench/bench_matcher_realism.py`` does; ``sigma_px`` is honest
+when the error over sigma has unit RMS per axis.
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ def realistic_s2_scene(tmp_path_factory, shared_data):
 
 
 def _match(scene, options):
+    """The production matcher on a simulated scene: (GcpTable, summary); the DOM's tags are read as a user's are."""
     from gcpmatch.extract import extract_gcps, read_band
     from sensor_models.raster import MapImage
     from sensor_models.readers import open_scene
@@ -85,24 +87,39 @@ def _match(scene, options):
     band = model.reference_band
     dem = Dem.open(scene / "reference" / "dem.tif")
     dom = MapImage.open(scene / "reference" / "dom.tif")
-    table, _ = extract_gcps(model, read_band(model, band), dem, dom, band=band, options=options)
-    return table
+    return extract_gcps(model, read_band(model, band), dem, dom, band=band, options=options)
 
 
-def test_window_sigma_is_calibrated_on_a_realistic_scene(realistic_s2_scene):
-    opt = MatchOptions(sigma_model="window", reference_sigma_m=REALISTIC_REFERENCE_SIGMA_M)
-    table = _match(realistic_s2_scene, opt)
-    err, sigma = _gcp_truth_errors(realistic_s2_scene, table)
+def _z_rms(scene, table):
+    """rms of truth error / sigma_px per axis (row, col), pooled over both axes, and the GCP count."""
+    err, sigma = _gcp_truth_errors(scene, table)
     z = err / sigma[:, None]
-    z_rms = np.sqrt(np.mean(z**2, axis=0))
-    print("truth error / sigma_px, rms per axis (row, col):", z_rms, "GCPs", err.shape[0])
-    assert err.shape[0] > 50
-    assert np.all((0.8 <= z_rms) & (z_rms <= 1.2)), z_rms
-    # the same GCPs with the reference error left out are optimistic: the reference term matters
-    bare = _match(realistic_s2_scene, MatchOptions(sigma_model="window"))
-    err_bare, sigma_bare = _gcp_truth_errors(realistic_s2_scene, bare)
-    z_bare = np.sqrt(np.mean((err_bare / sigma_bare[:, None]) ** 2, axis=0))
-    assert np.all(z_bare > 1.3), z_bare
+    return np.sqrt(np.mean(z**2, axis=0)), float(np.sqrt(np.mean(z**2))), err.shape[0]
+
+
+def test_default_sigma_is_honest_on_a_realistic_scene(realistic_s2_scene):
+    """The DEFAULT options (window model, the DOM's own accuracy statement) give unit-rms normalized errors."""
+    table, summary = _match(realistic_s2_scene, MatchOptions())
+    acc = summary["reference_accuracy"]
+    # the simulator states the realistic DOM's accuracy as a producer would: per-axis rms of its error model
+    assert (acc["east_m"], acc["north_m"], acc["assumed"]) == (1.4, 1.2, False) and acc["source"].startswith("tag ")
+    assert "reference_note" not in summary
+    z_axes, z_pooled, n = _z_rms(realistic_s2_scene, table)
+    print("default: truth error / sigma_px rms (row, col)", z_axes, "pooled", z_pooled, "GCPs", n)
+    assert n > 50
+    assert 0.8 <= z_pooled <= 1.2, z_pooled
+    assert np.all((0.8 <= z_axes) & (z_axes <= 1.2)), z_axes
+
+
+def test_reference_term_brackets_the_default(realistic_s2_scene):
+    """Leaving the reference term out is optimistic, doubling it pessimistic: the default sits between."""
+    bare, _ = _match(realistic_s2_scene, MatchOptions(reference_sigma_m=0.0))
+    _, z_bare, _ = _z_rms(realistic_s2_scene, bare)
+    double, _ = _match(realistic_s2_scene, MatchOptions(reference_sigma_m=2 * REALISTIC_REFERENCE_SIGMA_M))
+    _, z_double, _ = _z_rms(realistic_s2_scene, double)
+    print("pooled z without the reference term", z_bare, "with 2.6 m", z_double)
+    assert z_bare > 1.3, z_bare
+    assert z_double < 0.75, z_double
 
 
 def test_rank_transform_removes_gain_offset_and_gamma():
@@ -174,21 +191,28 @@ def test_correlate_pairs_applies_the_phase_options():
 
 
 def test_match_command_takes_the_sigma_model(tmp_path):
-    """``gcpcal match --sigma-model window --reference-sigma-m M`` reaches the matcher: larger sigmas."""
+    """``gcpcal match`` defaults to the window model (the ideal fixture's DOM states no accuracy: assumed);
+    ``--sigma-model ccd`` reaches the matcher: one smaller sigma per CCD, no reference term."""
     import json
     from pathlib import Path
 
     from calibrate.cli import main
     from gcpmatch.gcps import read_gcps
+    from sensor_models.dom_inputs import ASSUMED_REFERENCE_SIGMA_M
 
     fixture = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
     base = ["-q", "match", str(fixture / "manifest.json"), "--dom", str(fixture / "reference" / "dom.tif"),
             "--dem", str(fixture / "reference" / "dem.tif"), "--spacing", "64"]
-    assert main([*base, "--out", str(tmp_path / "ccd.csv")]) == 0
-    assert main([*base, "--sigma-model", "window", "--reference-sigma-m", "15", "--out",
-                 str(tmp_path / "win.csv")]) == 0
-    options = json.loads((tmp_path / "win.summary.json").read_text())["options"]
-    assert options["sigma_model"] == "window" and options["reference_sigma_m"] == 15.0
+    assert main([*base, "--sigma-model", "ccd", "--out", str(tmp_path / "ccd.csv")]) == 0
+    assert main([*base, "--out", str(tmp_path / "win.csv")]) == 0
+    ccd_summary = json.loads((tmp_path / "ccd.summary.json").read_text())
+    win_summary = json.loads((tmp_path / "win.summary.json").read_text())
+    assert ccd_summary["options"]["sigma_model"] == "ccd" and "reference_accuracy" not in ccd_summary
+    assert win_summary["options"]["sigma_model"] == "window" and win_summary["options"]["reference_sigma_m"] is None
+    assert win_summary["reference_accuracy"]["assumed"] is True
+    assert win_summary["reference_accuracy"]["east_m"] == pytest.approx(ASSUMED_REFERENCE_SIGMA_M)
     ccd, win = read_gcps(tmp_path / "ccd.csv"), read_gcps(tmp_path / "win.csv")
-    # 15 m of DOM error on the ~30 m GSD adds about 0.5 px in quadrature to every window's sigma
-    assert np.all(win.sigma_px > 0.45) and np.median(win.sigma_px) > 2 * np.median(ccd.sigma_px)
+    # an assumed 5.6 m on the fixture's GSD (about 30 m) adds about 0.19 px in quadrature to every window
+    ref_px = np.array([c["reference_sigma_px"] for c in win_summary["per_ccd"]])
+    assert np.all((0.12 < ref_px) & (ref_px < 0.3)), ref_px
+    assert np.all(win.sigma_px >= ref_px.min()) and np.median(win.sigma_px) > 2 * np.median(ccd.sigma_px)

@@ -11,7 +11,7 @@ from calibrate.actions._io import check_output_files, open_dem, staged_files
 from calibrate.actions._l1a import scene_raster
 from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
-from sensor_models.dom_inputs import dom_description, masked_fraction, open_dom
+from sensor_models.dom_inputs import dom_description, masked_fraction, open_dom, reference_accuracy
 from sensor_models.errors import InputError
 
 __all__ = ["match_scene", "residual_layer_path"]
@@ -73,7 +73,9 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     Returns
     -------
     dict
-        The summary of :func:`gcpmatch.extract.extract_gcps` with the input and output paths.
+        The summary of :func:`gcpmatch.extract.extract_gcps` with the input and output paths;
+        ``reference_accuracy`` (east_m, north_m, source, assumed) and, when nothing stated it,
+        ``reference_note``.
 
     Raises
     ------
@@ -98,7 +100,9 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     if mask_path is not None:
         mask = read_band(model, band, mask_path)
         mask = np.nan_to_num(mask) != 0
-    table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress)
+    accuracy = reference_accuracy(dom_found.files, given_m=options.reference_sigma_m)  # option, DOM's tags/MTL, assumed
+    table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress,
+                                  accuracy=accuracy)
     out_path = Path(out_path)
     summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
     if table is not None and len(table) > 0:

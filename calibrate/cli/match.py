@@ -9,6 +9,7 @@ from calibrate.config import MatchOptions
 from gcpmatch.options import SIGMA_MODELS
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import add_options, dem_options, dom_options, echo_json, json_option
+from sensor_models.dom_inputs import ASSUMED_REFERENCE_SIGMA_M
 from sensor_models.errors import InputError
 
 __all__ = ["command"]
@@ -35,11 +36,13 @@ __all__ = ["command"]
 @click.option("--backend", type=click.Choice(["cpu", "gpu"]), default=MatchOptions.backend, show_default=True,
               help="Phase correlation on CPU (numpy) or GPU (torch).")
 @click.option("--sigma-model", type=click.Choice(SIGMA_MODELS), default=MatchOptions.sigma_model, show_default=True,
-              help="Per-GCP sigma: 'ccd' (the spread of each CCD's matches) or 'window' (from each window's "
-                   "correlation score plus the reference's accuracy, docs/matching.md).")
-@click.option("--reference-sigma-m", type=click.FloatRange(min=0.0), default=MatchOptions.reference_sigma_m,
-              show_default=True, help="Geolocation accuracy of the DOM (1-sigma per axis, m), as its producer states "
-                                      "it; used by --sigma-model window.")
+              help="Per-GCP sigma: 'window' (from each window's correlation score plus the reference's accuracy) "
+                   "or 'ccd' (the spread of each CCD's matches); docs/matching.md.")
+@click.option("--reference-sigma-m", type=click.FloatRange(min=0.0), default=None,
+              help="Geolocation accuracy of the DOM (1-sigma per axis, m), as its producer states it "
+                   "(default: the DOM's GEOLOCATION_RMSE_M or GEOMETRIC_RMSE_X/Y tags, or GEOMETRIC_RMSE_MODEL_X/Y "
+                   "of a Landsat MTL beside it, else an assumed "
+                   f"{ASSUMED_REFERENCE_SIGMA_M:.1f} m); used by --sigma-model window.")
 @json_option
 @click.pass_context
 def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_path, geotiff_path, band, image,
@@ -74,9 +77,13 @@ def _print_summary(out_path, summary) -> None:
     click.echo(f"{out_path}: {summary['gcps']} GCPs + {summary['check_points']} check points from "
                f"{summary['windows']} windows ({100 * summary['usable_fraction']:.0f} % usable, "
                f"{_percent(summary['cloud_fraction'], 'cloud')}) in {summary['timings']['total_s']:.1f} s")
-    for key in ("note", "cloud_note", "dom_note"):
+    for key in ("note", "cloud_note", "dom_note", "reference_note"):
         if summary.get(key):
             click.echo(f"  note: {summary[key]}")
+    acc = summary.get("reference_accuracy")
+    if acc and not acc["assumed"]:
+        click.echo(f"  reference accuracy: {acc['east_m']:g} m east, {acc['north_m']:g} m north (1 sigma, from "
+                   f"{acc['source']})")
     for c in summary.get("per_ccd", []):
         dom = c.get("dom_coverage")
         line = (f"  {'CCD ' + c['ccd'] if c['ccd'] else 'image'}: {c['gcps']} GCPs; DEM {100 * c.get('dem_coverage', 0.0):.0f} %, "

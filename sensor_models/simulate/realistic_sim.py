@@ -296,6 +296,15 @@ def _lit_sources(cfg: SimConfig, profile, source, data):
     return (scene.astype(np.float32), transform, crs), (dom.astype(np.float32), transform, crs), sky
 
 
+def _stated_dom_accuracy(profile) -> dict:
+    """The DOM's accuracy as its producer would state it (GDAL tags of sensor_models.dom_inputs): the
+    profile's per-axis rms, bias and field together, rounded to 0.1 m; not the drawn field's."""
+    from sensor_models.dom_inputs import ACCURACY_TAG_X, ACCURACY_TAG_Y
+
+    (bias_e, bias_n), field = profile.value("dom_bias_m"), profile.value("dom_field_rms_m")
+    return {ACCURACY_TAG_X: f"{np.hypot(bias_e, field):.1f}", ACCURACY_TAG_Y: f"{np.hypot(bias_n, field):.1f}"}
+
+
 def _write_reference(tmp: Path, cfg, profile, source, data):
     """Degrade and write ``reference/dom.tif``, ``dem.tif`` (and the truth under ``reference/truth``)."""
     radiance, transform, crs = source
@@ -303,7 +312,7 @@ def _write_reference(tmp: Path, cfg, profile, source, data):
     (ref_dir / "truth").mkdir(parents=True, exist_ok=True)
     dom = degrade_dom(radiance, transform, profile, seed=cfg.pass_seed)
     dem = degrade_dem(data.dem_m, data.dem_transform, profile, seed=cfg.pass_seed)
-    write_raster(ref_dir / "dom.tif", dom.values, dom.transform, crs)
+    write_raster(ref_dir / "dom.tif", dom.values, dom.transform, crs, tags=_stated_dom_accuracy(profile))
     write_raster(ref_dir / "dem.tif", dem.values, dem.transform, data.crs, tags={"VERTICAL_DATUM": "ellipsoid"},
                  nodata=DEM_NODATA)
     write_raster(ref_dir / "truth" / "dem_true.tif", data.dem_m.astype(np.float32), data.dem_transform, data.crs,
