@@ -114,6 +114,7 @@ from affine import Affine
 from scipy import fft as sp_fft
 from scipy import ndimage
 
+from sensor_models.dom_inputs import ACCURACY_TAG
 from sensor_models.atomic import temporary_beside
 from sensor_models.errors import InputError
 
@@ -204,7 +205,9 @@ class ReferenceData:
         Both files are written to temporaries beside their targets and renamed only once both
         are complete, so a failure leaves no partial file. The DEM carries the metadata item
         ``VERTICAL_DATUM=ellipsoid``, so :meth:`sensor_models.terrain.Dem.open` reads it
-        without arguments; both carry ``GCPCAL_PROCEDURAL`` (JSON of the generator's
+        without arguments; the DOM states its geolocation accuracy, 0 m
+        (``GEOLOCATION_RMSE_M``, :mod:`sensor_models.dom_inputs`: a scene rendered from this DOM
+        sees it without error); both carry ``GCPCAL_PROCEDURAL`` (JSON of the generator's
         arguments). No timestamp is written: the same data give the same bytes.
 
         Parameters
@@ -229,7 +232,8 @@ class ReferenceData:
             raise InputError("dom_name and dem_name must differ", field="dem_name")
         provenance = json.dumps(self.parameters, sort_keys=True)
         jobs = [
-            (dom_path, self.dom, self.dom_transform, 2, {"GCPCAL_PROCEDURAL": provenance}),
+            (dom_path, self.dom, self.dom_transform, 2,
+             {"GCPCAL_PROCEDURAL": provenance, ACCURACY_TAG: "0.0"}),
             (dem_path, self.dem_m, self.dem_transform, 3,
              {"VERTICAL_DATUM": "ellipsoid", "GCPCAL_PROCEDURAL": provenance}),
         ]
