@@ -46,6 +46,8 @@ LANDSAT_TIME = "Landsat 8 descending node 10:00 +- 15 min (USGS Landsat 8 Data U
 IQBAL = "Iqbal 1983, An Introduction to Solar Radiation, Academic Press"
 ISCCP = ("Rossow and Schiffer 1999, Advances in understanding clouds from ISCCP, BAMS 80(11):2261-2287 "
          "(cloud-top classes: low below ~3 km, middle ~3-6.5 km, high above)")
+S2_CONTRAST = ("measured on the real Sentinel-2 L1C red crop (../shared/data/real_textures/sentinel2/s2_B04.jp2) "
+               "at 30 m by bench/bench_texture_stats.py (Landsat-8 pan 0.086, procedural texture 0.372)")
 S2_MTF = "Sentinel-2 MSI image-quality requirement, MTF at Nyquist 0.15-0.30 (ESA Sentinel-2 User Handbook)"
 
 
@@ -137,6 +139,9 @@ class PushbroomProfile(_ProfileFields):
     seasonal_change: Sourced = _f("relative, rms", "multiplicative smooth field (another date)")
     seasonal_scale_m: Sourced = _f("m", "correlation length of that field")
     haze: Sourced = _f("share of full scale (mean)", "additive smooth veil (another date)")
+    procedural_rms_contrast: Sourced = _f(
+        "median std/mean over 32 x 32 blocks at 30 m",
+        "procedural source radiance: deviations from its mean scaled to this RMS contrast (real sources keep theirs)")
     dom_bias_m: Sourced = _f("m (east, north)", "DOM geolocation bias")
     dom_field_rms_m: Sourced = _f("m rms (per axis)", "smooth DOM geolocation field")
     dom_field_scale_m: Sourced = _f("m", "correlation length of that field")
@@ -170,7 +175,7 @@ def _ideal() -> PushbroomProfile:
         snr=s(100.0), bits=s(12),
         reference_resolution_m=s(15.0), reference_mtf_sigma_px=Sourced(0.0, "reference is the rendering DOM itself"),
         reference_gamma=Sourced(1.0, "reference is the rendering DOM itself"),
-        seasonal_change=s(0.12), seasonal_scale_m=s(4000.0), haze=none(0.0),
+        seasonal_change=s(0.12), seasonal_scale_m=s(4000.0), haze=none(0.0), procedural_rms_contrast=none(0.0),
         dom_bias_m=none((0.0, 0.0)), dom_field_rms_m=none(0.0), dom_field_scale_m=none(0.0),
         dem_resolution_m=Sourced(30.0, "user DEM is the rendering DEM itself"), dem_error_rms_m=none(0.0),
         dem_error_scale_m=none(0.0), dem_void_fraction=none(0.0),
@@ -215,6 +220,7 @@ def _realistic() -> PushbroomProfile:
         seasonal_change=Sourced(0.15, ASSUMPTION),
         seasonal_scale_m=Sourced(600.0, "field-parcel size; assumption"),
         haze=Sourced(0.03, ASSUMPTION),
+        procedural_rms_contrast=Sourced(0.195, S2_CONTRAST),
         dom_bias_m=Sourced((1.2, -0.9), f"{ISSUE13}: DOM error 1-3 m"),
         dom_field_rms_m=Sourced(0.8, f"{ISSUE13}: DOM error 1-3 m"),
         dom_field_scale_m=Sourced(3000.0, ASSUMPTION),

@@ -111,8 +111,11 @@ def _centred_models(cfg: SimConfig, lens, orbit_bias_m: float, centre_lonlat, ji
     return cfg, build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m, jitter=jitter)
 
 
-def _source_and_dem(cfg: SimConfig, models, given_source):
-    """Source radiance (array, transform, crs: ``given_source`` or procedural) and the TRUE DEM."""
+def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0):
+    """Source radiance (array, transform, crs: ``given_source`` or procedural) and the TRUE DEM.
+
+    The procedural radiance gets the RMS contrast ``contrast`` of real imagery (0: its own;
+    :func:`sensor_models.simulate.texture_stats.scale_contrast`)."""
     from sensor_models.simulate.procedural import generate_reference
 
     ref = cfg.reference
@@ -131,6 +134,10 @@ def _source_and_dem(cfg: SimConfig, models, given_source):
                               mean_height_m=ref.mean_height_m, sea_fraction=ref.sea_fraction if procedural else 0.0)
     if procedural:
         dom = data.dom.astype(np.float32)
+        if contrast > 0.0:
+            from sensor_models.simulate.texture_stats import scale_contrast
+
+            dom = scale_contrast(dom, abs(data.dom_transform.a), contrast)[0]
         source = (dom / np.float32(np.percentile(dom, 99.5)), data.dom_transform, data.crs)
     else:
         source = given_source
@@ -447,7 +454,7 @@ def _setup(cfg: SimConfig, profile, dom_path):
         cy = transform.f + 0.5 * radiance.shape[0] * transform.e
         centre = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(cx, cy)
     cfg, models = _centred_models(cfg, lens, float(profile.value("orbit_bias_m")), centre, jitter_spectrum(profile))
-    source, data = _source_and_dem(cfg, models, given)
+    source, data = _source_and_dem(cfg, models, given, float(profile.value("procedural_rms_contrast")))
     true_dem = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
     lon, lat = footprint_lonlat(models.true_model, true_dem.height_range_m)
     check_covers(MapGrid(source[1], source[2], source[0].shape), lon, lat, what="source radiance",
