@@ -191,28 +191,45 @@ def test_correlate_pairs_applies_the_phase_options():
 
 
 def test_match_command_takes_the_sigma_model(tmp_path):
-    """``gcpcal match`` defaults to the window model (the ideal fixture's DOM states no accuracy: assumed);
+    """``gcpcal match`` defaults to the window model. The ideal fixture's DOM states 0 m (the scene
+    was rendered from it): no reference term. The same DOM without its statement: assumed 5.6 m.
     ``--sigma-model ccd`` reaches the matcher: one smaller sigma per CCD, no reference term."""
     import json
     from pathlib import Path
 
+    import rasterio
+
     from calibrate.cli import main
     from gcpmatch.gcps import read_gcps
-    from sensor_models.dom_inputs import ASSUMED_REFERENCE_SIGMA_M
+    from sensor_models.dom_inputs import ACCURACY_TAG, ASSUMED_REFERENCE_SIGMA_M
 
     fixture = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
-    base = ["-q", "match", str(fixture / "manifest.json"), "--dom", str(fixture / "reference" / "dom.tif"),
-            "--dem", str(fixture / "reference" / "dem.tif"), "--spacing", "64"]
-    assert main([*base, "--sigma-model", "ccd", "--out", str(tmp_path / "ccd.csv")]) == 0
-    assert main([*base, "--out", str(tmp_path / "win.csv")]) == 0
+    dom = fixture / "reference" / "dom.tif"
+    silent = tmp_path / "dom_silent.tif"
+    with rasterio.open(dom) as src:
+        profile, data = src.profile, src.read()
+        tags = {k: v for k, v in src.tags().items() if k != ACCURACY_TAG}
+    with rasterio.open(silent, "w", **profile) as dst:
+        dst.write(data)
+        dst.update_tags(**tags)
+    base = ["-q", "match", str(fixture / "manifest.json"), "--dem", str(fixture / "reference" / "dem.tif"),
+            "--spacing", "64"]
+    assert main([*base, "--dom", str(dom), "--sigma-model", "ccd", "--out", str(tmp_path / "ccd.csv")]) == 0
+    assert main([*base, "--dom", str(dom), "--out", str(tmp_path / "stated.csv")]) == 0
+    assert main([*base, "--dom", str(silent), "--out", str(tmp_path / "win.csv")]) == 0
     ccd_summary = json.loads((tmp_path / "ccd.summary.json").read_text())
+    stated_summary = json.loads((tmp_path / "stated.summary.json").read_text())
     win_summary = json.loads((tmp_path / "win.summary.json").read_text())
     assert ccd_summary["options"]["sigma_model"] == "ccd" and "reference_accuracy" not in ccd_summary
+    assert stated_summary["reference_accuracy"]["assumed"] is False
+    assert stated_summary["reference_accuracy"]["east_m"] == 0.0
+    assert all(max(c["reference_sigma_px"]) == 0.0 for c in stated_summary["per_ccd"])
     assert win_summary["options"]["sigma_model"] == "window" and win_summary["options"]["reference_sigma_m"] is None
     assert win_summary["reference_accuracy"]["assumed"] is True
     assert win_summary["reference_accuracy"]["east_m"] == pytest.approx(ASSUMED_REFERENCE_SIGMA_M)
-    ccd, win = read_gcps(tmp_path / "ccd.csv"), read_gcps(tmp_path / "win.csv")
+    ccd, win, stated = (read_gcps(tmp_path / f"{n}.csv") for n in ("ccd", "win", "stated"))
     # an assumed 5.6 m on the fixture's GSD (about 30 m) adds about 0.19 px in quadrature to every window
     ref_px = np.array([c["reference_sigma_px"] for c in win_summary["per_ccd"]])
     assert np.all((0.12 < ref_px) & (ref_px < 0.3)), ref_px
     assert np.all(win.sigma_px >= ref_px.min()) and np.median(win.sigma_px) > 2 * np.median(ccd.sigma_px)
+    assert np.median(stated.sigma_px) < 0.5 * np.median(win.sigma_px)
