@@ -270,12 +270,45 @@ def measure_floor(threads: int, n_pairs: int, repeat: int, win: int = 64) -> dic
         result[name].update(accuracy(out[name].shift_px, out[name].valid, truth))
         result[name]["fraction_of_floor_cpu"] = best_cpu[floor_name] / best_cpu[name]
         result[name]["fraction_of_floor_wall"] = best_wall[floor_name] / best_wall[name]
+    result["after_parts_us_per_pair_cpu"] = kernel_parts(ref[:128], mov[:128], threads, repeat)
     diff = out["after"].shift_px - out["before"].shift_px
     result["after_vs_before"] = {"shift_px_max": float(np.nanmax(np.abs(diff))),
                                  "score_max": float(np.nanmax(np.abs(out["after"].score - out["before"].score))),
                                  "valid_differ": int(np.count_nonzero(out["after"].valid != out["before"].valid)),
                                  "speedup_cpu": best_cpu["before"] / best_cpu["after"]}
     return result
+
+
+def kernel_parts(ref, mov, threads: int, repeat: int) -> dict:
+    """CPU time per pair of each step of the current kernel on one batch, and the floor's FFTs."""
+    import scipy.fft
+
+    from gcpmatch.phase import NumpyKernel, following_windows, make_plan
+
+    plan = make_plan(ref.shape[1:])
+    kernel = NumpyKernel(plan, workers=threads)
+    spec_ref_conj = np.conjugate(kernel.spectrum(ref))
+    spec_mov = kernel.spectrum(mov)
+    cross, _, _ = kernel.cross_power(spec_ref_conj, spec_mov.copy())
+    centre, _ = kernel.coarse_peak(cross.copy())
+    steps = {
+        "rfft2 (one side)": lambda: scipy.fft.rfft2(ref, workers=threads),
+        "irfft2": lambda: scipy.fft.irfft2(cross, s=plan.shape, workers=threads),
+        "spectrum, fixed window (one side, incl. rfft2)": lambda: kernel.spectrum(ref),
+        "spectrum, following window (incl. rfft2)": lambda: kernel.spectrum(mov, following_windows(plan, centre)),
+        "cross power (one pass)": lambda: kernel.cross_power(spec_ref_conj, spec_mov.copy()),
+        "coarse peak (incl. irfft2)": lambda: kernel.coarse_peak(cross.copy()),
+        "refinement (2 stages)": lambda: kernel.refine(cross, centre, plan.stages),
+        "whole kernel": lambda: kernel(ref, mov),
+    }
+    best = dict.fromkeys(steps, np.inf)
+    for _ in range(repeat):
+        for name, f in steps.items():
+            c0 = time.process_time()
+            for _ in range(10):
+                f()
+            best[name] = min(best[name], (time.process_time() - c0) / 10)
+    return {name: 1e6 * t / len(ref) for name, t in best.items()}
 
 
 def run_floor(args) -> None:
@@ -295,6 +328,8 @@ def run_floor(args) -> None:
         print(f"{name:<7} {r['pairs_per_s_cpu']:>8.0f} pairs/s  {r['us_per_pair_cpu']:6.1f} us/pair  "
               f"{100 * r['fraction_of_floor_cpu']:5.1f} % of the floor (wall {100 * r['fraction_of_floor_wall']:.1f} %)  "
               f"rms {r['rms_px']:.4f} px, valid {r['valid_fraction']:.3f}")
+    print("current kernel, us per pair (CPU, one batch of 128): "
+          + "; ".join(f"{k} {v:.1f}" for k, v in result["after_parts_us_per_pair_cpu"].items()))
     a = result["after_vs_before"]
     print(f"after vs before: x{a['speedup_cpu']:.2f}; shifts differ by {a['shift_px_max']:.1e} px at most, "
           f"scores by {a['score_max']:.1e}, validity of {a['valid_differ']} pairs")
