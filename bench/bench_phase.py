@@ -16,8 +16,16 @@ sensitive to other jobs on a shared machine); best of ``--repeat`` runs. Accurac
 mean (bias) of the error over all pairs, and over the accepted ones for gcpmatch.
 An ablation (accuracy only) measures the normalization floor ``eps`` and the low-pass.
 
-Usage: ``python bench/bench_phase.py [--pairs 4000] [--sizes 32 64 128] [--out FILE]``
-Writes ``bench/results/phase.json``.
+The FFT floor (``--floor``; issue 17 item 3): the least any batched phase correlation must
+do, timed in the same child process at 1 thread, alternating with the kernel of the base
+revision (``bench/baseline.py``) and the current kernel, on the same float32 window pairs (the
+matcher's chips are float32): per batch, ``scipy.fft.rfft2`` of both windows, the normalized
+cross-power ``M conj(F) / |M conj(F)|``, ``irfft2`` and the argmax. The floor is timed at
+several batch sizes and its fastest is kept; the figure is floor time / kernel time.
+
+Usage: ``python bench/bench_phase.py [--pairs 4000] [--sizes 32 64 128] [--out FILE]``;
+``python bench/bench_phase.py --floor [--pairs 2048] [--repeat 7]``.
+Writes ``bench/results/phase.json`` (``--floor``: ``bench/results/phase_floor.json``).
 """
 
 from __future__ import annotations
@@ -209,6 +217,127 @@ def ablation(win: int = 64, n: int = 800) -> list[dict]:
     return rows
 
 
+# --------------------------------------------------------------------------- FFT floor
+
+FLOOR_BATCHES = (32, 64, 128)
+
+
+def fft_floor(ref, mov, batch: int, threads: int) -> np.ndarray:
+    """Integer peak (N,) of the normalized cross-power of each pair: the floor's operations."""
+    import scipy.fft
+
+    n, height, width = ref.shape
+    peaks = []
+    for i in range(0, n, batch):
+        spec_ref = scipy.fft.rfft2(ref[i:i + batch], workers=threads)
+        cross = scipy.fft.rfft2(mov[i:i + batch], workers=threads)
+        cross *= np.conjugate(spec_ref)
+        cross /= np.abs(cross) + np.finfo(np.float32).tiny
+        surface = scipy.fft.irfft2(cross, s=(height, width), workers=threads)
+        peaks.append(np.argmax(surface.reshape(len(surface), -1), axis=1))
+    return np.concatenate(peaks)
+
+
+def measure_floor(threads: int, n_pairs: int, repeat: int, win: int = 64) -> dict:
+    """Child process: the floor, the base revision's kernel and the current one, alternated."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from baseline import BASE_REV, load_baseline
+
+    base = load_baseline("gcpmatch/phase.py")
+    ref, mov, truth = render_pairs(n_pairs, win, seed=win)
+    ref, mov = ref.astype(np.float32), mov.astype(np.float32)
+    funcs = {f"floor_batch_{b}": (lambda b=b: fft_floor(ref, mov, b, threads)) for b in FLOOR_BATCHES}
+    funcs["before"] = lambda: base.phase_correlate(ref, mov, workers=threads)
+    funcs["after"] = lambda: phase_correlate(ref, mov, workers=threads)
+    for f in funcs.values():  # warm-up: plans, imports
+        f()
+    best_cpu = dict.fromkeys(funcs, np.inf)
+    best_wall = dict.fromkeys(funcs, np.inf)
+    out = {}
+    for _ in range(repeat):
+        for name, f in funcs.items():
+            w0, c0 = time.perf_counter(), time.process_time()
+            out[name] = f()
+            best_wall[name] = min(best_wall[name], time.perf_counter() - w0)
+            best_cpu[name] = min(best_cpu[name], time.process_time() - c0)
+    floor_name = min((k for k in funcs if k.startswith("floor")), key=best_cpu.get)
+    result = {"pairs": n_pairs, "window_px": win, "threads": threads, "base_rev": BASE_REV, "repeat": repeat,
+              "floor_best_batch": floor_name, "load_average_1min": float(open("/proc/loadavg").read().split()[0])}
+    for name in funcs:
+        result[name] = {"pairs_per_s_cpu": n_pairs / best_cpu[name], "pairs_per_s_wall": n_pairs / best_wall[name],
+                        "us_per_pair_cpu": 1e6 * best_cpu[name] / n_pairs}
+    for name in ("before", "after"):
+        result[name].update(accuracy(out[name].shift_px, out[name].valid, truth))
+        result[name]["fraction_of_floor_cpu"] = best_cpu[floor_name] / best_cpu[name]
+        result[name]["fraction_of_floor_wall"] = best_wall[floor_name] / best_wall[name]
+    result["after_parts_us_per_pair_cpu"] = kernel_parts(ref[:128], mov[:128], threads, repeat)
+    diff = out["after"].shift_px - out["before"].shift_px
+    result["after_vs_before"] = {"shift_px_max": float(np.nanmax(np.abs(diff))),
+                                 "score_max": float(np.nanmax(np.abs(out["after"].score - out["before"].score))),
+                                 "valid_differ": int(np.count_nonzero(out["after"].valid != out["before"].valid)),
+                                 "speedup_cpu": best_cpu["before"] / best_cpu["after"]}
+    return result
+
+
+def kernel_parts(ref, mov, threads: int, repeat: int) -> dict:
+    """CPU time per pair of each step of the current kernel on one batch, and the floor's FFTs."""
+    import scipy.fft
+
+    from gcpmatch.phase import NumpyKernel, following_windows, make_plan
+
+    plan = make_plan(ref.shape[1:])
+    kernel = NumpyKernel(plan, workers=threads)
+    spec_ref_conj = np.conjugate(kernel.spectrum(ref))
+    spec_mov = kernel.spectrum(mov)
+    cross, _, _ = kernel.cross_power(spec_ref_conj, spec_mov.copy())
+    centre, _ = kernel.coarse_peak(cross.copy())
+    steps = {
+        "rfft2 (one side)": lambda: scipy.fft.rfft2(ref, workers=threads),
+        "irfft2": lambda: scipy.fft.irfft2(cross, s=plan.shape, workers=threads),
+        "spectrum, fixed window (one side, incl. rfft2)": lambda: kernel.spectrum(ref),
+        "spectrum, following window (incl. rfft2)": lambda: kernel.spectrum(mov, following_windows(plan, centre)),
+        "cross power (one pass)": lambda: kernel.cross_power(spec_ref_conj, spec_mov.copy()),
+        "coarse peak (incl. irfft2)": lambda: kernel.coarse_peak(cross.copy()),
+        "refinement (2 stages)": lambda: kernel.refine(cross, centre, plan.stages),
+        "whole kernel": lambda: kernel(ref, mov),
+    }
+    best = dict.fromkeys(steps, np.inf)
+    for _ in range(repeat):
+        for name, f in steps.items():
+            c0 = time.process_time()
+            for _ in range(10):
+                f()
+            best[name] = min(best[name], (time.process_time() - c0) / 10)
+    return {name: 1e6 * t / len(ref) for name, t in best.items()}
+
+
+def run_floor(args) -> None:
+    """Parent: the floor comparison in a 1-thread child; prints and writes phase_floor.json."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "floor.json"
+        subprocess.run([sys.executable, __file__, "--threads", "1", "--floor", "--child-out", str(out),
+                        "--pairs", str(args.pairs), "--repeat", str(args.repeat)], check=True)
+        result = json.loads(out.read_text())
+    result["command"] = " ".join(["python", "bench/bench_phase.py", "--floor", "--pairs", str(args.pairs),
+                                  "--repeat", str(args.repeat)])
+    floor = result[result["floor_best_batch"]]
+    print(f"FFT floor ({result['floor_best_batch']}): {floor['pairs_per_s_cpu']:.0f} pairs/s per CPU second "
+          f"(1 thread, {result['pairs']} pairs of {result['window_px']} px, load {result['load_average_1min']:.1f})")
+    for name in ("before", "after"):
+        r = result[name]
+        print(f"{name:<7} {r['pairs_per_s_cpu']:>8.0f} pairs/s  {r['us_per_pair_cpu']:6.1f} us/pair  "
+              f"{100 * r['fraction_of_floor_cpu']:5.1f} % of the floor (wall {100 * r['fraction_of_floor_wall']:.1f} %)  "
+              f"rms {r['rms_px']:.4f} px, valid {r['valid_fraction']:.3f}")
+    print("current kernel, us per pair (CPU, one batch of 128): "
+          + "; ".join(f"{k} {v:.1f}" for k, v in result["after_parts_us_per_pair_cpu"].items()))
+    a = result["after_vs_before"]
+    print(f"after vs before: x{a['speedup_cpu']:.2f}; shifts differ by {a['shift_px_max']:.1e} px at most, "
+          f"scores by {a['score_max']:.1e}, validity of {a['valid_differ']} pairs")
+    out_path = args.out if args.out != ROOT / "bench" / "results" / "phase.json" else ROOT / "bench" / "results" / "phase_floor.json"
+    out_path.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"wrote {out_path}")
+
+
 # --------------------------------------------------------------------------- report
 
 
@@ -218,12 +347,18 @@ def main():
     parser.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--floor", action="store_true", help="only the kernel against the FFT floor (1 thread)")
     parser.add_argument("--child-out", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "phase.json")
     args = parser.parse_args()
 
     if args.child_out is not None:  # child: one thread count, set before numpy was imported
-        args.child_out.write_text(json.dumps(measure(_THREADS, args.sizes, args.pairs, args.repeat)))
+        result = (measure_floor(_THREADS, args.pairs, args.repeat) if args.floor
+                  else measure(_THREADS, args.sizes, args.pairs, args.repeat))
+        args.child_out.write_text(json.dumps(result))
+        return
+    if args.floor:
+        run_floor(args)
         return
 
     import cv2

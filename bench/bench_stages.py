@@ -6,7 +6,8 @@ times, and the best time of each is kept; the figure is their ratio. Accuracy is
 the same inputs. Stages:
 
 * ``reference``: the matcher's reference chips (:func:`gcpmatch.reference.reference_for_ccd`
-  on every CCD, one worker), its ``locate_block`` share and the DEM intersection alone;
+  on every CCD, one worker; before = the base revision's whole chip pipeline), its DOM sampling
+  (read, blur, remap) and ``locate_block`` shares and the DEM intersection alone;
 * ``clouds``: the cloud detector (:func:`gcpmatch.clouds.detect_clouds`) on every CCD of the
   (cloud-free) scene against its reference, and on a copy with synthetic clouds.
 
@@ -65,24 +66,29 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
     from sensor_models.dem_intersect import intersect_dem_adaptive
 
     base = load_baseline("sensor_models/locate.py")
+    # "before" is the base revision's whole chip pipeline: its reference_for_ccd, locate_block,
+    # sample_map_image and MapImage (a file opened per window read, masked reads)
+    base_reference = load_baseline("gcpmatch/reference.py")
+    base_raster = load_baseline("sensor_models/raster.py")
+    base_reference.locate_block = base.locate_block
+    base_reference.sample_map_image = base_raster.sample_map_image
+    dom_before = base_raster.MapImage.open(dom.path)
     locate.dem_planes(dem)
     base.dem_planes(dem)
     band, n_ccd = "B2", len(model.detector_arrays("B2"))
 
-    def chips(use_base):
-        def run():
-            saved = reference.locate_block
-            if use_base:
-                reference.locate_block = lambda *a, tolerance_m=None, **k: base.locate_block(*a, **k)
-            try:
-                return [reference.reference_for_ccd(model, dem, dom, band=band, ccd=c, workers=1) for c in range(n_ccd)]
-            finally:
-                reference.locate_block = saved
-        return run
+    def chips(module, image):
+        return lambda: [module.reference_for_ccd(model, dem, image, band=band, ccd=c, workers=1) for c in range(n_ccd)]
 
-    t_chips, chips_out = alternate({"before": chips(True), "after": chips(False)}, repeat)
+    def chips_one_session():  # what extract_gcps would get holding dom.reading() over its CCD loop
+        with dom.reading():
+            return chips(reference, dom)()
+
+    t_chips, chips_out = alternate({"before": chips(base_reference, dom_before), "after": chips(reference, dom),
+                                    "after_one_session": chips_one_session}, repeat)
     diff = np.concatenate([np.abs(a - b).ravel() for a, b in zip(chips_out["before"], chips_out["after"])])
     scale = float(np.nanstd(np.concatenate([a.ravel() for a in chips_out["before"]])))
+    t_sample = bench_sampling(model, dem, dom, dom_before, base_raster, band, n_ccd, repeat)
 
     rows = model.image_shape[0]
     blocks = [(c, a, min(rows, a + 512)) for c in range(n_ccd) for a in range(0, rows, 512)]
@@ -117,6 +123,8 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
     return {
         "pixels": int(sum(a.size for a in chips_out["after"])),
         "reference_chips_s": t_chips, "reference_chips_speedup": t_chips["before"] / t_chips["after"],
+        "reference_chips_one_session_speedup": t_chips["before"] / t_chips["after_one_session"],
+        "dom_sampling_s": t_sample, "dom_sampling_speedup": t_sample["before"] / t_sample["after"],
         "locate_block_s": t_loc, "locate_block_speedup": t_loc["before"] / t_loc["after"],
         "intersection_512_lines_s": t_int, "intersection_speedup": t_int["before"] / t_int["after"],
         "pixel_layers_512_lines_s": t_lay, "pixel_layers_speedup": t_lay["before"] / t_lay["after"],
@@ -125,8 +133,32 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
             "h_m_max": float(np.nanmax(np.abs(d_h))), "h_m_rms": float(np.sqrt(np.nanmean(d_h**2))),
             "nan_pixels_differ": int(np.count_nonzero(np.isnan(d_h) != np.isnan(d_uv))),
             "chip_dn_max": float(np.nanmax(diff)), "chip_dn_std": scale,
+            "chip_nan_pixels_differ": int(sum(np.count_nonzero(np.isnan(a) != np.isnan(b))
+                                              for a, b in zip(chips_out["before"], chips_out["after"]))),
         },
     }
+
+
+def bench_sampling(model, dem, dom, dom_before, base_raster, band: str, n_ccd: int, repeat: int) -> dict:
+    """The DOM sampling of the chips alone (read, blur, remap) on the same node indices:
+    the base revision's ``sample_map_image`` and ``MapImage`` vs the current ones."""
+    import gcpmatch.reference as reference
+    import sensor_models.locate as locate
+    from sensor_models.psf import psf_sigma_dom_px
+    from sensor_models.raster import sample_map_image
+
+    sigma = psf_sigma_dom_px(reference.scene_gsd_m(model, band=band), dom.grid.resolution_m, 0.45)
+    rows = model.image_shape[0]
+    uv = [locate.locate_block(model, dem, [dom.grid], band=band, ccd=c, row0=a, row1=min(rows, a + 512),
+                              tolerance_m=locate.HEIGHT_TOLERANCE_M).uv[0] for c in range(n_ccd) for a in range(0, rows, 512)]
+
+    def after():
+        with dom.reading():
+            return [sample_map_image(dom, u, v, sigma_px=sigma, exact_weights=False) for u, v in uv]
+
+    t, _ = alternate({"before": lambda: [base_raster.sample_map_image(dom_before, u, v, sigma_px=sigma) for u, v in uv],
+                      "after": after}, repeat)
+    return t
 
 
 def main():
@@ -149,8 +181,14 @@ def main():
         print(f"reference chips  {r['reference_chips_s']['before']:.2f} s -> {r['reference_chips_s']['after']:.2f} s"
               f"  x{r['reference_chips_speedup']:.2f}   (locate_block x{r['locate_block_speedup']:.2f}, "
               f"intersection x{r['intersection_speedup']:.2f}, layers x{r['pixel_layers_speedup']:.2f})")
+        print(f"   one DOM session over all CCDs: {r['reference_chips_s']['after_one_session']:.2f} s"
+              f"  x{r['reference_chips_one_session_speedup']:.2f}")
+        print(f"   DOM sampling {r['dom_sampling_s']['before']:.2f} s -> {r['dom_sampling_s']['after']:.2f} s"
+              f"  x{r['dom_sampling_speedup']:.2f}")
         print(f"   vs before: uv max {r['accuracy_vs_before']['uv_dom_px_max']:.1e} DOM px, "
-              f"h max {r['accuracy_vs_before']['h_m_max'] * 1e3:.2f} mm")
+              f"h max {r['accuracy_vs_before']['h_m_max'] * 1e3:.2f} mm, chips max {r['accuracy_vs_before']['chip_dn_max']:.3f} DN "
+              f"(DN std {r['accuracy_vs_before']['chip_dn_std']:.0f}), NaN pixels differ "
+              f"{r['accuracy_vs_before']['chip_nan_pixels_differ']}")
     if "clouds" in stages:
         from bench_clouds import bench_clouds
 

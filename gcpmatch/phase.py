@@ -476,46 +476,91 @@ class NumpyKernel:
     (B,) its ideal height ``sum|Q| / (H W)``; ``q_var`` (B,) the surface variance
     ``sum|Q|^2 / (H W)^2``; ``second`` (B,) the first pass's maximum outside the exclusion
     zone; ``first_q_mean`` (B,) the first pass's ``q_mean``.
+
+    Every pass over a batch is a single vectorized operation, written where it can into
+    buffers the kernel keeps between batches (fresh arrays of a few MB cost page faults);
+    the fixed window's weighted mean is removed in the frequency domain (:meth:`spectrum`).
     """
 
     def __init__(self, plan: _Plan, *, workers: int = -1):
         self.plan = plan
         self.workers = workers
+        apod = plan.apodization
+        self.window_2d = apod if isinstance(apod, np.ndarray) else np.outer(apod[0], apod[1]).astype(plan.dtype)
+        self.window_sum = float(self.window_2d.sum(dtype=np.float64))
+        spec = np.fft.rfft2(_window_2d_float64(plan))
+        # the window's spectrum where it is not negligible: 6 bins for Hann (sin^2 at pixel centres)
+        support = np.abs(spec) > 1e-11 * np.abs(spec).max()  # beyond: float64 rounding
+        self.window_bins = np.nonzero(support)
+        self.window_spectrum = (spec[support] / self.window_sum).astype(plan.complex_dtype)
+        self._buffers = {}
+
+    def _buffer(self, name: str, shape, dtype) -> np.ndarray:
+        """A scratch array of ``shape`` kept between batches (the last batch may be smaller)."""
+        buf = self._buffers.get(name)
+        size = int(np.prod(shape))
+        if buf is None or buf.size < size or buf.dtype != dtype:
+            buf = self._buffers[name] = np.empty(size, dtype=dtype)
+        return buf[:size].reshape(shape)
 
     def __call__(self, ref: np.ndarray, mov: np.ndarray):
         plan = self.plan
-        ref = ref.astype(plan.dtype, copy=False)
+        ref = ref.astype(plan.dtype, copy=False)  # a no-op for float32 chips
         mov = mov.astype(plan.dtype, copy=False)
-        spec_ref_conj = np.conjugate(self.spectrum(ref, plan.apodization))
-        cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov, plan.apodization))
+        spec_ref_conj = np.conjugate(self.spectrum(ref), out=self._buffer("ref", (ref.shape[0], plan.shape[0],
+                                                                                    plan.shape[1] // 2 + 1),
+                                                                          plan.complex_dtype))
+        cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov), variance=plan.follow == 0)
         centre, second = self.coarse_peak(cross)
         first_q_mean = q_mean
         for k in range(plan.follow):
-            win_mov = following_windows(plan, centre)
-            cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov, win_mov))
-            if k < plan.follow - 1:
+            last = k == plan.follow - 1
+            cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov, following_windows(plan, centre)),
+                                                    variance=last)
+            if not last:
                 centre, _ = self.refine(cross, centre, plan.stages[:1])
         centre, peak = self.refine(cross, centre, plan.stages)
         return centre, peak, q_mean, q_var, second, first_q_mean
 
-    def spectrum(self, windows, window):
+    def spectrum(self, windows, window=None):
         """Half spectrum (B, H, Wh) of the apodized, mean-removed windows.
+
+        With the plan's fixed window the product ``w x`` is transformed and the weighted mean
+        removed afterwards: ``rfft2(w (x - m)) = rfft2(w x) - m rfft2(w)`` with
+        ``m = sum(w x) / sum(w)``, the DC bin of ``rfft2(w x)`` over ``sum(w)``; ``rfft2(w)``
+        is non-negligible on a few bins only (6 for a Hann window). So apodization and the mean
+        cost one multiplication.
 
         Parameters
         ----------
         windows : ndarray, shape (B, H, W)
             Windows in the plan's working precision, pixels indexed (row, col).
-        window : ndarray, shape (H, W), or (row, col) profiles of shapes (H,) and (W,) or (B, H) and (B, W)
-            Apodization weights (the plan's, or the following windows of each pair).
+        window : None or (row, col) profiles of shapes (B, H) and (B, W)
+            None: the plan's fixed apodization; else the following windows of each pair.
 
         Returns
         -------
         ndarray of complex, shape (B, H, W // 2 + 1)
             ``rfft2`` of ``window * (windows - weighted mean)``.
         """
-        return scipy.fft.rfft2(_apodize(windows, window), workers=self.workers)
+        buf = self._buffer("apodized", windows.shape, self.plan.dtype)
+        if window is None:
+            np.multiply(windows, self.window_2d, out=buf)
+            spec = scipy.fft.rfft2(buf, workers=self.workers)
+            mean_sum = spec[:, 0, 0].real.copy()  # sum(w x) = sum(w) m
+            rows, cols = self.window_bins
+            spec[:, rows, cols] -= mean_sum[:, None] * self.window_spectrum
+            return spec
+        row, col = window
+        # sum_ij row_i col_j x_ij as two matrix products, without forming the 2-D window
+        weighted = np.matmul(row[:, None, :], np.matmul(windows, col[:, :, None]))[:, 0, 0]
+        mean = (weighted / (row.sum(axis=1) * col.sum(axis=1))).astype(self.plan.dtype)
+        np.subtract(windows, mean[:, None, None], out=buf, casting="same_kind")
+        buf *= row[:, :, None]
+        buf *= col[:, None, :]
+        return scipy.fft.rfft2(buf, workers=self.workers)
 
-    def cross_power(self, spec_ref_conj, spec_mov):
+    def cross_power(self, spec_ref_conj, spec_mov, *, variance: bool = True):
         """Weighted normalized cross-power ``Q`` (B, H, Wh), ``sum|Q|/(HW)``, ``sum|Q|^2/(HW)^2``.
 
         ``spec_mov`` is overwritten.
@@ -526,6 +571,8 @@ class NumpyKernel:
             Conjugated half spectrum of the reference windows.
         spec_mov : ndarray of complex, shape (B, H, W // 2 + 1)
             Half spectrum of the moving windows.
+        variance : bool
+            Compute ``q_var`` (else it is None: only the last pass's is used).
 
         Returns
         -------
@@ -533,22 +580,26 @@ class NumpyKernel:
             The weighted normalized cross-power ``Q``.
         q_mean : ndarray of float64, shape (B,)
             ``sum|Q| / (H W)`` over the full spectrum: the ideal height of the surface peak.
-        q_var : ndarray of float64, shape (B,)
+        q_var : ndarray of float64, shape (B,), or None
             ``sum|Q|^2 / (H W)^2``: the variance of the correlation surface.
         """
         plan = self.plan
-        height, width = plan.shape
+        n, height, half = spec_mov.shape
         cross = spec_mov
         cross *= spec_ref_conj  # M conj(F): the surface peaks at +shift
-        mag = np.abs(cross)
-        floor = plan.eps * mag.mean(axis=(1, 2), keepdims=True) + np.finfo(plan.dtype).tiny
-        factor = plan.weight / (mag + floor)
+        mag = np.abs(cross, out=self._buffer("mag", cross.shape, plan.dtype))
+        level = mag.reshape(n, -1).mean(axis=1)
+        factor = self._buffer("factor", cross.shape, plan.dtype)
+        np.add(mag, (plan.eps * level + np.finfo(plan.dtype).tiny)[:, None, None], out=factor)
+        np.divide(plan.weight, factor, out=factor)
         cross *= factor
         mag *= factor  # |Q|
-        n_px = height * width
-        q_mean = (mag @ plan.multiplicity).sum(axis=1, dtype=np.float64) / n_px
-        mag *= mag
-        q_var = (mag @ plan.multiplicity).sum(axis=1, dtype=np.float64) / n_px**2
+        n_px = height * plan.shape[1]
+        q_mean = (mag.reshape(-1, half) @ plan.multiplicity).reshape(n, height).sum(axis=1, dtype=np.float64) / n_px
+        q_var = None
+        if variance:
+            mag *= mag
+            q_var = (mag.reshape(-1, half) @ plan.multiplicity).reshape(n, height).sum(axis=1, dtype=np.float64) / n_px**2
         return cross, q_mean, q_var
 
     def coarse_peak(self, cross):
@@ -609,15 +660,40 @@ class NumpyKernel:
         height, width = plan.shape
         peak = None
         for stage in stages:
-            ramp_row = np.exp((2j * np.pi / height) * centre[:, :1] * plan.freq_row).astype(plan.complex_dtype)
-            ramp_col = np.exp((2j * np.pi / width) * centre[:, 1:] * plan.freq_col).astype(plan.complex_dtype)
-            k_row = stage.kernel_row[None] * ramp_row[:, None, :]  # (B, m, H)
-            k_col = ramp_col[:, :, None] * stage.kernel_col[None]  # (B, Wh, m)
+            # per-pair phase ramps exp(2 pi i k c / n), folded into the stage's kernels
+            k_row = stage.kernel_row * _unit_phasors(centre[:, :1] * (plan.freq_row / height), plan.complex_dtype)[:, None, :]
+            k_col = _unit_phasors(centre[:, 1:] * (plan.freq_col / width), plan.complex_dtype)[:, :, None] * stage.kernel_col
             values = np.matmul(np.matmul(k_row, cross), k_col).real  # (B, m, m)
             offset, peak = _grid_peak(values, stage.offsets_px)
             centre = centre + offset
             peak = peak / (height * width)
         return centre, peak
+
+
+def _window_2d_float64(plan: _Plan) -> np.ndarray:
+    """The plan's fixed apodization as an (H, W) float64 array, profiles evaluated in float64
+    (their float32 rounding would spread a Hann window's 6-bin spectrum over every bin)."""
+    if plan.window_name is None:
+        return np.asarray(plan.apodization, dtype=np.float64)
+    height, width = plan.shape
+    return np.outer(window_profile(plan.window_name, (np.arange(height) + 0.5) / height, plan.tukey_alpha),
+                    window_profile(plan.window_name, (np.arange(width) + 0.5) / width, plan.tukey_alpha))
+
+
+def _unit_phasors(turns: np.ndarray, dtype) -> np.ndarray:
+    """``exp(2 pi i turns)`` in ``dtype`` (complex64 or complex128), phases reduced to one turn first."""
+    phase = (2.0 * np.pi) * (turns - np.round(turns))
+    out = np.empty(phase.shape, dtype=dtype)
+    out.real = np.cos(phase)
+    out.imag = np.sin(phase)
+    return out
+
+
+#: Least-squares coefficients ``(c1, c2, c3, c4, c5)`` of the quadratic of
+#: :func:`_quadratic_vertex` from the 9 samples of a 3 x 3 patch (row-major, x = row, y = col).
+_X, _Y = (a.ravel() for a in np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], indexing="ij"))
+_QUADRATIC_FIT = np.stack([_X / 6.0, _Y / 6.0, (_X**2 - 2.0 / 3.0) / 2.0, (_Y**2 - 2.0 / 3.0) / 2.0, _X * _Y / 4.0], axis=1)
+_PATCH_STEPS = np.array([-1, 0, 1])
 
 
 def _grid_peak(values: np.ndarray, offsets_px: np.ndarray):
@@ -627,13 +703,14 @@ def _grid_peak(values: np.ndarray, offsets_px: np.ndarray):
     grid step of the best sample) and the best sample's value (B,).
     """
     n, m, _ = values.shape
-    a, b = np.divmod(np.argmax(values.reshape(n, -1), axis=1), m)
-    best = values[np.arange(n), a, b].astype(float)
-    a = np.clip(a, 1, m - 2)  # neighbourhood inside the grid (only matters on its border)
-    b = np.clip(b, 1, m - 2)
-    step = np.arange(-1, 2)
-    patch = values[np.arange(n)[:, None, None], (a[:, None] + step)[:, :, None], (b[:, None] + step)[:, None, :]]
-    d_row, d_col = _quadratic_vertex(patch.astype(float))
+    flat = values.reshape(n, m * m)
+    best_index = np.argmax(flat, axis=1)
+    best = np.take_along_axis(flat, best_index[:, None], axis=1)[:, 0].astype(float)
+    a, b = np.divmod(best_index, m)
+    a = np.minimum(np.maximum(a, 1), m - 2)  # neighbourhood inside the grid (only matters on its border)
+    b = np.minimum(np.maximum(b, 1), m - 2)
+    index = ((a * m + b)[:, None] + (_PATCH_STEPS[:, None] * m + _PATCH_STEPS[None, :]).ravel())
+    d_row, d_col = _quadratic_vertex(np.take_along_axis(flat, index, axis=1).astype(float).reshape(n, 3, 3))
     spacing = offsets_px[1] - offsets_px[0]
     offset = np.stack([offsets_px[a] + d_row * spacing, offsets_px[b] + d_col * spacing], axis=1)
     return offset, best
@@ -643,40 +720,13 @@ def _quadratic_vertex(patch: np.ndarray):
     """Vertex (in grid steps, clipped to [-1, 1]) of the least-squares quadratic
     ``f = c0 + c1 x + c2 y + c3 x^2 + c4 y^2 + c5 x y`` on 3 x 3 samples (B, 3, 3) at
     ``x, y in {-1, 0, 1}`` (rows, columns); 0 where the fit has no maximum."""
-    x = np.array([-1.0, 0.0, 1.0])
-    c1 = np.einsum("bij,i->b", patch, x) / 6.0
-    c2 = np.einsum("bij,j->b", patch, x) / 6.0
-    c3 = np.einsum("bij,i->b", patch, x**2 - 2.0 / 3.0) / 2.0
-    c4 = np.einsum("bij,j->b", patch, x**2 - 2.0 / 3.0) / 2.0
-    c5 = np.einsum("bij,i,j->b", patch, x, x) / 4.0
+    c1, c2, c3, c4, c5 = (patch.reshape(-1, 9) @ _QUADRATIC_FIT).T
     det = 4.0 * c3 * c4 - c5**2
     ok = (c3 < 0) & (det > 0)
     det = np.where(ok, det, 1.0)
     d_row = np.where(ok, (c5 * c2 - 2.0 * c4 * c1) / det, 0.0)
     d_col = np.where(ok, (c5 * c1 - 2.0 * c3 * c2) / det, 0.0)
-    return np.clip(d_row, -1.0, 1.0), np.clip(d_col, -1.0, 1.0)
-
-
-def _apodize(windows: np.ndarray, window) -> np.ndarray:
-    """``w * (windows - weighted mean)`` for (B, H, W) windows.
-
-    ``window`` is an (H, W) array, or separable profiles ``(row, col)`` of shapes
-    ((B, H), (B, W)) or ((H,), (W,)).
-    """
-    n = windows.shape[0]
-    if isinstance(window, np.ndarray):
-        mean = windows.reshape(n, -1) @ (window.ravel() / window.sum())
-        out = windows - mean[:, None, None]
-        out *= window
-        return out
-    row, col = (np.broadcast_to(p, (n, p.shape[-1])) for p in window)
-    # sum_ij row_i col_j x_ij as two matrix products, without forming the 2-D window
-    weighted = np.matmul(row[:, None, :], np.matmul(windows, col[:, :, None]))[:, 0, 0]
-    mean = weighted / (row.sum(axis=1) * col.sum(axis=1))
-    out = windows - mean[:, None, None]
-    out *= row[:, :, None]
-    out *= col[:, None, :]
-    return out
+    return np.minimum(np.maximum(d_row, -1.0), 1.0), np.minimum(np.maximum(d_col, -1.0), 1.0)
 
 
 def _parabola_vertex(left, centre, right) -> np.ndarray:

@@ -103,7 +103,7 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
         b = min(row1, a + block_lines)
         pg = locate_block(model, dem, [dom.grid], band=band, ccd=ccd, row0=a, row1=b, tolerance_m=HEIGHT_TOLERANCE_M)
         u, v = pg.uv[0]
-        out[a - row0 : b - row0] = sample_map_image(dom, u, v, sigma_px=sigma)
+        out[a - row0 : b - row0] = sample_map_image(dom, u, v, sigma_px=sigma, exact_weights=False)
 
     from concurrent.futures import ThreadPoolExecutor
 
@@ -111,12 +111,13 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
 
     dem_planes(dem)  # shared sampling planes, built once before the threads
     starts = list(range(row0, row1, block_lines))
-    if workers <= 1 or len(starts) == 1:
-        for a in starts:
-            render(a)
-    else:  # numpy, OpenCV and GDAL release the GIL: blocks render in parallel
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            list(pool.map(render, starts))
+    with dom.reading():  # one file handle per thread: blocks share decompressed DOM tiles
+        if workers <= 1 or len(starts) == 1:
+            for a in starts:
+                render(a)
+        else:  # numpy, OpenCV and GDAL release the GIL: blocks render in parallel
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                list(pool.map(render, starts))
     return out
 
 
@@ -162,5 +163,5 @@ def reference_for_image(model, dem, dom: MapImage, *, band=None, psf_sigma_px: f
         lon, lat, _ = model.image_to_ground(rr.ravel(), cc.ravel(), dem=dem, band=band)
         u, v = project(lon, lat)
         out[a:b] = sample_map_image(dom, u.reshape(rr.shape).astype(np.float32),
-                                    v.reshape(rr.shape).astype(np.float32), sigma_px=sigma)
+                                    v.reshape(rr.shape).astype(np.float32), sigma_px=sigma, exact_weights=False)
     return out

@@ -355,6 +355,28 @@ def test_array_window_needs_follow_zero(realistic_set):
     assert rms(errors(m, shifts[:20])) < 0.06
 
 
+@pytest.mark.parametrize("window", ["hann", "tukey", "none", "array"])
+def test_weighted_mean_is_removed_in_the_frequency_domain(window):
+    """``NumpyKernel.spectrum`` transforms ``w x`` and subtracts ``m rfft2(w)`` on the window's
+    spectral support; it must equal ``rfft2(w (x - m))`` computed directly."""
+    from gcpmatch.phase import NumpyKernel, make_plan
+
+    rng = np.random.default_rng(9)
+    x = 1000.0 + 30.0 * rng.normal(size=(5, 48, 40))  # a large mean: the term to remove
+    win = np.outer(np.hanning(48) + 0.1, np.hanning(40) + 0.2) if window == "array" else window
+    kernel = NumpyKernel(make_plan((48, 40), window=win, follow=0, dtype=np.float64), workers=1)
+    w2 = kernel.window_2d
+    mean = (x * w2).sum(axis=(1, 2)) / w2.sum()
+    expected = np.fft.rfft2((x - mean[:, None, None]) * w2)
+    got = kernel.spectrum(x)
+    scale = np.abs(expected).max()
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * scale)
+    assert np.abs(np.fft.rfft2(x * w2) - expected).max() > 10 * scale  # the mean term is large
+    if window == "hann":  # sin^2 at pixel centres: bins 0 and +-1 per axis, in either precision
+        assert kernel.window_bins[0].size == 6
+        assert NumpyKernel(make_plan((48, 40)), workers=1).window_bins[0].size == 6
+
+
 def test_quadratic_vertex_of_a_tilted_paraboloid():
     from gcpmatch.phase import _quadratic_vertex
 
