@@ -169,6 +169,145 @@ def scene(scene_dir: Path, gcps_csv: Path, work: Path) -> dict:
     return out
 
 
+# --------------------------------------------------------------------------- parallax (issue 16 item 2)
+def _jittered_truth(lab, lines, seed=5, installation=(2e-4, -1e-4, 3e-4), band_error_px=(0.3, -0.2)):
+    """TRUE model: ``lab`` with an installation error, the jitter ``lines`` in its attitude
+    (``[(amplitudes_urad (3,), frequency_hz), ...]``, random phases, sampled at 100 Hz) and
+    the other bands' CCDs shifted by ``band_error_px`` (along, across track) times the IFOV."""
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    from sensor_models.ephemeris import Attitude
+    from sensor_models.pushbroom import PushbroomModel
+    from sensor_models.pushbroom_types import Installation
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(lab.attitude.seconds[0], lab.attitude.seconds[-1], 0.01)
+    angles = np.zeros((t.size, 3))
+    for amp, f in lines:
+        angles += np.asarray(amp)[None, :] * 1e-6 * np.sin(2 * np.pi * f * t[:, None] + rng.uniform(0, 2 * np.pi, 3))
+    quat = (lab.attitude.rotation(t) * Rotation.from_euler("ZYX", angles[:, ::-1])).as_quat()
+    ifov = 50.0 / 782_121.0
+    bands = {}
+    for b in lab.bands:
+        shift = (0.0, 0.0) if b == lab.reference_band else band_error_px
+        bands[b] = tuple(replace(c, tan_psi_x=c.tan_psi_x + np.r_[shift[0] * ifov, np.zeros(c.tan_psi_x.size - 1)],
+                                 tan_psi_y=c.tan_psi_y + np.r_[shift[1] * ifov, np.zeros(c.tan_psi_y.size - 1)])
+                         for c in lab.band_ccds(b))
+    return PushbroomModel(orbit=lab.orbit, attitude=Attitude(t, quat, frame=lab.attitude.frame),
+                          line_timing=lab.line_timing, bands=bands, installation=Installation(*installation),
+                          n_rows=lab.n_rows, reference_band=lab.reference_band, name="truth")
+
+
+def _synthetic_ties(truth, model, band, *, row_step, col_step, height_m, noise_px, seed):
+    """Ties of ``band`` on a reference-band grid: the truth's transfer map plus noise; ground from ``model``."""
+    from calibrate.relative import TiePoints
+
+    rng = np.random.default_rng(seed)
+    ref = truth.reference_band
+    rows, cols = (a.ravel() for a in np.meshgrid(np.arange(16.0, truth.n_rows - 16, row_step),
+                                                 np.arange(8.0, truth.n_cols - 8, col_step), indexing="ij"))
+    ccd_ref = truth.ccd_index(cols, band=ref).reshape(-1)
+    lon, lat, h = truth.image_to_ground(rows, cols, height=height_m, band=ref, ccd=ccd_ref)
+    qr, qc = truth.ground_to_image(lon, lat, h, band=band)
+    ok = np.isfinite(qr) & np.isfinite(qc)
+    rows, cols, ccd_ref, qr, qc = rows[ok], cols[ok], ccd_ref[ok], qr[ok], qc[ok]
+    qr, qc = qr + rng.normal(0, noise_px, qr.size), qc + rng.normal(0, noise_px, qc.size)
+    ccd = truth.ccd_index(qc, band=band).reshape(-1)
+    glon, glat, gh = model.image_to_ground(rows, cols, height=height_m, band=ref, ccd=ccd_ref)
+    n = rows.size
+    return TiePoints(band, rows, cols, ccd_ref, glon, glat, gh, qr, qc, ccd, qr, qc, np.ones(n), np.full(n, noise_px))
+
+
+def _two_line_fit(correction, t_lo, t_hi, f_lo, f_hi):
+    """Per axis: amplitude and frequency of the two sinusoids near ``f_lo`` and ``f_hi`` in a correction."""
+    from scipy.optimize import least_squares
+
+    from sensor_models.attitude_correction import AXES
+
+    t = np.linspace(t_lo, t_hi, 4096)
+    tc = t - t.mean()
+    out = {}
+    for a, name in enumerate(AXES):
+        y = correction.angles(t)[:, a] * 1e6 if correction is not None else np.zeros_like(t)
+
+        def design(f):
+            cols = [np.ones_like(tc), tc]
+            for fk in f:
+                cols += [np.sin(2 * np.pi * fk * tc), np.cos(2 * np.pi * fk * tc)]
+            return np.stack(cols, axis=1)
+
+        def resid(f):
+            x = design(f)
+            return x @ np.linalg.lstsq(x, y, rcond=None)[0] - y
+
+        f = least_squares(resid, [f_lo, f_hi], bounds=([0.7 * f_lo, 0.8 * f_hi], [1.3 * f_lo, 1.2 * f_hi])).x
+        c = np.linalg.lstsq(design(f), y, rcond=None)[0]
+        out[name] = [{"amplitude_urad": float(np.hypot(c[2 + 2 * k], c[3 + 2 * k])), "frequency_hz": float(f[k])}
+                     for k in range(2)]
+    return out
+
+
+def _all_bands_error(truth, model, height_m):
+    per = {b: every_line_error(truth, model, band=b, height_m=height_m) for b in truth.bands}
+    other = [per[b] for b in truth.bands if b != truth.reference_band]
+    return {"reference_band": per[truth.reference_band],
+            "other_bands_rms_px": float(np.sqrt(np.mean([o["rms_px"] ** 2 for o in other]))),
+            "other_bands_max_px": float(max(o["max_px"] for o in other)), "per_band": per}
+
+
+def parallax_case(*, n_rows, lines, n_gcps, tie_row_step, tie_col_step, tie_noise_px, gcp_noise_px=0.1,
+                  height_m=300.0, seed=3) -> dict:
+    """Static vs GCP-only auto vs joint (GCPs + band parallax) on one synthetic scene."""
+    from calibrate.absolute import calibrate_model
+    from calibrate.config import CalibrationOptions
+    from calibrate.parallax import calibrate_with_parallax
+    from sensor_models.synthetic import example_pushbroom_model
+
+    lab = example_pushbroom_model(n_rows=n_rows)
+    truth = _jittered_truth(lab, lines, seed=seed)
+    rng = np.random.default_rng(seed)
+    band = truth.reference_band
+    rows, cols = rng.uniform(1, n_rows - 1, n_gcps), rng.uniform(1, truth.n_cols - 1, n_gcps)
+    lon, lat, h = truth.image_to_ground(rows, cols, height=rng.uniform(0, 1500, n_gcps), band=band)
+    from gcpmatch.gcps import GcpTable
+
+    gcps = GcpTable.from_arrays(rows + rng.normal(0, gcp_noise_px, n_gcps), cols + rng.normal(0, gcp_noise_px, n_gcps),
+                                lon, lat, h, band=np.full(n_gcps, band), sigma_px=gcp_noise_px)
+    t_img = sorted(float(t) for t in lab.line_timing.seconds(np.array([0.0, float(n_rows)])))
+    f_lo, f_hi = sorted(f for _, f in lines)[0], sorted(f for _, f in lines)[-1]
+    out = {"n_rows": n_rows, "seconds": t_img[1] - t_img[0], "lines": [{"amplitude_urad": list(a), "frequency_hz": f}
+                                                                          for a, f in lines],
+           "n_gcps": n_gcps, "gcp_noise_px": gcp_noise_px, "tie_noise_px": tie_noise_px,
+           "tie_grid_px": [tie_row_step, tie_col_step], "band_offsets_lines": [-6, -2, 2, 6]}
+    for mode in ("static", "auto"):
+        t0 = time.process_time()
+        ref = calibrate_model(lab, gcps, options=CalibrationOptions(attitude=mode))
+        model = ref.model
+        ties = {}
+        for b in (b for b in lab.bands if b != band):  # the relative calibration: interiors from ties
+            ties[b] = _synthetic_ties(truth, model, b, row_step=tie_row_step, col_step=tie_col_step,
+                                      height_m=height_m, noise_px=tie_noise_px, seed=seed + len(ties))
+            model = calibrate_model(model, ties[b].as_gcp_table(), options=CalibrationOptions(scheme="interior")).model
+        out[mode] = {"seconds_cpu": time.process_time() - t0, "truth_error_px": _all_bands_error(truth, model, height_m),
+                     "selected": (ref.attitude or {}).get("selected", {"kind": "static"}),
+                     "jitter": _two_line_fit(model.attitude_correction, *t_img, f_lo, f_hi)}
+        print(json.dumps({"mode": mode, "ref": out[mode]["truth_error_px"]["reference_band"]["rms_px"],
+                          "other": out[mode]["truth_error_px"]["other_bands_rms_px"], "sel": out[mode]["selected"]}))
+    t0 = time.process_time()
+    joint = calibrate_with_parallax(model, ties, gcps, height=height_m, options=CalibrationOptions(attitude="auto"))
+    out["joint"] = {"seconds_cpu": time.process_time() - t0 + out["auto"]["seconds_cpu"], "success": joint.success,
+                    "message": joint.message, "n_ties": joint.n_ties, "n_gcps": joint.n_gcps,
+                    "truth_error_px": _all_bands_error(truth, joint.model, height_m),
+                    "selected": joint.to_dict()["selected"],
+                    "jitter": _two_line_fit(joint.correction, *t_img, f_lo, f_hi)}
+    print(json.dumps({"mode": "joint", "ref": out["joint"]["truth_error_px"]["reference_band"]["rms_px"],
+                      "other": out["joint"]["truth_error_px"]["other_bands_rms_px"], "sel": out["joint"]["selected"],
+                      "msg": joint.message}))
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "attitude.json")
