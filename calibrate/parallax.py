@@ -135,7 +135,7 @@ def gcp_observations(model, gcps, *, band=None) -> AngleObservations:
     table = gcps.gcps()
     keep = (table.band == "") | (table.band == band)
     lon, lat, h = table.lon[keep], table.lat[keep], table.h[keep]
-    row, col, jac = model.attitude_angle_jacobian(lon, lat, h, band=band)
+    row, col, jac = model.attitude_angle_jacobian(lon, lat, h, band=band, ccd=_ccd_column(model, band, table.ccd[keep]))
     residual = np.stack([table.row[keep] - row, table.col[keep] - col], axis=-1)
     weight = table.score[keep] / table.sigma_px[keep] ** 2
     ok = np.isfinite(residual).all(axis=1) & np.isfinite(jac).all(axis=(1, 2)) & (weight > 0)
@@ -145,6 +145,23 @@ def gcp_observations(model, gcps, *, band=None) -> AngleObservations:
     seconds = model.line_timing.seconds(np.where(np.isfinite(row), row, table.row[keep]))
     return _finite(AngleObservations(residual, np.where(ok, weight, 0.0), jac[None], seconds[None],
                                      np.full(row.size, -1), np.zeros(row.size), "gcp"))
+
+
+def _ccd_column(model, band, ccd):
+    """CCD indices of a GCP table's ``ccd`` column (names or indices); None when it is empty.
+
+    Points in the overlap of two CCDs must be projected into the CCD that observed them.
+    """
+    text = np.asarray(ccd).astype(str)
+    if text.size == 0 or np.all(text == ""):
+        return None
+    names = [c.name for c in model.band_ccds(band)]
+    lookup = {name: i for i, name in enumerate(names)} | {str(i): i for i in range(len(names))}
+    unknown = sorted(set(text[text != ""]) - set(lookup))
+    if unknown or np.any(text == ""):
+        raise InputError(f"GCP CCD(s) {', '.join(unknown) or '(empty)'} unknown in band {band} "
+                         f"(CCDs {', '.join(names)})", field="ccd")
+    return np.array([lookup[v] for v in text], dtype=np.intp)
 
 
 def tie_transfer(model, ties, *, dem=None, height=None):
