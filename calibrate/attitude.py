@@ -145,7 +145,7 @@ def basis_columns(correction, seconds):
     return index, value, _n_columns(correction)
 
 
-def ridge_weights(correction, k):
+def ridge_weights(correction, k, *, yaw_sigma_rad=None):
     """Diagonal ridge weights (3 K,), 1/rad^2, of a candidate's columns, axis-major.
 
     Parameters
@@ -153,12 +153,14 @@ def ridge_weights(correction, k):
     correction : AttitudeCorrection or None
     k : int
         Columns per axis (:func:`basis_columns`).
+    yaw_sigma_rad : float, optional
+        Prior standard deviation of the yaw coefficients (``CalibrationOptions.attitude_yaw_sigma_urad``).
 
     Returns
     -------
     ndarray, shape (3 K,)
     """
-    return _ridge(correction, k)
+    return _ridge(correction, k, yaw_sigma_rad)
 
 
 def ridge_solution(normal, rhs, ridge):
@@ -214,9 +216,12 @@ def _normal_equations(jac_delta, seconds, residuals, weights, correction):
     return normal.reshape(3 * k, 3 * k), rhs.reshape(-1), k
 
 
-def _ridge(correction, k):
+def _ridge(correction, k, yaw_sigma_rad=None):
     """Diagonal ridge weights of a candidate's columns (none on the constants of a drift)."""
-    ridge = np.repeat(1.0 / np.asarray(REGULARIZATION_SIGMA_RAD, dtype=float)[:, None] ** 2, k, axis=1)
+    sigma = np.asarray(REGULARIZATION_SIGMA_RAD, dtype=float).copy()
+    if yaw_sigma_rad is not None:
+        sigma[2] = float(yaw_sigma_rad)
+    ridge = np.repeat(1.0 / sigma[:, None] ** 2, k, axis=1)
     if correction is None or correction.kind == "drift":
         ridge[:, 0] = 0.0
     return ridge.reshape(-1)
@@ -232,7 +237,7 @@ def _ridge_solution(normal, rhs, ridge):
     return coef, d[:, None] * inv * d[None, :], dof
 
 
-def select_correction(jac_delta, seconds, residuals, weights, candidates):
+def select_correction(jac_delta, seconds, residuals, weights, candidates, *, yaw_sigma_rad=None):
     """Choose the candidate basis of least BIC and its linearized solution (module docstring).
 
     Parameters
@@ -247,6 +252,8 @@ def select_correction(jac_delta, seconds, residuals, weights, candidates):
         Final weights of the static solution (0 for outliers and unused points), 1/px^2.
     candidates : list of AttitudeCorrection or None
         From :func:`candidate_corrections`.
+    yaw_sigma_rad : float, optional
+        Prior on the yaw coefficients (:func:`ridge_weights`).
 
     Returns
     -------
@@ -266,7 +273,7 @@ def select_correction(jac_delta, seconds, residuals, weights, candidates):
     table, solutions = [], []
     for cand in candidates:
         normal, rhs, k = _normal_equations(jac_delta, seconds, residuals, weights, cand)
-        coef, inv, dof = _ridge_solution(normal, rhs, _ridge(cand, k))
+        coef, inv, dof = _ridge_solution(normal, rhs, _ridge(cand, k, yaw_sigma_rad))
         rss = max(rss0 - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
         bic = m * np.log(rss / m) + dof * np.log(m)
         solutions.append((coef, inv * rss / max(m - dof, 1.0), k))

@@ -345,7 +345,7 @@ def _cholesky_ridge(normal, rhs, ridge):
     return coef, d[:, None] * inv_scaled * d[None, :], dof
 
 
-def joint_select(observations, candidates, *, base=None, interior_terms: int = 3):
+def joint_select(observations, candidates, *, base=None, interior_terms: int = 3, yaw_sigma_rad=None):
     """Choose the basis of least BIC on GCPs and ties together, and its linearized solution.
 
     Parameters
@@ -360,6 +360,8 @@ def joint_select(observations, candidates, *, base=None, interior_terms: int = 3
         candidate is fitted to the same "static" residuals.
     interior_terms : int
         Degree of the per (band, CCD) nuisance polynomials of the ties' rows and columns.
+    yaw_sigma_rad : float, optional
+        Prior on the yaw coefficients (``CalibrationOptions.attitude_yaw_sigma_urad``).
 
     Returns
     -------
@@ -384,7 +386,7 @@ def joint_select(observations, candidates, *, base=None, interior_terms: int = 3
         normal = (xw @ x).toarray()
         rhs = xw @ r
         m = int(np.count_nonzero(w))
-        ridge = np.concatenate([ridge_weights(cand, k), np.zeros(normal.shape[0] - 3 * k)])
+        ridge = np.concatenate([ridge_weights(cand, k, yaw_sigma_rad=yaw_sigma_rad), np.zeros(normal.shape[0] - 3 * k)])
         coef, inv, dof = _cholesky_ridge(normal, rhs, ridge)
         rss = max(float(w @ r**2) - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
         bic = m * np.log(rss / m) + dof * np.log(m)
@@ -490,7 +492,9 @@ def _attitude_step(model, obs, options, interior_terms, near=None):
     cands = joint_candidates(options.attitude, model, obs, min_span_fraction=options.min_span_fraction)
     if near is not None:
         cands = [c for c in cands if c is None or (c.kind == near.kind and near.n_terms / 2 <= c.n_terms <= 2 * near.n_terms)]
-    chosen, cov, table = joint_select(obs, cands, base=model.attitude_correction, interior_terms=interior_terms)
+    yaw = None if options.attitude_yaw_sigma_urad is None else options.attitude_yaw_sigma_urad * 1e-6
+    chosen, cov, table = joint_select(obs, cands, base=model.attitude_correction, interior_terms=interior_terms,
+                                      yaw_sigma_rad=yaw)
     if chosen is not None and chosen.kind == "spline":  # the installation takes the mean (B-splines sum to one)
         g = obs[0]
         if np.any(g.weight > 0):
