@@ -170,3 +170,29 @@ def test_static_mode_and_no_jitter_keep_the_model(jitter_case):
     cands = joint_candidates("static", jitter_case["gcp_only"], [tie_observations(
         jitter_case["gcp_only"], jitter_case["ties"]["B4"], height=HEIGHT_M)])
     assert cands == [None]
+
+
+def test_a_yaw_prior_bounds_the_weakly_observed_yaw(jitter_case):
+    """The narrow camera sees yaw weakly: unconstrained it wanders tens of µrad (truth <= 3 µrad);
+    a 5 µrad prior (CalibrationOptions.attitude_yaw_sigma_urad) holds it within 10 µrad and leaves
+    roll and pitch and the fit's RSS unchanged."""
+    from calibrate.parallax import gcp_observations
+
+    model, ties = jitter_case["gcp_only"], jitter_case["ties"]
+    obs = [gcp_observations(model, jitter_case["gcps"]), tie_observations(model, ties["B4"], height=HEIGHT_M),
+           tie_observations(model, ties["B1"], height=HEIGHT_M, group_offset=2)]
+    cand = [AttitudeCorrection("spline", *_span(model), 91)]
+    t = model.line_timing.seconds(np.arange(0.5, model.n_rows, 2.0))
+    fits = {}
+    for sigma in (None, 5e-6):
+        chosen, _, table = joint_select(obs, cand, base=model.attitude_correction, yaw_sigma_rad=sigma)
+        a = chosen.angles(t) * 1e6
+        fits[sigma] = (np.abs(a - a.mean(axis=0)).max(axis=0), a.std(axis=0), table[0]["rss"])
+    free, prior = fits[None], fits[5e-6]
+    assert free[0][2] > 15.0  # µrad: the free yaw wanders
+    assert prior[0][2] < 10.0
+    np.testing.assert_allclose(prior[1][:2], free[1][:2], rtol=0.03)  # roll and pitch
+    assert free[2] <= prior[2] < 1.02 * free[2]
+    assert CalibrationOptions(attitude_yaw_sigma_urad=5.0).attitude_yaw_sigma_urad == 5.0
+    with pytest.raises(Exception, match="attitude_yaw_sigma_urad"):
+        CalibrationOptions(attitude_yaw_sigma_urad=-1.0)
