@@ -275,7 +275,7 @@ def _all_bands_error(truth, model, height_m):
 
 
 def parallax_case(*, n_rows, lines, n_gcps, tie_row_step, tie_col_step, tie_noise_px, gcp_noise_px=0.1,
-                  height_m=300.0, seed=3) -> dict:
+                  height_m=300.0, seed=3, yaw_sigma_urad=None) -> dict:
     """Static vs GCP-only auto vs joint (GCPs + band parallax) on one synthetic scene.
 
     TRUE model: the example camera (4 bands 6, 2, 2, 6 detectors off the centre line along
@@ -284,7 +284,8 @@ def parallax_case(*, n_rows, lines, n_gcps, tie_row_step, tie_col_step, tie_nois
     at 100 Hz: outside the spline family). GCPs of B2 (rows every 24 lines when ``n_gcps`` is 0)
     with ``gcp_noise_px`` Gaussian noise; ties of every other band on a grid of the reference band
     (``tie_row_step`` x ``tie_col_step`` px) from the TRUE transfer map with ``tie_noise_px``;
-    the terrain is a plane at ``height_m`` for the ties. No image matching.
+    the terrain is a plane at ``height_m`` for the ties. No image matching. With
+    ``yaw_sigma_urad``, the joint fit is also run with that yaw prior (``joint_yaw_prior``).
     """
     from calibrate.absolute import calibrate_model
     from calibrate.config import CalibrationOptions
@@ -326,16 +327,21 @@ def parallax_case(*, n_rows, lines, n_gcps, tie_row_step, tie_col_step, tie_nois
                      "jitter": _two_line_fit(model.attitude_correction, *t_img, f_lo, f_hi)}
         print(json.dumps({"mode": mode, "ref": out[mode]["truth_error_px"]["reference_band"]["rms_px"],
                           "other": out[mode]["truth_error_px"]["other_bands_rms_px"], "sel": out[mode]["selected"]}))
-    t0 = time.process_time()
-    joint = calibrate_with_parallax(model, ties, gcps, height=height_m, options=CalibrationOptions(attitude="auto"))
-    out["joint"] = {"seconds_cpu": time.process_time() - t0 + out["auto"]["seconds_cpu"], "success": joint.success,
-                    "message": joint.message, "n_ties": joint.n_ties, "n_gcps": joint.n_gcps,
-                    "truth_error_px": _all_bands_error(truth, joint.model, height_m),
-                    "selected": joint.to_dict()["selected"],
-                    "jitter": _two_line_fit(joint.correction, *t_img, f_lo, f_hi)}
-    print(json.dumps({"mode": "joint", "ref": out["joint"]["truth_error_px"]["reference_band"]["rms_px"],
-                      "other": out["joint"]["truth_error_px"]["other_bands_rms_px"], "sel": out["joint"]["selected"],
-                      "msg": joint.message}))
+    variants = {"joint": None} | ({"joint_yaw_prior": yaw_sigma_urad} if yaw_sigma_urad else {})
+    for name, yaw in variants.items():
+        t0 = time.process_time()
+        joint = calibrate_with_parallax(model, dict(ties), gcps, height=height_m,
+                                        options=CalibrationOptions(attitude="auto", attitude_yaw_sigma_urad=yaw))
+        angles = joint.correction.angles(np.linspace(*t_img, 2048)) * 1e6 if joint.correction is not None else None
+        out[name] = {"seconds_cpu": time.process_time() - t0 + out["auto"]["seconds_cpu"], "success": joint.success,
+                     "message": joint.message, "n_ties": joint.n_ties, "n_gcps": joint.n_gcps, "yaw_sigma_urad": yaw,
+                     "truth_error_px": _all_bands_error(truth, joint.model, height_m),
+                     "selected": joint.to_dict()["selected"],
+                     "yaw_peak_to_peak_urad": None if angles is None else float(np.ptp(angles[:, 2])),
+                     "jitter": _two_line_fit(joint.correction, *t_img, f_lo, f_hi)}
+        print(json.dumps({"mode": name, "ref": out[name]["truth_error_px"]["reference_band"]["rms_px"],
+                          "other": out[name]["truth_error_px"]["other_bands_rms_px"], "sel": out[name]["selected"],
+                          "msg": joint.message}))
     return out
 
 
@@ -355,6 +361,7 @@ def main() -> None:
                          "--parallax-frequencies (with the 0.3 Hz line), and --scene with static, auto, joint.")
     ap.add_argument("--parallax-frequencies", default="1.5,3.0", help="High jitter lines, Hz, comma-separated.")
     ap.add_argument("--parallax-rows", type=int, default=3000, help="Lines of the synthetic parallax scene.")
+    ap.add_argument("--yaw-sigma", type=float, default=None, help="Also run the joint fit with this yaw prior, urad.")
     args = ap.parse_args()
     if args.parallax:
         return main_parallax(args)
@@ -381,9 +388,11 @@ def main_parallax(args) -> None:
     if "synthetic" not in skip:
         cases = results.setdefault("synthetic", {})
         for f_hi in (float(f) for f in args.parallax_frequencies.split(",")):
-            cases[f"0.3+{f_hi:g}Hz"] = parallax_case(
+            key = f"0.3+{f_hi:g}Hz" + (f"_{args.parallax_rows}lines" if args.parallax_rows != 3000 else "")
+            cases[key + ("_yaw_prior" if args.yaw_sigma else "")] = parallax_case(
                 n_rows=600 if args.quick else args.parallax_rows, lines=[((5.0, 5.0, 2.0), 0.3), ((5.0, 5.0, 2.0), f_hi)],
-                n_gcps=0, tie_row_step=8, tie_col_step=64, tie_noise_px=0.02, gcp_noise_px=0.2)
+                n_gcps=0, tie_row_step=8, tie_col_step=64, tie_noise_px=0.02, gcp_noise_px=0.2,
+                yaw_sigma_urad=args.yaw_sigma)
             out_path.write_text(json.dumps(results, indent=1))
     if args.scene is not None:
         work = args.out.parent / "attitude_parallax_scene"

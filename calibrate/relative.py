@@ -35,6 +35,12 @@ Band-to-band registration is what the tie residuals ``q - F_b(F_ref^-1(p))`` mea
 reported per band and CCD for the model before and after. With a simulation's TRUE model,
 :func:`registration_error` measures the same quantity against the truth over a dense grid.
 
+With ``parallax=True`` and the reference band's GCPs, the ties then serve a second purpose:
+bands at different along-track places see the ground at different line times, so the ties
+observe the attitude's change over those time offsets; they enter one least squares with the
+GCPs for the time-varying attitude correction, alternated with the interiors
+(:mod:`calibrate.parallax`, docs/attitude.md).
+
 The stage action behind ``gcpcal relative`` (files in, files out) is
 :func:`calibrate.actions.relative.relative_calibration_stage`; this module writes no file.
 """
