@@ -37,7 +37,7 @@ with the interiors (``parallax=True``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -345,7 +345,8 @@ def _cholesky_ridge(normal, rhs, ridge):
     return coef, d[:, None] * inv_scaled * d[None, :], dof
 
 
-def joint_select(observations, candidates, *, base=None, interior_terms: int = 3, yaw_sigma_rad=None):
+def joint_select(observations, candidates, *, base=None, interior_terms: int = 3, yaw_sigma_rad=None,
+                 reweight: bool = True):
     """Choose the basis of least BIC on GCPs and ties together, and its linearized solution.
 
     Parameters
@@ -362,6 +363,11 @@ def joint_select(observations, candidates, *, base=None, interior_terms: int = 3
         Degree of the per (band, CCD) nuisance polynomials of the ties' rows and columns.
     yaw_sigma_rad : float, optional
         Prior on the yaw coefficients (``CalibrationOptions.attitude_yaw_sigma_urad``).
+    reweight : bool
+        After a first selection, scale each block's weights (the GCPs, each band's ties) by the
+        inverse of its weighted mean square residual under the chosen fit (one step of
+        variance-component estimation: the stated ``sigma_px`` of matches and ties are
+        estimates), then select again.
 
     Returns
     -------
@@ -371,14 +377,36 @@ def joint_select(observations, candidates, *, base=None, interior_terms: int = 3
         Of the chosen coefficients, scaled by the a-posteriori variance factor, rad^2.
     table : list of dict
         Per candidate ``kind``, ``n_terms``, ``n_parameters`` (effective), ``rss`` (weighted, px^2),
-        ``bic``, ``chosen``.
+        ``bic``, ``chosen``; the chosen row also ``variance_factors`` per block label.
     """
     if not candidates:
         raise InputError("no candidate basis to fit", field="attitude")
     static_obs = [AngleObservations(o.residual_px + o.linear_effect(base), o.weight, o.jac, o.seconds, o.group,
                                     o.x, o.label) for o in observations]
     n_groups = 1 + max([int(o.group.max()) for o in static_obs if o.group.size] + [-1])
-    n_poly = int(interior_terms) + 1
+    fit = dict(n_groups=n_groups, n_poly=int(interior_terms) + 1, yaw_sigma_rad=yaw_sigma_rad)
+    table, solutions, best = _select(static_obs, candidates, **fit)
+    factors = None
+    if reweight and len(static_obs) > 1:
+        # one step of variance-component estimation: each block (GCPs, each band's ties) gets the
+        # weight its residuals support under the chosen basis, then the selection runs again
+        factors = _block_variance_factors(static_obs, candidates[best], solutions[best][3], **fit)
+        static_obs = [replace(o, weight=o.weight / f) for o, f in zip(static_obs, factors)]
+        table, solutions, best = _select(static_obs, candidates, **fit)
+    table[best]["chosen"] = True
+    if factors is not None:
+        table[best]["variance_factors"] = {o.label: float(f) for o, f in zip(static_obs, factors)}
+    cand = candidates[best]
+    if cand is None:
+        return None, None, table
+    coef, cov, k, _ = solutions[best]
+    keep = np.arange(3 * k).reshape(3, k)[:, 1:] if cand.kind == "drift" else np.arange(3 * k).reshape(3, k)
+    keep = keep.reshape(-1)
+    return cand.with_coefficients(coef[keep]), cov[np.ix_(keep, keep)], table
+
+
+def _select(static_obs, candidates, *, n_groups, n_poly, yaw_sigma_rad):
+    """Fit every candidate; the BIC table, the solutions and the index of the least BIC."""
     table, solutions = [], []
     for cand in candidates:
         x, r, w, k = _design(static_obs, cand, n_groups, n_poly)
@@ -390,18 +418,24 @@ def joint_select(observations, candidates, *, base=None, interior_terms: int = 3
         coef, inv, dof = _cholesky_ridge(normal, rhs, ridge)
         rss = max(float(w @ r**2) - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
         bic = m * np.log(rss / m) + dof * np.log(m)
-        solutions.append((coef[: 3 * k], inv[: 3 * k, : 3 * k] * rss / max(m - dof, 1.0), k))
+        solutions.append((coef[: 3 * k], inv[: 3 * k, : 3 * k] * rss / max(m - dof, 1.0), k, coef))
         table.append({"kind": "static" if cand is None else cand.kind, "n_terms": 0 if cand is None else cand.n_terms,
                       "n_parameters": round(dof, 2), "rss": rss, "bic": float(bic), "chosen": False})
-    best = int(np.argmin([row["bic"] for row in table]))
-    table[best]["chosen"] = True
-    cand = candidates[best]
-    if cand is None:
-        return None, None, table
-    coef, cov, k = solutions[best]
-    keep = np.arange(3 * k).reshape(3, k)[:, 1:] if cand.kind == "drift" else np.arange(3 * k).reshape(3, k)
-    keep = keep.reshape(-1)
-    return cand.with_coefficients(coef[keep]), cov[np.ix_(keep, keep)], table
+    return table, solutions, int(np.argmin([row["bic"] for row in table]))
+
+
+def _block_variance_factors(static_obs, cand, coef, *, n_groups, n_poly, yaw_sigma_rad):
+    """Weighted mean square residual (floored at 1e-6) of each observation block under one fit."""
+    del yaw_sigma_rad  # the fit is given
+    x, r, w, _ = _design(static_obs, cand, n_groups, n_poly)
+    e = r - x @ coef
+    out, start = [], 0
+    for o in static_obs:
+        stop = start + 2 * len(o)
+        used = np.count_nonzero(w[start:stop])
+        out.append(max(float(w[start:stop] @ e[start:stop] ** 2) / max(used, 1), 1e-6))
+        start = stop
+    return out
 
 
 # --------------------------------------------------------------------------- alternation
@@ -466,8 +500,6 @@ class ParallaxResult:
 
 def _with_ground(model, ties, dem, height):
     """Ties whose ground is what the reference band of ``model`` sees at their window centres."""
-    from dataclasses import replace
-
     lon, lat, h = model.image_to_ground(ties.row_ref, ties.col_ref, dem=dem, height=height,
                                         band=model.reference_band, ccd=ties.ccd_ref)
     return replace(ties, lon=np.asarray(lon, float).reshape(-1), lat=np.asarray(lat, float).reshape(-1),
