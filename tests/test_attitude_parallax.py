@@ -101,6 +101,25 @@ def test_joint_fit_of_exact_linear_observations_returns_the_coefficients():
     assert table[0]["rss"] > 1e3 * table[1]["rss"]
 
 
+def test_blocks_get_the_weight_their_residuals_support():
+    """Ties whose stated sigma (0.01 px) is five times too small get a variance factor near 25."""
+    lab = example_pushbroom_model(n_rows=1200)
+    rng = np.random.default_rng(4)
+    ties = _ties(lab, lab, "B4", row_step=6.0, col_step=64.0)
+    obs = tie_observations(lab, ties, height=HEIGHT_M)
+    obs = replace(obs, residual_px=rng.normal(0.0, 0.05, obs.residual_px.shape), weight=np.full(len(obs), 1e4))
+    n = 3000
+    rows, cols = rng.uniform(1, lab.n_rows - 1, n), rng.uniform(1, lab.n_cols - 1, n)
+    _, _, jac = lab.attitude_angle_jacobian(*lab.image_to_ground(rows, cols, height=HEIGHT_M))
+    gcp = AngleObservations(rng.normal(0.0, 0.1, (n, 2)), np.full(n, 100.0), jac[None],
+                            lab.line_timing.seconds(rows)[None], np.full(n, -1), np.zeros(n), "gcp")
+    _, _, table = joint_select([gcp, obs], [None, AttitudeCorrection("spline", *_span(lab), 8)])
+    factors = next(row for row in table if row["chosen"])["variance_factors"]
+    assert 0.8 < factors["gcp"] < 1.2
+    assert 18.0 < factors["B4"] < 32.0
+    assert next(row for row in table if row["chosen"])["kind"] == "static"  # pure noise: nothing to fit
+
+
 def _jittered_truth(lab, lines, seed=5):
     """TRUE model: installation error, sinusoids ``[(amp_urad (3,), f_hz)]`` in the attitude at 100 Hz,
     the other bands' CCDs 0.3 px along and -0.2 px across track off the laboratory values."""
@@ -185,7 +204,7 @@ def test_a_yaw_prior_bounds_the_weakly_observed_yaw(jitter_case):
     t = model.line_timing.seconds(np.arange(0.5, model.n_rows, 2.0))
     fits = {}
     for sigma in (None, 5e-6):
-        chosen, _, table = joint_select(obs, cand, base=model.attitude_correction, yaw_sigma_rad=sigma)
+        chosen, _, table = joint_select(obs, cand, base=model.attitude_correction, yaw_sigma_rad=sigma, reweight=False)
         a = chosen.angles(t) * 1e6
         fits[sigma] = (np.abs(a - a.mean(axis=0)).max(axis=0), a.std(axis=0), table[0]["rss"])
     free, prior = fits[None], fits[5e-6]
