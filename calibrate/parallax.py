@@ -53,6 +53,11 @@ __all__ = ["MAX_JOINT_SEGMENTS", "TRANSFER_STEP_PX", "AngleObservations", "Paral
 TRANSFER_STEP_PX = 0.5
 #: most spline segments tried on joint data (dense ties resolve segments of tens of lines)
 MAX_JOINT_SEGMENTS = 256
+#: standard deviation of the pseudo-observation "second difference of neighbouring spline
+#: coefficients = 0" (P-spline penalty, Eilers and Marx 1996), radians: far weaker than the ties
+#: where there are observations, it makes the coefficients of the end segments (few
+#: observations) continue their neighbours instead of swinging
+SECOND_DIFFERENCE_SIGMA_RAD = 1e-5
 #: a GCP whose residual exceeds this many robust standard deviations is left out of the fit
 GCP_REJECT_SIGMAS = 5.0
 
@@ -321,27 +326,41 @@ def _design(observations, correction, n_groups: int, n_poly: int):
     return x, np.concatenate(resid), np.concatenate(weight), k
 
 
-def _cholesky_ridge(normal, rhs, ridge):
+def _difference_penalty(cand, k, n_columns):
+    """``S^-2 D2^T D2`` per axis on a spline's coefficients (P, P); None for other candidates."""
+    if cand is None or cand.kind != "spline" or k < 3:
+        return None
+    d2 = np.diff(np.eye(k), n=2, axis=0)
+    block = d2.T @ d2 / SECOND_DIFFERENCE_SIGMA_RAD**2
+    out = np.zeros((n_columns, n_columns))
+    for a in range(3):
+        out[a * k:(a + 1) * k, a * k:(a + 1) * k] = block
+    return out
+
+
+def _cholesky_ridge(normal, rhs, ridge, penalty=None):
     """As :func:`calibrate.attitude.ridge_solution`, by Cholesky (several times faster than eigh).
 
     Columns without data and without ridge (a CCD with no tie) get a unit ridge; every column a
-    relative 1e-12 one. The hat matrix's trace is ``P - sum_i (A^-1)_ii d_i^2 ridge_i`` of the
-    scaled matrix ``A = D (N + R) D``.
+    relative 1e-12 one. ``penalty`` (P, P) is a further quadratic penalty (the spline's second
+    differences). The hat matrix's trace is ``P - trace(A^-1 D (R + S) D)`` of the scaled matrix
+    ``A = D (N + R + S) D``.
     """
     from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
     diag = np.diag(normal)
     ridge = ridge + np.where(diag > 0, diag * 1e-12, 1.0)
-    d = 1.0 / np.sqrt(diag + ridge)
-    a = d[:, None] * normal * d[None, :] + np.diag(d**2 * ridge)
+    penalty = np.diag(ridge) if penalty is None else penalty + np.diag(ridge)
+    d = 1.0 / np.sqrt(diag + np.diag(penalty))
+    a = d[:, None] * (normal + penalty) * d[None, :]
     try:
         factor = cho_factor(a, lower=True)
     except np.linalg.LinAlgError:
-        return ridge_solution(normal, rhs, ridge)
+        return ridge_solution(normal + penalty - np.diag(ridge), rhs, ridge)
     coef = d * cho_solve(factor, d * rhs)
     l_inv = solve_triangular(np.tril(factor[0]), np.eye(a.shape[0]), lower=True)
     inv_scaled = l_inv.T @ l_inv
-    dof = float(a.shape[0] - np.sum(np.diag(inv_scaled) * d**2 * ridge))
+    dof = float(a.shape[0] - np.sum(inv_scaled * (d[:, None] * penalty * d[None, :])))
     return coef, d[:, None] * inv_scaled * d[None, :], dof
 
 
@@ -415,7 +434,7 @@ def _select(static_obs, candidates, *, n_groups, n_poly, yaw_sigma_rad):
         rhs = xw @ r
         m = int(np.count_nonzero(w))
         ridge = np.concatenate([ridge_weights(cand, k, yaw_sigma_rad=yaw_sigma_rad), np.zeros(normal.shape[0] - 3 * k)])
-        coef, inv, dof = _cholesky_ridge(normal, rhs, ridge)
+        coef, inv, dof = _cholesky_ridge(normal, rhs, ridge, _difference_penalty(cand, k, normal.shape[0]))
         rss = max(float(w @ r**2) - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
         bic = m * np.log(rss / m) + dof * np.log(m)
         solutions.append((coef[: 3 * k], inv[: 3 * k, : 3 * k] * rss / max(m - dof, 1.0), k, coef))
