@@ -165,7 +165,7 @@ def jitter_case():
     return {"truth": truth, "gcp_only": model, "ties": ties, "gcps": gcps}
 
 
-def test_parallax_recovers_jitter_the_gcp_rows_cannot(jitter_case):
+def test_parallax_recovers_jitter_the_gcp_rows_cannot(jitter_case, tmp_path):
     truth, gcp_only = jitter_case["truth"], jitter_case["gcp_only"]
     ties = {b: jitter_case["ties"][b] for b in ("B1", "B4")}  # 4 and 8 lines from B2 (the test's time)
     joint = calibrate_with_parallax(gcp_only, ties, jitter_case["gcps"], height=HEIGHT_M)
@@ -180,6 +180,17 @@ def test_parallax_recovers_jitter_the_gcp_rows_cannot(jitter_case):
         print(f"{band}: truth error GCP-only {before:.4f} px, joint {after:.4f} px")
         assert before > 0.04  # the 2.5 Hz line (3 µrad, 0.05 px) is left in the GCP-only model
         assert 0.002 < after < 0.5 * before
+    # the report's section: joint against GCP-only, time series and spectra per axis
+    from calibrate.relative import RelativeResult
+    from calibrate.report.attitude import figure_parallax, section_parallax
+
+    relative = RelativeResult(joint.model, "B2", {}, {}, parallax={"used": True, **joint.to_dict(), "result": joint})
+    figure = figure_parallax(relative, tmp_path)
+    assert (tmp_path / "attitude_parallax.png").stat().st_size > 10_000
+    html = section_parallax(relative, figure)
+    assert f"{joint.n_ties} band-to-band tie points" in html and "spline (6)" in html
+    assert "not used" in section_parallax(RelativeResult(gcp_only, "B2", {}, {}, parallax={"used": False, "reason": "x"}),
+                                          None)
 
 
 def test_static_mode_and_no_jitter_keep_the_model(jitter_case):

@@ -154,7 +154,7 @@ def figure_parallax(relative, fig_dir) -> dict | None:
             continue
         angles = corr.angles(t) * 1e6
         spectrum = jitter_spectrum(corr, t_lo, t_hi)
-        f_max = max(f_max, 4.0 / max(corr.knot_spacing_s, 1e-9))
+        f_max = max(f_max, 1.0 / max(corr.knot_spacing_s, 1e-9))  # a spline of knots h resolves f <= 1/(4 h)
         for a, name in enumerate(AXES):
             axes[0, a].plot(t - t_lo, angles[:, a], color=_COLORS[name], label=label, **styles[label])
             axes[1, a].plot(spectrum["frequency_hz"], spectrum["axes"][name]["spectrum_urad"], color=_COLORS[name],
