@@ -716,7 +716,12 @@ def _parallax(model, results, dem, gcps, options, say):
         return model, record
     for band, cal in joint.bands.items():
         r = results[band]
-        results[band] = _band_result(band, model, ties[band], r.windows, r.rejected, cal, r.coarse_offsets, None, True)
+        new = _band_result(band, model, ties[band], r.windows, r.rejected, cal, r.coarse_offsets, None, True)
+        # "before" stays what the input model gave (as without parallax); "after" is the final model's
+        new.before = r.before
+        for row, old in zip(new.per_ccd, r.per_ccd):
+            row["before"] = old["before"]
+        results[band] = new
     return joint.model, record | {"result": joint}
 
 
