@@ -27,6 +27,7 @@ import json
 import os
 import shutil
 import subprocess
+import tempfile
 import time
 from pathlib import Path
 
@@ -395,7 +396,7 @@ def main_parallax(args) -> None:
                 yaw_sigma_urad=args.yaw_sigma)
             out_path.write_text(json.dumps(results, indent=1))
     if args.scene is not None:
-        work = args.out.parent / "attitude_parallax_scene"
+        work = Path(tempfile.mkdtemp(prefix="gcpcal-attitude-parallax-"))  # outputs of the stages, not kept
         work.mkdir(parents=True, exist_ok=True)
         results[f"scene_{args.scene.name}"] = scene(args.scene, args.gcps, work, modes=("static", "auto", "joint"))
     out_path.parent.mkdir(parents=True, exist_ok=True)
