@@ -729,8 +729,9 @@ def _select_attitude(static, points, weight, groups, options):
     candidates = _attitude.candidate_corrections(
         options.attitude, t0, t1, n_points=int(np.sum(used)), n_lines=float(np.diff(fitted.row_range)[0]),
         seconds=seconds[used], image_span_s=t_img[1] - t_img[0], min_span_fraction=options.min_span_fraction)
+    yaw = None if options.attitude_yaw_sigma_urad is None else options.attitude_yaw_sigma_urad * 1e-6
     chosen, covariance, table = _attitude.select_correction(jac_delta, seconds, static.residuals_after, w,
-                                                            candidates)
+                                                            candidates, yaw_sigma_rad=yaw)
     return chosen, covariance, table, seconds, w, t_img
 
 

@@ -28,9 +28,12 @@ from sensor_models.attitude_correction import AXES, AttitudeCorrection
 __all__ = [
     "MAX_SEGMENTS",
     "REGULARIZATION_SIGMA_RAD",
+    "basis_columns",
     "candidate_corrections",
     "correction_band",
     "jitter_spectrum",
+    "ridge_solution",
+    "ridge_weights",
     "select_correction",
 ]
 
@@ -49,7 +52,8 @@ MIN_POINTS_PER_SEGMENT = 10
 
 
 def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int, n_lines: float,
-                          seconds=None, image_span_s=None, min_span_fraction: float = 0.5):
+                          seconds=None, image_span_s=None, min_span_fraction: float = 0.5,
+                          max_segments: int = MAX_SEGMENTS):
     """The bases tried by ``--attitude MODE``.
 
     Parameters
@@ -71,6 +75,9 @@ def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int,
         Duration of the image lines, seconds.
     min_span_fraction : float
         See ``seconds``.
+    max_segments : int
+        Most spline segments tried (:data:`MAX_SEGMENTS` for GCPs alone; the band parallax's
+        dense tie points support more, :mod:`calibrate.parallax`).
 
     Returns
     -------
@@ -84,8 +91,8 @@ def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int,
     if mode in ("drift", "auto"):
         out += [AttitudeCorrection("drift", t0_s, t1_s, d) for d in (1, 2)]
     if mode in ("spline", "auto"):
-        limit = min(MAX_SEGMENTS, n_points // MIN_POINTS_PER_COEFFICIENT - 3, int(n_lines // MIN_LINES_PER_SEGMENT))
-        n_seg = sorted({int(round(2 ** (k / 2))) for k in range(2, 2 * int(np.log2(MAX_SEGMENTS)) + 1)})
+        limit = min(max_segments, n_points // MIN_POINTS_PER_COEFFICIENT - 3, int(n_lines // MIN_LINES_PER_SEGMENT))
+        n_seg = sorted({int(round(2 ** (k / 2))) for k in range(2, int(2 * np.log2(max_segments)) + 1)})
         out += [AttitudeCorrection("spline", t0_s, t1_s, n) for n in n_seg
                 if n <= limit and _segments_filled(seconds, t0_s, t1_s, n)]
     return out
@@ -114,6 +121,68 @@ def _sparse_basis(correction, seconds):
         index = np.concatenate([np.zeros((n, 1), dtype=np.intp), index + 1], axis=1)
         value = np.concatenate([np.ones((n, 1)), value], axis=1)
     return index, value
+
+
+def basis_columns(correction, seconds):
+    """Non-zero basis columns of a candidate at ``seconds``, with its constant (see ``_sparse_basis``).
+
+    Parameters
+    ----------
+    correction : AttitudeCorrection or None
+        A candidate of :func:`candidate_corrections` (None: the static model, a constant).
+    seconds : ndarray, shape (N,)
+        Seconds since the model's epoch.
+
+    Returns
+    -------
+    index : ndarray of intp, shape (N, M)
+        Column per axis (``0 .. K - 1``, ``K`` from :func:`ridge_weights`).
+    value : ndarray, shape (N, M)
+    k : int
+        Columns per axis.
+    """
+    index, value = _sparse_basis(correction, seconds)
+    return index, value, _n_columns(correction)
+
+
+def ridge_weights(correction, k, *, yaw_sigma_rad=None):
+    """Diagonal ridge weights (3 K,), 1/rad^2, of a candidate's columns, axis-major.
+
+    Parameters
+    ----------
+    correction : AttitudeCorrection or None
+    k : int
+        Columns per axis (:func:`basis_columns`).
+    yaw_sigma_rad : float, optional
+        Prior standard deviation of the yaw coefficients (``CalibrationOptions.attitude_yaw_sigma_urad``).
+
+    Returns
+    -------
+    ndarray, shape (3 K,)
+    """
+    return _ridge(correction, k, yaw_sigma_rad)
+
+
+def ridge_solution(normal, rhs, ridge):
+    """Ridge least squares: coefficients, ``(N + R)^-1`` and the hat matrix's trace.
+
+    Parameters
+    ----------
+    normal : ndarray, shape (P, P)
+        Weighted normal matrix ``X^T W X``.
+    rhs : ndarray, shape (P,)
+        ``X^T W r``.
+    ridge : ndarray, shape (P,)
+        Diagonal ridge weights (0: free).
+
+    Returns
+    -------
+    coef : ndarray, shape (P,)
+    inverse : ndarray, shape (P, P)
+    dof : float
+        Effective number of parameters.
+    """
+    return _ridge_solution(normal, rhs, ridge)
 
 
 def _n_columns(correction):
@@ -147,9 +216,12 @@ def _normal_equations(jac_delta, seconds, residuals, weights, correction):
     return normal.reshape(3 * k, 3 * k), rhs.reshape(-1), k
 
 
-def _ridge(correction, k):
+def _ridge(correction, k, yaw_sigma_rad=None):
     """Diagonal ridge weights of a candidate's columns (none on the constants of a drift)."""
-    ridge = np.repeat(1.0 / np.asarray(REGULARIZATION_SIGMA_RAD, dtype=float)[:, None] ** 2, k, axis=1)
+    sigma = np.asarray(REGULARIZATION_SIGMA_RAD, dtype=float).copy()
+    if yaw_sigma_rad is not None:
+        sigma[2] = float(yaw_sigma_rad)
+    ridge = np.repeat(1.0 / sigma[:, None] ** 2, k, axis=1)
     if correction is None or correction.kind == "drift":
         ridge[:, 0] = 0.0
     return ridge.reshape(-1)
@@ -165,7 +237,7 @@ def _ridge_solution(normal, rhs, ridge):
     return coef, d[:, None] * inv * d[None, :], dof
 
 
-def select_correction(jac_delta, seconds, residuals, weights, candidates):
+def select_correction(jac_delta, seconds, residuals, weights, candidates, *, yaw_sigma_rad=None):
     """Choose the candidate basis of least BIC and its linearized solution (module docstring).
 
     Parameters
@@ -180,6 +252,8 @@ def select_correction(jac_delta, seconds, residuals, weights, candidates):
         Final weights of the static solution (0 for outliers and unused points), 1/px^2.
     candidates : list of AttitudeCorrection or None
         From :func:`candidate_corrections`.
+    yaw_sigma_rad : float, optional
+        Prior on the yaw coefficients (:func:`ridge_weights`).
 
     Returns
     -------
@@ -199,7 +273,7 @@ def select_correction(jac_delta, seconds, residuals, weights, candidates):
     table, solutions = [], []
     for cand in candidates:
         normal, rhs, k = _normal_equations(jac_delta, seconds, residuals, weights, cand)
-        coef, inv, dof = _ridge_solution(normal, rhs, _ridge(cand, k))
+        coef, inv, dof = _ridge_solution(normal, rhs, _ridge(cand, k, yaw_sigma_rad))
         rss = max(rss0 - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
         bic = m * np.log(rss / m) + dof * np.log(m)
         solutions.append((coef, inv * rss / max(m - dof, 1.0), k))

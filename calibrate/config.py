@@ -121,6 +121,11 @@ class CalibrationOptions(_Options):
         Time-varying attitude correction of a push-broom model, estimated with the exterior:
         none, a drift (rate, quadratic), a cubic B-spline in time, or the best of all of them
         by BIC (:mod:`calibrate.attitude`; ``"static"`` for other model kinds).
+    attitude_yaw_sigma_urad : float or None
+        Prior on the yaw of the time-varying correction: every yaw coefficient gets the
+        pseudo-observation ``0 +- attitude_yaw_sigma_urad`` (e.g. the star tracker's noise
+        level), because a narrow field of view observes yaw weakly (docs/attitude.md). None:
+        the weak ridge of every axis (``calibrate.attitude.REGULARIZATION_SIGMA_RAD``).
     """
 
     scheme: str = "exterior-interior"
@@ -141,9 +146,12 @@ class CalibrationOptions(_Options):
     max_extrapolation: float = 0.1
     chunk_points: int = 50_000
     attitude: str = "auto"
+    attitude_yaw_sigma_urad: float | None = None
 
     def __post_init__(self):
         _choice(self.scheme, CALIBRATION_SCHEMES, "scheme")
+        if self.attitude_yaw_sigma_urad is not None:
+            _positive(self.attitude_yaw_sigma_urad, "attitude_yaw_sigma_urad")
         _choice(self.robust, ROBUST_LOSSES, "robust")
         _choice(self.attitude, ATTITUDE_MODES, "attitude")
         if not isinstance(self.interior_terms, int):

@@ -35,6 +35,12 @@ Band-to-band registration is what the tie residuals ``q - F_b(F_ref^-1(p))`` mea
 reported per band and CCD for the model before and after. With a simulation's TRUE model,
 :func:`registration_error` measures the same quantity against the truth over a dense grid.
 
+With ``parallax=True`` and the reference band's GCPs, the ties then serve a second purpose:
+bands at different along-track places see the ground at different line times, so the ties
+observe the attitude's change over those time offsets; they enter one least squares with the
+GCPs for the time-varying attitude correction, alternated with the interiors
+(:mod:`calibrate.parallax`, docs/attitude.md).
+
 The stage action behind ``gcpcal relative`` (files in, files out) is
 :func:`calibrate.actions.relative.relative_calibration_stage`; this module writes no file.
 """
@@ -207,6 +213,9 @@ class RelativeResult:
     options : dict
         The matching and solve settings.
     seconds : float
+    parallax : dict or None
+        With ``parallax=True``: ``used`` (bool), ``reason`` when not used, else
+        :meth:`calibrate.parallax.ParallaxResult.to_dict` and ``result`` (the ParallaxResult).
     """
 
     model: PushbroomModel
@@ -214,6 +223,7 @@ class RelativeResult:
     bands: dict
     options: dict
     seconds: float = float("nan")
+    parallax: dict | None = None
 
     @property
     def success(self) -> bool:
@@ -253,6 +263,7 @@ class RelativeResult:
             "options": self.options,
             "seconds": self.seconds,
             "bands": {b: r.to_dict() for b, r in self.bands.items()},
+            "parallax": None if self.parallax is None else {k: v for k, v in self.parallax.items() if k != "result"},
         })
 
 
@@ -600,7 +611,8 @@ def relative_calibration(model: PushbroomModel, images: Mapping[str, np.ndarray]
                          bands: Sequence[str] | None = None, window_px=64, spacing_px: int = 24, rows=None,
                          robust: str = CalibrationOptions.robust,
                          interior_terms: int = CalibrationOptions.interior_terms, passes: int = 1, coarse: bool = True,
-                         progress=None) -> RelativeResult:
+                         gcps: GcpTable | None = None, parallax: bool = False,
+                         attitude: str = CalibrationOptions.attitude, progress=None) -> RelativeResult:
     """Calibrate every other band's interior against the reference band (module docstring).
 
     Parameters
@@ -635,6 +647,15 @@ def relative_calibration(model: PushbroomModel, images: Mapping[str, np.ndarray]
     coarse : bool
         Measure each CCD's mean band-to-band error with larger windows first (see
         :func:`match_band`).
+    gcps : GcpTable, optional
+        The reference band's GCPs (those its calibration used); needed by ``parallax``.
+    parallax : bool
+        After the interiors, estimate the time-varying attitude correction from the GCPs and
+        every band's ties together (band parallax, :func:`calibrate.parallax.calibrate_with_parallax`),
+        alternated with the reference band's exterior and interior and every band's interior.
+        Without ``gcps`` it is skipped (``RelativeResult.parallax`` says why).
+    attitude : {"static", "drift", "spline", "auto"}
+        Candidate bases of the parallax path (``"static"`` skips it).
     progress : callable, optional
         Called with a one-line message per step.
 
@@ -671,8 +692,37 @@ def relative_calibration(model: PushbroomModel, images: Mapping[str, np.ndarray]
         if results[band].success:
             current = cal.model
     summary = {"window_px": list(window), "spacing_px": int(spacing_px), "rows": list(rows), "robust": robust,
-               "interior_terms": interior_terms, "passes": int(passes), "coarse": bool(coarse)}
-    return RelativeResult(current, reference_band, results, summary, time.perf_counter() - t0)
+               "interior_terms": interior_terms, "passes": int(passes), "coarse": bool(coarse),
+               "parallax": bool(parallax), "attitude": attitude}
+    joint = None
+    if parallax:
+        joint_options = CalibrationOptions(robust=robust, interior_terms=interior_terms, attitude=attitude)
+        current, joint = _parallax(current, results, dem, gcps, joint_options, say)
+    return RelativeResult(current, reference_band, results, summary, time.perf_counter() - t0, joint)
+
+
+def _parallax(model, results, dem, gcps, options, say):
+    """The joint attitude step over the calibrated bands; the model and the ``parallax`` record."""
+    from calibrate.parallax import calibrate_with_parallax
+
+    ties = {b: r.ties for b, r in results.items() if r.success and len(r.ties)}
+    if gcps is None or options.attitude == "static" or not ties:
+        why = ("no GCP table of the reference band" if gcps is None else
+               "attitude 'static'" if options.attitude == "static" else "no band with tie points")
+        return model, {"used": False, "reason": why}
+    joint = calibrate_with_parallax(model, ties, gcps, dem=dem, options=options, progress=say)
+    record = {"used": bool(joint.success), **joint.to_dict()}
+    if not joint.success:
+        return model, record
+    for band, cal in joint.bands.items():
+        r = results[band]
+        new = _band_result(band, model, ties[band], r.windows, r.rejected, cal, r.coarse_offsets, None, True)
+        # "before" stays what the input model gave (as without parallax); "after" is the final model's
+        new.before = r.before
+        for row, old in zip(new.per_ccd, r.per_ccd):
+            row["before"] = old["before"]
+        results[band] = new
+    return joint.model, record | {"result": joint}
 
 
 def _checked_bands(model, images, reference_band, bands):

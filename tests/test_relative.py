@@ -49,9 +49,10 @@ def scene():
     row, col, ccd = (np.concatenate(a) for a in (rows, cols, ccds))
     lon, lat, h = truth.image_to_ground(row, col, dem=dem, band="B2", ccd=ccd)
     noisy_row, noisy_col = row + rng.normal(0, 0.05, row.size), col + rng.normal(0, 0.05, col.size)
-    ref = calibrate_model(lab, GcpTable.from_arrays(noisy_row, noisy_col, lon, lat, h, band="B2", ccd=ccd, sigma_px=0.05))
+    gcps = GcpTable.from_arrays(noisy_row, noisy_col, lon, lat, h, band="B2", ccd=ccd, sigma_px=0.05)
+    ref = calibrate_model(lab, gcps)
     assert ref.success, ref.message
-    return {"lab": lab, "truth": truth, "dem": dem, "images": images, "calibrated": ref.model}
+    return {"lab": lab, "truth": truth, "dem": dem, "images": images, "calibrated": ref.model, "gcps": gcps}
 
 
 @pytest.fixture(scope="module")
@@ -208,6 +209,35 @@ def test_relative_command_writes_a_calibrated_manifest(scene, calibration_dir, t
         per_ccd = doc["bands"][band]["per_ccd"]
         assert len(per_ccd) == 4 and all(c["before"]["rms_px"] > 2.0 and c["after"]["rms_px"] < 0.05 for c in per_ccd)
         assert summary["bands"][band]["tie_rms_px"]["after"] < 0.05
+
+
+def test_relative_command_with_the_band_parallax(scene, calibration_dir, tmp_path, capsys):
+    """--gcps turns the parallax path on: the summary names the ties and the knots; --no-parallax keeps it off."""
+    from gcpmatch.gcps import write_gcps_csv
+
+    csv = tmp_path / "b2.csv"
+    write_gcps_csv(scene["gcps"], csv)
+    common = ["relative", str(FIXTURE / "manifest.json"), "--calibration", str(calibration_dir),
+              "--dem", str(FIXTURE / "reference" / "dem.tif"), "--spacing", "16"]
+    rc = main(["-q", *common, "--out", str(tmp_path / "joint"), "--gcps", str(csv), "--json"])
+    assert rc == 0
+    summary = json.loads(capsys.readouterr().out)
+    p = summary["parallax"]
+    assert p["used"] and 0.95 * len(scene["gcps"]) <= p["gcps"] <= len(scene["gcps"]) and p["ties"] > 1000
+    assert p["selected"]["kind"] in ("static", "drift", "spline") and p["rounds"] >= 1
+    model = open_model(tmp_path / "joint" / "manifest.json")
+    doc = json.loads((tmp_path / "joint" / "relative.json").read_text())
+    assert doc["parallax"]["ties"] == p["ties"] and len(doc["parallax"]["candidates"]) > 2
+    if p["selected"]["kind"] != "static":
+        assert model.attitude_correction is not None and model.attitude_correction.n_terms == p["selected"]["n_terms"]
+    reg = registration_error(scene["truth"], model, dem=scene["dem"])
+    assert all(0.002 < reg[b]["rms_px"] < 0.05 for b in OTHERS)
+    # without GCPs (no calibration.json beside this manifest) and with --no-parallax it is off, and says why
+    rc = main(["-q", *common, "--out", str(tmp_path / "plain"), "--json"])
+    assert rc == 0 and "no GCP table" in json.loads(capsys.readouterr().out)["parallax"]["reason"]
+    rc = main(["-q", *common, "--out", str(tmp_path / "off"), "--gcps", str(csv), "--no-parallax", "--json"])
+    off = json.loads(capsys.readouterr().out)["parallax"]
+    assert rc == 0 and not off["used"] and off["reason"] == "--no-parallax"
 
 
 def _edited(calibration_dir, tmp_path, edit):

@@ -346,7 +346,7 @@ def test_demo_report_has_no_empty_header_row_and_loads_every_figure(demo):
     assert '<table><tbody><tr><td class="l">Status</td>' in html  # the summary, without a header row
     srcs = set(re.findall(r'<img src="([^"]+)"', html))
     assert srcs == {f"figures/{p.name}" for p in (out / "figures").iterdir()}
-    assert len(srcs) == 9  # with the time-varying attitude figure (calibrate --attitude auto)
+    assert len(srcs) == 10  # with the time-varying attitude figure and the band-parallax one
 
 
 def test_ordinary_report_has_neither_demo_section(written):

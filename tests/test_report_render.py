@@ -66,7 +66,7 @@ def demo_report(demo_folder):
 def test_every_figure_of_the_demo_report_loads_in_chromium(demo_report):
     seen = _render(demo_report)
     referenced = re.findall(r'<img src="([^"]+)"', demo_report.read_text(encoding="utf-8"))
-    assert len(referenced) == 9  # vectors, distortion, attitude, histograms, count, 3 band-to-band, truth
+    assert len(referenced) == 10  # vectors, distortion, attitude, histograms, count, 3 band-to-band, truth, parallax
     assert [i["src"] for i in seen["images"]] == referenced
     for img in seen["images"]:
         height, width = mpimg.imread(demo_report.parent / img["src"]).shape[:2]

@@ -131,8 +131,9 @@ def _calibrate(fx: dict, merged, out_dir: Path, step):
     result = calibrate_model(lab, merged.gcps(), options=CalibrationOptions())
     band_results = {reference_band: {"success": bool(result.success), "message": result.message}}
     step(f"band-to-band calibration against {reference_band}")  # seed 003 2.2.2
+    # with the band parallax: the GCPs and the tie points estimate the attitude correction together
     relative = relative_calibration(result.model, {b: read_band(lab, b) for b in fx["bands"]}, fx["dem"],
-                                    reference_band=reference_band)
+                                    reference_band=reference_band, gcps=merged.gcps(), parallax=True)
     for band, r in relative.bands.items():
         skipped = [] if r.calibration is None else r.calibration.skipped
         band_results[band] = {"success": bool(r.success), "message": r.message,
@@ -281,6 +282,8 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
     result, relative, ref_pts, band_results = _calibrate(fx, merged, out_dir, step)
     sc = _score(fx, merged, relative.model, ref_pts, step)
     summary = _summary(fx, fixture_dir, merged, result, band_results, match_summaries, sc)
+    summary["parallax"] = {k: v for k, v in (relative.parallax or {}).items()
+                           if k in ("used", "reason", "message", "ties", "gcps", "rounds", "selected", "gcp_only")}
     step("writing the report")
     write_report(out_dir, result=result, accuracy_before=sc["before"], accuracy_after=sc["after"],
                  initial_model=fx["lab"], gcps=ref_pts, checks=sc["checks"], error_vs_count=sc["evc"],

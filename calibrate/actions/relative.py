@@ -33,7 +33,8 @@ _OUTPUTS = ("manifest.json", "relative.json", "relative.summary.json")
 
 def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, reference_band=None, dem_datum=None,
                                geoid=None, window_px=64, spacing_px: int = 24, rows=None,
-                               options: CalibrationOptions = CalibrationOptions(), progress=None) -> dict:
+                               options: CalibrationOptions = CalibrationOptions(), parallax: bool = True,
+                               gcps_path=None, progress=None) -> dict:
     """Calibrate every band of a scene against its calibrated reference band.
 
     Parameters
@@ -59,7 +60,16 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     rows : (int, int), optional
         Reference-band lines holding the tie points; default: all.
     options : CalibrationOptions
-        Only ``robust`` (the robust loss of the interior solve) is used.
+        ``robust`` (the robust loss of the solves) and ``attitude`` (the candidate bases of the
+        parallax path; ``"static"`` turns it off) are used.
+    parallax : bool
+        Estimate the time-varying attitude correction from the reference band's GCPs and every
+        band's tie points together (band parallax, docs/attitude.md) and write it into the
+        manifest. Needs the GCPs: ``gcps_path``, or the ``gcp_file`` named in the
+        ``calibration.json`` beside the calibrated manifest; without them the stage goes on
+        without parallax and the summary says why.
+    gcps_path : str or Path, optional
+        GCP table of the reference band (as given to ``gcpcal calibrate``).
     progress : callable(str), optional
         Receives progress messages.
 
@@ -80,14 +90,18 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
 
     t0 = time.perf_counter()
     calibrated, cal_path, warning = open_usable_calibration(calibration, command="relative")  # refuses a failed one
-    inputs = [p for p in (scene_path, calibration, dem_path, geoid) if p is not None]
+    inputs = [p for p in (scene_path, calibration, dem_path, geoid, gcps_path) if p is not None]
     with staged_folder(out_dir, ".relative-", inputs=inputs) as stage:  # checks the output path first
         scene, reference_band = _open_scene(scene_path, calibrated, cal_path, reference_band)
         dem = open_dem(dem_path, dem_datum, geoid, model=calibrated)  # tiles: only under the scene
         check_dem_footprint(dem, *footprint_sample_lonlat(calibrated, float(np.mean(dem.height_range_m))))
         images = _LazyBands(scene)  # the reference band and one other band in memory at a time
+        gcps, gcp_note = _reference_gcps(gcps_path, cal_path, calibrated) if parallax else (None, "--no-parallax")
         result = relative_calibration(calibrated, images, dem, reference_band=reference_band, window_px=window_px,
-                                      spacing_px=spacing_px, rows=rows, robust=options.robust, progress=progress)
+                                      spacing_px=spacing_px, rows=rows, robust=options.robust, gcps=gcps,
+                                      parallax=parallax, attitude=options.attitude, progress=progress)
+        if result.parallax is not None and not result.parallax.get("used") and gcp_note:
+            result.parallax["reason"] = gcp_note
         report = result.to_dict()
         report.update({"scene": str(scene_path), "calibration": str(cal_path), "dem": str(dem_path)})
         result.model.calibration = _output_status(result, calibrated.calibration)
@@ -135,11 +149,40 @@ def _summary(result, reference_band: str, seconds: float) -> dict:
         "bands": {b: {"success": r.success, "ties": len(r.ties), "windows": r.windows,
                       "tie_rms_px": {"before": r.before.get("rms_px"), "after": r.after.get("rms_px")}}
                   for b, r in result.bands.items()},
+        "parallax": _parallax_summary(result.parallax),
         "model": "manifest.json",
         "calibration_status": result.model.calibration.status,
         "report": "relative.json",
         "seconds": seconds,
     })
+
+
+def _parallax_summary(record) -> dict:
+    """The summary's ``parallax``: used, tie points and GCPs that entered, the basis chosen."""
+    if not record or not record.get("used"):
+        return {"used": False, "reason": (record or {}).get("reason") or (record or {}).get("message", "--no-parallax")}
+    return {"used": True, "ties": record["ties"], "gcps": record["gcps"], "rounds": record["rounds"],
+            "selected": record["selected"], "gcp_only": record["gcp_only"]}
+
+
+def _reference_gcps(gcps_path, cal_path: Path, model):
+    """The reference band's GCP table for the parallax path, and why there is none (or "")."""
+    from gcpmatch.gcps import read_gcps
+
+    if gcps_path is None:
+        doc_path = Path(cal_path).parent / "calibration.json"
+        try:
+            named = json.loads(doc_path.read_text(encoding="utf-8")).get("gcp_file") if doc_path.is_file() else None
+        except (OSError, ValueError):
+            named = None
+        if not named:
+            return None, f"no GCP table: give --gcps (no gcp_file in {doc_path})"
+        candidates = [Path(named), doc_path.parent / named]
+        found = [p for p in candidates if p.is_file()]
+        if not found:
+            return None, f"no GCP table: {named} (named by {doc_path}) is not found; give --gcps"
+        gcps_path = found[0]
+    return read_gcps(gcps_path, image_shape=model.image_shape), ""
 
 
 def _same_scene(scene, calibrated, path) -> None:

@@ -9,10 +9,21 @@ from calibrate.cli._errors import EXIT_FAILED
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, exit_with_status, json_option,
                                    out_dir_option)
-from calibrate.config import ROBUST_LOSSES, CalibrationOptions
+from calibrate.config import ATTITUDE_MODES, ROBUST_LOSSES, CalibrationOptions
 from sensor_models.errors import InputError
 
 __all__ = ["command", "parse_rows", "parse_window"]
+
+
+def _parallax_line(p: dict) -> str:
+    """One line on the parallax path: ties and GCPs that entered, the basis chosen, or why not."""
+    if not p.get("used"):
+        return f"parallax: not used ({p.get('reason')})"
+    sel = p["selected"]
+    basis = "static" if sel["kind"] == "static" else f"{sel['kind']} {sel['n_terms']}"
+    if sel["kind"] == "spline":
+        basis += f" segments ({sel['knot_spacing_s']:.3f} s knots)"
+    return f"parallax: {p['ties']} tie points and {p['gcps']} GCPs entered; attitude {basis}"
 
 
 def parse_window(text: str):
@@ -74,17 +85,29 @@ def parse_rows(text: str | None):
 @click.option("--rows", "rows_text", metavar="R0:R1", help="Reference-band lines holding the tie points (default: all).")
 @click.option("--robust", type=click.Choice(ROBUST_LOSSES), default=CalibrationOptions.robust, show_default=True,
               help="Robust loss of the interior solve.")
+@click.option("--parallax/--no-parallax", default=True, show_default=True,
+              help="Estimate the time-varying attitude from the reference band's GCPs and the band-to-band tie points "
+                   "together (band parallax) and write it into the manifest.")
+@click.option("--gcps", "gcps_path", type=click.Path(dir_okay=False),
+              help="GCP table of the reference band for --parallax (default: the gcp_file named by the "
+                   "calibration.json beside the calibrated manifest).")
+@click.option("--attitude", type=click.Choice(ATTITUDE_MODES), default=CalibrationOptions.attitude, show_default=True,
+              help="Candidate bases of the parallax path, chosen by BIC (static: no parallax).")
 @json_option
 @click.pass_context
 def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, reference_band, window_text, spacing,
-            rows_text, robust, as_json):
+            rows_text, robust, parallax, gcps_path, attitude, as_json):
     """Calibrate every band of SCENE against its calibrated reference band (band-to-band).
 
     Tie points between the reference band and each other band (dense phase correlation in raw
     scene geometry) become control points through the calibrated reference band and the DEM;
     each band's interior (directional angles per CCD) is then solved with the exterior held.
-    Writes OUT/manifest.json (every band calibrated), OUT/relative.json (tie statistics before
-    and after, per band and CCD) and OUT/relative.summary.json.
+    With --parallax (the default) the tie points, which see the ground at other line times
+    than the reference band, enter one least squares with the reference band's GCPs for the
+    time-varying attitude correction (jitter above what the GCPs resolve), alternated with the
+    interiors. Writes OUT/manifest.json (every band calibrated, the attitude correction),
+    OUT/relative.json (tie statistics before and after, per band and CCD; the parallax fit)
+    and OUT/relative.summary.json.
 
     SCENE is the push-broom scene (a gcpcal manifest with its rasters); an RPC has no
     bands to calibrate against each other.
@@ -95,7 +118,8 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
         summary = relative_calibration_stage(
             scene_path, calibration, dem_path, out_dir, reference_band=reference_band, dem_datum=dem_datum,
             geoid=geoid, window_px=parse_window(window_text), spacing_px=spacing, rows=parse_rows(rows_text),
-            options=CalibrationOptions(robust=robust), progress=progress.message)
+            options=CalibrationOptions(robust=robust, attitude=attitude), parallax=parallax, gcps_path=gcps_path,
+            progress=progress.message)
     echo_warnings(summary)
     if as_json:
         echo_json(summary)
@@ -105,6 +129,7 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
             rms = f"tie RMS {before:.3f} -> {after:.4f} px" if before is not None and after is not None else "no fit"
             click.echo(f"{band}: {'ok' if s['success'] else 'FAILED'}, {s['ties']} tie points of {s['windows']} "
                        f"windows, {rms}")
+        click.echo(_parallax_line(summary["parallax"]))
         click.echo(f"wrote {out_dir}/manifest.json, relative.json in {summary['seconds']:.1f} s")
     if not summary["success"]:
         failed = [band for band, s in summary["bands"].items() if not s["success"]]

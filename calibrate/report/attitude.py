@@ -16,7 +16,7 @@ from calibrate.report._html import escape as _e, figure_html as _figure_html, fm
 from calibrate.report._html import new_figure as _new_figure, save_figure as _save, table as _table
 from sensor_models.attitude_correction import AXES
 
-__all__ = ["figure_attitude", "section_attitude"]
+__all__ = ["figure_attitude", "figure_parallax", "section_attitude", "section_parallax"]
 
 _COLORS = {"roll": "#c0392b", "pitch": "#1f5fa8", "yaw": "#2e7d32"}
 
@@ -114,3 +114,104 @@ def section_attitude(result, figure) -> str:
     if info.get("failed"):
         table += f"<p>The time-varying solve failed, the static solution is kept: {_e(info['failed'])}</p>"
     return intro + table + (_figure_html(figure) if figure else "")
+
+
+def _parallax_record(relative):
+    """The used parallax record of a RelativeResult, or None."""
+    record = getattr(relative, "parallax", None) or {}
+    return record if record.get("used") and record.get("result") is not None else None
+
+
+def figure_parallax(relative, fig_dir) -> dict | None:
+    """Joint (GCPs + band parallax) against GCP-only correction: time series and spectrum per axis.
+
+    Parameters
+    ----------
+    relative : calibrate.relative.RelativeResult
+        Of ``relative_calibration(..., parallax=True)``.
+    fig_dir : Path
+        Folder of the PNG.
+
+    Returns
+    -------
+    dict or None
+        ``{"src", "caption"}``; None when the parallax path was not used.
+    """
+    record = _parallax_record(relative)
+    if record is None:
+        return None
+    joint = record["result"]
+    model = relative.model
+    t_lo, t_hi = _image_seconds(model)
+    t = np.linspace(t_lo, t_hi, 1200)
+    series = {"joint": joint.correction, "GCP only": joint.gcp_only}
+    styles = {"joint": dict(lw=1.2), "GCP only": dict(lw=1.0, ls="--", alpha=0.8)}
+    fig = _new_figure(13.0, 6.4, wspace=0.45, hspace=0.7, top=0.45)
+    axes = fig.subplots(2, 3)
+    f_max = 0.0
+    for label, corr in series.items():
+        if corr is None:
+            continue
+        angles = corr.angles(t) * 1e6
+        spectrum = jitter_spectrum(corr, t_lo, t_hi)
+        f_max = max(f_max, 1.0 / max(corr.knot_spacing_s, 1e-9))  # a spline of knots h resolves f <= 1/(4 h)
+        for a, name in enumerate(AXES):
+            axes[0, a].plot(t - t_lo, angles[:, a], color=_COLORS[name], label=label, **styles[label])
+            axes[1, a].plot(spectrum["frequency_hz"], spectrum["axes"][name]["spectrum_urad"], color=_COLORS[name],
+                            label=label, **styles[label])
+    for a, name in enumerate(AXES):
+        axes[0, a].set_title(f"{name}: correction (µrad)", loc="left", fontsize=10)
+        axes[0, a].set_xlabel("time since the first line (s)")
+        axes[1, a].set_title(f"{name}: amplitude spectrum (µrad)", loc="left", fontsize=10)
+        axes[1, a].set_xlabel("frequency (Hz)")
+        axes[1, a].set_xlim(0.0, min(f_max, 0.5 * (len(t) - 1) / (t_hi - t_lo)) or 1.0)
+        for ax in axes[:, a]:
+            ax.grid(True, lw=0.3, alpha=0.5)
+            ax.legend(fontsize=8, loc="upper right")
+    caption = ("Attitude correction estimated from the reference band's GCPs and the band-to-band tie points "
+               f"together ({joint.n_gcps} GCPs, {joint.n_ties} ties; solid) against the GCP-only estimate the "
+               "calibrated model carried (dashed): top, against time over the image lines; bottom, amplitude "
+               "spectrum after removing a linear trend (Hann window). The ties measure the attitude's change over "
+               "the bands' along-track time offsets, so they resolve faster jitter than the GCP rows.")
+    return {"src": _save(fig, fig_dir, "attitude_parallax.png"), "caption": caption}
+
+
+def section_parallax(relative, figure) -> str:
+    """HTML of the band-parallax attitude section: observations, bases, recovered jitter, figure.
+
+    Parameters
+    ----------
+    relative : calibrate.relative.RelativeResult
+    figure : dict or None
+        Of :func:`figure_parallax`.
+
+    Returns
+    -------
+    str
+        HTML.
+    """
+    record = getattr(relative, "parallax", None) or {}
+    if not record.get("used"):
+        return f"<p>Band parallax not used: {_e(str(record.get('reason') or record.get('message') or 'off'))}.</p>"
+    joint = record["result"]
+    t_lo, t_hi = _image_seconds(relative.model)
+
+    def describe(c):
+        return "static" if c is None else f"{c.kind} ({c.n_terms})"
+
+    intro = (f"<p>{joint.n_gcps} GCPs of the reference band and {joint.n_ties} band-to-band tie points entered one "
+             f"weighted least squares for the attitude correction ({joint.rounds} round(s) alternated with the "
+             f"interiors): <b>{_e(describe(joint.correction))}</b>, against <b>{_e(describe(joint.gcp_only))}</b> "
+             "from the GCPs alone (docs/attitude.md).</p>")
+    rows = []
+    for label, corr in (("joint", joint.correction), ("GCP only", joint.gcp_only)):
+        peaks = jitter_spectrum(corr, t_lo, t_hi)["axes"] if corr is not None else {}
+        for name in AXES:
+            p = (peaks.get(name) or {}).get("peak") or {}
+            rows.append([_e(label), _e(name), _fmt(p.get("amplitude_urad")), _fmt(p.get("frequency_hz"))])
+    table = _table(["estimate", "axis", "amplitude (µrad)", "frequency (Hz)"], rows)
+    cands = [[_e(c["kind"]), str(c["n_terms"]), _fmt(c["n_parameters"]), _fmt(c["bic"], 6), "yes" if c["chosen"] else ""]
+             for c in joint.candidates]
+    return (intro + "<p>Dominant sinusoid per axis:</p>" + table + "<p>Joint candidates:</p>"
+            + _table(["basis", "terms", "parameters (effective)", "BIC", "chosen"], cands)
+            + (_figure_html(figure) if figure else ""))

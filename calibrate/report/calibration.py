@@ -62,7 +62,7 @@ from calibrate.accuracy import AccuracyReport
 from calibrate.report._html import CSS as _CSS, escape as _e, figure_html as _figure_html, fmt as _fmt
 from calibrate.report._html import move_into_place as _move_into_place, table as _table
 from calibrate.report._inputs import ReportContext, check_result, point_columns, unwrap_result
-from calibrate.report.attitude import figure_attitude, section_attitude
+from calibrate.report.attitude import figure_attitude, figure_parallax, section_attitude, section_parallax
 from calibrate.report.band_to_band import figure_band_to_band, section_band_to_band
 from calibrate.report.truth import figure_truth_error, section_truth
 from calibrate.report.calibration_figures import (figure_distortion, figure_error_vs_count, figure_histograms,
@@ -177,6 +177,7 @@ def _figures(ctx, error_vs_count, fig_dir: Path) -> dict:
     final = ctx.relative.model if ctx.relative is not None else ctx.calibrated
     if ctx.relative is not None:
         figures["band_to_band"] = [figure_band_to_band(b, final, fig_dir) for b in ctx.relative.bands.values()]
+        figures["parallax"] = figure_parallax(ctx.relative, fig_dir)
     if ctx.truth_error is not None and ctx.truth is not None:
         figures["truth"] = figure_truth_error(final, ctx.truth, list(final.bands), fig_dir,
                                               height_m=_median_height(ctx), notes=ctx.notes)
@@ -246,6 +247,8 @@ def _html(ctx: ReportContext, figures, error_vs_count, title, extra) -> str:
     if ctx.relative is not None:
         sections.append(("band-to-band", "Band-to-band calibration",
                          section_band_to_band(ctx.relative, figures.get("band_to_band") or [])))
+        if getattr(ctx.relative, "parallax", None):
+            sections.append(("parallax", "Attitude from band parallax", section_parallax(ctx.relative, figures.get("parallax"))))
     if ctx.truth_error is not None:
         sections.append(("truth", "Error against the TRUE model", section_truth(ctx.truth_error, figures.get("truth"))))
     sections.append(("distribution", "Residual distribution", _figure_html(figures["histograms"]) + _section_normal(ctx)))
