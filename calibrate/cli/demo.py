@@ -55,8 +55,15 @@ def _print_table(summary: dict, out_dir) -> None:
              else "not the user's DEM")
     out.print(f"error against the TRUE model: every CCD and band, both models on the TRUE DEM ({dem}: {whose})")
     selected = summary["attitude"]["selected"]
-    out.print(f"attitude correction selected ({summary['attitude']['mode']}): {selected['kind']}, "
+    out.print(f"attitude correction from the GCPs ({summary['attitude']['mode']}): {selected['kind']}, "
               f"{selected['n_terms']} terms")
+    parallax = summary.get("parallax") or {}
+    if parallax.get("used"):
+        joint = parallax["selected"]
+        out.print(f"band parallax: {parallax['ties']} tie points with {parallax['gcps']} GCPs -> final correction "
+                  f"{joint['kind']}, {joint['n_terms']} terms")
+    elif parallax:
+        out.print(f"band parallax not used: {parallax.get('reason') or parallax.get('message')}")
     out.print(f"status: {summary['status']} ({summary['status_message']}); "
               f"variance factor {summary.get('variance_factor', float('nan')):.3g}")
     out.print(f"{summary['gcps']} GCPs, {summary['check_points']} check points; "
