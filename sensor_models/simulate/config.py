@@ -70,6 +70,7 @@ class ErrorConfig:
     thermal_drift_arcsec_s: tuple = (0.0, 0.0, 0.0)
     attitude_noise_urad: float = 1.0
     orbit_noise_m: float = 1.0
+    orbit_noise_period_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -201,7 +202,8 @@ class SimConfig:
             raise bad("errors.focal_length_ratio", "must lie in (0.9, 1.1)")
         if e.jitter_frequency_hz < 0:
             raise bad("errors.jitter_frequency_hz", "must be >= 0")
-        for name in ("attitude_noise_urad", "orbit_noise_m", "ccd_shift_px", "band_offset_error_px"):
+        for name in ("attitude_noise_urad", "orbit_noise_m", "orbit_noise_period_s", "ccd_shift_px",
+                     "band_offset_error_px"):
             if getattr(e, name) < 0:
                 raise bad(f"errors.{name}", "must be >= 0")
         if not r.snr > 0:

@@ -46,6 +46,8 @@ LANDSAT_TIME = "Landsat 8 descending node 10:00 +- 15 min (USGS Landsat 8 Data U
 IQBAL = "Iqbal 1983, An Introduction to Solar Radiation, Academic Press"
 ISCCP = ("Rossow and Schiffer 1999, Advances in understanding clouds from ISCCP, BAMS 80(11):2261-2287 "
          "(cloud-top classes: low below ~3 km, middle ~3-6.5 km, high above)")
+POD = ("precise orbit determination errors vary over a good part of the ~100 min orbit (once-per-revolution "
+       "terms), e.g. Montenbruck & Gill 2000, Satellite Orbits, ch. 8")
 S2_CONTRAST = ("measured on the real Sentinel-2 L1C red crop (../shared/data/real_textures/sentinel2/s2_B04.jp2) "
                "at 30 m by bench/bench_texture_stats.py (Landsat-8 pan 0.086, procedural texture 0.372)")
 S2_MTF = "Sentinel-2 MSI image-quality requirement, MTF at Nyquist 0.15-0.30 (ESA Sentinel-2 User Handbook)"
@@ -105,7 +107,10 @@ class PushbroomProfile(_ProfileFields):
     jitter_frequency_hz: Sourced = _f("Hz", "frequency of that sinusoid")
     attitude_drift_arcsec_s: Sourced = _f("arcsec/s (roll, pitch, yaw)", "linear drift of the TRUE attitude")
     orbit_bias_m: Sourced = _f("m (norm)", "constant ITRF offset of the measured orbit, seeded direction")
-    orbit_noise_m: Sourced = _f("m (1 sigma, per axis)", "white noise on the measured orbit, 1 s samples")
+    orbit_noise_m: Sourced = _f("m (1 sigma, per axis)", "error of the measured orbit (1 s samples)")
+    orbit_noise_period_s: Sourced = _f(
+        "s (shortest period)", "0: white per sample; else a smooth error: three sinusoids per axis of periods in "
+        "[P, 5 P] (scene.smooth_orbit_error), positions and velocities consistent")
     jitter_line2_amplitude_urad: Sourced = _f("urad (roll, pitch, yaw)", "second sinusoid in the TRUE attitude, random phase")
     jitter_line2_frequency_hz: Sourced = _f("Hz", "frequency of that second sinusoid")
     jitter_floor_rms_urad: Sourced = _f("urad rms (roll, pitch, yaw)", "coloured-noise floor of the TRUE attitude")
@@ -167,6 +172,7 @@ def _ideal() -> PushbroomProfile:
         name="ideal",
         star_tracker_noise_urad=s(1.0), jitter_amplitude_urad=s((1.0, 1.0, 0.5)), jitter_frequency_hz=s(1.3),
         attitude_drift_arcsec_s=s((0.05, -0.04, 0.02)), orbit_bias_m=none(0.0), orbit_noise_m=s(1.0),
+        orbit_noise_period_s=Sourced(0.0, TODAY + ": white per sample"),
         radial_k2_px=none(0.0), radial_k3_px=none(0.0), focal_plane_curvature_px=none(0.0),
         ccd_bending_px=none(0.0), detector_irregularity_px=none(0.0),
         supersampling=none(1), motion_smear_lines=none(0.0), defocus_radius_px=none(0.0),
@@ -197,6 +203,7 @@ def _realistic() -> PushbroomProfile:
         attitude_drift_arcsec_s=Sourced((0.05, -0.04, 0.02), TODAY),
         orbit_bias_m=Sourced(3.0, f"{ISSUE13}: 1-5 m"),
         orbit_noise_m=Sourced(1.0, f"{ISSUE13}: 1-5 m"),
+        orbit_noise_period_s=Sourced(600.0, f"{POD}; the 600 s floor: {ASSUMPTION}"),
         radial_k2_px=Sourced(0.4, ASSUMPTION),
         radial_k3_px=Sourced(-0.15, ASSUMPTION),
         focal_plane_curvature_px=Sourced(0.5, ASSUMPTION),

@@ -61,7 +61,7 @@ def apply_profile(cfg: SimConfig, profile) -> SimConfig:
         The scene configuration (geometry, camera, calibration targets).
     profile : PushbroomProfile
         Sets ``errors.attitude_noise_urad``, ``jitter_*``, ``attitude_drift_arcsec_s``,
-        ``orbit_noise_m`` and ``radiometry.snr``, ``bits``, ``prnu``, ``seasonal_*``.
+        ``orbit_noise_m``, ``orbit_noise_period_s`` and ``radiometry.snr``, ``bits``, ``prnu``, ``seasonal_*``.
 
     Returns
     -------
@@ -71,7 +71,8 @@ def apply_profile(cfg: SimConfig, profile) -> SimConfig:
     v = profile.value
     e = replace(cfg.errors, attitude_noise_urad=float(v("star_tracker_noise_urad")),
                 jitter_amplitude_urad=tuple(v("jitter_amplitude_urad")), jitter_frequency_hz=float(v("jitter_frequency_hz")),
-                attitude_drift_arcsec_s=tuple(v("attitude_drift_arcsec_s")), orbit_noise_m=float(v("orbit_noise_m")))
+                attitude_drift_arcsec_s=tuple(v("attitude_drift_arcsec_s")), orbit_noise_m=float(v("orbit_noise_m")),
+                orbit_noise_period_s=float(v("orbit_noise_period_s")))
     r = replace(cfg.radiometry, snr=float(v("snr")), bits=int(v("bits")), prnu=float(v("prnu_rms")),
                 seasonal_change=float(v("seasonal_change")), seasonal_scale_m=float(v("seasonal_scale_m")))
     return replace(cfg, errors=e, radiometry=r).validate()

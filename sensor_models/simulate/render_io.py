@@ -277,7 +277,7 @@ def write_outputs(cfg, models, tmp: Path, initial, reference_files, dem_figures,
         "reference": reference_files,
         "clouds": {"cover_requested": cfg.clouds.cover, "mask": "cloud_mask.tif" if has_mask else None},
         **models.truth,
-        "config": cfg.to_dict(),
+        "config": _truth_config(cfg),
         **(extra_truth or {}),
     }
     pixels = n_rows * n_cols * len(bands)
@@ -314,3 +314,14 @@ def write_outputs(cfg, models, tmp: Path, initial, reference_files, dem_figures,
 
 def _write_json(path: Path, doc: dict) -> None:
     path.write_text(json.dumps(doc, indent=1, sort_keys=False) + "\n", encoding="utf-8")
+
+
+def _truth_config(cfg) -> dict:
+    """The configuration recorded in ``truth.json``; a white orbit error (``orbit_noise_period_s``
+    0, the ideal profile's) is left out, so that files written before that setting existed stay
+    byte-identical (reading them back gives the same default)."""
+    out = cfg.to_dict()
+    if out["errors"].get("orbit_noise_period_s") == 0.0:
+        del out["errors"]["orbit_noise_period_s"]
+    return out
+

@@ -261,14 +261,50 @@ def _measured_attitude(cfg: SimConfig, seconds) -> Attitude:
     return Attitude(seconds, _attitude_quaternions(seconds, angles), frame="orbital")
 
 
+def smooth_orbit_error(seconds, sigma_m: float, min_period_s: float, rng) -> tuple:
+    """A smooth orbit-determination error and its rate: per axis three sinusoids of periods drawn
+    in ``[P, 5 P]`` with random phases, ``sigma_m`` rms in all.
+
+    Precise orbit determination leaves errors that vary over a good part of an orbit
+    (once-per-revolution terms), not from one 1 s sample to the next; white noise on the samples
+    would turn into metres per second of velocity error between them through the interpolant.
+
+    Parameters
+    ----------
+    seconds : ndarray, shape (N,)
+        Sample times, s.
+    sigma_m : float
+        Rms of the error per axis, metres.
+    min_period_s : float
+        Shortest period ``P``, seconds.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    error_m, rate_m_s : ndarray, shape (N, 3)
+    """
+    t = np.asarray(seconds, dtype=np.float64)[:, None, None]
+    period = rng.uniform(1.0, 5.0, (1, 3, 3)) * float(min_period_s)
+    phase = rng.uniform(0.0, 2.0 * np.pi, (1, 3, 3))
+    amplitude = float(sigma_m) * np.sqrt(2.0 / 3.0)  # three sinusoids of rms a / sqrt(2) each
+    w = 2.0 * np.pi / period
+    return (amplitude * np.sin(w * t + phase)).sum(axis=1), (amplitude * w * np.cos(w * t + phase)).sum(axis=1)
+
+
 def _measured_orbit(cfg: SimConfig, orbit: Orbit, bias_m: float = 0.0) -> Orbit:
     rng = _rng(cfg.pass_seed, 4)
     sigma = cfg.errors.orbit_noise_m
-    pos = orbit.position_m + rng.normal(0.0, sigma, orbit.position_m.shape)
+    if cfg.errors.orbit_noise_period_s > 0:
+        error, rate = smooth_orbit_error(orbit.seconds, sigma, cfg.errors.orbit_noise_period_s, rng)
+        pos, vel = orbit.position_m + error, orbit.velocity_m_s + rate
+    else:  # white per sample (the ideal profile's, today's)
+        pos = orbit.position_m + rng.normal(0.0, sigma, orbit.position_m.shape)
+        vel = None
     if bias_m > 0:  # a constant offset of the navigation solution, direction from the pass seed
         direction = _rng(cfg.pass_seed, 7).normal(size=3)
         pos = pos + bias_m * direction / np.linalg.norm(direction)
-    vel = orbit.velocity_m_s + rng.normal(0.0, sigma * 1e-3, orbit.velocity_m_s.shape)
+    if vel is None:
+        vel = orbit.velocity_m_s + rng.normal(0.0, sigma * 1e-3, orbit.velocity_m_s.shape)
     return Orbit(orbit.epoch, orbit.seconds, pos, vel, frame=orbit.frame)
 
 
