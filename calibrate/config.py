@@ -65,6 +65,18 @@ def _positive(value, name, *, allow_zero=False, allow_inf=False):
         raise InputError(f"{name} must be {bound}, got {value!r}", field=name)
 
 
+def _east_north_m(value) -> tuple[float, float]:
+    """``(east, north)`` metres >= 0 from one number or a pair."""
+    try:
+        v = [float(x) for x in (value if isinstance(value, (tuple, list)) else (value, value))]
+    except (TypeError, ValueError):
+        v = []
+    if len(v) != 2 or not all(math.isfinite(x) and x >= 0.0 for x in v):
+        raise InputError(f"reference_sigma_m must be one or two finite numbers of metres >= 0, got {value!r}",
+                         field="reference_sigma_m")
+    return v[0], v[1]
+
+
 class _Options:
     """Shared behaviour: ``replace`` with validation and a plain ``dict`` for JSON summaries."""
 
@@ -121,6 +133,21 @@ class CalibrationOptions(_Options):
         Time-varying attitude correction of a push-broom model, estimated with the exterior:
         none, a drift (rate, quadratic), a cubic B-spline in time, or the best of all of them
         by BIC (:mod:`calibrate.attitude`; ``"static"`` for other model kinds).
+    reference_sigma_m : (float, float) or None
+        Geolocation accuracy of the reference the GCPs' ground coordinates come from, metres
+        (1 sigma east, north; a single number is both): its common shift is propagated into
+        the parameters' covariance (:mod:`calibrate.reference_covariance`). None: no such term.
+    reference_source : str or None
+        Where ``reference_sigma_m`` comes from (e.g. the match summary's source), for
+        ``calibration.json``; None: ``"option"``.
+    covariance_floor : bool or None
+        Scale each step's covariance by ``max(1, sigma0^2)`` (True) rather than ``sigma0^2``
+        (False); None: True when the GCP table states ``sigma_px`` (any value other than the
+        default 1, which means unit weights with the scale left to the variance factor).
+    score_weight : bool
+        Weight each GCP by ``score / sigma_px^2`` (True) or by ``1 / sigma_px^2`` (False: for
+        ``sigma_px`` from the matcher's ``window`` model, which already holds the score); a
+        score of 0 drops the point either way.
     """
 
     scheme: str = "exterior-interior"
@@ -141,9 +168,15 @@ class CalibrationOptions(_Options):
     max_extrapolation: float = 0.1
     chunk_points: int = 50_000
     attitude: str = "auto"
+    reference_sigma_m: tuple[float, float] | None = None
+    reference_source: str | None = None
+    covariance_floor: bool | None = None
+    score_weight: bool = True
 
     def __post_init__(self):
         _choice(self.scheme, CALIBRATION_SCHEMES, "scheme")
+        if self.reference_sigma_m is not None:
+            object.__setattr__(self, "reference_sigma_m", _east_north_m(self.reference_sigma_m))
         _choice(self.robust, ROBUST_LOSSES, "robust")
         _choice(self.attitude, ATTITUDE_MODES, "attitude")
         if not isinstance(self.interior_terms, int):
