@@ -31,6 +31,7 @@ import argparse
 import json
 import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -123,6 +124,52 @@ def run_scene(cache: Path, work: Path, scene: str, variant: str) -> dict:
     }
 
 
+def _exact_table(truth, table, band):
+    """``table``'s GCPs observed exactly through the TRUE model (same ground points, sigma, score)."""
+    from gcpmatch.gcps import GcpTable
+
+    row, col = truth.ground_to_image(table.lon, table.lat, table.h, band=band, ccd=table.ccd)
+    ok = np.isfinite(row) & np.isfinite(col)
+    cols = {k: np.asarray(getattr(table, k))[ok] for k in ("lon", "lat", "h", "sigma_px", "band", "ccd", "score",
+                                                         "kind", "id")}
+    return GcpTable.from_arrays(row[ok], col[ok], **cols)
+
+
+def demo_runs(fixture: Path) -> dict:
+    """The demo's match and reference-band calibration on ``fixture``, per variant: variance factor,
+    installation sigma and z against the exact-observation fit, truth error of the reference band."""
+    from calibrate.absolute import calibrate_model
+    from calibrate.actions.demo import _match, _open_fixture
+    from calibrate.config import CalibrationOptions
+    from sensor_models.compare import model_difference
+
+    fx = _open_fixture(fixture)
+    band = fx["reference_band"]
+    with tempfile.TemporaryDirectory() as tmp:
+        merged, summaries = _match(fx, Path(tmp), 16)
+    acc = summaries[band]["reference_accuracy"]
+    gcps = merged.gcps()
+    exact = _exact_table(fx["truth"], gcps, band)
+    out = {"fixture": fixture.name, "profile": fx["profile"], "gcps": len(gcps), "reference_accuracy": acc,
+           "variants": {}}
+    for variant, changes in VARIANTS.items():
+        opts = {"reference_sigma_m": (acc["east_m"], acc["north_m"]), "reference_source": "match", **changes}
+        result = calibrate_model(fx["lab"], gcps, options=CalibrationOptions(**opts))
+        ref = calibrate_model(fx["lab"], exact, options=CalibrationOptions(**opts))
+        pos = {n: j for j, n in enumerate(result.names)}
+        rpos = {n: j for j, n in enumerate(ref.names)}
+        sig = result.sigma
+        t_err = model_difference(fx["truth"], result.model, dem=fx["true_dem"], step_px=8, bands=[band])
+        out["variants"][variant] = {
+            "variance_factor": result.variance_factor,
+            "installation_sigma_arcsec": {k.split(".")[1]: float(sig[pos[k]]) * ARCSEC_PER_RAD for k in INSTALLATION},
+            "installation_z": {k.split(".")[1]: float((result.values[pos[k]] - ref.values[rpos[k]]) / sig[pos[k]])
+                               for k in INSTALLATION},
+            "truth_error_reference_band_px": float(t_err["rms_px"]),
+        }
+    return out
+
+
 def share(z) -> dict:
     """Coverage of the 95 % intervals (``|z| <= 1.96``) and rms z."""
     v = np.abs(np.asarray(z, dtype=float))
@@ -153,6 +200,8 @@ def main() -> None:
     ap.add_argument("--seeds", default="3,5,9")
     ap.add_argument("--variants", default=",".join(VARIANTS))
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "coverage.json")
+    ap.add_argument("--demo", default="hy1c_czi_realistic,hy1c_czi",
+                    help="Fixtures (under fixtures/) whose demo match and calibration are also measured ('' for none).")
     args = ap.parse_args()
     scenes = [f"{t}_seed{s}" for s in map(int, args.seeds.split(",")) for t in TEXTURES]
     runs = {}
@@ -168,8 +217,16 @@ def main() -> None:
     for variant, s in summary.items():
         print(f"{variant:>16}: coverage {100 * s['all']['covered_95']:.0f} % rms z {s['all']['rms_z']:.2f}  "
               + "  ".join(f"{t} {100 * s[t]['covered_95']:.0f} % / {s[t]['rms_z']:.2f}" for t in TEXTURES), flush=True)
+    demo = {}
+    for name in filter(None, args.demo.split(",")):
+        demo[name] = d = demo_runs(ROOT / "fixtures" / name)
+        for variant, r in d["variants"].items():
+            z = " ".join(f"{k} {v:+.2f}" for k, v in r["installation_z"].items())
+            sg = " ".join(f"{k} {v:.3f}" for k, v in r["installation_sigma_arcsec"].items())
+            print(f"demo {name} ({d['profile']}) {variant:>16}: vf {r['variance_factor']:.2f} truth (ref band) "
+                  f"{r['truth_error_reference_band_px']:.4f} px  sigma {sg} arcsec  z {z}", flush=True)
     doc = {"kind": "gcpcal.bench.coverage", "profile": "realistic", "scenes": scenes,
-           "variants": {k: VARIANTS[k] for k in runs}, "summary": summary, "runs": runs,
+           "variants": {k: VARIANTS[k] for k in runs}, "summary": summary, "runs": runs, "demo": demo,
            "seconds": time.perf_counter() - t0}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(doc, indent=1) + "\n")
