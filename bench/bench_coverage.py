@@ -19,7 +19,9 @@ Variants (:class:`calibrate.config.CalibrationOptions`):
 * ``after``: floor plus the reference DOM's common shift (the match summary's
   ``reference_accuracy``), the production default of ``gcpcal calibrate``;
 * ``after_sigma_only``: as ``after``, GCPs weighted by ``1 / sigma_px^2`` instead of
-  ``score / sigma_px^2`` (the ``window`` sigma model already holds the score).
+  ``score / sigma_px^2`` (the ``window`` sigma model already holds the score);
+* ``after_field_oracle``: as ``after``, with the simulator's DOM error field (rms and correlation
+  length, which no DOM states) given as ``reference_field_m``: what a field term would add.
 
 Usage: ``python bench/bench_coverage.py --cache /tmp/sigma_cache --work /tmp/cov_work
 [--seeds 3,5,9] [--out bench/results/coverage.json]``.
@@ -49,6 +51,9 @@ VARIANTS = {
     "floor": {"covariance_floor": True, "reference_sigma_m": 0.0},
     "after": {},
     "after_sigma_only": {"score_weight": False},
+    # diagnostic: the realistic profile's DOM field (0.8 m rms; its generator's correlation
+    # exp(-r^2 / (4 L^2)) with L = 3 km, i.e. l = sqrt(2) L) given to the calibration
+    "after_field_oracle": {"reference_field_m": (0.8, 3000.0 * 2**0.5)},
 }
 
 

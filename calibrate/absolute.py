@@ -34,7 +34,10 @@ A CCD whose GCPs are too few (fewer than ``min_points_factor`` times its unknown
 too small a fraction of its detectors keeps its interior; the message names it. In stepwise
 schemes each group's covariance is conditional on the other group (the scheme fixes the
 frame by its order); the cross-covariance between groups is not estimated (zero blocks,
-``covariance_kind = "conditional-blocks"``).
+``covariance_kind = "conditional-blocks"``). Each block is scaled by ``max(1, sigma0^2)`` (a
+variance factor below 1 does not shrink it), and with ``CalibrationOptions.reference_sigma_m``
+the reference DOM's common ground shift is propagated into the installation angles
+(:mod:`calibrate.reference_covariance`, docs/calibration_outputs.md).
 
 Other sensor models (RPC, a single CCD view...) are calibrated with ``scheme="joint"``
 over ``parameters`` (default: all of the model's parameters).

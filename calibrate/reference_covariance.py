@@ -47,7 +47,7 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["STEP_M", "covariance_floor", "floor_factor", "ground_shift_jacobian", "reference_gain",
+__all__ = ["STEP_M", "covariance_floor", "field_covariance", "floor_factor", "ground_shift_jacobian",
            "with_honest_covariance"]
 
 #: half-step of the central differences of the ground shift, metres
@@ -137,37 +137,13 @@ def ground_shift_jacobian(model, lon, lat, h, **where) -> np.ndarray:
     return out
 
 
-def reference_gain(jacobian, weight, shift_jacobian) -> np.ndarray:
-    """``G = (J^T W J)^-1 J^T W A``: parameter change per metre of common ground shift.
-
-    Parameters
-    ----------
-    jacobian : ndarray, shape (n, 2, p)
-        Image Jacobian of the absorbing parameters (pixels per parameter unit).
-    weight : ndarray, shape (n,)
-        Final weights of the points (1 / px^2); points with a non-finite row are left out.
-    shift_jacobian : ndarray, shape (n, 2, 2)
-        :func:`ground_shift_jacobian` (pixels per metre).
-
-    Returns
-    -------
-    ndarray, shape (p, 2)
-        Parameter units per metre east and north (the estimate moves by ``-G d``).
-    """
-    ok = (weight > 0) & np.all(np.isfinite(jacobian), axis=(1, 2)) & np.all(np.isfinite(shift_jacobian), axis=(1, 2))
-    jac, a, w = jacobian[ok], shift_jacobian[ok], weight[ok]
-    normal = np.einsum("n,nkp,nkq->pq", w, jac, jac)
-    rhs = np.einsum("n,nkp,nkq->pq", w, jac, a)
-    return np.linalg.lstsq(normal, rhs, rcond=None)[0]
-
-
 def _absorbing(names) -> list:
     exterior = [n for n in names if n in _INSTALLATION]
     return exterior or list(names)
 
 
-def _gain_of_result(result, points, weight, groups) -> tuple[list, np.ndarray]:
-    """The absorbing names and their ``G`` at the calibrated model over every fitted GCP."""
+def _point_gains(result, points, weight, groups) -> tuple[list, np.ndarray, np.ndarray]:
+    """Absorbing names, per-point gains ``G_i = (J^T W J)^-1 J_i^T W_i A_i`` (n, p, 2) and point validity."""
     names = _absorbing(result.names)
     model = result.model
     pushbroom = getattr(model, "interior_layout", "") == "per_array"
@@ -180,7 +156,45 @@ def _gain_of_result(result, points, weight, groups) -> tuple[list, np.ndarray]:
         _r, _c, jac[g.idx] = model.image_jacobian(lon, lat, h, names=names, **where)
         shift[g.idx] = ground_shift_jacobian(model, lon, lat, h, **where)
     w = np.asarray(weight, dtype=np.float64) * np.nan_to_num(np.asarray(result.weights, dtype=np.float64))
-    return names, reference_gain(jac, w, shift)
+    ok = (w > 0) & np.all(np.isfinite(jac), axis=(1, 2)) & np.all(np.isfinite(shift), axis=(1, 2))
+    w = np.where(ok, w, 0.0)
+    jac, shift = np.nan_to_num(jac), np.nan_to_num(shift)
+    normal = np.einsum("n,nkp,nkq->pq", w, jac, jac)
+    per_point = np.einsum("n,nkp,nkq->npq", w, jac, shift)
+    return names, _solve_each(normal, per_point), ok
+
+
+def _solve_each(normal, per_point):
+    """``normal^-1 per_point[i]`` for every point (least squares when ``normal`` is singular)."""
+    n, p, k = per_point.shape
+    rhs = per_point.transpose(1, 0, 2).reshape(p, n * k)
+    return np.linalg.lstsq(normal, rhs, rcond=None)[0].reshape(p, n, k).transpose(1, 0, 2)
+
+
+def field_covariance(point_gains, lon, lat, rms_m, length_m) -> np.ndarray:
+    """Covariance of the parameters from a smooth reference error field (per axis, Gaussian correlation).
+
+    Parameters
+    ----------
+    point_gains : ndarray, shape (n, p, 2)
+        ``G_i`` of every point (parameter units per metre east and north; 0 for unused points).
+    lon, lat : ndarray, shape (n,)
+        The points, WGS84 degrees.
+    rms_m : float
+        Field rms per axis, metres.
+    length_m : float
+        Correlation length ``l`` of ``rho(r) = exp(-r^2 / (2 l^2))``, metres.
+
+    Returns
+    -------
+    ndarray, shape (p, p)
+        ``sum_ij G_i K_ij G_j^T`` with ``K_ij = rms^2 rho(|X_i - X_j|) I``.
+    """
+    dlon, dlat = _metres_to_degrees(np.mean(lat))
+    x, y = (lon - np.mean(lon)) / dlon, (lat - np.mean(lat)) / dlat
+    r2 = (x[:, None] - x[None, :]) ** 2 + (y[:, None] - y[None, :]) ** 2
+    k = rms_m**2 * np.exp(-0.5 * r2 / length_m**2)
+    return sum(point_gains[:, :, a].T @ k @ point_gains[:, :, a] for a in range(2))
 
 
 def _scaling_text(enabled, sigma_m) -> str:
@@ -239,8 +253,16 @@ def with_honest_covariance(result, points, weight, groups, options):
     covariance = result.covariance
     if sigma_m is None or covariance is None or not result.names or max(sigma_m) <= 0.0:
         return replace(result, uncertainty=info)
-    names, gain = _gain_of_result(result, points, weight, groups)
-    term_small = gain @ np.diag(np.square(np.asarray(sigma_m, dtype=np.float64))) @ gain.T
+    names, point_gains, _ok = _point_gains(result, points, weight, groups)
+    gain = point_gains.sum(axis=0)
+    common = np.square(np.asarray(sigma_m, dtype=np.float64))
+    field = options.reference_field_m
+    if field is not None:  # the stated accuracy is the total: the field's share is not common
+        common = np.clip(common - field[0] ** 2, 0.0, None)
+    term_small = gain @ np.diag(common) @ gain.T
+    if field is not None and field[0] > 0.0:
+        term_small = term_small + field_covariance(point_gains, points["lon"], points["lat"], *field)
+        info["reference_field"] = {"rms_m": float(field[0]), "length_m": float(field[1])}
     pos = [result.names.index(n) for n in names]
     term = np.zeros_like(covariance)
     term[np.ix_(pos, pos)] = term_small
