@@ -100,6 +100,34 @@ def test_common_ground_shift_moves_roll_and_pitch_as_predicted(true_model, schem
     assert without.uncertainty["reference_accuracy"]["east_m"] is None
 
 
+def test_field_part_between_common_shift_and_independent_errors(true_model):
+    """A field of infinite correlation length is the common shift; of zero length, independent errors."""
+    lab, true = true_model
+    pts = _gcps(true, n=400)
+    common = _fit(lab, *pts, 0.05, scheme="exterior", reference_sigma_m=(2.0, 2.0))
+    floor_only = _fit(lab, *pts, 0.05, scheme="exterior")
+    long = _fit(lab, *pts, 0.05, scheme="exterior", reference_sigma_m=(2.0, 2.0), reference_field_m=(1.5, 1e9))
+    np.testing.assert_allclose(long.covariance, common.covariance, rtol=1e-6)
+    short = _fit(lab, *pts, 0.05, scheme="exterior", reference_sigma_m=(2.0, 2.0), reference_field_m=(1.5, 1e-3))
+    reduced = _fit(lab, *pts, 0.05, scheme="exterior", reference_sigma_m=(np.sqrt(4 - 1.5**2),) * 2)
+    idx = _exterior(short)[1]
+    var = {k: np.diag(r.covariance)[idx] for k, r in (("short", short), ("reduced", reduced), ("none", floor_only),
+                                                      ("common", common))}
+    # white field: 1.5 m per GCP averages down over 400 GCPs: on roll and pitch under 5 % of a common
+    # shift of 1.5 m; on yaw like extra measurement noise of 1.5 m x ~0.02 px/m = 0.03 px against
+    # the GCPs' 0.05 px: (0.03 / 0.05)^2 ~ 0.36 of the noise variance
+    added = var["short"] - var["reduced"]
+    assert np.all(added > 0)
+    assert np.all(added[:2] < 0.05 * (var["common"] - var["none"])[:2] * 1.5**2 / 4.0)
+    assert 0.15 * var["none"][2] < added[2] < 0.7 * var["none"][2]
+    # a 3 km field on a ~75 km scene: yaw, which a common shift leaves alone, grows
+    mid = _fit(lab, *pts, 0.05, scheme="exterior", reference_sigma_m=(2.0, 2.0), reference_field_m=(1.5, 3000.0))
+    assert np.diag(mid.covariance)[idx][2] > 2.0 * var["common"][2]
+    assert mid.uncertainty["reference_field"] == {"rms_m": 1.5, "length_m": 3000.0}
+    with pytest.raises(InputError, match="correlation length"):
+        CalibrationOptions(reference_field_m=(1.0, 0.0))
+
+
 def test_ground_shift_jacobian_is_about_one_gsd_per_gsd(true_model):
     _lab, true = true_model
     _row, _col, lon, lat, h = _gcps(true, n=50)
@@ -199,8 +227,19 @@ def test_match_summary_and_option_reach_calibration_json(matched, tmp_path, caps
 def test_bad_reference_sigma_is_a_usage_error(matched, tmp_path, capsys):
     from calibrate.cli import main
 
-    code = main(["calibrate", str(FIXTURE / "manifest.json"), "--gcps", str(matched / "gcps.csv"), "--out",
-                 str(tmp_path / "x"), "--reference-sigma-m", "1,a"])
-    _out, err = capsys.readouterr()
-    assert code == 2 and "reference-sigma-m" in err and "Traceback" not in err
-    assert not (tmp_path / "x").exists()
+    for option, value in (("--reference-sigma-m", "1,a"), ("--reference-sigma-m", "-1"),
+                          ("--reference-field-m", "1"), ("--reference-field-m", "1,0")):
+        code = main(["calibrate", str(FIXTURE / "manifest.json"), "--gcps", str(matched / "gcps.csv"), "--out",
+                     str(tmp_path / "x"), option, value])
+        _out, err = capsys.readouterr()
+        assert code == 2 and option in err and "Traceback" not in err, (option, value, err)
+        assert not (tmp_path / "x").exists()
+
+
+def test_reference_field_option_reaches_calibration_json(matched, tmp_path, capsys):
+    plain = _calibrate(capsys, matched / "gcps.csv", tmp_path / "plain")
+    field = _calibrate(capsys, matched / "gcps.csv", tmp_path / "field", "--reference-field-m", "0.8,4000")
+    assert field["reference_field"] == {"rms_m": 0.8, "length_m": 4000.0} and "reference_field" not in plain
+    yaw = {k: next(p["sigma_arcsec"] for p in d["parameters"] if p["name"] == "installation.yaw")
+           for k, d in (("plain", plain), ("field", field))}
+    assert yaw["field"] > 1.5 * yaw["plain"]
