@@ -47,11 +47,13 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["STEP_M", "covariance_floor", "field_covariance", "floor_factor", "ground_shift_jacobian",
+__all__ = ["FIELD_CUTOFF", "STEP_M", "covariance_floor", "field_covariance", "floor_factor", "ground_shift_jacobian",
            "with_honest_covariance"]
 
 #: half-step of the central differences of the ground shift, metres
 STEP_M = 5.0
+#: cell pairs of the field term further apart than this many correlation lengths are left out
+FIELD_CUTOFF = 5.0
 _WGS84_A = 6378137.0
 _WGS84_E2 = 6.69437999014e-3
 _INSTALLATION = ("installation.roll", "installation.pitch", "installation.yaw")
@@ -174,6 +176,11 @@ def _solve_each(normal, per_point):
 def field_covariance(point_gains, lon, lat, rms_m, length_m) -> np.ndarray:
     """Covariance of the parameters from a smooth reference error field (per axis, Gaussian correlation).
 
+    Points closer than ``length_m / 8`` are merged into one cell (their gains summed; the
+    correlation between them is above 0.99) and pairs of cells further apart than
+    ``FIELD_CUTOFF`` lengths are left out (correlation below 4e-6), so memory and time grow with
+    the number of occupied cells and their neighbours, not with the square of the GCP count.
+
     Parameters
     ----------
     point_gains : ndarray, shape (n, p, 2)
@@ -190,11 +197,27 @@ def field_covariance(point_gains, lon, lat, rms_m, length_m) -> np.ndarray:
     ndarray, shape (p, p)
         ``sum_ij G_i K_ij G_j^T`` with ``K_ij = rms^2 rho(|X_i - X_j|) I``.
     """
+    from scipy.spatial import cKDTree
+
     dlon, dlat = _metres_to_degrees(np.mean(lat))
-    x, y = (lon - np.mean(lon)) / dlon, (lat - np.mean(lat)) / dlat
-    r2 = (x[:, None] - x[None, :]) ** 2 + (y[:, None] - y[None, :]) ** 2
-    k = rms_m**2 * np.exp(-0.5 * r2 / length_m**2)
-    return sum(point_gains[:, :, a].T @ k @ point_gains[:, :, a] for a in range(2))
+    xy = np.stack([(lon - np.mean(lon)) / dlon, (lat - np.mean(lat)) / dlat], axis=1)
+    cell = np.floor(xy / (length_m / 8.0)).astype(np.int64)
+    _keys, inverse = np.unique(cell, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    m = int(inverse.max()) + 1
+    gains = np.zeros((m,) + point_gains.shape[1:])
+    np.add.at(gains, inverse, point_gains)
+    centre = np.zeros((m, 2))
+    np.add.at(centre, inverse, xy)
+    centre /= np.bincount(inverse, minlength=m)[:, None]
+    pairs = cKDTree(centre).sparse_distance_matrix(cKDTree(centre), FIELD_CUTOFF * length_m, output_type="coo_matrix")
+    off = pairs.row != pairs.col  # zero distances are not stored: the diagonal is added below
+    rho = np.exp(-0.5 * (pairs.data[off] / length_m) ** 2)
+    out = np.zeros((gains.shape[1], gains.shape[1]))
+    for a in range(2):
+        h = gains[:, :, a]
+        out += h.T @ h + np.einsum("k,kp,kq->pq", rho, h[pairs.row[off]], h[pairs.col[off]])
+    return rms_m**2 * out
 
 
 def _scaling_text(enabled, sigma_m) -> str:

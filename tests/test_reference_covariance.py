@@ -100,6 +100,30 @@ def test_common_ground_shift_moves_roll_and_pitch_as_predicted(true_model, schem
     assert without.uncertainty["reference_accuracy"]["east_m"] is None
 
 
+def test_staring_camera_gets_the_term_too():
+    """A geostationary staring camera: 100 m east moves the installation by what G predicts (~0.58 arcsec)."""
+    from sensor_models.geo_staring import example_geo_staring_model
+    from sensor_models.pushbroom_types import Installation
+
+    arcsec = np.pi / 180.0 / 3600.0
+    truth = example_geo_staring_model(image_shape=(1024, 1024), installation=Installation(*(np.array([72, -72, 72]) * arcsec)))
+    lab = example_geo_staring_model()
+    rng = np.random.default_rng(0)
+    r, c = rng.uniform(0, 1024, 600), rng.uniform(0, 1024, 600)
+    lon, lat, h = truth.image_to_ground(r, c, height=0.0)
+    r, c = r + rng.normal(0, 0.1, r.size), c + rng.normal(0, 0.1, c.size)
+    opts = CalibrationOptions(reference_sigma_m=(100.0, 100.0))
+    base = calibrate_model(lab, GcpTable.from_arrays(r, c, lon, lat, h, sigma_px=0.1), options=opts)
+    lon_s, lat_s = _shifted(lon, lat, (100.0, 0.0))
+    moved = calibrate_model(lab, GcpTable.from_arrays(r, c, lon_s, lat_s, h, sigma_px=0.1), options=opts)
+    assert base.success and moved.success
+    gain = np.array([base.uncertainty["reference_gain_per_m"][n] for n in EXTERIOR])
+    actual = _exterior(moved)[0] - _exterior(base)[0]
+    assert 0.4 * arcsec < abs(actual[1]) < 0.8 * arcsec  # 100 m from ~35 800 km
+    assert abs(actual[1] + 100.0 * gain[1, 0]) < 0.02 * abs(actual[1])
+    assert base.uncertainty["reference_sigma"]["installation.pitch"] == pytest.approx(100.0 * np.hypot(*gain[1]))
+
+
 def test_field_part_between_common_shift_and_independent_errors(true_model):
     """A field of infinite correlation length is the common shift; of zero length, independent errors."""
     lab, true = true_model
