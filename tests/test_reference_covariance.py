@@ -106,7 +106,8 @@ def test_staring_camera_gets_the_term_too():
     from sensor_models.pushbroom_types import Installation
 
     arcsec = np.pi / 180.0 / 3600.0
-    truth = example_geo_staring_model(image_shape=(1024, 1024), installation=Installation(*(np.array([72, -72, 72]) * arcsec)))
+    installation = Installation(72 * arcsec, -72 * arcsec, 72 * arcsec)
+    truth = example_geo_staring_model(image_shape=(1024, 1024), installation=installation)
     lab = example_geo_staring_model()
     rng = np.random.default_rng(0)
     r, c = rng.uniform(0, 1024, 600), rng.uniform(0, 1024, 600)
