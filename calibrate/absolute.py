@@ -34,7 +34,10 @@ A CCD whose GCPs are too few (fewer than ``min_points_factor`` times its unknown
 too small a fraction of its detectors keeps its interior; the message names it. In stepwise
 schemes each group's covariance is conditional on the other group (the scheme fixes the
 frame by its order); the cross-covariance between groups is not estimated (zero blocks,
-``covariance_kind = "conditional-blocks"``).
+``covariance_kind = "conditional-blocks"``). Each block is scaled by ``max(1, sigma0^2)`` (a
+variance factor below 1 does not shrink it), and with ``CalibrationOptions.reference_sigma_m``
+the reference DOM's common ground shift is propagated into the installation angles
+(:mod:`calibrate.reference_covariance`, docs/calibration_outputs.md).
 
 Other sensor models (RPC, a single CCD view...) are calibrated with ``scheme="joint"``
 over ``parameters`` (default: all of the model's parameters).
@@ -51,6 +54,7 @@ from calibrate import attitude as _attitude
 from calibrate._json import json_safe
 from calibrate.config import CalibrationOptions
 from calibrate.lsq import PROBE_POINTS, Chunk, LsqResult, Prior, robust_weights, solve
+from calibrate.reference_covariance import floor_factor, with_honest_covariance
 from gcpmatch.gcps import GcpTable
 from sensor_models.base import SensorModel
 from sensor_models.errors import InputError
@@ -109,8 +113,12 @@ class CalibrationResult:
         Of the last step (:class:`calibrate.lsq.LsqResult`): ``sigma0`` is the a-posteriori
         standard deviation of unit weight (robust form of ``sqrt(sum w r~^2 / (n - p))`` over
         the normalized residuals ``r~ = r / sigma_px``); the covariance is already scaled by its
-        square, ``C = sigma0^2 (J^T W J)^-1`` (:mod:`calibrate.lsq`), so parameter sigmas are
-        a-posteriori ones, not the a-priori ``(J^T W J)^-1``.
+        square where it exceeds 1, ``C = max(1, sigma0^2) (J^T W J)^-1`` per step (a factor below
+        1 leaves the a-priori ``(J^T W J)^-1``: :mod:`calibrate.reference_covariance`).
+    uncertainty : dict or None
+        What the covariance holds besides ``(J^T W J)^-1``: the factor applied per step and the
+        reference DOM's common-shift term
+        (:func:`calibrate.reference_covariance.with_honest_covariance`).
     """
 
     success: bool
@@ -136,6 +144,7 @@ class CalibrationResult:
     scale: float = float("nan")
     robust: str = "huber"
     attitude: dict | None = None
+    uncertainty: dict | None = None
 
     @property
     def variance_factor(self) -> float:
@@ -231,7 +240,9 @@ class CalibrationResult:
             "condition_numbers": dict(self.condition_numbers),
             "sigma0": self.sigma0,
             "variance_factor": self.variance_factor,
-            "covariance_scaling": "covariance = sigma0^2 (J^T W J)^-1 (a posteriori)",
+            "covariance_scaling": ("covariance = max(1, sigma0^2) (J^T W J)^-1 per step (a variance factor below 1 "
+                                   "does not shrink it) + G Sigma_ref G^T (the reference DOM's common shift)"),
+            **(self.uncertainty or {}),
             "scale": self.scale,
             "skipped": list(self.skipped),
             "steps": list(self.steps),
@@ -330,7 +341,9 @@ class _Group:
     estimable: bool = False
 
 
-def _as_points(row, col, lon, lat, h, sigma_px, score):
+def _as_points(row, col, lon, lat, h, sigma_px, score, score_weight=True):
+    """Point arrays and prior weights: ``score / sigma_px^2``, or ``1 / sigma_px^2`` with
+    ``score_weight=False`` (a score of 0 still drops the point)."""
     arrays = {}
     for name, a in (("row", row), ("col", col), ("lon", lon), ("lat", lat), ("h", h)):
         a = np.asarray(a, dtype=np.float64).reshape(-1)
@@ -353,7 +366,7 @@ def _as_points(row, col, lon, lat, h, sigma_px, score):
         q = _per_point_float(score, n)
         if q.size != n or not np.all(np.isfinite(q)) or np.any(q < 0.0):
             raise InputError(f"needs {n} finite values >= 0", field="score")
-        weight = weight * q
+        weight = weight * (q if score_weight else (q > 0.0))
     return arrays, np.ascontiguousarray(weight)
 
 
@@ -696,7 +709,9 @@ def calibrate_model(
     if len(fitted) == 0:
         raise InputError("no GCPs given (no point of kind 'gcp')")
     points, weight = _as_points(fitted.row, fitted.col, fitted.lon, fitted.lat, fitted.h, fitted.sigma_px,
-                                fitted.score)  # fmt: skip
+                                fitted.score, options.score_weight)  # fmt: skip
+    if options.covariance_floor is None:  # a table without sigma_px (all 1): its scale is the variance factor's
+        options = options.replace(covariance_floor=bool(np.any(fitted.sigma_px != 1.0)))
     groups, bands, ccd_idx = _group_points(model, points, fitted, options)
     if not np.any(weight > 0.0):
         raise InputError("every GCP has zero weight", field="score")
@@ -708,9 +723,9 @@ def calibrate_model(
     stepper = _Stepper(problem, options)
     unsettled = _run_scheme(stepper, model, groups, options)
     result = _assemble(model, problem, stepper, skipped, options, bands, ccd_idx, unsettled)
-    if not time_varying or not result.success:
-        return result
-    return _time_varying(model, result, points, weight, groups, skipped, options, bands, ccd_idx)
+    if time_varying and result.success:
+        result = _time_varying(model, result, points, weight, groups, skipped, options, bands, ccd_idx)
+    return with_honest_covariance(result, points, weight, groups, options)  # the reference DOM's common shift
 
 
 def _select_attitude(static, points, weight, groups, options):
@@ -1025,7 +1040,7 @@ def _assemble(model, problem, stepper, skipped, options, bands, ccd_idx, unsettl
     for step, _outer, result, free in runs:
         last[step] = (result, free)
     estimated = [nm for nm in problem.all_names if any(nm in free for _r, free in last.values())]
-    covariance, correlation = _block_covariance(estimated, last)
+    covariance, correlation = _block_covariance(estimated, last, floor=options.covariance_floor is not False)
     idx = np.array([problem.lookup[nm] for nm in estimated], dtype=np.intp)
     before, after, scale, sigma0 = _residuals_before_after(model, problem, runs)
     weights, inlier = _final_weights(problem, after, scale, options)
@@ -1058,8 +1073,13 @@ def _assemble(model, problem, stepper, skipped, options, bands, ccd_idx, unsettl
     )
 
 
-def _block_covariance(estimated, last):
-    """Covariance of ``estimated`` from each step kind's last run (zero cross blocks), correlation."""
+def _block_covariance(estimated, last, floor=True):
+    """Covariance of ``estimated`` from each step kind's last run (zero cross blocks), correlation.
+
+    With ``floor`` each block ``sigma0^2 (J^T W J)^-1`` is rescaled to
+    ``max(1, sigma0^2) (J^T W J)^-1`` (:func:`calibrate.reference_covariance.floor_factor`): a
+    variance factor below 1 does not shrink the a-priori covariance.
+    """
     pos = {nm: j for j, nm in enumerate(estimated)}
     covariance = np.zeros((len(estimated), len(estimated))) if estimated else None
     for result, free in last.values():
@@ -1067,7 +1087,9 @@ def _block_covariance(estimated, last):
             covariance = None
             break
         j = np.array([pos[nm] for nm in free], dtype=np.intp)
-        covariance[np.ix_(j, j)] = result.covariance
+        vf = float(result.sigma0) ** 2
+        scale = floor_factor(result.sigma0) / vf if floor and np.isfinite(vf) and vf > 0.0 else 1.0
+        covariance[np.ix_(j, j)] = result.covariance * scale
     correlation = None
     if covariance is not None and covariance.size:
         sd = np.sqrt(np.clip(np.diag(covariance), 0.0, None))

@@ -65,6 +65,17 @@ def _positive(value, name, *, allow_zero=False, allow_inf=False):
         raise InputError(f"{name} must be {bound}, got {value!r}", field=name)
 
 
+def _east_north_m(value, name: str = "reference_sigma_m") -> tuple[float, float]:
+    """A pair of metres >= 0 (``(east, north)``) from one number or a pair."""
+    try:
+        v = [float(x) for x in (value if isinstance(value, (tuple, list)) else (value, value))]
+    except (TypeError, ValueError):
+        v = []
+    if len(v) != 2 or not all(math.isfinite(x) and x >= 0.0 for x in v):
+        raise InputError(f"{name} must be one or two finite numbers of metres >= 0, got {value!r}", field=name)
+    return v[0], v[1]
+
+
 class _Options:
     """Shared behaviour: ``replace`` with validation and a plain ``dict`` for JSON summaries."""
 
@@ -126,6 +137,27 @@ class CalibrationOptions(_Options):
         pseudo-observation ``0 +- attitude_yaw_sigma_urad`` (e.g. the star tracker's noise
         level), because a narrow field of view observes yaw weakly (docs/attitude.md). None:
         the weak ridge of every axis (``calibrate.attitude.REGULARIZATION_SIGMA_RAD``).
+    reference_sigma_m : (float, float) or None
+        Geolocation accuracy of the reference the GCPs' ground coordinates come from, metres
+        (1 sigma east, north; a single number is both): its common shift is propagated into
+        the parameters' covariance (:mod:`calibrate.reference_covariance`). None: no such term.
+    reference_field_m : (float, float) or None
+        The part of that error that is a smooth field rather than one common shift: its rms per
+        axis and correlation length ``l`` (``rho(r) = exp(-r^2 / (2 l^2))``), metres. The common
+        part is then ``sqrt(reference_sigma_m^2 - rms^2)``, and the field adds
+        ``sum_ij G_i K_ij G_j^T`` (:func:`calibrate.reference_covariance.field_covariance`).
+        None: the whole stated accuracy is one common shift.
+    reference_source : str or None
+        Where ``reference_sigma_m`` comes from (e.g. the match summary's source), for
+        ``calibration.json``; None: ``"option"``.
+    covariance_floor : bool or None
+        Scale each step's covariance by ``max(1, sigma0^2)`` (True) rather than ``sigma0^2``
+        (False); None: True when the GCP table states ``sigma_px`` (any value other than the
+        default 1, which means unit weights with the scale left to the variance factor).
+    score_weight : bool
+        Weight each GCP by ``score / sigma_px^2`` (True) or by ``1 / sigma_px^2`` (False: for
+        ``sigma_px`` from the matcher's ``window`` model, which already holds the score); a
+        score of 0 drops the point either way.
     """
 
     scheme: str = "exterior-interior"
@@ -147,11 +179,23 @@ class CalibrationOptions(_Options):
     chunk_points: int = 50_000
     attitude: str = "auto"
     attitude_yaw_sigma_urad: float | None = None
+    reference_sigma_m: tuple[float, float] | None = None
+    reference_field_m: tuple[float, float] | None = None
+    reference_source: str | None = None
+    covariance_floor: bool | None = None
+    score_weight: bool = True
 
     def __post_init__(self):
         _choice(self.scheme, CALIBRATION_SCHEMES, "scheme")
         if self.attitude_yaw_sigma_urad is not None:
             _positive(self.attitude_yaw_sigma_urad, "attitude_yaw_sigma_urad")
+        if self.reference_sigma_m is not None:
+            object.__setattr__(self, "reference_sigma_m", _east_north_m(self.reference_sigma_m))
+        if self.reference_field_m is not None:
+            field = _east_north_m(self.reference_field_m, "reference_field_m")
+            if field[1] <= 0.0:
+                raise InputError("reference_field_m needs a correlation length > 0 m", field="reference_field_m")
+            object.__setattr__(self, "reference_field_m", field)
         _choice(self.robust, ROBUST_LOSSES, "robust")
         _choice(self.attitude, ATTITUDE_MODES, "attitude")
         if not isinstance(self.interior_terms, int):

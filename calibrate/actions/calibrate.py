@@ -15,6 +15,12 @@ into ``out_dir``:
   point (kind ``check``);
 * ``calibrate.summary.json``.
 
+When the GCP table has a match summary beside it (``<name>.summary.json``, written by
+``gcpcal match``), its ``reference_accuracy`` (the DOM's stated geolocation accuracy, or the
+matcher's assumed one) becomes ``CalibrationOptions.reference_sigma_m`` unless the options already
+give one (:func:`options_from_match_summary`): the covariance then holds the reference's common
+shift (:mod:`calibrate.reference_covariance`).
+
 Everything goes to a temporary folder inside ``out_dir`` first and is moved into place at the
 end, so a failure leaves no partial output.
 """
@@ -33,7 +39,52 @@ from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
 from calibrate.residual_layer import concatenate_layers, residual_layer, write_residual_layer
 
-__all__ = ["calibrate_scene"]
+__all__ = ["calibrate_scene", "match_summary_path", "options_from_match_summary"]
+
+
+def match_summary_path(gcps_path) -> Path:
+    """The match summary ``gcpcal match`` writes beside a GCP table: ``<name>.summary.json``.
+
+    Parameters
+    ----------
+    gcps_path : str or Path
+        The GCP table.
+
+    Returns
+    -------
+    Path
+        ``gcps_path`` with the suffix ``.summary.json`` (it may not exist).
+    """
+    return Path(gcps_path).with_suffix(".summary.json")
+
+
+def options_from_match_summary(options: CalibrationOptions, gcps_path) -> CalibrationOptions:
+    """``options`` with the reference accuracy of the GCP table's match summary, when it has one.
+
+    Parameters
+    ----------
+    options : CalibrationOptions
+        A ``reference_sigma_m`` already given (``--reference-sigma-m``) wins.
+    gcps_path : str or Path
+        The GCP table; its summary is :func:`match_summary_path`.
+
+    Returns
+    -------
+    CalibrationOptions
+        ``reference_sigma_m = (east_m, north_m)`` and ``reference_source`` naming the summary and
+        the value's own source (a DOM tag, an MTL, ``assumed``); unchanged without a readable
+        summary holding ``reference_accuracy``.
+    """
+    if options.reference_sigma_m is not None:
+        return options if options.reference_source else options.replace(reference_source="option")
+    path = match_summary_path(gcps_path)
+    try:
+        acc = json.loads(path.read_text(encoding="utf-8")).get("reference_accuracy")
+        sigma = (float(acc["east_m"]), float(acc["north_m"]))
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return options  # no summary (a table from elsewhere or an older run): no reference term
+    source = str(acc.get("source", "?")) + (" (assumed by the matcher)" if acc.get("assumed") else "")
+    return options.replace(reference_sigma_m=sigma, reference_source=f"match summary {path.name}: {source}")
 
 
 def _accuracy(model, pts):
@@ -67,7 +118,8 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     out_dir : str or Path
         Output folder (created when missing).
     options : CalibrationOptions
-        Scheme, robust loss and solver settings.
+        Scheme, robust loss and solver settings; without ``reference_sigma_m`` the match
+        summary's is taken (:func:`options_from_match_summary`).
     band : str, optional
         Band of the GCPs that name none (default: the reference band).
     image : str or Path, optional
@@ -88,6 +140,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     t0 = time.perf_counter()
     check_output_folder(out_dir, inputs=[scene_path, gcps_path, image])  # before any work
     model, table = _read_inputs(scene_path, gcps_path, band, image)
+    options = options_from_match_summary(options, gcps_path)
     say = progress or (lambda message: None)
     say(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
     say(f"fitting the model ({options.scheme})")
@@ -123,6 +176,8 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
                 "after": None if acc_after is None else acc_after.absolute.rmse_px,
             },
             "variance_factor": doc["variance_factor"],
+            "covariance_factor": doc.get("covariance_factor"),
+            "reference_accuracy": doc.get("reference_accuracy"),
             "coverage": coverage,
             "model": model_file,
             "residual_layer": "residuals.gpkg",

@@ -108,11 +108,12 @@ def _match(fx: dict, out_dir: Path, spacing_px: int):
                                                             "cloud_fraction")}}
     match_summaries[band]["coarse_inliers"] = summary["coarse"]["inliers"]
     match_summaries[band]["seconds"] = summary["timings"]["total_s"]
+    match_summaries[band]["reference_accuracy"] = summary.get("reference_accuracy")  # the calibration's reference term
     write_gcps_csv(merged, out_dir / "gcps.csv")
     return merged, match_summaries
 
 
-def _calibrate(fx: dict, merged, out_dir: Path, step):
+def _calibrate(fx: dict, merged, out_dir: Path, step, reference_accuracy=None):
     """Phase 2: the reference band absolutely, then every other band against it; writes the manifest.
 
     Returns the reference band's CalibrationResult, the RelativeResult (its ``model``: the final
@@ -128,7 +129,10 @@ def _calibrate(fx: dict, merged, out_dir: Path, step):
     step(f"calibrating {reference_band}: exterior then interior")
     ref_pts = points_of(merged.gcps())
     # seed 003 2.2.1: exterior then interior (the default scheme)
-    result = calibrate_model(lab, merged.gcps(), options=CalibrationOptions())
+    acc = reference_accuracy or {}
+    sigma_m = (acc["east_m"], acc["north_m"]) if acc.get("east_m") is not None else None
+    result = calibrate_model(lab, merged.gcps(), options=CalibrationOptions(
+        reference_sigma_m=sigma_m, reference_source=f"match: {acc.get('source')}" if sigma_m else None))
     band_results = {reference_band: {"success": bool(result.success), "message": result.message}}
     step(f"band-to-band calibration against {reference_band}")  # seed 003 2.2.2
     # with the band parallax: the GCPs and the tie points estimate the attitude correction together
@@ -279,7 +283,8 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
     fx = _open_fixture(fixture_dir)
     step(f"matching band {fx['reference_band']} against the DOM")
     merged, match_summaries = _match(fx, out_dir, spacing_px)
-    result, relative, ref_pts, band_results = _calibrate(fx, merged, out_dir, step)
+    result, relative, ref_pts, band_results = _calibrate(
+        fx, merged, out_dir, step, match_summaries[fx["reference_band"]].get("reference_accuracy"))
     sc = _score(fx, merged, relative.model, ref_pts, step)
     summary = _summary(fx, fixture_dir, merged, result, band_results, match_summaries, sc)
     summary["parallax"] = {k: v for k, v in (relative.parallax or {}).items()

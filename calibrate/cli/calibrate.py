@@ -6,6 +6,8 @@ Exit codes follow the run's status (:mod:`calibrate.coverage`): 0 ``calibrated``
 
 from __future__ import annotations
 
+import math
+
 import click
 
 from calibrate.actions.calibrate import calibrate_scene
@@ -29,12 +31,20 @@ _EXIT_OF_STATUS = {"calibrated": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXI
               help="Robust loss.")
 @click.option("--attitude", type=click.Choice(ATTITUDE_MODES), default=CalibrationOptions.attitude, show_default=True,
               help="Time-varying attitude correction (push-broom): none, drift, B-spline, or chosen by BIC (docs/attitude.md).")
+@click.option("--reference-sigma-m", "reference_sigma_m", metavar="E[,N]", default=None,
+              help="Geolocation accuracy of the reference the GCPs come from, m (1 sigma east[,north]); its common "
+                   "shift enters the parameters' covariance (default: reference_accuracy of the match summary "
+                   "beside the GCP table, else no such term).")
+@click.option("--reference-field-m", "reference_field_m", metavar="RMS,LENGTH", default=None,
+              help="Part of that error that is a smooth field: its rms per axis and correlation length, m (the rest "
+                   "is one common shift; docs/calibration_outputs.md).")
 @click.option("--band", help="Band of GCPs that name none (default: the reference band).")
 @click.option("--image", type=click.Path(dir_okay=False), help="Raster the GCPs were measured in, when it is a crop of SCENE.")
 @click.option("--no-report", is_flag=True, help="Skip report.html and its figures.")
 @json_option
 @click.pass_context
-def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, attitude, band, image, no_report, as_json):
+def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, attitude, reference_sigma_m, reference_field_m, band,
+            image, no_report, as_json):
     """Calibrate SCENE's model from GCPs; write calibration.json, the calibrated model and report.html.
 
     SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
@@ -43,7 +53,9 @@ def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, attitude, band,
 
     Exit 0: calibrated; 4: partial (CCDs not calibrated or not verified, named); 3: failed.
     """
-    options = CalibrationOptions(scheme=scheme, robust=robust, attitude=attitude)
+    options = CalibrationOptions(scheme=scheme, robust=robust, attitude=attitude,
+                                 reference_sigma_m=_east_north(reference_sigma_m, "--reference-sigma-m"),
+                                 reference_field_m=_pair(reference_field_m, "--reference-field-m"))
     with stage_progress(ctx, "gcpcal calibrate", as_json) as progress:
         summary = calibrate_scene(scene_path, gcps_path, out_dir, options=options, band=band, image=image,
                                   report=not no_report, progress=progress.message)
@@ -56,6 +68,28 @@ def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, attitude, band,
         exit_with_status(ctx, code, summary.get("status_message") or summary["message"])
 
 
+def _east_north(text, hint, sizes=(1, 2)):
+    """None, or a pair of metres >= 0 from ``A`` (both) or ``A,B``."""
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in sizes or not all(math.isfinite(v) and v >= 0.0 for v in values):
+        form = "A,B" if sizes == (2,) else "A or A,B"
+        raise click.BadParameter(f"expected {form} (metres >= 0), got {text!r}", param_hint=hint)
+    return (values[0], values[-1])
+
+
+def _pair(text, hint):
+    """``--reference-field-m RMS,LENGTH``: None or (rms, length) metres, length > 0."""
+    value = _east_north(text, hint, sizes=(2,))
+    if value is not None and value[1] <= 0.0:
+        raise click.BadParameter(f"the correlation length must be > 0 m, got {text!r}", param_hint=hint)
+    return value
+
+
 def _print_summary(out_dir, summary) -> None:
     """The one-line outcome, the per-CCD coverage table and the CCDs that are not calibrated/verified."""
     before, after = summary["check_rmse_px"]["before"], summary["check_rmse_px"]["after"]
@@ -64,6 +98,11 @@ def _print_summary(out_dir, summary) -> None:
     state = {"calibrated": "calibrated", "partial": "PARTIAL", "failed": "FAILED"}[summary["status"]]
     vf = summary.get("variance_factor")
     vf_text = "" if vf is None else f"; variance factor {vf:.3g}"
+    if vf is not None and summary.get("covariance_factor") is not None:
+        vf_text += f" (covariance x {summary['covariance_factor']:.3g})"
+    ref = summary.get("reference_accuracy") or {}
+    if ref.get("east_m") is not None:
+        vf_text += f"; reference term {ref['east_m']:.3g}/{ref['north_m']:.3g} m (E/N)"
     click.echo(f"{out_dir}: {state} ({summary['message']}); {checks}{vf_text}")
     rows = summary.get("coverage") or []
     if not rows:
