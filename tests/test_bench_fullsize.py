@@ -1,7 +1,7 @@
 """Smoke test of ``bench/bench_fullsize.py`` at a tiny scale (the whole chain, as a user runs it).
 
-The benchmark itself runs the seed-003 scene at full size (not in CI); here ``--scale 0.03``
-(4 CCDs of 164 detectors, 256 lines, realistic profile, two bands) checks that every stage runs
+The benchmark itself runs the seed-003 scene at full size (not in CI); here ``--scale 0.0625``
+(4 CCDs of 341 detectors, 512 lines, realistic profile, two bands) checks that every stage runs
 as a child process, that the measured figures are there and plausible, and that calibration
 brings the LAB model's hundreds of pixels down to a fraction of a pixel against the TRUE model.
 """
@@ -46,10 +46,10 @@ def test_tiny_scale_runs_every_stage_and_measures(tmp_path):
         pytest.skip("the gcpcal console script is not installed beside this interpreter")
     bench = _bench()
     out = tmp_path / "fullsize_tiny.json"
-    assert bench.main(["--scale", "0.03", "--cache", str(tmp_path / "cache"), "--bands", "B2,B4",
+    assert bench.main(["--scale", "0.0625", "--cache", str(tmp_path / "cache"), "--bands", "B2,B4",
                        "--truth-step", "32", "--out", str(out)]) == 0
     res = json.loads(out.read_text())
-    assert res["scene"]["image"]["n_cols"] == 4 * 164 and res["scene"]["image"]["n_rows"] == 256
+    assert res["scene"]["image"]["n_cols"] == 4 * 341 and res["scene"]["image"]["n_rows"] == 512
     for name in ("simulate", "match", "calibrate_auto", "calibrate_static", "relative_auto", "relative_static"):
         rec = res["stages"][name]
         assert rec["rc"] in (0, 4), (name, rec["stderr_tail"])  # 4: the other band awaits `relative`
