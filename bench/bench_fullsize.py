@@ -11,23 +11,34 @@ Each stage runs as the command a user types (``gcpcal ...``, ``PYTHONPATH`` = th
 child process; its wall time, CPU time (user + sys of the child and what it waited for, from
 ``os.wait4``) and peak RSS (``ru_maxrss``) are recorded, with ``/proc/loadavg`` before and after:
 
-1. ``gcpcal simulate pushbroom --profile P --config CFG --workers 2`` (cached in ``--cache``:
-   skipped when its ``summary.json`` is there);
-2. ``gcpcal match`` of the reference band against the user's ``reference/dom.tif`` and
-   ``reference/dem.tif`` (the degraded copies, not what rendered the scene);
+1. ``gcpcal simulate pushbroom --config CFG --workers 2`` (cached in ``--cache``: skipped when its
+   ``summary.json`` is there), under ``--profile``:
+
+   * ``realistic``: ``--profile realistic`` (procedural source radiance, the profile's kernel,
+     degraded DOM and DEM as references). It builds its source and TRUE DEM whole in memory: about
+     57 GB at full size (docs/speed.md), so it runs at reduced ``--scale`` only;
+   * ``ideal-dom``: ``--dom DOM --dem DEM`` (ideal kernel, bounded memory) from a synthetic DOM
+     (30 m value noise) and DEM (6 arc-seconds) written by strips under ``<cache>/inputs_scale<F>``
+     (not timed), with the realistic profile's attitude and orbit magnitudes in the TRUE model
+     (``--orbit-noise-m`` overrides the orbit's white noise). The references are what rendered
+     the scene;
+2. ``gcpcal match`` of the reference band against the user's DOM and DEM;
 3. ``gcpcal calibrate`` (default ``--attitude auto``) and ``gcpcal calibrate --attitude static``
    (``--no-report``);
 4. ``gcpcal relative`` for each of the two calibrations;
-5. ``gcpcal truth error`` of each calibrated model against ``truth_manifest.json`` over the TRUE DEM
-   (``reference/truth/dem_true.tif``), every ``--truth-step`` pixels, reference band and every band.
+5. ``gcpcal truth error`` of the LAB and each calibrated model against ``truth_manifest.json`` over
+   the TRUE DEM, every ``--truth-step`` lines and samples, reference band and every band.
 
 The machine is shared: CPU time / 2 is reported beside the wall time as the estimate for a quiet
 2-core machine. Not run in CI (minutes to an hour); ``tests/test_bench_fullsize.py`` runs a tiny scale.
 
 Usage::
 
-    python bench/bench_fullsize.py [--scale 1.0] [--cache /tmp/fullsize] [--profile realistic]
-        [--bands B1,B2,B3,B4] [--out bench/results/fullsize.json]
+    python bench/bench_fullsize.py [--scale 1.0] [--cache /tmp/fullsize] [--profile realistic|ideal-dom]
+        [--bands B1,B2,B3,B4] [--stages ...,truth] [--truth-step 16] [--out bench/results/fullsize.json]
+
+    # the full-size run of docs/speed.md
+    python bench/bench_fullsize.py --scale 1 --profile ideal-dom --bands B2,B4 --truth-step 64
 
 Writes ``--out`` (default ``bench/results/fullsize.json``, or ``fullsize_scale<F>.json`` when
 ``--scale`` is not 1).
@@ -197,8 +208,8 @@ def prepare_streamed_inputs(cache: Path, cfg: dict) -> dict:
     from sensor_models.simulate.render_io import footprint_lonlat, utm_crs
     from sensor_models.simulate.scene import build_models
 
-    dom, dem = cache / "inputs" / "dom.tif", cache / "inputs" / "dem.tif"
-    facts_path = cache / "inputs" / "inputs.json"
+    dom, dem = inputs_dir(cache) / "dom.tif", inputs_dir(cache) / "dem.tif"
+    facts_path = inputs_dir(cache) / "inputs.json"
     if facts_path.exists():
         return json.loads(facts_path.read_text())
     dom.parent.mkdir(parents=True, exist_ok=True)
@@ -289,8 +300,13 @@ def reference_paths(cache: Path, profile: str) -> dict:
     if profile == "realistic":
         ref = cache / "scene" / "reference"
         return {"dom": ref / "dom.tif", "dem": ref / "dem.tif", "true_dem": ref / "truth" / "dem_true.tif"}
-    inputs = cache / "inputs"
+    inputs = inputs_dir(cache)
     return {"dom": inputs / "dom.tif", "dem": inputs / "dem.tif", "true_dem": inputs / "dem.tif"}
+
+
+def inputs_dir(cache: Path) -> Path:
+    """The streamed DOM and DEM of a scale, shared by the runs of that scale (``<cache root>/inputs_scale<F>``)."""
+    return cache.parent / ("inputs_" + cache.name.split("_")[0])
 
 
 def stage_commands(cache: Path, profile: str, workers: int) -> dict:
@@ -388,6 +404,8 @@ def main(argv=None) -> int:
                          "ideal-dom: the ideal kernel from a streamed synthetic DOM and DEM, with the realistic "
                          "profile's attitude and orbit magnitudes in the TRUE model")
     ap.add_argument("--bands", default="B1,B2,B3,B4", help="bands to render (B2, the reference, included)")
+    ap.add_argument("--orbit-noise-m", type=float, default=None,
+                    help="ideal-dom: white noise of the measured orbit per sample, m (default: the realistic 1 m)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--stages", default=",".join(STAGES + ("truth",)),
                     help="stages to run, comma-separated (simulate is skipped when cached; truth: the truth errors)")
@@ -396,11 +414,16 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
     bands = [b.strip() for b in args.bands.split(",") if b.strip()]
-    cache = args.cache / (f"scale{args.scale:g}_{args.profile}_{''.join(bands)}")
+    tag = "" if args.orbit_noise_m is None else f"_orbit{args.orbit_noise_m:g}m"
+    if tag and args.profile != "ideal-dom":
+        raise SystemExit("--orbit-noise-m applies to --profile ideal-dom")
+    cache = args.cache / (f"scale{args.scale:g}_{args.profile}_{''.join(bands)}{tag}")
     (cache / "logs").mkdir(parents=True, exist_ok=True)
     cfg = scaled_config(args.scale, bands)
     if args.profile == "ideal-dom":
         cfg["errors"] = dict(REALISTIC_ATTITUDE)
+        if args.orbit_noise_m is not None:
+            cfg["errors"]["orbit_noise_m"] = args.orbit_noise_m
     (cache / "config.json").write_text(json.dumps(cfg, indent=1))
     out = args.out or ROOT / "bench" / "results" / ("fullsize.json" if args.scale == 1.0 else
                                                      f"fullsize_scale{args.scale:g}.json")
