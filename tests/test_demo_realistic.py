@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "fixtures" / "hy1c_czi_realistic"
 
 #: measured on 2026-11-24 (profile realistic, fixtures/hy1c_czi_realistic): ``gcpcal demo``
-MEASURED = {"truth_rms_px": 0.094, "truth_max_px": 0.535, "check_after_px": 0.036, "gcps": 687}
+MEASURED = {"truth_rms_px": 0.070, "truth_max_px": 0.276, "check_after_px": 0.057, "gcps": 682}
 MARGIN = 0.4
 
 
@@ -71,8 +71,8 @@ def test_realistic_truth_error_is_bracketed_and_above_the_check_points(realistic
     assert _bracket(c["after"], MEASURED["check_after_px"]), c
     assert c["before"] > 100.0  # the LAB model is about 260 px off
     # the check points share the reference's errors (DOM geolocation, another date and sensor):
-    # they see less than the truth does (measured ratio 2.6)
-    assert t["rms"] > 1.3 * c["after"]
+    # they see less than the truth does (measured ratio 1.22 with the band-parallax attitude)
+    assert t["rms"] > 1.05 * c["after"]
     assert s["gcps"] > (1.0 - MARGIN) * MEASURED["gcps"] and s["check_points"] > 100
     # every CCD of every band graded; every CCD of the reference band checked before and after
     assert len(s["truth_error_per_ccd"]) == 16 and all(r["rms_px"] < 0.3 for r in s["truth_error_per_ccd"])
