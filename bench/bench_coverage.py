@@ -41,6 +41,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from bench_matcher_realism import _exact_gcps  # noqa: E402  (the same exact-observation GCPs)
 
 INSTALLATION = ("installation.roll", "installation.pitch", "installation.yaw")
 ARCSEC_PER_RAD = 206264.806
@@ -69,20 +72,6 @@ def _gcps(cache: Path, scene: str) -> Path:
         match_scene(cache / scene / "manifest.json", dom_path=ref / "dom.tif", dem_path=ref / "dem.tif",
                     out_path=chain / "gcps.csv", options=MatchOptions())
     return chain / "gcps.csv"
-
-
-def _exact_gcps(scene: Path, gcps: Path, out: Path) -> None:
-    """The same GCPs (ground points, sigma, score, kind) observed exactly through the TRUE model."""
-    from gcpmatch.gcps import GcpTable, read_gcps, write_gcps_csv
-    from sensor_models.readers import open_model
-
-    table = read_gcps(gcps)
-    truth = open_model(scene / "truth_manifest.json")
-    row, col = truth.ground_to_image(table.lon, table.lat, table.h, band=str(table.band[0]), ccd=table.ccd)
-    ok = np.isfinite(row) & np.isfinite(col)
-    cols = {k: np.asarray(getattr(table, k))[ok] for k in ("lon", "lat", "h", "sigma_px", "band", "ccd", "score",
-                                                         "kind", "id")}
-    write_gcps_csv(GcpTable.from_arrays(row[ok], col[ok], **cols), out)
 
 
 def _calibrate(scene: Path, gcps: Path, out: Path, changes: dict) -> dict:
