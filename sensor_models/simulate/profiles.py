@@ -48,7 +48,7 @@ ISCCP = ("Rossow and Schiffer 1999, Advances in understanding clouds from ISCCP,
          "(cloud-top classes: low below ~3 km, middle ~3-6.5 km, high above)")
 POD = ("precise orbit determination errors vary over a good part of the ~100 min orbit (once-per-revolution "
        "terms), e.g. Montenbruck & Gill 2000, Satellite Orbits, ch. 8")
-S2_CONTRAST = ("measured on the real Sentinel-2 L1C red crop (../shared/data/real_textures/sentinel2/s2_B04.jp2) "
+S2_CONTRAST = ("measured on the real Sentinel-2 L1C red crop of the shared test data (real_textures/sentinel2/s2_B04.jp2) "
                "at 30 m by bench/bench_texture_stats.py (Landsat-8 pan 0.086, procedural texture 0.372)")
 S2_MTF = "Sentinel-2 MSI image-quality requirement, MTF at Nyquist 0.15-0.30 (ESA Sentinel-2 User Handbook)"
 
