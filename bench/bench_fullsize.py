@@ -101,7 +101,7 @@ def scaled_config(scale: float, bands: list[str] | None = None) -> dict:
 #: ``_realistic``), written into the configuration's TRUE-model errors for the ideal kernel
 REALISTIC_ATTITUDE = {"jitter_amplitude_urad": [5.0, 5.0, 2.0], "jitter_frequency_hz": 0.3,
                       "attitude_drift_arcsec_s": [0.05, -0.04, 0.02], "attitude_noise_urad": 3.0,
-                      "orbit_noise_m": 1.0}
+                      "orbit_noise_m": 1.0, "orbit_noise_period_s": 600.0}
 #: value-noise octaves of the synthetic DOM: (cell in DOM pixels, amplitude)
 DOM_OCTAVES = ((6, 0.6), (24, 0.7), (96, 0.6), (384, 0.5))
 DOM_WHITE = 0.4  # white-noise amplitude (relative to the octaves' unit amplitude)
