@@ -31,9 +31,8 @@ Two corrections to the least-squares covariance ``C = sigma0^2 (J^T W J)^-1``
    interior, fitted in the frame the exterior fixes, and the attitude correction, whose mean is
    held by the installation, do not take it), otherwise every estimated parameter. ``W`` are
    the final weights (prior weight times robust weight). ``A`` comes from projecting each GCP's
-   ground point shifted by +-``STEP_M`` east and north (central differences on the WGS84
-   ellipsoid's local radii). ``Cov_ref`` is added to the covariance; sigmas and correlations
-   follow.
+   ground point shifted east and north (:func:`sensor_models.ground_shift.ground_shift_jacobian`).
+   ``Cov_ref`` is added to the covariance; sigmas and correlations follow.
 
 References
 ----------
@@ -47,15 +46,13 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["FIELD_CUTOFF", "STEP_M", "covariance_floor", "field_covariance", "floor_factor", "ground_shift_jacobian",
-           "with_honest_covariance"]
+from sensor_models.geodesy import degrees_per_metre
+from sensor_models.ground_shift import ground_shift_jacobian
 
-#: half-step of the central differences of the ground shift, metres
-STEP_M = 5.0
+__all__ = ["FIELD_CUTOFF", "covariance_floor", "field_covariance", "floor_factor", "with_honest_covariance"]
+
 #: cell pairs of the field term further apart than this many correlation lengths are left out
 FIELD_CUTOFF = 5.0
-_WGS84_A = 6378137.0
-_WGS84_E2 = 6.69437999014e-3
 _INSTALLATION = ("installation.roll", "installation.pitch", "installation.yaw")
 
 
@@ -99,43 +96,6 @@ def covariance_floor(steps: list, enabled: bool = True) -> dict:
         vf = float("nan") if sigma0 is None else float(sigma0) ** 2
         applied = (floor_factor(np.sqrt(vf)) if enabled else vf) if np.isfinite(vf) else 1.0
         out[step] = {"variance_factor": vf, "factor_applied": applied}
-    return out
-
-
-def _metres_to_degrees(lat_deg):
-    """Degrees of longitude and latitude per metre east and north at ``lat_deg`` (WGS84)."""
-    phi = np.radians(lat_deg)
-    w = np.sqrt(1.0 - _WGS84_E2 * np.sin(phi) ** 2)
-    meridian = _WGS84_A * (1.0 - _WGS84_E2) / w**3
-    normal = _WGS84_A / w
-    return np.degrees(1.0 / (normal * np.cos(phi))), np.degrees(1.0 / meridian)
-
-
-def ground_shift_jacobian(model, lon, lat, h, **where) -> np.ndarray:
-    """Image motion per metre of ground shift east and north, ``A = d(row, col) / d(east, north)``.
-
-    Parameters
-    ----------
-    model : SensorModel
-        Model whose ``ground_to_image`` projects the points.
-    lon, lat, h : ndarray, shape (n,)
-        Ground points: WGS84 degrees and metres above the ellipsoid.
-    **where
-        Passed to ``ground_to_image`` (``band``, ``array`` of a push-broom model).
-
-    Returns
-    -------
-    ndarray, shape (n, 2, 2)
-        ``[i, (row, col), (east, north)]``, pixels per metre; NaN where a projection failed.
-    """
-    lon, lat, h = (np.asarray(a, dtype=np.float64).reshape(-1) for a in (lon, lat, h))
-    dlon, dlat = _metres_to_degrees(lat)
-    out = np.empty((lon.size, 2, 2))
-    for k, (ex, ny) in enumerate(((dlon, 0.0), (0.0, dlat))):
-        r1, c1 = model.ground_to_image(lon + STEP_M * ex, lat + STEP_M * ny, h, **where)
-        r0, c0 = model.ground_to_image(lon - STEP_M * ex, lat - STEP_M * ny, h, **where)
-        out[:, 0, k] = (np.asarray(r1) - np.asarray(r0)) / (2.0 * STEP_M)
-        out[:, 1, k] = (np.asarray(c1) - np.asarray(c0)) / (2.0 * STEP_M)
     return out
 
 
@@ -199,7 +159,7 @@ def field_covariance(point_gains, lon, lat, rms_m, length_m) -> np.ndarray:
     """
     from scipy.spatial import cKDTree
 
-    dlon, dlat = _metres_to_degrees(np.mean(lat))
+    dlon, dlat = degrees_per_metre(np.mean(lat))
     xy = np.stack([(lon - np.mean(lon)) / dlon, (lat - np.mean(lat)) / dlat], axis=1)
     cell = np.floor(xy / (length_m / 8.0)).astype(np.int64)
     _keys, inverse = np.unique(cell, axis=0, return_inverse=True)

@@ -101,9 +101,10 @@ def reference_sigma_px(model, east_m: float, north_m: float, *, band, first_col:
                        height_m: float = 0.0, array=None) -> tuple:
     """A reference's east / north geolocation error projected into image rows and columns, pixels.
 
-    The ground -> image Jacobian ``J`` (px per m) is the inverse of the image -> ground one,
-    measured by finite differences of one pixel at the detector array's centre (on the
-    ellipsoid at ``height_m``); the image covariance is ``J diag(east^2, north^2) J^T``.
+    The ground -> image Jacobian ``J = d(row, col) / d(east, north)`` (px per m,
+    :func:`sensor_models.ground_shift.ground_shift_jacobian`) at the ground point under the
+    detector array's centre (on the ellipsoid at ``height_m``); the image covariance is
+    ``J diag(east^2, north^2) J^T``.
 
     Parameters
     ----------
@@ -127,18 +128,13 @@ def reference_sigma_px(model, east_m: float, north_m: float, *, band, first_col:
     sigma_row_px, sigma_col_px : float
         Standard deviations along rows and columns, pixels (NaN where the model cannot localize).
     """
-    from sensor_models.geodesy import enu_basis, geodetic_to_ecef
+    from sensor_models.ground_shift import ground_shift_jacobian
 
     r0, c0 = model.image_shape[0] / 2.0, first_col + n_detectors / 2.0
     kw = {} if array is None else {"array": array}
-    lon, lat, h = model.image_to_ground(r0 + np.array([0.0, 1.0, 0.0]), c0 + np.array([0.0, 0.0, 1.0]),
-                                        height=height_m, band=band, **kw)
-    xyz = geodetic_to_ecef(lon, lat, h)
-    east, north, _ = enu_basis(lon[0], lat[0])
-    d = xyz[1:] - xyz[0]  # (2, 3): one row step, one column step, metres
-    ground_per_px = np.array([[d[0] @ east, d[1] @ east], [d[0] @ north, d[1] @ north]])
-    if not np.all(np.isfinite(ground_per_px)):
+    lon, lat, h = model.image_to_ground(np.array([r0]), np.array([c0]), height=height_m, band=band, **kw)
+    px_per_ground = ground_shift_jacobian(model, lon, lat, h, band=band, **kw)[0]
+    if not np.all(np.isfinite(px_per_ground)):
         return float("nan"), float("nan")
-    px_per_ground = np.linalg.inv(ground_per_px)
     cov = px_per_ground @ np.diag([east_m**2, north_m**2]) @ px_per_ground.T
     return float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))

@@ -24,6 +24,7 @@ __all__ = [
     "WGS84_B_M",
     "WGS84_E2",
     "WGS84_F",
+    "degrees_per_metre",
     "ecef_to_geodetic",
     "enu_basis",
     "geodetic_to_ecef",
@@ -114,3 +115,27 @@ def enu_basis(lon_deg, lat_deg):
     north = np.stack([-sp * cl, -sp * sl, cp + zero], axis=-1)
     up = np.stack([cp * cl, cp * sl, sp + zero], axis=-1)
     return east, north, up
+
+
+def degrees_per_metre(lat_deg):
+    """Degrees of longitude and latitude per metre east and north at ``lat_deg`` (WGS84).
+
+    From the ellipsoid's radii of curvature: the prime vertical ``N = a / w`` (east, times
+    ``cos lat``) and the meridian ``M = a (1 - e^2) / w^3`` (north), ``w = sqrt(1 - e^2 sin^2 lat)``.
+
+    Parameters
+    ----------
+    lat_deg : array_like
+        Geodetic latitude, degrees.
+
+    Returns
+    -------
+    dlon_per_m, dlat_per_m : ndarray, shape of ``lat_deg``
+        Degrees per metre.
+    """
+    phi = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    w = np.sqrt(1.0 - WGS84_E2 * np.sin(phi) ** 2)
+    meridian = WGS84_A_M * (1.0 - WGS84_E2) / w**3
+    normal = WGS84_A_M / w
+    return np.degrees(1.0 / (normal * np.cos(phi))), np.degrees(1.0 / meridian)
+

@@ -18,7 +18,8 @@ import pytest
 
 from calibrate.absolute import calibrate_model
 from calibrate.config import CalibrationOptions
-from calibrate.reference_covariance import floor_factor, ground_shift_jacobian
+from calibrate.reference_covariance import floor_factor
+from sensor_models.ground_shift import ground_shift_jacobian
 from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
 from sensor_models.synthetic import CameraDesign, example_pushbroom_model
