@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import rasterio
 
-from sensor_models.simulate.texture_stats import block_average, spectral_slope
+from sensor_models.simulate.texture_stats import block_average, block_rms_contrast, spectral_slope
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data" / "real_textures"
@@ -85,17 +85,14 @@ def local_stats(img: np.ndarray, valid: np.ndarray, *, window: int = WINDOW) -> 
         ``rms_contrast_median``, ``rms_contrast_p10``, ``rms_contrast_p90``, ``texture_fraction``,
         ``windows``.
     """
+    c = block_rms_contrast(img, valid, window=window)
     gy, gx = np.gradient(img)
-    g2 = gx * gx + gy * gy
     h, w = (s // window * window for s in img.shape)
     shape = (h // window, window, w // window, window)
-    d = img[:h, :w].reshape(shape)
     v = valid[:h, :w].reshape(shape).all(axis=(1, 3))
-    mean = d.mean(axis=(1, 3))
-    contrast = d.std(axis=(1, 3)) / np.where(mean > 0, mean, np.nan)
-    energy = g2[:h, :w].reshape(shape).mean(axis=(1, 3)) / np.where(mean > 0, mean, np.nan) ** 2
+    mean = img[:h, :w].reshape(shape).mean(axis=(1, 3))
+    energy = (gx * gx + gy * gy)[:h, :w].reshape(shape).mean(axis=(1, 3)) / np.where(mean > 0, mean, np.nan) ** 2
     flat = 10.0 * 2.0 * (0.01**2)  # flat window with 1 % noise: |grad|^2/mean^2 ~ 2 * 0.01^2 (central differences halve it; kept conservative)
-    c = contrast[v & np.isfinite(contrast)]
     e = energy[v & np.isfinite(energy)]
     return {"rms_contrast_median": float(np.median(c)), "rms_contrast_p10": float(np.percentile(c, 10)),
             "rms_contrast_p90": float(np.percentile(c, 90)), "texture_fraction": float(np.mean(e > flat)),
@@ -122,7 +119,8 @@ def measure(path: Path, gsd_m: float, qa: Path | None = None) -> dict:
     data, valid, gsd = _read(path, qa)
     factor = max(1, int(round(gsd_m / gsd)))
     img, ok = block_average(data, valid, factor)
-    out = {"file": str(path.relative_to(ROOT.parent) if path.is_relative_to(ROOT.parent) else path),
+    base = ROOT if path.is_relative_to(ROOT) else ROOT.parent  # the repository's files, or shared/...
+    out = {"file": str(path.relative_to(base) if path.is_relative_to(base) else path),
            "native_gsd_m": gsd, "gsd_m": gsd * factor, **local_stats(img, ok)}
     for size in (256, 192, 128):
         corner = _largest_valid_square(ok, size)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["block_average", "rms_contrast_median", "scale_contrast", "spectral_slope"]
+__all__ = ["block_average", "block_rms_contrast", "rms_contrast_median", "scale_contrast", "spectral_slope"]
 
 
 def block_average(data: np.ndarray, valid: np.ndarray, factor: int) -> tuple:
@@ -41,8 +41,36 @@ def block_average(data: np.ndarray, valid: np.ndarray, factor: int) -> tuple:
     return d.mean(axis=(1, 3)), v.all(axis=(1, 3))
 
 
+def block_rms_contrast(data: np.ndarray, valid: np.ndarray | None = None, *, window: int = 32) -> np.ndarray:
+    """RMS contrast ``std / mean`` of every ``window x window`` block without an invalid pixel.
+
+    Parameters
+    ----------
+    data : ndarray, shape (H, W)
+        Radiance (positive).
+    valid : ndarray of bool, shape (H, W), optional
+        Blocks with an invalid pixel are left out (default: the finite pixels).
+    window : int
+        Block size, pixels.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        One value per usable block (a positive mean), row-major.
+    """
+    valid = np.isfinite(data) if valid is None else valid
+    h, w = (s // window * window for s in data.shape)
+    shape = (h // window, window, w // window, window)
+    d = np.where(valid, data, 0.0)[:h, :w].reshape(shape)
+    ok = valid[:h, :w].reshape(shape).all(axis=(1, 3))
+    mean = d.mean(axis=(1, 3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        contrast = d.std(axis=(1, 3)) / mean
+    return contrast[ok & (mean > 0) & np.isfinite(contrast)]
+
+
 def rms_contrast_median(data: np.ndarray, valid: np.ndarray | None = None, *, window: int = 32) -> float:
-    """Median RMS contrast ``std / mean`` over ``window x window`` blocks.
+    """Median RMS contrast ``std / mean`` over ``window x window`` blocks (:func:`block_rms_contrast`).
 
     Parameters
     ----------
@@ -58,15 +86,7 @@ def rms_contrast_median(data: np.ndarray, valid: np.ndarray | None = None, *, wi
     float
         The median (NaN when no block is usable).
     """
-    valid = np.isfinite(data) if valid is None else valid
-    h, w = (s // window * window for s in data.shape)
-    shape = (h // window, window, w // window, window)
-    d = np.where(valid, data, 0.0)[:h, :w].reshape(shape)
-    ok = valid[:h, :w].reshape(shape).all(axis=(1, 3))
-    mean = d.mean(axis=(1, 3))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        contrast = d.std(axis=(1, 3)) / mean
-    c = contrast[ok & (mean > 0) & np.isfinite(contrast)]
+    c = block_rms_contrast(data, valid, window=window)
     return float(np.median(c)) if c.size else float("nan")
 
 
