@@ -38,9 +38,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
-import subprocess
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -48,6 +47,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+
+from bench_profiles import _gcpcal  # noqa: E402  (the same gcpcal subprocess runner)
 S2_RED = ROOT.parent / "shared" / "data" / "real_textures" / "sentinel2" / "s2_B04.jp2"
 #: ``realistic_no_dom_error``: realistic with the DOM's geolocation error switched off (as
 #: ``bench_profiles.py``'s ``no_dom_error`` ablation), so that what remains of the truth error is
@@ -58,14 +60,6 @@ S2_RED = ROOT.parent / "shared" / "data" / "real_textures" / "sentinel2" / "s2_B
 PROFILES = ("ideal", "realistic", "realistic_no_dom_error", "realistic_procedural", "realistic_heldout",
             "realistic_procedural_heldout")
 HELDOUT_SEED = 7
-
-
-def _gcpcal(*args) -> None:
-    cmd = [shutil.which("gcpcal") or "gcpcal", "-q", *map(str, args)]
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env)
-    if done.returncode not in (0, 4):
-        raise SystemExit(f"{' '.join(cmd)} -> {done.returncode}\n{done.stderr[-2000:]}")
 
 
 def simulate_once(cache: Path, profile: str, gsd_m: float, source) -> Path:
