@@ -159,6 +159,7 @@ def scene(scene_dir: Path, gcps_csv: Path, work: Path, modes=("static", "auto"))
         _gcpcal("relative", scene_dir / "manifest.json", "--calibration", cal, "--dem", dem_path, "--out", rel,
                 *(["--gcps", gcps_csv] if mode == "joint" else ["--no-parallax"]))
         relative_seconds = time.perf_counter() - t
+        rel_summary = json.loads((rel / "relative.summary.json").read_text())
         model = open_model(rel / "manifest.json")
         doc = json.loads((cal / "calibration.json").read_text())
         if mode == "joint":  # the correction the relative stage wrote, with its spectrum
@@ -172,7 +173,6 @@ def scene(scene_dir: Path, gcps_csv: Path, work: Path, modes=("static", "auto"))
         others = [b for b in truth.bands if b != truth.reference_band]
         grid = model_difference(truth, model, dem=dem, step_px=16.0)
         b2b = model_difference(truth, model, dem=dem, step_px=16.0, bands=others) if others else None
-        rel_summary = json.loads((rel / "relative.summary.json").read_text())
         out[mode] = {"calibrate_seconds_wall": seconds, "relative_seconds_wall": relative_seconds,
                      "parallax": rel_summary.get("parallax"),
                      "reference_band_every_line": every_line_error(truth, model, col_step=8.0, dem=dem),

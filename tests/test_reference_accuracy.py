@@ -16,7 +16,7 @@ import pytest
 import rasterio
 from rasterio.transform import from_origin
 
-from sensor_models.dom_inputs import (ACCURACY_TAG, ACCURACY_TAG_X, ACCURACY_TAG_Y, ASSUMED_REFERENCE_SIGMA_M,
+from sensor_models.dom_inputs import (ACCURACY_TAG, ACCURACY_TAG_X, ACCURACY_TAG_Y,
                                       reference_accuracy, stated_accuracy)
 from sensor_models.errors import InputError
 
