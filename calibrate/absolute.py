@@ -743,7 +743,8 @@ def _select_attitude(static, points, weight, groups, options):
     t_img = sorted(float(t) for t in fitted.line_timing.seconds(np.array([0.0, float(fitted.n_rows)])))
     candidates = _attitude.candidate_corrections(
         options.attitude, t0, t1, n_points=int(np.sum(used)), n_lines=float(np.diff(fitted.row_range)[0]),
-        seconds=seconds[used], image_span_s=t_img[1] - t_img[0], min_span_fraction=options.min_span_fraction)
+        seconds=seconds[used], image_span_s=t_img[1] - t_img[0], min_span_fraction=options.min_span_fraction,
+        support_s=(float(np.min(seconds[used])), float(np.max(seconds[used]))) if np.any(used) else None)
     yaw = None if options.attitude_yaw_sigma_urad is None else options.attitude_yaw_sigma_urad * 1e-6
     chosen, covariance, table = _attitude.select_correction(jac_delta, seconds, static.residuals_after, w,
                                                             candidates, yaw_sigma_rad=yaw)

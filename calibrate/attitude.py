@@ -53,7 +53,7 @@ MIN_POINTS_PER_SEGMENT = 10
 
 def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int, n_lines: float,
                           seconds=None, image_span_s=None, min_span_fraction: float = 0.5,
-                          max_segments: int = MAX_SEGMENTS):
+                          max_segments: int = MAX_SEGMENTS, support_s=None):
     """The bases tried by ``--attitude MODE``.
 
     Parameters
@@ -78,6 +78,10 @@ def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int,
     max_segments : int
         Most spline segments tried (:data:`MAX_SEGMENTS` for GCPs alone; the band parallax's
         dense tie points support more, :mod:`calibrate.parallax`).
+    support_s : (float, float), optional
+        First and last observation time, seconds. When given, the splines span it and hold
+        their end values beyond it (``outside="hold"``, :mod:`sensor_models.attitude_correction`):
+        lines before the first or after the last observation are not extrapolated.
 
     Returns
     -------
@@ -93,8 +97,10 @@ def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int,
     if mode in ("spline", "auto"):
         limit = min(max_segments, n_points // MIN_POINTS_PER_COEFFICIENT - 3, int(n_lines // MIN_LINES_PER_SEGMENT))
         n_seg = sorted({int(round(2 ** (k / 2))) for k in range(2, int(2 * np.log2(max_segments)) + 1)})
-        out += [AttitudeCorrection("spline", t0_s, t1_s, n) for n in n_seg
-                if n <= limit and _segments_filled(seconds, t0_s, t1_s, n)]
+        s0, s1, outside = (t0_s, t1_s, "continue") if support_s is None else (*support_s, "hold")
+        if s1 > s0:
+            out += [AttitudeCorrection("spline", s0, s1, n, outside=outside) for n in n_seg
+                    if n <= limit and _segments_filled(seconds, s0, s1, n)]
     return out
 
 

@@ -273,7 +273,8 @@ def joint_candidates(mode, model, observations, *, min_span_fraction: float = 0.
 
     Every observation with weight counts at its first term's time (the GCP's line, the
     band's line of a tie), so a spline's segments must each hold ``MIN_POINTS_PER_SEGMENT``
-    observations: segments shorter than the tie rows' spacing are not tried.
+    observations: segments shorter than the tie rows' spacing are not tried. The splines span
+    the observations' times (every term) and hold their end values beyond.
 
     Parameters
     ----------
@@ -290,9 +291,12 @@ def joint_candidates(mode, model, observations, *, min_span_fraction: float = 0.
     t0, t1 = sorted(float(t) for t in model.line_timing.seconds(np.array(model.row_range)))
     t_img = sorted(float(t) for t in model.line_timing.seconds(np.array([0.0, float(model.n_rows)])))
     seconds = np.concatenate([o.seconds[0][o.weight > 0] for o in observations])
+    every = np.concatenate([o.seconds[:, o.weight > 0].ravel() for o in observations])
+    every = every[np.isfinite(every)]
+    support = (float(every.min()), float(every.max())) if every.size else None
     return candidate_corrections(mode, t0, t1, n_points=int(seconds.size), n_lines=float(np.diff(model.row_range)[0]),
                                  seconds=seconds, image_span_s=t_img[1] - t_img[0],
-                                 min_span_fraction=min_span_fraction, max_segments=max_segments)
+                                 min_span_fraction=min_span_fraction, max_segments=max_segments, support_s=support)
 
 
 def _design(observations, correction, n_groups: int, n_poly: int):
