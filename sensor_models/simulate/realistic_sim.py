@@ -14,7 +14,8 @@ but:
 
 The source radiance is a given raster (``dom``: e.g. a real Sentinel-2 red band, see
 docs/error_budget.md; the scene is then centred on it) or the procedural texture
-(:func:`sensor_models.simulate.procedural.generate_reference`). The TRUE DEM is procedural.
+(:func:`sensor_models.simulate.procedural.generate_reference`), brought to a real image's contrast
+and given texture-poor patches (:mod:`sensor_models.simulate.texture_poor`). The TRUE DEM is procedural.
 The scene and the DOM are lit by their own suns (hill shading, cast shadows:
 :mod:`sensor_models.simulate.illumination`); clouds (``clouds.cover``) have heights, parallax and
 shadows (:mod:`sensor_models.simulate.clouds3d`); the TRUE attitude carries a jitter spectrum

@@ -7,8 +7,9 @@ of the 32 x 32-pixel blocks at 30 m carry texture (``bench/bench_texture_stats.p
 This module gives that texture patches of such ground:
 
 * :func:`texture_poor_mask`: smooth-edged patches from a low-frequency Gaussian random field
-  (two octaves, correlation lengths ``scale_m`` and ``scale_m / 4``) thresholded at the quantile
-  that makes them cover ``fraction`` of the land (water is already texture-poor);
+  (white noise on a 100 m grid smoothed by Gaussians of standard deviation ``scale_m`` and, at half
+  the weight, ``scale_m / 4``, upsampled bicubically) thresholded at the quantile that makes them
+  cover ``fraction`` of the land (water is already texture-poor);
 * :func:`attenuate_texture`: inside the patches, the deviations of the radiance from its local
   mean are multiplied by ``attenuation``: ``L' = B + a (L - B)``, with ``B`` the Gaussian-weighted
   mean (``smooth_m``) of the radiance *inside the patch only* (normalized convolution, Knutsson &
@@ -71,7 +72,8 @@ def texture_poor_mask(shape: tuple, res_m: float, fraction: float, *, seed, scal
     seed : int or sequence of int
         Seed of ``numpy.random.default_rng`` (same seed, same patches).
     scale_m : float
-        Correlation length of the coarser octave of the field, metres (patches of about this size).
+        Standard deviation of the coarser octave's Gaussian smoothing, metres (patches of about
+        this size).
     exclude : ndarray of bool, shape ``shape``, optional
         Pixels never in a patch (e.g. water: already texture-poor).
 
@@ -131,7 +133,8 @@ def attenuate_texture(radiance: np.ndarray, mask: np.ndarray, attenuation: float
         When ``attenuation`` is outside [0, 1] or the shapes differ.
     """
     if not 0.0 <= attenuation <= 1.0:
-        raise InputError(f"the texture attenuation must be in [0, 1], got {attenuation}", field="texture_poor_attenuation")
+        raise InputError(f"the texture attenuation must be in [0, 1], got {attenuation}",
+                         field="texture_poor_attenuation")
     if np.shape(mask) != np.shape(radiance):
         raise InputError(f"mask shape {np.shape(mask)} differs from the radiance's {np.shape(radiance)}", field="mask")
     src = np.asarray(radiance, dtype=np.float32)
