@@ -25,8 +25,9 @@ from calibrate.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "fixtures" / "hy1c_czi_realistic"
 
-#: measured on 2026-11-24 (profile realistic, fixtures/hy1c_czi_realistic): ``gcpcal demo``
-MEASURED = {"truth_rms_px": 0.070, "truth_max_px": 0.276, "check_after_px": 0.057, "gcps": 682}
+#: measured on 2026-11-24 (profile realistic, fixtures/hy1c_czi_realistic with its texture-poor patches,
+#: session 6): ``gcpcal demo`` (before the patches: 0.070, 0.276, 0.057 px, 682 GCPs)
+MEASURED = {"truth_rms_px": 0.092, "truth_max_px": 0.493, "check_after_px": 0.088, "gcps": 636}
 MARGIN = 0.4
 
 
@@ -70,14 +71,16 @@ def test_realistic_truth_error_is_bracketed_and_above_the_check_points(realistic
     assert _bracket(t["max"], MEASURED["truth_max_px"]), t
     assert _bracket(c["after"], MEASURED["check_after_px"]), c
     assert c["before"] > 100.0  # the LAB model is about 260 px off
-    # the check points share the reference's errors (DOM geolocation, another date and sensor):
-    # they see less than the truth does (measured ratio 1.22 with the band-parallax attitude)
-    assert t["rms"] > 1.05 * c["after"]
+    # the check points share the reference's errors (DOM geolocation, another date and sensor), which
+    # hides them, but carry their own matching error, larger in texture-poor ground: measured truth /
+    # check ratio 1.05 (1.22 before the texture-poor patches); neither far below nor far above
+    assert 0.8 * c["after"] < t["rms"] < 1.6 * c["after"]
     assert s["gcps"] > (1.0 - MARGIN) * MEASURED["gcps"] and s["check_points"] > 100
     # every CCD of every band graded; every CCD of the reference band checked before and after
     assert len(s["truth_error_per_ccd"]) == 16 and all(r["rms_px"] < 0.3 for r in s["truth_error_per_ccd"])
     per_ccd = s["check_rmse_per_ccd_px"]
-    assert len(per_ccd) == 4 and all(v["before"] > 100.0 and v["after"] < 0.1 for v in per_ccd.values())
+    # largest measured 0.146 px (B2.cam2_ccd1: one 0.60 px check point in texture-poor ground), others 0.06-0.07
+    assert len(per_ccd) == 4 and all(v["before"] > 100.0 and v["after"] < 0.2 for v in per_ccd.values())
 
 
 def test_realistic_demo_status_exit_code_and_budget(realistic_demo):
@@ -137,7 +140,7 @@ def test_unknown_fixture_is_a_usage_error(tmp_path, capsys):
 # ------------------------------------------------------------------------------ the fixture itself
 def test_realistic_fixture_is_small_self_contained_and_degraded():
     size = sum(p.stat().st_size for p in FIXTURE.rglob("*") if p.is_file())
-    assert 2.0e6 < size < 4.5e6, size  # 4.32 MB when written
+    assert 2.0e6 < size < 4.5e6, size  # 4.19 MB when written
     summary = json.loads((FIXTURE / "summary.json").read_text())
     assert summary["profile"] == "realistic" and summary["injected"]["source_radiance"] == "procedural"
     manifest = json.loads((FIXTURE / "manifest.json").read_text())

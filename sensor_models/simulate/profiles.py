@@ -50,6 +50,14 @@ POD = ("precise orbit determination errors vary over a good part of the ~100 min
        "terms), e.g. Montenbruck & Gill 2000, Satellite Orbits, ch. 8")
 S2_CONTRAST = ("measured on the real Sentinel-2 L1C red crop of the shared test data (real_textures/sentinel2/s2_B04.jp2) "
                "at 30 m by bench/bench_texture_stats.py (Landsat-8 pan 0.086, procedural texture 0.372)")
+TEXTURE_POOR_FRACTION = (
+    "calibrated by bench/bench_texture_stats.py: the share of textured 32 x 32 blocks at 30 m of the realistic "
+    "fixture's procedural source becomes 0.56 (0.87 without), inside the real crops' 0.43-0.66 (Landsat-8 red, "
+    "Landsat-8 pan, Sentinel-2 red of real_textures)")
+TEXTURE_POOR_ATTENUATION = (
+    "measured on the real Sentinel-2 L1C red crop (real_textures/sentinel2/s2_B04.jp2) at 30 m by "
+    "bench/bench_texture_stats.py: median relative gradient RMS of its untextured blocks over that of its textured "
+    "blocks, 0.17")
 S2_MTF = "Sentinel-2 MSI image-quality requirement, MTF at Nyquist 0.15-0.30 (ESA Sentinel-2 User Handbook)"
 
 
@@ -147,6 +155,11 @@ class PushbroomProfile(_ProfileFields):
     procedural_rms_contrast: Sourced = _f(
         "median std/mean over 32 x 32 blocks at 30 m",
         "procedural source radiance: deviations from its mean scaled to this RMS contrast (real sources keep theirs)")
+    texture_poor_fraction: Sourced = _f(
+        "share of the land", "procedural source: smooth-edged patches of texture-poor ground (fields, plains, canopy) "
+        "from a thresholded low-frequency field (simulate/texture_poor.py), after the contrast scaling")
+    texture_poor_attenuation: Sourced = _f(
+        "factor on deviations from the patch's local mean", "texture kept inside those patches (1: unchanged)")
     dom_bias_m: Sourced = _f("m (east, north)", "DOM geolocation bias")
     dom_field_rms_m: Sourced = _f("m rms (per axis)", "smooth DOM geolocation field")
     dom_field_scale_m: Sourced = _f("m", "correlation length of that field")
@@ -182,6 +195,7 @@ def _ideal() -> PushbroomProfile:
         reference_resolution_m=s(15.0), reference_mtf_sigma_px=Sourced(0.0, "reference is the rendering DOM itself"),
         reference_gamma=Sourced(1.0, "reference is the rendering DOM itself"),
         seasonal_change=s(0.12), seasonal_scale_m=s(4000.0), haze=none(0.0), procedural_rms_contrast=none(0.0),
+        texture_poor_fraction=none(0.0), texture_poor_attenuation=none(1.0),
         dom_bias_m=none((0.0, 0.0)), dom_field_rms_m=none(0.0), dom_field_scale_m=none(0.0),
         dem_resolution_m=Sourced(30.0, "user DEM is the rendering DEM itself"), dem_error_rms_m=none(0.0),
         dem_error_scale_m=none(0.0), dem_void_fraction=none(0.0),
@@ -228,6 +242,8 @@ def _realistic() -> PushbroomProfile:
         seasonal_scale_m=Sourced(600.0, "field-parcel size; assumption"),
         haze=Sourced(0.03, ASSUMPTION),
         procedural_rms_contrast=Sourced(0.195, S2_CONTRAST),
+        texture_poor_fraction=Sourced(0.5, TEXTURE_POOR_FRACTION),
+        texture_poor_attenuation=Sourced(0.17, TEXTURE_POOR_ATTENUATION),
         dom_bias_m=Sourced((1.2, -0.9), f"{ISSUE13}: DOM error 1-3 m"),
         dom_field_rms_m=Sourced(0.8, f"{ISSUE13}: DOM error 1-3 m"),
         dom_field_scale_m=Sourced(3000.0, ASSUMPTION),

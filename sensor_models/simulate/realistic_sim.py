@@ -14,7 +14,8 @@ but:
 
 The source radiance is a given raster (``dom``: e.g. a real Sentinel-2 red band, see
 docs/error_budget.md; the scene is then centred on it) or the procedural texture
-(:func:`sensor_models.simulate.procedural.generate_reference`). The TRUE DEM is procedural.
+(:func:`sensor_models.simulate.procedural.generate_reference`), brought to a real image's contrast
+and given texture-poor patches (:mod:`sensor_models.simulate.texture_poor`). The TRUE DEM is procedural.
 The scene and the DOM are lit by their own suns (hill shading, cast shadows:
 :mod:`sensor_models.simulate.illumination`); clouds (``clouds.cover``) have heights, parallax and
 shadows (:mod:`sensor_models.simulate.clouds3d`); the TRUE attitude carries a jitter spectrum
@@ -49,7 +50,7 @@ from sensor_models.simulate.true_lens import cubic_residual_px, lens_extras
 from sensor_models.simulate.truth import truth_error
 from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
 
-__all__ = ["apply_profile", "detector_gains", "field_weights", "mtf_nyquist", "simulate_realistic"]
+__all__ = ["apply_profile", "detector_gains", "field_weights", "mtf_nyquist", "simulate_realistic", "source_radiance"]
 
 
 def apply_profile(cfg: SimConfig, profile) -> SimConfig:
@@ -112,11 +113,13 @@ def _centred_models(cfg: SimConfig, lens, orbit_bias_m: float, centre_lonlat, ji
     return cfg, build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m, jitter=jitter)
 
 
-def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0):
+def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0, texture_poor=(0.0, 1.0)):
     """Source radiance (array, transform, crs: ``given_source`` or procedural) and the TRUE DEM.
 
     The procedural radiance gets the RMS contrast ``contrast`` of real imagery (0: its own;
-    :func:`sensor_models.simulate.texture_stats.scale_contrast`)."""
+    :func:`sensor_models.simulate.texture_stats.scale_contrast`), then texture-poor patches
+    ``texture_poor = (fraction of the land, attenuation)``
+    (:func:`sensor_models.simulate.texture_poor.texture_poor_cover`; fraction 0: none)."""
     from sensor_models.simulate.procedural import generate_reference
 
     ref = cfg.reference
@@ -139,6 +142,11 @@ def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0)
             from sensor_models.simulate.texture_stats import scale_contrast
 
             dom = scale_contrast(dom, abs(data.dom_transform.a), contrast)[0]
+        if texture_poor[0] > 0.0:
+            from sensor_models.simulate.texture_poor import texture_poor_cover
+
+            dom = texture_poor_cover(dom, abs(data.dom_transform.a), *texture_poor, seed=[cfg.seed, 40],
+                                     water=data.water_mask)[0]
         source = (dom / np.float32(np.percentile(dom, 99.5)), data.dom_transform, data.crs)
     else:
         source = given_source
@@ -455,13 +463,40 @@ def _setup(cfg: SimConfig, profile, dom_path):
         cy = transform.f + 0.5 * radiance.shape[0] * transform.e
         centre = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(cx, cy)
     cfg, models = _centred_models(cfg, lens, float(profile.value("orbit_bias_m")), centre, jitter_spectrum(profile))
-    source, data = _source_and_dem(cfg, models, given, float(profile.value("procedural_rms_contrast")))
+    texture_poor = (float(profile.value("texture_poor_fraction")), float(profile.value("texture_poor_attenuation")))
+    source, data = _source_and_dem(cfg, models, given, float(profile.value("procedural_rms_contrast")), texture_poor)
     true_dem = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
     lon, lat = footprint_lonlat(models.true_model, true_dem.height_range_m)
     check_covers(MapGrid(source[1], source[2], source[0].shape), lon, lat, what="source radiance",
                  path=str(dom_path) if dom_path else None)
     check_covers(MapGrid.of_dem(true_dem), lon, lat, what="DEM", path=None)
     return cfg, models, lens, source, true_dem, data
+
+
+def source_radiance(cfg: SimConfig, profile) -> tuple:
+    """The procedural source radiance a scene of ``cfg`` is rendered from under ``profile`` (before the suns).
+
+    What :func:`simulate_realistic` draws without ``dom_path`` (contrast scaling, texture-poor
+    patches), for measuring it (``bench/bench_texture_stats.py``).
+
+    Parameters
+    ----------
+    cfg : SimConfig
+        Scene configuration.
+    profile : PushbroomProfile
+        A non-ideal profile.
+
+    Returns
+    -------
+    radiance : ndarray of float32, shape (H, W)
+        0..1 (1 at the 99.5th percentile).
+    transform : affine.Affine
+        Pixel-corner affine, UTM metres.
+    water : ndarray of bool, shape (H, W)
+        Sea, lakes and rivers.
+    """
+    _, _, _, source, _, data = _setup(cfg, profile, None)
+    return source[0], source[1], data.water_mask
 
 
 def _truth_record(cfg, profile, models, lens, injected) -> dict:

@@ -8,14 +8,27 @@ calibrated on real crops"):
   radiance (the RMS contrast of Pelli & Bex 2013, Vision Res. 90:10-14), after block-averaging to
   a common ground sample distance;
 * :func:`spectral_slope`: ``beta`` of the radially averaged power spectrum ``P(k) ~ k^-beta``
-  (natural images: 1.88-2.13, van der Schaaf & van Hateren 1996, Vision Res. 36(17):2759-2770).
+  (natural images: 1.88-2.13, van der Schaaf & van Hateren 1996, Vision Res. 36(17):2759-2770);
+* :func:`textured_fraction`: share of ``window x window`` blocks whose relative gradient energy
+  ``mean |grad L|^2 / mean(L)^2`` exceeds :data:`TEXTURED_GRADIENT_ENERGY` (ten times ``2 s^2``,
+  a flat block with a noise of ``s`` = 1 % of its mean, two axes: a margin of 10 over what sensor
+  noise alone gives), i.e. where a phase correlation has structure to lock on;
+* :func:`matcher_gate_fraction`: share of blocks the matcher's own texture gate keeps
+  (:func:`gcpmatch.clouds.low_texture`: block standard deviation at least 0.2 of the median
+  over the image); relative to the image, so it cannot say that a whole image is texture-poor.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["block_average", "block_rms_contrast", "rms_contrast_median", "scale_contrast", "spectral_slope"]
+__all__ = ["TEXTURED_GRADIENT_ENERGY", "block_average", "block_gradient_energy", "block_rms_contrast",
+           "matcher_gate_fraction", "rms_contrast_median", "scale_contrast", "spectral_slope", "textured_fraction",
+           "untextured_gradient_ratio"]
+
+#: relative gradient energy ``mean |grad L|^2 / mean(L)^2`` above which a block has texture:
+#: 10 x (2 x 0.01^2), ten times that of a flat block with 1 % noise (module docstring)
+TEXTURED_GRADIENT_ENERGY = 10.0 * 2.0 * 0.01**2
 
 
 def block_average(data: np.ndarray, valid: np.ndarray, factor: int) -> tuple:
@@ -67,6 +80,123 @@ def block_rms_contrast(data: np.ndarray, valid: np.ndarray | None = None, *, win
     with np.errstate(invalid="ignore", divide="ignore"):
         contrast = d.std(axis=(1, 3)) / mean
     return contrast[ok & (mean > 0) & np.isfinite(contrast)]
+
+
+def _blocks(a: np.ndarray, window: int) -> np.ndarray:
+    """``(H // window, window, W // window, window)`` view of the whole blocks of ``a``."""
+    h, w = (s // window * window for s in a.shape)
+    return a[:h, :w].reshape(h // window, window, w // window, window)
+
+
+def block_gradient_energy(data: np.ndarray, valid: np.ndarray | None = None, *, window: int = 32) -> np.ndarray:
+    """Relative gradient energy ``mean |grad L|^2 / mean(L)^2`` of every fully valid block.
+
+    Parameters
+    ----------
+    data : ndarray, shape (H, W)
+        Radiance (positive); gradients by central differences (``numpy.gradient``), per pixel.
+    valid : ndarray of bool, shape (H, W), optional
+        Blocks with an invalid pixel are left out (default: the finite pixels).
+    window : int
+        Block size, pixels.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        One value per usable block (fully valid, positive mean), row-major; dimensionless, per pixel^2.
+    """
+    data = np.asarray(data, dtype=np.float64)
+    valid = np.isfinite(data) if valid is None else valid
+    gy, gx = np.gradient(data)
+    ok = _blocks(valid, window).all(axis=(1, 3))
+    mean = _blocks(data, window).mean(axis=(1, 3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        energy = _blocks(gx * gx + gy * gy, window).mean(axis=(1, 3)) / mean**2
+    return energy[ok & (mean > 0) & np.isfinite(energy)]
+
+
+def textured_fraction(data: np.ndarray, valid: np.ndarray | None = None, *, window: int = 32,
+                      threshold: float = TEXTURED_GRADIENT_ENERGY) -> float:
+    """Share of the usable blocks whose relative gradient energy exceeds ``threshold``.
+
+    Parameters
+    ----------
+    data : ndarray, shape (H, W)
+        Radiance (positive).
+    valid : ndarray of bool, shape (H, W), optional
+        Blocks with an invalid pixel are left out.
+    window : int
+        Block size, pixels.
+    threshold : float
+        Relative gradient energy of a textured block (default :data:`TEXTURED_GRADIENT_ENERGY`).
+
+    Returns
+    -------
+    float
+        In [0, 1] (NaN when no block is usable).
+    """
+    e = block_gradient_energy(data, valid, window=window)
+    return float(np.mean(e > threshold)) if e.size else float("nan")
+
+
+def untextured_gradient_ratio(data: np.ndarray, valid: np.ndarray | None = None, *, window: int = 32,
+                              threshold: float = TEXTURED_GRADIENT_ENERGY) -> float:
+    """Median relative gradient RMS of the untextured blocks over that of the textured ones.
+
+    How much texture the texture-poor ground of an image keeps (the ``realistic`` profile's
+    ``texture_poor_attenuation`` is this figure on the Sentinel-2 crop).
+
+    Parameters
+    ----------
+    data : ndarray, shape (H, W)
+        Radiance (positive).
+    valid : ndarray of bool, shape (H, W), optional
+        Blocks with an invalid pixel are left out.
+    window : int
+        Block size, pixels.
+    threshold : float
+        Relative gradient energy of a textured block (:func:`textured_fraction`).
+
+    Returns
+    -------
+    float
+        ``sqrt(median E_untextured / median E_textured)`` (NaN without both kinds of block).
+    """
+    e = block_gradient_energy(data, valid, window=window)
+    textured = e > threshold
+    if not textured.any() or textured.all():
+        return float("nan")
+    return float(np.sqrt(np.median(e[~textured]) / np.median(e[textured])))
+
+
+def matcher_gate_fraction(data: np.ndarray, valid: np.ndarray | None = None, *, window: int = 32,
+                          gate: float = 0.2) -> float:
+    """Share of the usable blocks whose standard deviation is at least ``gate`` times the median's.
+
+    The matcher's texture gate (``gcpmatch.clouds.low_texture``, ``MatchOptions.texture_fraction``
+    0.2) applied to blocks of an image.
+
+    Parameters
+    ----------
+    data : ndarray, shape (H, W)
+        Radiance.
+    valid : ndarray of bool, shape (H, W), optional
+        Blocks with an invalid pixel are left out.
+    window : int
+        Block size, pixels.
+    gate : float
+        Share of the median block standard deviation below which a block is featureless.
+
+    Returns
+    -------
+    float
+        In [0, 1] (NaN when no block is usable).
+    """
+    data = np.asarray(data, dtype=np.float64)
+    valid = np.isfinite(data) if valid is None else valid
+    ok = _blocks(valid, window).all(axis=(1, 3))
+    std = _blocks(np.where(valid, data, 0.0), window).std(axis=(1, 3))[ok]
+    return float(np.mean(std >= gate * np.median(std))) if std.size else float("nan")
 
 
 def rms_contrast_median(data: np.ndarray, valid: np.ndarray | None = None, *, window: int = 32) -> float:
