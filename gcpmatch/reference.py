@@ -1,8 +1,9 @@
 """The reference orthoimage resampled into scene geometry, so matching compares like with like.
 
 For each CCD of a band, every scene pixel is intersected with the DEM through the current model
-(:func:`sensor_models.locate.locate_block`: exact model on a node grid, per-pixel DEM
-intersection) and the DOM is sampled there after a Gaussian blur that mimics what one scene
+(:func:`sensor_models.locate.locate_block`: exact model on a node grid every 16 lines and 32
+columns, per-pixel DEM intersection stopped at 1e-3 DOM px of position) and the DOM is sampled
+there after a Gaussian blur that mimics what one scene
 pixel integrates (:func:`sensor_models.psf.psf_sigma_dom_px`). DOMs in any CRS
 and resolution work; DOM no-data and areas outside the DOM or the DEM become NaN.
 """

@@ -11,12 +11,15 @@ Here, for the same straight-ray layers ``u(h) = u_lo + (h - h_lo) du/dh`` (and `
    (1/25 of the pixels for a step of 5); its heights and the slopes ``f'(h)`` of
    ``f(h) = h - D(u(h), v(h))`` there are interpolated bilinearly to every pixel
    (``cv2.resize``: an odd step puts the coarse samples exactly on pixel centres).
-2. **One chord step everywhere** with the interpolated slope: one single-channel DEM sample
-   per pixel, fused with the evaluation of ``u, v``.
+2. **Chord steps everywhere** (two by default) with the interpolated slope: one
+   single-channel DEM sample per pixel and step, in-place passes over reused buffers; the
+   ray's position is advanced by ``d du`` with each step ``d``.
 3. **Convergence mask.** Only the pixels whose step exceeded ``tolerance_m`` (breaks of slope,
    ridges, the DEM's edge, starts the coarse grid could not give) take further full Newton
    steps (height and gradient sampled), gathered into compact arrays, until their step is
-   below ``tolerance_m`` or ``max_refine_steps`` is reached.
+   below ``tolerance_m`` or ``max_refine_steps`` is reached. A caller that needs positions
+   rather than heights passes the height tolerance that bounds the horizontal error
+   (:func:`sensor_models.locate.height_tolerance_for_position`).
 
 Error bound: a chord or Newton step of size ``|d|`` leaves an error of at most
 ``|d| q / (1 - q)``, where ``q`` is the step's contraction factor (``|1 - f'/s|`` for a chord

@@ -307,8 +307,8 @@ def locate_block(
     node_step_cols : int, optional
         Spacing of the nodes across the columns, in pixels (default ``node_step``). Across a
         CCD the geometry follows the interior model (a cubic in the detector index) and the
-        Earth's curvature; 32 columns leave it within 1e-3 DOM px on the fixture, where
-        the lines carry the attitude (``tests/test_locate.py``).
+        Earth's curvature, smoother than the attitude along the lines: the reference chips use
+        32 (docs/speed.md section 1; ``tests/test_locate.py``, ``tests/test_speed_paths.py``).
     height_margin_m : float
         Margin added to the DEM's height range for the two localization layers, metres.
     newton_iterations : int
@@ -316,9 +316,10 @@ def locate_block(
     tolerance_m : float, optional
         None (default): ``newton_iterations`` fixed steps on every pixel. A height in metres
         (e.g. :data:`HEIGHT_TOLERANCE_M`): the adaptive solver of
-        :func:`sensor_models.dem_intersect.intersect_dem_adaptive` (coarse-grid start, one
-        step everywhere, more steps only where the last one exceeded ``tolerance_m``), about
-        3x faster at the same accuracy (``bench/bench_match.py --stages``).
+        :func:`sensor_models.dem_intersect.intersect_dem_adaptive` (coarse-grid start, two
+        chord steps everywhere, Newton steps only where the last step exceeded
+        ``tolerance_m``), several times faster at the same accuracy
+        (``bench/bench_stages.py``).
     position_tolerance_m : float, optional
         With ``tolerance_m``: the adaptive solver stops where the bound on the horizontal
         position error is below this (metres on the ground) rather than the height error,
