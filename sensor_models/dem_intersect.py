@@ -165,7 +165,8 @@ def _coarse_start(dem, u_lo, v_lo, du, dv, h_lo, step, fixed_solver):
     s = cv2.remap(dem_planes(dem), uc, vc, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                   borderValue=(np.nan, np.nan, np.nan))
     slope_c = 1.0 - (s[..., 1] * cdu + s[..., 2] * cdv)
-    inv_c = np.where(slope_c > 0.25, 1.0 / slope_c, 1.0).astype(np.float32)  # NaN slopes fail the test
+    with np.errstate(divide="ignore", invalid="ignore"):  # NaN and small slopes fail the test
+        inv_c = np.where(slope_c > 0.25, 1.0 / slope_c, 1.0).astype(np.float32)
     tc = hc - h_lo
     tc[~np.isfinite(tc)] = mid
     size = (ci.size * step, ri.size * step)
