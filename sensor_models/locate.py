@@ -240,7 +240,7 @@ class MapProjector:
     def __init__(self, grid: MapGrid):
         self.grid = grid
         crs = grid.crs if isinstance(grid.crs, pyproj.CRS) else pyproj.CRS.from_user_input(grid.crs)
-        self.to_crs = _transformer_from_wgs84(crs.srs)
+        self.to_crs = _transformer_from_wgs84(crs.srs or crs.to_wkt())
         self.index = grid.index_affine()
 
     def __call__(self, lon, lat):
