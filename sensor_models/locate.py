@@ -338,6 +338,9 @@ def locate_block(
     col1 = first + width if col1 is None else int(col1)
     if not (row1 > row0 and col1 > col0):
         raise InputError(f"empty block rows {row0}..{row1}, cols {col0}..{col1}")
+    if position_tolerance_m is not None and tolerance_m is None:
+        raise InputError("position_tolerance_m needs the adaptive solver: give tolerance_m too",
+                         field="position_tolerance_m")
     h_min, h_max = dem.height_range_m
     h_lo, h_hi = h_min - height_margin_m, h_max + height_margin_m
     # grids in the DEM's CRS follow from the DEM indices by an affine map; others need PROJ

@@ -189,7 +189,8 @@ def test_chip_settings_agree_with_the_per_pixel_path_on_steep_oblique_relief(ste
 
 def test_height_tolerance_for_position_follows_the_view_angle(layers, scene):
     """The height tolerance is the position tolerance over the block's largest tan z; a
-    vertical ray gets no height bound, a position tolerance of zero is refused."""
+    vertical ray gets no height bound; a position tolerance of zero, or one without the
+    adaptive solver, is refused."""
     from sensor_models.errors import InputError
     from sensor_models.locate import height_tolerance_for_position
 
@@ -202,6 +203,9 @@ def test_height_tolerance_for_position_follows_the_view_angle(layers, scene):
     assert height_tolerance_for_position(dem, zero, zero, 0.015) == np.inf
     with pytest.raises(InputError, match="position_tolerance_m"):
         height_tolerance_for_position(dem, lay[2], lay[3], 0.0)
+    model, _, dom = scene
+    with pytest.raises(InputError, match="position_tolerance_m"):  # the fixed solver has no tolerance
+        locate_block(model, dem, [dom.grid], band=BAND, ccd=0, row0=0, row1=8, position_tolerance_m=0.015)
 
 
 def test_blocked_row_interpolation_equals_the_catmull_rom_matrix():
