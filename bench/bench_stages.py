@@ -7,13 +7,15 @@ the same inputs. Stages:
 
 * ``reference``: the matcher's reference chips (:func:`gcpmatch.reference.reference_for_ccd`
   on every CCD, one worker; before = the base revision's whole chip pipeline), its DOM sampling
-  (read, blur, remap) and ``locate_block`` shares and the DEM intersection alone;
+  (read, blur, remap) and ``locate_block`` shares (with the chips' settings, and the per-pixel
+  path they are checked against) and the DEM intersection alone;
 * ``clouds``: the cloud detector (:func:`gcpmatch.clouds.detect_clouds`) on every CCD of the
   (cloud-free) scene against its reference, and on a copy with synthetic clouds.
 
 The scene is the one :mod:`bench.bench_match` simulates (``--rows``, ``--detectors``).
 
-Usage: ``python bench/bench_stages.py [--rows 2000] [--detectors 512] [--repeat 3] [--stages reference,clouds]``
+Usage: ``python bench/bench_stages.py [--rows 2000] [--detectors 512] [--repeat 3] [--stages reference,clouds]
+[--exact]`` (``--exact``: the chips' positions against the model's exact per-pixel localization).
 Writes ``bench/results/match_stages.json``.
 """
 
@@ -96,11 +98,14 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
     def loc(fn, **kw):
         return lambda: [fn(model, dem, [dom.grid], band=band, ccd=c, row0=a, row1=b, **kw) for c, a, b in blocks]
 
-    t_loc, loc_out = alternate({"before": loc(base.locate_block),
-                                "after": loc(locate.locate_block, tolerance_m=locate.HEIGHT_TOLERANCE_M)}, repeat)
+    # "after" = the chips' settings; "per_pixel" = the adaptive path with a 1 mm height tolerance
+    # and 16-column nodes (session 5's chips), the path the chips' settings are checked against
+    t_loc, loc_out = alternate({"before": loc(base.locate_block), "after": loc(locate.locate_block, **chip_settings(dom)),
+                                "per_pixel": loc(locate.locate_block, tolerance_m=locate.HEIGHT_TOLERANCE_M)}, repeat)
     d_uv = np.concatenate([np.hypot(p.uv[0][0] - q.uv[0][0], p.uv[0][1] - q.uv[0][1]).ravel()
                            for p, q in zip(loc_out["before"], loc_out["after"])])
     d_h = np.concatenate([(p.h_m - q.h_m).ravel() for p, q in zip(loc_out["before"], loc_out["after"])])
+    d_pp = position_differences(loc_out["per_pixel"], loc_out["after"])
 
     # the intersection alone, on the layers each version builds
     h_lo = np.float32(dem.height_range_m[0] - 50.0)
@@ -110,16 +115,19 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
     c0, c1 = look.first_col, look.first_col + look.n_detectors
     lay_b = base._pixel_layers(model, kw, [base.MapProjector(base.MapGrid.of_dem(dem))], 0, 512, c0, c1, 16.0,
                                float(h_lo), h_hi)[0]
+    cols = float(reference.NODE_STEP_COLS)  # the chips' settings
     lay_a = locate._pixel_layers(model, kw, [locate.MapProjector(locate.MapGrid.of_dem(dem))], 0, 512, c0, c1, 16.0,
-                                 float(h_lo), h_hi)[0]
+                                 float(h_lo), h_hi, col_step=cols)[0]
+    tol = max(locate.HEIGHT_TOLERANCE_M, locate.height_tolerance_for_position(
+        dem, lay_a[2], lay_a[3], chip_settings(dom)["position_tolerance_m"]))
     t_int, _ = alternate({"before": lambda: base._intersect_dem(dem, *lay_b, h_lo, 4),
-                          "after": lambda: intersect_dem_adaptive(dem, *lay_a, h_lo,
-                                                                  tolerance_m=locate.HEIGHT_TOLERANCE_M)}, repeat * 3)
+                          "after": lambda: intersect_dem_adaptive(dem, *lay_a, h_lo, tolerance_m=tol)}, repeat * 3)
     t_lay, _ = alternate({"before": lambda: base._pixel_layers(model, kw, [base.MapProjector(base.MapGrid.of_dem(dem))],
                                                               0, 512, c0, c1, 16.0, float(h_lo), h_hi),
                           "after": lambda: locate._pixel_layers(model, kw,
                                                                [locate.MapProjector(locate.MapGrid.of_dem(dem))],
-                                                               0, 512, c0, c1, 16.0, float(h_lo), h_hi)}, repeat * 3)
+                                                               0, 512, c0, c1, 16.0, float(h_lo), h_hi,
+                                                               col_step=cols)}, repeat * 3)
     return {
         "pixels": int(sum(a.size for a in chips_out["after"])),
         "reference_chips_s": t_chips, "reference_chips_speedup": t_chips["before"] / t_chips["after"],
@@ -128,6 +136,8 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
         "locate_block_s": t_loc, "locate_block_speedup": t_loc["before"] / t_loc["after"],
         "intersection_512_lines_s": t_int, "intersection_speedup": t_int["before"] / t_int["after"],
         "pixel_layers_512_lines_s": t_lay, "pixel_layers_speedup": t_lay["before"] / t_lay["after"],
+        "locate_block_settings": {k: float(v) for k, v in chip_settings(dom).items()},
+        "locate_block_vs_per_pixel": d_pp,
         "accuracy_vs_before": {
             "uv_dom_px_max": float(np.nanmax(d_uv)), "uv_dom_px_rms": float(np.sqrt(np.nanmean(d_uv**2))),
             "h_m_max": float(np.nanmax(np.abs(d_h))), "h_m_rms": float(np.sqrt(np.nanmean(d_h**2))),
@@ -137,6 +147,49 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
                                               for a, b in zip(chips_out["before"], chips_out["after"]))),
         },
     }
+
+
+def chip_settings(dom) -> dict:
+    """The ``locate_block`` keywords :func:`gcpmatch.reference.reference_for_ccd` uses."""
+    import gcpmatch.reference as reference
+    import sensor_models.locate as locate
+
+    return {"tolerance_m": locate.HEIGHT_TOLERANCE_M, "node_step_cols": reference.NODE_STEP_COLS,
+            "position_tolerance_m": reference.POSITION_TOLERANCE_DOM_PX * dom.grid.resolution_m}
+
+
+def position_differences(reference_blocks, blocks) -> dict:
+    """Max and RMS distance (first grid's pixels) between two lists of PixelGround, NaN count."""
+    e = np.concatenate([np.hypot(p.uv[0][0] - q.uv[0][0], p.uv[0][1] - q.uv[0][1]).ravel()
+                        for p, q in zip(reference_blocks, blocks)])
+    nan_differ = sum(int(np.count_nonzero(np.isnan(p.uv[0][0]) != np.isnan(q.uv[0][0])))
+                     for p, q in zip(reference_blocks, blocks))
+    ok = np.isfinite(e)
+    return {"pixels": int(ok.sum()), "dom_px_max": float(e[ok].max()), "dom_px_rms": float(np.sqrt(np.mean(e[ok] ** 2))),
+            "nan_pixels_differ": nan_differ}
+
+
+def bench_exact(model, dem, dom, band: str = "B2") -> dict:
+    """Positions of every pixel against the model's exact per-pixel localization.
+
+    ``image_to_ground(row, col, dem=dem)`` (first crossing, heights to 1e-4 m) projected into the
+    DOM grid, against the chips' settings and the per-pixel adaptive path (1 mm, 16-column nodes).
+    """
+    import sensor_models.locate as locate
+
+    project = locate.MapProjector(dom.grid)
+    rows = model.image_shape[0]
+    out = {"chips": [], "per_pixel": []}
+    for c, look in enumerate(model.detector_arrays(band)):
+        for a in range(0, rows, 512):
+            b = min(rows, a + 512)
+            rr, cc = np.meshgrid(np.arange(a, b) + 0.5, look.first_col + np.arange(look.n_detectors) + 0.5, indexing="ij")
+            lon, lat, _ = model.image_to_ground(rr.ravel(), cc.ravel(), dem=dem, band=band, ccd=c)
+            u, v = project(lon, lat)
+            exact = locate.PixelGround(None, [(u.reshape(rr.shape), v.reshape(rr.shape))])
+            for k, kw in (("chips", chip_settings(dom)), ("per_pixel", {"tolerance_m": locate.HEIGHT_TOLERANCE_M})):
+                out[k].append((exact, locate.locate_block(model, dem, [dom.grid], band=band, ccd=c, row0=a, row1=b, **kw)))
+    return {k: position_differences(*zip(*pairs)) for k, pairs in out.items()}
 
 
 def bench_sampling(model, dem, dom, dom_before, base_raster, band: str, n_ccd: int, repeat: int) -> dict:
@@ -167,6 +220,8 @@ def main():
     ap.add_argument("--detectors", type=int, default=512)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--stages", default="reference,clouds")
+    ap.add_argument("--exact", action="store_true",
+                    help="also compare the chips' locate_block with the model's exact per-pixel localization")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "match_stages.json")
     args = ap.parse_args()
     import cv2
@@ -185,6 +240,15 @@ def main():
               f"  x{r['reference_chips_one_session_speedup']:.2f}")
         print(f"   DOM sampling {r['dom_sampling_s']['before']:.2f} s -> {r['dom_sampling_s']['after']:.2f} s"
               f"  x{r['dom_sampling_speedup']:.2f}")
+        pp = r["locate_block_vs_per_pixel"]
+        print(f"   locate_block {r['locate_block_s']['before']:.2f} s -> {r['locate_block_s']['after']:.2f} s "
+              f"(per-pixel path {r['locate_block_s']['per_pixel']:.2f} s); chips' settings vs per-pixel path: "
+              f"max {pp['dom_px_max']:.1e}, rms {pp['dom_px_rms']:.1e} DOM px, NaN differ {pp['nan_pixels_differ']}")
+        if args.exact:
+            r["vs_exact_model"] = ex = bench_exact(model, dem, dom)
+            for k, e in ex.items():
+                print(f"   {k} vs the exact model: max {e['dom_px_max']:.1e}, rms {e['dom_px_rms']:.1e} DOM px, "
+                      f"NaN differ {e['nan_pixels_differ']}")
         print(f"   vs before: uv max {r['accuracy_vs_before']['uv_dom_px_max']:.1e} DOM px, "
               f"h max {r['accuracy_vs_before']['h_m_max'] * 1e3:.2f} mm, chips max {r['accuracy_vs_before']['chip_dn_max']:.3f} DN "
               f"(DN std {r['accuracy_vs_before']['chip_dn_std']:.0f}), NaN pixels differ "

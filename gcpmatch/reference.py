@@ -1,8 +1,9 @@
 """The reference orthoimage resampled into scene geometry, so matching compares like with like.
 
 For each CCD of a band, every scene pixel is intersected with the DEM through the current model
-(:func:`sensor_models.locate.locate_block`: exact model on a node grid, per-pixel DEM
-intersection) and the DOM is sampled there after a Gaussian blur that mimics what one scene
+(:func:`sensor_models.locate.locate_block`: exact model on a node grid every 16 lines and 32
+columns, per-pixel DEM intersection stopped at 1e-3 DOM px of position) and the DOM is sampled
+there after a Gaussian blur that mimics what one scene
 pixel integrates (:func:`sensor_models.psf.psf_sigma_dom_px`). DOMs in any CRS
 and resolution work; DOM no-data and areas outside the DOM or the DEM become NaN.
 """
@@ -15,7 +16,16 @@ from sensor_models.locate import HEIGHT_TOLERANCE_M, locate_block
 from sensor_models.psf import psf_sigma_dom_px
 from sensor_models.raster import MapImage, sample_map_image
 
-__all__ = ["grid_resolution_m", "reference_for_ccd", "reference_for_image", "scene_gsd_m"]
+__all__ = ["POSITION_TOLERANCE_DOM_PX", "grid_resolution_m", "reference_for_ccd", "reference_for_image",
+           "scene_gsd_m"]
+
+#: the DEM intersection of the chips stops once its bound on the horizontal position error is
+#: below this many DOM pixels (``locate_block(position_tolerance_m=...)``): a tenth of the
+#: 0.01 DOM px the chips may differ from the exact model, far below the matcher's 0.005 px noise
+POSITION_TOLERANCE_DOM_PX = 1e-3
+#: the chips' exactly localized nodes lie every 16 lines (the attitude) and every 32 columns
+#: (the interior model across a CCD is smoother: tests/test_locate.py)
+NODE_STEP_COLS = 32
 
 
 def grid_resolution_m(grid) -> float:
@@ -98,10 +108,12 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
     look = model.detector_arrays(band)[ccd]
     sigma = psf_sigma_dom_px(scene_gsd_m(model, band=band), grid_resolution_m(dom.grid), psf_sigma_px)
     out = np.empty((row1 - row0, look.n_detectors), dtype=np.float32)
+    position_tolerance_m = POSITION_TOLERANCE_DOM_PX * grid_resolution_m(dom.grid)
 
     def render(a):
         b = min(row1, a + block_lines)
-        pg = locate_block(model, dem, [dom.grid], band=band, ccd=ccd, row0=a, row1=b, tolerance_m=HEIGHT_TOLERANCE_M)
+        pg = locate_block(model, dem, [dom.grid], band=band, ccd=ccd, row0=a, row1=b, node_step_cols=NODE_STEP_COLS,
+                          tolerance_m=HEIGHT_TOLERANCE_M, position_tolerance_m=position_tolerance_m)
         u, v = pg.uv[0]
         out[a - row0 : b - row0] = sample_map_image(dom, u, v, sigma_px=sigma, exact_weights=False)
 

@@ -11,12 +11,15 @@ Here, for the same straight-ray layers ``u(h) = u_lo + (h - h_lo) du/dh`` (and `
    (1/25 of the pixels for a step of 5); its heights and the slopes ``f'(h)`` of
    ``f(h) = h - D(u(h), v(h))`` there are interpolated bilinearly to every pixel
    (``cv2.resize``: an odd step puts the coarse samples exactly on pixel centres).
-2. **One chord step everywhere** with the interpolated slope: one single-channel DEM sample
-   per pixel, fused with the evaluation of ``u, v``.
+2. **Chord steps everywhere** (two by default) with the interpolated slope: one
+   single-channel DEM sample per pixel and step, in-place passes over reused buffers; the
+   ray's position is advanced by ``d du`` with each step ``d``.
 3. **Convergence mask.** Only the pixels whose step exceeded ``tolerance_m`` (breaks of slope,
    ridges, the DEM's edge, starts the coarse grid could not give) take further full Newton
    steps (height and gradient sampled), gathered into compact arrays, until their step is
-   below ``tolerance_m`` or ``max_refine_steps`` is reached.
+   below ``tolerance_m`` or ``max_refine_steps`` is reached. A caller that needs positions
+   rather than heights passes the height tolerance that bounds the horizontal error
+   (:func:`sensor_models.locate.height_tolerance_for_position`).
 
 Error bound: a chord or Newton step of size ``|d|`` leaves an error of at most
 ``|d| q / (1 - q)``, where ``q`` is the step's contraction factor (``|1 - f'/s|`` for a chord
@@ -71,48 +74,88 @@ def intersect_dem_adaptive(dem, u_lo, v_lo, du, dv, h_lo, *, tolerance_m: float 
     if not tolerance_m > 0:
         raise ValueError(f"tolerance_m must be > 0, got {tolerance_m}")
     h_lo = np.float32(h_lo)
-    t, slope = _coarse_start(dem, u_lo, v_lo, du, dv, h_lo, int(coarse_step), _intersect_dem)
+    t, inv_slope = _coarse_start(dem, u_lo, v_lo, du, dv, h_lo, int(coarse_step), _intersect_dem)
     heights = _dem_heights(dem)
-    u = np.empty_like(u_lo)
-    v = np.empty_like(v_lo)
-    d = None
-    for _ in range(max(1, int(chord_steps))):  # chord steps everywhere; t is the height above h_lo
-        np.multiply(t, du, out=u)
-        u += u_lo
-        np.multiply(t, dv, out=v)
-        v += v_lo
-        d = cv2.remap(heights, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    u = np.empty(u_lo.shape, dtype=np.float32)
+    v = np.empty(v_lo.shape, dtype=np.float32)
+    d = np.empty(u_lo.shape, dtype=np.float32)
+    scratch = np.empty(u_lo.shape, dtype=np.float32)
+    _ray_at(t, u_lo, v_lo, du, dv, u, v)
+    n_steps = max(1, int(chord_steps))
+    for k in range(n_steps):  # chord steps everywhere; t is the height above h_lo
+        cv2.remap(heights, u, v, cv2.INTER_LINEAR, dst=d, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
         d -= h_lo
         d -= t
-        d /= slope
+        d *= inv_slope
         t += d
-    np.abs(d, out=d)
-    todo = np.flatnonzero(~(d <= np.float32(tolerance_m)) & np.isfinite(t))
+        if k == n_steps - 1:  # NaN steps (outside the DEM) are not refined: their height stays NaN
+            todo = np.flatnonzero(np.abs(d, out=scratch) > np.float32(tolerance_m))
+        _advance(u, v, d, du, dv, scratch)
     if todo.size:
         _refine(dem, t, u_lo, v_lo, du, dv, h_lo, todo, tolerance_m, max_refine_steps)
-    np.multiply(t, du, out=u)
-    u += u_lo
-    np.multiply(t, dv, out=v)
-    v += v_lo
+        idx = (todo // t.shape[1], todo % t.shape[1])
+        tt = t[idx]
+        u[idx] = u_lo[idx] + tt * du[idx]
+        v[idx] = v_lo[idx] + tt * dv[idx]
     t += h_lo
-    rows, cols = dem.shape
-    bad = ~((u >= 0) & (u <= cols - 1) & (v >= 0) & (v <= rows - 1) & np.isfinite(t))
-    t[bad] = np.nan
-    u[bad] = np.nan
-    v[bad] = np.nan
+    _mask_outside(dem.shape, t, u, v)
     return t, u, v
 
 
-def _coarse_start(dem, u_lo, v_lo, du, dv, h_lo, step, fixed_solver):
-    """Start heights (above ``h_lo``) and chord slopes of every pixel, from the coarse grid.
+def _ray_at(t, u_lo, v_lo, du, dv, u, v) -> None:
+    """``u = u_lo + t du`` and ``v = v_lo + t dv`` into the given arrays.
 
-    Pixels whose interpolated start is not finite (next to the DEM's edge) start at mid-height
-    with slope 1, as the fixed solver does.
+    Copy, then in-place products and sums: on the development machine an in-place operation
+    on two arrays costs less than half of one writing a third array.
+    """
+    np.copyto(u, du)
+    u *= t
+    u += u_lo
+    np.copyto(v, dv)
+    v *= t
+    v += v_lo
+
+
+def _advance(u, v, d, du, dv, scratch) -> None:
+    """``u += d du`` and ``v += d dv`` in place, after a height step ``d`` (consumed)."""
+    np.copyto(scratch, d)
+    scratch *= du
+    u += scratch
+    d *= dv
+    v += d
+
+
+def _mask_outside(dem_shape, h, u, v) -> None:
+    """Set ``h, u, v`` to NaN (in place) where ``(u, v)`` leaves the DEM's nodes or ``h`` is NaN.
+
+    Four reductions decide the usual case (every pixel inside: nothing to mask; a NaN height
+    makes ``u`` NaN, which fails the test); the per-pixel mask runs only otherwise.
+    """
+    rows, cols = dem_shape
+    if u.min() >= 0 and u.max() <= cols - 1 and v.min() >= 0 and v.max() <= rows - 1:
+        return
+    bad = ~((u >= 0) & (u <= cols - 1) & (v >= 0) & (v <= rows - 1) & np.isfinite(h))
+    h[bad] = np.nan
+    u[bad] = np.nan
+    v[bad] = np.nan
+
+
+def _coarse_start(dem, u_lo, v_lo, du, dv, h_lo, step, fixed_solver):
+    """Start heights (above ``h_lo``) and inverse chord slopes of every pixel, from the coarse grid.
+
+    The fixed solver runs on every ``step``-th pixel; its heights and the inverse slopes
+    ``1 / f'(h)`` there are interpolated bilinearly (``cv2.resize``). Coarse samples whose
+    solution is not finite (next to the DEM's edge) start at mid-height, and grazing rays
+    (``f' <= 1/4``) take plain fixed-point steps (inverse slope 1), as in the fixed solver; both
+    are settled on the coarse grid, so the interpolated starts and slopes are finite and the
+    inverse slopes lie in ``(0, 4]``. Returns float32 arrays of the block's shape (views with
+    C-contiguous rows).
     """
     n_lines, n_cols = u_lo.shape
     h_min, h_max = dem.height_range_m
+    mid = np.float32(0.5 * (h_min + h_max) - h_lo)
     if step <= 1 or n_lines < 2 * step or n_cols < 2 * step:
-        t = np.full(u_lo.shape, 0.5 * (h_min + h_max) - h_lo, dtype=np.float32)
+        t = np.full(u_lo.shape, mid, dtype=np.float32)
         return t, np.ones_like(t)
     ri = np.minimum(np.arange(step // 2, n_lines + step - 1, step)[: -(-n_lines // step)], n_lines - 1)
     ci = np.minimum(np.arange(step // 2, n_cols + step - 1, step)[: -(-n_cols // step)], n_cols - 1)
@@ -122,31 +165,33 @@ def _coarse_start(dem, u_lo, v_lo, du, dv, h_lo, step, fixed_solver):
     s = cv2.remap(dem_planes(dem), uc, vc, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                   borderValue=(np.nan, np.nan, np.nan))
     slope_c = 1.0 - (s[..., 1] * cdu + s[..., 2] * cdv)
+    with np.errstate(divide="ignore", invalid="ignore"):  # NaN and small slopes fail the test
+        inv_c = np.where(slope_c > 0.25, 1.0 / slope_c, 1.0).astype(np.float32)
+    tc = hc - h_lo
+    tc[~np.isfinite(tc)] = mid
     size = (ci.size * step, ri.size * step)
-    t = cv2.resize(hc - h_lo, size, interpolation=cv2.INTER_LINEAR)[:n_lines, :n_cols]
-    slope = cv2.resize(slope_c, size, interpolation=cv2.INTER_LINEAR)[:n_lines, :n_cols]
-    t = np.ascontiguousarray(t)
-    slope = np.ascontiguousarray(slope)
-    lost = ~np.isfinite(t)
-    if lost.any():
-        t[lost] = 0.5 * (h_min + h_max) - h_lo
-    slope[~(slope > 0.25)] = 1.0  # grazing rays and lost starts: plain fixed-point steps
-    return t, slope
+    t = cv2.resize(tc, size, interpolation=cv2.INTER_LINEAR)[:n_lines, :n_cols]
+    inv_slope = cv2.resize(inv_c, size, interpolation=cv2.INTER_LINEAR)[:n_lines, :n_cols]
+    return t, inv_slope
 
 
 def _refine(dem, t, u_lo, v_lo, du, dv, h_lo, todo, tolerance_m, max_steps):
-    """Newton steps on the flat pixel indices ``todo`` of ``t`` (updated in place) until converged."""
+    """Newton steps on the flat pixel indices ``todo`` of ``t`` (updated in place) until converged.
+
+    The arrays may be views with C-contiguous rows (not one flat buffer): pixels are gathered
+    and scattered by (row, column) pairs.
+    """
     planes = dem_planes(dem)
-    tf = t.reshape(-1)
-    ul, vl, dul, dvl = (a.reshape(-1) for a in (u_lo, v_lo, du, dv))
+    n_cols = t.shape[1]
     for _ in range(max_steps):
-        tt = tf[todo]
-        a, b = dul[todo], dvl[todo]
-        s = _sample_compact(planes, ul[todo] + tt * a, vl[todo] + tt * b)
+        idx = (todo // n_cols, todo % n_cols)
+        tt = t[idx]
+        a, b = du[idx], dv[idx]
+        s = _sample_compact(planes, u_lo[idx] + tt * a, v_lo[idx] + tt * b)
         slope = 1.0 - (s[:, 1] * a + s[:, 2] * b)
         slope[~(slope > 0.25)] = 1.0
         step = (s[:, 0] - h_lo - tt) / slope
-        tf[todo] = tt + step
+        t[idx] = tt + step
         keep = ~(np.abs(step) <= tolerance_m) & np.isfinite(step)
         todo = todo[keep]
         if not todo.size:
@@ -227,15 +272,9 @@ def _intersect_dem(dem, u_lo, v_lo, du, dv, h_lo, iterations: int):
         d_h -= h
         d_h /= slope
         h += d_h
-    np.multiply(h, du, out=u)
-    u += u_lo
-    np.multiply(h, dv, out=v)
-    v += v_lo
+    _ray_at(h, u_lo, v_lo, du, dv, u, v)
     h += h_lo
-    bad = ~((u >= 0) & (u <= cols - 1) & (v >= 0) & (v <= rows - 1) & np.isfinite(h))
-    h[bad] = np.nan
-    u[bad] = np.nan
-    v[bad] = np.nan
+    _mask_outside((rows, cols), h, u, v)
     return h, u, v
 
 
