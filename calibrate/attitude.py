@@ -22,6 +22,7 @@ without time-varying attitude error keeps the static solution.
 from __future__ import annotations
 
 import numpy as np
+import scipy.linalg
 
 from sensor_models.attitude_correction import AXES, AttitudeCorrection
 
@@ -210,15 +211,19 @@ def _normal_equations(jac_delta, seconds, residuals, weights, correction):
     normal = np.zeros((3, k, 3, k))
     rhs = np.zeros((3, k))
     m = index.shape[1]
+    pairs = [(a, b) for a in range(3) for b in range(a, 3)]  # the 3x3 blocks are symmetric
     for p in range(m):
         for a in range(3):
             rhs[a] += np.bincount(index[:, p], value[:, p] * grad[:, a], minlength=k)
-        for q in range(m):
+        for q in range(p, m):  # the (q, p) term is the (p, q) term transposed in (j, l)
             flat = index[:, p] * k + index[:, q]
             vv = value[:, p] * value[:, q]
-            for a in range(3):
-                for b in range(3):
-                    normal[a, :, b, :] += np.bincount(flat, vv * block[:, a, b], minlength=k * k).reshape(k, k)
+            for a, b in pairs:
+                t = np.bincount(flat, vv * block[:, a, b], minlength=k * k).reshape(k, k)
+                normal[a, :, b, :] += t if q == p else t + t.T
+    for a, b in pairs:
+        if a != b:
+            normal[b, :, a, :] = normal[a, :, b, :]  # sum_i phi_j phi_l B_ab is symmetric in (j, l)
     return normal.reshape(3 * k, 3 * k), rhs.reshape(-1), k
 
 
@@ -236,8 +241,12 @@ def _ridge(correction, k, yaw_sigma_rad=None):
 def _ridge_solution(normal, rhs, ridge):
     """Coefficients, ``(N + R)^-1`` and the hat matrix's trace of a ridge least squares."""
     d = 1.0 / np.sqrt(np.maximum(np.diag(normal) + ridge, 1e-300))
-    val, vec = np.linalg.eigh(d[:, None] * (normal + np.diag(ridge)) * d[None, :])
-    inv = (vec / np.maximum(val, val.max() * 1e-14)) @ vec.T
+    scaled = d[:, None] * (normal + np.diag(ridge)) * d[None, :]
+    try:  # positive definite with the ridge: Cholesky, a fraction of an eigendecomposition's cost
+        inv = scipy.linalg.cho_solve(scipy.linalg.cho_factor(scaled), np.eye(scaled.shape[0]))
+    except np.linalg.LinAlgError:  # numerically singular: the clipped eigendecomposition
+        val, vec = np.linalg.eigh(scaled)
+        inv = (vec / np.maximum(val, val.max() * 1e-14)) @ vec.T
     coef = d * (inv @ (d * rhs))
     dof = float(np.sum(inv * (d[:, None] * normal * d[None, :])))
     return coef, d[:, None] * inv * d[None, :], dof
