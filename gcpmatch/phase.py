@@ -47,7 +47,12 @@ Algorithm (vectorized over a batch of pairs)
    shifts in 64 px windows). A following pass re-apodizes the moving window with the taper
    translated by the current estimate (:func:`following_windows`), so both windows weight the
    same ground content, and recomputes ``Q`` (the reference spectrum is reused).
-5. Sub-pixel refinement of the last ``Q`` by the matrix-multiply DFT of Guizar-Sicairos,
+5. Sub-pixel refinement of the last ``Q``. Default (``upsample=None``): Newton steps on the
+   continuous surface ``q(x, y)`` (its value, gradient and Hessian are separable sums over
+   ``Q`` with powers of the frequencies: :mod:`gcpmatch.phase_newton`) from the coarse peak,
+   until every step of the batch is below 0.01 px (two steps from the parabolic start; the
+   maximum is then reached to about 1e-5 px). With an integer ``upsample = U``: the
+   matrix-multiply DFT of Guizar-Sicairos,
    Thurman & Fienup, "Efficient subpixel image registration algorithms", Opt. Lett.
    33(2):156-158 (2008), eq. 3 and the text after it: ``q`` is evaluated exactly on an
    upsampled grid in a 1.5 x 1.5 px neighbourhood of the current estimate ``c``,
@@ -87,6 +92,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
+from gcpmatch.phase_newton import NEWTON_MAX_ITERATIONS, newton_refine
 from sensor_models.errors import InputError
 
 __all__ = ["MIN_WINDOW_PX", "NULL_SIGMA_FACTOR", "PhaseMatches", "Reject", "following_windows", "make_plan", "phase_correlate"]
@@ -189,7 +195,7 @@ class _Plan:
     multiplicity: np.ndarray  # (Wh,) 1 or 2: Hermitian multiplicity of half-spectrum columns
     freq_row: np.ndarray  # (H,) float64 signed integer frequencies k1
     freq_col: np.ndarray  # (Wh,) float64 integer frequencies k2 >= 0
-    stages: tuple[_Stage, ...]
+    stages: tuple[_Stage, ...]  # DFT-upsampling stages; empty for the Newton refinement
     exclusion_px: int
     eps: float
 
@@ -198,7 +204,7 @@ class _Plan:
         return np.dtype(np.complex64 if self.dtype == np.float32 else np.complex128)
 
 
-def phase_correlate(reference, moving, *, upsample: int = 100, window: str | np.ndarray | None = "hann",
+def phase_correlate(reference, moving, *, upsample: int | None = None, window: str | np.ndarray | None = "hann",
                     tukey_alpha: float = 0.5, lowpass: float | None = None, eps: float = 0.5, follow: int = 1,
                     min_score: float | None = None, min_peak_ratio: float = 2.0, max_shift_px=None,
                     exclusion_px: int | None = None, stage1_upsample: int | None = None, dtype: str = "float32",
@@ -211,9 +217,10 @@ def phase_correlate(reference, moving, *, upsample: int = 100, window: str | np.
     reference, moving : array_like, shape (N, H, W) or (H, W)
         Reference and moving windows: real numbers of any dtype, finite, ``H, W >= 8``.
         A single pair may be given as two (H, W) arrays (the result then has N = 1).
-    upsample : int
-        Factor ``U`` of the last DFT-upsampling stage (grid spacing ``1/U`` px; the quadratic
-        vertex then refines within the grid).
+    upsample : int or None
+        ``None``: Newton refinement on the continuous surface (module docstring, step 5). An
+        integer ``U``: refinement on DFT-upsampled grids, the last of spacing ``1/U`` px (the
+        quadratic vertex then refines within the grid).
     window : {"hann", "tukey", "none"} or ndarray (H, W)
         Apodization applied to both windows after the weighted mean is removed.
     tukey_alpha : float
@@ -239,7 +246,7 @@ def phase_correlate(reference, moving, *, upsample: int = 100, window: str | np.
         peak; ``None`` = 2, widened to ``ceil(3 sigma_x)`` with a low-pass of spatial
         standard deviation ``sigma_x = 1 / (2 pi lowpass)``.
     stage1_upsample : int or None
-        Factor of the first of two refinement stages; ``None`` = ``round(sqrt(U))`` when
+        With an integer ``upsample`` only: factor of the first of two refinement stages; ``None`` = ``round(sqrt(U))`` when
         ``U > 20``, else a single stage; 0 or 1 forces the single 1.5 px stage at factor U.
     dtype : {"float32", "float64"}
         Working precision.
@@ -311,7 +318,7 @@ def _run_batches(kernel, ref: np.ndarray, mov: np.ndarray, batch):
 def make_plan(
     shape: tuple[int, int],
     *,
-    upsample: int = 100,
+    upsample: int | None = None,
     window: str | np.ndarray | None = "hann",
     tukey_alpha: float = 0.5,
     lowpass: float | None = None,
@@ -335,7 +342,8 @@ def make_plan(
     Returns
     -------
     _Plan
-        Apodization, spectral weights, bin multiplicities, refinement stages and exclusion box.
+        Apodization, spectral weights, bin multiplicities, refinement stages (none for the
+        Newton refinement, ``upsample=None``) and exclusion box.
     """
     height, width = shape
     dtype = np.dtype(dtype)
@@ -361,6 +369,20 @@ def make_plan(
         if lowpass is not None:
             exclusion_px = max(2, math.ceil(3.0 / (2.0 * math.pi * lowpass)))
 
+    stages = () if upsample is None else _dft_stages(upsample, stage1_upsample, freq_row, freq_col, multiplicity, height,
+                                                     width, dtype)
+    return _Plan(
+        shape=(height, width), dtype=dtype,
+        window_name=None if isinstance(window, np.ndarray) else _window_name(window),
+        tukey_alpha=float(tukey_alpha), follow=int(follow), apodization=apod,
+        weight=weight.astype(dtype), multiplicity=multiplicity.astype(dtype), freq_row=freq_row,
+        freq_col=freq_col, stages=stages, exclusion_px=int(exclusion_px), eps=float(eps),
+    )
+
+
+def _dft_stages(upsample: int, stage1_upsample, freq_row, freq_col, multiplicity, height: int, width: int,
+                dtype) -> tuple[_Stage, ...]:
+    """The DFT-upsampling stages of an integer ``upsample`` (module docstring, step 5)."""
     if stage1_upsample is None:
         stage1_upsample = int(round(math.sqrt(upsample))) if upsample > 20 else 0
     two_stages = 1 < stage1_upsample < upsample
@@ -375,13 +397,7 @@ def make_plan(
         k_col = (multiplicity[:, None] * np.exp(2j * np.pi * np.outer(freq_col, offsets) / width)).astype(cdtype)
         stages.append(_Stage(factor, offsets, k_row, k_col))
         half_width = _NEXT_STAGE_HALF_STEPS / factor  # around the vertex fitted on this grid
-    return _Plan(
-        shape=(height, width), dtype=dtype,
-        window_name=None if isinstance(window, np.ndarray) else _window_name(window),
-        tukey_alpha=float(tukey_alpha), follow=int(follow), apodization=apod,
-        weight=weight.astype(dtype), multiplicity=multiplicity.astype(dtype), freq_row=freq_row,
-        freq_col=freq_col, stages=tuple(stages), exclusion_px=int(exclusion_px), eps=float(eps),
-    )
+    return tuple(stages)
 
 
 def _apodization(height: int, width: int, window, tukey_alpha: float, dtype):
@@ -493,6 +509,8 @@ class NumpyKernel:
         support = np.abs(spec) > 1e-11 * np.abs(spec).max()  # beyond: float64 rounding
         self.window_bins = np.nonzero(support)
         self.window_spectrum = (spec[support] / self.window_sum).astype(plan.complex_dtype)
+        self.weight_flat = plan.weight.reshape(-1)
+        self.sum_mult_weight = float((plan.multiplicity.astype(np.float64) * plan.weight).sum())
         self._buffers = {}
 
     def _buffer(self, name: str, shape, dtype) -> np.ndarray:
@@ -511,14 +529,14 @@ class NumpyKernel:
                                                                                     plan.shape[1] // 2 + 1),
                                                                           plan.complex_dtype))
         cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov), variance=plan.follow == 0)
-        centre, second = self.coarse_peak(cross)
+        centre, second = self.coarse_peak(cross, keep=plan.follow == 0)
         first_q_mean = q_mean
         for k in range(plan.follow):
             last = k == plan.follow - 1
             cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov, following_windows(plan, centre)),
                                                     variance=last)
             if not last:
-                centre, _ = self.refine(cross, centre, plan.stages[:1])
+                centre, _ = self.refine(cross, centre, plan.stages[:1], max_iterations=1)
         centre, peak = self.refine(cross, centre, plan.stages)
         return centre, peak, q_mean, q_var, second, first_q_mean
 
@@ -546,7 +564,7 @@ class NumpyKernel:
         buf = self._buffer("apodized", windows.shape, self.plan.dtype)
         if window is None:
             np.multiply(windows, self.window_2d, out=buf)
-            spec = scipy.fft.rfft2(buf, workers=self.workers)
+            spec = scipy.fft.rfft2(buf, workers=self.workers, overwrite_x=True)
             mean_sum = spec[:, 0, 0].real.copy()  # sum(w x) = sum(w) m
             rows, cols = self.window_bins
             spec[:, rows, cols] -= mean_sum[:, None] * self.window_spectrum
@@ -555,10 +573,10 @@ class NumpyKernel:
         # sum_ij row_i col_j x_ij as two matrix products, without forming the 2-D window
         weighted = np.matmul(row[:, None, :], np.matmul(windows, col[:, :, None]))[:, 0, 0]
         mean = (weighted / (row.sum(axis=1) * col.sum(axis=1))).astype(self.plan.dtype)
-        np.subtract(windows, mean[:, None, None], out=buf, casting="same_kind")
+        np.subtract(windows, mean[:, None, None], out=buf)
         buf *= row[:, :, None]
         buf *= col[:, None, :]
-        return scipy.fft.rfft2(buf, workers=self.workers)
+        return scipy.fft.rfft2(buf, workers=self.workers, overwrite_x=True)
 
     def cross_power(self, spec_ref_conj, spec_mov, *, variance: bool = True):
         """Weighted normalized cross-power ``Q`` (B, H, Wh), ``sum|Q|/(HW)``, ``sum|Q|^2/(HW)^2``.
@@ -587,22 +605,30 @@ class NumpyKernel:
         n, height, half = spec_mov.shape
         cross = spec_mov
         cross *= spec_ref_conj  # M conj(F): the surface peaks at +shift
-        mag = np.abs(cross, out=self._buffer("mag", cross.shape, plan.dtype))
-        level = mag.reshape(n, -1).mean(axis=1)
-        factor = self._buffer("factor", cross.shape, plan.dtype)
-        np.add(mag, (plan.eps * level + np.finfo(plan.dtype).tiny)[:, None, None], out=factor)
-        np.divide(plan.weight, factor, out=factor)
+        factor = np.abs(cross, out=self._buffer("factor", cross.shape, plan.dtype))
+        flat = factor.reshape(n, -1)
+        signal = flat @ self.weight_flat  # sum w |X|: 0 only for a flat pair
+        floor = plan.eps * flat.mean(axis=1) + np.finfo(plan.dtype).tiny
+        factor += floor[:, None, None]
+        np.divide(plan.weight, factor, out=factor)  # g = w / (|X| + floor)
         cross *= factor
-        mag *= factor  # |Q|
+        # |Q| = w |X| / (|X| + floor) = w - h, h = floor g in [0, w]: no pass over |X| again
+        factor *= floor[:, None, None]
         n_px = height * plan.shape[1]
-        q_mean = (mag.reshape(-1, half) @ plan.multiplicity).reshape(n, height).sum(axis=1, dtype=np.float64) / n_px
+        q_mean = np.where(signal > 0, (self.sum_mult_weight - self._mult_sum(factor)) / n_px, 0.0)
         q_var = None
         if variance:
-            mag *= mag
-            q_var = (mag.reshape(-1, half) @ plan.multiplicity).reshape(n, height).sum(axis=1, dtype=np.float64) / n_px**2
+            np.subtract(plan.weight, factor, out=factor)
+            q_var = self._mult_sum(np.square(factor, out=factor)) / n_px**2
         return cross, q_mean, q_var
 
-    def coarse_peak(self, cross):
+    def _mult_sum(self, values: np.ndarray) -> np.ndarray:
+        """``sum_k m(k2) values(k)`` per pair (B,) in float64, from (B, H, Wh) half-spectrum
+        values: float32 sums of one row each, then float64 over the rows."""
+        n, height, half = values.shape
+        return (values.reshape(-1, half) @ self.plan.multiplicity).reshape(n, height).sum(axis=1, dtype=np.float64)
+
+    def coarse_peak(self, cross, *, keep: bool = True):
         """Peak of the integer-grid surface with a 3-point parabolic offset per axis (B, 2),
         as signed shifts, and the secondary maximum outside the exclusion box (B,).
 
@@ -610,6 +636,8 @@ class NumpyKernel:
         ----------
         cross : ndarray of complex, shape (B, H, W // 2 + 1)
             Cross-power spectrum.
+        keep : bool
+            False: ``cross`` may be overwritten (by the inverse FFT).
 
         Returns
         -------
@@ -620,14 +648,17 @@ class NumpyKernel:
         """
         height, width = self.plan.shape
         n = cross.shape[0]
-        surface = scipy.fft.irfft2(cross, s=(height, width), workers=self.workers)
-        peak_row, peak_col = np.divmod(np.argmax(surface.reshape(n, -1), axis=1), width)
+        surface = scipy.fft.irfft2(cross, s=(height, width), workers=self.workers, overwrite_x=not keep)
+        peak = np.argmax(surface.reshape(n, -1), axis=1)
+        peak_row, peak_col = np.divmod(peak, width)
         pairs = np.arange(n)
-        centre_value = surface[pairs, peak_row, peak_col]
-        offset_row = _parabola_vertex(surface[pairs, (peak_row - 1) % height, peak_col], centre_value,
-                                      surface[pairs, (peak_row + 1) % height, peak_col])
-        offset_col = _parabola_vertex(surface[pairs, peak_row, (peak_col - 1) % width], centre_value,
-                                      surface[pairs, peak_row, (peak_col + 1) % width])
+        # the peak and its 4 neighbours, gathered from the flat surface at once
+        base = pairs * (height * width)
+        up, down = ((peak_row + d) % height * width + peak_col + base for d in (-1, 1))
+        left, right = (peak_row * width + (peak_col + d) % width + base for d in (-1, 1))
+        left_v, up_v, centre_v, down_v, right_v = surface.reshape(-1)[np.stack([left, up, peak + base, down, right])]
+        offset_row = _parabola_vertex(up_v, centre_v, down_v)
+        offset_col = _parabola_vertex(left_v, centre_v, right_v)
         # blank the periodic exclusion box around the peak, then take the maximum
         span = np.arange(-self.plan.exclusion_px, self.plan.exclusion_px + 1)
         rows = (peak_row[:, None] + span) % height
@@ -637,8 +668,11 @@ class NumpyKernel:
         centre = np.stack([_signed(peak_row, height) + offset_row, _signed(peak_col, width) + offset_col], axis=1)
         return centre, second
 
-    def refine(self, cross, centre, stages):
-        """Matrix-multiply DFT refinement around ``centre`` (B, 2): new centre and peak value.
+    def refine(self, cross, centre, stages, *, max_iterations: int = NEWTON_MAX_ITERATIONS):
+        """Sub-pixel refinement around ``centre`` (B, 2): new centre and peak value.
+
+        Newton steps on the continuous surface (:func:`gcpmatch.phase_newton.newton_refine`)
+        when ``stages`` is empty, else the matrix-multiply DFT on the stages' grids.
 
         Parameters
         ----------
@@ -647,7 +681,10 @@ class NumpyKernel:
         centre : ndarray of float64, shape (B, 2)
             Current (row, col) shift estimate, pixels.
         stages : sequence of stage plans
-            Upsampling stages (DFT kernels along rows and columns, grid offsets in pixels).
+            Upsampling stages (DFT kernels along rows and columns, grid offsets in pixels);
+            empty for the Newton refinement.
+        max_iterations : int
+            Newton steps at most.
 
         Returns
         -------
@@ -658,6 +695,9 @@ class NumpyKernel:
         """
         plan = self.plan
         height, width = plan.shape
+        if not stages:
+            return newton_refine(cross, centre, plan.freq_row, plan.freq_col, plan.multiplicity, width=width,
+                                 max_iterations=max_iterations)
         peak = None
         for stage in stages:
             # per-pair phase ramps exp(2 pi i k c / n), folded into the stage's kernels
@@ -817,7 +857,7 @@ def _is_int(value, minimum: int) -> bool:
 
 def _validate_options(**o) -> dict:
     checks = [
-        ("upsample", _is_int(o["upsample"], 1), "an integer >= 1"),
+        ("upsample", o["upsample"] is None or _is_int(o["upsample"], 1), "an integer >= 1 or None"),
         ("min_score", o["min_score"] is None or 0.0 <= o["min_score"] <= 1.0, "in [0, 1] or None"),
         ("min_peak_ratio", o["min_peak_ratio"] >= 0.0, ">= 0"),
         ("lowpass", o["lowpass"] is None or o["lowpass"] > 0.0, "a positive frequency in cycles/px or None"),
