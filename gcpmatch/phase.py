@@ -113,6 +113,9 @@ _BACKENDS = ("cpu", "numpy", "torch", "gpu")
 #: quadratic vertex fitted on a 0.1 px grid is within 0.002 px of the true maximum (measured:
 #: U = 10 and U = 100 give the same RMS error, 0.0008 px), so 0.3 steps is ample.
 _NEXT_STAGE_HALF_STEPS = 0.3
+#: The numpy kernel transforms the reference reversed: its correlation surface peaks at the shift
+#: minus this many pixels per axis (``NumpyKernel.__call__``).
+REVERSED_ORIGIN_PX = 1
 _BATCH_PIXELS = 1 << 19  # default batch: 128 windows of 64 x 64 px; cache-friendly, ~10 MB
 
 
@@ -473,12 +476,14 @@ def following_windows(plan: _Plan, shift_px: np.ndarray) -> tuple[np.ndarray, np
     row, col : ndarray, shapes (B, H) and (B, W), plan dtype
         Separable profiles: the 2-D window of pair ``b`` is ``outer(row[b], col[b])``.
     """
-    profiles = []
-    for axis, n in enumerate(plan.shape):
-        s = np.clip(shift_px[:, axis], -n / 2.0, n / 2.0)[:, None]
-        u = (np.arange(n) + 0.5 - s) / n
-        profiles.append(window_profile(plan.window_name, u, plan.tukey_alpha).astype(plan.dtype))
-    return profiles[0], profiles[1]
+    height, width = plan.shape
+    # both axes in one (B, H + W) array: u = (i + 1/2 - s) / n per axis
+    size = np.repeat([float(height), float(width)], [height, width])
+    centres = np.concatenate([np.arange(height), np.arange(width)]) + 0.5
+    s = np.clip(shift_px, -0.5 * np.array([height, width]), 0.5 * np.array([height, width]))
+    u = ((centres - np.repeat(s, [height, width], axis=1)) / size).astype(plan.dtype)  # float32 sin: vectorized
+    profiles = window_profile(plan.window_name, u, plan.tukey_alpha).astype(plan.dtype, copy=False)
+    return profiles[:, :height], profiles[:, height:]
 
 
 # --------------------------------------------------------------------------- numpy kernel
@@ -504,14 +509,20 @@ class NumpyKernel:
         apod = plan.apodization
         self.window_2d = apod if isinstance(apod, np.ndarray) else np.outer(apod[0], apod[1]).astype(plan.dtype)
         self.window_sum = float(self.window_2d.sum(dtype=np.float64))
-        spec = np.fft.rfft2(_window_2d_float64(plan))
-        # the window's spectrum where it is not negligible: 6 bins for Hann (sin^2 at pixel centres)
-        support = np.abs(spec) > 1e-11 * np.abs(spec).max()  # beyond: float64 rounding
-        self.window_bins = np.nonzero(support)
-        self.window_spectrum = (spec[support] / self.window_sum).astype(plan.complex_dtype)
+        self.window_bins, self.window_spectrum = self._window_support(_window_2d_float64(plan))
+        # the reference is transformed reversed (see __call__)
+        self.window_2d_reversed = np.ascontiguousarray(self.window_2d[::-1, ::-1])
+        self.reversed_bins, self.reversed_spectrum = self._window_support(_window_2d_float64(plan)[::-1, ::-1])
         self.weight_flat = plan.weight.reshape(-1)
         self.sum_mult_weight = float((plan.multiplicity.astype(np.float64) * plan.weight).sum())
         self._buffers = {}
+
+    def _window_support(self, window_2d: np.ndarray):
+        """Bins (rows, cols) where ``rfft2(window_2d)`` is not negligible (6 for Hann: sin^2 at
+        pixel centres) and its values there over ``sum(w)``, in the working complex dtype."""
+        spec = np.fft.rfft2(window_2d)
+        support = np.abs(spec) > 1e-11 * np.abs(spec).max()  # beyond: float64 rounding
+        return np.nonzero(support), (spec[support] / self.window_sum).astype(self.plan.complex_dtype)
 
     def _buffer(self, name: str, shape, dtype) -> np.ndarray:
         """A scratch array of ``shape`` kept between batches (the last batch may be smaller)."""
@@ -525,22 +536,23 @@ class NumpyKernel:
         plan = self.plan
         ref = ref.astype(plan.dtype, copy=False)  # a no-op for float32 chips
         mov = mov.astype(plan.dtype, copy=False)
-        spec_ref_conj = np.conjugate(self.spectrum(ref), out=self._buffer("ref", (ref.shape[0], plan.shape[0],
-                                                                                    plan.shape[1] // 2 + 1),
-                                                                          plan.complex_dtype))
-        cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov), variance=plan.follow == 0)
+        # the reference reversed, y(t) = x(n - 1 - t): its spectrum is conj(F) exp(2 pi i k / n) per
+        # axis, so M conj(F) costs no conjugation and the surface of M Y peaks at the shift minus
+        # one pixel per axis (REVERSED_ORIGIN_PX, added back by coarse_peak and refine)
+        spec_ref = self.spectrum(ref, reverse=True)
+        cross, q_mean, q_var = self.cross_power(spec_ref, self.spectrum(mov), variance=plan.follow == 0)
         centre, second = self.coarse_peak(cross, keep=plan.follow == 0)
         first_q_mean = q_mean
         for k in range(plan.follow):
             last = k == plan.follow - 1
-            cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov, following_windows(plan, centre)),
+            cross, q_mean, q_var = self.cross_power(spec_ref, self.spectrum(mov, following_windows(plan, centre)),
                                                     variance=last)
             if not last:
                 centre, _ = self.refine(cross, centre, plan.stages[:1], max_iterations=1)
         centre, peak = self.refine(cross, centre, plan.stages)
         return centre, peak, q_mean, q_var, second, first_q_mean
 
-    def spectrum(self, windows, window=None):
+    def spectrum(self, windows, window=None, *, reverse: bool = False):
         """Half spectrum (B, H, Wh) of the apodized, mean-removed windows.
 
         With the plan's fixed window the product ``w x`` is transformed and the weighted mean
@@ -555,19 +567,27 @@ class NumpyKernel:
             Windows in the plan's working precision, pixels indexed (row, col).
         window : None or (row, col) profiles of shapes (B, H) and (B, W)
             None: the plan's fixed apodization; else the following windows of each pair.
+        reverse : bool
+            With the fixed apodization only: transform the windows reversed along both axes,
+            ``x(H - 1 - r, W - 1 - c)``, whose spectrum is the conjugate of the windows' times
+            ``exp(2 pi i (k1 / H + k2 / W))``.
 
         Returns
         -------
         ndarray of complex, shape (B, H, W // 2 + 1)
-            ``rfft2`` of ``window * (windows - weighted mean)``.
+            ``rfft2`` of ``window * (windows - weighted mean)`` (reversed if ``reverse``).
         """
         buf = self._buffer("apodized", windows.shape, self.plan.dtype)
         if window is None:
-            np.multiply(windows, self.window_2d, out=buf)
+            if reverse:
+                np.multiply(windows[:, ::-1, ::-1], self.window_2d_reversed, out=buf)
+                (rows, cols), window_spectrum = self.reversed_bins, self.reversed_spectrum
+            else:
+                np.multiply(windows, self.window_2d, out=buf)
+                (rows, cols), window_spectrum = self.window_bins, self.window_spectrum
             spec = scipy.fft.rfft2(buf, workers=self.workers, overwrite_x=True)
             mean_sum = spec[:, 0, 0].real.copy()  # sum(w x) = sum(w) m
-            rows, cols = self.window_bins
-            spec[:, rows, cols] -= mean_sum[:, None] * self.window_spectrum
+            spec[:, rows, cols] -= mean_sum[:, None] * window_spectrum
             return spec
         row, col = window
         # sum_ij row_i col_j x_ij as two matrix products, without forming the 2-D window
@@ -586,7 +606,8 @@ class NumpyKernel:
         Parameters
         ----------
         spec_ref_conj : ndarray of complex, shape (B, H, W // 2 + 1)
-            Conjugated half spectrum of the reference windows.
+            Conjugated half spectrum of the reference windows, possibly times a phase ramp (the
+            reversed reference of ``__call__``: the surface is then translated).
         spec_mov : ndarray of complex, shape (B, H, W // 2 + 1)
             Half spectrum of the moving windows.
         variance : bool
@@ -604,7 +625,7 @@ class NumpyKernel:
         plan = self.plan
         n, height, half = spec_mov.shape
         cross = spec_mov
-        cross *= spec_ref_conj  # M conj(F): the surface peaks at +shift
+        cross *= spec_ref_conj  # M conj(F): the surface peaks at +shift (minus the ramp's translation)
         factor = np.abs(cross, out=self._buffer("factor", cross.shape, plan.dtype))
         flat = factor.reshape(n, -1)
         signal = flat @ self.weight_flat  # sum w |X|: 0 only for a flat pair
@@ -612,12 +633,13 @@ class NumpyKernel:
         factor += floor[:, None, None]
         np.divide(plan.weight, factor, out=factor)  # g = w / (|X| + floor)
         cross *= factor
-        # |Q| = w |X| / (|X| + floor) = w - h, h = floor g in [0, w]: no pass over |X| again
-        factor *= floor[:, None, None]
+        # |Q| = w |X| / (|X| + floor) = w - floor g: no pass over |X| again
         n_px = height * plan.shape[1]
-        q_mean = np.where(signal > 0, (self.sum_mult_weight - self._mult_sum(factor)) / n_px, 0.0)
+        with np.errstate(over="ignore", invalid="ignore"):  # g overflows only for flat pairs (floor = tiny)
+            q_mean = np.where(signal > 0, (self.sum_mult_weight - floor * self._mult_sum(factor)) / n_px, 0.0)
         q_var = None
         if variance:
+            factor *= floor[:, None, None]
             np.subtract(plan.weight, factor, out=factor)
             q_var = self._mult_sum(np.square(factor, out=factor)) / n_px**2
         return cross, q_mean, q_var
@@ -635,7 +657,8 @@ class NumpyKernel:
         Parameters
         ----------
         cross : ndarray of complex, shape (B, H, W // 2 + 1)
-            Cross-power spectrum.
+            Cross-power spectrum with the reversed reference (its surface peaks at the shift
+            minus ``REVERSED_ORIGIN_PX`` per axis).
         keep : bool
             False: ``cross`` may be overwritten (by the inverse FFT).
 
@@ -665,7 +688,9 @@ class NumpyKernel:
         cols = (peak_col[:, None] + span) % width
         surface[pairs[:, None, None], rows[:, :, None], cols[:, None, :]] = -np.inf
         second = surface.reshape(n, -1).max(axis=1).astype(float)
-        centre = np.stack([_signed(peak_row, height) + offset_row, _signed(peak_col, width) + offset_col], axis=1)
+        origin = REVERSED_ORIGIN_PX
+        centre = np.stack([_signed((peak_row + origin) % height, height) + offset_row,
+                           _signed((peak_col + origin) % width, width) + offset_col], axis=1)
         return centre, second
 
     def refine(self, cross, centre, stages, *, max_iterations: int = NEWTON_MAX_ITERATIONS):
@@ -677,7 +702,7 @@ class NumpyKernel:
         Parameters
         ----------
         cross : ndarray of complex, shape (B, H, W // 2 + 1)
-            Cross-power spectrum.
+            Cross-power spectrum with the reversed reference (as in :meth:`coarse_peak`).
         centre : ndarray of float64, shape (B, 2)
             Current (row, col) shift estimate, pixels.
         stages : sequence of stage plans
@@ -695,9 +720,11 @@ class NumpyKernel:
         """
         plan = self.plan
         height, width = plan.shape
+        centre = centre - REVERSED_ORIGIN_PX  # position on the surface of M Y (__call__)
         if not stages:
-            return newton_refine(cross, centre, plan.freq_row, plan.freq_col, plan.multiplicity, width=width,
-                                 max_iterations=max_iterations)
+            centre, peak = newton_refine(cross, centre, plan.freq_row, plan.freq_col, plan.multiplicity, width=width,
+                                         max_iterations=max_iterations)
+            return centre + REVERSED_ORIGIN_PX, peak
         peak = None
         for stage in stages:
             # per-pair phase ramps exp(2 pi i k c / n), folded into the stage's kernels
@@ -707,7 +734,7 @@ class NumpyKernel:
             offset, peak = _grid_peak(values, stage.offsets_px)
             centre = centre + offset
             peak = peak / (height * width)
-        return centre, peak
+        return centre + REVERSED_ORIGIN_PX, peak
 
 
 def _window_2d_float64(plan: _Plan) -> np.ndarray:
@@ -841,14 +868,29 @@ def _validate_pairs(reference, moving) -> tuple[np.ndarray, np.ndarray]:
     for name, arr in (("reference", ref), ("moving", mov)):
         if not np.issubdtype(arr.dtype, np.floating):
             continue
-        chunk = max(1, _BATCH_PIXELS // (arr.shape[1] * arr.shape[2]))  # bounded memory
-        bad = np.concatenate([~np.isfinite(arr[i:i + chunk]).all(axis=(1, 2)) for i in range(0, arr.shape[0], chunk)])
+        bad = _non_finite_windows(arr)
         if bad.any():
             raise InputError(
                 f"{int(bad.sum())} window(s) hold NaN or inf (first: pair {int(np.argmax(bad))}); fill or drop them before matching",
                 field=name,
             )
     return ref, mov
+
+
+def _non_finite_windows(arr: np.ndarray) -> np.ndarray:
+    """(N,) flags of the (N, H, W) floating windows holding a NaN or an infinity.
+
+    One matrix-vector product with ones per window (a NaN or an infinity makes the sum
+    non-finite; no boolean array is formed), then the exact test on the windows whose sum is not
+    finite (finite values can also overflow the sum).
+    """
+    flat = arr.reshape(arr.shape[0], -1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        suspect = ~np.isfinite(flat @ np.ones(flat.shape[1], dtype=arr.dtype))
+    bad = np.zeros(arr.shape[0], dtype=bool)
+    if suspect.any():
+        bad[suspect] = ~np.isfinite(flat[suspect]).all(axis=1)
+    return bad
 
 
 def _is_int(value, minimum: int) -> bool:
