@@ -92,7 +92,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
-from gcpmatch.phase_newton import NEWTON_MAX_ITERATIONS, newton_refine
+from gcpmatch.phase_newton import NEWTON_MAX_ITERATIONS, newton_refine, surface_grid
 from sensor_models.errors import InputError
 
 __all__ = ["MIN_WINDOW_PX", "NULL_SIGMA_FACTOR", "PhaseMatches", "Reject", "following_windows", "make_plan", "phase_correlate"]
@@ -514,6 +514,8 @@ class NumpyKernel:
         self.window_2d_reversed = np.ascontiguousarray(self.window_2d[::-1, ::-1])
         self.reversed_bins, self.reversed_spectrum = self._window_support(_window_2d_float64(plan)[::-1, ::-1])
         self.weight_flat = plan.weight.reshape(-1)
+        self.neighbours, self.grid_shift = _grid_tables(plan.shape)
+        self.surface_grid = surface_grid(plan.shape, plan.dtype)
         self.sum_mult_weight = float((plan.multiplicity.astype(np.float64) * plan.weight).sum())
         self._buffers = {}
 
@@ -672,26 +674,19 @@ class NumpyKernel:
         height, width = self.plan.shape
         n = cross.shape[0]
         surface = scipy.fft.irfft2(cross, s=(height, width), workers=self.workers, overwrite_x=not keep)
-        peak = np.argmax(surface.reshape(n, -1), axis=1)
-        peak_row, peak_col = np.divmod(peak, width)
-        pairs = np.arange(n)
-        # the peak and its 4 neighbours, gathered from the flat surface at once
-        base = pairs * (height * width)
-        up, down = ((peak_row + d) % height * width + peak_col + base for d in (-1, 1))
-        left, right = (peak_row * width + (peak_col + d) % width + base for d in (-1, 1))
-        left_v, up_v, centre_v, down_v, right_v = surface.reshape(-1)[np.stack([left, up, peak + base, down, right])]
-        offset_row = _parabola_vertex(up_v, centre_v, down_v)
-        offset_col = _parabola_vertex(left_v, centre_v, right_v)
+        flat = surface.reshape(n, -1)
+        peak = np.argmax(flat, axis=1)
+        # the peak and its 4 periodic neighbours (up, left, centre, down, right) in one gather
+        values = np.take_along_axis(flat, self.neighbours[peak], axis=1).astype(float)
+        offset = _parabola_vertex(values[:, :2], values[:, 2:3], values[:, 3:])  # (B, 2): row, col
         # blank the periodic exclusion box around the peak, then take the maximum
+        peak_row, peak_col = np.divmod(peak, width)
         span = np.arange(-self.plan.exclusion_px, self.plan.exclusion_px + 1)
         rows = (peak_row[:, None] + span) % height
         cols = (peak_col[:, None] + span) % width
-        surface[pairs[:, None, None], rows[:, :, None], cols[:, None, :]] = -np.inf
-        second = surface.reshape(n, -1).max(axis=1).astype(float)
-        origin = REVERSED_ORIGIN_PX
-        centre = np.stack([_signed((peak_row + origin) % height, height) + offset_row,
-                           _signed((peak_col + origin) % width, width) + offset_col], axis=1)
-        return centre, second
+        surface[np.arange(n)[:, None, None], rows[:, :, None], cols[:, None, :]] = -np.inf
+        second = flat.max(axis=1).astype(float)
+        return self.grid_shift[peak] + offset, second
 
     def refine(self, cross, centre, stages, *, max_iterations: int = NEWTON_MAX_ITERATIONS):
         """Sub-pixel refinement around ``centre`` (B, 2): new centre and peak value.
@@ -722,8 +717,7 @@ class NumpyKernel:
         height, width = plan.shape
         centre = centre - REVERSED_ORIGIN_PX  # position on the surface of M Y (__call__)
         if not stages:
-            centre, peak = newton_refine(cross, centre, plan.freq_row, plan.freq_col, plan.multiplicity, width=width,
-                                         max_iterations=max_iterations)
+            centre, peak = newton_refine(cross, centre, self.surface_grid, max_iterations=max_iterations)
             return centre + REVERSED_ORIGIN_PX, peak
         peak = None
         for stage in stages:
@@ -794,6 +788,20 @@ def _quadratic_vertex(patch: np.ndarray):
     d_row = np.where(ok, (c5 * c2 - 2.0 * c4 * c1) / det, 0.0)
     d_col = np.where(ok, (c5 * c1 - 2.0 * c3 * c2) / det, 0.0)
     return np.minimum(np.maximum(d_row, -1.0), 1.0), np.minimum(np.maximum(d_col, -1.0), 1.0)
+
+
+def _grid_tables(shape: tuple[int, int]):
+    """Per flat index of an (H, W) surface of the reversed reference (``NumpyKernel.__call__``):
+    the flat indices of the point and its periodic neighbours, (H W, 5) in the order up, left,
+    centre, down, right; and the signed (row, col) shift it stands for, (H W, 2) float64, in
+    ``[-H/2, H/2) x [-W/2, W/2)`` (its index plus ``REVERSED_ORIGIN_PX``, wrapped)."""
+    height, width = shape
+    rows, cols = (a.ravel() for a in np.meshgrid(np.arange(height), np.arange(width), indexing="ij"))
+    steps = [(-1, 0), (0, -1), (0, 0), (1, 0), (0, 1)]
+    neighbours = np.stack([(rows + dr) % height * width + (cols + dc) % width for dr, dc in steps], axis=1)
+    shift = np.stack([_signed((rows + REVERSED_ORIGIN_PX) % height, height),
+                      _signed((cols + REVERSED_ORIGIN_PX) % width, width)], axis=1).astype(float)
+    return neighbours, shift
 
 
 def _parabola_vertex(left, centre, right) -> np.ndarray:

@@ -31,9 +31,12 @@ region) keeps its position for that step; a step is clipped to +/- 0.5 px per ax
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["MAX_STEP_PX", "NEWTON_MAX_ITERATIONS", "NEWTON_TOLERANCE_PX", "newton_refine", "newton_step"]
+__all__ = ["MAX_STEP_PX", "NEWTON_MAX_ITERATIONS", "NEWTON_TOLERANCE_PX", "SurfaceGrid", "newton_refine", "newton_step",
+           "surface_grid"]
 
 #: The iterations stop when every step of the batch is shorter than this, px. Newton's error
 #: after a step of length ``d`` is about ``K d^2`` with ``K`` about 0.05 / px (measured on
@@ -47,23 +50,49 @@ MAX_STEP_PX = 0.5
 _TWO_PI = 2.0 * np.pi
 
 
-def _phasors(centre_px: np.ndarray, freq_row: np.ndarray, freq_col: np.ndarray, width: int, dtype):
-    """``exp(2 pi i k1 x / H)`` (B, H) and ``exp(2 pi i k2 y / W)`` (B, Wh) as (cos, sin) pairs.
+@dataclass(frozen=True)
+class SurfaceGrid:
+    """Frequency tables of the continuous surface of (H, W) windows, built once per plan."""
 
-    The phases are reduced to one turn in float64 and their cosines and sines taken in
-    ``dtype`` (float32: the vectorized single-precision ``cos``/``sin``), in one call each for
-    both axes.
+    height: int
+    width: int
+    turns_per_px: np.ndarray  # (H + Wh,) float64: k1 / H, then k2 / W
+    axis: np.ndarray  # (H + Wh,) intp: 0 for the row frequencies, 1 for the column ones
+    freq_row: np.ndarray  # (H,) k1 in the working precision
+    col_powers: np.ndarray  # (Wh, 3) m k2^j, j = 0, 1, 2, in the working precision
+
+
+def surface_grid(shape: tuple[int, int], dtype=np.float32) -> SurfaceGrid:
+    """The frequency tables of :func:`newton_step` for windows of ``shape`` = (H, W).
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Window size (H, W), pixels.
+    dtype : numpy dtype
+        Working precision (float32 or float64) of the spectra.
+
+    Returns
+    -------
+    SurfaceGrid
+        Signed row frequencies ``k1`` (``numpy.fft.fftfreq(H, 1 / H)``), column frequencies
+        ``k2 = 0 .. W // 2`` with their Hermitian multiplicity ``m`` (1 for the first and, for
+        even ``W``, the Nyquist column; 2 otherwise).
     """
-    height = freq_row.size
-    turns = np.concatenate([centre_px[:, :1] * (freq_row / height), centre_px[:, 1:] * (freq_col / width)], axis=1)
-    turns -= np.round(turns)
-    phase = (_TWO_PI * turns).astype(dtype)
-    cos, sin = np.cos(phase), np.sin(phase)
-    return cos[:, :height], sin[:, :height], cos[:, height:], sin[:, height:]
+    height, width = shape
+    freq_row = np.fft.fftfreq(height, 1.0 / height)
+    freq_col = np.arange(width // 2 + 1, dtype=float)
+    multiplicity = np.where((freq_col == 0) | (2 * freq_col == width), 1.0, 2.0)
+    return SurfaceGrid(
+        height=height, width=width,
+        turns_per_px=np.concatenate([freq_row / height, freq_col / width]),
+        axis=np.repeat([0, 1], [height, freq_col.size]),
+        freq_row=freq_row.astype(dtype),
+        col_powers=(multiplicity * freq_col ** np.arange(3)[:, None]).T.astype(dtype),
+    )
 
 
-def newton_step(cross: np.ndarray, centre_px: np.ndarray, freq_row: np.ndarray, freq_col: np.ndarray,
-                multiplicity: np.ndarray, width: int):
+def newton_step(cross: np.ndarray, centre_px: np.ndarray, grid: SurfaceGrid):
     """One Newton step towards the maximum of the continuous correlation surface, per pair.
 
     Parameters
@@ -72,51 +101,44 @@ def newton_step(cross: np.ndarray, centre_px: np.ndarray, freq_row: np.ndarray, 
         Half cross-power spectra ``Q``.
     centre_px : ndarray of float64, shape (B, 2)
         Current (row, col) positions on the surface, pixels (a shift of ``(x, y)`` px).
-    freq_row : ndarray of float64, shape (H,)
-        Signed integer row frequencies ``k1`` (``numpy.fft.fftfreq(H, 1 / H)``).
-    freq_col : ndarray of float64, shape (W // 2 + 1,)
-        Column frequencies ``k2 = 0 .. W // 2``.
-    multiplicity : ndarray, shape (W // 2 + 1,)
-        Hermitian multiplicity ``m(k2)`` (1 or 2).
-    width : int
-        ``W``, the window's column count (the half spectrum does not tell an odd ``W``).
+    grid : SurfaceGrid
+        Frequency tables of :func:`surface_grid` for (H, W) in the precision of ``cross``.
 
     Returns
     -------
     step : ndarray of float64, shape (B, 2)
-        Newton step (row, col), px, clipped to +/- 0.5 px; 0 where the Hessian is not negative
-        definite.
+        Newton step (row, col), px, clipped to +/- ``MAX_STEP_PX``; 0 where the Hessian is not
+        negative definite.
     value : ndarray of float64, shape (B,)
         ``H W`` times the surface value at the new position from the second-order model:
         ``c + grad . d + d^T Hess d / 2 = c + grad . d / 2``.
     """
-    n, height, _ = cross.shape
+    n, height, half = cross.shape
     real = cross.real.dtype
-    k1 = freq_row.astype(real)
-    k2 = freq_col.astype(real)
-    ar, ai, br, bi = _phasors(centre_px, freq_row, freq_col, width, real)  # (B, H) and (B, Wh)
-    br *= multiplicity
-    bi *= multiplicity
-    rows = np.empty((n, 6, height), dtype=real)  # a, k1 a, k1^2 a: real parts, then imaginary parts
-    rows[:, 0] = ar
-    rows[:, 3] = ai
-    np.multiply(ar, k1, out=rows[:, 1])
-    np.multiply(ai, k1, out=rows[:, 4])
-    np.multiply(rows[:, 1], k1, out=rows[:, 2])
-    np.multiply(rows[:, 4], k1, out=rows[:, 5])
+    # exp(2 pi i k1 x / H) and exp(2 pi i k2 y / W): phases reduced to one turn in float64, then
+    # cos and sin in the working precision (float32: vectorized), both axes in one array
+    turns = centre_px[:, grid.axis] * grid.turns_per_px
+    turns -= np.rint(turns)
+    phase = (turns * _TWO_PI).astype(real)
+    cos, sin = np.cos(phase), np.sin(phase)
+    rows = np.empty((n, 6, height), dtype=real)  # a, k1 a, k1^2 a as rows 0-2 (Re) and 3-5 (Im)
+    rows[:, 0] = cos[:, :height]
+    rows[:, 3] = sin[:, :height]
+    np.multiply(rows[:, 0::3], grid.freq_row, out=rows[:, 1::3])
+    np.multiply(rows[:, 1::3], grid.freq_row, out=rows[:, 2::3])
     prod = np.matmul(rows, cross.view(real))  # (B, 6, 2 Wh): columns alternate Re Q, Im Q
-    t_re = prod[:, :3, 0::2] - prod[:, 3:, 1::2]  # Re(k1^i a^T Q), i = 0, 1, 2
-    t_im = prod[:, :3, 1::2] + prod[:, 3:, 0::2]
-    cols_re = np.stack([br, br * k2, br * (k2 * k2)], axis=2)  # (B, Wh, 3): b, k2 b, k2^2 b
-    cols_im = np.stack([bi, bi * k2, bi * (k2 * k2)], axis=2)
-    s_re = (np.matmul(t_re, cols_re) - np.matmul(t_im, cols_im)).astype(np.float64)  # (B, 3, 3): S_ij
-    s_im = (np.matmul(t_re, cols_im) + np.matmul(t_im, cols_re)).astype(np.float64)
-    return _solve(s_re, s_im, height, width)
+    # T_i = k1^i a^T Q = (P_re[i] - P_im[3 + i]) + i (P_im[i] + P_re[3 + i]), as [Re; Im] rows
+    t = np.concatenate([prod[:, :3, 0::2] - prod[:, 3:, 1::2], prod[:, :3, 1::2] + prod[:, 3:, 0::2]], axis=1)
+    # k2^j b = m k2^j (cos + i sin) as [Re | Im] columns: S = T (k2^j b), one product
+    cols = np.concatenate([cos[:, height:, None] * grid.col_powers, sin[:, height:, None] * grid.col_powers], axis=2)
+    blocks = np.matmul(t, cols).astype(np.float64)  # (B, 6, 6): [Re T; Im T] x [Re B | Im B]
+    s_re = blocks[:, :3, :3] - blocks[:, 3:, 3:]  # S_ij, i: k1 power, j: k2 power
+    s_im = blocks[:, :3, 3:] + blocks[:, 3:, :3]
+    return _solve(s_re, s_im, height, grid.width)
 
 
-def newton_refine(cross: np.ndarray, centre_px: np.ndarray, freq_row: np.ndarray, freq_col: np.ndarray,
-                  multiplicity: np.ndarray, *, width: int, max_iterations: int = NEWTON_MAX_ITERATIONS,
-                  tolerance_px: float = NEWTON_TOLERANCE_PX):
+def newton_refine(cross: np.ndarray, centre_px: np.ndarray, grid: SurfaceGrid, *,
+                  max_iterations: int = NEWTON_MAX_ITERATIONS, tolerance_px: float = NEWTON_TOLERANCE_PX):
     """Newton iterations to the surface maximum near ``centre_px``, batched (module docstring).
 
     Parameters
@@ -125,10 +147,8 @@ def newton_refine(cross: np.ndarray, centre_px: np.ndarray, freq_row: np.ndarray
         Half cross-power spectra ``Q``.
     centre_px : ndarray of float64, shape (B, 2)
         Start (row, col), px (within the peak's concave region: about +/- 0.5 px).
-    freq_row, freq_col, multiplicity : ndarray
-        As in :func:`newton_step`.
-    width : int
-        ``W``, the window's column count (the half spectrum does not tell an odd ``W``).
+    grid : SurfaceGrid
+        Frequency tables of :func:`surface_grid`.
     max_iterations : int
         Upper bound on the steps.
     tolerance_px : float
@@ -143,30 +163,28 @@ def newton_refine(cross: np.ndarray, centre_px: np.ndarray, freq_row: np.ndarray
         Surface value there, ``c`` of the module docstring (normalized by ``H W``).
     """
     cross = np.ascontiguousarray(cross)
-    height = cross.shape[1]
     centre = np.asarray(centre_px, dtype=np.float64)
     value = np.zeros(centre.shape[0])
     active = np.ones(centre.shape[0], dtype=bool)  # a pair stops once its step is below the tolerance
     for _ in range(max_iterations):
-        step, new_value = newton_step(cross, centre, freq_row, freq_col, multiplicity, width)
+        step, new_value = newton_step(cross, centre, grid)
         centre = np.where(active[:, None], centre + step, centre)
         value = np.where(active, new_value, value)
         active &= np.abs(step).max(axis=1) >= tolerance_px
         if not active.any():
             break
-    return centre, value / (height * width)
+    return centre, value / (grid.height * grid.width)
 
 
 def _solve(s_re, s_im, height, width):
     """Newton step and model value from the sums ``S_ij`` (B, 3, 3) (module docstring)."""
     ur, uc = _TWO_PI / height, _TWO_PI / width
-    grad_r, grad_c = -ur * s_im[:, 1, 0], -uc * s_im[:, 0, 1]
-    h_rr, h_cc, h_rc = -ur * ur * s_re[:, 2, 0], -uc * uc * s_re[:, 0, 2], -ur * uc * s_re[:, 1, 1]
-    det = h_rr * h_cc - h_rc * h_rc
-    ok = (h_rr < 0) & (det > 0)
-    det = np.where(ok, det, 1.0)
-    step_r = np.where(ok, (h_rc * grad_c - h_cc * grad_r) / det, 0.0)
-    step_c = np.where(ok, (h_rc * grad_r - h_rr * grad_c) / det, 0.0)
-    step = np.clip(np.stack([step_r, step_c], axis=1), -MAX_STEP_PX, MAX_STEP_PX)
-    value = s_re[:, 0, 0] + 0.5 * (grad_r * step[:, 0] + grad_c * step[:, 1])
+    grad = s_im[:, (1, 0), (0, 1)] * np.array([-ur, -uc])  # (B, 2): d/drow, d/dcol
+    hess = s_re[:, (2, 0, 1), (0, 2, 1)] * np.array([-ur * ur, -uc * uc, -ur * uc])  # rr, cc, rc
+    det = hess[:, 0] * hess[:, 1] - hess[:, 2] ** 2
+    ok = (hess[:, 0] < 0) & (det > 0)
+    # -Hess^-1 grad = (h_rc g_c - h_cc g_r, h_rc g_r - h_rr g_c) / det
+    step = (hess[:, 2:] * grad[:, ::-1] - hess[:, 1::-1] * grad) / np.where(ok, det, 1.0)[:, None]
+    step = np.clip(np.where(ok[:, None], step, 0.0), -MAX_STEP_PX, MAX_STEP_PX)
+    value = s_re[:, 0, 0] + 0.5 * (grad * step).sum(axis=1)
     return step, value

@@ -418,7 +418,7 @@ def _cross_spectra(ref, mov, shape):
 def test_newton_step_is_the_step_of_the_surface_finite_differences(shape):
     """The analytic gradient and Hessian of one Newton step equal central differences of the
     brute-force surface (so the step is -H^-1 g), and its model value is the surface's there."""
-    from gcpmatch.phase_newton import newton_step
+    from gcpmatch.phase_newton import newton_step, surface_grid
 
     rng = np.random.default_rng(515)
     shifts = stratified_shifts(rng, 6, max_shift=3.0)
@@ -428,9 +428,7 @@ def test_newton_step_is_the_step_of_the_surface_finite_differences(shape):
     cross = _cross_spectra(ref, mov, shape)
     start = shifts + rng.uniform(-0.15, 0.15, shifts.shape)
     height, width = shape
-    step, value = newton_step(cross, start, np.fft.fftfreq(height, 1.0 / height), np.arange(width // 2 + 1.0),
-                              np.where((np.arange(width // 2 + 1) == 0) | (2 * np.arange(width // 2 + 1) == width), 1.0,
-                                       2.0).astype(np.float32), width)
+    step, value = newton_step(cross, start, surface_grid(shape))
     h = 1e-3
     for i in range(len(shifts)):
         e = np.array([[0.0, 0.0], [h, 0], [-h, 0], [0, h], [0, -h], [h, h], [h, -h], [-h, h], [-h, -h]])
@@ -449,8 +447,7 @@ def test_newton_recovers_band_limited_sub_pixel_shifts(fourier_set):
     """Known sub-pixel shifts of a band-limited texture (exact Fourier shifts, no noise): the
     Newton refinement is within 0.01 px of each (measured 0.0005 px RMS) and at the maximum of
     the continuous surface; the coarse parabolic estimate it starts from is not."""
-    from gcpmatch.phase import make_plan
-    from gcpmatch.phase_newton import newton_refine
+    from gcpmatch.phase_newton import newton_refine, surface_grid
 
     ref, mov, shifts = fourier_set
     m = phase_correlate(ref, mov)
@@ -459,9 +456,8 @@ def test_newton_recovers_band_limited_sub_pixel_shifts(fourier_set):
     # at the surface maximum: no sample 0.005 px away is higher (fixed-window pass, follow=0)
     ref, mov, shifts = ref[:20], mov[:20], shifts[:20]
     cross = _cross_spectra(ref, mov, (WIN, WIN))
-    plan = make_plan((WIN, WIN))
     coarse = np.round(shifts) + 0.3 * np.sign(shifts - np.round(shifts))  # up to 0.3 px off
-    found, peak = newton_refine(cross, coarse, plan.freq_row, plan.freq_col, plan.multiplicity, width=WIN)
+    found, peak = newton_refine(cross, coarse, surface_grid((WIN, WIN)))
     ring = 0.005 * np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [1, 1], [-1, -1], [1, -1], [-1, 1]])
     for i in range(len(shifts)):
         at_max = _surface(cross[i], (WIN, WIN), found[i][None])[0]
