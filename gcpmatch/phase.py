@@ -49,9 +49,9 @@ Algorithm (vectorized over a batch of pairs)
    same ground content, and recomputes ``Q`` (the reference spectrum is reused).
 5. Sub-pixel refinement of the last ``Q``. Default (``upsample=None``): Newton steps on the
    continuous surface ``q(x, y)`` (its value, gradient and Hessian are separable sums over
-   ``Q`` with powers of the frequencies: :mod:`gcpmatch.phase_newton`) from the coarse peak,
-   until every step of the batch is below 0.01 px (two steps from the parabolic start; the
-   maximum is then reached to about 1e-5 px). With an integer ``upsample = U``: the
+   ``Q`` with powers of the frequencies: :mod:`gcpmatch.phase_newton`) from the coarse peak;
+   a pair stops after a step below 0.01 px (two steps from the parabolic start; the maximum
+   is then reached to about 1e-5 px). With an integer ``upsample = U``: the
    matrix-multiply DFT of Guizar-Sicairos,
    Thurman & Fienup, "Efficient subpixel image registration algorithms", Opt. Lett.
    33(2):156-158 (2008), eq. 3 and the text after it: ``q`` is evaluated exactly on an

@@ -17,10 +17,10 @@ gradient and Hessian come from the same separable sums with ``k1`` and ``k2`` po
 
 and likewise for ``y``. One Newton step ``d = -Hess^-1 grad`` per pair costs one product of a
 ``6 x H`` real matrix (the rows ``a``, ``k1 a``, ``k1^2 a``, real and imaginary parts) with the
-``H x 2 (W // 2 + 1)`` real view of ``Q`` and a few ``3 x (W // 2 + 1)`` products, for the whole
-batch at once (``numpy.matmul``). Near the peak Newton's method converges quadratically (Ortega
+``H x 2 (W // 2 + 1)`` real view of ``Q`` and one ``6 x (W // 2 + 1)`` by ``(W // 2 + 1) x 6``
+product, for the whole batch at once (``numpy.matmul``). Near the peak Newton's method converges quadratically (Ortega
 and Rheinboldt 1970, ch. 10 and 12); from the 3-point parabolic estimate of the integer grid
-(within about 0.2 px) two steps reach the maximum to better than 1e-4 px (measured:
+(within about 0.3 px) two steps reach the maximum to better than 1e-4 px (measured:
 ``tests/test_phase.py``, ``docs/speed.md`` section 6). This replaces evaluating the surface
 on upsampled DFT grids (Guizar-Sicairos, Thurman and Fienup 2008), which the integer
 ``upsample`` option of :func:`gcpmatch.phase.phase_correlate` still selects.
