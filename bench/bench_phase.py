@@ -238,16 +238,23 @@ def fft_floor(ref, mov, batch: int, threads: int) -> np.ndarray:
     return np.concatenate(peaks)
 
 
+#: The kernel before session 6's change (its refinement on DFT-upsampled grids): "before".
+SESSION_BASE_REV = "f841fa9"
+
+
 def measure_floor(threads: int, n_pairs: int, repeat: int, win: int = 64) -> dict:
-    """Child process: the floor, the base revision's kernel and the current one, alternated."""
+    """Child process: the floor, the base revision's kernel ("base"), the kernel before this
+    session's change ("before") and the current one ("after"), alternated."""
     sys.path.insert(0, str(ROOT / "bench"))
     from baseline import BASE_REV, load_baseline
 
     base = load_baseline("gcpmatch/phase.py")
+    session_base = load_baseline("gcpmatch/phase.py", SESSION_BASE_REV)
     ref, mov, truth = render_pairs(n_pairs, win, seed=win)
     ref, mov = ref.astype(np.float32), mov.astype(np.float32)
     funcs = {f"floor_batch_{b}": (lambda b=b: fft_floor(ref, mov, b, threads)) for b in FLOOR_BATCHES}
-    funcs["before"] = lambda: base.phase_correlate(ref, mov, workers=threads)
+    funcs["base"] = lambda: base.phase_correlate(ref, mov, workers=threads)
+    funcs["before"] = lambda: session_base.phase_correlate(ref, mov, workers=threads)
     funcs["after"] = lambda: phase_correlate(ref, mov, workers=threads)
     for f in funcs.values():  # warm-up: plans, imports
         f()
@@ -261,12 +268,13 @@ def measure_floor(threads: int, n_pairs: int, repeat: int, win: int = 64) -> dic
             best_wall[name] = min(best_wall[name], time.perf_counter() - w0)
             best_cpu[name] = min(best_cpu[name], time.process_time() - c0)
     floor_name = min((k for k in funcs if k.startswith("floor")), key=best_cpu.get)
-    result = {"pairs": n_pairs, "window_px": win, "threads": threads, "base_rev": BASE_REV, "repeat": repeat,
+    result = {"pairs": n_pairs, "window_px": win, "threads": threads, "base_rev": BASE_REV,
+              "before_rev": SESSION_BASE_REV, "repeat": repeat,
               "floor_best_batch": floor_name, "load_average_1min": float(open("/proc/loadavg").read().split()[0])}
     for name in funcs:
         result[name] = {"pairs_per_s_cpu": n_pairs / best_cpu[name], "pairs_per_s_wall": n_pairs / best_wall[name],
                         "us_per_pair_cpu": 1e6 * best_cpu[name] / n_pairs}
-    for name in ("before", "after"):
+    for name in ("base", "before", "after"):
         result[name].update(accuracy(out[name].shift_px, out[name].valid, truth))
         result[name]["fraction_of_floor_cpu"] = best_cpu[floor_name] / best_cpu[name]
         result[name]["fraction_of_floor_wall"] = best_wall[floor_name] / best_wall[name]
@@ -275,7 +283,8 @@ def measure_floor(threads: int, n_pairs: int, repeat: int, win: int = 64) -> dic
     result["after_vs_before"] = {"shift_px_max": float(np.nanmax(np.abs(diff))),
                                  "score_max": float(np.nanmax(np.abs(out["after"].score - out["before"].score))),
                                  "valid_differ": int(np.count_nonzero(out["after"].valid != out["before"].valid)),
-                                 "speedup_cpu": best_cpu["before"] / best_cpu["after"]}
+                                 "speedup_cpu": best_cpu["before"] / best_cpu["after"],
+                                 "speedup_cpu_vs_base": best_cpu["base"] / best_cpu["after"]}
     return result
 
 
@@ -287,18 +296,18 @@ def kernel_parts(ref, mov, threads: int, repeat: int) -> dict:
 
     plan = make_plan(ref.shape[1:])
     kernel = NumpyKernel(plan, workers=threads)
-    spec_ref_conj = np.conjugate(kernel.spectrum(ref))
+    spec_ref_conj = kernel.spectrum(ref, reverse=True)  # the kernel's reversed reference: no conjugation
     spec_mov = kernel.spectrum(mov)
     cross, _, _ = kernel.cross_power(spec_ref_conj, spec_mov.copy())
     centre, _ = kernel.coarse_peak(cross.copy())
     steps = {
         "rfft2 (one side)": lambda: scipy.fft.rfft2(ref, workers=threads),
         "irfft2": lambda: scipy.fft.irfft2(cross, s=plan.shape, workers=threads),
-        "spectrum, fixed window (one side, incl. rfft2)": lambda: kernel.spectrum(ref),
+        "spectrum, fixed window (one side, incl. rfft2)": lambda: kernel.spectrum(ref, reverse=True),
         "spectrum, following window (incl. rfft2)": lambda: kernel.spectrum(mov, following_windows(plan, centre)),
         "cross power (one pass)": lambda: kernel.cross_power(spec_ref_conj, spec_mov.copy()),
         "coarse peak (incl. irfft2)": lambda: kernel.coarse_peak(cross.copy()),
-        "refinement (2 stages)": lambda: kernel.refine(cross, centre, plan.stages),
+        "refinement (Newton)": lambda: kernel.refine(cross, centre, plan.stages),
         "whole kernel": lambda: kernel(ref, mov),
     }
     best = dict.fromkeys(steps, np.inf)
@@ -323,7 +332,7 @@ def run_floor(args) -> None:
     floor = result[result["floor_best_batch"]]
     print(f"FFT floor ({result['floor_best_batch']}): {floor['pairs_per_s_cpu']:.0f} pairs/s per CPU second "
           f"(1 thread, {result['pairs']} pairs of {result['window_px']} px, load {result['load_average_1min']:.1f})")
-    for name in ("before", "after"):
+    for name in ("base", "before", "after"):
         r = result[name]
         print(f"{name:<7} {r['pairs_per_s_cpu']:>8.0f} pairs/s  {r['us_per_pair_cpu']:6.1f} us/pair  "
               f"{100 * r['fraction_of_floor_cpu']:5.1f} % of the floor (wall {100 * r['fraction_of_floor_wall']:.1f} %)  "
@@ -331,7 +340,7 @@ def run_floor(args) -> None:
     print("current kernel, us per pair (CPU, one batch of 128): "
           + "; ".join(f"{k} {v:.1f}" for k, v in result["after_parts_us_per_pair_cpu"].items()))
     a = result["after_vs_before"]
-    print(f"after vs before: x{a['speedup_cpu']:.2f}; shifts differ by {a['shift_px_max']:.1e} px at most, "
+    print(f"after vs before: x{a['speedup_cpu']:.2f} (vs base x{a['speedup_cpu_vs_base']:.2f}); shifts differ by {a['shift_px_max']:.1e} px at most, "
           f"scores by {a['score_max']:.1e}, validity of {a['valid_differ']} pairs")
     out_path = args.out if args.out != ROOT / "bench" / "results" / "phase.json" else ROOT / "bench" / "results" / "phase_floor.json"
     out_path.write_text(json.dumps(result, indent=1) + "\n")

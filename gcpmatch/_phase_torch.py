@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from gcpmatch.phase_newton import MAX_STEP_PX, NEWTON_MAX_ITERATIONS, NEWTON_TOLERANCE_PX
 from sensor_models.errors import InputError
 
 try:
@@ -73,7 +74,7 @@ class TorchKernel:
             win_mov = self.following_windows(centre)
             cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov_t, win_mov))
             if k < plan.follow - 1:
-                centre, _ = self.refine(cross, centre, self.stages[:1])
+                centre, _ = self.refine(cross, centre, self.stages[:1], max_iterations=1)
         centre, peak = self.refine(cross, centre, self.stages)
         out = (centre, peak, q_mean, q_var, second, first_q_mean)
         return tuple(t.detach().to("cpu", torch.float64).numpy() for t in out)
@@ -174,8 +175,9 @@ class TorchKernel:
         centre = torch.stack([signed_row + offset_row, signed_col + offset_col], dim=1)
         return centre, second
 
-    def refine(self, cross, centre, stages):
-        """DFT refinement around ``centre``, as :meth:`gcpmatch.phase.NumpyKernel.refine`.
+    def refine(self, cross, centre, stages, *, max_iterations: int = NEWTON_MAX_ITERATIONS):
+        """Sub-pixel refinement around ``centre``, as :meth:`gcpmatch.phase.NumpyKernel.refine`:
+        Newton steps when ``stages`` is empty, else the DFT grids.
 
         Parameters
         ----------
@@ -184,7 +186,10 @@ class TorchKernel:
         centre : tensor of float64, shape (B, 2)
             Current (row, col) shift estimate, pixels.
         stages : sequence of stage plans
-            Upsampling stages (DFT kernels along rows and columns, grid offsets in pixels).
+            Upsampling stages (DFT kernels along rows and columns, grid offsets in pixels); empty
+            for the Newton refinement.
+        max_iterations : int
+            Newton steps at most.
 
         Returns
         -------
@@ -194,6 +199,8 @@ class TorchKernel:
             Surface maximum at the refined shift, normalized by ``H W``.
         """
         height, width = self.plan.shape
+        if not stages:
+            return self.newton(cross, centre, max_iterations)
         peak = None
         for kernel_row, kernel_col, offsets_px in stages:
             ramp_row = _unit_phasor((2.0 * math.pi / height) * centre[:, :1] * self.freq_row, self.real)
@@ -205,6 +212,44 @@ class TorchKernel:
             centre = centre + offset
             peak = peak / (height * width)
         return centre, peak
+
+    def newton(self, cross, centre, max_iterations: int):
+        """Newton steps on the continuous surface, as :func:`gcpmatch.phase_newton.newton_refine`.
+
+        Parameters
+        ----------
+        cross : tensor of complex, shape (B, H, W // 2 + 1)
+            Cross-power spectrum.
+        centre : tensor of float64, shape (B, 2)
+            Start (row, col), pixels.
+        max_iterations : int
+            Steps at most (fewer when every step of the batch is below the tolerance).
+
+        Returns
+        -------
+        centre : tensor of float64, shape (B, 2)
+            Position of the surface maximum, pixels.
+        peak : tensor of float64, shape (B,)
+            Surface value there, normalized by ``H W``.
+        """
+        height, width = self.plan.shape
+        k1 = self.freq_row.to(self.real)
+        k2 = self.freq_col.to(self.real)
+        value = torch.zeros(centre.shape[0], dtype=torch.float64, device=self.device)
+        active = torch.ones(centre.shape[0], dtype=torch.bool, device=self.device)
+        for _ in range(max_iterations):
+            a = _unit_phasor((2.0 * math.pi / height) * centre[:, :1] * self.freq_row, self.real)  # (B, H)
+            b = _unit_phasor((2.0 * math.pi / width) * centre[:, 1:] * self.freq_col, self.real) * self.multiplicity
+            rows = torch.stack([a, a * k1, a * (k1 * k1)], dim=1)  # (B, 3, H)
+            cols = torch.stack([b, b * k2, b * (k2 * k2)], dim=2)  # (B, Wh, 3)
+            sums = torch.matmul(torch.matmul(rows, cross), cols).to(torch.complex128)  # S_ij
+            step, new_value = _newton_solve(sums.real, sums.imag, height, width)
+            centre = torch.where(active[:, None], centre + step, centre)
+            value = torch.where(active, new_value, value)
+            active &= step.abs().amax(dim=1) >= NEWTON_TOLERANCE_PX
+            if not bool(active.any()):
+                break
+        return centre, value / (height * width)
 
     def following_windows(self, shift_px):
         """Torch version of :func:`gcpmatch.phase.following_windows`.
@@ -225,6 +270,22 @@ class TorchKernel:
             u = (torch.arange(n, device=self.device, dtype=torch.float64) + 0.5 - s) / n
             profiles.append(_window_profile(self.plan.window_name, u, self.plan.tukey_alpha).to(self.real))
         return profiles[0], profiles[1]
+
+
+def _newton_solve(s_re, s_im, height: int, width: int):
+    """Torch version of ``gcpmatch.phase_newton._solve``: step (B, 2) and model value (B,)."""
+    ur, uc = 2.0 * math.pi / height, 2.0 * math.pi / width
+    grad_r, grad_c = -ur * s_im[:, 1, 0], -uc * s_im[:, 0, 1]
+    h_rr, h_cc, h_rc = -ur * ur * s_re[:, 2, 0], -uc * uc * s_re[:, 0, 2], -ur * uc * s_re[:, 1, 1]
+    det = h_rr * h_cc - h_rc * h_rc
+    ok = (h_rr < 0) & (det > 0)
+    det = torch.where(ok, det, torch.ones_like(det))
+    zero = torch.zeros_like(det)
+    step_r = torch.where(ok, (h_rc * grad_c - h_cc * grad_r) / det, zero)
+    step_c = torch.where(ok, (h_rc * grad_r - h_rr * grad_c) / det, zero)
+    step = torch.clamp(torch.stack([step_r, step_c], dim=1), -MAX_STEP_PX, MAX_STEP_PX)
+    value = s_re[:, 0, 0] + 0.5 * (grad_r * step[:, 0] + grad_c * step[:, 1])
+    return step, value
 
 
 def _unit_phasor(angle, real_dtype):

@@ -47,7 +47,12 @@ Algorithm (vectorized over a batch of pairs)
    shifts in 64 px windows). A following pass re-apodizes the moving window with the taper
    translated by the current estimate (:func:`following_windows`), so both windows weight the
    same ground content, and recomputes ``Q`` (the reference spectrum is reused).
-5. Sub-pixel refinement of the last ``Q`` by the matrix-multiply DFT of Guizar-Sicairos,
+5. Sub-pixel refinement of the last ``Q``. Default (``upsample=None``): Newton steps on the
+   continuous surface ``q(x, y)`` (its value, gradient and Hessian are separable sums over
+   ``Q`` with powers of the frequencies: :mod:`gcpmatch.phase_newton`) from the coarse peak;
+   a pair stops after a step below 0.01 px (two steps from the parabolic start; the maximum
+   is then reached to about 1e-5 px). With an integer ``upsample = U``: the
+   matrix-multiply DFT of Guizar-Sicairos,
    Thurman & Fienup, "Efficient subpixel image registration algorithms", Opt. Lett.
    33(2):156-158 (2008), eq. 3 and the text after it: ``q`` is evaluated exactly on an
    upsampled grid in a 1.5 x 1.5 px neighbourhood of the current estimate ``c``,
@@ -87,6 +92,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft
 
+from gcpmatch.phase_newton import NEWTON_MAX_ITERATIONS, newton_refine, surface_grid
 from sensor_models.errors import InputError
 
 __all__ = ["MIN_WINDOW_PX", "NULL_SIGMA_FACTOR", "PhaseMatches", "Reject", "following_windows", "make_plan", "phase_correlate"]
@@ -107,6 +113,9 @@ _BACKENDS = ("cpu", "numpy", "torch", "gpu")
 #: quadratic vertex fitted on a 0.1 px grid is within 0.002 px of the true maximum (measured:
 #: U = 10 and U = 100 give the same RMS error, 0.0008 px), so 0.3 steps is ample.
 _NEXT_STAGE_HALF_STEPS = 0.3
+#: The numpy kernel transforms the reference reversed: its correlation surface peaks at the shift
+#: minus this many pixels per axis (``NumpyKernel.__call__``).
+REVERSED_ORIGIN_PX = 1
 _BATCH_PIXELS = 1 << 19  # default batch: 128 windows of 64 x 64 px; cache-friendly, ~10 MB
 
 
@@ -189,7 +198,7 @@ class _Plan:
     multiplicity: np.ndarray  # (Wh,) 1 or 2: Hermitian multiplicity of half-spectrum columns
     freq_row: np.ndarray  # (H,) float64 signed integer frequencies k1
     freq_col: np.ndarray  # (Wh,) float64 integer frequencies k2 >= 0
-    stages: tuple[_Stage, ...]
+    stages: tuple[_Stage, ...]  # DFT-upsampling stages; empty for the Newton refinement
     exclusion_px: int
     eps: float
 
@@ -198,7 +207,7 @@ class _Plan:
         return np.dtype(np.complex64 if self.dtype == np.float32 else np.complex128)
 
 
-def phase_correlate(reference, moving, *, upsample: int = 100, window: str | np.ndarray | None = "hann",
+def phase_correlate(reference, moving, *, upsample: int | None = None, window: str | np.ndarray | None = "hann",
                     tukey_alpha: float = 0.5, lowpass: float | None = None, eps: float = 0.5, follow: int = 1,
                     min_score: float | None = None, min_peak_ratio: float = 2.0, max_shift_px=None,
                     exclusion_px: int | None = None, stage1_upsample: int | None = None, dtype: str = "float32",
@@ -211,9 +220,10 @@ def phase_correlate(reference, moving, *, upsample: int = 100, window: str | np.
     reference, moving : array_like, shape (N, H, W) or (H, W)
         Reference and moving windows: real numbers of any dtype, finite, ``H, W >= 8``.
         A single pair may be given as two (H, W) arrays (the result then has N = 1).
-    upsample : int
-        Factor ``U`` of the last DFT-upsampling stage (grid spacing ``1/U`` px; the quadratic
-        vertex then refines within the grid).
+    upsample : int or None
+        ``None``: Newton refinement on the continuous surface (module docstring, step 5). An
+        integer ``U``: refinement on DFT-upsampled grids, the last of spacing ``1/U`` px (the
+        quadratic vertex then refines within the grid).
     window : {"hann", "tukey", "none"} or ndarray (H, W)
         Apodization applied to both windows after the weighted mean is removed.
     tukey_alpha : float
@@ -239,7 +249,7 @@ def phase_correlate(reference, moving, *, upsample: int = 100, window: str | np.
         peak; ``None`` = 2, widened to ``ceil(3 sigma_x)`` with a low-pass of spatial
         standard deviation ``sigma_x = 1 / (2 pi lowpass)``.
     stage1_upsample : int or None
-        Factor of the first of two refinement stages; ``None`` = ``round(sqrt(U))`` when
+        With an integer ``upsample`` only: factor of the first of two refinement stages; ``None`` = ``round(sqrt(U))`` when
         ``U > 20``, else a single stage; 0 or 1 forces the single 1.5 px stage at factor U.
     dtype : {"float32", "float64"}
         Working precision.
@@ -311,7 +321,7 @@ def _run_batches(kernel, ref: np.ndarray, mov: np.ndarray, batch):
 def make_plan(
     shape: tuple[int, int],
     *,
-    upsample: int = 100,
+    upsample: int | None = None,
     window: str | np.ndarray | None = "hann",
     tukey_alpha: float = 0.5,
     lowpass: float | None = None,
@@ -335,7 +345,8 @@ def make_plan(
     Returns
     -------
     _Plan
-        Apodization, spectral weights, bin multiplicities, refinement stages and exclusion box.
+        Apodization, spectral weights, bin multiplicities, refinement stages (none for the
+        Newton refinement, ``upsample=None``) and exclusion box.
     """
     height, width = shape
     dtype = np.dtype(dtype)
@@ -361,6 +372,20 @@ def make_plan(
         if lowpass is not None:
             exclusion_px = max(2, math.ceil(3.0 / (2.0 * math.pi * lowpass)))
 
+    stages = () if upsample is None else _dft_stages(upsample, stage1_upsample, freq_row, freq_col, multiplicity, height,
+                                                     width, dtype)
+    return _Plan(
+        shape=(height, width), dtype=dtype,
+        window_name=None if isinstance(window, np.ndarray) else _window_name(window),
+        tukey_alpha=float(tukey_alpha), follow=int(follow), apodization=apod,
+        weight=weight.astype(dtype), multiplicity=multiplicity.astype(dtype), freq_row=freq_row,
+        freq_col=freq_col, stages=stages, exclusion_px=int(exclusion_px), eps=float(eps),
+    )
+
+
+def _dft_stages(upsample: int, stage1_upsample, freq_row, freq_col, multiplicity, height: int, width: int,
+                dtype) -> tuple[_Stage, ...]:
+    """The DFT-upsampling stages of an integer ``upsample`` (module docstring, step 5)."""
     if stage1_upsample is None:
         stage1_upsample = int(round(math.sqrt(upsample))) if upsample > 20 else 0
     two_stages = 1 < stage1_upsample < upsample
@@ -375,13 +400,7 @@ def make_plan(
         k_col = (multiplicity[:, None] * np.exp(2j * np.pi * np.outer(freq_col, offsets) / width)).astype(cdtype)
         stages.append(_Stage(factor, offsets, k_row, k_col))
         half_width = _NEXT_STAGE_HALF_STEPS / factor  # around the vertex fitted on this grid
-    return _Plan(
-        shape=(height, width), dtype=dtype,
-        window_name=None if isinstance(window, np.ndarray) else _window_name(window),
-        tukey_alpha=float(tukey_alpha), follow=int(follow), apodization=apod,
-        weight=weight.astype(dtype), multiplicity=multiplicity.astype(dtype), freq_row=freq_row,
-        freq_col=freq_col, stages=tuple(stages), exclusion_px=int(exclusion_px), eps=float(eps),
-    )
+    return tuple(stages)
 
 
 def _apodization(height: int, width: int, window, tukey_alpha: float, dtype):
@@ -457,12 +476,14 @@ def following_windows(plan: _Plan, shift_px: np.ndarray) -> tuple[np.ndarray, np
     row, col : ndarray, shapes (B, H) and (B, W), plan dtype
         Separable profiles: the 2-D window of pair ``b`` is ``outer(row[b], col[b])``.
     """
-    profiles = []
-    for axis, n in enumerate(plan.shape):
-        s = np.clip(shift_px[:, axis], -n / 2.0, n / 2.0)[:, None]
-        u = (np.arange(n) + 0.5 - s) / n
-        profiles.append(window_profile(plan.window_name, u, plan.tukey_alpha).astype(plan.dtype))
-    return profiles[0], profiles[1]
+    height, width = plan.shape
+    # both axes in one (B, H + W) array: u = (i + 1/2 - s) / n per axis
+    size = np.repeat([float(height), float(width)], [height, width])
+    centres = np.concatenate([np.arange(height), np.arange(width)]) + 0.5
+    s = np.clip(shift_px, -0.5 * np.array([height, width]), 0.5 * np.array([height, width]))
+    u = ((centres - np.repeat(s, [height, width], axis=1)) / size).astype(plan.dtype)  # float32 sin: vectorized
+    profiles = window_profile(plan.window_name, u, plan.tukey_alpha).astype(plan.dtype, copy=False)
+    return profiles[:, :height], profiles[:, height:]
 
 
 # --------------------------------------------------------------------------- numpy kernel
@@ -488,12 +509,22 @@ class NumpyKernel:
         apod = plan.apodization
         self.window_2d = apod if isinstance(apod, np.ndarray) else np.outer(apod[0], apod[1]).astype(plan.dtype)
         self.window_sum = float(self.window_2d.sum(dtype=np.float64))
-        spec = np.fft.rfft2(_window_2d_float64(plan))
-        # the window's spectrum where it is not negligible: 6 bins for Hann (sin^2 at pixel centres)
-        support = np.abs(spec) > 1e-11 * np.abs(spec).max()  # beyond: float64 rounding
-        self.window_bins = np.nonzero(support)
-        self.window_spectrum = (spec[support] / self.window_sum).astype(plan.complex_dtype)
+        self.window_bins, self.window_spectrum = self._window_support(_window_2d_float64(plan))
+        # the reference is transformed reversed (see __call__)
+        self.window_2d_reversed = np.ascontiguousarray(self.window_2d[::-1, ::-1])
+        self.reversed_bins, self.reversed_spectrum = self._window_support(_window_2d_float64(plan)[::-1, ::-1])
+        self.weight_flat = plan.weight.reshape(-1)
+        self.neighbours, self.grid_shift = _grid_tables(plan.shape)
+        self.surface_grid = surface_grid(plan.shape, plan.dtype)
+        self.sum_mult_weight = float((plan.multiplicity.astype(np.float64) * plan.weight).sum())
         self._buffers = {}
+
+    def _window_support(self, window_2d: np.ndarray):
+        """Bins (rows, cols) where ``rfft2(window_2d)`` is not negligible (6 for Hann: sin^2 at
+        pixel centres) and its values there over ``sum(w)``, in the working complex dtype."""
+        spec = np.fft.rfft2(window_2d)
+        support = np.abs(spec) > 1e-11 * np.abs(spec).max()  # beyond: float64 rounding
+        return np.nonzero(support), (spec[support] / self.window_sum).astype(self.plan.complex_dtype)
 
     def _buffer(self, name: str, shape, dtype) -> np.ndarray:
         """A scratch array of ``shape`` kept between batches (the last batch may be smaller)."""
@@ -507,22 +538,23 @@ class NumpyKernel:
         plan = self.plan
         ref = ref.astype(plan.dtype, copy=False)  # a no-op for float32 chips
         mov = mov.astype(plan.dtype, copy=False)
-        spec_ref_conj = np.conjugate(self.spectrum(ref), out=self._buffer("ref", (ref.shape[0], plan.shape[0],
-                                                                                    plan.shape[1] // 2 + 1),
-                                                                          plan.complex_dtype))
-        cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov), variance=plan.follow == 0)
-        centre, second = self.coarse_peak(cross)
+        # the reference reversed, y(t) = x(n - 1 - t): its spectrum is conj(F) exp(2 pi i k / n) per
+        # axis, so M conj(F) costs no conjugation and the surface of M Y peaks at the shift minus
+        # one pixel per axis (REVERSED_ORIGIN_PX, added back by coarse_peak and refine)
+        spec_ref = self.spectrum(ref, reverse=True)
+        cross, q_mean, q_var = self.cross_power(spec_ref, self.spectrum(mov), variance=plan.follow == 0)
+        centre, second = self.coarse_peak(cross, keep=plan.follow == 0)
         first_q_mean = q_mean
         for k in range(plan.follow):
             last = k == plan.follow - 1
-            cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov, following_windows(plan, centre)),
+            cross, q_mean, q_var = self.cross_power(spec_ref, self.spectrum(mov, following_windows(plan, centre)),
                                                     variance=last)
             if not last:
-                centre, _ = self.refine(cross, centre, plan.stages[:1])
+                centre, _ = self.refine(cross, centre, plan.stages[:1], max_iterations=1)
         centre, peak = self.refine(cross, centre, plan.stages)
         return centre, peak, q_mean, q_var, second, first_q_mean
 
-    def spectrum(self, windows, window=None):
+    def spectrum(self, windows, window=None, *, reverse: bool = False):
         """Half spectrum (B, H, Wh) of the apodized, mean-removed windows.
 
         With the plan's fixed window the product ``w x`` is transformed and the weighted mean
@@ -537,28 +569,36 @@ class NumpyKernel:
             Windows in the plan's working precision, pixels indexed (row, col).
         window : None or (row, col) profiles of shapes (B, H) and (B, W)
             None: the plan's fixed apodization; else the following windows of each pair.
+        reverse : bool
+            With the fixed apodization only: transform the windows reversed along both axes,
+            ``x(H - 1 - r, W - 1 - c)``, whose spectrum is the conjugate of the windows' times
+            ``exp(2 pi i (k1 / H + k2 / W))``.
 
         Returns
         -------
         ndarray of complex, shape (B, H, W // 2 + 1)
-            ``rfft2`` of ``window * (windows - weighted mean)``.
+            ``rfft2`` of ``window * (windows - weighted mean)`` (reversed if ``reverse``).
         """
         buf = self._buffer("apodized", windows.shape, self.plan.dtype)
         if window is None:
-            np.multiply(windows, self.window_2d, out=buf)
-            spec = scipy.fft.rfft2(buf, workers=self.workers)
+            if reverse:
+                np.multiply(windows[:, ::-1, ::-1], self.window_2d_reversed, out=buf)
+                (rows, cols), window_spectrum = self.reversed_bins, self.reversed_spectrum
+            else:
+                np.multiply(windows, self.window_2d, out=buf)
+                (rows, cols), window_spectrum = self.window_bins, self.window_spectrum
+            spec = scipy.fft.rfft2(buf, workers=self.workers, overwrite_x=True)
             mean_sum = spec[:, 0, 0].real.copy()  # sum(w x) = sum(w) m
-            rows, cols = self.window_bins
-            spec[:, rows, cols] -= mean_sum[:, None] * self.window_spectrum
+            spec[:, rows, cols] -= mean_sum[:, None] * window_spectrum
             return spec
         row, col = window
         # sum_ij row_i col_j x_ij as two matrix products, without forming the 2-D window
         weighted = np.matmul(row[:, None, :], np.matmul(windows, col[:, :, None]))[:, 0, 0]
         mean = (weighted / (row.sum(axis=1) * col.sum(axis=1))).astype(self.plan.dtype)
-        np.subtract(windows, mean[:, None, None], out=buf, casting="same_kind")
+        np.subtract(windows, mean[:, None, None], out=buf)
         buf *= row[:, :, None]
         buf *= col[:, None, :]
-        return scipy.fft.rfft2(buf, workers=self.workers)
+        return scipy.fft.rfft2(buf, workers=self.workers, overwrite_x=True)
 
     def cross_power(self, spec_ref_conj, spec_mov, *, variance: bool = True):
         """Weighted normalized cross-power ``Q`` (B, H, Wh), ``sum|Q|/(HW)``, ``sum|Q|^2/(HW)^2``.
@@ -568,7 +608,8 @@ class NumpyKernel:
         Parameters
         ----------
         spec_ref_conj : ndarray of complex, shape (B, H, W // 2 + 1)
-            Conjugated half spectrum of the reference windows.
+            Conjugated half spectrum of the reference windows, possibly times a phase ramp (the
+            reversed reference of ``__call__``: the surface is then translated).
         spec_mov : ndarray of complex, shape (B, H, W // 2 + 1)
             Half spectrum of the moving windows.
         variance : bool
@@ -586,30 +627,42 @@ class NumpyKernel:
         plan = self.plan
         n, height, half = spec_mov.shape
         cross = spec_mov
-        cross *= spec_ref_conj  # M conj(F): the surface peaks at +shift
-        mag = np.abs(cross, out=self._buffer("mag", cross.shape, plan.dtype))
-        level = mag.reshape(n, -1).mean(axis=1)
-        factor = self._buffer("factor", cross.shape, plan.dtype)
-        np.add(mag, (plan.eps * level + np.finfo(plan.dtype).tiny)[:, None, None], out=factor)
-        np.divide(plan.weight, factor, out=factor)
+        cross *= spec_ref_conj  # M conj(F): the surface peaks at +shift (minus the ramp's translation)
+        factor = np.abs(cross, out=self._buffer("factor", cross.shape, plan.dtype))
+        flat = factor.reshape(n, -1)
+        signal = flat @ self.weight_flat  # sum w |X|: 0 only for a flat pair
+        floor = plan.eps * flat.mean(axis=1) + np.finfo(plan.dtype).tiny
+        factor += floor[:, None, None]
+        np.divide(plan.weight, factor, out=factor)  # g = w / (|X| + floor)
         cross *= factor
-        mag *= factor  # |Q|
+        # |Q| = w |X| / (|X| + floor) = w - floor g: no pass over |X| again
         n_px = height * plan.shape[1]
-        q_mean = (mag.reshape(-1, half) @ plan.multiplicity).reshape(n, height).sum(axis=1, dtype=np.float64) / n_px
+        with np.errstate(over="ignore", invalid="ignore"):  # g overflows only for flat pairs (floor = tiny)
+            q_mean = np.where(signal > 0, (self.sum_mult_weight - floor * self._mult_sum(factor)) / n_px, 0.0)
         q_var = None
         if variance:
-            mag *= mag
-            q_var = (mag.reshape(-1, half) @ plan.multiplicity).reshape(n, height).sum(axis=1, dtype=np.float64) / n_px**2
+            factor *= floor[:, None, None]
+            np.subtract(plan.weight, factor, out=factor)
+            q_var = self._mult_sum(np.square(factor, out=factor)) / n_px**2
         return cross, q_mean, q_var
 
-    def coarse_peak(self, cross):
+    def _mult_sum(self, values: np.ndarray) -> np.ndarray:
+        """``sum_k m(k2) values(k)`` per pair (B,) in float64, from (B, H, Wh) half-spectrum
+        values: float32 sums of one row each, then float64 over the rows."""
+        n, height, half = values.shape
+        return (values.reshape(-1, half) @ self.plan.multiplicity).reshape(n, height).sum(axis=1, dtype=np.float64)
+
+    def coarse_peak(self, cross, *, keep: bool = True):
         """Peak of the integer-grid surface with a 3-point parabolic offset per axis (B, 2),
         as signed shifts, and the secondary maximum outside the exclusion box (B,).
 
         Parameters
         ----------
         cross : ndarray of complex, shape (B, H, W // 2 + 1)
-            Cross-power spectrum.
+            Cross-power spectrum with the reversed reference (its surface peaks at the shift
+            minus ``REVERSED_ORIGIN_PX`` per axis).
+        keep : bool
+            False: ``cross`` may be overwritten (by the inverse FFT).
 
         Returns
         -------
@@ -620,34 +673,38 @@ class NumpyKernel:
         """
         height, width = self.plan.shape
         n = cross.shape[0]
-        surface = scipy.fft.irfft2(cross, s=(height, width), workers=self.workers)
-        peak_row, peak_col = np.divmod(np.argmax(surface.reshape(n, -1), axis=1), width)
-        pairs = np.arange(n)
-        centre_value = surface[pairs, peak_row, peak_col]
-        offset_row = _parabola_vertex(surface[pairs, (peak_row - 1) % height, peak_col], centre_value,
-                                      surface[pairs, (peak_row + 1) % height, peak_col])
-        offset_col = _parabola_vertex(surface[pairs, peak_row, (peak_col - 1) % width], centre_value,
-                                      surface[pairs, peak_row, (peak_col + 1) % width])
+        surface = scipy.fft.irfft2(cross, s=(height, width), workers=self.workers, overwrite_x=not keep)
+        flat = surface.reshape(n, -1)
+        peak = np.argmax(flat, axis=1)
+        # the peak and its 4 periodic neighbours (up, left, centre, down, right) in one gather
+        values = np.take_along_axis(flat, self.neighbours[peak], axis=1).astype(float)
+        offset = _parabola_vertex(values[:, :2], values[:, 2:3], values[:, 3:])  # (B, 2): row, col
         # blank the periodic exclusion box around the peak, then take the maximum
+        peak_row, peak_col = np.divmod(peak, width)
         span = np.arange(-self.plan.exclusion_px, self.plan.exclusion_px + 1)
         rows = (peak_row[:, None] + span) % height
         cols = (peak_col[:, None] + span) % width
-        surface[pairs[:, None, None], rows[:, :, None], cols[:, None, :]] = -np.inf
-        second = surface.reshape(n, -1).max(axis=1).astype(float)
-        centre = np.stack([_signed(peak_row, height) + offset_row, _signed(peak_col, width) + offset_col], axis=1)
-        return centre, second
+        surface[np.arange(n)[:, None, None], rows[:, :, None], cols[:, None, :]] = -np.inf
+        second = flat.max(axis=1).astype(float)
+        return self.grid_shift[peak] + offset, second
 
-    def refine(self, cross, centre, stages):
-        """Matrix-multiply DFT refinement around ``centre`` (B, 2): new centre and peak value.
+    def refine(self, cross, centre, stages, *, max_iterations: int = NEWTON_MAX_ITERATIONS):
+        """Sub-pixel refinement around ``centre`` (B, 2): new centre and peak value.
+
+        Newton steps on the continuous surface (:func:`gcpmatch.phase_newton.newton_refine`)
+        when ``stages`` is empty, else the matrix-multiply DFT on the stages' grids.
 
         Parameters
         ----------
         cross : ndarray of complex, shape (B, H, W // 2 + 1)
-            Cross-power spectrum.
+            Cross-power spectrum with the reversed reference (as in :meth:`coarse_peak`).
         centre : ndarray of float64, shape (B, 2)
             Current (row, col) shift estimate, pixels.
         stages : sequence of stage plans
-            Upsampling stages (DFT kernels along rows and columns, grid offsets in pixels).
+            Upsampling stages (DFT kernels along rows and columns, grid offsets in pixels);
+            empty for the Newton refinement.
+        max_iterations : int
+            Newton steps at most.
 
         Returns
         -------
@@ -658,6 +715,10 @@ class NumpyKernel:
         """
         plan = self.plan
         height, width = plan.shape
+        centre = centre - REVERSED_ORIGIN_PX  # position on the surface of M Y (__call__)
+        if not stages:
+            centre, peak = newton_refine(cross, centre, self.surface_grid, max_iterations=max_iterations)
+            return centre + REVERSED_ORIGIN_PX, peak
         peak = None
         for stage in stages:
             # per-pair phase ramps exp(2 pi i k c / n), folded into the stage's kernels
@@ -667,7 +728,7 @@ class NumpyKernel:
             offset, peak = _grid_peak(values, stage.offsets_px)
             centre = centre + offset
             peak = peak / (height * width)
-        return centre, peak
+        return centre + REVERSED_ORIGIN_PX, peak
 
 
 def _window_2d_float64(plan: _Plan) -> np.ndarray:
@@ -727,6 +788,20 @@ def _quadratic_vertex(patch: np.ndarray):
     d_row = np.where(ok, (c5 * c2 - 2.0 * c4 * c1) / det, 0.0)
     d_col = np.where(ok, (c5 * c1 - 2.0 * c3 * c2) / det, 0.0)
     return np.minimum(np.maximum(d_row, -1.0), 1.0), np.minimum(np.maximum(d_col, -1.0), 1.0)
+
+
+def _grid_tables(shape: tuple[int, int]):
+    """Per flat index of an (H, W) surface of the reversed reference (``NumpyKernel.__call__``):
+    the flat indices of the point and its periodic neighbours, (H W, 5) in the order up, left,
+    centre, down, right; and the signed (row, col) shift it stands for, (H W, 2) float64, in
+    ``[-H/2, H/2) x [-W/2, W/2)`` (its index plus ``REVERSED_ORIGIN_PX``, wrapped)."""
+    height, width = shape
+    rows, cols = (a.ravel() for a in np.meshgrid(np.arange(height), np.arange(width), indexing="ij"))
+    steps = [(-1, 0), (0, -1), (0, 0), (1, 0), (0, 1)]
+    neighbours = np.stack([(rows + dr) % height * width + (cols + dc) % width for dr, dc in steps], axis=1)
+    shift = np.stack([_signed((rows + REVERSED_ORIGIN_PX) % height, height),
+                      _signed((cols + REVERSED_ORIGIN_PX) % width, width)], axis=1).astype(float)
+    return neighbours, shift
 
 
 def _parabola_vertex(left, centre, right) -> np.ndarray:
@@ -801,8 +876,7 @@ def _validate_pairs(reference, moving) -> tuple[np.ndarray, np.ndarray]:
     for name, arr in (("reference", ref), ("moving", mov)):
         if not np.issubdtype(arr.dtype, np.floating):
             continue
-        chunk = max(1, _BATCH_PIXELS // (arr.shape[1] * arr.shape[2]))  # bounded memory
-        bad = np.concatenate([~np.isfinite(arr[i:i + chunk]).all(axis=(1, 2)) for i in range(0, arr.shape[0], chunk)])
+        bad = _non_finite_windows(arr)
         if bad.any():
             raise InputError(
                 f"{int(bad.sum())} window(s) hold NaN or inf (first: pair {int(np.argmax(bad))}); fill or drop them before matching",
@@ -811,13 +885,29 @@ def _validate_pairs(reference, moving) -> tuple[np.ndarray, np.ndarray]:
     return ref, mov
 
 
+def _non_finite_windows(arr: np.ndarray) -> np.ndarray:
+    """(N,) flags of the (N, H, W) floating windows holding a NaN or an infinity.
+
+    One matrix-vector product with ones per window (a NaN or an infinity makes the sum
+    non-finite; no boolean array is formed), then the exact test on the windows whose sum is not
+    finite (finite values can also overflow the sum).
+    """
+    flat = arr.reshape(arr.shape[0], -1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        suspect = ~np.isfinite(flat @ np.ones(flat.shape[1], dtype=arr.dtype))
+    bad = np.zeros(arr.shape[0], dtype=bool)
+    if suspect.any():
+        bad[suspect] = ~np.isfinite(flat[suspect]).all(axis=1)
+    return bad
+
+
 def _is_int(value, minimum: int) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= minimum
 
 
 def _validate_options(**o) -> dict:
     checks = [
-        ("upsample", _is_int(o["upsample"], 1), "an integer >= 1"),
+        ("upsample", o["upsample"] is None or _is_int(o["upsample"], 1), "an integer >= 1 or None"),
         ("min_score", o["min_score"] is None or 0.0 <= o["min_score"] <= 1.0, "in [0, 1] or None"),
         ("min_peak_ratio", o["min_peak_ratio"] >= 0.0, ">= 0"),
         ("lowpass", o["lowpass"] is None or o["lowpass"] > 0.0, "a positive frequency in cycles/px or None"),
