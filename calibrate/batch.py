@@ -414,8 +414,11 @@ def _connect(scheduler, workers: int, timeout_s: float):
     from distributed import Client, LocalCluster
 
     if scheduler is None:
+        # workers log at CRITICAL only: a task's error reaches the client as its exception, and
+        # on Ctrl-C a loaded machine can stop the scheduler before a worker's heartbeat, which
+        # the worker would log at ERROR with a traceback (tests/test_bad_inputs.py, validate)
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.CRITICAL)
         try:
             return Client(cluster), cluster
         except BaseException:
