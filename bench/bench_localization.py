@@ -331,6 +331,9 @@ def main():
     print(f"RPC over DEM       {r['points_per_s']['after']:12,.0f} points/s   x{r['speedup_vs_before']:.2f} vs before, "
           f"x{r['ratio_vs_gdal']:.2f} vs GDAL; reprojection max {r['after']['reprojection_px_max']:.1e} px "
           f"(GDAL {r['gdal']['reprojection_px_max']:.1e} px)")
+    if "ratio_vs_shareloc_cpp" in r:
+        print(f"                   x{r['ratio_vs_shareloc_cpp']:.2f} vs shareloc C++; its reprojection max "
+              f"{r['shareloc']['reprojection_px_max']:.1e} px, {r['shareloc']['distance_to_after_px_max']:.1e} px from ours")
 
     results["max_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"peak memory {results['max_rss_mb']:.0f} MB")
