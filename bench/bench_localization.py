@@ -4,11 +4,14 @@ Prints figures and writes JSON (default ``bench/results/localization.json``). Ru
 (BLAS threads pinned to 1). Uses the real SRTM tile from ``../shared/data/dem`` when present,
 else a synthetic DEM of the same size and relief.
 
-Also RPC localization over the DEM, side by side: the base revision, the current code and GDAL's
-RPC transformer (``bench_rpc_dem``; ``--rpc-only`` runs just that and writes
-``bench/results/localization_rpc.json``).
+Also RPC localization over the DEM, side by side: the base revision, the current code, GDAL's
+RPC transformer and, with ``--shareloc-python PATH`` (an interpreter whose environment has
+shareloc installed; gcpcal itself does not depend on it), shareloc's C++ in a child process
+(``bench/shareloc_child.py``). ``bench_rpc_dem``; ``--rpc-only`` runs just that and writes
+``bench/results/localization_rpc.json``.
 
-Usage: ``python bench/bench_localization.py [--points 1000000] [--out FILE] [--rpc-only]``
+Usage: ``python bench/bench_localization.py [--points 1000000] [--out FILE] [--rpc-only]
+[--shareloc-python PATH] [--repeat 3]``
 """
 
 from __future__ import annotations
@@ -62,77 +65,183 @@ def timed(func, *args, repeat=1, **kwargs):
     return best, out
 
 
-def bench_rpc_dem(model, dem, n: int, repeat: int = 3) -> dict:
-    """RPC localization over the DEM: base revision, current code and GDAL, side by side.
-
-    The RPC is fitted to CCD 0 of ``model``; GDAL's RPC transformer (rasterio
-    ``RPCTransformer``, ``RPC_DEM`` = the same ellipsoidal heights as a GeoTIFF, bilinear,
-    ``RPC_PIXEL_ERROR_THRESHOLD`` 1e-4 px) localizes the same pixels. Timings alternate, best of
-    ``repeat``. Accuracy: reprojection residual (max norm, px) of each method's ground point
-    through the RPC at its height, the DEM misfit ``|DEM(lon, lat) - h|`` (ours), and the ground
-    distance to the base revision's solution (1e-9 px inversions), metres and pixels.
-    """
+def _rpc_scene(model, dem, n: int):
+    """The RPC fitted to CCD 0 of ``model``, the base revision's twin, ``n`` pixels over the DEM
+    and the base revision's name."""
     import sys
-    import tempfile
-
-    import rasterio
-    from rasterio.transform import RPCTransformer
 
     sys.path.insert(0, str(ROOT / "bench"))
     from baseline import BASE_REV, load_baseline
 
-    h_lo, h_hi = dem.height_range_m
-    rpc, _ = fit_rpc(model.ccd_view(0), height_range_m=(h_lo, h_hi))
+    rpc, _ = fit_rpc(model.ccd_view(0), height_range_m=dem.height_range_m)
     base_rpc = load_baseline("sensor_models/rpc.py").RpcModel(**rpc._init_kwargs())
     rng = np.random.default_rng(7)
     rows = rng.uniform(300.0, 1700.0, n)
     cols = rng.uniform(50.0, rpc.image_shape[1] - 50.0, n)
+    return rpc, base_rpc, rows, cols, BASE_REV
+
+
+def _write_inputs(folder: Path, rpc, dem, rows, cols) -> Path:
+    """The files GDAL and shareloc read: ``dem.tif`` (ellipsoidal heights, float32, NaN voids),
+    ``rpc.tif`` (gcpcal's GeoTIFF RPC writer), ``rows.npy``, ``cols.npy``. Returns the DEM path."""
+    import rasterio
+
     z = np.asarray(dem.heights_m, dtype=np.float32)
+    path = folder / "dem.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1, dtype="float32",
+                       crs=dem.crs.to_wkt(), transform=dem.transform, nodata=np.nan) as ds:
+        ds.write(z, 1)
+    rpc.write(folder / "rpc.tif")
+    np.save(folder / "rows.npy", rows)
+    np.save(folder / "cols.npy", cols)
+    return path
+
+
+def _time_round(funcs: dict, repeat: int, best: dict, out: dict) -> None:
+    """``repeat`` passes over ``funcs`` in turn; keeps each one's best time and last output."""
+    for _ in range(repeat):
+        for k, f in funcs.items():
+            t0 = time.perf_counter()
+            out[k] = f()
+            best[k] = min(best.get(k, np.inf), time.perf_counter() - t0)
+
+
+def run_shareloc(python, folder: Path, repeat: int) -> tuple[dict | None, str]:
+    """shareloc's C++ localization of the same pixels, in a child process of ``python``.
+
+    Parameters
+    ----------
+    python : str or None
+        Interpreter of an environment with shareloc installed (``--shareloc-python``).
+    folder : Path
+        The files of :func:`_write_inputs`.
+    repeat : int
+        Best of ``repeat`` (inside the child).
+
+    Returns
+    -------
+    result : dict or None
+        The child's JSON (``seconds``: ``cpp``, ``wrapper``; ``shareloc_version``...) plus
+        ``lonlath`` (3, n), or None when skipped.
+    reason : str
+        Why it was skipped ("" when it ran).
+    """
+    import subprocess
+
+    if not python:
+        return None, "--shareloc-python not given"
+    env = dict(os.environ, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
+    try:
+        proc = subprocess.run([str(python), str(ROOT / "bench" / "shareloc_child.py"), str(folder), "--repeat",
+                               str(repeat)], capture_output=True, text=True, env=env, timeout=3600)
+    except OSError as err:
+        return None, f"cannot run {python}: {err}"
+    if proc.returncode != 0:
+        last = (proc.stderr.strip().splitlines() or ["no message"])[-1]
+        return None, f"{python} could not run shareloc ({last})"
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    result["lonlath"] = np.load(folder / "shareloc_lonlath.npy")
+    return result, ""
+
+
+def _accuracy(rpc, dem, rows, cols, lonlath, ref: dict, *, has_height: bool = True) -> dict:
+    """Accuracy of one method's ground points (``lonlath``: lon, lat, h arrays).
+
+    ``ref`` maps a name (``before``: the base revision, 1e-9 px inversions; ``after``: ours) to
+    its ``(lon, lat, h)``. Reports the fraction found; the reprojection residual through the RPC
+    at the method's own height (max norm, px; at the reference's height when the method gives
+    none, GDAL); the DEM misfit ``|DEM(lon, lat) - h|`` (m); and, for each reference, the ground
+    distance to its solution (m) and the image offset of that distance at its height (px).
+    """
+    lon, lat, h = lonlath
+    base_lon, base_lat, base_h = ref["before"]
+    ok = np.isfinite(lon) & np.isfinite(base_lon)
+    hh = h[ok] if has_height else base_h[ok]
+    r2, c2 = rpc.ground_to_image(lon[ok], lat[ok], hh)
+    res = {"found": float(np.isfinite(lon).mean()), "compared": int(ok.sum()),
+           "reprojection_px_max": float(np.max(np.maximum(abs(r2 - rows[ok]), abs(c2 - cols[ok]))))}
+    if has_height:
+        res["dem_misfit_m_max"] = float(np.nanmax(np.abs(dem.height_m(lon[ok], lat[ok]) - h[ok])))
+    for name, (rlon, rlat, rh) in ref.items():
+        if rlon is lon:  # the method itself
+            continue
+        both = np.isfinite(lon) & np.isfinite(rlon)
+        d_m = np.hypot((lon - rlon)[both] * np.cos(np.radians(rlat[both])), (lat - rlat)[both]) * 111_320.0
+        r3, c3 = rpc.ground_to_image(lon[both], lat[both], rh[both])
+        r4, c4 = rpc.ground_to_image(rlon[both], rlat[both], rh[both])
+        res[f"distance_to_{name}_m_max"] = float(d_m.max())
+        res[f"distance_to_{name}_px_max"] = float(np.max(np.hypot(r3 - r4, c3 - c4)))
+    return res
+
+
+def bench_rpc_dem(model, dem, n: int, repeat: int = 3, shareloc_python=None) -> dict:
+    """RPC localization over the DEM: base revision, current code, GDAL and shareloc, side by side.
+
+    The RPC is fitted to CCD 0 of ``model``; GDAL's RPC transformer (rasterio
+    ``RPCTransformer``, ``RPC_DEM`` = the same ellipsoidal heights as a GeoTIFF, bilinear,
+    ``RPC_PIXEL_ERROR_THRESHOLD`` 1e-4 px) localizes the same pixels. Timings alternate, best of
+    ``repeat``, in two rounds with shareloc's C++ (child process in ``shareloc_python``'s
+    environment, one thread, see ``bench/shareloc_child.py``) between them: ours, shareloc,
+    ours. Accuracy: see :func:`_accuracy` (distances to the base revision's solution and to ours).
+    """
+    import tempfile
+
+    from rasterio.transform import RPCTransformer
+
+    rpc, base_rpc, rows, cols, base_rev = _rpc_scene(model, dem, n)
+    best, out = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "dem_ellipsoid.tif"
-        with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1, dtype="float32",
-                           crs=dem.crs.to_wkt(), transform=dem.transform, nodata=np.nan) as ds:
-            ds.write(z, 1)
-        with RPCTransformer(rpc.to_rasterio(), RPC_DEM=str(path), RPC_DEMINTERPOLATION="bilinear",
+        dem_path = _write_inputs(Path(tmp), rpc, dem, rows, cols)
+        with RPCTransformer(rpc.to_rasterio(), RPC_DEM=str(dem_path), RPC_DEMINTERPOLATION="bilinear",
                             RPC_PIXEL_ERROR_THRESHOLD=1e-4) as gdal:
             funcs = {"before": lambda: base_rpc.image_to_ground(rows, cols, dem=dem),
                      "after": lambda: rpc.image_to_ground(rows, cols, dem=dem),
                      "gdal": lambda: gdal.xy(rows, cols, offset="ul")}
-            best = {k: np.inf for k in funcs}
-            out = {}
-            for _ in range(repeat):
-                for k, f in funcs.items():
-                    t0 = time.perf_counter()
-                    out[k] = f()
-                    best[k] = min(best[k], time.perf_counter() - t0)
-    ref_lon, ref_lat, ref_h = out["before"]
-    result = {"points": n, "base_rev": BASE_REV, "points_per_s": {k: n / v for k, v in best.items()},
-              "speedup_vs_before": best["before"] / best["after"], "ratio_vs_gdal": best["gdal"] / best["after"]}
-    lon_g, lat_g = (np.asarray(v, dtype=np.float64) for v in out["gdal"])
-    for key, (lon, lat, h) in (("after", out["after"]), ("gdal", (lon_g, lat_g, None))):
-        ok = np.isfinite(lon) & np.isfinite(ref_lon)
-        d_m = np.hypot((lon - ref_lon)[ok] * np.cos(np.radians(ref_lat[ok])), (lat - ref_lat)[ok]) * 111_320.0
-        hh = ref_h[ok] if h is None else h[ok]  # GDAL gives no height: reproject at the reference's
-        r2, c2 = rpc.ground_to_image(lon[ok], lat[ok], hh)
-        # the ground offset to the reference solution, in image pixels (both at its height)
-        r3, c3 = rpc.ground_to_image(lon[ok], lat[ok], ref_h[ok])
-        r4, c4 = rpc.ground_to_image(ref_lon[ok], ref_lat[ok], ref_h[ok])
-        result[key] = {"found": float(np.isfinite(lon).mean()), "distance_to_before_m_max": float(d_m.max()),
-                       "distance_to_before_px_max": float(np.max(np.hypot(r3 - r4, c3 - c4))),
-                       "reprojection_px_max": float(np.max(np.maximum(abs(r2 - rows[ok]), abs(c2 - cols[ok]))))}
-        if h is not None:
-            result[key]["dem_misfit_m_max"] = float(np.nanmax(np.abs(dem.height_m(lon[ok], lat[ok]) - h[ok])))
-    result["before"] = {"found": float(np.isfinite(ref_lon).mean())}
+            _time_round(funcs, repeat, best, out)
+            after_rounds = [best["after"]]
+            load = [os.getloadavg()[0]]
+            shareloc, reason = run_shareloc(shareloc_python, Path(tmp), repeat)
+            second = {}
+            _time_round(funcs, repeat, second, out)
+            after_rounds.append(second["after"])
+            load.append(os.getloadavg()[0])
+            best = {k: min(best[k], second[k]) for k in best}
+    return _rpc_result(rpc, dem, rows, cols, best, out, shareloc, reason, after_rounds, load, base_rev)
+
+
+def _rpc_result(rpc, dem, rows, cols, best, out, shareloc, reason, after_rounds, load, base_rev) -> dict:
+    """The JSON record of :func:`bench_rpc_dem`: speeds, ratios, accuracy of each method."""
+    n = rows.size
+    ref = {"before": out["before"], "after": out["after"]}
+    result = {"points": n, "base_rev": base_rev, "points_per_s": {k: n / v for k, v in best.items()},
+              "after_best_s_per_round": after_rounds, "load_average_1min": load,
+              "speedup_vs_before": best["before"] / best["after"], "ratio_vs_gdal": best["gdal"] / best["after"],
+              "before": {"found": float(np.isfinite(out["before"][0]).mean())},
+              "after": _accuracy(rpc, dem, rows, cols, out["after"], ref)}
+    gdal_lonlath = tuple(np.asarray(v, dtype=np.float64) for v in out["gdal"]) + (None,)
+    result["gdal"] = _accuracy(rpc, dem, rows, cols, gdal_lonlath, ref, has_height=False)
+    if shareloc is None:
+        print(f"shareloc column skipped: {reason}")
+        result["shareloc"] = {"skipped": reason}
+        return result
+    sec = shareloc["seconds"]
+    result["points_per_s"]["shareloc_cpp"] = n / sec["cpp"]
+    result["points_per_s"]["shareloc_wrapper"] = n / sec["wrapper"]
+    result["ratio_vs_shareloc_cpp"] = sec["cpp"] / best["after"]
+    result["shareloc"] = _accuracy(rpc, dem, rows, cols, shareloc["lonlath"], ref)
+    result["shareloc"].update({k: shareloc[k] for k in ("shareloc_version", "python", "dem_nodes_filled", "threads")})
     return result
 
 
-def rpc_only(n: int) -> None:
+def rpc_only(n: int, shareloc_python=None, repeat: int = 3) -> None:
     """``--rpc-only``: the RPC-over-DEM comparison alone, written to ``localization_rpc.json``."""
     dem, dem_name = load_dem()
     model = example_pushbroom_model(n_rows=2000, installation=Installation(0.0, 0.0, np.radians(3.55)))
-    r = bench_rpc_dem(model, dem, n)
-    r.update(dem=dem_name, command=f"python bench/bench_localization.py --rpc-only --points {n}",
-             machine=platform.machine())
+    r = bench_rpc_dem(model, dem, n, repeat=repeat, shareloc_python=shareloc_python)
+    command = f"python bench/bench_localization.py --rpc-only --points {n} --repeat {repeat}"
+    if shareloc_python:
+        command += f" --shareloc-python {shareloc_python}"
+    r.update(dem=dem_name, command=command, machine=platform.machine(), python=platform.python_version())
     print(json.dumps(r, indent=1))
     out = ROOT / "bench" / "results" / "localization_rpc.json"
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -146,10 +255,14 @@ def main():
     parser.add_argument("--rpc-only", action="store_true",
                         help="only the RPC-over-DEM comparison (base revision, current, GDAL); writes "
                              "bench/results/localization_rpc.json")
+    parser.add_argument("--shareloc-python", default=None, metavar="PATH",
+                        help="Python of an environment with shareloc installed: adds shareloc's C++ to the RPC "
+                        "comparison (skipped with a printed reason when not given or not importable)")
+    parser.add_argument("--repeat", type=int, default=3, help="best of N for the RPC comparison")
     args = parser.parse_args()
     n = args.points
     if args.rpc_only:
-        rpc_only(n)
+        rpc_only(n, args.shareloc_python, args.repeat)
         return
     rng = np.random.default_rng(42)
 
@@ -213,10 +326,14 @@ def main():
         results[key] = {"seconds": t, "check_max_px": report["check_max_px"], "check_rms_px": report["check_rms_px"]}
         print(f"RPC fit ({label}) {t:.2f} s   check max {report['check_max_px']:.1e} px, rms {report['check_rms_px']:.1e} px")
 
-    results["rpc_dem"] = r = bench_rpc_dem(model, dem, min(n, 200_000))
+    results["rpc_dem"] = r = bench_rpc_dem(model, dem, min(n, 200_000), repeat=args.repeat,
+                                             shareloc_python=args.shareloc_python)
     print(f"RPC over DEM       {r['points_per_s']['after']:12,.0f} points/s   x{r['speedup_vs_before']:.2f} vs before, "
           f"x{r['ratio_vs_gdal']:.2f} vs GDAL; reprojection max {r['after']['reprojection_px_max']:.1e} px "
           f"(GDAL {r['gdal']['reprojection_px_max']:.1e} px)")
+    if "ratio_vs_shareloc_cpp" in r:
+        print(f"                   x{r['ratio_vs_shareloc_cpp']:.2f} vs shareloc C++; its reprojection max "
+              f"{r['shareloc']['reprojection_px_max']:.1e} px, {r['shareloc']['distance_to_after_px_max']:.1e} px from ours")
 
     results["max_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"peak memory {results['max_rss_mb']:.0f} MB")
