@@ -22,7 +22,7 @@ from sensor_models.simulate.profiles import PROFILES, Sourced
 from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
 from sensor_models.simulate.realistic_sim import apply_profile, field_weights, mtf_nyquist
 from sensor_models.simulate.render_io import utm_crs
-from sensor_models.simulate.scene import build_models, ccd_layout
+from sensor_models.simulate.scene import build_models
 
 REALISTIC = PROFILES["realistic"]
 SMALL = {"scene": {"n_rows": 64}, "camera": {"detectors_per_ccd": 32, "overlap_detectors": 4},
