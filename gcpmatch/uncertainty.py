@@ -65,7 +65,7 @@ def score_sigma_px(score: np.ndarray, *, window_px: int = 64) -> np.ndarray:
 
 
 def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *, model: str = "ccd",
-                 reference_sigma_px: float = 0.0, window_px: int = 64) -> np.ndarray:
+                 reference_sigma_px: float = 0.0, window_px: int = 64, texture_sigma_px: float = 0.0) -> np.ndarray:
     """Per-GCP standard deviation per axis, pixels, for the kept matches of one CCD.
 
     Parameters
@@ -83,6 +83,10 @@ def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *,
         The reference's geolocation accuracy per axis in scene pixels (``"window"`` only).
     window_px : int
         Window side, pixels.
+    texture_sigma_px : float
+        ``"window"`` only: scale of an extra term for texture-poor windows added in quadrature,
+        :func:`gcpmatch.texture.texture_sigma_px` of the quality's ``gradient_snr_row`` and
+        ``gradient_snr_col`` (0, the default: none; :attr:`MatchOptions.texture_sigma_px`).
 
     Returns
     -------
@@ -91,8 +95,13 @@ def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *,
     """
     n = residual_px.shape[0]
     if model == "window" and "score" in quality:
-        match = score_sigma_px(quality["score"], window_px=window_px)
-        return np.maximum(np.hypot(match, reference_sigma_px), MIN_SIGMA_PX)
+        match = np.hypot(score_sigma_px(quality["score"], window_px=window_px), reference_sigma_px)
+        if texture_sigma_px > 0.0 and "gradient_snr_row" in quality:
+            from gcpmatch.texture import texture_sigma_px as texture_term
+
+            match = np.hypot(match, texture_term(quality["gradient_snr_row"], quality["gradient_snr_col"],
+                                                 texture_sigma_px))
+        return np.maximum(match, MIN_SIGMA_PX)
     base = max(sigma_ccd_px, MIN_SIGMA_PX) if np.isfinite(sigma_ccd_px) else FALLBACK_SIGMA_PX
     return np.full(n, base)
 

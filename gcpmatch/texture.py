@@ -1,0 +1,144 @@
+"""An absolute texture measure per window: gradient energy over the band's noise level.
+
+The matcher's featureless test (:func:`gcpmatch.outliers` via ``texture_fraction``) is relative
+to the CCD's typical window, so on a scene with large texture-poor fields it passes most windows.
+This module measures a window's texture against the scene band's own noise:
+
+* :func:`band_noise_dn`: the noise standard deviation of an image band, digital numbers, by
+  Immerkaer's fast estimator [1]_: the image convolved with the difference of two Laplacians
+  ``N = [[1, -2, 1], [-2, 4, -2], [1, -2, 1]]`` (which cancels locally planar signal), then
+  ``sigma = sqrt(pi / 2) / (6 (H - 2) (W - 2)) * sum |I * N|``;
+* :func:`gradient_snr`: per window and axis, the rms of the forward differences along that axis
+  divided by that noise level. The Cramer-Rao bound of a shift between two images of the same
+  ground with white noise ``sigma_n`` is ``var(d_axis) >= 2 sigma_n^2 / sum (dI / d_axis)^2``
+  [2]_, so a window of ``w x w`` pixels has ``sigma_CR = sqrt(2) / (w * snr)`` px on that axis:
+  the snr ranks windows by how well any estimator can place them.
+
+References
+----------
+.. [1] J. Immerkaer, "Fast noise variance estimation", Computer Vision and Image Understanding
+   64(2), 1996, pp. 300-302.
+.. [2] D. Robinson and P. Milanfar, "Fundamental performance limits in image registration",
+   IEEE Transactions on Image Processing 13(9), 2004, pp. 1185-1199.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import convolve
+
+__all__ = ["band_noise_dn", "cramer_rao_sigma_px", "gradient_snr", "texture_sigma_px", "weak_texture"]
+
+#: Immerkaer's mask: the difference of two Laplacians, blind to locally planar signal
+_NOISE_MASK = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])
+
+
+def band_noise_dn(image: np.ndarray) -> float:
+    """Noise standard deviation of an image band, in its digital numbers (Immerkaer 1996).
+
+    Parameters
+    ----------
+    image : ndarray of float, shape (H, W)
+        The band (H, W >= 3); non-finite pixels and their 3 x 3 neighbours are left out.
+
+    Returns
+    -------
+    float
+        ``sqrt(pi / 2) / 6 * mean |I * N|`` over the valid interior pixels; NaN when none.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    finite = np.isfinite(img)
+    lap = convolve(np.where(finite, img, 0.0), _NOISE_MASK, mode="nearest")
+    valid = convolve(finite.astype(np.float64), np.ones((3, 3)), mode="constant") == 9.0
+    valid[[0, -1], :] = False
+    valid[:, [0, -1]] = False
+    if not valid.any():
+        return float("nan")
+    return float(np.sqrt(np.pi / 2.0) / 6.0 * np.mean(np.abs(lap[valid])))
+
+
+def gradient_snr(windows: np.ndarray, noise_dn: float) -> np.ndarray:
+    """Per window and axis: rms forward difference over the band's noise level.
+
+    Parameters
+    ----------
+    windows : ndarray of float, shape (n, w, w)
+        Scene windows, digital numbers, finite.
+    noise_dn : float
+        The band's noise standard deviation (:func:`band_noise_dn`), digital numbers, > 0.
+
+    Returns
+    -------
+    ndarray of float64, shape (n, 2)
+        ``(row, col)``: ``sqrt(mean (I[i+1, j] - I[i, j])^2) / noise_dn`` and the same along
+        columns; NaN when ``noise_dn`` is not a positive finite number.
+    """
+    win = np.asarray(windows, dtype=np.float64)
+    if win.shape[0] == 0:
+        return np.zeros((0, 2))
+    if not (np.isfinite(noise_dn) and noise_dn > 0.0):
+        return np.full((win.shape[0], 2), np.nan)
+    g_row = np.sqrt(np.mean(np.diff(win, axis=1) ** 2, axis=(1, 2)))
+    g_col = np.sqrt(np.mean(np.diff(win, axis=2) ** 2, axis=(1, 2)))
+    return np.stack([g_row, g_col], axis=1) / float(noise_dn)
+
+
+def cramer_rao_sigma_px(snr: np.ndarray, window_px: int) -> np.ndarray:
+    """Cramer-Rao bound of a window's shift per axis, pixels, from its gradient snr.
+
+    Parameters
+    ----------
+    snr : ndarray of float, shape (...)
+        :func:`gradient_snr` of the axis.
+    window_px : int
+        Window side, pixels.
+
+    Returns
+    -------
+    ndarray of float64, shape (...)
+        ``sqrt(2) / (window_px * snr)`` (both images noisy with the band's noise).
+    """
+    with np.errstate(divide="ignore"):
+        return np.sqrt(2.0) / (window_px * np.asarray(snr, dtype=np.float64))
+
+
+def weak_texture(snr_row: np.ndarray, snr_col: np.ndarray, min_snr: float) -> np.ndarray:
+    """Flags of windows whose gradient snr is below ``min_snr`` on either axis (NaN: not flagged).
+
+    Parameters
+    ----------
+    snr_row, snr_col : ndarray of float, shape (n,)
+        :func:`gradient_snr` per axis.
+    min_snr : float
+        Threshold (0: nothing flagged).
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    with np.errstate(invalid="ignore"):
+        return (np.asarray(snr_row) < min_snr) | (np.asarray(snr_col) < min_snr)
+
+
+def texture_sigma_px(snr_row: np.ndarray, snr_col: np.ndarray, scale_px: float) -> np.ndarray:
+    """A weak window's extra matching noise per axis, pixels: ``scale_px / snr`` pooled over the axes.
+
+    The Cramer-Rao shape (:func:`cramer_rao_sigma_px`: proportional to ``1 / snr``) with a scale
+    measured on the scenes instead of the band's white noise (what separates a scene from a
+    reference of another sensor and date is not the sensor's noise).
+
+    Parameters
+    ----------
+    snr_row, snr_col : ndarray of float, shape (n,)
+        :func:`gradient_snr` per axis.
+    scale_px : float
+        The extra noise per axis of a window of snr 1, pixels (0: none).
+
+    Returns
+    -------
+    ndarray of float64, shape (n,)
+        ``scale_px sqrt((1 / snr_row^2 + 1 / snr_col^2) / 2)``; 0 where an snr is not finite.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv2 = 0.5 * (1.0 / np.asarray(snr_row, float) ** 2 + 1.0 / np.asarray(snr_col, float) ** 2)
+    return np.where(np.isfinite(inv2), scale_px * np.sqrt(np.where(np.isfinite(inv2), inv2, 0.0)), 0.0)
