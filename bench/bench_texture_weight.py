@@ -45,7 +45,15 @@ def variants() -> dict:
         "gate_snr_3.5": {"min_gradient_snr": 3.5},
         "gate_snr_4.5": {"min_gradient_snr": 4.5},
         "texture_sigma_0.15": {"texture_sigma_px": 0.15},
+        "texture_sigma_0.2": {"texture_sigma_px": 0.2},
+        "texture_sigma_0.25": {"texture_sigma_px": 0.25},
         "texture_sigma_0.3": {"texture_sigma_px": 0.3},
+        "texture_sigma_0.4": {"texture_sigma_px": 0.4},
+        "texture_sigma_0.6": {"texture_sigma_px": 0.6},
+        "mismatch_1": {"mismatch_sigma_scale": 1.0},
+        "mismatch_2": {"mismatch_sigma_scale": 2.0},
+        "mismatch_4": {"mismatch_sigma_scale": 4.0},
+        "gate_snr_3.5_sigma_0.3": {"min_gradient_snr": 3.5, "texture_sigma_px": 0.3},
     }
 
 
@@ -107,12 +115,14 @@ def gcp_metrics(g: dict) -> dict:
     d2 = np.sum(g["err"] ** 2, axis=1)
     z = g["err"] / g["sigma"][:, None]
     out = {"gcps": int(d2.size), "truth_rms_px": float(np.sqrt(d2.mean())), "by_class": {},
+           "z_rms": float(np.sqrt(np.mean(z**2))),
            "z_rms_row": float(np.sqrt(np.mean(z[:, 0] ** 2))), "z_rms_col": float(np.sqrt(np.mean(z[:, 1] ** 2)))}
     for lo, hi, name in CLASSES:
         sel = (g["share"] >= lo) & (g["share"] < hi)
         out["by_class"][name] = {"gcps": int(sel.sum()),
                                  "truth_rms_px": float(np.sqrt(d2[sel].mean())) if sel.any() else None,
-                                 "sigma_rms_px": float(np.sqrt(np.mean(g["sigma"][sel] ** 2))) if sel.any() else None}
+                                 "sigma_rms_px": float(np.sqrt(np.mean(g["sigma"][sel] ** 2))) if sel.any() else None,
+                                 "z_rms": float(np.sqrt(np.mean(z[sel] ** 2))) if sel.any() else None}
     return out
 
 
@@ -153,10 +163,11 @@ def main() -> None:
              "check_rmse_px": s["check_rmse_px"]["after"], "truth_error_px": s["truth_error_px"]["rms"],
              "truth_error_max_px": s["truth_error_px"]["max"], "gcp_truth": g, "seconds": time.perf_counter() - t0}
         results["variants"][name] = r
-        cls = " ".join(f"{k} {v['gcps']}:{v['truth_rms_px'] or float('nan'):.3f}" for k, v in g["by_class"].items())
+        cls = " ".join(f"{k} {v['gcps']}:{v['truth_rms_px'] or float('nan'):.3f} z{v['z_rms'] or float('nan'):.2f}"
+                       for k, v in g["by_class"].items())
         print(f"{name:>18}: {r['demo_gcps']} GCPs, check {r['check_rmse_px']:.4f}, truth {r['truth_error_px']:.4f} / "
               f"{r['truth_error_max_px']:.3f} px; GCP truth {g['truth_rms_px']:.4f} [{cls}] "
-              f"z {g['z_rms_row']:.2f}/{g['z_rms_col']:.2f}", flush=True)
+              f"z {g['z_rms_row']:.2f}/{g['z_rms_col']:.2f} pooled {g['z_rms']:.2f}", flush=True)
     results["loadavg_end"] = Path("/proc/loadavg").read_text().split()[:3]
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -33,7 +33,7 @@ from gcpmatch.gcps import GcpTable
 from gcpmatch.options import MatchOptions
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.reference import reference_for_ccd, reference_for_image, scene_gsd_m
-from gcpmatch.texture import band_noise_dn, gradient_snr, weak_texture
+from gcpmatch.texture import band_noise_dn, gradient_snr, mismatch_cr_sigma_px, weak_texture
 from gcpmatch.uncertainty import reference_sigma_px, window_sigma
 from sensor_models.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs
@@ -353,7 +353,9 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
         shift[a + go] = pm.shift_px
         status[a + go] = pm.status
         snr = gradient_snr(ws[go], noise_dn)
-        for k, v in {**pm.quality, "gradient_snr_row": snr[:, 0], "gradient_snr_col": snr[:, 1]}.items():
+        cr = mismatch_cr_sigma_px(wr[go], ws[go], pm.shift_px)
+        for k, v in {**pm.quality, "gradient_snr_row": snr[:, 0], "gradient_snr_col": snr[:, 1],
+                     "mismatch_cr_row_px": cr[:, 0], "mismatch_cr_col_px": cr[:, 1]}.items():
             quality.setdefault(k, np.full(n, np.nan))[a + go] = v
     return status, std_r, shift, quality
 
@@ -415,7 +417,7 @@ def reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, op
     kept_quality = {k: v[keep] for k, v in (quality or {}).items()}
     return keep, r_c, c_c, window_sigma(sigma, residual[inl], kept_quality, model=opt.sigma_model,
                                         reference_sigma_px=reference_sigma_px, window_px=opt.window_px,
-                                        texture_sigma_px=opt.texture_sigma_px)
+                                        texture_sigma_px=opt.texture_sigma_px, mismatch_scale=opt.mismatch_sigma_scale)
 
 
 def _ccd_gcps(model_pc, dem, band, look, r_c, c_c, shift, score, sigma, ccd_kw) -> dict:

@@ -27,7 +27,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import convolve
 
-__all__ = ["band_noise_dn", "cramer_rao_sigma_px", "gradient_snr", "texture_sigma_px", "weak_texture"]
+__all__ = ["band_noise_dn", "cramer_rao_sigma_px", "gradient_snr", "mismatch_cr_sigma_px", "texture_sigma_px",
+           "weak_texture"]
 
 #: Immerkaer's mask: the difference of two Laplacians, blind to locally planar signal
 _NOISE_MASK = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])
@@ -142,3 +143,52 @@ def texture_sigma_px(snr_row: np.ndarray, snr_col: np.ndarray, scale_px: float) 
     with np.errstate(divide="ignore", invalid="ignore"):
         inv2 = 0.5 * (1.0 / np.asarray(snr_row, float) ** 2 + 1.0 / np.asarray(snr_col, float) ** 2)
     return np.where(np.isfinite(inv2), scale_px * np.sqrt(np.where(np.isfinite(inv2), inv2, 0.0)), 0.0)
+
+
+def mismatch_cr_sigma_px(reference: np.ndarray, scene: np.ndarray, shift_px: np.ndarray, *,
+                         border_px: int = 8) -> np.ndarray:
+    """Per window and axis: the Cramer-Rao shape with the pair's own mismatch as the noise, pixels.
+
+    The reference window is moved by the measured shift (bilinear), the scene window is fitted by
+    a gain and offset of it (least squares) inside a border of ``border_px``, and the residual's
+    variance ``v`` (what the two windows do not share: noise of both, the change between sensors
+    and dates, the reference's resampling) plays the noise of the bound:
+    ``sigma_axis = sqrt(v / sum (dI_scene / d_axis)^2)``.
+
+    Parameters
+    ----------
+    reference, scene : ndarray of float, shape (n, w, w)
+        Window pairs (finite).
+    shift_px : ndarray of float, shape (n, 2)
+        Scene minus reference shift (row, col), pixels (:class:`gcpmatch.window_match.PairMatches`).
+    border_px : int
+        Border left out of the fit; a pair whose shift exceeds it on an axis gets NaN.
+
+    Returns
+    -------
+    ndarray of float64, shape (n, 2)
+        ``(row, col)`` bound-shaped sigma, pixels; NaN where the shift is not finite or too large.
+    """
+    from scipy.ndimage import map_coordinates
+
+    ref = np.asarray(reference, dtype=np.float64)
+    scn = np.asarray(scene, dtype=np.float64)
+    n, w = ref.shape[0], ref.shape[-1]
+    if n == 0:
+        return np.zeros((0, 2))
+    d = np.nan_to_num(np.asarray(shift_px, dtype=np.float64), nan=0.0)
+    ok = np.isfinite(shift_px).all(axis=1) & (np.abs(np.asarray(shift_px)) <= border_px).all(axis=1)
+    inner = np.arange(border_px, w - border_px, dtype=np.float64)
+    k, r, c = np.meshgrid(np.arange(n, dtype=np.float64), inner, inner, indexing="ij")
+    moved = map_coordinates(ref, [k, r - d[:, 0, None, None], c - d[:, 1, None, None]], order=1, mode="nearest")
+    core = scn[:, border_px:w - border_px, border_px:w - border_px]
+    x = moved - moved.mean(axis=(1, 2), keepdims=True)
+    y = core - core.mean(axis=(1, 2), keepdims=True)
+    gain = np.sum(x * y, axis=(1, 2)) / np.maximum(np.sum(x * x, axis=(1, 2)), 1e-30)
+    v = np.mean((y - gain[:, None, None] * x) ** 2, axis=(1, 2))
+    g_row = np.sum(np.diff(core, axis=1) ** 2, axis=(1, 2))
+    g_col = np.sum(np.diff(core, axis=2) ** 2, axis=(1, 2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.sqrt(v[:, None] / np.stack([g_row, g_col], axis=1))
+    out[~ok] = np.nan
+    return out

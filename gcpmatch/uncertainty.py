@@ -65,7 +65,8 @@ def score_sigma_px(score: np.ndarray, *, window_px: int = 64) -> np.ndarray:
 
 
 def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *, model: str = "ccd",
-                 reference_sigma_px: float = 0.0, window_px: int = 64, texture_sigma_px: float = 0.0) -> np.ndarray:
+                 reference_sigma_px: float = 0.0, window_px: int = 64, texture_sigma_px: float = 0.0,
+                 mismatch_scale: float = 0.0) -> np.ndarray:
     """Per-GCP standard deviation per axis, pixels, for the kept matches of one CCD.
 
     Parameters
@@ -101,6 +102,9 @@ def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *,
 
             match = np.hypot(match, texture_term(quality["gradient_snr_row"], quality["gradient_snr_col"],
                                                  texture_sigma_px))
+        if mismatch_scale > 0.0 and "mismatch_cr_row_px" in quality:
+            cr = np.sqrt(0.5 * (quality["mismatch_cr_row_px"] ** 2 + quality["mismatch_cr_col_px"] ** 2))
+            match = np.hypot(match, mismatch_scale * np.nan_to_num(cr, nan=0.0))
         return np.maximum(match, MIN_SIGMA_PX)
     base = max(sigma_ccd_px, MIN_SIGMA_PX) if np.isfinite(sigma_ccd_px) else FALLBACK_SIGMA_PX
     return np.full(n, base)

@@ -91,10 +91,35 @@ def test_window_sigma_adds_the_texture_term_only_when_asked():
     assert np.allclose(ccd, 0.05)
 
 
-@pytest.mark.parametrize("field", ["min_gradient_snr", "texture_sigma_px"])
+@pytest.mark.parametrize("field", ["min_gradient_snr", "texture_sigma_px", "mismatch_sigma_scale"])
 @pytest.mark.parametrize("value", [-0.1, float("nan"), float("inf"), "1", True])
 def test_options_reject_bad_texture_values(field, value):
     with pytest.raises(InputError) as info:
         MatchOptions(**{field: value}).validate()
     assert info.value.field == field
     assert MatchOptions(**{field: 2.5}).validate()
+
+
+def test_mismatch_bound_follows_the_pair_noise_and_refuses_large_shifts():
+    """With white noise in both windows the mismatch-noise bound lands on the bound of the true
+    noise (bilinear resampling of the reference adds a little); NaN beyond the border."""
+    from gcpmatch.texture import mismatch_cr_sigma_px
+
+    rng = np.random.default_rng(5)
+    n, w, shift = 32, 64, (0.3, -0.2)
+    base = np.stack([gaussian_filter(rng.normal(size=(w, w)), 1.5) * 60.0 for _ in range(n)])
+    kr, kc = np.fft.fftfreq(w)[:, None], np.fft.fftfreq(w)[None, :]
+    moved = np.fft.ifft2(np.fft.fft2(base) * np.exp(-2j * np.pi * (kr * shift[0] + kc * shift[1]))).real
+    medians = []
+    for sigma_dn in (2.0, 4.0):
+        ref = base + rng.normal(scale=sigma_dn, size=base.shape)
+        mov = moved + rng.normal(scale=sigma_dn, size=base.shape)
+        got = mismatch_cr_sigma_px(ref, mov, np.tile(shift, (n, 1)))
+        bound = cramer_rao_sigma_px(gradient_snr(base, sigma_dn), w)
+        ratio = np.median(got / bound, axis=0)
+        assert np.all((0.7 < ratio) & (ratio < 1.3)), ratio  # measured 0.79 (noise in the scene gradients)
+        medians.append(np.median(got))
+    assert 1.3 < medians[1] / medians[0] < 2.1  # twice the noise: 1.5 x (the noise also adds to the scene gradients)
+    far = mismatch_cr_sigma_px(base[:2], moved[:2], np.array([[9.0, 0.0], [np.nan, 0.0]]))
+    assert np.isnan(far).all()
+    assert mismatch_cr_sigma_px(base[:0], moved[:0], np.zeros((0, 2))).shape == (0, 2)
