@@ -41,19 +41,13 @@ CLASSES = ((0.0, 0.1, "<10%"), (0.1, 0.5, "10-50%"), (0.5, 0.9, "50-90%"), (0.9,
 def variants() -> dict:
     """Named ``MatchOptions`` overrides to measure."""
     return {
-        "default": {},
-        "gate_snr_3.5": {"min_gradient_snr": 3.5},
-        "gate_snr_4.5": {"min_gradient_snr": 4.5},
-        "texture_sigma_0.15": {"texture_sigma_px": 0.15},
-        "texture_sigma_0.2": {"texture_sigma_px": 0.2},
-        "texture_sigma_0.25": {"texture_sigma_px": 0.25},
-        "texture_sigma_0.3": {"texture_sigma_px": 0.3},
-        "texture_sigma_0.4": {"texture_sigma_px": 0.4},
-        "texture_sigma_0.6": {"texture_sigma_px": 0.6},
-        "mismatch_1": {"mismatch_sigma_scale": 1.0},
-        "mismatch_2": {"mismatch_sigma_scale": 2.0},
-        "mismatch_4": {"mismatch_sigma_scale": 4.0},
-        "gate_snr_3.5_sigma_0.3": {"min_gradient_snr": 3.5, "texture_sigma_px": 0.3},
+        "default": {},  # since session 6: mismatch_sigma_scale 1
+        "no_mismatch": {"mismatch_sigma_scale": 0.0},  # the sigma model before
+        "gate_snr_3.5": {"mismatch_sigma_scale": 0.0, "min_gradient_snr": 3.5},
+        "gate_snr_4.5": {"mismatch_sigma_scale": 0.0, "min_gradient_snr": 4.5},
+        **{f"texture_sigma_{v}": {"mismatch_sigma_scale": 0.0, "texture_sigma_px": v} for v in (0.15, 0.2, 0.25, 0.3, 0.4)},
+        "gate_snr_3.5_sigma_0.3": {"mismatch_sigma_scale": 0.0, "min_gradient_snr": 3.5, "texture_sigma_px": 0.3},
+        **{f"mismatch_{v:g}": {"mismatch_sigma_scale": v} for v in (2.0, 4.0)},
     }
 
 

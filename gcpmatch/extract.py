@@ -33,7 +33,7 @@ from gcpmatch.gcps import GcpTable
 from gcpmatch.options import MatchOptions
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.reference import reference_for_ccd, reference_for_image, scene_gsd_m
-from gcpmatch.texture import band_noise_dn, gradient_snr, mismatch_cr_sigma_px, weak_texture
+from gcpmatch.texture import band_noise_dn, gradient_snr, weak_texture
 from gcpmatch.uncertainty import reference_sigma_px, window_sigma
 from sensor_models.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs
@@ -353,9 +353,7 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
         shift[a + go] = pm.shift_px
         status[a + go] = pm.status
         snr = gradient_snr(ws[go], noise_dn)
-        cr = mismatch_cr_sigma_px(wr[go], ws[go], pm.shift_px)
-        for k, v in {**pm.quality, "gradient_snr_row": snr[:, 0], "gradient_snr_col": snr[:, 1],
-                     "mismatch_cr_row_px": cr[:, 0], "mismatch_cr_col_px": cr[:, 1]}.items():
+        for k, v in {**pm.quality, "gradient_snr_row": snr[:, 0], "gradient_snr_col": snr[:, 1]}.items():
             quality.setdefault(k, np.full(n, np.nan))[a + go] = v
     return status, std_r, shift, quality
 

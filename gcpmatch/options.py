@@ -127,7 +127,7 @@ class MatchOptions:
     coarse_skip: bool = False
     min_gradient_snr: float = 0.0
     texture_sigma_px: float = 0.0
-    mismatch_sigma_scale: float = 0.0
+    mismatch_sigma_scale: float = 1.0
 
     def validate(self) -> MatchOptions:
         """Check every field; return ``self`` unchanged.
