@@ -1,6 +1,6 @@
-"""An absolute texture measure per window: gradient energy over the band's noise level.
+"""Absolute texture measures per window: gradient energy against the band's noise or the pair's mismatch.
 
-The matcher's featureless test (:func:`gcpmatch.outliers` via ``texture_fraction``) is relative
+The matcher's featureless test (:func:`gcpmatch.clouds.low_texture`, ``texture_fraction``) is relative
 to the CCD's typical window, so on a scene with large texture-poor fields it passes most windows.
 This module measures a window's texture against the scene band's own noise:
 
@@ -12,7 +12,13 @@ This module measures a window's texture against the scene band's own noise:
   divided by that noise level. The Cramer-Rao bound of a shift between two images of the same
   ground with white noise ``sigma_n`` is ``var(d_axis) >= 2 sigma_n^2 / sum (dI / d_axis)^2``
   [2]_, so a window of ``w x w`` pixels has ``sigma_CR = sqrt(2) / (w * snr)`` px on that axis:
-  the snr ranks windows by how well any estimator can place them.
+  the snr ranks windows by how well any estimator can place them;
+* :func:`mismatch_cr_sigma_px`: the same bound with the pair's own mismatch as the noise (the
+  residual of the scene window about a gain and offset of the reference moved by the measured
+  shift): what separates a scene from a reference of another sensor and date is rarely the
+  sensor's noise. The sigma model (:mod:`gcpmatch.uncertainty`) adds it in quadrature;
+* :func:`weak_texture`, :func:`texture_sigma_px`: a gate and a sigma term on the gradient snr,
+  measured and left off by default (docs/matching.md, "Texture-poor ground").
 
 References
 ----------
@@ -169,8 +175,6 @@ def mismatch_cr_sigma_px(reference: np.ndarray, scene: np.ndarray, shift_px: np.
     ndarray of float64, shape (n, 2)
         ``(row, col)`` bound-shaped sigma, pixels; NaN where the shift is not finite or too large.
     """
-    from scipy.ndimage import map_coordinates
-
     ref = np.asarray(reference, dtype=np.float64)
     scn = np.asarray(scene, dtype=np.float64)
     n, w = ref.shape[0], ref.shape[-1]
@@ -178,9 +182,8 @@ def mismatch_cr_sigma_px(reference: np.ndarray, scene: np.ndarray, shift_px: np.
         return np.zeros((0, 2))
     d = np.nan_to_num(np.asarray(shift_px, dtype=np.float64), nan=0.0)
     ok = np.isfinite(shift_px).all(axis=1) & (np.abs(np.asarray(shift_px)) <= border_px).all(axis=1)
-    inner = np.arange(border_px, w - border_px, dtype=np.float64)
-    k, r, c = np.meshgrid(np.arange(n, dtype=np.float64), inner, inner, indexing="ij")
-    moved = map_coordinates(ref, [k, r - d[:, 0, None, None], c - d[:, 1, None, None]], order=1, mode="nearest")
+    d[~ok] = 0.0
+    moved = _bilinear_moved(ref, -d, border_px)
     core = scn[:, border_px:w - border_px, border_px:w - border_px]
     x = moved - moved.mean(axis=(1, 2), keepdims=True)
     y = core - core.mean(axis=(1, 2), keepdims=True)
@@ -192,3 +195,21 @@ def mismatch_cr_sigma_px(reference: np.ndarray, scene: np.ndarray, shift_px: np.
         out = np.sqrt(v[:, None] / np.stack([g_row, g_col], axis=1))
     out[~ok] = np.nan
     return out
+
+
+def _bilinear_moved(windows: np.ndarray, offset_px: np.ndarray, border_px: int) -> np.ndarray:
+    """``windows[k]`` sampled bilinearly at ``(i + offset[k, 0], j + offset[k, 1])`` for the pixels
+    ``i, j`` inside ``border_px`` (indices clipped to the window), shape (n, w - 2b, w - 2b)."""
+    n, w = windows.shape[0], windows.shape[-1]
+    base = np.floor(offset_px).astype(np.intp)
+    frac = offset_px - base
+    inner = np.arange(border_px, w - border_px)
+    k = np.arange(n)[:, None, None]
+    r0 = inner[None, :, None] + base[:, 0, None, None]
+    c0 = inner[None, None, :] + base[:, 1, None, None]
+    r1, c1 = np.clip(r0 + 1, 0, w - 1), np.clip(c0 + 1, 0, w - 1)
+    r0, c0 = np.clip(r0, 0, w - 1), np.clip(c0, 0, w - 1)
+    fr, fc = frac[:, 0, None, None], frac[:, 1, None, None]
+    top = (1.0 - fc) * windows[k, r0, c0] + fc * windows[k, r0, c1]
+    bottom = (1.0 - fc) * windows[k, r1, c0] + fc * windows[k, r1, c1]
+    return (1.0 - fr) * top + fr * bottom

@@ -11,8 +11,15 @@ Two models (:data:`gcpmatch.options.SIGMA_MODELS`; docs/matching.md, section "si
   reference's stated geolocation accuracy (:func:`sensor_models.dom_inputs.reference_accuracy`)::
 
       sigma_px^2 = (SCORE_SIGMA_PX sqrt((1 - s) / s))^2 + MATCH_FLOOR_PX^2 + sigma_ref_px^2
+                   + (k sigma_mm_px)^2
 
-  with ``sigma_ref_px`` the DOM's east / north accuracy projected into the CCD's rows and
+  with ``sigma_mm_px`` the pair's Cramer-Rao-shaped bound with its own mismatch as the noise
+  (:func:`gcpmatch.texture.mismatch_cr_sigma_px`, rms of the two axes; ``k`` =
+  ``MatchOptions.mismatch_sigma_scale``, 1 by default since session 6, 0 for the model before):
+  the score is relative to each window, this term is not, and it carries what texture-poor ground
+  loses (docs/matching.md, "Texture-poor ground");
+
+  and ``sigma_ref_px`` the DOM's east / north accuracy projected into the CCD's rows and
   columns through the model's local ground -> image Jacobian (:func:`reference_sigma_px`),
   taken as the rms of the two axes (a GCP carries one ``sigma_px`` for both axes).
 
