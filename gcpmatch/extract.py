@@ -33,6 +33,7 @@ from gcpmatch.gcps import GcpTable
 from gcpmatch.options import MatchOptions
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.reference import reference_for_ccd, reference_for_image, scene_gsd_m
+from gcpmatch.texture import band_noise_dn, gradient_snr, weak_texture
 from gcpmatch.uncertainty import reference_sigma_px, window_sigma
 from sensor_models.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs
@@ -321,8 +322,9 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
     shift : ndarray of float64, shape (n, 2)
         Scene minus reference shift (row, col), pixels; NaN where not correlated.
     quality : dict of str -> ndarray of float64, shape (n,)
-        Per-window quality figures of :func:`correlate_pairs` (``score``, ...); NaN where not
-        correlated.
+        Per-window quality figures of :func:`correlate_pairs` (``score``, ...) and the scene
+        window's gradient snr per axis (``gradient_snr_row``, ``gradient_snr_col``,
+        :func:`gcpmatch.texture.gradient_snr`); NaN where not correlated.
     """
     w, n = opt.window_px, rr.size
     win_s = sliding_window_view(img, (w, w))
@@ -331,6 +333,7 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
     std_r = np.full(n, np.nan)
     shift = np.full((n, 2), np.nan)
     quality = {}
+    noise_dn = band_noise_dn(img)  # the absolute texture measure's unit (gcpmatch.texture)
     for a in range(0, n, opt.batch):
         b = min(n, a + opt.batch)
         ws = win_s[rr[a:b], cc[a:b]]
@@ -349,7 +352,8 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
         pm = correlate_pairs(wr[go], ws[go], opt)
         shift[a + go] = pm.shift_px
         status[a + go] = pm.status
-        for k, v in pm.quality.items():
+        snr = gradient_snr(ws[go], noise_dn)
+        for k, v in {**pm.quality, "gradient_snr_row": snr[:, 0], "gradient_snr_col": snr[:, 1]}.items():
             quality.setdefault(k, np.full(n, np.nan))[a + go] = v
     return status, std_r, shift, quality
 
@@ -393,6 +397,9 @@ def reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, op
     # water and other featureless ground, judged on the whole CCD
     texture_ok = np.isfinite(std_r)
     status[(status == "") & texture_ok & low_texture(std_r, texture_fraction=opt.texture_fraction)] = "no_texture"
+    if opt.min_gradient_snr > 0.0 and quality and "gradient_snr_row" in quality:  # absolute texture gate
+        weak = weak_texture(quality["gradient_snr_row"], quality["gradient_snr_col"], opt.min_gradient_snr)
+        status[(status == "") & weak] = "no_texture"
     # local consistency on the window grid
     grid = np.where((status == "")[:, None], shift, np.nan).reshape(*grid_shape, 2)
     consistent = local_consistency(grid).reshape(-1)
@@ -407,7 +414,8 @@ def reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, op
     keep, r_c, c_c = keep[inl], r_c[inl], c_c[inl]
     kept_quality = {k: v[keep] for k, v in (quality or {}).items()}
     return keep, r_c, c_c, window_sigma(sigma, residual[inl], kept_quality, model=opt.sigma_model,
-                                        reference_sigma_px=reference_sigma_px, window_px=opt.window_px)
+                                        reference_sigma_px=reference_sigma_px, window_px=opt.window_px,
+                                        texture_sigma_px=opt.texture_sigma_px, mismatch_scale=opt.mismatch_sigma_scale)
 
 
 def _ccd_gcps(model_pc, dem, band, look, r_c, c_c, shift, score, sigma, ccd_kw) -> dict:

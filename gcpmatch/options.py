@@ -92,6 +92,18 @@ class MatchOptions:
         sigma), as its producer states it; >= 0. None (default): what the DOM states
         (:func:`sensor_models.dom_inputs.reference_accuracy`: its GDAL tags or a Landsat MTL),
         else an assumed value that the summary names. Used by ``sigma_model="window"``.
+    min_gradient_snr : float
+        Absolute texture gate: a window whose scene gradient snr (rms forward difference over the
+        band's noise, :func:`gcpmatch.texture.gradient_snr`) is below this on either axis is
+        featureless (``no_texture``); >= 0, 0 (default) for no gate.
+    texture_sigma_px : float
+        ``sigma_model="window"``: extra matching noise per axis, pixels, of a window of gradient
+        snr 1, added in quadrature as ``texture_sigma_px / snr`` (:func:`gcpmatch.texture.texture_sigma_px`);
+        >= 0, 0 (default) for none.
+    mismatch_sigma_scale : float
+        ``sigma_model="window"``: factor on each pair's Cramer-Rao-shaped sigma with the pair's own
+        mismatch as its noise (:func:`gcpmatch.texture.mismatch_cr_sigma_px`), added in
+        quadrature; >= 0, 0 (default) for none.
     coarse_skip : bool
         Skip the coarse SIFT stage when a cheap check finds the model already within the fine
         search radius (``window_px / 4``); ``gcpcal validate`` sets it (default False).
@@ -113,6 +125,9 @@ class MatchOptions:
     lowpass_cycles_px: float | None = None
     reference_sigma_m: float | None = None
     coarse_skip: bool = False
+    min_gradient_snr: float = 0.0
+    texture_sigma_px: float = 0.0
+    mismatch_sigma_scale: float = 1.0
 
     def validate(self) -> MatchOptions:
         """Check every field; return ``self`` unchanged.
@@ -167,6 +182,10 @@ class MatchOptions:
                                                    or not self.reference_sigma_m >= 0):
             raise InputError(f"reference sigma must be >= 0 metres, got {self.reference_sigma_m!r}",
                              field="reference_sigma_m")
+        for name in ("min_gradient_snr", "texture_sigma_px", "mismatch_sigma_scale"):
+            value = getattr(self, name)
+            if not _is_real(value) or not value >= 0.0 or value == float("inf"):
+                raise InputError(f"must be a finite number >= 0, got {value!r}", field=name)
         if not isinstance(self.coarse_skip, bool):
             raise InputError(f"coarse_skip must be true or false, got {self.coarse_skip!r}", field="coarse_skip")
         return self

@@ -11,8 +11,15 @@ Two models (:data:`gcpmatch.options.SIGMA_MODELS`; docs/matching.md, section "si
   reference's stated geolocation accuracy (:func:`sensor_models.dom_inputs.reference_accuracy`)::
 
       sigma_px^2 = (SCORE_SIGMA_PX sqrt((1 - s) / s))^2 + MATCH_FLOOR_PX^2 + sigma_ref_px^2
+                   + (k sigma_mm_px)^2
 
-  with ``sigma_ref_px`` the DOM's east / north accuracy projected into the CCD's rows and
+  with ``sigma_mm_px`` the pair's Cramer-Rao-shaped bound with its own mismatch as the noise
+  (:func:`gcpmatch.texture.mismatch_cr_sigma_px`, rms of the two axes; ``k`` =
+  ``MatchOptions.mismatch_sigma_scale``, 1 by default since session 6, 0 for the model before):
+  the score is relative to each window, this term is not, and it carries what texture-poor ground
+  loses (docs/matching.md, "Texture-poor ground");
+
+  and ``sigma_ref_px`` the DOM's east / north accuracy projected into the CCD's rows and
   columns through the model's local ground -> image Jacobian (:func:`reference_sigma_px`),
   taken as the rms of the two axes (a GCP carries one ``sigma_px`` for both axes).
 
@@ -65,7 +72,8 @@ def score_sigma_px(score: np.ndarray, *, window_px: int = 64) -> np.ndarray:
 
 
 def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *, model: str = "ccd",
-                 reference_sigma_px: float = 0.0, window_px: int = 64) -> np.ndarray:
+                 reference_sigma_px: float = 0.0, window_px: int = 64, texture_sigma_px: float = 0.0,
+                 mismatch_scale: float = 0.0) -> np.ndarray:
     """Per-GCP standard deviation per axis, pixels, for the kept matches of one CCD.
 
     Parameters
@@ -83,6 +91,10 @@ def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *,
         The reference's geolocation accuracy per axis in scene pixels (``"window"`` only).
     window_px : int
         Window side, pixels.
+    texture_sigma_px : float
+        ``"window"`` only: scale of an extra term for texture-poor windows added in quadrature,
+        :func:`gcpmatch.texture.texture_sigma_px` of the quality's ``gradient_snr_row`` and
+        ``gradient_snr_col`` (0, the default: none; :attr:`MatchOptions.texture_sigma_px`).
 
     Returns
     -------
@@ -91,8 +103,16 @@ def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *,
     """
     n = residual_px.shape[0]
     if model == "window" and "score" in quality:
-        match = score_sigma_px(quality["score"], window_px=window_px)
-        return np.maximum(np.hypot(match, reference_sigma_px), MIN_SIGMA_PX)
+        match = np.hypot(score_sigma_px(quality["score"], window_px=window_px), reference_sigma_px)
+        if texture_sigma_px > 0.0 and "gradient_snr_row" in quality:
+            from gcpmatch.texture import texture_sigma_px as texture_term
+
+            match = np.hypot(match, texture_term(quality["gradient_snr_row"], quality["gradient_snr_col"],
+                                                 texture_sigma_px))
+        if mismatch_scale > 0.0 and "mismatch_cr_row_px" in quality:
+            cr = np.sqrt(0.5 * (quality["mismatch_cr_row_px"] ** 2 + quality["mismatch_cr_col_px"] ** 2))
+            match = np.hypot(match, mismatch_scale * np.nan_to_num(cr, nan=0.0))
+        return np.maximum(match, MIN_SIGMA_PX)
     base = max(sigma_ccd_px, MIN_SIGMA_PX) if np.isfinite(sigma_ccd_px) else FALLBACK_SIGMA_PX
     return np.full(n, base)
 

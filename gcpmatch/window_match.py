@@ -16,6 +16,7 @@ import numpy as np
 from gcpmatch.options import MatchOptions
 from gcpmatch.phase import Reject, phase_correlate
 from gcpmatch.radiometry import prepare_windows
+from gcpmatch.texture import mismatch_cr_sigma_px
 
 __all__ = ["PairMatches", "correlate_pairs"]
 
@@ -36,7 +37,10 @@ class PairMatches:
         ``""`` for a match, else the phase-correlation rejection (``flat``, ``not_finite``,
         ``out_of_range``, ``low_score``, ``low_peak_ratio``).
     quality : dict of str -> ndarray of float64, shape (n,)
-        ``score`` (coherent share of the cross-power, in [0, 1]) and ``peak_ratio``.
+        ``score`` (coherent share of the cross-power, in [0, 1]), ``peak_ratio`` and
+        ``mismatch_cr_row_px``, ``mismatch_cr_col_px`` (the Cramer-Rao-shaped sigma per axis with
+        the pair's own mismatch as its noise, pixels: :func:`gcpmatch.texture.mismatch_cr_sigma_px`
+        of the raw windows at the measured shift; NaN where the shift is not finite or too large).
     """
 
     shift_px: np.ndarray
@@ -67,7 +71,7 @@ def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOpti
     """
     n, w = reference.shape[0], reference.shape[-1]
     if n == 0:
-        empty = {"score": np.zeros(0), "peak_ratio": np.zeros(0)}
+        empty = {k: np.zeros(0) for k in ("score", "peak_ratio", "mismatch_cr_row_px", "mismatch_cr_col_px")}
         return PairMatches(np.zeros((0, 2)), np.zeros(0, dtype=object), empty)
     ref, mov = prepare_windows(reference, scene, method=options.radiometry)
     kwargs = {"eps": options.phase_eps, "lowpass": options.lowpass_cycles_px, **(phase_options or {})}
@@ -75,5 +79,7 @@ def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOpti
                          backend="torch" if options.backend in ("gpu", "torch") else "cpu",
                          device="cuda" if options.backend == "gpu" else None, **kwargs)
     status = np.array([_PHASE_REASON[Reject(r)] for r in pm.reason], dtype=object)
+    cr = mismatch_cr_sigma_px(reference, scene, pm.shift_px)  # the sigma model's texture term
     return PairMatches(shift_px=pm.shift_px, status=status,
-                       quality={"score": pm.score, "peak_ratio": pm.peak_ratio})
+                       quality={"score": pm.score, "peak_ratio": pm.peak_ratio,
+                                "mismatch_cr_row_px": cr[:, 0], "mismatch_cr_col_px": cr[:, 1]})
