@@ -1,7 +1,7 @@
 """Texture-poor land cover for the ``realistic`` profile's procedural source radiance (issue 13 item 1).
 
 Real scenes hold ground where phase correlation finds nothing: homogeneous fields, bare plains,
-uniform forest canopy, water. On the real crops of ``../shared/data/real_textures`` only 0.43-0.66
+uniform forest canopy, water. On the real Sentinel-2 and Landsat-8 crops of docs/error_budget.md only 0.43-0.66
 of the 32 x 32-pixel blocks at 30 m carry texture (``bench/bench_texture_stats.py``), against
 0.88 for the procedural texture of :func:`sensor_models.simulate.procedural.generate_reference`.
 This module gives that texture patches of such ground:
