@@ -35,6 +35,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from gcpmatch.texture import texture_sigma_px as texture_term
+
 __all__ = ["FALLBACK_SIGMA_PX", "MATCH_FLOOR_PX", "MIN_SIGMA_PX", "SCORE_SIGMA_PX", "reference_sigma_px",
            "score_sigma_px", "window_sigma"]
 
@@ -95,6 +97,10 @@ def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *,
         ``"window"`` only: scale of an extra term for texture-poor windows added in quadrature,
         :func:`gcpmatch.texture.texture_sigma_px` of the quality's ``gradient_snr_row`` and
         ``gradient_snr_col`` (0, the default: none; :attr:`MatchOptions.texture_sigma_px`).
+    mismatch_scale : float
+        ``"window"`` only: factor on the rms over the two axes of the quality's
+        ``mismatch_cr_row_px`` and ``mismatch_cr_col_px`` (:func:`gcpmatch.texture.mismatch_cr_sigma_px`),
+        added in quadrature; NaN counts as 0 (0, the default: none; :attr:`MatchOptions.mismatch_sigma_scale`).
 
     Returns
     -------
@@ -105,8 +111,6 @@ def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *,
     if model == "window" and "score" in quality:
         match = np.hypot(score_sigma_px(quality["score"], window_px=window_px), reference_sigma_px)
         if texture_sigma_px > 0.0 and "gradient_snr_row" in quality:
-            from gcpmatch.texture import texture_sigma_px as texture_term
-
             match = np.hypot(match, texture_term(quality["gradient_snr_row"], quality["gradient_snr_col"],
                                                  texture_sigma_px))
         if mismatch_scale > 0.0 and "mismatch_cr_row_px" in quality:

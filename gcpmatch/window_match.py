@@ -40,7 +40,9 @@ class PairMatches:
         ``score`` (coherent share of the cross-power, in [0, 1]), ``peak_ratio`` and
         ``mismatch_cr_row_px``, ``mismatch_cr_col_px`` (the Cramer-Rao-shaped sigma per axis with
         the pair's own mismatch as its noise, pixels: :func:`gcpmatch.texture.mismatch_cr_sigma_px`
-        of the raw windows at the measured shift; NaN where the shift is not finite or too large).
+        of the raw windows at the measured shift; NaN where the shift is not finite or too large, for
+        rejected pairs, and for all when ``options`` does not use it: ``sigma_model`` other than
+        ``"window"`` or ``mismatch_sigma_scale`` 0).
     """
 
     shift_px: np.ndarray
@@ -79,7 +81,11 @@ def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOpti
                          backend="torch" if options.backend in ("gpu", "torch") else "cpu",
                          device="cuda" if options.backend == "gpu" else None, **kwargs)
     status = np.array([_PHASE_REASON[Reject(r)] for r in pm.reason], dtype=object)
-    cr = mismatch_cr_sigma_px(reference, scene, pm.shift_px)  # the sigma model's texture term
+    # the sigma model's texture term, for the matched pairs of a model that uses it
+    cr = np.full((n, 2), np.nan)
+    matched = status == ""
+    if options.sigma_model == "window" and options.mismatch_sigma_scale > 0.0 and matched.any():
+        cr[matched] = mismatch_cr_sigma_px(reference[matched], scene[matched], pm.shift_px[matched])
     return PairMatches(shift_px=pm.shift_px, status=status,
                        quality={"score": pm.score, "peak_ratio": pm.peak_ratio,
                                 "mismatch_cr_row_px": cr[:, 0], "mismatch_cr_col_px": cr[:, 1]})
