@@ -295,6 +295,10 @@ def variants() -> dict:
         "sigma_window_ref0": (window, None),
         "sigma_window_ref0.65": (replace(window, reference_sigma_m=0.65), None),
         "sigma_window_ref1.3": (replace(window, reference_sigma_m=REALISTIC_REFERENCE_SIGMA_M), None),
+        # session 7: the phase kernel's first pass at half resolution (the default) against the
+        # full-resolution one, and the half one with the full one's peak-ratio threshold
+        "first_pass_full": (MatchOptions(), {"first_pass": "full"}),
+        "first_pass_half_pr2": (MatchOptions(), {"min_peak_ratio": 2.0}),
     }
 
 

@@ -238,13 +238,14 @@ def fft_floor(ref, mov, batch: int, threads: int) -> np.ndarray:
     return np.concatenate(peaks)
 
 
-#: The kernel before session 6's change (its refinement on DFT-upsampled grids): "before".
-SESSION_BASE_REV = "f841fa9"
+#: The kernel before session 7's change (session 6's: Newton refinement, first pass at full
+#: resolution): "before". Session 6 measured against f841fa9 (refinement on DFT-upsampled grids).
+SESSION_BASE_REV = "09ec0f2"
 
 
 def measure_floor(threads: int, n_pairs: int, repeat: int, win: int = 64) -> dict:
     """Child process: the floor, the base revision's kernel ("base"), the kernel before this
-    session's change ("before") and the current one ("after"), alternated."""
+    session's change ("before") and the current one ("after"; also with ``first_pass="full"``), alternated."""
     sys.path.insert(0, str(ROOT / "bench"))
     from baseline import BASE_REV, load_baseline
 
@@ -255,6 +256,7 @@ def measure_floor(threads: int, n_pairs: int, repeat: int, win: int = 64) -> dic
     funcs = {f"floor_batch_{b}": (lambda b=b: fft_floor(ref, mov, b, threads)) for b in FLOOR_BATCHES}
     funcs["base"] = lambda: base.phase_correlate(ref, mov, workers=threads)
     funcs["before"] = lambda: session_base.phase_correlate(ref, mov, workers=threads)
+    funcs["after_full_first_pass"] = lambda: phase_correlate(ref, mov, workers=threads, first_pass="full")
     funcs["after"] = lambda: phase_correlate(ref, mov, workers=threads)
     for f in funcs.values():  # warm-up: plans, imports
         f()
@@ -274,7 +276,7 @@ def measure_floor(threads: int, n_pairs: int, repeat: int, win: int = 64) -> dic
     for name in funcs:
         result[name] = {"pairs_per_s_cpu": n_pairs / best_cpu[name], "pairs_per_s_wall": n_pairs / best_wall[name],
                         "us_per_pair_cpu": 1e6 * best_cpu[name] / n_pairs}
-    for name in ("base", "before", "after"):
+    for name in ("base", "before", "after_full_first_pass", "after"):
         result[name].update(accuracy(out[name].shift_px, out[name].valid, truth))
         result[name]["fraction_of_floor_cpu"] = best_cpu[floor_name] / best_cpu[name]
         result[name]["fraction_of_floor_wall"] = best_wall[floor_name] / best_wall[name]
@@ -304,9 +306,11 @@ def kernel_parts(ref, mov, threads: int, repeat: int) -> dict:
         "rfft2 (one side)": lambda: scipy.fft.rfft2(ref, workers=threads),
         "irfft2": lambda: scipy.fft.irfft2(cross, s=plan.shape, workers=threads),
         "spectrum, fixed window (one side, incl. rfft2)": lambda: kernel.spectrum(ref, reverse=True),
+        "first pass at half resolution (bins, quarter, small FFTs, peak, 1 Newton step)":
+            lambda: kernel.half_resolution_estimate(spec_ref_conj, mov),
         "spectrum, following window (incl. rfft2)": lambda: kernel.spectrum(mov, following_windows(plan, centre)),
         "cross power (one pass)": lambda: kernel.cross_power(spec_ref_conj, spec_mov.copy()),
-        "coarse peak (incl. irfft2)": lambda: kernel.coarse_peak(cross.copy()),
+        "coarse peak at full resolution (incl. irfft2; first_pass='full' only)": lambda: kernel.coarse_peak(cross.copy()),
         "refinement (Newton)": lambda: kernel.refine(cross, centre, plan.stages),
         "whole kernel": lambda: kernel(ref, mov),
     }
@@ -332,9 +336,9 @@ def run_floor(args) -> None:
     floor = result[result["floor_best_batch"]]
     print(f"FFT floor ({result['floor_best_batch']}): {floor['pairs_per_s_cpu']:.0f} pairs/s per CPU second "
           f"(1 thread, {result['pairs']} pairs of {result['window_px']} px, load {result['load_average_1min']:.1f})")
-    for name in ("base", "before", "after"):
+    for name in ("base", "before", "after_full_first_pass", "after"):
         r = result[name]
-        print(f"{name:<7} {r['pairs_per_s_cpu']:>8.0f} pairs/s  {r['us_per_pair_cpu']:6.1f} us/pair  "
+        print(f"{name:<21} {r['pairs_per_s_cpu']:>8.0f} pairs/s  {r['us_per_pair_cpu']:6.1f} us/pair  "
               f"{100 * r['fraction_of_floor_cpu']:5.1f} % of the floor (wall {100 * r['fraction_of_floor_wall']:.1f} %)  "
               f"rms {r['rms_px']:.4f} px, valid {r['valid_fraction']:.3f}")
     print("current kernel, us per pair (CPU, one batch of 128): "

@@ -57,6 +57,11 @@ class TorchKernel:
         self.freq_col = torch.as_tensor(plan.freq_col, dtype=torch.float64, device=self.device)
         self.stages = [(put(s.kernel_row), put(s.kernel_col), s.offsets_px) for s in plan.stages]
         self.tiny = float(np.finfo(plan.dtype).tiny)
+        self.coarse = None if plan.coarse is None else TorchKernel(plan.coarse, device=device)
+        if self.coarse is not None:  # the reference's low-frequency quarter: |k1| < H/4, k2 <= W/4
+            height, width = plan.shape
+            self.quarter_rows = torch.as_tensor(np.r_[0:height // 4, height - height // 4:height], device=self.device)
+            self.quarter_cols = width // 4 + 1
 
     def _tensor(self, array: np.ndarray):
         return torch.as_tensor(np.ascontiguousarray(array), device=self.device)
@@ -67,9 +72,12 @@ class TorchKernel:
         ref_t = self._tensor(ref.astype(plan.dtype, copy=False))
         mov_t = self._tensor(mov.astype(plan.dtype, copy=False))
         spec_ref_conj = torch.conj(self.spectrum(ref_t, self.apodization))
-        cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov_t, self.apodization))
-        centre, second = self.coarse_peak(cross)
-        first_q_mean = q_mean
+        if self.coarse is not None:
+            centre, second, first_q_mean = self.half_resolution_estimate(spec_ref_conj, mov_t)
+        else:
+            cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov_t, self.apodization))
+            centre, second = self.coarse_peak(cross)
+            first_q_mean = q_mean
         for k in range(plan.follow):
             win_mov = self.following_windows(centre)
             cross, q_mean, q_var = self.cross_power(spec_ref_conj, self.spectrum(mov_t, win_mov))
@@ -80,6 +88,35 @@ class TorchKernel:
         return tuple(t.detach().to("cpu", torch.float64).numpy() for t in out)
 
     # ---------------------------------------------------------------- steps
+
+    def half_resolution_estimate(self, spec_ref_conj, mov):
+        """First pass at half resolution, as :meth:`gcpmatch.phase.NumpyKernel.half_resolution_estimate`.
+
+        The doubled estimate is the shift minus ``plan.coarse_offset_px`` per axis (the 2 x 2 bins'
+        half-pixel offset).
+
+        Parameters
+        ----------
+        spec_ref_conj : tensor of complex, shape (B, H, W // 2 + 1)
+            Conjugated half spectrum of the reference windows.
+        mov : tensor, shape (B, H, W)
+            Moving windows.
+
+        Returns
+        -------
+        centre : tensor of float64, shape (B, 2)
+            (row, col) shift estimate at full resolution, px.
+        second, q_mean : tensor of float64, shape (B,)
+            Secondary maximum and ideal peak height of the half-resolution surface.
+        """
+        coarse = self.coarse
+        quarter = spec_ref_conj[:, self.quarter_rows, :self.quarter_cols]
+        rows = mov[:, 0::2] + mov[:, 1::2]
+        binned = rows[:, :, 0::2] + rows[:, :, 1::2]
+        cross, q_mean, _ = coarse.cross_power(quarter, coarse.spectrum(binned, coarse.apodization))
+        centre, second = coarse.coarse_peak(cross)
+        centre, _ = coarse.refine(cross, centre, (), max_iterations=1)
+        return 2.0 * centre + self.plan.coarse_offset_px, second, q_mean
 
     def spectrum(self, windows, window):
         """Half spectrum (B, H, Wh) of the apodized windows minus their weighted mean.

@@ -163,15 +163,16 @@ def newton_refine(cross: np.ndarray, centre_px: np.ndarray, grid: SurfaceGrid, *
         Surface value there, ``c`` of the module docstring (normalized by ``H W``).
     """
     cross = np.ascontiguousarray(cross)
-    centre = np.asarray(centre_px, dtype=np.float64)
+    centre = np.array(centre_px, dtype=np.float64)  # a copy: updated in place
     value = np.zeros(centre.shape[0])
-    active = np.ones(centre.shape[0], dtype=bool)  # a pair stops once its step is below the tolerance
+    active = np.arange(centre.shape[0])  # a pair stops once its step is below the tolerance
     for _ in range(max_iterations):
-        step, new_value = newton_step(cross, centre, grid)
-        centre = np.where(active[:, None], centre + step, centre)
-        value = np.where(active, new_value, value)
-        active &= np.abs(step).max(axis=1) >= tolerance_px
-        if not active.any():
+        # after the first step only the pairs still moving are gathered (usually a few)
+        sub = cross if active.size == cross.shape[0] else cross[active]
+        step, value[active] = newton_step(sub, centre[active], grid)
+        centre[active] += step
+        active = active[np.abs(step).max(axis=1) >= tolerance_px]
+        if active.size == 0:
             break
     return centre, value / (grid.height * grid.width)
 
