@@ -8,9 +8,18 @@ say, with thresholds scaled by robust (MAD) spreads and floored at a fraction of
   ``max(floor_px, k * 1.4826 MAD)`` is rejected.
 * :func:`smooth_residuals`: per CCD, the shifts ``(d_row, d_col)`` are fitted by a low-degree
   polynomial in ``(row, col)`` (cubic across track like the directional-angle model, quadratic
-  along track for attitude drift), by IRLS with Huber weights; matches whose residual exceeds
+  along track for attitude drift), by IRLS with Huber weights, then with Tukey's biweight
+  (redescending: a match far from the fit gets no weight at all, so a compact cluster of
+  consistently wrong matches, e.g. a cast shadow that moved with the season, cannot pull the fit
+  toward itself and hide below the threshold); matches whose residual exceeds
   ``max(floor_px, k sigma)`` are rejected and ``sigma`` (robust) is returned as the matches'
   measurement uncertainty.
+
+Weights: Huber with ``1.345 s``, biweight ``(1 - (d / c s)^2)^2`` for ``d < c s`` with
+``c = 4.685`` (95 % efficiency at Gaussian noise for both: Holland & Welsch, "Robust regression
+using iteratively reweighted least-squares", Commun. Statist. A6(9), 1977), ``s = 1.4826``
+times the median residual distance. The Huber steps give the biweight its start (a redescending
+estimator needs one near the solution: Huber, "Robust Statistics", Wiley 1981, ch. 7).
 """
 
 from __future__ import annotations
@@ -71,7 +80,13 @@ def _design(row, col, row_span, col_span):
     return np.stack([np.ones_like(u), u, u * u, u**3, v, v * v, u * v], axis=-1)
 
 
-def smooth_residuals(row, col, d_row, d_col, *, k: float = 4.0, floor_px: float = 0.25, iterations: int = 8):
+#: Tuning constants of the IRLS weights (module docstring), in units of ``s``.
+HUBER_C = 1.345
+BIWEIGHT_C = 4.685
+
+
+def smooth_residuals(row, col, d_row, d_col, *, k: float = 4.0, floor_px: float = 0.25, iterations: int = 8,
+                     redescending_iterations: int = 6):
     """Robust smooth fit of the shifts of one CCD; returns (inlier flags, sigma_px, residuals).
 
     Parameters
@@ -85,7 +100,9 @@ def smooth_residuals(row, col, d_row, d_col, *, k: float = 4.0, floor_px: float 
     floor_px : float
         Smallest rejection threshold, pixels.
     iterations : int
-        IRLS iterations (Huber weights).
+        IRLS iterations with Huber weights.
+    redescending_iterations : int
+        Further IRLS iterations with biweight weights (0: Huber only).
 
     Returns
     -------
@@ -103,13 +120,18 @@ def smooth_residuals(row, col, d_row, d_col, *, k: float = 4.0, floor_px: float 
     a = _design(row, col, (row.min(), row.max()), (col.min(), col.max()))
     y = np.stack([d_row, d_col], axis=-1)
     w = np.ones(n)
-    for _ in range(iterations):
+    for step in range(iterations + redescending_iterations):
         sw = np.sqrt(w)[:, None]
         coef = np.linalg.lstsq(a * sw, y * sw, rcond=None)[0]
         res = y - a @ coef
         dist = np.hypot(res[:, 0], res[:, 1])
-        u = dist / (1.345 * 1.4826 * np.median(dist) + 1e-9)
-        w = np.where(u <= 1.0, 1.0, 1.0 / u)  # Huber weights
+        scale = 1.4826 * np.median(dist) + 1e-9
+        if step + 1 < iterations:
+            u = dist / (HUBER_C * scale)
+            w = np.where(u <= 1.0, 1.0, 1.0 / u)
+        else:  # the biweight, from the Huber solution on
+            u = dist / (BIWEIGHT_C * scale)
+            w = np.where(u < 1.0, (1.0 - u * u) ** 2, 0.0)
     res = y - a @ coef
     dist = np.hypot(res[:, 0], res[:, 1])
     per_axis = 1.4826 * np.median(np.abs(res), axis=0)
