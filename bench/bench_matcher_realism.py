@@ -91,6 +91,17 @@ def simulate_once(cache: Path, profile: str, gsd_m: float, source) -> Path:
     return scene
 
 
+#: the reference chips' resampling kernel (``--chip-interpolation``; default: production's)
+CHIP_KERNEL = {"name": None}
+
+
+def chip_interpolation() -> str:
+    """The kernel the chips are resampled with: ``--chip-interpolation`` or production's default."""
+    from gcpmatch.reference import CHIP_INTERPOLATION
+
+    return CHIP_KERNEL["name"] or CHIP_INTERPOLATION
+
+
 def prepare_windows(scene: Path, options) -> dict:
     """Coarse stage, reference chips, screened windows and TRUE shifts of one scene (arrays).
 
@@ -131,7 +142,8 @@ def prepare_windows(scene: Path, options) -> dict:
     for i, look in enumerate(model_pc.detector_arrays(band)):
         kw = dict(band=band, first_col=look.first_col, n_detectors=look.n_detectors, height_m=height_m, array=i)
         per_m.append(np.array([reference_sigma_px(model_pc, 1.0, 0.0, **kw), reference_sigma_px(model_pc, 0.0, 1.0, **kw)]).T)
-        ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=i, psf_sigma_px=options.psf_sigma_px)
+        ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=i, psf_sigma_px=options.psf_sigma_px,
+                                interpolation=chip_interpolation())
         img = img_all[:, look.first_col:look.first_col + look.n_detectors]
         msk, _ = detect_clouds(img, ref)
         rs = _grid_starts(img.shape[0], w, options.spacing_px)
@@ -173,7 +185,8 @@ def load_windows(cache: Path, profile: str, gsd_m: float, source, options) -> di
     """:func:`prepare_windows` of the cached scene, itself cached as ``PROFILE_windows.npz``."""
     from sensor_models.dom_inputs import reference_accuracy
 
-    path = cache / f"{profile}_w{options.window_px}_s{options.spacing_px}_psf{options.psf_sigma_px}_windows.npz"
+    path = cache / (f"{profile}_w{options.window_px}_s{options.spacing_px}_psf{options.psf_sigma_px}"
+                    f"_{chip_interpolation()}_windows.npz")
     scene = simulate_once(cache, profile, gsd_m, source)
     if not path.exists():
         np.savez(path, **prepare_windows(scene, options))
@@ -402,12 +415,15 @@ def main() -> None:
     ap.add_argument("--coverage-seeds", default="", help="Comma-separated seeds of the coverage scenes ('' for none).")
     ap.add_argument("--calibrate", default="default,ccd",
                     help="Variants also run through match + calibrate on the realistic scenes ('' for none).")
+    ap.add_argument("--chip-interpolation", default=None, choices=("linear", "cubic", "lanczos"),
+                    help="Resampling kernel of the reference chips (default: gcpmatch.reference.CHIP_INTERPOLATION).")
     args = ap.parse_args()
+    CHIP_KERNEL["name"] = args.chip_interpolation
     args.cache.mkdir(parents=True, exist_ok=True)
     source = None if args.source == "procedural" else args.source
     table = variants()
     names = args.variants.split(",") if args.variants else list(table)
-    results = {"gsd_m": args.gsd, "source": args.source, "variants": {}}
+    results = {"gsd_m": args.gsd, "source": args.source, "chip_interpolation": chip_interpolation(), "variants": {}}
     for name in names:
         results["variants"][name] = {}
         options, phase_options = table[name]

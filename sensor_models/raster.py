@@ -5,8 +5,8 @@
   raster marks (:mod:`sensor_models.reference_qa`) become NaN. Several tiles, a folder, a glob
   or a ``.vrt`` open as one mosaic (:mod:`sensor_models.mosaic`); products (Landsat,
   Sentinel-2) are resolved by :mod:`sensor_models.dom_inputs`.
-* :func:`sample_map_image`: blur (Gaussian, no-data aware) and sample bilinearly at the node
-  indices that :func:`sensor_models.locate.locate_block` returns.
+* :func:`sample_map_image`: blur (Gaussian, no-data aware) and sample (bilinear, cubic or
+  Lanczos) at the node indices that :func:`sensor_models.locate.locate_block` returns.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from affine import Affine
 from sensor_models.errors import InputError
 from sensor_models.locate import MapGrid
 
-__all__ = ["MapImage", "sample_map_image"]
+__all__ = ["INTERPOLATIONS", "MapImage", "sample_map_image"]
 
 
 @dataclass
@@ -336,7 +336,14 @@ def _open_qa(qa_path, qa_layout, grid: MapGrid, *, what: str):
     return qa, layouts.pop()
 
 
-def sample_map_image(image: MapImage, u, v, *, sigma_px: float = 0.0, exact_weights: bool = True) -> np.ndarray:
+#: Interpolations of :func:`sample_map_image` (OpenCV ``remap`` flags): name -> (flag, taps' reach
+#: in pixels beyond the sample). ``lanczos``: 8 x 8 Lanczos (a = 4) taps; ``cubic``: 4 x 4 Keys
+#: taps with a = -0.75; ``linear``: 2 x 2 bilinear.
+INTERPOLATIONS = {"linear": ("INTER_LINEAR", 1), "cubic": ("INTER_CUBIC", 2), "lanczos": ("INTER_LANCZOS4", 4)}
+
+
+def sample_map_image(image: MapImage, u, v, *, sigma_px: float = 0.0, exact_weights: bool = True,
+                     interpolation: str = "linear") -> np.ndarray:
     """Sample a map image at node indices ``(u, v)`` after a Gaussian blur of ``sigma_px``.
 
     Only the window covering the requested positions (plus the blur's reach) is read. No-data
@@ -356,20 +363,31 @@ def sample_map_image(image: MapImage, u, v, *, sigma_px: float = 0.0, exact_weig
         is blurred alone (its blurred weights are 1 to float32 rounding, so samples differ by
         about 1e-7 relative, e.g. 1e-4 DN at 1000 DN) at half the cost. The simulator keeps
         True, so its scenes stay bit-identical; the matcher's reference chips use False.
+    interpolation : {"linear", "cubic", "lanczos"}
+        Resampling kernel (``INTERPOLATIONS``). The simulator keeps ``linear``; the matcher's
+        reference chips use ``lanczos`` (docs/matching.md: bilinear upsampling of a coarser DOM
+        blurs by an amount that depends on the sample's sub-pixel phase, a structured error in
+        the chips). Where the wider taps reach no-data the bilinear sample is used, so the
+        NaN samples are the bilinear ones.
 
     Returns
     -------
     ndarray, float32, shape of ``u``
-        Bilinear samples (OpenCV ``remap``: positions quantized to 1/32 pixel).
+        Samples (OpenCV ``remap``: positions quantized to 1/32 pixel).
     """
     import cv2
+
+    if interpolation not in INTERPOLATIONS:
+        raise InputError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}, got {interpolation!r}",
+                         field="interpolation")
+    flag_name, reach = INTERPOLATIONS[interpolation]
 
     ok = np.isfinite(u) & np.isfinite(v)
     every = bool(ok.all())
     if not every and not ok.any():
         return np.full(u.shape, np.nan, dtype=np.float32)
     u_ok, v_ok = (u, v) if every else (u[ok], v[ok])
-    pad = int(np.ceil(4.0 * sigma_px)) + 3
+    pad = int(np.ceil(4.0 * sigma_px)) + 2 + reach
     c0 = int(np.floor(u_ok.min())) - pad
     c1 = int(np.ceil(u_ok.max())) + pad + 1
     r0 = int(np.floor(v_ok.min())) - pad
@@ -381,7 +399,14 @@ def sample_map_image(image: MapImage, u, v, *, sigma_px: float = 0.0, exact_weig
     else:
         uu = np.where(ok, u - c0, -1.0).astype(np.float32)
         vv = np.where(ok, v - r0, -1.0).astype(np.float32)
-    return cv2.remap(crop, uu, vv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    out = cv2.remap(crop, uu, vv, getattr(cv2, flag_name), borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    if interpolation != "linear" and np.isnan(out).any():
+        # wider taps reach no-data sooner: where they do, the bilinear sample (NaN only where its
+        # own 2 x 2 taps touch no-data), so the chips cover what bilinear ones cover
+        near = np.isnan(out)
+        out[near] = cv2.remap(crop, uu, vv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                              borderValue=np.nan)[near]
+    return out
 
 
 def _blurred_window(crop: np.ndarray, sigma_px: float, exact_weights: bool) -> np.ndarray:
