@@ -46,11 +46,12 @@ FALLBACK_SIGMA_PX = 0.1
 MIN_SIGMA_PX = 0.01
 #: matching noise per axis, pixels, of a 64 px window whose score is 0.5 (``sqrt((1 - s) / s) =
 #: 1``): least-squares fit ``e^2 = a^2 (1 - s) / s + f^2`` of the squared per-axis truth errors
-#: of the 233 kept GCPs of the realistic profile without DOM error (a = 0.074 px, f = 0.037 px); on
-#: the ideal scene the same fit gives a = 0.127 px, f = 0.005 px (bench/results/matcher_realism.json)
-SCORE_SIGMA_PX = 0.074
+#: of the 231 kept GCPs of the realistic profile without DOM error, refitted in session 7 with the
+#: Lanczos chips (a = 0.071 px, f = 0.032 px; session 5, bilinear chips: 0.074, 0.037); on the
+#: ideal scene the same fit gives a = 0.100 px, f = 0.007 px (bench/results/matcher_chips_lanczos.json)
+SCORE_SIGMA_PX = 0.071
 #: matching floor per axis, pixels (64 px windows), from the same fit
-MATCH_FLOOR_PX = 0.037
+MATCH_FLOOR_PX = 0.032
 
 
 def score_sigma_px(score: np.ndarray, *, window_px: int = 64) -> np.ndarray:

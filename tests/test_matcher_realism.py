@@ -159,7 +159,7 @@ def test_score_sigma_falls_with_the_score_down_to_the_floor():
     sig = score_sigma_px(s)
     assert np.all(np.diff(sig) < 0)
     assert sig[-1] == pytest.approx(MATCH_FLOOR_PX)
-    assert 0.07 < sig[0] < 0.1  # hypot(0.074, 0.037) at s = 0.5
+    assert 0.07 < sig[0] < 0.1  # hypot(0.071, 0.032) at s = 0.5
     assert score_sigma_px(s, window_px=32)[2] == pytest.approx(2 * sig[2])
 
 
