@@ -1,6 +1,8 @@
 """Coarse stage: SIFT matches between the scene and the DOM, RANSAC, model pre-correction.
 
-1. The scene band is averaged down by an integer factor ``f`` (longest side <= ``target_px``);
+1. The scene band is averaged down by an integer factor ``f`` (longest side <= ``target_px``, but
+   the shorter side kept at ``MIN_REDUCED_SIDE_PX`` or more: a wide swath over few lines stays
+   a strip SIFT can work in);
    the DOM is read over the model's predicted footprint plus a search margin of
    ``max_offset_px`` scene pixels, averaged down to the same ground resolution.
 2. The reduced scene is warped into the DOM's frame by the affine map the current model
@@ -29,7 +31,7 @@ from gcpmatch.precorrect import fit_ccd_offsets, fit_exterior_in_ground
 from gcpmatch.reference import grid_resolution_m, scene_gsd_m
 from sensor_models.errors import GcpcalError
 
-__all__ = ["CoarseResult", "coarse_match", "to_uint8"]
+__all__ = ["MIN_REDUCED_SIDE_PX", "CoarseResult", "coarse_match", "reduction_factor", "to_uint8"]
 
 
 class CoarseMatchError(GcpcalError, RuntimeError):
@@ -199,7 +201,8 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         Largest expected error of the model, in scene pixels (the DOM search margin).
     target_px : int
         The scene is averaged down by an integer factor until its longest side is at most
-        this many pixels.
+        this many pixels, or its shorter side would fall below ``MIN_REDUCED_SIDE_PX``
+        (:func:`reduction_factor`).
     ransac_px : float
         RANSAC inlier threshold, reduced-scene pixels.
     n_features : int
@@ -271,6 +274,13 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     )
 
 
+#: the reduced scene's shorter side is kept at this many pixels or more (when the scene has them):
+#: reduced by its longest side alone, a strip of seed 003's full width (21 800 detectors) over 512
+#: lines would be 1557 x 36 px, and SIFT then finds too few matches for RANSAC (measured: "RANSAC
+#: found no consistent set of SIFT matches" on that strip, profile realistic; the realistic demo
+#: fixture reduced to 73 x 109 px fails the same way, at 256 x 384 px it matches)
+MIN_REDUCED_SIDE_PX = 256
+
 #: below this fraction of the searched DOM with DEM heights, the search is restricted to them
 _FULL_COVER = 0.99
 
@@ -303,8 +313,29 @@ def _restrict_to_dem(win: _DomWindow, dem, step: int = 4):
                    "the coarse search was restricted to that part")
 
 
+def reduction_factor(n_rows: int, n_cols: int, target_px: int) -> int:
+    """The integer factor of the coarse stage: longest side <= ``target_px``, shorter side kept at
+    ``MIN_REDUCED_SIDE_PX`` or more where the scene has that many pixels.
+
+    Parameters
+    ----------
+    n_rows, n_cols : int
+        Scene size, pixels.
+    target_px : int
+        Largest reduced side wanted, pixels.
+
+    Returns
+    -------
+    int
+        ``max(1, min(ceil(max(n_rows, n_cols) / target_px), min(n_rows, n_cols) // MIN_REDUCED_SIDE_PX))``.
+    """
+    by_long = int(np.ceil(max(n_rows, n_cols) / target_px))
+    by_short = min(n_rows, n_cols) // MIN_REDUCED_SIDE_PX
+    return max(1, min(by_long, by_short))
+
+
 def _reduce_scene(scene: np.ndarray, target_px: int):
-    """The scene averaged down by the integer factor ``f`` (longest side <= ``target_px``).
+    """The scene averaged down by the integer factor ``f`` of :func:`reduction_factor`.
 
     Returns
     -------
@@ -316,7 +347,7 @@ def _reduce_scene(scene: np.ndarray, target_px: int):
         The reduction factor.
     """
     n_rows, n_cols = scene.shape
-    f = max(1, int(np.ceil(max(n_rows, n_cols) / target_px)))
+    f = reduction_factor(n_rows, n_cols, target_px)
     valid = np.isfinite(scene) & (scene > 0)
     small = cv2.resize(np.where(valid, scene, 0).astype(np.float32), (n_cols // f, n_rows // f), interpolation=cv2.INTER_AREA)
     small_valid = cv2.resize(valid.astype(np.float32), (n_cols // f, n_rows // f), interpolation=cv2.INTER_AREA) > 0.99
