@@ -40,8 +40,21 @@ Usage::
     # the full-size run of docs/speed.md
     python bench/bench_fullsize.py --scale 1 --profile ideal-dom --bands B2,B4 --truth-step 64
 
+    # the seed's full width (+-32 deg) under realistic errors over a strip of 512 lines, then the
+    # same render matched and calibrated with the TRUE DEM as the user's DEM (docs/experiments.md)
+    python bench/bench_fullsize.py --scale 1 --lines 512 --dom-resolution-m 45 --bands B2,B4 --cache /tmp/fw
+    python bench/bench_fullsize.py --scale 1 --lines 512 --dom-resolution-m 45 --bands B2,B4 --cache /tmp/fw \
+        --user-dem true
+
+``--lines N`` sets the image lines after scaling (the cache folder and the default ``--out`` name
+them); ``--user-dem true`` writes match, calibrate, relative and truth under
+``<cache>/userdem_true``, the render reused. After ``match``, the GCP truth error (matched
+``(row, col)`` minus the TRUE projection of each GCP's ground point) is recorded pooled and by
+off-nadir angle (``bench/gcp_truth.py``).
+
 Writes ``--out`` (default ``bench/results/fullsize.json``, or ``fullsize_scale<F>.json`` when
-``--scale`` is not 1).
+``--scale`` is not 1, ``fullsize_scale<F>_lines<N>.json`` with ``--lines``, ``_userdem_true``
+appended with ``--user-dem true``).
 """
 
 from __future__ import annotations
