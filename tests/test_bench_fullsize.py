@@ -124,3 +124,24 @@ def test_lines_strip_then_true_dem_reuses_the_render(tmp_path):
     assert (Path(true["work"]) / "gcps.csv").exists() and (Path(true["work"]) / "cal_auto").is_dir()
     assert true["gcp_truth_error"]["all"]["n"] > 100
     assert 0.005 < true["truth_error"]["cal_auto"]["reference_band"]["rms_px"] < 1.0
+    dem_term_of_the_render(Path(given["cache"]) / "scene", tmp_path)
+
+
+def dem_term_of_the_render(scene: Path, tmp_path: Path) -> None:
+    """``bench/bench_dem_term.py`` on a rendered realistic scene: GCPs on the TRUE DEM, both heights."""
+    spec = importlib.util.spec_from_file_location("bench_dem_term", ROOT / "bench" / "bench_dem_term.py")
+    dem_term = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(dem_term)
+    out = tmp_path / "dem_term.json"
+    assert dem_term.main(["--scene", str(scene), "--work", str(tmp_path / "dem_term"), "--out", str(out),
+                          "--spacing", "32", "--truth-step", "32"]) == 0
+    res = json.loads(out.read_text())
+    term = res["dem_term_per_gcp"]
+    # the injected user DEM error is ~8 m rms; at +-2.3 deg, 8 m * tan(2 deg) / 45 m ~ 0.006 px
+    assert 4.0 < term["dh_rms_m"] < 16.0
+    assert 0.0005 < term["all"]["rms_px"] < 0.03
+    exact, with_dem = res["runs"]["h_true"], res["runs"]["h_user"]
+    assert exact["gcp_truth_error"]["all"]["max_px"] < 1e-3  # TRUE heights: the GCPs are exact
+    assert with_dem["gcp_truth_error"]["all"]["rms_px"] == pytest.approx(term["all"]["rms_px"], rel=1e-3)
+    for run in (exact, with_dem):
+        assert 0.0 < run["cal_static"]["truth_error"]["reference_band"]["rms_px"] < 1.0
