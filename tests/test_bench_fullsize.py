@@ -98,13 +98,13 @@ def test_lines_strip_then_true_dem_reuses_the_render(tmp_path):
     if not (Path(sys.executable).parent / "gcpcal").exists():
         pytest.skip("the gcpcal console script is not installed beside this interpreter")
     bench = _bench()
-    common = ["--scale", "0.0625", "--lines", "256", "--cache", str(tmp_path / "cache"), "--bands", "B2,B4",
+    common = ["--scale", "0.0625", "--lines", "640", "--cache", str(tmp_path / "cache"), "--bands", "B2,B4",
               "--truth-step", "32", "--stages", "simulate,match,calibrate_auto,truth"]
     given_out, true_out = tmp_path / "given.json", tmp_path / "true.json"
     assert bench.main(common + ["--out", str(given_out)]) == 0
     given = json.loads(given_out.read_text())
-    assert given["lines"] == 256 and given["scene"]["image"]["n_rows"] == 256
-    assert given["scene"]["image"]["n_cols"] == 4 * 341 and "lines256" in given["cache"]
+    assert given["lines"] == 640 and given["scene"]["image"]["n_rows"] == 640
+    assert given["scene"]["image"]["n_cols"] == 4 * 341 and "lines640" in given["cache"]
     scene_summary = Path(given["cache"]) / "scene" / "summary.json"
     stamp = scene_summary.stat().st_mtime_ns
     assert given["scene"]["injected"]  # what the realistic profile injected, DEM error included
