@@ -10,6 +10,9 @@ the coarse stage's reduction target and SIFT feature cap raised (``--target-px``
 error by off-nadir angle (``bench/gcp_truth.py``). NOT what ``gcpcal match`` does by default:
 a diagnostic of what the full width gives once the coarse stage has found the scene.
 
+The match runs in this process; the later commands are forked from it, so their ``peak_rss_mib``
+includes this process's resident memory at the fork (not a figure to report).
+
 Usage::
 
     python bench/bench_fullwidth_match.py --cache /tmp/fw/scale1_lines512_realistic_B2B4_dom45m \\

@@ -125,6 +125,28 @@ def test_lines_strip_then_true_dem_reuses_the_render(tmp_path):
     assert true["gcp_truth_error"]["all"]["n"] > 100
     assert 0.005 < true["truth_error"]["cal_auto"]["reference_band"]["rms_px"] < 1.0
     dem_term_of_the_render(Path(given["cache"]) / "scene", tmp_path)
+    widened_match_of_the_render(Path(given["cache"]), tmp_path)
+
+
+def widened_match_of_the_render(cache: Path, tmp_path: Path) -> None:
+    """``bench/bench_fullwidth_match.py``: the coarse stage's target reaches ``coarse_match``, then is restored."""
+    import gcpmatch.extract as extract
+
+    spec = importlib.util.spec_from_file_location("bench_fullwidth_match", ROOT / "bench" / "bench_fullwidth_match.py")
+    widened = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(widened)
+    original = extract.coarse_match
+    out = tmp_path / "widened.json"
+    # 1364 columns: the default target (1600) reduces by 1, a target of 700 by 2
+    assert widened.main(["--cache", str(cache), "--target-px", "700", "--n-features", "12000",
+                         "--truth-step", "32", "--out", str(out)]) == 0
+    assert extract.coarse_match is original
+    res = json.loads(out.read_text())
+    assert res["match"]["coarse"]["factor"] == 2
+    assert res["match"]["gcps"] > 100
+    assert res["gcp_truth_error"]["all"]["n"] == res["match"]["gcps"] + res["match"]["check_points"]
+    assert res["truth_error"]["lab"]["reference_band"]["rms_px"] > 50.0
+    assert res["truth_error"]["cal_static"]["reference_band"]["rms_px"] < 1.0
 
 
 def dem_term_of_the_render(scene: Path, tmp_path: Path) -> None:
