@@ -40,8 +40,21 @@ Usage::
     # the full-size run of docs/speed.md
     python bench/bench_fullsize.py --scale 1 --profile ideal-dom --bands B2,B4 --truth-step 64
 
+    # the seed's full width (+-32 deg) under realistic errors over a strip of 512 lines, then the
+    # same render matched and calibrated with the TRUE DEM as the user's DEM (docs/experiments.md)
+    python bench/bench_fullsize.py --scale 1 --lines 512 --dom-resolution-m 45 --bands B2,B4 --cache /tmp/fw
+    python bench/bench_fullsize.py --scale 1 --lines 512 --dom-resolution-m 45 --bands B2,B4 --cache /tmp/fw \
+        --user-dem true
+
+``--lines N`` sets the image lines after scaling (the cache folder and the default ``--out`` name
+them); ``--user-dem true`` writes match, calibrate, relative and truth under
+``<cache>/userdem_true``, the render reused. After ``match``, the GCP truth error (matched
+``(row, col)`` minus the TRUE projection of each GCP's ground point) is recorded pooled and by
+off-nadir angle (``bench/gcp_truth.py``).
+
 Writes ``--out`` (default ``bench/results/fullsize.json``, or ``fullsize_scale<F>.json`` when
-``--scale`` is not 1).
+``--scale`` is not 1, ``fullsize_scale<F>_lines<N>.json`` with ``--lines``, ``_userdem_true``
+appended with ``--user-dem true``).
 """
 
 from __future__ import annotations
@@ -63,7 +76,7 @@ STAGES = ("simulate", "match", "calibrate_auto", "calibrate_static", "relative_a
 
 
 # ---------------------------------------------------------------- configuration
-def scaled_config(scale: float, bands: list[str] | None = None) -> dict:
+def scaled_config(scale: float, bands: list[str] | None = None, lines: int | None = None) -> dict:
     """The simulation configuration at ``scale`` (detectors per CCD and lines times ``scale``).
 
     Parameters
@@ -72,6 +85,9 @@ def scaled_config(scale: float, bands: list[str] | None = None) -> dict:
         In (0, 1]; 1 is seed 003's size.
     bands : list of str, optional
         Subset of the default bands (B1-B4) to render; the reference band B2 must be in it.
+    lines : int, optional
+        Number of image lines (after scaling), at least 64; default: the scaled 8192. A strip of
+        lines at ``scale`` 1 has the seed's full width (+-32 deg) in a fraction of its area.
 
     Returns
     -------
@@ -84,6 +100,10 @@ def scaled_config(scale: float, bands: list[str] | None = None) -> dict:
     cam, scene = cfg["camera"], cfg["scene"]
     cam["detectors_per_ccd"] = max(64, int(round(cam["detectors_per_ccd"] * scale)))
     scene["n_rows"] = max(256, int(round(scene["n_rows"] * scale)))
+    if lines is not None:
+        if lines < 64:
+            raise SystemExit(f"--lines must be at least 64, got {lines}")
+        scene["n_rows"] = int(lines)
     if bands is not None and list(bands) != ["B1", "B2", "B3", "B4"]:
         if "B2" not in bands:
             raise SystemExit("--bands must hold the reference band B2")
@@ -290,59 +310,80 @@ def gcpcal_command() -> str:
     return str(script)
 
 
-def reference_paths(cache: Path, profile: str) -> dict:
+def reference_paths(cache: Path, profile: str, user_dem: str = "given") -> dict:
     """The user's DOM and DEM given to match/relative, and the TRUE DEM of the truth error.
 
     ``realistic``: the simulator's degraded ``reference/dom.tif`` and ``dem.tif`` (not what rendered
     the scene) and ``reference/truth/dem_true.tif``. ``ideal-dom``: the streamed inputs, which
     rendered the scene (the ideal profile's reference is the rendering DOM and DEM itself).
+    ``user_dem="true"`` (realistic): the TRUE DEM is given as the user's DEM, so the DEM error's
+    share of the results shows against the ``given`` run of the same scene.
     """
     if profile == "realistic":
         ref = cache / "scene" / "reference"
-        return {"dom": ref / "dom.tif", "dem": ref / "dem.tif", "true_dem": ref / "truth" / "dem_true.tif"}
+        true_dem = ref / "truth" / "dem_true.tif"
+        return {"dom": ref / "dom.tif", "dem": true_dem if user_dem == "true" else ref / "dem.tif",
+                "true_dem": true_dem}
     inputs = inputs_dir(cache)
     return {"dom": inputs / "dom.tif", "dem": inputs / "dem.tif", "true_dem": inputs / "dem.tif"}
 
 
 def inputs_dir(cache: Path) -> Path:
-    """The streamed DOM and DEM of a scale, shared by the runs of that scale (``<cache root>/inputs_scale<F>``)."""
-    return cache.parent / ("inputs_" + cache.name.split("_")[0])
+    """The streamed DOM and DEM of a size, shared by the runs of that size.
+
+    ``<cache root>/inputs_scale<F>``, or ``inputs_scale<F>_lines<N>`` for a ``--lines`` run (its
+    footprint differs from the scale's).
+    """
+    parts = cache.name.split("_")
+    size = parts[:2] if len(parts) > 1 and parts[1].startswith("lines") else parts[:1]
+    return cache.parent / ("inputs_" + "_".join(size))
 
 
-def stage_commands(cache: Path, profile: str, workers: int) -> dict:
-    """Every timed stage's command line (the ``gcpcal`` script; ``PYTHONPATH`` picks this checkout)."""
+def work_dir(cache: Path, user_dem: str = "given") -> Path:
+    """Where match, calibrate, relative and truth write: the cache, or ``<cache>/userdem_true``."""
+    return cache if user_dem == "given" else cache / f"userdem_{user_dem}"
+
+
+def stage_commands(cache: Path, profile: str, workers: int, user_dem: str = "given") -> dict:
+    """Every timed stage's command line (the ``gcpcal`` script; ``PYTHONPATH`` picks this checkout).
+
+    The scene is ``<cache>/scene``; the other stages write under :func:`work_dir`.
+    """
     g = [gcpcal_command()]
-    scene, ref = cache / "scene", reference_paths(cache, profile)
+    scene, ref = cache / "scene", reference_paths(cache, profile, user_dem)
+    work = work_dir(cache, user_dem)
     sim = g + ["simulate", "pushbroom", "--config", str(cache / "config.json"), "--out", str(scene), "--workers",
                str(workers), "-q"]
     sim += ["--profile", "realistic"] if profile == "realistic" else ["--dom", str(ref["dom"]), "--dem", str(ref["dem"])]
     cmds = {"simulate": sim,
             "match": g + ["match", str(scene / "manifest.json"), "--dom", str(ref["dom"]), "--dem",
-                          str(ref["dem"]), "--out", str(cache / "gcps.csv"), "-q"]}
+                          str(ref["dem"]), "--out", str(work / "gcps.csv"), "-q"]}
     for att in ("auto", "static"):
-        cmds[f"calibrate_{att}"] = g + ["calibrate", str(scene / "manifest.json"), "--gcps", str(cache / "gcps.csv"),
-                                       "--out", str(cache / f"cal_{att}"), "--attitude", att, "--no-report", "-q"]
+        cmds[f"calibrate_{att}"] = g + ["calibrate", str(scene / "manifest.json"), "--gcps", str(work / "gcps.csv"),
+                                       "--out", str(work / f"cal_{att}"), "--attitude", att, "--no-report", "-q"]
         cmds[f"relative_{att}"] = g + ["relative", str(scene / "manifest.json"), "--calibration",
-                                      str(cache / f"cal_{att}"), "--dem", str(ref["dem"]), "--out",
-                                      str(cache / f"rel_{att}"), "-q"]
+                                      str(work / f"cal_{att}"), "--dem", str(ref["dem"]), "--out",
+                                      str(work / f"rel_{att}"), "-q"]
     return cmds
 
 
-def truth_error_of(cache: Path, profile: str, name: str, step_px: float, log_dir: Path, timeout_s: float):
+def truth_error_of(cache: Path, profile: str, name: str, step_px: float, log_dir: Path, timeout_s: float,
+                   work: Path | None = None):
     """``gcpcal truth error`` of one model (``lab``, ``cal_auto``, ``rel_static``...) over the TRUE DEM.
 
     Returns
     -------
     dict or None
         The reference band's and every band's RMS and max (px; :func:`summarize_truth`) and the
-        command's wall time; None when that model was not written.
+        command's wall time; None when that model was not written. ``work`` (default ``cache``)
+        holds the calibrations and receives ``truth_<name>.json``.
     """
-    scene = cache / "scene"
-    manifest = scene / "manifest.json" if name == "lab" else cache / name / "manifest.json"
+    scene, work = cache / "scene", work or cache
+    manifest = scene / "manifest.json" if name == "lab" else work / name / "manifest.json"
     if not manifest.exists():
         return None
     ref_band = json.loads((scene / "summary.json").read_text()).get("image", {}).get("reference_band", "B2")
-    res = cache / f"truth_{name}.json"
+    res = work / f"truth_{name}.json"
     cmd = [gcpcal_command(), "truth", "error", str(manifest), "--truth", str(scene / "truth_manifest.json"),
            "--dem", str(reference_paths(cache, profile)["true_dem"]), "--step", str(step_px), "--out", str(res), "-q"]
     rec = run_measured(f"truth_{name}", cmd, log_dir, timeout_s)
@@ -364,8 +405,11 @@ def summarize_truth(result: dict, ref_band: str) -> dict:
                 "max_px": round(float(max(r["max_px"] for r in sel)), 4), "n_points": int(n.sum())}
 
     per_band = {b: pooled([r for r in rows if r.get("band") == b]) for b in sorted({r.get("band") for r in rows})}
+    per_ccd = {r["ccd"]: {"rms_px": round(float(r["rms_px"]), 4), "max_px": round(float(r["max_px"]), 4),
+                          "mean_row_px": round(float(r["mean_row_px"]), 4), "mean_col_px": round(float(r["mean_col_px"]), 4)}
+               for r in rows if r.get("band") == ref_band and "ccd" in r}
     return {"reference_band": pooled([r for r in rows if r.get("band") == ref_band]), "all_bands": pooled(rows),
-            "per_band": per_band}
+            "per_band": per_band, "reference_band_per_ccd": per_ccd}
 
 
 def check_figures(cache: Path) -> dict:
@@ -395,7 +439,17 @@ def _attitude_choice(cal: dict):
     return {"mode": att.get("mode"), "chosen": {k: chosen[0].get(k) for k in ("kind", "n_terms")} if chosen else None}
 
 
-def main(argv=None) -> int:
+def default_out_name(scale: float, lines: int | None, user_dem: str = "given") -> str:
+    """``fullsize.json``, ``fullsize_scale<F>.json``; ``fullsize_scale<F>_lines<N>.json`` with ``--lines``;
+    ``_userdem_true`` appended with ``--user-dem true``."""
+    tag = "" if user_dem == "given" else f"_userdem_{user_dem}"
+    if lines is None:
+        return ("fullsize" if scale == 1.0 else f"fullsize_scale{scale:g}") + tag + ".json"
+    return f"fullsize_scale{scale:g}_lines{lines}{tag}.json"
+
+
+def _parse(argv) -> argparse.Namespace:
+    """The command line (see the module docstring)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scale", type=float, default=1.0, help="detectors and lines times F (default 1: full size)")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/fullsize"), help="scene and outputs (default /tmp/fullsize)")
@@ -403,6 +457,15 @@ def main(argv=None) -> int:
                     help="realistic: the simulator's realistic profile (procedural source, whole in memory); "
                          "ideal-dom: the ideal kernel from a streamed synthetic DOM and DEM, with the realistic "
                          "profile's attitude and orbit magnitudes in the TRUE model")
+    ap.add_argument("--lines", type=int, default=None,
+                    help="image lines after scaling (default: the scaled 8192); with --scale 1, the seed's full "
+                         "width over a strip of N lines")
+    ap.add_argument("--dom-resolution-m", type=float, default=None,
+                    help="realistic: the procedural source/DOM pixel, m (default: the configuration's 22.5; the "
+                         "simulator caps the DOM at 150 M pixels, which the full width's north-up box exceeds)")
+    ap.add_argument("--user-dem", default="given", choices=["given", "true"],
+                    help="realistic: the DEM given to match and relative: the simulator's degraded reference DEM "
+                         "(given) or the TRUE DEM (true: outputs under <cache>/userdem_true, the render reused)")
     ap.add_argument("--bands", default="B1,B2,B3,B4", help="bands to render (B2, the reference, included)")
     ap.add_argument("--orbit-noise-m", type=float, default=None,
                     help="ideal-dom: white noise of the measured orbit per sample, m (default: the realistic 1 m)")
@@ -413,22 +476,40 @@ def main(argv=None) -> int:
     ap.add_argument("--timeout", type=float, default=3600.0, help="per command, s")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
+    if args.orbit_noise_m is not None and args.profile != "ideal-dom":
+        raise SystemExit("--orbit-noise-m applies to --profile ideal-dom")
+    if args.user_dem != "given" and args.profile != "realistic":
+        raise SystemExit("--user-dem applies to --profile realistic")
+    return args
+
+
+def _setup(args) -> tuple[Path, dict, Path, list[str]]:
+    """The cache folder (named by size, profile, bands and options), its configuration, --out, the bands."""
     bands = [b.strip() for b in args.bands.split(",") if b.strip()]
     tag = "" if args.orbit_noise_m is None else f"_orbit{args.orbit_noise_m:g}m"
-    if tag and args.profile != "ideal-dom":
-        raise SystemExit("--orbit-noise-m applies to --profile ideal-dom")
-    cache = args.cache / (f"scale{args.scale:g}_{args.profile}_{''.join(bands)}{tag}")
-    (cache / "logs").mkdir(parents=True, exist_ok=True)
-    cfg = scaled_config(args.scale, bands)
+    tag += "" if args.dom_resolution_m is None else f"_dom{args.dom_resolution_m:g}m"
+    size = f"scale{args.scale:g}" + ("" if args.lines is None else f"_lines{args.lines}")
+    cache = args.cache / (f"{size}_{args.profile}_{''.join(bands)}{tag}")
+    cfg = scaled_config(args.scale, bands, args.lines)
+    if args.dom_resolution_m is not None:
+        cfg["reference"]["dom_resolution_m"] = args.dom_resolution_m
     if args.profile == "ideal-dom":
         cfg["errors"] = dict(REALISTIC_ATTITUDE)
         if args.orbit_noise_m is not None:
             cfg["errors"]["orbit_noise_m"] = args.orbit_noise_m
+    (work_dir(cache, args.user_dem) / "logs").mkdir(parents=True, exist_ok=True)
     (cache / "config.json").write_text(json.dumps(cfg, indent=1))
-    out = args.out or ROOT / "bench" / "results" / ("fullsize.json" if args.scale == 1.0 else
-                                                     f"fullsize_scale{args.scale:g}.json")
-    cmds, wanted = stage_commands(cache, args.profile, args.workers), set(args.stages.split(","))
-    result = {"scale": args.scale, "profile": args.profile, "bands": bands, "config": cfg, "cache": str(cache),
+    out = args.out or ROOT / "bench" / "results" / default_out_name(args.scale, args.lines, args.user_dem)
+    return cache, cfg, out, bands
+
+
+def main(argv=None) -> int:
+    args = _parse(argv)
+    cache, cfg, out, bands = _setup(args)
+    work = work_dir(cache, args.user_dem)
+    cmds, wanted = stage_commands(cache, args.profile, args.workers, args.user_dem), set(args.stages.split(","))
+    result = {"scale": args.scale, "lines": cfg["scene"]["n_rows"], "profile": args.profile, "bands": bands,
+              "user_dem": args.user_dem, "config": cfg, "cache": str(cache), "work": str(work),
               "cpu_count": os.cpu_count(), "python": platform.python_version(), "loadavg_start": loadavg(),
               "stages": {}}
     if args.profile == "ideal-dom":
@@ -436,29 +517,54 @@ def main(argv=None) -> int:
     if (cache / "scene" / "summary.json").exists():
         print(f"simulate: cached in {cache / 'scene'}")
         wanted.discard("simulate")
-    result["truth_error"] = {"dem": str(reference_paths(cache, args.profile)["true_dem"]), "step_px": args.truth_step}
+    refs = reference_paths(cache, args.profile, args.user_dem)
+    result["user_dem_path"] = str(refs["dem"])
+    result["truth_error"] = {"dem": str(refs["true_dem"]), "step_px": args.truth_step}
     graded = {"calibrate_static": ("lab", "cal_auto", "cal_static"), "relative_auto": ("rel_auto",),
               "relative_static": ("rel_static",)}
     for name in STAGES:
         if name in wanted:
-            result["stages"][name] = rec = run_measured(name, cmds[name], cache / "logs", args.timeout)
+            result["stages"][name] = rec = run_measured(name, cmds[name], work / "logs", args.timeout)
             if name in ("simulate", "match") and rec["rc"] not in (0, 4):
                 break
+        if name == "match" and "truth" in wanted:
+            result["gcp_truth_error"] = gcp_truth_of(cache, work)
         for model in graded.get(name, ()) if "truth" in wanted else ():
             result["truth_error"][model] = truth_error_of(cache, args.profile, model, args.truth_step,
-                                                          cache / "logs", args.timeout)
-        _write(result, cache, out)
-    _write(result, cache, out)
-    print(json.dumps({k: result[k] for k in ("scene", "accuracy", "truth_error", "match_plus_calibrate")
-                      if k in result}, indent=1, default=str))
+                                                          work / "logs", args.timeout, work)
+        _write(result, cache, out, work)
+    _write(result, cache, out, work)
+    print(json.dumps({k: result[k] for k in ("scene", "accuracy", "gcp_truth_error", "truth_error",
+                                             "match_plus_calibrate") if k in result}, indent=1, default=str))
     print(f"wrote {out}")
     return 0
 
 
-def _write(result: dict, cache: Path, out: Path) -> None:
+def gcp_truth_of(cache: Path, work: Path):
+    """GCP truth error of ``<work>/gcps.csv`` against the TRUE model, pooled and by off-nadir angle.
+
+    Returns
+    -------
+    dict or None
+        :func:`gcp_truth.gcp_truth_by_angle` (``bench/gcp_truth.py``) and its wall time; None when
+        no GCP table was written.
+    """
+    gcps, truth = work / "gcps.csv", cache / "scene" / "truth_manifest.json"
+    if not (gcps.exists() and truth.exists()):
+        return None
+    sys.path.insert(0, str(ROOT / "bench"))
+    from gcp_truth import gcp_truth_by_angle
+
+    t0 = time.perf_counter()
+    res = gcp_truth_by_angle(truth, gcps)
+    res["wall_s"] = round(time.perf_counter() - t0, 2)
+    return res
+
+
+def _write(result: dict, cache: Path, out: Path, work: Path | None = None) -> None:
     """Complete ``result`` with the scene facts and figures so far and write it (after every stage)."""
     result["scene"] = _scene_facts(cache)
-    result["accuracy"] = check_figures(cache)
+    result["accuracy"] = check_figures(work or cache)
     result["loadavg_end"] = loadavg()
     mc = [result["stages"].get(k) for k in ("match", "calibrate_auto")]
     if all(mc):
@@ -475,7 +581,7 @@ def _scene_facts(cache: Path) -> dict:
     s = json.loads(summ.read_text())
     du = sum(f.stat().st_size for f in (cache / "scene").rglob("*") if f.is_file())
     return {"image": s.get("image"), "seconds": s.get("seconds"), "phase_seconds": s.get("phase_seconds"),
-            "disk_mib": round(du / 2**20, 1)}
+            "injected": s.get("injected"), "disk_mib": round(du / 2**20, 1)}
 
 
 if __name__ == "__main__":
