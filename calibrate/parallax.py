@@ -37,7 +37,7 @@ with the interiors (``parallax=True``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -522,11 +522,20 @@ class ParallaxResult:
 
 
 def _with_ground(model, ties, dem, height):
-    """Ties whose ground is what the reference band of ``model`` sees at their window centres."""
-    lon, lat, h = model.image_to_ground(ties.row_ref, ties.col_ref, dem=dem, height=height,
-                                        band=model.reference_band, ccd=ties.ccd_ref)
-    return replace(ties, lon=np.asarray(lon, float).reshape(-1), lat=np.asarray(lat, float).reshape(-1),
-                   h=np.asarray(h, float).reshape(-1))
+    """Ties whose ground is what the reference band of ``model`` sees at their window centres.
+
+    A tie whose centre no longer reaches the DEM through the updated model (a ray past the DEM's
+    edge or into a void: measured, 2 of 9 996 ties on a full-width strip) is dropped, not passed
+    on as a NaN ground point.
+    """
+    lon, lat, h = (np.asarray(a, float).reshape(-1) for a in model.image_to_ground(
+        ties.row_ref, ties.col_ref, dem=dem, height=height, band=model.reference_band, ccd=ties.ccd_ref))
+    keep = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(h)
+    ties = replace(ties, lon=lon, lat=lat, h=h)
+    if keep.all():
+        return ties
+    return replace(ties, **{f.name: getattr(ties, f.name)[keep] for f in fields(ties)
+                            if isinstance(getattr(ties, f.name), np.ndarray)})
 
 
 def _observations(model, ties, gcps, dem, height):
