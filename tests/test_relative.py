@@ -302,3 +302,31 @@ def test_bad_command_input_is_a_one_line_error(calibration_dir, tmp_path, capsys
     assert err.startswith("gcpcal: error:") and err.count("\n") == 1
     assert {"corrupt": "manifest.json", "missing": "nowhere", "csv": "b2.csv", "band": "B9", "rows": "--rows",
             "window": "--window"}[case] in err
+
+
+def test_a_partial_reference_calibration_ends_relative_partial_and_names_the_array(scene, tmp_path, capsys):
+    """The bands are registered (ties) but the model the stage writes is not whole: one CCD of the
+    reference band had no GCP (``gcpcal calibrate`` ended partial). ``gcpcal relative`` says so
+    and ends with exit 4 (docs/cli.md), not 0; with a whole calibration it ends 0 (tests above)."""
+    from gcpmatch.gcps import write_gcps_csv
+
+    gcps = scene["gcps"]
+    names = np.array([look.name for look in scene["lab"].band_ccds("B2")])
+    index = np.asarray(gcps.ccd).astype(int)
+    keep = index != 3
+    csv = tmp_path / "b2_three_ccds.csv"
+    write_gcps_csv(GcpTable.from_arrays(gcps.row[keep], gcps.col[keep], gcps.lon[keep], gcps.lat[keep], gcps.h[keep],
+                                        band="B2", ccd=names[index[keep]], sigma_px=0.05), csv)
+    cal = tmp_path / "cal"
+    rc = main(["-q", "calibrate", str(FIXTURE / "manifest.json"), "--gcps", str(csv), "--out", str(cal), "--no-report"])
+    assert rc == 4  # the reference calibration itself is partial
+    capsys.readouterr()
+    out = tmp_path / "rel"
+    rc = main(["relative", str(FIXTURE / "manifest.json"), "--calibration", str(cal), "--dem",
+               str(FIXTURE / "reference" / "dem.tif"), "--out", str(out), "--window", "64x32", "--spacing", "16"])
+    err = capsys.readouterr().err
+    assert rc == 4, err
+    assert "partial" in err and "cam2_ccd2" in err and "Traceback" not in err
+    summary = json.loads((out / "relative.summary.json").read_text())
+    assert summary["success"] and summary["calibration_status"] == "partial"
+    assert open_model(out / "manifest.json").calibration.status == "partial"

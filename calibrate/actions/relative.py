@@ -152,6 +152,7 @@ def _summary(result, reference_band: str, seconds: float) -> dict:
         "parallax": _parallax_summary(result.parallax),
         "model": "manifest.json",
         "calibration_status": result.model.calibration.status,
+        "calibration_message": result.model.calibration.message,
         "report": "relative.json",
         "seconds": seconds,
     })

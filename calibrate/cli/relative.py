@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.relative import relative_calibration_stage
-from calibrate.cli._errors import EXIT_FAILED
+from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, exit_with_status, json_option,
                                    out_dir_option)
@@ -135,3 +135,5 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
         failed = [band for band, s in summary["bands"].items() if not s["success"]]
         exit_with_status(ctx, EXIT_FAILED, (f"band(s) {', '.join(failed)} not calibrated: " if failed else "")
                          + str(summary.get("message") or ""))
+    if summary.get("calibration_status") == "partial":  # the bands are registered, the model is not whole
+        exit_with_status(ctx, EXIT_PARTIAL, str(summary.get("calibration_message") or "the calibration is partial"))
