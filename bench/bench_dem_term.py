@@ -25,7 +25,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -35,15 +34,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
+import bench_fullsize  # noqa: E402  (the measured child runs and truth summaries)
 from gcp_truth import ANGLE_CLASSES_DEG, _stats, gcp_truth_by_angle  # noqa: E402
-
-
-def _fullsize():
-    """``bench/bench_fullsize.py`` as a module (its measured child runs and truth summaries)."""
-    spec = importlib.util.spec_from_file_location("bench_fullsize", ROOT / "bench" / "bench_fullsize.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def perfect_gcps(scene: Path, spacing_px: int) -> dict:
@@ -151,7 +143,7 @@ def main(argv=None) -> int:
     ap.add_argument("--spacing", type=int, default=64, help="GCP grid spacing, px")
     ap.add_argument("--truth-step", type=float, default=16.0, help="truth-error grid spacing, px")
     args = ap.parse_args(argv)
-    fs = _fullsize()
+    fs = bench_fullsize
     pts = perfect_gcps(args.scene, args.spacing)
     summ = json.loads((args.scene / "summary.json").read_text())
     result = {"scene": str(args.scene), "image": summ.get("image"), "n_points": int(pts["row"].size),

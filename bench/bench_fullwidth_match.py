@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import importlib.util
 import json
 import sys
 import time
@@ -32,15 +31,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
+import bench_fullsize  # noqa: E402  (the measured child runs and truth summaries)
 from gcp_truth import gcp_truth_by_angle  # noqa: E402
-
-
-def _fullsize():
-    """``bench/bench_fullsize.py`` as a module (paths, measured child runs, truth summaries)."""
-    spec = importlib.util.spec_from_file_location("bench_fullsize", ROOT / "bench" / "bench_fullsize.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def widened_match(cache: Path, work: Path, dem: Path, *, target_px: int, n_features: int) -> dict:
@@ -89,7 +81,7 @@ def main(argv=None) -> int:
     ap.add_argument("--truth-step", type=float, default=16.0)
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    fs = _fullsize()
+    fs = bench_fullsize
     refs = fs.reference_paths(args.cache, "realistic", args.user_dem)
     work = args.cache / f"widened_{args.user_dem}"
     (work / "logs").mkdir(parents=True, exist_ok=True)
