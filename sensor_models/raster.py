@@ -403,9 +403,9 @@ def sample_map_image(image: MapImage, u, v, *, sigma_px: float = 0.0, exact_weig
     if interpolation != "linear" and np.isnan(out).any():
         # wider taps reach no-data sooner: where they do, the bilinear sample (NaN only where its
         # own 2 x 2 taps touch no-data), so the chips cover what bilinear ones cover
-        near = np.isnan(out)
-        out[near] = cv2.remap(crop, uu, vv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                              borderValue=np.nan)[near]
+        near = np.isnan(out)  # only those samples again, as one row of maps
+        out[near] = cv2.remap(crop, uu[near][None], vv[near][None], cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)[0]
     return out
 
 
