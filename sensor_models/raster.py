@@ -403,9 +403,13 @@ def sample_map_image(image: MapImage, u, v, *, sigma_px: float = 0.0, exact_weig
     if interpolation != "linear" and np.isnan(out).any():
         # wider taps reach no-data sooner: where they do, the bilinear sample (NaN only where its
         # own 2 x 2 taps touch no-data), so the chips cover what bilinear ones cover
-        near = np.isnan(out)  # only those samples again, as one row of maps
-        out[near] = cv2.remap(crop, uu[near][None], vv[near][None], cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)[0]
+        near = np.isnan(out)  # only those samples again, as rows of at most 4096 (OpenCV: < 32767)
+        n = int(near.sum())
+        width = min(n, 4096)
+        pad = -n % width  # padded with -1: outside, NaN, dropped
+        maps = [np.concatenate([m[near], np.full(pad, -1.0, np.float32)]).reshape(-1, width) for m in (uu, vv)]
+        out[near] = cv2.remap(crop, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                              borderValue=np.nan).reshape(-1)[:n]
     return out
 
 

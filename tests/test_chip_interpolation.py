@@ -92,3 +92,23 @@ def test_unknown_interpolation_is_one_input_error(dom):
     with pytest.raises(InputError) as info:
         sample_map_image(dom, u, v, interpolation="nearest")
     assert info.value.field == "interpolation" and "\n" not in str(info.value)
+
+
+def test_many_samples_near_no_data_take_the_bilinear_values(dom):
+    """More samples next to no-data than one OpenCV map row holds (rows of 4096, padded): each
+    gets exactly the bilinear value, in its own place."""
+    values = dom.read(0, N, 0, N)
+    values[:, 48:] = np.nan  # half the map is no-data
+    holed = MapImage.from_array(values, dom.grid.transform, dom.grid.crs)
+    rng = np.random.default_rng(10)
+    shape = (120, 250)  # 30 000 samples around the edge
+    u = rng.uniform(42, 50, shape).astype(np.float32)
+    v = rng.uniform(10, N - 10, shape).astype(np.float32)
+    lin = sample_map_image(holed, u, v, interpolation="linear")
+    out = sample_map_image(holed, u, v, interpolation="lanczos")
+    wide_nan = ~np.isnan(lin) & (u > 44.0)  # within reach of the Lanczos taps, not of the bilinear ones
+    assert wide_nan.sum() > 5000
+    np.testing.assert_array_equal(np.isnan(out), np.isnan(lin))
+    np.testing.assert_array_equal(out[wide_nan], lin[wide_nan])
+    far = u < 42.5  # out of the Lanczos reach: its own values
+    assert far.any() and not np.array_equal(out[far], lin[far])
