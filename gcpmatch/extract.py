@@ -21,8 +21,10 @@ summary:
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 
+import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
@@ -117,6 +119,23 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
         timings (seconds); ``message`` says why when there is no GCP.
     """
     opt = options.validate()
+    with opencv_threads(opt.thread_count()):
+        return _extract(model, scene, dem, dom, band=band, mask=mask, opt=opt, accuracy=accuracy, progress=progress)
+
+
+@contextmanager
+def opencv_threads(n: int):
+    """OpenCV's thread count set to ``n`` inside the block, restored after (a process-wide setting)."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(int(n))
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+
+
+def _extract(model, scene, dem, dom, *, band, mask, opt: MatchOptions, accuracy, progress):
+    """:func:`extract_gcps` with validated options, inside the thread setting."""
     t0 = time.perf_counter()
     scene = _checked_scene(model, scene, mask)
     try:
@@ -203,7 +222,8 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
     """Match the windows of one CCD (``ccd`` None: the whole image) and add them to ``tally``."""
     t1 = time.perf_counter()
     if ccd is not None:
-        ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=ccd, psf_sigma_px=opt.psf_sigma_px)
+        ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=ccd, psf_sigma_px=opt.psf_sigma_px,
+                                workers=opt.thread_count())
     else:
         ref = reference_for_image(model_pc, dem, dom, band=band, psf_sigma_px=opt.psf_sigma_px)
     tally.t_ref += time.perf_counter() - t1

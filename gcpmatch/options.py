@@ -9,6 +9,7 @@ command takes its option defaults from here. Every field is checked by
 from __future__ import annotations
 
 import numbers
+import os
 from dataclasses import dataclass
 
 from sensor_models.errors import InputError
@@ -107,6 +108,10 @@ class MatchOptions:
     coarse_skip : bool
         Skip the coarse SIFT stage when a cheap check finds the model already within the fine
         search radius (``window_px / 4``); ``gcpcal validate`` sets it (default False).
+    threads : int
+        Threads of the reference chips, the phase correlation's FFTs and OpenCV (SIFT, warps);
+        0 (default): every core of the machine. The GCPs do not depend on it (the work is split
+        into the same blocks and batches whatever the count, and no sum runs across threads).
     """
 
     window_px: int = 64
@@ -128,6 +133,11 @@ class MatchOptions:
     min_gradient_snr: float = 0.0
     texture_sigma_px: float = 0.0
     mismatch_sigma_scale: float = 1.0
+    threads: int = 0
+
+    def thread_count(self) -> int:
+        """Threads to use: ``threads``, or every core of the machine when it is 0."""
+        return self.threads if self.threads > 0 else max(1, os.cpu_count() or 1)
 
     def validate(self) -> MatchOptions:
         """Check every field; return ``self`` unchanged.
@@ -186,6 +196,8 @@ class MatchOptions:
             value = getattr(self, name)
             if not _is_real(value) or not value >= 0.0 or value == float("inf"):
                 raise InputError(f"must be a finite number >= 0, got {value!r}", field=name)
+        if not _is_int(self.threads) or self.threads < 0:
+            raise InputError(f"threads must be an integer >= 0 (0: every core), got {self.threads!r}", field="threads")
         if not isinstance(self.coarse_skip, bool):
             raise InputError(f"coarse_skip must be true or false, got {self.coarse_skip!r}", field="coarse_skip")
         return self

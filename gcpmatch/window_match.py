@@ -77,6 +77,8 @@ def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOpti
         return PairMatches(np.zeros((0, 2)), np.zeros(0, dtype=object), empty)
     ref, mov = prepare_windows(reference, scene, method=options.radiometry)
     kwargs = {"eps": options.phase_eps, "lowpass": options.lowpass_cycles_px, **(phase_options or {})}
+    if options.backend == "cpu":
+        kwargs.setdefault("workers", options.thread_count())
     pm = phase_correlate(ref, mov, max_shift_px=w / 4.0,
                          backend="torch" if options.backend in ("gpu", "torch") else "cpu",
                          device="cuda" if options.backend == "gpu" else None, **kwargs)

@@ -1,11 +1,12 @@
-"""Bounded memory: ortho reads the DEM by windows, simulate renders by blocks (issue 17 item 6).
+"""Bounded memory: ortho reads the DEM by windows, simulate renders by blocks.
 
 * An orthoimage made with the DEM read window by window is byte for byte the one made with the
   whole DEM in memory (fixture; Pleiades crop over SRTM with EGM96 heights), and the coarse DEM
   alone would not give it (so the windows do supply the heights).
 * The peak RSS an ortho adds (fresh process, ``/proc/self/clear_refs``) does not grow with the
   scene: 4x the pixels add about the same, well below what loading that scene's DEM whole adds.
-* Simulating by blocks of lines gives the scene that one block of the whole image gives, and the
+* Simulating by blocks of lines gives the scene that one block of the whole image gives (to the
+  rounding of a DN: 1 DN on a few pixels where float sums of other lengths differ), and the
   summary's timings cover the whole render with a phase breakdown.
 """
 
@@ -197,7 +198,12 @@ def test_simulate_by_blocks_equals_simulate_at_once(tmp_path):
     va, _, _ = _pixels(tmp_path / "blocks" / "B2.tif")
     vb, _, _ = _pixels(tmp_path / "once" / "B2.tif")
     assert va.shape == (192, cfg.camera.n_cameras * cfg.camera.ccds_per_camera * cfg.camera.detectors_per_ccd)
-    assert np.array_equal(va, vb) and va.std() > 100  # identical, and textured
+    # the same radiance to rounding: a block's float sums may differ from the whole's in the last
+    # bits (vectorized loops over other lengths; 1 DN on 0.13 % of the pixels on an AVX2 CPU, 0 on
+    # AVX-512), which flips a DN that lies on a rounding edge, never more
+    differ = va != vb
+    assert np.abs(va.astype(np.int64) - vb).max() <= 1 and differ.mean() < 0.01
+    assert va.std() > 100  # textured
     # progress: two set-up steps (models, reference), then one step per block of 32 lines
     assert steps == [(k, 8) for k in range(1, 9)]
     # timings: "rendered in" covers the set-up and the blocks; the phases add up to the command

@@ -21,6 +21,7 @@ import pytest
 import rasterio
 
 from calibrate.cli import main
+from compare_outputs import compare_folders
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "fixtures" / "hy1c_czi_realistic"
@@ -162,16 +163,18 @@ def test_realistic_fixture_is_small_self_contained_and_degraded():
         assert not true_dem.read(1, masked=True).mask.any()
 
 
-def test_realistic_fixture_regenerates_byte_for_byte(tmp_path):
-    """``make_hy1c_fixture.py --profile realistic`` reproduces the committed files (same library versions).
+def test_realistic_fixture_regenerates(tmp_path):
+    """``make_hy1c_fixture.py --profile realistic`` reproduces the committed files.
 
-    Fails when the simulator changed without the fixture being regenerated.
+    Fails when the simulator changed without the fixture being regenerated. The comparison has
+    the tolerances of ``tests/compare_outputs.py`` (floating-point output is not bit-reproducible
+    across CPUs); the rms of the DEM's injected error is a statistic of float32 heights that
+    themselves agree to 1e-3 of the relief, so it is compared to 1e-4 relative (measured between
+    an AVX-512 and an AVX2 CPU: 1.3e-6).
     """
     out = tmp_path / "regen"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}  # this checkout's simulator, not an installed one
     subprocess.run([sys.executable, str(ROOT / "fixtures" / "make_hy1c_fixture.py"), "--profile", "realistic",
                     "--out", str(out)], check=True, capture_output=True, cwd=ROOT, env=env)
-    committed = sorted(p.relative_to(FIXTURE) for p in FIXTURE.rglob("*") if p.is_file())
-    assert sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file()) == committed
-    different = [str(p) for p in committed if (out / p).read_bytes() != (FIXTURE / p).read_bytes()]
+    different = compare_folders(FIXTURE, out, widened={"/injected/dem_error_under_footprint_m": 1e-4})
     assert not different, f"regenerate the fixture: python fixtures/make_hy1c_fixture.py --profile realistic ({different})"

@@ -27,7 +27,7 @@ from gcpmatch.phase import (
     make_plan,
     phase_correlate,
 )
-from gcpmatch.phase_newton import newton_step, surface_grid
+from gcpmatch.phase_newton import NEWTON_MAX_ITERATIONS, NEWTON_TOLERANCE_PX, newton_step, surface_grid
 from sensor_models.errors import InputError
 
 WIN = 64
@@ -483,13 +483,39 @@ def test_newton_recovers_band_limited_sub_pixel_shifts(fourier_set):
     np.testing.assert_allclose(grid.score, newton.score, atol=1e-5)
 
 
-def test_newton_result_does_not_depend_on_the_batch(realistic_set):
+#: Shifts of one pair in two batch compositions agree within this, px. The FFT's rounding depends
+#: on how many transforms it vectorizes together (SIMD lanes): 1.5e-8 px between batch 7 and 30 on
+#: an AVX2 CPU, 0 on an AVX-512 one. A batch-wide Newton stop (every pair stepping until the
+#: slowest converges) moves the already converged pairs by up to 3e-7 px on these pairs, so the
+#: tolerance sits between the two (the kernel's documented accuracy is 5e-3 px).
+BATCH_INDEPENDENCE_PX = 1e-7
+
+
+def _batch_wide_newton(cross, centre_px, grid, *, max_iterations=NEWTON_MAX_ITERATIONS,
+                       tolerance_px=NEWTON_TOLERANCE_PX):
+    """Newton iterations that stop only when every pair of the batch has converged."""
+    centre, value = np.array(centre_px, dtype=np.float64), np.zeros(len(centre_px))
+    for _ in range(max_iterations):
+        step, value = newton_step(np.ascontiguousarray(cross), centre, grid)
+        centre += step
+        if np.abs(step).max() < tolerance_px:
+            break
+    return centre, value / (grid.height * grid.width)
+
+
+def test_newton_result_does_not_depend_on_the_batch(realistic_set, monkeypatch):
     """Each pair stops on its own step, so batch composition does not change its result."""
     ref, mov, _ = realistic_set
     a = phase_correlate(ref[:30], mov[:30], batch=7)
     b = phase_correlate(ref[:30], mov[:30], batch=30)
-    np.testing.assert_allclose(a.shift_px, b.shift_px, atol=1e-9)  # a batch-wide stop: 1e-6
-    np.testing.assert_allclose(a.score, b.score, atol=1e-9)
+    np.testing.assert_allclose(a.shift_px, b.shift_px, atol=BATCH_INDEPENDENCE_PX)
+    np.testing.assert_allclose(a.score, b.score, atol=1e-6)
+    # the tolerance can tell: a batch-wide stop changes some pairs by more than it
+    import gcpmatch.phase as phase_module
+
+    monkeypatch.setattr(phase_module, "newton_refine", _batch_wide_newton)
+    wide = phase_correlate(ref[:30], mov[:30], batch=7)
+    assert np.nanmax(np.abs(wide.shift_px - b.shift_px)) > 2 * BATCH_INDEPENDENCE_PX
 
 
 # --------------------------------------------------------------------------- quality

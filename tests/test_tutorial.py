@@ -94,6 +94,45 @@ def normalized(text: str, *, data: Path | None = None, work: Path | None = None)
     return [" ".join(line.split()) for line in text.splitlines() if line.strip()]
 
 
+#: Lines whose figures come from the matched GCP set (match, residuals, calibration, RPC offsets).
+#: Between machines a window on a rejection threshold may flip (the last bits of floating point
+#: differ between CPUs), so the counts and the figures computed from them may differ slightly:
+#: counts by up to ``COUNT_RTOL`` (1 %, at least 1), percentages by 1 point, other figures by
+#: ``FIGURE_ATOL`` (0.05 px, lines or m) plus one unit of the last printed digit. One GCP more or
+#: less among 460 with ~5 px residuals moves a mean or an RMS by about 0.01 px. Every other line
+#: (coordinates, sizes, CRSs, error messages) must be printed exactly.
+GCP_LINE = re.compile(r"GCPs|inliers|points|LINE_OFF|line_off|SIFT matches")
+COUNT_WORDS = re.compile(r"\s*(GCPs|check points|inliers|points|windows|SIFT matches)\b")
+COUNT_RTOL = 0.01
+FIGURE_ATOL = 0.05
+_NUMBER = re.compile(r"-?\d+(?:\.\d+)?")
+
+
+def _close(doc: str, printed: str, *, count: bool, percent: bool) -> bool:
+    """Whether a printed number agrees with the document's to the tolerance of its kind."""
+    a, b = float(doc), float(printed)
+    if count:
+        return abs(a - b) <= max(1.0, COUNT_RTOL * abs(a))
+    if percent:
+        return abs(a - b) <= 1.0
+    unit = 10.0 ** -len(doc.split(".")[1]) if "." in doc else 1.0
+    return abs(a - b) <= FIGURE_ATOL + unit + 1e-12
+
+
+def line_agrees(doc_line: str, printed_line: str) -> bool:
+    """``printed_line`` is ``doc_line``, up to the tolerances of GCP-derived lines (``GCP_LINE``)."""
+    if doc_line == printed_line:
+        return True
+    if not GCP_LINE.search(doc_line) or _NUMBER.sub("#", doc_line) != _NUMBER.sub("#", printed_line):
+        return False
+    for m_doc, m_out in zip(_NUMBER.finditer(doc_line), _NUMBER.finditer(printed_line)):
+        rest = doc_line[m_doc.end():]
+        if not _close(m_doc.group(), m_out.group(), count=bool(COUNT_WORDS.match(rest)),
+                      percent=rest.lstrip().startswith("%")):
+            return False
+    return True
+
+
 def figures_table(markdown: str) -> dict[str, str]:
     """``figure -> value`` of the table under "Figures measured on this pair"."""
     section = markdown.split("## Figures measured on this pair", 1)[1]
@@ -159,6 +198,20 @@ def test_normalized_masks_timings_and_folders_only():
     assert normalized("fit max 5.87e-09 px, rms 1.2e-05 px, 3.1e-12") == ["fit max <1e-6 px, rms 1.2e-05 px, <1e-6"]
 
 
+def test_line_agrees_tolerates_the_matched_set_and_nothing_else():
+    doc = "work/gcps.csv: 460 GCPs + 115 check points from 3540 windows (16 % usable, 0 % cloud) in N s"
+    assert line_agrees(doc, doc.replace("460 GCPs", "459 GCPs").replace("16 %", "17 %"))
+    assert not line_agrees(doc, doc.replace("460 GCPs", "450 GCPs"))  # 2 %: a user notices
+    assert not line_agrees(doc, doc.replace("3540 windows", "3600 windows"))
+    rms = "cal: calibrated (RPC bias (offset) a0=-63, b0=-4.127; RMS 63.2 -> 4.87 px over 460 inliers of 460 GCPs)"
+    assert line_agrees(rms, rms.replace("4.87 px", "4.89 px").replace("b0=-4.127", "b0=-4.131"))
+    assert not line_agrees(rms, rms.replace("4.87 px", "4.97 px"))
+    assert not line_agrees(rms, rms.replace("calibrated", "partial"))
+    exact = "wrote ref/left_ortho.tif: 533 x 514 px at 0.5 m in EPSG:32631, 91 % valid"
+    assert not line_agrees(exact, exact.replace("32631", "32632"))
+    assert not line_agrees(exact, exact.replace("533 x", "534 x"))
+
+
 def test_the_document_has_commands_outputs_and_figures():
     markdown = DOC.read_text(encoding="utf-8")
     blocks = fenced_blocks(markdown)
@@ -196,7 +249,8 @@ def test_text_blocks_are_what_the_commands_printed(tutorial):
         for s in tutorial.steps:
             if s.block == source:
                 printed |= set(normalized(s.out + "\n" + s.err, data=tutorial.data, work=tutorial.work))
-        missing = [line for line in normalized(body) if line not in printed]
+        missing = [line for line in normalized(body)
+                   if line not in printed and not any(line_agrees(line, p) for p in printed)]
         assert not missing, (missing, sorted(printed))
         checked += 1
     assert checked >= 8
@@ -274,7 +328,11 @@ def test_figures_table_equals_the_outputs(tutorial):
         assert len(parts) == len(measured[name]), name
         for part, value in zip(parts, measured[name]):
             decimals = len(part.split(".")[1]) if "." in part else 0
-            assert part == f"{value:.{decimals}f}", (name, part, value)
+            printed = f"{value:.{decimals}f}"
+            if "51 m lower" in name:  # geometry of the RPCs alone, no GCP involved: exact
+                assert part == printed, (name, part, value)
+            else:  # counts and figures of the matched set (GCP_LINE's tolerances)
+                assert _close(part, printed, count="GCPs" in name, percent=False), (name, part, value)
 
 
 @pytest.mark.shared_data

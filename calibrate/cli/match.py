@@ -43,10 +43,13 @@ __all__ = ["command"]
                    "(default: the DOM's GEOLOCATION_RMSE_M or GEOMETRIC_RMSE_X/Y tags, or GEOMETRIC_RMSE_MODEL_X/Y "
                    "of a Landsat MTL beside it, else an assumed "
                    f"{ASSUMED_REFERENCE_SIGMA_M:.1f} m); used by --sigma-model window.")
+@click.option("--threads", type=click.IntRange(min=0), default=MatchOptions.threads, show_default=True,
+              help="Threads for the reference chips, FFTs and OpenCV; 0: every core. The GCPs do not depend on it.")
 @json_option
 @click.pass_context
 def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_path, geotiff_path, band, image,
-            mask_path, check_fraction, window, spacing, max_offset, backend, sigma_model, reference_sigma_m, as_json):
+            mask_path, check_fraction, window, spacing, max_offset, backend, sigma_model, reference_sigma_m, threads,
+            as_json):
     """Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation).
 
     SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
@@ -57,7 +60,7 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpk
         raise InputError("--dem is required: GCPs need terrain heights")
     options = MatchOptions(window_px=window, spacing_px=spacing, max_offset_px=max_offset,
                            check_fraction=check_fraction, backend=backend, sigma_model=sigma_model,
-                           reference_sigma_m=reference_sigma_m)
+                           reference_sigma_m=reference_sigma_m, threads=threads)
     with stage_progress(ctx, "gcpcal match", as_json) as progress:
         summary = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=out_path, geoid=geoid,
                               dem_datum=dem_datum, band=band, image=image, mask_path=mask_path, gpkg_path=gpkg_path,
