@@ -175,22 +175,26 @@ def mismatch_cr_sigma_px(reference: np.ndarray, scene: np.ndarray, shift_px: np.
     ndarray of float64, shape (n, 2)
         ``(row, col)`` bound-shaped sigma, pixels; NaN where the shift is not finite or too large.
     """
-    ref = np.asarray(reference, dtype=np.float64)
-    scn = np.asarray(scene, dtype=np.float64)
-    n, w = ref.shape[0], ref.shape[-1]
+    reference, scene = np.asarray(reference), np.asarray(scene)
+    n, w = reference.shape[0], reference.shape[-1]
     if n == 0:
         return np.zeros((0, 2))
     d = np.nan_to_num(np.asarray(shift_px, dtype=np.float64), nan=0.0)
     ok = np.isfinite(shift_px).all(axis=1) & (np.abs(np.asarray(shift_px)) <= border_px).all(axis=1)
     d[~ok] = 0.0
-    moved = _bilinear_moved(ref, -d, border_px)
-    core = scn[:, border_px:w - border_px, border_px:w - border_px]
+    moved = _bilinear_moved(reference, -d, border_px)
+    core = np.asarray(scene[:, border_px:w - border_px, border_px:w - border_px], dtype=np.float64)
     x = moved - moved.mean(axis=(1, 2), keepdims=True)
     y = core - core.mean(axis=(1, 2), keepdims=True)
-    gain = np.sum(x * y, axis=(1, 2)) / np.maximum(np.sum(x * x, axis=(1, 2)), 1e-30)
-    v = np.mean((y - gain[:, None, None] * x) ** 2, axis=(1, 2))
-    g_row = np.sum(np.diff(core, axis=1) ** 2, axis=(1, 2))
-    g_col = np.sum(np.diff(core, axis=2) ** 2, axis=(1, 2))
+    # sums of products without temporaries: v = (Syy - Sxy^2 / Sxx) / N is the variance of y - gain x
+    s_xy = np.einsum("kij,kij->k", x, y)
+    s_xx = np.maximum(np.einsum("kij,kij->k", x, x), 1e-30)
+    s_yy = np.einsum("kij,kij->k", y, y)
+    v = np.maximum(s_yy - s_xy * s_xy / s_xx, 0.0) / (core.shape[1] * core.shape[2])
+    d_row = core[:, 1:, :] - core[:, :-1, :]
+    d_col = core[:, :, 1:] - core[:, :, :-1]
+    g_row = np.einsum("kij,kij->k", d_row, d_row)
+    g_col = np.einsum("kij,kij->k", d_col, d_col)
     with np.errstate(divide="ignore", invalid="ignore"):
         out = np.sqrt(v[:, None] / np.stack([g_row, g_col], axis=1))
     out[~ok] = np.nan
@@ -199,17 +203,30 @@ def mismatch_cr_sigma_px(reference: np.ndarray, scene: np.ndarray, shift_px: np.
 
 def _bilinear_moved(windows: np.ndarray, offset_px: np.ndarray, border_px: int) -> np.ndarray:
     """``windows[k]`` sampled bilinearly at ``(i + offset[k, 0], j + offset[k, 1])`` for the pixels
-    ``i, j`` inside ``border_px`` (indices clipped to the window), shape (n, w - 2b, w - 2b)."""
+    ``i, j`` inside ``border_px`` (indices clipped to the window), shape (n, w - 2b, w - 2b).
+
+    ``|offset| <= border_px``, so the integer part of each offset selects a slice of the window
+    (padded by one edge row and column: the clipping); the windows are grouped by that integer
+    part, and each group is moved by slicing and blending its four neighbours, without gathering
+    every sample by index.
+    """
     n, w = windows.shape[0], windows.shape[-1]
+    m = w - 2 * border_px
     base = np.floor(offset_px).astype(np.intp)
     frac = offset_px - base
-    inner = np.arange(border_px, w - border_px)
-    k = np.arange(n)[:, None, None]
-    r0 = inner[None, :, None] + base[:, 0, None, None]
-    c0 = inner[None, None, :] + base[:, 1, None, None]
-    r1, c1 = np.clip(r0 + 1, 0, w - 1), np.clip(c0 + 1, 0, w - 1)
-    r0, c0 = np.clip(r0, 0, w - 1), np.clip(c0, 0, w - 1)
-    fr, fc = frac[:, 0, None, None], frac[:, 1, None, None]
-    top = (1.0 - fc) * windows[k, r0, c0] + fc * windows[k, r0, c1]
-    bottom = (1.0 - fc) * windows[k, r1, c0] + fc * windows[k, r1, c1]
-    return (1.0 - fr) * top + fr * bottom
+    padded = np.empty((n, w + 1, w + 1))  # float64; index w reads w - 1, as a clip would
+    padded[:, :w, :w] = windows
+    padded[:, w, :w] = windows[:, w - 1, :]
+    padded[:, :, w] = padded[:, :, w - 1]
+    out = np.empty((n, m, m))
+    keys = (base[:, 0] + border_px) * (2 * border_px + 2) + (base[:, 1] + border_px)
+    order = np.argsort(keys, kind="stable")
+    bounds = np.flatnonzero(np.diff(keys[order])) + 1
+    for group in np.split(order, bounds):
+        r = border_px + base[group[0], 0]
+        c = border_px + base[group[0], 1]
+        block = padded[group, r:r + m + 1, c:c + m + 1]
+        fr, fc = frac[group, 0, None, None], frac[group, 1, None, None]
+        cols = block[:, :, :m] + fc * (block[:, :, 1:] - block[:, :, :m])  # (g, m + 1, m)
+        out[group] = cols[:, :m] + fr * (cols[:, 1:] - cols[:, :m])
+    return out

@@ -123,3 +123,37 @@ def test_mismatch_bound_follows_the_pair_noise_and_refuses_large_shifts():
     far = mismatch_cr_sigma_px(base[:2], moved[:2], np.array([[9.0, 0.0], [np.nan, 0.0]]))
     assert np.isnan(far).all()
     assert mismatch_cr_sigma_px(base[:0], moved[:0], np.zeros((0, 2))).shape == (0, 2)
+
+
+def test_moved_windows_equal_bilinear_sampling_by_coordinates():
+    """The grouped, slice-based bilinear move equals scipy's order-1 sampling with edge clipping."""
+    from scipy.ndimage import map_coordinates
+
+    from gcpmatch.texture import _bilinear_moved
+
+    rng = np.random.default_rng(5)
+    n, w, border = 40, 24, 5
+    windows = rng.normal(size=(n, w, w)).astype(np.float32)
+    offsets = rng.uniform(-border, border, size=(n, 2))
+    offsets[:4] = [[border, border], [-border, -border], [border, -border], [0.0, 0.0]]  # the extremes
+    got = _bilinear_moved(windows, offsets, border)
+    inner = np.arange(border, w - border, dtype=float)
+    for k in range(n):
+        rr, cc = np.meshgrid(inner + offsets[k, 0], inner + offsets[k, 1], indexing="ij")
+        want = map_coordinates(windows[k].astype(np.float64), [rr, cc], order=1, mode="nearest")
+        np.testing.assert_allclose(got[k], want, rtol=0, atol=1e-12)
+
+
+def test_sigma_bench_agrees_with_the_gather_formulation(tmp_path):
+    """bench/bench_sigma.py: the current kernel gives the index-gather formulation's values."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "bench_sigma.py"
+    spec = importlib.util.spec_from_file_location("bench_sigma", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    assert bench.main(["--pairs", "220", "--repeat", "1", "--out", str(tmp_path / "s.json")]) == 0
+    figures = json.loads((tmp_path / "s.json").read_text())
+    assert figures["same_nan_pattern"] and figures["max_relative_difference"] < 1e-9
