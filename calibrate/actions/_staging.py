@@ -1,0 +1,196 @@
+"""Staging names gcpcal can recognise as its own, their cleanup after a crash, and signal-safe commits.
+
+Every staging folder or temporary file gcpcal makes beside an output is named
+
+    ``.<output name>.gcpcal-stage.<host>.<pid>.<random>``   (``gcpcal-old`` for a folder set aside)
+
+so that a later run can tell that it is gcpcal's, which host and process made it, and whether
+that process still runs. A process killed outright (SIGKILL, a power cut) cannot clean up; the
+next run of any command that writes into the same folder removes the staging of dead processes
+of this host (:func:`clean_stale`) and says so on stderr. A folder set aside during a swap whose
+new folder never arrived is put back, not deleted. Staging of a live process, of another host
+(a shared filesystem) or of any other name is never touched.
+
+:func:`signals_deferred` holds SIGINT, SIGTERM and SIGHUP back while outputs are moved into
+place (a handful of renames), so a handled signal ends a command before or after the move,
+never in the middle of it.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import socket
+import sys
+import tempfile
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+
+__all__ = ["ASIDE_TAG", "STAGE_TAG", "clean_stale", "make_stage_dir", "make_temp_file", "pid_alive", "say",
+           "signals_deferred", "stage_prefix"]
+
+STAGE_TAG = "gcpcal-stage"
+ASIDE_TAG = "gcpcal-old"
+_STAGE_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<tag>gcpcal-stage|gcpcal-old)\.(?P<host>[A-Za-z0-9_-]+)\."
+                         r"(?P<pid>\d+)\.[^.]*$")
+_DEFERRED = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+def _host() -> str:
+    return re.sub(r"[^A-Za-z0-9_-]", "-", socket.gethostname() or "host")[:64] or "host"
+
+
+def say(message: str) -> None:
+    """Print one ``gcpcal: <message>`` line on stderr (whatever ``-q`` says: it reports a change on disk).
+
+    Parameters
+    ----------
+    message : str
+    """
+    print(f"gcpcal: {message}", file=sys.stderr, flush=True)
+
+
+def stage_prefix(name: str, tag: str = STAGE_TAG) -> str:
+    """``.<name>.<tag>.<host>.<pid>.``: the start of a staging name of this process.
+
+    Parameters
+    ----------
+    name : str
+        The output's file or folder name.
+    tag : str
+        :data:`STAGE_TAG` or :data:`ASIDE_TAG`.
+
+    Returns
+    -------
+    str
+    """
+    return f".{name}.{tag}.{_host()}.{os.getpid()}."
+
+
+def make_stage_dir(parent, name: str, tag: str = STAGE_TAG) -> Path:
+    """A new, empty staging folder of this process in ``parent`` for output ``name``.
+
+    Parameters
+    ----------
+    parent : str or Path
+        Existing folder (the output's, so that renames stay on one filesystem).
+    name : str
+        The output's name.
+    tag : str
+        :data:`STAGE_TAG` or :data:`ASIDE_TAG`.
+
+    Returns
+    -------
+    Path
+    """
+    return Path(tempfile.mkdtemp(prefix=stage_prefix(name, tag), dir=parent))
+
+
+def make_temp_file(parent, name: str) -> Path:
+    """A new, empty temporary file of this process in ``parent`` for output ``name`` (mode 0644).
+
+    Parameters
+    ----------
+    parent : str or Path
+        Existing folder.
+    name : str
+        The output's name.
+
+    Returns
+    -------
+    Path
+    """
+    fd, tmp = tempfile.mkstemp(prefix=stage_prefix(name), dir=parent)
+    os.close(fd)
+    os.chmod(tmp, 0o644)
+    return Path(tmp)
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` of this host runs (a zombie counts as dead).
+
+    Parameters
+    ----------
+    pid : int
+
+    Returns
+    -------
+    bool
+    """
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    except OSError:
+        return True
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as fh:
+            return fh.read().rsplit(")", 1)[-1].split()[0] != "Z"
+    except OSError:
+        return True
+
+
+def clean_stale(*folders) -> list[Path]:
+    """Remove the staging that dead gcpcal processes of this host left in ``folders``; say so.
+
+    A folder set aside (``gcpcal-old``) whose output is missing is renamed back onto it.
+
+    Parameters
+    ----------
+    *folders : str or Path
+        Folders to look in (missing ones are skipped).
+
+    Returns
+    -------
+    list of Path
+        What was removed or put back.
+    """
+    host, done = _host(), []
+    for folder in dict.fromkeys(Path(f) for f in folders if f is not None):
+        try:
+            entries = list(os.scandir(folder))
+        except OSError:
+            continue
+        for entry in entries:
+            m = _STAGE_NAME.match(entry.name)
+            if m is None or m["host"] != host or pid_alive(int(m["pid"])):
+                continue
+            path = Path(entry.path)
+            target = path.parent / m["name"]
+            try:
+                if m["tag"] == ASIDE_TAG and not os.path.lexists(target):
+                    os.rename(path, target)
+                    say(f"put back {target}, set aside by an interrupted gcpcal run (pid {m['pid']})")
+                elif entry.is_dir(follow_symlinks=False):
+                    shutil.rmtree(path)
+                    say(f"removed {path}, staging left by an interrupted gcpcal run (pid {m['pid']})")
+                else:
+                    path.unlink()
+                    say(f"removed {path}, a temporary file left by an interrupted gcpcal run (pid {m['pid']})")
+            except OSError:
+                continue  # another run got there first, or no permission: leave it
+            done.append(path)
+    return done
+
+
+@contextmanager
+def signals_deferred():
+    """Hold SIGINT, SIGTERM and SIGHUP back for the block (main thread; elsewhere a no-op).
+
+    A signal that arrives meanwhile is delivered when the block ends.
+    """
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _DEFERRED)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
