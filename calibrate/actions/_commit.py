@@ -101,6 +101,8 @@ def commit_folder(stage: Path, out: Path, *, command: str) -> None:
         folder where the new output has a file (or the reverse).
     """
     unit = folder_unit(command)
+    for nested in stage.rglob(LEDGER_NAME):  # ledgers of the steps that wrote into the stage: this one lists all
+        nested.unlink()
     new = _files_under(stage)
     if not os.path.lexists(out):
         record(out, new, unit=unit, command=command, staged_ledger=stage / LEDGER_NAME)

@@ -387,9 +387,12 @@ def check_file_target(path, inputs=(), *, stdout_ok: bool = False) -> Path:
         _refuse("-", "this output cannot go to standard output: give a file name")
     inputs = input_set(inputs)
     given = Path(os.path.abspath(path))
+    _check_against_inputs(given, inputs)
+    followed = _stat(given)  # through links: /dev/stdout is a link to a pipe, a terminal or a file
+    if followed is not None and not (stat.S_ISREG(followed.st_mode) or stat.S_ISDIR(followed.st_mode)):
+        _refuse(given, f"is {_kind(followed.st_mode)}, not a file gcpcal may replace: give a file name"
+                       + (" (or - for standard output)" if stdout_ok else ""))
     final = _resolve_link(given, "the file")
-    if final != given:
-        _check_against_inputs(given, inputs)
     _check_against_inputs(final, inputs)
     try:
         st = os.lstat(final)
@@ -434,6 +437,7 @@ def check_folder_target(path, inputs=()) -> Path:
         _refuse("-", "this output is a folder: give a folder name, not -")
     inputs = input_set(inputs)
     given = Path(os.path.abspath(path))
+    _check_against_inputs(given, inputs)
     final = _resolve_link(given, "the folder")
     _check_against_inputs(final, inputs)
     try:
