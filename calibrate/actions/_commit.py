@@ -20,7 +20,7 @@ from pathlib import Path
 
 from calibrate.actions._guard import OutputRefusedError, overwrite_allowed
 from calibrate.actions._ledger import LEDGER_NAME, owned, owned_entry, record
-from calibrate.actions._staging import ASIDE_TAG, make_stage_dir, signals_deferred
+from calibrate.actions._staging import ASIDE_TAG, fault_point, make_stage_dir, signals_deferred, write_journal
 
 __all__ = ["commit_files", "commit_folder", "folder_unit"]
 
@@ -54,14 +54,18 @@ def commit_files(pairs, *, command: str) -> None:
     for src, final in pairs:
         by_folder.setdefault(final.parent, []).append((src, final))
     stale = [final for src, final in pairs if not src.exists() and final.is_file() and owned(final)]
+    moves = [(src, final) for src, final in pairs if src.exists()]
     with signals_deferred():
         for folder, items in by_folder.items():
             written = {final.name: src for src, final in items if src.exists()}
             drop = [final.name for final in stale if final.parent == folder]
             record(folder, written, unit=items[0][1].name, command=command, drop=drop)
+        for stage in {src.parent for src, _ in pairs}:  # a run killed while moving is finished by the next
+            write_journal(stage, moves, stale)
         for src, final in pairs:
             if src.exists():
                 os.replace(src, final)
+                fault_point("moving")
         for final in stale:
             final.unlink(missing_ok=True)
 
@@ -108,6 +112,7 @@ def commit_folder(stage: Path, out: Path, *, command: str) -> None:
         record(out, new, unit=unit, command=command, staged_ledger=stage / LEDGER_NAME)
         with signals_deferred():
             os.rename(stage, out)
+            fault_point("moving")
         return
     existing = _files_under(out)
     for rel in new:
@@ -124,6 +129,7 @@ def commit_folder(stage: Path, out: Path, *, command: str) -> None:
         aside = make_stage_dir(out.parent, out.name, ASIDE_TAG)
         with signals_deferred():
             os.replace(out, aside)  # a folder may replace an empty folder (POSIX rename)
+            fault_point("moving")
             try:
                 os.rename(stage, out)
             except BaseException:
@@ -134,10 +140,12 @@ def commit_folder(stage: Path, out: Path, *, command: str) -> None:
     stale = sorted(ours - set(new))
     with signals_deferred():
         record(out, new, unit=unit, command=command, drop=stale)
+        write_journal(stage, [(src, out / rel) for rel, src in new.items()], [out / rel for rel in stale])
         for rel, src in new.items():
             dst = out / rel
             dst.parent.mkdir(parents=True, exist_ok=True)
             os.replace(src, dst)
+            fault_point("moving")
         for rel in stale:
             (out / rel).unlink(missing_ok=True)
             _remove_empty_parents(out / rel, out)

@@ -31,7 +31,7 @@ from calibrate._json import json_default
 from calibrate.actions._guard import (check_file_target, check_folder_target, current_command, input_set,
                                       is_stdout)
 from calibrate.actions._ledger import LEDGER_NAME
-from calibrate.actions._staging import clean_stale, make_stage_dir, make_temp_file
+from calibrate.actions._staging import clean_stale, fault_point, make_stage_dir, make_temp_file
 from sensor_models.atomic import atomic_write_text
 from sensor_models.errors import InputError
 
@@ -169,6 +169,7 @@ def check_output_folder(out_dir, *, inputs=()) -> Path:
     final = check_folder_target(out_dir, inputs)
     clean_stale(final.parent, final)
     _check_writable_folder(final.parent, final)
+    fault_point("guarded")
     return final
 
 
@@ -206,6 +207,7 @@ def check_output_files(*paths, inputs=(), stdout_ok: bool = False) -> list[Path]
             continue
         clean_stale(path.parent)
         _check_writable_folder(path.parent, path)
+    fault_point("guarded")
     return finals
 
 
@@ -332,7 +334,9 @@ def staged_folder(out_dir, prefix: str = ".stage-", *, inputs=()):
     try:
         tmp = make_stage_dir(out_dir.parent, out_dir.name)
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; the output folder gets the usual mode
+        fault_point("staging")
         yield tmp
+        fault_point("written")
         _name_final_folder(tmp, given)
         check_folder_target(out_dir, inputs)  # again, just before the move: nothing changed meanwhile
         commit_folder(tmp, out_dir, command=current_command(prefix))
@@ -381,7 +385,9 @@ def staged_files(*paths, inputs=()):
                 stages[final.parent] = make_stage_dir(final.parent, final.name)
             staged.append(stages[final.parent] / final.name)
         it = iter(staged)
+        fault_point("staging")
         yield [None if p is None else next(it) for p in paths]
+        fault_point("written")
         for final in finals:  # again, just before the move
             check_file_target(final, inputs)
         commit_files(list(zip(staged, finals)), command=current_command())

@@ -7,8 +7,10 @@ Every staging folder or temporary file gcpcal makes beside an output is named
 so that a later run can tell that it is gcpcal's, which host and process made it, and whether
 that process still runs. A process killed outright (SIGKILL, a power cut) cannot clean up; the
 next run of any command that writes into the same folder removes the staging of dead processes
-of this host (:func:`clean_stale`) and says so on stderr. A folder set aside during a swap whose
-new folder never arrived is put back, not deleted. Staging of a live process, of another host
+of this host (:func:`clean_stale`) and says so on stderr. A staging folder holding a commit
+journal (:data:`JOURNAL_NAME`: the process was killed while moving its complete outputs into
+place) is rolled forward first: the moves it lists are finished, so the outputs end whole. A
+folder set aside during a swap whose new folder never arrived is put back, not deleted. Staging of a live process, of another host
 (a shared filesystem) or of any other name is never touched.
 
 :func:`signals_deferred` holds SIGINT, SIGTERM and SIGHUP back while outputs are moved into
@@ -29,14 +31,40 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["ASIDE_TAG", "STAGE_TAG", "clean_stale", "make_stage_dir", "make_temp_file", "pid_alive", "say",
-           "signals_deferred", "stage_prefix"]
+__all__ = ["ASIDE_TAG", "FAULT_ENV", "JOURNAL_NAME", "STAGE_TAG", "write_journal", "clean_stale", "fault_point", "make_stage_dir", "make_temp_file",
+           "pid_alive", "say", "signals_deferred", "stage_prefix"]
 
 STAGE_TAG = "gcpcal-stage"
+#: Journal of a commit in progress, inside its staging folder: ``{"moves": [[staged, final], ...],
+#: "remove": [final, ...]}`` (absolute paths), written before the first move (:func:`write_journal`).
+JOURNAL_NAME = ".gcpcal-commit.json"
 ASIDE_TAG = "gcpcal-old"
 _STAGE_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<tag>gcpcal-stage|gcpcal-old)\.(?P<host>[A-Za-z0-9_-]+)\."
                          r"(?P<pid>\d+)\.[^.]*$")
 _DEFERRED = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+#: Fault-injection hook of the test suite (tests/test_fault_injection.py): ``<point>:<SIGNAME>``
+#: makes the process send itself that signal the first time it reaches ``<point>``
+#: (:func:`fault_point`), so that the real signal path runs at a chosen moment.
+FAULT_ENV = "GCPCAL_TEST_SIGNAL"
+
+
+def fault_point(name: str) -> None:
+    """Send the signal named by :data:`FAULT_ENV` to this process if ``name`` is its point (once).
+
+    Points: ``guarded`` (outputs checked, no work done), ``staging`` (a staging folder exists),
+    ``written`` (every output staged, none moved), ``moving`` (between two moves of a commit).
+
+    Parameters
+    ----------
+    name : str
+    """
+    spec = os.environ.get(FAULT_ENV)
+    if not spec or spec.partition(":")[0] != name:
+        return
+    del os.environ[FAULT_ENV]
+    os.kill(os.getpid(), getattr(signal, spec.partition(":")[2]))
 
 
 def _host() -> str:
@@ -137,6 +165,50 @@ def pid_alive(pid: int) -> bool:
         return True
 
 
+def write_journal(stage, moves, remove=()) -> Path:
+    """Write the commit journal of staging folder ``stage`` (before its first move).
+
+    Parameters
+    ----------
+    stage : Path
+        The staging folder (the journal goes inside it).
+    moves : iterable of (Path, Path)
+        ``(staged file, final file)`` pairs.
+    remove : iterable of Path
+        Final files to remove (gcpcal's stale outputs).
+
+    Returns
+    -------
+    Path
+        The journal.
+    """
+    import json
+
+    doc = {"moves": [[str(a), str(b)] for a, b in moves], "remove": [str(p) for p in remove]}
+    path = Path(stage) / JOURNAL_NAME
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_text(json.dumps(doc), encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+def _roll_forward(stage: Path) -> bool:
+    """Finish the moves of a killed commit whose journal is in ``stage``; True when there was one."""
+    import json
+
+    try:
+        doc = json.loads((stage / JOURNAL_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    for src, final in doc.get("moves", ()):
+        if stage in Path(src).parents and os.path.lexists(src):  # this staging folder's own files
+            Path(final).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(src, final)
+    for final in doc.get("remove", ()):
+        Path(final).unlink(missing_ok=True)
+    return True
+
+
 def clean_stale(*folders) -> list[Path]:
     """Remove the staging that dead gcpcal processes of this host left in ``folders``; say so.
 
@@ -169,6 +241,8 @@ def clean_stale(*folders) -> list[Path]:
                     os.rename(path, target)
                     say(f"put back {target}, set aside by an interrupted gcpcal run (pid {m['pid']})")
                 elif entry.is_dir(follow_symlinks=False):
+                    if _roll_forward(path):
+                        say(f"finished moving the outputs of an interrupted gcpcal run (pid {m['pid']}) from {path}")
                     shutil.rmtree(path)
                     say(f"removed {path}, staging left by an interrupted gcpcal run (pid {m['pid']})")
                 else:
