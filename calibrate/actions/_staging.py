@@ -258,13 +258,28 @@ def clean_stale(*folders) -> list[Path]:
 def signals_deferred():
     """Hold SIGINT, SIGTERM and SIGHUP back for the block (main thread; elsewhere a no-op).
 
-    A signal that arrives meanwhile is delivered when the block ends.
+    Their handlers are swapped for one that only notes the signal (a process-directed signal may
+    be taken by any thread, so a thread's signal mask is not enough); when the block ends the
+    handlers are restored and each signal noted is handed to its handler, as if it arrived then.
     """
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _DEFERRED)
+    noted: list[int] = []
+    previous = {}
+    try:
+        for signum in _DEFERRED:
+            previous[signum] = signal.signal(signum, lambda n, frame: noted.append(n))
+    except ValueError:  # not the main interpreter
+        previous = {}
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for signum in dict.fromkeys(noted):
+            handler = previous.get(signum)
+            if callable(handler):
+                handler(signum, None)  # the handler raises (Ctrl-C, gcpcal's handler) as it would have
+            elif handler == signal.SIG_DFL:
+                os.kill(os.getpid(), signum)
