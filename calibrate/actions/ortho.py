@@ -15,7 +15,7 @@ import numpy as np
 
 from calibrate.actions._guard import InputSet
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
-from calibrate.actions._status import open_usable_calibration, require_usable, status_fields
+from calibrate.actions._status import calibration_input, open_usable_calibration, require_usable, status_fields
 from calibrate.config import OrthoOptions
 from sensor_models.errors import InputError
 from sensor_models.readers.scene_input import missing_raster_message, open_scene
@@ -59,7 +59,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     if out_path.suffix.lower() not in (".tif", ".tiff"):
         raise InputError("the orthoimage is a GeoTIFF: give a .tif name", path=str(out_path))
     summary_path = out_path.with_suffix(".summary.json")
-    inputs = InputSet([scene_path, calibration, image, dem_path, geoid])
+    inputs = InputSet([scene_path, calibration_input(calibration), image, dem_path, geoid])
     check_output_files(out_path, summary_path, inputs=inputs)  # before any work
     scene = open_scene(scene_path, image=image, band=band)  # cropped to the raster when that is a crop
     scene_warning = require_usable(scene, scene_path, command="ortho")
