@@ -42,6 +42,8 @@ FLOAT_RASTER_RTOL = 1e-3
 TRANSFORM_RTOL = 1e-12
 JSON_ATOL = 1e-6
 JSON_RTOL = 1e-6
+#: gcpcal's record of what it wrote (checksums, inodes, times): not an output to compare
+LEDGER = ".gcpcal-outputs.json"
 
 
 def _leaves(obj, path=""):
@@ -130,8 +132,8 @@ def compare_folders(expected: Path, actual: Path, *, skip: tuple[str, ...] = (),
     widened : dict, optional
         Per-JSON-key relative tolerances (:func:`compare_json`).
     """
-    names_a = sorted(str(p.relative_to(expected)) for p in expected.rglob("*") if p.is_file())
-    names_b = sorted(str(p.relative_to(actual)) for p in actual.rglob("*") if p.is_file())
+    names_a = sorted(str(p.relative_to(expected)) for p in expected.rglob("*") if p.is_file() and p.name != LEDGER)
+    names_b = sorted(str(p.relative_to(actual)) for p in actual.rglob("*") if p.is_file() and p.name != LEDGER)
     if names_a != names_b:
         return [f"files differ: {sorted(set(names_a) ^ set(names_b))}"]
     out = []

@@ -7,7 +7,9 @@ Each row asserts:
 * the exit code (0 ok, 1 input or I/O, 2 usage, 3 failed, 4 partial, 130 interrupted);
 * for a non-zero code, exactly ONE stderr line, and never a "Traceback";
 * the files left in the working folder: nothing new (no partial output) after a failure,
-  and after a rerun into a used folder exactly the files of a fresh run (nothing stale).
+  and after a rerun into a used folder exactly the files of a fresh run plus the file a user
+  added there (gcpcal's own files are replaced, the user's kept);
+* every input (the fixture and the damaged inputs) byte-identical before and after (SHA-256).
 
 Inputs are built once per module (``bad`` fixture): empty, truncated, CRS-less and
 off-scene rasters, damaged manifests and GCP tables, an all-cloud image, star frames
@@ -47,8 +49,18 @@ IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
 
 
 def _files(folder: Path) -> list[str]:
-    """Every file and folder under ``folder`` (hidden ones too), relative, sorted."""
-    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*")) if folder.exists() else []
+    """Every file and folder under ``folder`` (hidden ones too, gcpcal's ledgers excepted), relative, sorted."""
+    if not folder.exists():
+        return []
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.name != ".gcpcal-outputs.json")
+
+
+def _checksums(*folders: Path) -> dict[str, str]:
+    """SHA-256 of every file under ``folders`` (the inputs of the matrix): path -> hex."""
+    import hashlib
+
+    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for folder in folders for p in sorted(folder.rglob("*"))
+            if p.is_file()}
 
 
 # --------------------------------------------------------------------------- the damaged inputs
@@ -472,11 +484,12 @@ def test_bad_input_matrix(case: Case, bad, tmp_path, capsys):
         assert _run(capsys, argv)[0] == case.code
         fresh = _files(work)
         target = next(p for p in sorted(work.iterdir()) if p.name != "afile")
-        stale = target / "stale_report.html" if target.is_dir() else work / "unrelated.txt"
-        stale.write_text("an old report saying success")
-        expected = fresh if target.is_dir() else sorted([*fresh, "unrelated.txt"])
+        added = target / "notes.txt" if target.is_dir() else work / "unrelated.txt"
+        added.write_text("the user's own file")
+        expected = sorted([*fresh, str(added.relative_to(work))])
     else:
         expected = sorted(case.left)
+    inputs_before = _checksums(FIXTURE, bad.root)
     code, lines = _run(capsys, argv)
     assert code == case.code, lines
     if code in (1, 2, 130):  # an error: one line
@@ -486,6 +499,7 @@ def test_bad_input_matrix(case: Case, bad, tmp_path, capsys):
         assert len(lines) <= 1, lines
     assert _files(work) == expected
     assert not [p for p in tmp_path.iterdir() if p.name != "work"]  # no staging folder beside it
+    assert _checksums(FIXTURE, bad.root) == inputs_before  # no input written
 
 
 # --------------------------------------------------------------------------- the coverage gate's two rules

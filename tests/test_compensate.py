@@ -162,7 +162,7 @@ def test_cli_writes_table_and_figures(tmp_path):
     assert res.exit_code == 0, res.output
     assert json.loads((out / "table.json").read_text())["settings"]["step_px"] == 1000.0
     assert not (out / "figures").exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["comp"]
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != ".gcpcal-outputs.json") == ["comp"]
 
 
 @pytest.mark.parametrize("args, needle", [

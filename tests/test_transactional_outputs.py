@@ -28,8 +28,8 @@ DEM = FIXTURE / "reference" / "dem.tif"
 
 
 def _files(folder: Path) -> list[str]:
-    """Every file and folder under ``folder`` (hidden ones too), relative, sorted."""
-    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+    """Every file and folder under ``folder`` (hidden ones too, gcpcal's ledgers excepted), relative, sorted."""
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.name != ".gcpcal-outputs.json")
 
 
 def _one_error_line(capsys) -> str:
@@ -149,28 +149,33 @@ def test_an_early_error_creates_no_folder(tmp_path, capsys):
     assert _files(tmp_path) == []
 
 
-# --- folders: replaced whole, but only gcpcal's own --------------------------------------------
+# --- folders: gcpcal's own files replaced, a user's kept ------------------------------------------
 
-def test_rerun_replaces_a_gcpcal_folder_whole(tmp_path, capsys):
+def test_rerun_replaces_gcpcal_files_and_keeps_the_users(tmp_path, capsys):
     out = tmp_path / "study"
     assert main(["-q", "compensate", "--step", "1000", "--no-figures", "--out", str(out)]) == 0
     first = _files(out)
-    assert ".gcpcal-output" in first
-    (out / "report.html").write_text("an old report saying success")
-    (out / "cloud_mask.tif").write_bytes(b"old")
+    assert (out / ".gcpcal-outputs.json").is_file()
+    (out / "notes.txt").write_text("the user's")
     assert main(["-q", "compensate", "--step", "1000", "--no-figures", "--out", str(out)]) == 0
-    assert _files(out) == first  # no stale file survives
-    assert _files(tmp_path) == ["study"] + [f"study/{f}" for f in first]  # no staging folder left
+    assert _files(out) == sorted(first + ["notes.txt"])  # merged: the user's file stays
+    assert (out / "notes.txt").read_text() == "the user's"
+    assert _files(tmp_path) == ["study"] + [f"study/{f}" for f in _files(out)]  # no staging folder left
 
 
-def test_a_non_empty_foreign_folder_is_not_replaced(tmp_path, capsys):
+def test_a_users_file_of_an_output_name_is_refused_without_overwrite(tmp_path, capsys):
     out = tmp_path / "mine"
     out.mkdir()
     (out / "thesis.tex").write_text("precious")
+    (out / "table.csv").write_text("the user's table")
     code = main(["-q", "compensate", "--step", "1000", "--no-figures", "--out", str(out)])
     assert code == 1
-    assert "did not write" in _one_error_line(capsys)
-    assert _files(tmp_path) == ["mine", "mine/thesis.tex"]
+    line = _one_error_line(capsys)
+    assert "table.csv" in line and "--overwrite" in line
+    assert _files(tmp_path) == ["mine", "mine/table.csv", "mine/thesis.tex"]
+    assert main(["-q", "compensate", "--step", "1000", "--no-figures", "--out", str(out), "--overwrite"]) == 0
+    assert (out / "thesis.tex").read_text() == "precious"
+    assert (out / "table.csv").read_text() != "the user's table"
 
 
 def test_an_output_folder_holding_the_inputs_is_refused(tmp_path, capsys):

@@ -3,14 +3,17 @@
 Transactional outputs
 ---------------------
 Every action checks its output paths before it computes (:func:`check_output_folder`,
-:func:`check_output_files`), writes everything into a staging folder BESIDE the target (same
-filesystem), and swaps it in only when the whole stage succeeded (:func:`staged_folder`,
-:func:`staged_files`). A folder output replaces an existing folder whole (no stale file of an
-earlier run survives), but only a folder that gcpcal wrote (it holds :data:`OUTPUT_MARKER` or a
-``*summary.json``) or an empty one. On any failure or interrupt the staging folder and any
-parent folder the stage created are removed: nothing new and nothing stale is left.
-Because the staging folder is a sibling of the target, relative paths from it to files outside
-equal those from the final folder.
+:func:`check_output_files`, through the output guard :mod:`calibrate.actions._guard`: no output
+is an input, lies in an input folder, holds an input, is a device, or replaces a file gcpcal did
+not write without ``--overwrite``), writes everything into a staging folder BESIDE the target
+(same filesystem, named so that a later run can tell a dead run's staging,
+:mod:`calibrate.actions._staging`), and moves it in only when the whole stage succeeded
+(:func:`staged_folder`, :func:`staged_files`, :mod:`calibrate.actions._commit`). What gcpcal
+wrote is recorded in each folder (:mod:`calibrate.actions._ledger`): a rerun replaces or removes
+those files and only those; a user's files in an output folder are kept. On any failure or
+interrupt the staging folder and any parent folder the stage created are removed: nothing new
+and nothing stale is left. Because the staging folder is a sibling of the target, relative paths
+from it to files outside equal those from the final folder.
 """
 
 from __future__ import annotations
@@ -21,19 +24,22 @@ import inspect
 import json
 import os
 import shutil
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
 from calibrate._json import json_default
-from sensor_models.atomic import atomic_write_text, replace_tree
+from calibrate.actions._guard import (check_file_target, check_folder_target, current_command, input_set,
+                                      is_stdout)
+from calibrate.actions._ledger import LEDGER_NAME
+from calibrate.actions._staging import clean_stale, fault_point, make_stage_dir, make_temp_file
+from sensor_models.atomic import atomic_write_text
 from sensor_models.errors import InputError
 
 __all__ = ["OUTPUT_MARKER", "check_output_files", "check_output_folder", "final_paths", "open_dem", "staged_files",
            "staged_folder", "staged_output", "write_summary"]
 
-#: File written into every output folder: gcpcal may replace such a folder whole on a rerun.
-OUTPUT_MARKER = ".gcpcal-output"
+#: File written into every output folder: the record of the files gcpcal wrote there.
+OUTPUT_MARKER = LEDGER_NAME
 
 # errors of a write that the machine causes (full disk, read-only filesystem, quota, permission)
 _WRITE_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM}
@@ -115,7 +121,7 @@ def _footprint_box(model, band):
 
 
 def _nearest_existing(path: Path) -> Path:
-    while not path.exists() and path != path.parent:
+    while not os.path.lexists(path) and path != path.parent:
         path = path.parent
     return path
 
@@ -128,108 +134,99 @@ def _check_writable_folder(folder: Path, what: Path) -> None:
     reason = None if os.access(base, os.W_OK | os.X_OK) else "permission denied"
     if reason is None:
         try:  # a real probe: os.access says yes to root on a read-only mount
-            fd, probe = tempfile.mkstemp(prefix=".gcpcal-probe-", dir=base)
-            os.close(fd)
-            os.unlink(probe)
+            make_temp_file(base, "gcpcal-probe").unlink()
         except OSError as exc:
             reason = (exc.strerror or str(exc)).lower()
     if reason is not None:
         raise InputError(f"cannot write into {base}: {reason}", path=str(what))
 
 
-def _written_by_gcpcal(folder: Path) -> bool:
-    if (folder / OUTPUT_MARKER).is_file():
-        return True
-    return any(p.name.endswith("summary.json") for p in folder.iterdir())
-
-
-def _input_paths(inputs):
-    """The paths of ``inputs``: a path, a sequence of paths, or a value with ``paths`` (a DOM source)."""
-    for item in inputs:
-        if item is None:
-            continue
-        if hasattr(item, "paths"):
-            yield from _input_paths(item.paths)
-        elif isinstance(item, (list, tuple)):
-            yield from _input_paths(item)
-        else:
-            yield item
-
-
-def _refuse_inputs_inside(out_dir: Path, inputs) -> None:
-    for item in _input_paths(inputs):
-        resolved = Path(item).resolve()
-        if resolved == out_dir or out_dir in resolved.parents:
-            raise InputError(f"the output folder would replace the input {item}: choose another --out",
-                             path=str(out_dir))
-
-
 def check_output_folder(out_dir, *, inputs=()) -> Path:
-    """Check, before any computation, that a stage may write (or replace) folder ``out_dir``.
+    """Check, before any computation, that a stage may write into folder ``out_dir``.
+
+    The output guard (:func:`calibrate.actions._guard.check_folder_target`) runs first; then the
+    staging that dead gcpcal runs left beside ``out_dir`` is removed
+    (:func:`calibrate.actions._staging.clean_stale`) and the parent folder is probed for writing.
 
     Parameters
     ----------
     out_dir : str or Path
         The stage's output folder.
-    inputs : iterable of str or Path, optional
-        The stage's input files: none may lie inside an existing ``out_dir`` (it is replaced).
+    inputs : InputSet or iterable, optional
+        The stage's inputs (:class:`calibrate.actions._guard.InputSet`).
 
     Returns
     -------
     Path
-        ``out_dir``, absolute.
+        The folder to write, absolute (a link's target with ``--overwrite``).
 
     Raises
     ------
     InputError
-        ``out_dir`` is a file, lies under a file, cannot be created or written, is a non-empty
-        folder gcpcal did not write, or holds one of ``inputs``.
+        ``out_dir`` is refused by the guard, is a file, lies under a file, or cannot be created or
+        written.
     """
-    out_dir = Path(out_dir).absolute()
-    if out_dir.exists():
-        if not out_dir.is_dir():
-            raise InputError("exists and is not a folder", path=str(out_dir))
-        if not _written_by_gcpcal(out_dir) and any(out_dir.iterdir()):
-            raise InputError("refusing to replace a non-empty folder gcpcal did not write (choose another --out, "
-                             "or empty it)", path=str(out_dir))
-        _refuse_inputs_inside(out_dir.resolve(), inputs)
-    _check_writable_folder(out_dir.parent, out_dir)
-    return out_dir
+    final = check_folder_target(out_dir, inputs)
+    clean_stale(final.parent, final)
+    _check_writable_folder(final.parent, final)
+    fault_point("guarded")
+    return final
 
 
-def check_output_files(*paths) -> list[Path]:
+def check_output_files(*paths, inputs=(), stdout_ok: bool = False) -> list[Path]:
     """Check, before any computation, that a stage may write (or replace) the files ``paths``.
 
     Parameters
     ----------
     *paths : str or Path or None
         Output files (None entries, options not given, are skipped).
+    inputs : InputSet or iterable, optional
+        The stage's inputs: no output may be one of them or lie in an input folder.
+    stdout_ok : bool
+        Whether ``-`` (standard output) is accepted (it is returned as ``Path("-")``).
 
     Returns
     -------
     list of Path
-        The given paths, absolute, in order.
+        The paths to write, absolute, in order (a link's target with ``--overwrite``).
 
     Raises
     ------
     InputError
-        Two outputs share a name, a path is a folder, lies under a file, or its folder cannot be
-        created or written.
+        Two outputs share a name, a path is refused by the guard
+        (:func:`calibrate.actions._guard.check_file_target`), lies under a file, or its folder
+        cannot be created or written.
     """
-    finals = [Path(p).absolute() for p in paths if p is not None]
-    if len(set(finals)) != len(finals):
+    inputs = input_set(inputs)
+    finals = [check_file_target(p, inputs, stdout_ok=stdout_ok) for p in paths if p is not None]
+    keys = [str(p).casefold() if _case_insensitive(p.parent) else str(p) for p in finals]
+    if len(set(keys)) != len(keys):
         raise InputError("two outputs of this command have the same name", path=str(finals[0]))
     for path in finals:
-        if path.is_dir():
-            raise InputError("is a folder; give a file name", path=str(path))
+        if is_stdout(path):
+            continue
+        clean_stale(path.parent)
         _check_writable_folder(path.parent, path)
+    fault_point("guarded")
     return finals
+
+
+def _case_insensitive(folder: Path) -> bool:
+    """Whether the filesystem of ``folder`` (its nearest existing parent) ignores the case of names."""
+    base = _nearest_existing(folder)
+    probe = base.name.swapcase()
+    if not base.name or probe == base.name:
+        return False
+    try:
+        return os.path.samefile(base, base.with_name(probe))
+    except OSError:
+        return False
 
 
 def _make_folders(folder: Path) -> list[Path]:
     """Create ``folder`` and its missing parents; return those created, outermost first."""
     missing = []
-    while not folder.exists():
+    while not os.path.lexists(folder):
         missing.append(folder)
         folder = folder.parent
     missing.reverse()
@@ -303,40 +300,46 @@ def _name_final_folder(tmp: Path, out_dir: Path) -> None:
 
 @contextmanager
 def staged_folder(out_dir, prefix: str = ".stage-", *, inputs=()):
-    """A staging folder beside ``out_dir`` that replaces ``out_dir`` whole on success.
+    """A staging folder beside ``out_dir`` whose files go into ``out_dir`` on success.
 
     The output path is checked first (:func:`check_output_folder`), so enter this before the
-    computation. On success a :data:`OUTPUT_MARKER` file is added (unless a ``*summary.json``
-    marks the folder already) and the staging folder is
-    renamed to ``out_dir`` (an existing ``out_dir`` is renamed aside and removed). On any
-    exception or interrupt the staging folder, and any parent folder created for it, are removed.
+    computation. On success the files are moved in (:func:`calibrate.actions._commit.commit_folder`):
+    a new or gcpcal-only folder is swapped in whole; a folder that also holds a user's files is
+    merged into (gcpcal's earlier files of this output are replaced or removed, the user's are
+    kept, and a new file that would replace one of them is refused unless ``--overwrite``). On
+    any exception or interrupt the staging folder, and any parent folder created for it, are
+    removed.
 
     Parameters
     ----------
     out_dir : str or Path
         The stage's output folder.
     prefix : str
-        Middle part of the staging folder's hidden name (``.<out name><prefix>XXXX``).
-    inputs : iterable of str or Path, optional
-        The stage's inputs: refused when inside an existing ``out_dir``.
+        The stage's name between dots and dashes (``".calibrate-"``): recorded in the ledger.
+    inputs : InputSet or iterable, optional
+        The stage's inputs (:func:`check_output_folder`).
 
     Yields
     ------
     Path
         The staging folder: write every output there, under its final relative name.
     """
+    from calibrate.actions._commit import commit_folder
+
+    given = Path(out_dir).absolute()
+    inputs = input_set(inputs)
     out_dir = check_output_folder(out_dir, inputs=inputs)
     made = _make_folders(out_dir.parent)
     tmp = None
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}{prefix}", dir=out_dir.parent))
+        tmp = make_stage_dir(out_dir.parent, out_dir.name)
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; the output folder gets the usual mode
+        fault_point("staging")
         yield tmp
-        _name_final_folder(tmp, out_dir)
-        if not _written_by_gcpcal(tmp):  # a summary already says it; else the marker does
-            (tmp / OUTPUT_MARKER).write_text("written by gcpcal; a rerun may replace this folder whole\n",
-                                             encoding="utf-8")
-        replace_tree(tmp, out_dir)
+        fault_point("written")
+        _name_final_folder(tmp, given)
+        check_folder_target(out_dir, inputs)  # again, just before the move: nothing changed meanwhile
+        commit_folder(tmp, out_dir, command=current_command(prefix))
     except BaseException as exc:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -348,40 +351,46 @@ def staged_folder(out_dir, prefix: str = ".stage-", *, inputs=()):
 
 
 @contextmanager
-def staged_files(*paths):
+def staged_files(*paths, inputs=()):
     """Staging paths for a command's output files, all moved onto their targets together.
 
     The paths are checked first (:func:`check_output_files`), so enter this before the
     computation. Each staged file lies in a hidden folder beside its target, under the target's
     own name (GDAL drivers see the right extension). On success every staged file replaces its
-    target; a target whose staged file was not written is removed (it would be stale). On any
-    exception or interrupt nothing is moved and every staging and created folder is removed.
+    target (:func:`calibrate.actions._commit.commit_files`); a target whose staged file was not
+    written is removed when gcpcal wrote it (it would be stale), kept otherwise. On any exception
+    or interrupt nothing is moved and every staging and created folder is removed.
 
     Parameters
     ----------
     *paths : str or Path or None
         The output files (None entries are skipped and yield None).
+    inputs : InputSet or iterable, optional
+        The stage's inputs (:func:`check_output_files`).
 
     Yields
     ------
     list of Path or None
         One staging path per entry of ``paths``, in order.
     """
-    finals = check_output_files(*paths)
+    from calibrate.actions._commit import commit_files
+
+    inputs = input_set(inputs)
+    finals = check_output_files(*paths, inputs=inputs)
     made, stages, staged = [], {}, []
     try:
         for final in finals:
             made += _make_folders(final.parent)
             if final.parent not in stages:
-                stages[final.parent] = Path(tempfile.mkdtemp(prefix=f".{final.name}.stage-", dir=final.parent))
+                stages[final.parent] = make_stage_dir(final.parent, final.name)
             staged.append(stages[final.parent] / final.name)
         it = iter(staged)
+        fault_point("staging")
         yield [None if p is None else next(it) for p in paths]
-        for src, final in zip(staged, finals):
-            if src.exists():
-                os.replace(src, final)
-            elif final.is_file():
-                final.unlink()
+        fault_point("written")
+        for final in finals:  # again, just before the move
+            check_file_target(final, inputs)
+        commit_files(list(zip(staged, finals)), command=current_command())
     except BaseException as exc:
         for stage in stages.values():
             shutil.rmtree(stage, ignore_errors=True)
@@ -399,7 +408,7 @@ def staged_output(parameter: str = "out_dir", *, inputs=(), prefix: str = ".stag
     """Decorator: the action writes its output folder through :func:`staged_folder`.
 
     The wrapped action receives the staging folder in place of its ``parameter`` argument; the
-    folder's path is checked before the action runs, and it replaces the final folder whole when
+    folder's path is checked before the action runs, and its files go into the final folder when
     the action returns. Paths under the staging folder in the returned value name the final one.
 
     Parameters
@@ -407,9 +416,9 @@ def staged_output(parameter: str = "out_dir", *, inputs=(), prefix: str = ".stag
     parameter : str
         Name of the action's output-folder argument.
     inputs : tuple of str
-        Names of the action's input-path arguments (refused when inside the output folder).
+        Names of the action's input-path arguments (:mod:`calibrate.actions._guard`).
     prefix : str
-        Middle part of the staging folder's name.
+        The stage's name (:func:`staged_folder`).
 
     Returns
     -------

@@ -17,8 +17,8 @@ from pathlib import Path
 
 from sensor_models.errors import InputError
 
-__all__ = ["FailedCalibrationError", "open_usable_calibration", "require_usable", "resolve_calibration",
-           "status_fields"]
+__all__ = ["FailedCalibrationError", "calibration_input", "open_usable_calibration", "require_usable",
+           "resolve_calibration", "status_fields"]
 
 
 class FailedCalibrationError(InputError):
@@ -124,6 +124,29 @@ def resolve_calibration(path) -> Path:
     if not path.is_file():
         raise InputError("calibration not found", path=str(path))
     return path
+
+
+def calibration_input(path):
+    """What a command reads of a calibration the user gave: the model file, for the output guard.
+
+    A calibration folder is read for one file (:func:`resolve_calibration`), so outputs may go
+    into that folder; the model file itself is the input. A path that holds no model gives None
+    (the command's read then says why).
+
+    Parameters
+    ----------
+    path : str or Path or None
+
+    Returns
+    -------
+    Path or None
+    """
+    if path is None:
+        return None
+    try:
+        return resolve_calibration(path)
+    except InputError:
+        return None
 
 
 def open_usable_calibration(path, *, command: str):

@@ -8,7 +8,6 @@ Simulated data go to a scratch folder beside the output (removed afterwards); th
 from __future__ import annotations
 
 import shutil
-import tempfile
 from pathlib import Path
 
 from calibrate.actions._io import staged_folder
@@ -24,7 +23,7 @@ def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool 
     seed : str
         ``000``, ``002``, ``003`` or ``004``.
     out_dir : str or Path
-        Output folder (replaced whole on success).
+        Output folder (written on success: gcpcal's earlier files replaced, a user's kept).
     profile : str
         ``ideal``, ``realistic`` or the seed's ``paper-*``.
     quick : bool
@@ -40,8 +39,10 @@ def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool 
     from calibrate.experiments.registry import run_experiment
     from calibrate.experiments.report import write_experiment
 
-    with staged_folder(out_dir, ".experiment-") as stage:
-        work = Path(tempfile.mkdtemp(prefix=".experiment-work-", dir=stage.parent))
+    from calibrate.actions._staging import make_stage_dir
+
+    with staged_folder(out_dir, ".experiment-", inputs=[source]) as stage:
+        work = make_stage_dir(stage.parent, f"{Path(out_dir).name}-work")  # named so a later run can clean it
         try:
             result = run_experiment(seed, profile, quick=quick, work_dir=work, source=source)
         finally:

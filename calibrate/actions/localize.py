@@ -17,11 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.actions._guard import InputSet, is_stdout
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
 
-__all__ = ["GROUND_RANGES", "check_ground_points", "check_image_points", "localize_points", "read_points_csv"]
+__all__ = ["GROUND_RANGES", "check_ground_points", "check_image_points", "csv_lines", "localize_points",
+           "read_points_csv"]
 
 #: Accepted ranges of ground coordinates: ``[low, high)`` for ``lon`` (degrees; 0..360 east is
 #: accepted too), ``[low, high]`` for ``lat`` (degrees) and ``h`` (metres above the ellipsoid).
@@ -135,10 +137,27 @@ def check_image_points(points: dict, image_shape, *, source=None) -> None:
                              f"[0, {size}] px ({image_shape[0]} x {image_shape[1]} px)", path=source, field=name)
 
 
-def _write_csv(out_path: Path, table: dict, summary: dict) -> None:
+def csv_lines(table: dict) -> list[str]:
+    """The CSV ``row,col,lon,lat,h`` of localized points, header first.
+
+    Parameters
+    ----------
+    table : dict
+        ``row, col, lon, lat, h``: float arrays of shape (N,).
+
+    Returns
+    -------
+    list of str
+        N + 1 lines, without line ends.
+    """
     lines = ["row,col,lon,lat,h"]
     lines += [f"{a:.6f},{b:.6f},{x:.10f},{y:.10f},{z:.4f}" for a, b, x, y, z in zip(*table.values())]
-    with staged_files(out_path, out_path.with_suffix(".summary.json")) as (csv_tmp, summary_tmp):
+    return lines
+
+
+def _write_csv(out_path: Path, table: dict, summary: dict, inputs) -> None:
+    lines = csv_lines(table)
+    with staged_files(out_path, out_path.with_suffix(".summary.json"), inputs=inputs) as (csv_tmp, summary_tmp):
         csv_tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
         write_summary(summary_tmp, summary | {"output": str(out_path)})
 
@@ -189,7 +208,8 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     band : str, optional
         Band of a multi-band model; default: the reference band.
     out_path : str or Path, optional
-        CSV ``row,col,lon,lat,h``; ``.summary.json`` goes beside it.
+        CSV ``row,col,lon,lat,h``; ``.summary.json`` goes beside it. ``-``: nothing is written
+        (the caller prints :func:`csv_lines` on standard output).
 
     Returns
     -------
@@ -200,8 +220,10 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     from sensor_models.readers import open_scene
 
     t0 = time.perf_counter()
-    if out_path:  # before any work
-        check_output_files(Path(out_path), Path(out_path).with_suffix(".summary.json"))
+    inputs = InputSet([model_path, points.get("csv"), dem_path, geoid])
+    to_stdout = is_stdout(out_path)
+    if out_path and not to_stdout:  # before any work
+        check_output_files(Path(out_path), Path(out_path).with_suffix(".summary.json"), inputs=inputs)
     columns = ("row", "col") if direction == "direct" else ("lon", "lat", "h")
     source = None
     if "csv" in points:
@@ -240,6 +262,6 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
         **status_fields(model, warning),
         "seconds": round(time.perf_counter() - t0, 4),
     }
-    if out_path:
-        _write_csv(Path(out_path), table, summary)
+    if out_path and not to_stdout:
+        _write_csv(Path(out_path), table, summary, inputs)
     return summary | {"results": table}

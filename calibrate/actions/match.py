@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.actions._guard import InputSet
 from calibrate.actions._io import check_output_files, open_dem, staged_files
 from calibrate.actions._l1a import scene_raster
 from gcpmatch.extract import extract_gcps, read_band, window_count
@@ -14,7 +15,33 @@ from gcpmatch.options import MatchOptions
 from sensor_models.dom_inputs import dom_description, masked_fraction, open_dom, reference_accuracy
 from sensor_models.errors import InputError
 
-__all__ = ["match_scene", "residual_layer_path"]
+__all__ = ["GCP_TABLE_SUFFIXES", "gcp_table_format", "match_scene", "residual_layer_path"]
+
+#: What ``match --out`` writes, by the name's suffix: the format the name promises.
+GCP_TABLE_SUFFIXES = {".csv": "csv", ".txt": "csv", ".gpkg": "gpkg"}
+
+
+def gcp_table_format(out_path) -> str:
+    """The format of the GCP table ``out_path`` names: ``"csv"`` (``.csv``, ``.txt``) or ``"gpkg"`` (``.gpkg``).
+
+    Parameters
+    ----------
+    out_path : str or Path
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    InputError
+        Any other suffix (a name must not promise a format the file does not have).
+    """
+    suffix = Path(str(out_path)).suffix.lower()
+    if suffix not in GCP_TABLE_SUFFIXES:
+        raise InputError("the GCP table is written as CSV (.csv, .txt) or as a GeoPackage (.gpkg), chosen by the "
+                         "name's suffix; for GDAL GCPs in a GeoTIFF give --geotiff", path=str(out_path))
+    return GCP_TABLE_SUFFIXES[suffix]
 
 
 def residual_layer_path(gcps_path) -> Path:
@@ -49,7 +76,8 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     dem_path : str, Path or sequence of them
         DEM (any CRS), or tiles (:func:`calibrate.actions._io.open_dem`).
     out_path : str or Path
-        GCP table (CSV); ``out_path.with_suffix(".summary.json")`` goes beside it.
+        GCP table: CSV (``.csv``, ``.txt``) or a GeoPackage (``.gpkg``), by its suffix
+        (:func:`gcp_table_format`); ``out_path.with_suffix(".summary.json")`` goes beside it.
     geoid : str or Path, optional
         Geoid grid for an EGM96 DEM.
     dem_datum : {"ellipsoid", "egm96"}, optional
@@ -88,7 +116,10 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
 
     options.validate()  # before any work: e.g. --backend gpu without CUDA
     residuals_path = residual_layer_path(out_path)
-    check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path)
+    inputs = InputSet([scene_path, image, mask_path, dom_path, dem_path, geoid])
+    check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
+                       inputs=inputs)
+    out_format = gcp_table_format(out_path)
     model = open_scene(scene_path, image=image, band=band)  # cropped to the raster when that is a crop
     band = band or getattr(model, "reference_band", None)
     scene = read_band(model, band, image)
@@ -109,14 +140,18 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         summary["residual_layer"] = str(residuals_path)
     summary.update(_dom_summary(dom, dom_found, model, band, dem))
     # every file moves in together at the end; with no GCP only the summary (an older table goes)
-    staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path)
+    staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
+                          inputs=inputs)
     with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp, residuals_tmp):
         if table is not None and len(table) > 0:
             if geotiff_tmp is not None:  # first: the one writer with a size limit
                 raster, index = scene_raster(model, band, image)
                 write_gcps_geotiff(table, geotiff_tmp, image_shape=model.image_shape, source_raster=raster,
                                    source_band=index)
-            write_gcps_csv(table, csv_tmp)
+            if out_format == "gpkg":
+                write_gcps_gpkg(table, csv_tmp)
+            else:
+                write_gcps_csv(table, csv_tmp)
             if gpkg_tmp is not None:
                 write_gcps_gpkg(table, gpkg_tmp)
             write_residual_layer(model_residual_layer(model, table), residuals_tmp)

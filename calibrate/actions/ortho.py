@@ -13,8 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.actions._guard import InputSet
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
-from calibrate.actions._status import open_usable_calibration, require_usable, status_fields
+from calibrate.actions._status import calibration_input, open_usable_calibration, require_usable, status_fields
 from calibrate.config import OrthoOptions
 from sensor_models.errors import InputError
 from sensor_models.readers.scene_input import missing_raster_message, open_scene
@@ -58,7 +59,8 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     if out_path.suffix.lower() not in (".tif", ".tiff"):
         raise InputError("the orthoimage is a GeoTIFF: give a .tif name", path=str(out_path))
     summary_path = out_path.with_suffix(".summary.json")
-    check_output_files(out_path, summary_path)  # before any work
+    inputs = InputSet([scene_path, calibration_input(calibration), image, dem_path, geoid])
+    check_output_files(out_path, summary_path, inputs=inputs)  # before any work
     scene = open_scene(scene_path, image=image, band=band)  # cropped to the raster when that is a crop
     scene_warning = require_usable(scene, scene_path, command="ortho")
     geometry, calib_file, calib_warning = scene, None, None
@@ -74,7 +76,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     try:
         dem_figures = _dem_under_scene(geometry, dem, band)
         say = progress or (lambda done, total: None)
-        with staged_files(out_path, summary_path) as (tif_tmp, summary_tmp):
+        with staged_files(out_path, summary_path, inputs=inputs) as (tif_tmp, summary_tmp):
             result = orthorectify_to_file(geometry, image, dem, tif_tmp, crs=options.crs,
                                           resolution_m=options.resolution_m, band=band,
                                           resampling=options.resampling, block=options.block, progress=say,

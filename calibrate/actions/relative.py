@@ -86,11 +86,11 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     from calibrate.relative import relative_calibration
     from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
 
-    from calibrate.actions._status import open_usable_calibration
+    from calibrate.actions._status import calibration_input, open_usable_calibration
 
     t0 = time.perf_counter()
     calibrated, cal_path, warning = open_usable_calibration(calibration, command="relative")  # refuses a failed one
-    inputs = [p for p in (scene_path, calibration, dem_path, geoid, gcps_path) if p is not None]
+    inputs = [scene_path, calibration_input(calibration), cal_path, dem_path, geoid, gcps_path]
     with staged_folder(out_dir, ".relative-", inputs=inputs) as stage:  # checks the output path first
         scene, reference_band = _open_scene(scene_path, calibrated, cal_path, reference_band)
         dem = open_dem(dem_path, dem_datum, geoid, model=calibrated)  # tiles: only under the scene

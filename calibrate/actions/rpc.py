@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.actions._guard import InputSet
 from calibrate.actions._io import (check_output_files, check_output_folder, open_dem, staged_files, staged_folder,
                                    write_summary)
 from calibrate.actions._l1a import scene_raster, write_l1a_with_rpc
@@ -150,10 +151,11 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
     out = Path(out_path)
     folder = out_is_folder(out)
     summary_path = out / "rpc.summary.json" if folder else out.with_name(out.name + ".summary.json")
+    inputs = InputSet([model_path, image, dem_path, geoid])
     if folder:  # before any work
-        check_output_folder(out, inputs=[model_path, image, dem_path])
+        check_output_folder(out, inputs=inputs)
     else:
-        check_output_files(out, summary_path)
+        check_output_files(out, summary_path, inputs=inputs)
     model, band, raster = _open_inputs(model_path, band, image)
     warning = require_usable(model, model_path, command="rpc")
     height_range, coverage = _height_range(model, dem_path, dem_datum, geoid, height_range)
@@ -168,7 +170,7 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
     context = dict(band=band, raster=raster, height_range=height_range, model_path=model_path,
                    n_rows_cols=tuple(model.image_shape))
     if folder:
-        with staged_folder(out, ".rpc-", inputs=[model_path, image, dem_path]) as tmp:
+        with staged_folder(out, ".rpc-", inputs=inputs) as tmp:
             fits = [_fit_one(t, _folder_outputs(tmp, out, t[1], model, raster), context) for t in targets]
             summary = _summary(model, model_path, height_range, warning, coverage, fits, t0)
             if raster is None:
@@ -176,7 +178,7 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
                                            "(give --image for georeferenced level-1A copies)")
             write_summary(tmp / summary_path.name, summary)
         return summary
-    with staged_files(out, summary_path) as (staged, staged_summary):
+    with staged_files(out, summary_path, inputs=inputs) as (staged, staged_summary):
         fits = [_fit_one(targets[0], [(staged, out)], context)]
         summary = _summary(model, model_path, height_range, warning, coverage, fits, t0)
         write_summary(staged_summary, summary)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from calibrate.actions._guard import InputSet, is_stdout
 from calibrate.actions._io import check_output_files, final_paths, open_dem, staged_files, staged_folder, write_summary
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
@@ -41,7 +42,7 @@ def pushbroom_config(config_path=None, seed=None):
 
 
 def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, geoid=None, workers: int = 2,
-                             progress=None, profile: str = "ideal") -> dict:
+                             progress=None, profile: str = "ideal", config_path=None) -> dict:
     """Render a level-1A push-broom scene through a TRUE model; write the LAB manifest and truth.
 
     Parameters
@@ -59,7 +60,9 @@ def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, g
     progress : callable(done, total), optional
         Called as rendering proceeds.
     profile : str
-        Error profile name (:data:`PROFILE_NAMES`; ``ideal``: today's simulator).
+        Error profile name (:data:`PROFILE_NAMES`; ``ideal``: the simulator without added errors).
+    config_path : str or Path, optional
+        The file ``config`` was read from (an input: never written over).
 
     Returns
     -------
@@ -68,7 +71,7 @@ def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, g
     """
     from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
 
-    with staged_folder(out_dir, ".simulate-", inputs=[dom_path, dem_path, geoid]) as stage:
+    with staged_folder(out_dir, ".simulate-", inputs=[dom_path, dem_path, geoid, config_path]) as stage:
         summary = simulate_pushbroom(stage, config=config, dom=dom_path, dem=dem_path, geoid=geoid, workers=workers,
                                      progress=progress, profile=profile)
     return final_paths(summary, stage, out_dir)
@@ -138,7 +141,7 @@ def simulate_geo_earth_scene(out_dir, *, seed=None, config_path=None, dom_path=N
     cfg = load_geo_config(config_path)
     if seed is not None:
         cfg = replace(cfg, seed=seed)
-    with staged_folder(out_dir, ".simulate-", inputs=[dom_path, dem_path, geoid]) as stage:
+    with staged_folder(out_dir, ".simulate-", inputs=[dom_path, dem_path, geoid, config_path]) as stage:
         summary = simulate_geo_earth(stage, config=cfg, dom=dom_path, dem=dem_path, geoid=geoid)
     return final_paths(summary, stage, out_dir)
 
@@ -190,7 +193,7 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
     step_px : float
         Grid spacing, pixels.
     out_path : str or Path, optional
-        Write the result as JSON.
+        Write the result as JSON (``-``: nothing is written; the caller prints it).
 
     Returns
     -------
@@ -200,8 +203,10 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
     from sensor_models.readers import open_model
     from sensor_models.simulate.truth import truth_error
 
-    if out_path:  # before any work
-        check_output_files(out_path)
+    inputs = InputSet([model_path, truth_path, dem_path, geoid])
+    to_stdout = is_stdout(out_path)
+    if out_path and not to_stdout:  # before any work
+        check_output_files(out_path, inputs=inputs)
     true_model = open_model(truth_path)
     model = open_model(model_path)
     warning = require_usable(model, model_path, command="truth error")
@@ -212,7 +217,7 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
         coverage = check_dem_footprint(dem, lon, lat)
     result = truth_error(true_model, model, dem=dem, step_px=step_px, heights_m=heights_m)
     result = {**result, **status_fields(model, warning, *coverage.pop("warnings")), **coverage}
-    if out_path:
-        with staged_files(out_path) as (json_tmp,):
+    if out_path and not to_stdout:
+        with staged_files(out_path, inputs=inputs) as (json_tmp,):
             write_summary(json_tmp, result)
     return result

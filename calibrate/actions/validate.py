@@ -95,14 +95,16 @@ def validate_calibration(sites_path, calibration, out_dir, *, scheduler=None, wo
         The summary of :func:`run_validation` with ``sites_file`` and ``rows``
         (one per scene; a failed scene says why).
     """
-    from calibrate.actions._status import open_usable_calibration
+    from calibrate.actions._status import calibration_input, open_usable_calibration
     from calibrate.batch import read_sites
 
     if scheduler is not None:
         check_scheduler_address(scheduler)
     warning = open_usable_calibration(calibration, command="validate")[2]  # a failed calibration is refused
     sites = read_sites(sites_path)
-    with staged_folder(out_dir, ".validate-", inputs=[sites_path, calibration]) as stage:
+    inputs = [sites_path, calibration_input(calibration)]  # and every scene, DOM and DEM the sites name
+    inputs += [[getattr(s, k, None) for k in ("scene", "dom", "dem", "geoid", "dom_qa")] for s in sites]
+    with staged_folder(out_dir, ".validate-", inputs=inputs) as stage:
         if progress is not None:
             progress(0, len(sites), None)
         rows, summary = run_validation(sites, calibration, stage, scheduler=scheduler, workers=workers,

@@ -20,7 +20,8 @@ import click
 
 from calibrate.cli import (calibrate, compensate, demo, experiment, localize, match, oalr, ortho, relative, rpc, run,
                            simulate, stars, thermal, truth, validate)
-from calibrate.cli._errors import quiet_cluster_logs, run_guarded
+from calibrate.actions._guard import allow_overwrite, running_command
+from calibrate.cli._errors import Interrupted, note_signal, quiet_cluster_logs, run_guarded
 from calibrate.cli.options import add_options, apply_verbosity, verbosity_options
 from sensor_models import __version__
 
@@ -42,7 +43,9 @@ def cli(ctx, verbose, quiet):
       2    usage error (bad option or argument)
       3    the stage ran but failed (e.g. no convergence)
       4    partial success (e.g. some validation scenes failed)
-      130  interrupted
+      129  hung up (SIGHUP)
+      130  interrupted (Ctrl-C)
+      143  terminated (SIGTERM)
     """
     logging.basicConfig(format="%(levelname)s %(name)s: %(message)s")
     ctx.ensure_object(dict)
@@ -55,25 +58,42 @@ COMMAND_MODULES = (localize, rpc, demo, match, calibrate, run, relative, validat
                    oalr, truth, simulate, experiment)
 
 
-def _accept_verbosity(command: click.Command) -> None:
+#: ``--overwrite``, on every command that writes (every command but the groups).
+overwrite_option = click.option(
+    "--overwrite", is_flag=True,
+    help="Replace existing files gcpcal did not write (or that changed since), and write through a symbolic link "
+         "given as an output. Without it they are refused; gcpcal's own earlier outputs are replaced anyway. "
+         "Inputs and devices are never written.")
+
+
+def _accept_verbosity(command: click.Command, path: str = "") -> None:
     """Give ``command`` (and, for a group, each subcommand) the group's ``-v``/``-q``, with the same effect.
 
     ``gcpcal -q match ...``, ``gcpcal match -q ...`` and ``gcpcal match ... -q`` are the same
-    command; the counts add up (``gcpcal -v calibrate -v`` is ``-vv``).
+    command; the counts add up (``gcpcal -v calibrate -v`` is ``-vv``). Every command (not a
+    group) also gets ``--overwrite`` (:mod:`calibrate.actions._guard`) and records its name in
+    the ledger of what it writes.
     """
+    name = f"{path} {command.name}".strip()
     for decorator in reversed(verbosity_options):
         decorator(command)  # click.option on a Command object appends to its params
+    group = isinstance(command, click.Group)
+    if not group:
+        overwrite_option(command)
     callback = command.callback
 
     @functools.wraps(callback)
-    def with_verbosity(*args, verbose=0, quiet=False, **kwargs):
+    def with_verbosity(*args, verbose=0, quiet=False, overwrite=False, **kwargs):
         apply_verbosity(click.get_current_context(), verbose, quiet)
-        return callback(*args, **kwargs)
+        if group:
+            return callback(*args, **kwargs)
+        with allow_overwrite(overwrite), running_command(name):
+            return callback(*args, **kwargs)
 
     command.callback = with_verbosity
-    if isinstance(command, click.Group):
+    if group:
         for sub in command.commands.values():
-            _accept_verbosity(sub)
+            _accept_verbosity(sub, name)
 
 
 for _module in COMMAND_MODULES:
@@ -109,10 +129,22 @@ def _worker_config(args: list[str]):
     return dask.config.set({"distributed.worker.preload": preload + ["calibrate.actions._worker_signals"]})
 
 
-def _on_interrupt(signum, frame):
-    """SIGINT: quiet the Dask cluster's loggers, then interrupt as Python does."""
+#: Signals that stop a command cleanly (staging removed, exit 128 + the number).
+_HANDLED = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+def _after_first(signum, frame):
+    """A second signal while the first one's cleanup runs: recorded, the cleanup goes on."""
+    note_signal(signum)
+
+
+def _on_signal(signum, frame):
+    """SIGINT, SIGTERM, SIGHUP: quiet the Dask cluster's loggers, then stop as Ctrl-C does."""
+    note_signal(signum)
+    for handled in _HANDLED:
+        signal.signal(handled, _after_first)
     quiet_cluster_logs()
-    raise KeyboardInterrupt
+    raise Interrupted(signum)
 
 
 def main(argv=None) -> int:
@@ -126,16 +158,17 @@ def main(argv=None) -> int:
     Returns
     -------
     int
-        The exit code: 0 ok, 1 input/I/O, 2 usage, 3 failed, 4 partial, 130 interrupted.
+        The exit code: 0 ok, 1 input/I/O, 2 usage, 3 failed, 4 partial, 129 hung up, 130
+        interrupted, 143 terminated.
     """
     args = list(sys.argv[1:] if argv is None else argv)
-    previous = None
+    previous = {}
     if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGINT, _on_interrupt)
+        previous = {signum: signal.signal(signum, _on_signal) for signum in _HANDLED}
     try:
         with _worker_config(args):
             return run_guarded(lambda: cli.main(args=args, prog_name="gcpcal", standalone_mode=False),
                                verbose=_verbosity(args))
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)

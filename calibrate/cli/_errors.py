@@ -10,8 +10,13 @@ code   meaning
        --help)``; with ``-v`` click's usage and hint too
 3      the stage ran but failed (no convergence, every validation scene failed, ...)
 4      partial success (some validation scenes failed, their rows say why)
-130    interrupted (Ctrl-C)
+129    hung up (SIGHUP: the terminal closed)
+130    interrupted (Ctrl-C, SIGINT)
+143    terminated (SIGTERM: ``kill``, ``timeout``, a batch scheduler)
 =====  ==========================================================================================
+
+On SIGINT, SIGTERM and SIGHUP the command stops, removes its staging (nothing new, nothing
+stale is left) and exits ``128 + the signal number``.
 
 Nothing a user or the machine can cause prints a traceback; an unexpected exception (a bug)
 prints ``gcpcal: internal error: <type>: <message>`` and, with ``-v``, its traceback.
@@ -26,8 +31,8 @@ import click
 
 from sensor_models.errors import GcpcalError
 
-__all__ = ["EXIT_FAILED", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_PARTIAL", "EXIT_USAGE",
-           "quiet_cluster_logs", "run_guarded"]
+__all__ = ["EXIT_FAILED", "EXIT_HANGUP", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_PARTIAL",
+           "EXIT_TERMINATED", "EXIT_USAGE", "Interrupted", "note_signal", "quiet_cluster_logs", "run_guarded"]
 
 EXIT_OK = 0
 EXIT_INPUT = 1
@@ -35,6 +40,30 @@ EXIT_USAGE = 2
 EXIT_FAILED = 3
 EXIT_PARTIAL = 4
 EXIT_INTERRUPTED = 130
+EXIT_HANGUP = 129
+EXIT_TERMINATED = 143
+
+#: What each handled signal makes the command say, and its exit code (128 + the signal number).
+_SIGNAL_WORDS = {2: "interrupted", 1: "hung up (SIGHUP)", 15: "terminated (SIGTERM)"}
+_received: list[int] = []
+
+
+class Interrupted(KeyboardInterrupt):
+    """A handled signal (SIGINT, SIGTERM, SIGHUP) stopping the command; ``signum`` says which."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = int(signum)
+
+
+def note_signal(signum: int) -> None:
+    """Record that signal ``signum`` arrived: :func:`run_guarded` then exits ``128 + signum``.
+
+    Parameters
+    ----------
+    signum : int
+    """
+    _received.append(int(signum))
 
 
 #: Loggers silenced once Ctrl-C arrives: a closing Dask cluster logs each worker's end.
@@ -53,7 +82,10 @@ def quiet_cluster_logs() -> None:
 
 
 def _say(message: str) -> None:
-    click.echo(f"gcpcal: {message}", err=True)
+    try:
+        click.echo(f"gcpcal: {message}", err=True)
+    except OSError:  # stderr gone (a closed terminal after SIGHUP): the exit code says it
+        pass
 
 
 def _one_line(text: str) -> str:
@@ -134,12 +166,14 @@ def run_guarded(invoke, *, verbose: int = 0) -> int:
     int
         The exit code (see the module docstring).
     """
+    _received.clear()
     try:
         rv = invoke()
-    except (KeyboardInterrupt, click.exceptions.Abort):
+    except (KeyboardInterrupt, click.exceptions.Abort) as exc:
         quiet_cluster_logs()
-        _say("interrupted")
-        return EXIT_INTERRUPTED
+        signum = getattr(exc, "signum", None) or (_received[0] if _received else 2)
+        _say(_SIGNAL_WORDS.get(signum, f"stopped by signal {signum}"))
+        return 128 + signum
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except click.UsageError as exc:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from calibrate.actions.localize import localize_points
+from calibrate.actions.localize import csv_lines, localize_points
 from calibrate.cli.options import (add_options, constant_height_option, dem_options, echo_json, echo_warnings,
                                    float_list, json_option, one_height_source)
 from sensor_models.errors import InputError
@@ -52,7 +52,7 @@ def _points(rows, cols, lon, lat, h_text, csv_path, inverse):
 @constant_height_option
 @add_options(dem_options)
 @click.option("--band", help="Band (multi-band models; default: the reference band).")
-@click.option("--out", "out_path", type=click.Path(dir_okay=False), help="Write the results as CSV (plus a .summary.json).")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False), help="Write the results as CSV (plus a .summary.json); - writes the CSV on standard output.")
 @json_option
 def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height, dem_path, dem_datum, geoid, band,
             out_path, as_json):
@@ -68,6 +68,8 @@ def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height,
     .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md). Pixels are
     the raster's: a crop's own rows and columns.
     """
+    if out_path == "-" and as_json:
+        raise click.UsageError("--out - and --json both write on standard output: give one")
     direction, points = _points(rows, cols, lon, lat, h_text, csv_path, inverse)
     if one_height_source(height=height, dem=dem_path) is None and direction == "direct":
         raise click.UsageError("direct localization needs exactly one of --height and --dem")
@@ -75,7 +77,9 @@ def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height,
                               dem_datum=dem_datum, geoid=geoid, band=band, out_path=out_path)
     echo_warnings(summary)
     table = summary["results"]
-    if as_json:
+    if out_path == "-":
+        click.echo("\n".join(csv_lines(table)))
+    elif as_json:
         echo_json(summary | {"results": {k: v.tolist() for k, v in table.items()}})
     elif not out_path:
         click.echo(f"{'row':>14} {'col':>14} {'lon_deg':>16} {'lat_deg':>16} {'h_m':>11}")

@@ -43,7 +43,8 @@ def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid
         return
     with stage_progress(ctx, "gcpcal simulate pushbroom: rendering", as_json) as progress:
         summary = simulate_pushbroom_scene(out_dir, cfg, dom_path=dom_path, dem_path=dem_path, geoid=geoid,
-                                           workers=workers, profile=profile, progress=progress.count)
+                                           workers=workers, profile=profile, progress=progress.count,
+                                           config_path=config_path)
     echo_warnings(summary)
     if as_json:
         echo_json(summary)

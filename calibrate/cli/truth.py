@@ -25,7 +25,7 @@ def command():
 @click.option("--heights", hidden=True, help="Deprecated: comma-separated ellipsoidal heights, m (use --height or "
                                              "--height-range).")
 @click.option("--step", type=click.FloatRange(min=1.0), default=16.0, show_default=True, help="Grid spacing in pixels.")
-@click.option("--out", "out_path", type=click.Path(dir_okay=False), help="Write the result as JSON.")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False), help="Write the result as JSON; - writes it on standard output.")
 @json_option
 def error_command(model_path, truth_path, dem_path, dem_datum, geoid, height, height_range, heights, step, out_path,
                   as_json):
@@ -38,7 +38,7 @@ def error_command(model_path, truth_path, dem_path, dem_datum, geoid, height, he
                             heights_m=_heights_m(height, height_range, heights, dem_path), step_px=step,
                             out_path=out_path)
     echo_warnings(result)
-    if as_json:
+    if as_json or out_path == "-":
         echo_json(result)
         return
     for r in result["per_ccd"]:
