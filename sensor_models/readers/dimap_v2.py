@@ -42,6 +42,7 @@ __all__ = [
     "DimapV2Band",
     "DimapV2Metadata",
     "band_look",
+    "build_dimap_v2",
     "extend_attitude",
     "extend_orbit",
     "is_dimap_v2",
@@ -297,14 +298,33 @@ def read_dimap_v2(path, *, band: str | None = None, rpc=None, self_check: str = 
     ProductDisagreementError
         The model disagrees with the product (``self_check="refuse"``).
     """
+    from sensor_models.readers.self_check import check_policy
+
+    check_policy(self_check)
+    return build_dimap_v2(parse_dimap_v2(path), band=band, rpc=rpc, self_check=self_check)
+
+
+def build_dimap_v2(meta: DimapV2Metadata, *, band: str | None = None, rpc=None, self_check: str = "refuse"):
+    """The model of parsed DIMAP v2 metadata, checked against the product (see :func:`read_dimap_v2`).
+
+    Parameters
+    ----------
+    meta : DimapV2Metadata
+        From :func:`parse_dimap_v2`.
+    band, rpc, self_check
+        As :func:`read_dimap_v2`.
+
+    Returns
+    -------
+    PushbroomModel
+        As :func:`read_dimap_v2`.
+    """
+    from sensor_models.pushbroom import PushbroomModel
+    from sensor_models.pushbroom_types import LineTiming
     from sensor_models.readers.product_checks import check_dimap_v2
     from sensor_models.readers.self_check import check_policy, enforce
 
     check_policy(self_check)
-    from sensor_models.pushbroom import PushbroomModel
-    from sensor_models.pushbroom_types import LineTiming
-
-    meta = parse_dimap_v2(path)
     chosen = meta.bands
     if band is not None:
         chosen = tuple(b for b in meta.bands if b.band_id == band)

@@ -163,9 +163,9 @@ class Comparison:
         """``"IMD corners at their HAE heights: 0.54 m max (mean 0.53 m, 4 points), tolerance 0.37 m"``."""
         if not np.isfinite(self.value_m):
             return f"{self.description}: the model's lines of sight miss the Earth"
-        other = f"mean {self.mean_m:.3g} m" if self.statistic == "max" else f"max {self.max_m:.3g} m"
-        return (f"{self.description}: {self.value_m:.3g} m {self.statistic} ({other}, {self.n_points} points), "
-                f"tolerance {self.tolerance.metres:.3g} m")
+        other = f"mean {_metres(self.mean_m)}" if self.statistic == "max" else f"max {_metres(self.max_m)}"
+        return (f"{self.description}: {_metres(self.value_m)} {self.statistic} ({other}, {self.n_points} points), "
+                f"tolerance {_metres(self.tolerance.metres)}")
 
     def to_dict(self) -> dict:
         """JSON-ready mapping (non-finite distances as None)."""
@@ -176,6 +176,13 @@ class Comparison:
                 "n_points": self.n_points, "mean_m": num(self.mean_m), "rms_m": num(self.rms_m),
                 "max_m": num(self.max_m), "tolerance_m": self.tolerance.metres,
                 "tolerance_source": self.tolerance.source, "passed": self.passed}
+
+
+def _metres(x: float) -> str:
+    """``0.0502 m``, ``1.21 m``, ``98.3 m``, ``1237 m``: three significant digits, no exponent."""
+    if not np.isfinite(x):
+        return "inf m"
+    return f"{x:.3g} m" if abs(x) < 100.0 else f"{x:.0f} m"
 
 
 def compare(name: str, description: str, distances_m, statistic: str, tolerance: Tolerance) -> Comparison:
