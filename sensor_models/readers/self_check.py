@@ -29,7 +29,7 @@ the metadata and the producer's corners share, not the corners' agreement with t
 Beyond the tolerance the reader refuses (:class:`~sensor_models.errors.ProductDisagreementError`,
 one line naming the product, the satellite and the disagreement) unless the user asked
 ``self_check="warn"``: then the model is returned, the check (``model.product_check``) records the
-disagreement and a warning is logged. Summaries of the commands that open a product write
+disagreement (also logged at INFO level). Summaries of the commands that open a product write
 :meth:`ProductCheck.to_dict`.
 """
 
@@ -267,7 +267,7 @@ def enforce(check: ProductCheck) -> ProductCheck:
     Returns
     -------
     ProductCheck
-        ``check``, when it passed or the policy is ``"warn"`` (a warning is logged).
+        ``check``, when it passed or the policy is ``"warn"`` (the disagreement is logged at INFO level).
 
     Raises
     ------
@@ -280,7 +280,7 @@ def enforce(check: ProductCheck) -> ProductCheck:
         raise ProductDisagreementError(
             check.disagreement() + " (open it with self_check='warn', gcpcal --accept-product-disagreement, "
             "to proceed and record the disagreement)", path=check.product)
-    _log.warning("%s: %s (proceeding: self_check='warn')", check.product, check.disagreement())
+    _log.info("%s: %s (proceeding: self_check='warn')", check.product, check.disagreement())
     return check
 
 
