@@ -281,3 +281,72 @@ def test_dimap_v2_vertex_moved_100_m_is_refused_and_warn_records_it(shared_data,
         read_dimap_v2(bad)
     check = read_dimap_v2(bad, self_check="warn").product_check
     assert not check.passed and 30.0 < check.comparisons[0].max_m < 100.0
+
+
+# --------------------------------------------------------------------------------------------- the CLI
+
+#: the commands that open a user's scene, which may be a vendor product
+PRODUCT_COMMANDS = ("calibrate", "match", "relative", "localize", "ortho", "rpc", "run")
+
+
+def test_every_command_opening_a_product_offers_the_option():
+    from calibrate.cli import cli
+
+    for name in PRODUCT_COMMANDS:
+        options = {o for p in cli.commands[name].params for o in getattr(p, "opts", ())}
+        assert "--accept-product-disagreement" in options, name
+
+
+def test_cli_refuses_in_one_line_and_the_option_records_the_disagreement(shared_data, tmp_path, capsys):
+    import json
+
+    from calibrate.cli import main
+
+    bad = _corner_moved(product_path(shared_data, "WV3"), tmp_path / "WV3.XML")
+    argv = ["localize", str(bad), "--rows", "100", "--cols", "200", "--height", "1000"]
+    assert main(argv) == 1
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"gcpcal: error: {bad}: DigitalGlobe XML product of WV03")
+    assert "IMD corners" in lines[0] and "--accept-product-disagreement" in lines[0]
+    out = tmp_path / "points.csv"
+    assert main([*argv, "--accept-product-disagreement", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "gcpcal: warning:" in err and "WV03" in err
+    summary = json.loads(out.with_suffix(".summary.json").read_text())
+    check = summary["product_check"]
+    assert check["policy"] == "warn" and not check["passed"] and check["satellite"] == "WV03"
+    corners = check["comparisons"][0]
+    assert corners["name"] == "corners" and 95.0 < corners["max_m"] < 105.0 and corners["tolerance_m"] < 0.5
+    assert any("IMD corners" in w for w in summary["warnings"])
+    # an agreeing product: its check is recorded too, with no warning
+    good = tmp_path / "good.csv"
+    assert main(["localize", str(product_path(shared_data, "WV3")), "--rows", "100", "--cols", "200", "--height",
+                 "1000", "--out", str(good)]) == 0
+    summary = json.loads(good.with_suffix(".summary.json").read_text())
+    assert summary["product_check"]["passed"] and summary["warnings"] == []
+
+
+def test_dimap_v2_compares_an_rpc_given_with_the_product(shared_data, tmp_path):
+    """The product's own RPC_*.XML is not in the shared data: an RPC fitted to the rigorous model
+    (written as _RPC.TXT) agrees; one fitted to the model one line late, or another product's
+    RPC (the Pleiades Ventoux .geom), is refused."""
+    from sensor_models.rpc import fit_rpc
+
+    meta = parse_dimap_v2(product_path(shared_data, "SPOT6"))
+    model = build_dimap_v2(meta)
+    rpc, _ = fit_rpc(model, height_range_m=(500.0, 1200.0), grid_shape=(11, 11, 4))
+    path = rpc.write(tmp_path / "SPOT6_RPC.TXT")
+    check = read_dimap_v2(meta.path, rpc=path).product_check
+    rpc_cmp = {c.name: c for c in check.comparisons}["rpc_grid"]
+    assert check.passed and rpc_cmp.n_points == 605 and 0.0 < rpc_cmp.rms_m < 0.05
+    assert 0.78 < rpc_cmp.tolerance.metres < 0.84  # no ERR_RAND stated: half a ground pixel
+    lp = meta.line_period_s
+    late = build_dimap_v2(dataclasses.replace(meta, ephemeris_seconds=meta.ephemeris_seconds - lp,
+                                              attitude_seconds=meta.attitude_seconds - lp), self_check="warn")
+    late_rpc, _ = fit_rpc(late, height_range_m=(500.0, 1200.0), grid_shape=(11, 11, 4))
+    with pytest.raises(ProductDisagreementError, match=r"vendor RPC over 11\^2 pixels x 5 heights.*: 1\.\d+ m rms"):
+        read_dimap_v2(meta.path, rpc=late_rpc)
+    ventoux = shared_data / "pleiades_ventoux" / "left_image.geom"
+    if ventoux.is_file():
+        with pytest.raises(ProductDisagreementError, match="vendor RPC"):
+            read_dimap_v2(meta.path, rpc=ventoux)
