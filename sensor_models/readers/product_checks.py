@@ -283,8 +283,9 @@ def check_dimap(model, meta, attitude: str, policy: str, build) -> ProductCheck:
         where = f"at the one height that fits them, {h:.2f} m (no tie-point height for every vertex)"
         notes.append(f"fitted common height {h:.2f} m")
     tan_z = view_tangent(ref, meta.center_row, meta.center_col, float(heights[-1]), band=band)
+    rounding = coordinate_rounding_m(lons, lats, heights, view_tangent_value=tan_z)
     tol = Tolerance.combine(_half_pixel(ref, meta.center_row, meta.center_col, float(heights[-1]), band),
-                            (coordinate_rounding_m(lons, lats, heights, view_tangent_value=tan_z), "coordinate rounding"))
+                            (rounding, "coordinate rounding"))
     if ref is not model:
         opened = localization_misses_m(model, rows, cols, lons, lats, heights, band=band)
         notes.append(f"the frame was computed with the {frame_attitude} attitude, which the check uses; the model "
