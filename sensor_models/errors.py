@@ -59,3 +59,13 @@ class RpcError(InputError):
 
 class ConvergenceError(GcpcalError, ArithmeticError):
     """An iterative geometric solution did not converge."""
+
+
+class ProductDisagreementError(ManifestError):
+    """A vendor product's rigorous model disagrees with what the product states about itself.
+
+    Raised by the vendor readers' self-check (:mod:`sensor_models.readers.self_check`) when the
+    model built from the metadata misses the product's own corners or RPC by more than the
+    documented tolerance, or when no model that reaches the Earth can be built from them. The
+    message names the product, the satellite and the disagreement in metres.
+    """

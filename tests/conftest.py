@@ -6,12 +6,15 @@ need it use the ``shared_data`` fixture and skip with a reason when it is absent
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
-SHARED_DATA = PROJECT_ROOT.parent / "shared" / "data"
+#: ``../shared/data`` beside the project; ``GCPCAL_SHARED_DATA`` names another place (a git worktree
+#: of the project lies one folder deeper than the checkout the data sit beside)
+SHARED_DATA = Path(os.environ.get("GCPCAL_SHARED_DATA") or PROJECT_ROOT.parent / "shared" / "data")
 
 
 @pytest.fixture(scope="session")

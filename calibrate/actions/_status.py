@@ -17,8 +17,8 @@ from pathlib import Path
 
 from sensor_models.errors import InputError
 
-__all__ = ["FailedCalibrationError", "calibration_input", "open_usable_calibration", "require_usable",
-           "resolve_calibration", "status_fields"]
+__all__ = ["FailedCalibrationError", "calibration_input", "open_usable_calibration", "product_check_fields",
+           "record_product_check", "require_usable", "resolve_calibration", "status_fields"]
 
 
 class FailedCalibrationError(InputError):
@@ -72,7 +72,7 @@ def require_usable(model, source, *, command: str) -> str | None:
     return f"{source}: the calibration is partial ({detail}); gcpcal {command} uses it as it is"
 
 
-def status_fields(model, *warnings: str | None) -> dict:
+def status_fields(model, *warnings: str | None, product=None) -> dict:
     """The summary fields that record the status of the model a command used.
 
     Parameters
@@ -81,16 +81,47 @@ def status_fields(model, *warnings: str | None) -> dict:
         The model used (its status is recorded).
     *warnings : str or None
         What :func:`require_usable` returned for each model the command read (None skipped).
+    product : SensorModel, optional
+        The model opened from the user's scene, whose :func:`product_check_fields` are recorded
+        (default: ``model``).
 
     Returns
     -------
     dict
         ``calibration_status`` (``"calibrated"``, ``"partial"``, or None for a model without
-        status) and ``warnings`` (list of str, empty when there is nothing to say).
+        status), ``warnings`` (list of str, empty when there is nothing to say; a product's
+        accepted disagreement is one) and ``product_check``.
     """
     status = getattr(model, "calibration", None)
+    checked = product_check_fields(model if product is None else product)
     return {"calibration_status": None if status is None else status.status,
-            "warnings": [w for w in warnings if w]}
+            "warnings": [w for w in (*warnings, checked.pop("warning")) if w], **checked}
+
+
+def product_check_fields(model) -> dict:
+    """What a summary records of the self-check of the vendor product a command opened.
+
+    Parameters
+    ----------
+    model : SensorModel
+        A model from :func:`sensor_models.readers.open_scene` (or any model).
+
+    Returns
+    -------
+    dict
+        ``product_check``: :meth:`ProductCheck.to_dict
+        <sensor_models.readers.self_check.ProductCheck.to_dict>` (max/mean/rms metres of each
+        comparison, its tolerance and source, pass/fail), or None for a model that is not a
+        vendor product; ``warning``: the one-line disagreement the user accepted with
+        ``--accept-product-disagreement``, or None.
+    """
+    check = getattr(model, "product_check", None)
+    if check is None:
+        return {"product_check": None, "warning": None}
+    warning = None
+    if not check.passed:
+        warning = f"{check.product}: {check.disagreement()} (accepted: --accept-product-disagreement)"
+    return {"product_check": check.to_dict(), "warning": warning}
 
 
 def resolve_calibration(path) -> Path:
@@ -178,3 +209,25 @@ def open_usable_calibration(path, *, command: str):
     model_file = resolve_calibration(path)
     model = open_model(model_file)
     return model, model_file, require_usable(model, model_file, command=command)
+
+
+def record_product_check(summary: dict, model) -> dict:
+    """Add :func:`product_check_fields` to a summary: ``product_check``, and the warning to ``warnings``.
+
+    Parameters
+    ----------
+    summary : dict
+        A stage's summary (changed in place).
+    model : SensorModel
+        The model opened from the user's scene.
+
+    Returns
+    -------
+    dict
+        ``summary``.
+    """
+    checked = product_check_fields(model)
+    summary["product_check"] = checked["product_check"]
+    if checked["warning"]:
+        summary["warnings"] = [*(summary.get("warnings") or []), checked["warning"]]
+    return summary

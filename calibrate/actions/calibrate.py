@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.actions._io import check_output_folder, staged_folder
+from calibrate.actions._status import record_product_check
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
 from calibrate.residual_layer import concatenate_layers, residual_layer, write_residual_layer
@@ -96,17 +97,17 @@ def _accuracy(model, pts):
                                 band=pts["band"], ccd=pts["ccd"])
 
 
-def _read_inputs(scene_path, gcps_path, band, image):
+def _read_inputs(scene_path, gcps_path, band, image, self_check):
     """The model (cropped to ``image`` when that is a crop of the scene) and the GCP table."""
     from gcpmatch.gcps import read_gcps
     from sensor_models.readers import open_scene
 
-    model = open_scene(scene_path, image=image, band=band)
+    model = open_scene(scene_path, image=image, band=band, self_check=self_check)
     return model, read_gcps(gcps_path, image_shape=model.image_shape)
 
 
 def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptions = CalibrationOptions(), band=None,
-                    image=None, report=True, progress=None) -> dict:
+                    image=None, report=True, progress=None, self_check: str = "refuse") -> dict:
     """Run the calibration stage (see the module docstring).
 
     Parameters
@@ -130,16 +131,20 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
         Write ``report.html`` and its figures.
     progress : callable(str), optional
         Receives progress messages.
+    self_check : {"refuse", "warn"}
+        For a vendor product whose model disagrees with its own statements: refuse, or proceed
+        and record the disagreement (``product_check``, ``warnings``) in the summary.
 
     Returns
     -------
     dict
         The summary written to ``calibrate.summary.json`` (``success``, ``message``, ``gcps``,
-        ``check_points``, ``check_rmse_px {before, after}``, ``model``, ``seconds``).
+        ``check_points``, ``check_rmse_px {before, after}``, ``model``, ``product_check``,
+        ``warnings``, ``seconds``).
     """
     t0 = time.perf_counter()
     check_output_folder(out_dir, inputs=[scene_path, gcps_path, image])  # before any work
-    model, table = _read_inputs(scene_path, gcps_path, band, image)
+    model, table = _read_inputs(scene_path, gcps_path, band, image, self_check)
     options = options_from_match_summary(options, gcps_path)
     say = progress or (lambda message: None)
     say(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
@@ -181,8 +186,10 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
             "coverage": coverage,
             "model": model_file,
             "residual_layer": "residuals.gpkg",
+            "warnings": [],
             "seconds": time.perf_counter() - t0,
         }
+        record_product_check(summary, model)
         (tmp / "calibrate.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     return summary
 

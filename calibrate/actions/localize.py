@@ -189,7 +189,7 @@ def _check_dem_heights(h_m, dem) -> None:
 
 
 def localize_points(model_path, points: dict, *, direction: str, height=None, dem_path=None, dem_datum=None,
-                    geoid=None, band=None, out_path=None) -> dict:
+                    geoid=None, band=None, out_path=None, self_check: str = "refuse") -> dict:
     """Localize points through a model and write them (with a summary) when ``out_path`` is given.
 
     Parameters
@@ -210,6 +210,9 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     out_path : str or Path, optional
         CSV ``row,col,lon,lat,h``; ``.summary.json`` goes beside it. ``-``: nothing is written
         (the caller prints :func:`csv_lines` on standard output).
+    self_check : {"refuse", "warn"}
+        For a vendor product whose model disagrees with its own statements: refuse, or proceed
+        and record the disagreement (``product_check``, ``warnings``) in the summary.
 
     Returns
     -------
@@ -229,7 +232,7 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     if "csv" in points:
         source = str(points["csv"])
         points = read_points_csv(Path(points["csv"]), columns)
-    model = open_scene(model_path)  # a raster with its RPC, or a crop, as well as a model file
+    model = open_scene(model_path, self_check=self_check)  # a raster with its RPC, or a crop, or a model file
     warning = require_usable(model, model_path, command="localize")
     kwargs = {} if band is None else {"band": band}
     if direction == "direct":

@@ -10,6 +10,7 @@ import numpy as np
 from calibrate.actions._guard import InputSet
 from calibrate.actions._io import check_output_files, open_dem, staged_files
 from calibrate.actions._l1a import scene_raster
+from calibrate.actions._status import record_product_check
 from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
 from sensor_models.dom_inputs import dom_description, masked_fraction, open_dom, reference_accuracy
@@ -62,7 +63,7 @@ def residual_layer_path(gcps_path) -> Path:
 
 def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_datum=None, band=None, image=None,
                 mask_path=None, gpkg_path=None, geotiff_path=None, options: MatchOptions = MatchOptions(),
-                progress=None) -> dict:
+                progress=None, self_check: str = "refuse") -> dict:
     """Read the inputs, extract GCPs, write the CSV (+ GeoPackage/GeoTIFF) and the summary.
 
     Parameters
@@ -97,11 +98,15 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         Matching settings.
     progress : callable(str), optional
         Receives progress messages.
+    self_check : {"refuse", "warn"}
+        For a vendor product whose model disagrees with its own statements: refuse, or proceed
+        and record the disagreement (``product_check``, ``warnings``) in the summary.
 
     Returns
     -------
     dict
         The summary of :func:`gcpmatch.extract.extract_gcps` with the input and output paths;
+        ``product_check`` (:func:`calibrate.actions._status.product_check_fields`);
         ``reference_accuracy`` (east_m, north_m, source, assumed) and, when nothing stated it,
         ``reference_note``.
 
@@ -120,7 +125,7 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
                        inputs=inputs)
     out_format = gcp_table_format(out_path)
-    model = open_scene(scene_path, image=image, band=band)  # cropped to the raster when that is a crop
+    model = open_scene(scene_path, image=image, band=band, self_check=self_check)  # a crop's raster crops it
     band = band or getattr(model, "reference_band", None)
     scene = read_band(model, band, image)
     if geotiff_path is not None:  # before any work: the GeoTIFF's size limit, from the window count
@@ -139,6 +144,7 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     if table is not None and len(table) > 0:
         summary["residual_layer"] = str(residuals_path)
     summary.update(_dom_summary(dom, dom_found, model, band, dem))
+    record_product_check(summary, model)
     # every file moves in together at the end; with no GCP only the summary (an older table goes)
     staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
                           inputs=inputs)

@@ -24,7 +24,7 @@ __all__ = ["ortho_scene"]
 
 
 def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=None, geoid=None, band=None,
-                image=None, options: OrthoOptions = OrthoOptions(), progress=None) -> dict:
+                image=None, options: OrthoOptions = OrthoOptions(), progress=None, self_check: str = "refuse") -> dict:
     """Orthorectify one band of a scene; write the COG and its summary.
 
     Parameters
@@ -46,6 +46,9 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
         Output CRS, resolution, resampling and block size.
     progress : callable(done, total), optional
         Called as blocks are written.
+    self_check : {"refuse", "warn"}
+        For a vendor product whose model disagrees with its own statements: refuse, or proceed
+        and record the disagreement (``product_check``, ``warnings``) in the summary.
 
     Returns
     -------
@@ -61,7 +64,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     summary_path = out_path.with_suffix(".summary.json")
     inputs = InputSet([scene_path, calibration_input(calibration), image, dem_path, geoid])
     check_output_files(out_path, summary_path, inputs=inputs)  # before any work
-    scene = open_scene(scene_path, image=image, band=band)  # cropped to the raster when that is a crop
+    scene = open_scene(scene_path, image=image, band=band, self_check=self_check)  # a crop's raster crops it
     scene_warning = require_usable(scene, scene_path, command="ortho")
     geometry, calib_file, calib_warning = scene, None, None
     if calibration is not None:
@@ -82,7 +85,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
                                           resampling=options.resampling, block=options.block, progress=say,
                                           dem_windows=dem_windows)
             summary = _summary(result, out_path, summary_path, scene_path, calib_file, geometry, image, dem_path,
-                               status_fields(geometry, scene_warning, calib_warning), dem_figures, t0)
+                               status_fields(geometry, scene_warning, calib_warning, product=scene), dem_figures, t0)
             write_summary(summary_tmp, summary)
     finally:
         if dem_windows is not None:

@@ -23,6 +23,7 @@ import numpy as np
 
 from calibrate._json import json_safe
 from calibrate.actions._io import open_dem, staged_folder
+from calibrate.actions._status import record_product_check
 from calibrate.config import CalibrationOptions
 from sensor_models.errors import InputError
 
@@ -34,7 +35,7 @@ _OUTPUTS = ("manifest.json", "relative.json", "relative.summary.json")
 def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, reference_band=None, dem_datum=None,
                                geoid=None, window_px=64, spacing_px: int = 24, rows=None,
                                options: CalibrationOptions = CalibrationOptions(), parallax: bool = True,
-                               gcps_path=None, progress=None) -> dict:
+                               gcps_path=None, progress=None, self_check: str = "refuse") -> dict:
     """Calibrate every band of a scene against its calibrated reference band.
 
     Parameters
@@ -72,11 +73,15 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
         GCP table of the reference band (as given to ``gcpcal calibrate``).
     progress : callable(str), optional
         Receives progress messages.
+    self_check : {"refuse", "warn"}
+        For a vendor product whose model disagrees with its own statements: refuse, or proceed
+        and record the disagreement (``product_check``, ``warnings``) in the summary.
 
     Returns
     -------
     dict
-        The summary written to ``relative.summary.json`` (``success``, ``bands``, ``seconds``).
+        The summary written to ``relative.summary.json`` (``success``, ``bands``,
+        ``product_check``, ``seconds``) with ``warnings``.
 
     Raises
     ------
@@ -92,7 +97,7 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     calibrated, cal_path, warning = open_usable_calibration(calibration, command="relative")  # refuses a failed one
     inputs = [scene_path, calibration_input(calibration), cal_path, dem_path, geoid, gcps_path]
     with staged_folder(out_dir, ".relative-", inputs=inputs) as stage:  # checks the output path first
-        scene, reference_band = _open_scene(scene_path, calibrated, cal_path, reference_band)
+        scene, reference_band = _open_scene(scene_path, calibrated, cal_path, reference_band, self_check)
         dem = open_dem(dem_path, dem_datum, geoid, model=calibrated)  # tiles: only under the scene
         check_dem_footprint(dem, *footprint_sample_lonlat(calibrated, float(np.mean(dem.height_range_m))))
         images = _LazyBands(scene)  # the reference band and one other band in memory at a time
@@ -106,14 +111,14 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
         report.update({"scene": str(scene_path), "calibration": str(cal_path), "dem": str(dem_path)})
         result.model.calibration = _output_status(result, calibrated.calibration)
         summary = _write_outputs(stage, Path(out_dir), scene, result, report, reference_band, t0)
-    return {"warnings": [warning] if warning else []} | summary
+    return summary | {"warnings": ([warning] if warning else []) + summary.get("warnings", [])}
 
 
-def _open_scene(scene_path, calibrated, cal_path, reference_band):
+def _open_scene(scene_path, calibrated, cal_path, reference_band, self_check):
     """The LAB scene, checked against the calibrated model, and the reference band."""
     from sensor_models.readers import open_scene
 
-    scene = open_scene(scene_path)
+    scene = open_scene(scene_path, self_check=self_check)
     if scene.interior_layout != "per_array":
         raise InputError("relative calibration needs a push-broom scene manifest", path=str(scene_path))
     _same_scene(scene, calibrated, str(cal_path))
@@ -134,7 +139,7 @@ def _write_outputs(stage: Path, out_dir: Path, scene, result, report: dict, refe
     doc["name"] = (scene.name or "scene") + " (calibrated, band-to-band)"
     (stage / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     (stage / "relative.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
-    summary = _summary(result, reference_band, time.perf_counter() - t0)
+    summary = record_product_check(_summary(result, reference_band, time.perf_counter() - t0), scene)
     (stage / "relative.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     return summary
 

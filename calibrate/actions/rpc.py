@@ -98,11 +98,11 @@ def _targets(model, band, ccd):
     return [(model.detector_view(band, i), a.name, a.first_col) for i, a in enumerate(arrays)]
 
 
-def _open_inputs(model_path, band, image):
+def _open_inputs(model_path, band, image, self_check):
     """The model (cropped to its raster when that is a crop of the scene), its band and raster."""
     from sensor_models.readers import open_scene
 
-    model = open_scene(model_path, image=image, band=band)  # a raster with its RPC, or a crop, too
+    model = open_scene(model_path, image=image, band=band, self_check=self_check)  # a raster with its RPC, too
     band = band or model.reference_band
     try:
         raster = scene_raster(model, band)
@@ -112,7 +112,7 @@ def _open_inputs(model_path, band, image):
 
 
 def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None, height_range=None, band=None,
-             ccd=None, image=None) -> dict:
+             ccd=None, image=None, self_check: str = "refuse") -> dict:
     """Fit and write the RPC(s) of a model (see the module docstring for what ``out_path`` gets).
 
     Parameters
@@ -133,6 +133,9 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
     image : str or Path, optional
         The scene raster (default: the manifest's raster of the band); a crop with a pixel
         geotransform crops the model, as ``gcpcal match --image`` does.
+    self_check : {"refuse", "warn"}
+        For a vendor product whose model disagrees with its own statements: refuse, or proceed
+        and record the disagreement (``product_check``, ``warnings``) in the summary.
 
     Returns
     -------
@@ -156,7 +159,7 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
         check_output_folder(out, inputs=inputs)
     else:
         check_output_files(out, summary_path, inputs=inputs)
-    model, band, raster = _open_inputs(model_path, band, image)
+    model, band, raster = _open_inputs(model_path, band, image, self_check)
     warning = require_usable(model, model_path, command="rpc")
     height_range, coverage = _height_range(model, dem_path, dem_datum, geoid, height_range)
     targets = _targets(model, band, ccd)

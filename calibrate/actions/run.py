@@ -32,7 +32,7 @@ import numpy as np
 from calibrate.actions._io import staged_output
 from calibrate.actions.calibrate import calibrate_scene
 from calibrate.actions.match import match_scene
-from calibrate.actions._status import FailedCalibrationError, require_usable, status_fields
+from calibrate.actions._status import FailedCalibrationError, record_product_check, require_usable, status_fields
 from calibrate.actions.stars import read_star_inputs, stars_sequence
 from gcpmatch.options import MatchOptions
 from sensor_models.errors import GcpcalError, InputError
@@ -70,11 +70,11 @@ def gcp_coverage(row, col, image_shape, cells: int = 4) -> float:
     return float(np.unique(i * cells + j).size / cells**2)
 
 
-def _match(scene_path, gcp_file, *, dom_path, dem_path, dem_datum, geoid, spacing_px):
+def _match(scene_path, gcp_file, *, dom_path, dem_path, dem_datum, geoid, spacing_px, self_check):
     """Match the scene; return ``(match summary, failure message or None)``."""
     try:
         match = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=gcp_file, geoid=geoid,
-                            dem_datum=dem_datum, options=MatchOptions(spacing_px=spacing_px))
+                            dem_datum=dem_datum, options=MatchOptions(spacing_px=spacing_px), self_check=self_check)
         return match, None
     except GcpcalError as exc:
         if isinstance(exc, InputError) and not Path(gcp_file).with_suffix(".summary.json").exists() and \
@@ -145,7 +145,7 @@ def _own_status(out_dir: Path, summary: dict) -> dict:
 @staged_output("out_dir", inputs=("scene_path", "dom_path", "dem_path", "geoid", "star_frames"), prefix=".run-")
 def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_datum=None, geoid=None,
               min_gcps: int = MIN_GCPS, min_coverage: float = MIN_COVERAGE, spacing_px: int = 16,
-              progress=None) -> dict:
+              progress=None, self_check: str = "refuse") -> dict:
     """Match, decide, calibrate (see the module docstring).
 
     Parameters
@@ -171,11 +171,15 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
         Matching window spacing, pixels.
     progress : callable(str), optional
         Receives progress messages.
+    self_check : {"refuse", "warn"}
+        For a vendor product whose model disagrees with its own statements: refuse, or proceed
+        and record the disagreement (``product_check``, ``warnings``) in every summary.
 
     Returns
     -------
     dict
-        The summary written to ``run.summary.json`` (``path``, ``reason``, ``success``, ...).
+        The summary written to ``run.summary.json`` (``path``, ``reason``, ``success``,
+        ``product_check``, ...).
     """
     from sensor_models.atomic import atomic_write_text
     from sensor_models.readers import open_scene
@@ -183,20 +187,20 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
     t0 = time.perf_counter()
     step = progress or (lambda m: None)
     out_dir = Path(out_dir)  # the staging folder (staged_output)
-    model = open_scene(scene_path)
+    model = open_scene(scene_path, self_check=self_check)
     if star_frames is not None:  # frames of another camera are refused before any work
         read_star_inputs(star_frames, scene_model=model, scene_source=scene_path)
     out_dir.mkdir(parents=True, exist_ok=True)
     gcp_file = out_dir / "gcps.csv"
     step("matching the scene against the DOM")
     match, failure = _match(scene_path, gcp_file, dom_path=dom_path, dem_path=dem_path, dem_datum=dem_datum,
-                            geoid=geoid, spacing_px=spacing_px)
+                            geoid=geoid, spacing_px=spacing_px, self_check=self_check)
     enough, reason, n_gcps, coverage = _decide(model, gcp_file, match, failure, min_gcps, min_coverage)
     summary = {"kind": "gcpcal.run", "scene": str(scene_path), "gcps": n_gcps, "coverage": coverage,
                "cloud_fraction": match.get("cloud_fraction"), "reason": reason}
     if enough:
         step("calibrating from the GCPs")
-        result = calibrate_scene(scene_path, gcp_file, out_dir / "calibration", report=True)
+        result = calibrate_scene(scene_path, gcp_file, out_dir / "calibration", report=True, self_check=self_check)
         summary.update(path="gcps", success=result["success"], message=result["message"],
                        check_rmse_px=result["check_rmse_px"], model="calibration/" + result["model"])
     elif star_frames is not None:
@@ -209,6 +213,7 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
         summary.update(path=None, success=False,
                        message=f"cannot calibrate: {reason}, and no star frames were given (--star-frames)")
     summary.update(_own_status(out_dir, summary))
+    record_product_check(summary, model)
     summary["seconds"] = time.perf_counter() - t0
     atomic_write_text(out_dir / "run.summary.json", json.dumps(summary, indent=1, default=str) + "\n")
     return summary

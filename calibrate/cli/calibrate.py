@@ -13,7 +13,7 @@ import click
 from calibrate.actions.calibrate import calibrate_scene
 from calibrate.cli._errors import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import echo_json, exit_with_status, json_option, out_dir_option
+from calibrate.cli.options import accept_product_disagreement_option, echo_json, echo_warnings, exit_with_status, json_option, out_dir_option
 from calibrate.config import ATTITUDE_MODES, CALIBRATION_SCHEMES, ROBUST_LOSSES, CalibrationOptions
 
 __all__ = ["command"]
@@ -41,10 +41,11 @@ _EXIT_OF_STATUS = {"calibrated": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXI
 @click.option("--band", help="Band of GCPs that name none (default: the reference band).")
 @click.option("--image", type=click.Path(dir_okay=False), help="Raster the GCPs were measured in, when it is a crop of SCENE.")
 @click.option("--no-report", is_flag=True, help="Skip report.html and its figures.")
+@accept_product_disagreement_option
 @json_option
 @click.pass_context
 def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, attitude, reference_sigma_m, reference_field_m, band,
-            image, no_report, as_json):
+            image, no_report, as_json, self_check):
     """Calibrate SCENE's model from GCPs; write calibration.json, the calibrated model and report.html.
 
     SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
@@ -58,7 +59,8 @@ def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, attitude, refer
                                  reference_field_m=_pair(reference_field_m, "--reference-field-m"))
     with stage_progress(ctx, "gcpcal calibrate", as_json) as progress:
         summary = calibrate_scene(scene_path, gcps_path, out_dir, options=options, band=band, image=image,
-                                  report=not no_report, progress=progress.message)
+                                  report=not no_report, progress=progress.message, self_check=self_check)
+    echo_warnings(summary)
     if as_json:
         echo_json(summary)
     else:

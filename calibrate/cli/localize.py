@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.localize import csv_lines, localize_points
-from calibrate.cli.options import (add_options, constant_height_option, dem_options, echo_json, echo_warnings,
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, constant_height_option, dem_options, echo_json, echo_warnings,
                                    float_list, json_option, one_height_source)
 from sensor_models.errors import InputError
 
@@ -53,9 +53,10 @@ def _points(rows, cols, lon, lat, h_text, csv_path, inverse):
 @add_options(dem_options)
 @click.option("--band", help="Band (multi-band models; default: the reference band).")
 @click.option("--out", "out_path", type=click.Path(dir_okay=False), help="Write the results as CSV (plus a .summary.json); - writes the CSV on standard output.")
+@accept_product_disagreement_option
 @json_option
 def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height, dem_path, dem_datum, geoid, band,
-            out_path, as_json):
+            out_path, as_json, self_check):
     """Localize points through MODEL, image -> ground or ground -> image.
 
     Direct: --rows/--cols (or --csv with row,col) and --height or --dem. Inverse: --lon/--lat/--h
@@ -74,7 +75,7 @@ def command(model_path, rows, cols, lon, lat, h_text, csv_path, inverse, height,
     if one_height_source(height=height, dem=dem_path) is None and direction == "direct":
         raise click.UsageError("direct localization needs exactly one of --height and --dem")
     summary = localize_points(model_path, points, direction=direction, height=height, dem_path=dem_path,
-                              dem_datum=dem_datum, geoid=geoid, band=band, out_path=out_path)
+                              dem_datum=dem_datum, geoid=geoid, band=band, out_path=out_path, self_check=self_check)
     echo_warnings(summary)
     table = summary["results"]
     if out_path == "-":

@@ -8,7 +8,7 @@ from calibrate.actions.match import match_scene
 from calibrate.config import MatchOptions
 from gcpmatch.options import SIGMA_MODELS
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import add_options, dem_options, dom_options, echo_json, json_option
+from calibrate.cli.options import accept_product_disagreement_option, add_options, dem_options, dom_options, echo_json, echo_warnings, json_option
 from sensor_models.dom_inputs import ASSUMED_REFERENCE_SIGMA_M
 from sensor_models.errors import InputError
 
@@ -45,11 +45,12 @@ __all__ = ["command"]
                    f"{ASSUMED_REFERENCE_SIGMA_M:.1f} m); used by --sigma-model window.")
 @click.option("--threads", type=click.IntRange(min=0), default=MatchOptions.threads, show_default=True,
               help="Threads for the reference chips, FFTs and OpenCV; 0: every core. The GCPs do not depend on it.")
+@accept_product_disagreement_option
 @json_option
 @click.pass_context
 def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_path, geotiff_path, band, image,
             mask_path, check_fraction, window, spacing, max_offset, backend, sigma_model, reference_sigma_m, threads,
-            as_json):
+            as_json, self_check):
     """Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation).
 
     SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
@@ -64,7 +65,9 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpk
     with stage_progress(ctx, "gcpcal match", as_json) as progress:
         summary = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=out_path, geoid=geoid,
                               dem_datum=dem_datum, band=band, image=image, mask_path=mask_path, gpkg_path=gpkg_path,
-                              geotiff_path=geotiff_path, options=options, progress=progress.message)
+                              geotiff_path=geotiff_path, options=options, progress=progress.message,
+                              self_check=self_check)
+    echo_warnings(summary)
     if as_json:
         echo_json(summary)
         return

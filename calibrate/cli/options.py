@@ -15,7 +15,7 @@ import numpy as np
 from calibrate._json import json_default
 from sensor_models.errors import InputError
 
-__all__ = ["add_options", "apply_verbosity", "constant_height_option", "dem_options", "dom_options", "echo_json",
+__all__ = ["accept_product_disagreement_option", "add_options", "apply_verbosity", "constant_height_option", "dem_options", "dom_options", "echo_json",
            "echo_warnings", "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source",
            "out_dir_option", "progress_printer", "quiet_of", "verbosity_options"]
 
@@ -135,6 +135,37 @@ def dom_options(func):
         return func(*args, **kwargs)
 
     return add_options(_dom_option_list())(wrapper)
+
+
+def accept_product_disagreement_option(func):
+    """Decorator: ``--accept-product-disagreement``, handed to the command as ``self_check``.
+
+    A vendor product (SPOT 1-5 DIMAP, DIMAP v2, DigitalGlobe XML) whose rigorous model
+    disagrees with the product's own corners or RPC beyond its reader's tolerance is refused
+    (exit 1, one line naming the product and the disagreement); with the flag the command goes
+    on and records the disagreement in its summary (``product_check``, ``warnings``). The
+    command receives ``self_check="warn"`` with the flag, ``"refuse"`` without.
+
+    Parameters
+    ----------
+    func : callable
+        The command's callback (taking ``self_check``).
+
+    Returns
+    -------
+    callable
+        The callback with the option attached.
+    """
+    @functools.wraps(func)
+    def wrapper(*args, accept_product_disagreement, **kwargs):
+        kwargs["self_check"] = "warn" if accept_product_disagreement else "refuse"
+        return func(*args, **kwargs)
+
+    return click.option(
+        "--accept-product-disagreement", is_flag=True,
+        help="Open a vendor product (.DIM, DIMAP v2 or DigitalGlobe .XML) even when its model disagrees with the "
+             "product's own corners or RPC beyond the reader's tolerance; the summary records the disagreement "
+             "(docs/dimap.md, docs/worldview.md).")(wrapper)
 
 
 #: ``-v/--verbose`` (count) and ``-q/--quiet``: on the group and, the same, on every command.

@@ -6,7 +6,7 @@ import click
 
 from calibrate.actions.ortho import ortho_scene
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import add_options, dem_options, echo_json, echo_warnings, json_option
+from calibrate.cli.options import accept_product_disagreement_option, add_options, dem_options, echo_json, echo_warnings, json_option
 from calibrate.config import ORTHO_RESAMPLING, OrthoOptions
 from sensor_models.errors import InputError
 
@@ -30,10 +30,11 @@ __all__ = ["command"]
 @click.option("--image", type=click.Path(dir_okay=False), help="Scene raster (default: the raster SCENE lists, names or has beside it).")
 @click.option("--block", type=click.IntRange(min=64), default=OrthoOptions.block, show_default=True,
               help="Output pixels per block side (memory grows with its square, not with the output).")
+@accept_product_disagreement_option
 @json_option
 @click.pass_context
 def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_path, band, crs, resolution, resampling,
-            image, block, as_json):
+            image, block, as_json, self_check):
     """Orthorectify a band of SCENE on the DEM into a Cloud-Optimized GeoTIFF.
 
     The geometry comes from --calibration (the calibrated model) when given, the pixels from
@@ -49,7 +50,8 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_path, 
     options = OrthoOptions(crs=crs, resolution_m=resolution, resampling=resampling, block=block)
     with stage_progress(ctx, "gcpcal ortho: blocks", as_json) as progress:
         summary = ortho_scene(scene_path, out_path, dem_path=dem_path, calibration=calibration, dem_datum=dem_datum,
-                              geoid=geoid, band=band, image=image, options=options, progress=progress.count)
+                              geoid=geoid, band=band, image=image, options=options, progress=progress.count,
+                              self_check=self_check)
     echo_warnings(summary)
     if as_json:
         echo_json(summary)

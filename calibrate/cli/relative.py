@@ -7,7 +7,7 @@ import click
 from calibrate.actions.relative import relative_calibration_stage
 from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, exit_with_status, json_option,
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, dem_options, echo_json, echo_warnings, exit_with_status, json_option,
                                    out_dir_option)
 from calibrate.config import ATTITUDE_MODES, ROBUST_LOSSES, CalibrationOptions
 from sensor_models.errors import InputError
@@ -93,10 +93,11 @@ def parse_rows(text: str | None):
                    "calibration.json beside the calibrated manifest).")
 @click.option("--attitude", type=click.Choice(ATTITUDE_MODES), default=CalibrationOptions.attitude, show_default=True,
               help="Candidate bases of the parallax path, chosen by BIC (static: no parallax).")
+@accept_product_disagreement_option
 @json_option
 @click.pass_context
 def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, reference_band, window_text, spacing,
-            rows_text, robust, parallax, gcps_path, attitude, as_json):
+            rows_text, robust, parallax, gcps_path, attitude, as_json, self_check):
     """Calibrate every band of SCENE against its calibrated reference band (band-to-band).
 
     Tie points between the reference band and each other band (dense phase correlation in raw
@@ -119,7 +120,7 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
             scene_path, calibration, dem_path, out_dir, reference_band=reference_band, dem_datum=dem_datum,
             geoid=geoid, window_px=parse_window(window_text), spacing_px=spacing, rows=parse_rows(rows_text),
             options=CalibrationOptions(robust=robust, attitude=attitude), parallax=parallax, gcps_path=gcps_path,
-            progress=progress.message)
+            progress=progress.message, self_check=self_check)
     echo_warnings(summary)
     if as_json:
         echo_json(summary)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.rpc import RpcOutputUsageError, fit_rpcs
-from calibrate.cli.options import (add_options, dem_options, echo_json, echo_warnings, height_range_option, json_option,
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, dem_options, echo_json, echo_warnings, height_range_option, json_option,
                                    one_height_source)
 
 __all__ = ["command"]
@@ -23,8 +23,9 @@ __all__ = ["command"]
 @height_range_option
 @click.option("--band", help="Band (multi-band models; default: the reference band).")
 @click.option("--ccd", help="CCD name: one RPC for that CCD's columns (then --out may be a file).")
+@accept_product_disagreement_option
 @json_option
-def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_range, band, ccd, as_json):
+def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_range, band, ccd, as_json, self_check):
     """Fit an RPC to MODEL over its image and height range and write it.
 
     --out is written exactly. One RPC (an RPC or staring-camera model, a one-CCD band, or --ccd)
@@ -46,7 +47,7 @@ def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_rang
     one_height_source(height_range=height_range, dem=dem_path)
     try:
         summary = fit_rpcs(model_path, out_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
-                           height_range=height_range, band=band, ccd=ccd, image=image)
+                           height_range=height_range, band=band, ccd=ccd, image=image, self_check=self_check)
     except RpcOutputUsageError as exc:
         raise click.UsageError(str(exc)) from None
     echo_warnings(summary)

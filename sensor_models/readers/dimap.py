@@ -897,7 +897,7 @@ def fit_look_polynomials(look: DimapLookAngles, n_cols: int, *, max_residual_px:
 # the model
 
 
-def read_dimap(path, *, band: int | None = None, attitude: str = "measured"):
+def read_dimap(path, *, band: int | None = None, attitude: str = "measured", self_check: str = "refuse"):
     """Build a :class:`~sensor_models.pushbroom.PushbroomModel` from a SPOT 1-5 DIMAP file.
 
     Parameters
@@ -909,6 +909,10 @@ def read_dimap(path, *, band: int | None = None, attitude: str = "measured"):
         a model band named ``"B<index>"``; the first is the reference band).
     attitude : {"measured", "nominal"}
         The file's attitude or the nominal one (see :func:`body_to_itrf`).
+    self_check : {"refuse", "warn"}
+        What to do when the model misses the file's frame vertices and scene centre beyond the
+        tolerance (:func:`~sensor_models.readers.product_checks.check_dimap`): raise, or return
+        the model with the disagreement recorded in ``model.product_check``.
 
     Returns
     -------
@@ -916,40 +920,56 @@ def read_dimap(path, *, band: int | None = None, attitude: str = "measured"):
         ITRF orbit, body -> ITRF attitude samples every ``ATTITUDE_STEP_S`` over the scene
         plus a margin, identity installation, one CCD per band spanning all columns, with
         ``tan psi`` polynomials fitted to the detector directions (see
-        :func:`fit_look_polynomials`). ``model.dimap_fits`` holds the fits per band.
+        :func:`fit_look_polynomials`). ``model.dimap_fits`` holds the fits per band,
+        ``model.product_check`` the :class:`~sensor_models.readers.self_check.ProductCheck`.
+
+    Raises
+    ------
+    ManifestError
+        Malformed metadata (:func:`parse_dimap`) or no look angles for ``band``.
+    ProductDisagreementError
+        The model disagrees with the frame (``self_check="refuse"``).
     """
-    from sensor_models.ephemeris import Attitude
-    from sensor_models.pushbroom import PushbroomModel
-    from sensor_models.pushbroom_types import CcdLook, LineTiming
+    from sensor_models.readers.product_checks import check_dimap
+    from sensor_models.readers.self_check import check_policy, enforce
 
     if attitude not in ATTITUDE_MODES:
         raise InputError(f"must be one of {ATTITUDE_MODES}, got {attitude!r}", field="attitude")
+    check_policy(self_check)
     meta = parse_dimap(path)
-    try:
-        orbit = dimap_orbit(meta)
-        seconds = _attitude_seconds(meta)
-        rot = body_to_itrf(meta, seconds, orbit, attitude=attitude)
-        attitude = Attitude(seconds, Rotation.from_matrix(rot).as_quat(), frame="itrf")
-        timing = LineTiming(meta.reference_row, 0.0, meta.line_period_s)
-    except InputError as exc:
-        if isinstance(exc, ManifestError):
-            raise
-        raise ManifestError(exc.reason, path=meta.path, field=exc.field) from None
     looks = meta.look_angles
     if band is not None:
         looks = tuple(lk for lk in looks if lk.band_index == band)
         if not looks:
             raise ManifestError(f"no look angles for BAND_INDEX {band}", path=meta.path,
                                 field=f"{_ROOT}/Data_Strip/Sensor_Configuration/Instrument_Look_Angles_List")
-    bands, fits = {}, {}
-    for lk in looks:
-        fit = fit_look_polynomials(lk, meta.n_cols)
-        name = f"B{lk.band_index}"
-        fits[name] = fit
-        bands[name] = [CcdLook("ccd1", 0, meta.n_cols, fit.tan_psi_x, fit.tan_psi_y)]
+    fits = {f"B{lk.band_index}": fit_look_polynomials(lk, meta.n_cols) for lk in looks}
+    model = _build_model(meta, fits, attitude)
+    model.product_check = enforce(check_dimap(model, meta, attitude, self_check,
+                                              lambda other: _build_model(meta, fits, other)))
+    return model
+
+
+def _build_model(meta: DimapMetadata, fits: dict, attitude: str):
+    """The push-broom model of parsed DIMAP metadata with fitted look polynomials and an attitude mode."""
+    from sensor_models.ephemeris import Attitude
+    from sensor_models.pushbroom import PushbroomModel
+    from sensor_models.pushbroom_types import CcdLook, LineTiming
+
+    try:
+        orbit = dimap_orbit(meta)
+        seconds = _attitude_seconds(meta)
+        rot = body_to_itrf(meta, seconds, orbit, attitude=attitude)
+        att = Attitude(seconds, Rotation.from_matrix(rot).as_quat(), frame="itrf")
+        timing = LineTiming(meta.reference_row, 0.0, meta.line_period_s)
+    except InputError as exc:
+        if isinstance(exc, ManifestError):
+            raise
+        raise ManifestError(exc.reason, path=meta.path, field=exc.field) from None
+    bands = {name: [CcdLook("ccd1", 0, meta.n_cols, fit.tan_psi_x, fit.tan_psi_y)] for name, fit in fits.items()}
     model = PushbroomModel(
         orbit=orbit,
-        attitude=attitude,
+        attitude=att,
         line_timing=timing,
         bands=bands,
         n_rows=meta.n_rows,

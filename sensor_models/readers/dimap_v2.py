@@ -42,6 +42,7 @@ __all__ = [
     "DimapV2Band",
     "DimapV2Metadata",
     "band_look",
+    "build_dimap_v2",
     "extend_attitude",
     "extend_orbit",
     "is_dimap_v2",
@@ -260,7 +261,7 @@ def band_look(band: DimapV2Band):
                    tan_psi_x=padded(band.ylos), tan_psi_y=-padded(band.xlos))
 
 
-def read_dimap_v2(path, *, band: str | None = None):
+def read_dimap_v2(path, *, band: str | None = None, rpc=None, self_check: str = "refuse"):
     """Build a :class:`~sensor_models.pushbroom.PushbroomModel` from a DIMAP v2 sensor product.
 
     Parameters
@@ -270,6 +271,15 @@ def read_dimap_v2(path, *, band: str | None = None):
     band : str, optional
         ``BAND_ID`` to keep (default: every ``Band_Calibration``, each a model band named by
         its ``BAND_ID``; the first is the reference band).
+    rpc : str or Path or RpcModel, optional
+        The product's RPC, to compare the model with (any file
+        :meth:`RpcModel.read <sensor_models.rpc.RpcModel.read>` reads, in its pixel convention).
+        Default: the file the product names (``Rational_Function_Model/.../COMPONENT_PATH``)
+        when it lies beside the metadata in such a form; else only the ``Dataset_Extent``.
+    self_check : {"refuse", "warn"}
+        What to do when the model misses the product's ``Dataset_Extent`` (or its RPC) beyond
+        the tolerance (:func:`~sensor_models.readers.product_checks.check_dimap_v2`): raise, or
+        return the model with the disagreement recorded in ``model.product_check``.
 
     Returns
     -------
@@ -278,17 +288,43 @@ def read_dimap_v2(path, *, band: str | None = None):
         beyond the image), identity installation, line ``r`` at ``(r - 0.5) * LINE_PERIOD``
         from ``Time_Range/START``, one array per band (:func:`band_look`).
         ``model.dimap_v2_metadata`` holds the parsed file and ``model.dimap_v2_extension_s``
-        the orbit extension (before, after) in seconds.
+        the orbit extension (before, after) in seconds, ``model.product_check`` the
+        :class:`~sensor_models.readers.self_check.ProductCheck`.
 
     Raises
     ------
     ManifestError
         The file is malformed (see :func:`parse_dimap_v2`) or names no band ``band``.
+    ProductDisagreementError
+        The model disagrees with the product (``self_check="refuse"``).
+    """
+    from sensor_models.readers.self_check import check_policy
+
+    check_policy(self_check)
+    return build_dimap_v2(parse_dimap_v2(path), band=band, rpc=rpc, self_check=self_check)
+
+
+def build_dimap_v2(meta: DimapV2Metadata, *, band: str | None = None, rpc=None, self_check: str = "refuse"):
+    """The model of parsed DIMAP v2 metadata, checked against the product (see :func:`read_dimap_v2`).
+
+    Parameters
+    ----------
+    meta : DimapV2Metadata
+        From :func:`parse_dimap_v2`.
+    band, rpc, self_check
+        As :func:`read_dimap_v2`.
+
+    Returns
+    -------
+    PushbroomModel
+        As :func:`read_dimap_v2`.
     """
     from sensor_models.pushbroom import PushbroomModel
     from sensor_models.pushbroom_types import LineTiming
+    from sensor_models.readers.product_checks import check_dimap_v2
+    from sensor_models.readers.self_check import check_policy, enforce
 
-    meta = parse_dimap_v2(path)
+    check_policy(self_check)
     chosen = meta.bands
     if band is not None:
         chosen = tuple(b for b in meta.bands if b.band_id == band)
@@ -315,4 +351,19 @@ def read_dimap_v2(path, *, band: str | None = None):
         raise ManifestError(exc.reason, path=meta.path, field=exc.field) from None
     model.dimap_v2_metadata = meta
     model.dimap_v2_extension_s = extension
+    model.product_check = enforce(check_dimap_v2(model, meta, self_check, rpc=_product_rpc(meta, rpc)))
     return model
+
+
+def _product_rpc(meta: DimapV2Metadata, rpc):
+    """The RPC to compare with: the one given, or the product's own when gcpcal reads its form."""
+    from sensor_models.rpc import RpcModel
+
+    if rpc is not None:
+        return rpc if isinstance(rpc, RpcModel) else RpcModel.read(rpc)
+    if not meta.rpc_href:
+        return None
+    path = Path(meta.path).parent / meta.rpc_href
+    if path.is_file() and path.name.lower().endswith((".geom", ".rpb", "_rpc.txt")):
+        return RpcModel.read(path)
+    return None

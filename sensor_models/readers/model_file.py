@@ -18,7 +18,7 @@ _XML_READERS = {
 }
 
 
-def open_model(path, **kwargs):
+def open_model(path, *, self_check: str = "refuse", **kwargs):
     """Open a sensor model from any supported file (see the module table).
 
     Parameters
@@ -26,6 +26,13 @@ def open_model(path, **kwargs):
     path : str or Path
         The model file; its kind is told by its name (``.json``, ``.dim``, ``.xml`` by its root
         element, anything else RPC).
+    self_check : {"refuse", "warn"}
+        For a vendor product (``.DIM``, DIMAP v2 or DigitalGlobe ``.XML``): what its reader does
+        when the model disagrees with the product's own corners or RPC beyond the tolerance
+        (:mod:`sensor_models.readers.self_check`): raise
+        :class:`~sensor_models.errors.ProductDisagreementError`, or return the model with the
+        disagreement in ``model.product_check``. Manifests and RPC files state nothing about
+        themselves to check: their models get ``product_check = None``.
     **kwargs
         Passed to the reader of that kind (:func:`~sensor_models.readers.scene.read_manifest`,
         :func:`~sensor_models.readers.dimap.read_dimap`, :meth:`RpcModel.read
@@ -42,23 +49,29 @@ def open_model(path, **kwargs):
         If the file does not exist or its kind is not recognized (naming the file); for an
         ``.xml`` product whose reader is not installed, "reader not available".
     """
+    from sensor_models.readers.self_check import check_policy
+
+    check_policy(self_check)
     path = Path(path)
     if not path.exists():
         raise InputError("no such file", path=str(path))
     name = path.name.lower()
-    if name.endswith(".json"):
-        from sensor_models.readers.scene import read_manifest
-
-        return read_manifest(path, **kwargs)
     if name.endswith(".dim"):
         from sensor_models.readers.dimap import read_dimap
 
-        return read_dimap(path, **kwargs)
+        return read_dimap(path, self_check=self_check, **kwargs)
     if name.endswith(".xml"):
-        return _read_vendor_xml(path, **kwargs)
-    from sensor_models.rpc import RpcModel
+        return _read_vendor_xml(path, self_check=self_check, **kwargs)
+    if name.endswith(".json"):
+        from sensor_models.readers.scene import read_manifest
 
-    return RpcModel.read(path, **kwargs)
+        model = read_manifest(path, **kwargs)
+    else:
+        from sensor_models.rpc import RpcModel
+
+        model = RpcModel.read(path, **kwargs)
+    model.product_check = None
+    return model
 
 
 def xml_root(path) -> str:

@@ -44,7 +44,7 @@ RASTER_SUFFIXES = (".tif", ".TIF", ".tiff", ".TIFF", ".NTF", ".ntf", ".jp2", ".J
 _MODEL_SUFFIXES = (".json", ".dim", ".xml", ".geom", ".rpb")
 
 
-def open_scene(path, *, image=None, band=None, **kwargs):
+def open_scene(path, *, image=None, band=None, self_check: str = "refuse", **kwargs):
     """The sensor model of a SCENE with the raster of its pixels (see the module table).
 
     Parameters
@@ -57,6 +57,10 @@ def open_scene(path, *, image=None, band=None, **kwargs):
         scene crops the model.
     band : str, optional
         Band ``image`` is for (default: the model's reference band).
+    self_check : {"refuse", "warn"}
+        For a vendor product, what to do when its model disagrees with the product's own
+        statements (:func:`~sensor_models.readers.open_model`); the result is
+        ``model.product_check`` (None for manifests and RPCs).
     **kwargs
         Passed to the model reader (:func:`~sensor_models.readers.open_model`).
 
@@ -81,18 +85,27 @@ def open_scene(path, *, image=None, band=None, **kwargs):
     if not path.exists():
         raise InputError("no such file", path=str(path))
     if _is_model_file(path):
-        model = open_model(path, **kwargs)
+        model = open_model(path, self_check=self_check, **kwargs)
         if path.name.lower().endswith(".json"):  # a manifest lists its own rasters
             model.raster_candidates = ()
             rasters = dict(getattr(model, "rasters", None) or {})
-            return _with_image(model, rasters, image, band, check_shape=image is not None)
+            return _keep_check(_with_image(model, rasters, image, band, check_shape=image is not None), model)
         rasters, candidates = _rasters_of_model_file(path, model)
     else:
+        from sensor_models.readers.self_check import check_policy
+
+        check_policy(self_check)
         model = _model_of_raster(path, **kwargs)
         rasters, candidates = _single_raster(model, path), ()
     model.raster_candidates = () if rasters else tuple(str(c) for c in candidates)
     model.raster_tiles = len(candidates) if _names_tiles(path) else 0
-    return _with_image(model, rasters, image, band, check_shape=True)
+    return _keep_check(_with_image(model, rasters, image, band, check_shape=True), model)
+
+
+def _keep_check(scene, opened):
+    """The scene (perhaps a crop of the opened model) with the opened model's ``product_check``."""
+    scene.product_check = getattr(opened, "product_check", None)
+    return scene
 
 
 def missing_raster_message(model, band) -> str:

@@ -604,7 +604,7 @@ def raster_paths(path) -> list[Path]:
 
 
 def read_worldview(path, *, band: str | None = None, aberration: bool = True, refraction: bool = True,
-                   refraction_height_m: float | None = None):
+                   refraction_height_m: float | None = None, self_check: str = "refuse"):
     """Build a rigorous :class:`~sensor_models.pushbroom.PushbroomModel` from a level-1B XML.
 
     Parameters
@@ -631,16 +631,37 @@ def read_worldview(path, *, band: str | None = None, aberration: bool = True, re
         samples (rotation spline) with the corrections folded in, identity installation,
         one CCD per band spanning ``NUMCOLUMNS``, cubic ``tan psi`` polynomials.
         ``model.worldview_metadata`` holds the parsed file and ``model.worldview_fold`` the
-        fold residuals (see :func:`~sensor_models.readers.worldview_los.build_model`).
+        fold residuals (see :func:`~sensor_models.readers.worldview_los.build_model`);
+        ``model.product_check`` the :class:`~sensor_models.readers.self_check.ProductCheck`.
+
+    Raises
+    ------
+    ManifestError
+        Malformed metadata (:func:`parse_worldview`); a ``SATID`` that is not one of
+        :data:`~sensor_models.readers.product_checks.DIGITALGLOBE_SATELLITES`.
+    ProductDisagreementError
+        The model disagrees with the product's corners or RPB (``self_check="refuse"``), or
+        the product's attitude does not point the camera at the Earth (whatever the policy).
     """
+    from sensor_models.readers.product_checks import (DIGITALGLOBE_SATELLITES, check_worldview,
+                                                      check_worldview_pointing)
+    from sensor_models.readers.self_check import check_policy, enforce
     from sensor_models.readers.worldview_los import build_model
 
+    check_policy(self_check)
     meta = parse_worldview(path)
+    if meta.satellite not in DIGITALGLOBE_SATELLITES:
+        known = ", ".join(f"{k} ({v})" for k, v in DIGITALGLOBE_SATELLITES.items())
+        raise ManifestError(f"satellite {meta.satellite!r} is not one whose level-1B XML gcpcal reads ({known})",
+                            path=meta.path, field="isd/IMD/IMAGE/SATID")
     bands = meta.bands if band is None else (meta.band(band),)
+    check_worldview_pointing(meta)
     try:
-        return build_model(meta, bands, aberration=aberration, refraction=refraction,
-                           refraction_height_m=refraction_height_m)
+        model = build_model(meta, bands, aberration=aberration, refraction=refraction,
+                            refraction_height_m=refraction_height_m)
     except InputError as exc:
         if isinstance(exc, ManifestError) or exc.path is not None:
             raise
         raise ManifestError(exc.reason, path=meta.path, field=exc.field) from None
+    model.product_check = enforce(check_worldview(model, meta, self_check))
+    return model
