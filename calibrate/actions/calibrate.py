@@ -78,10 +78,13 @@ def options_from_match_summary(options: CalibrationOptions, gcps_path) -> Calibr
     if options.reference_sigma_m is not None:
         return options if options.reference_source else options.replace(reference_source="option")
     path = match_summary_path(gcps_path)
+    from sensor_models.errors import InputError
+    from sensor_models.readers.documents import load_json
+
     try:
-        acc = json.loads(path.read_text(encoding="utf-8")).get("reference_accuracy")
+        acc = load_json(path).get("reference_accuracy")
         sigma = (float(acc["east_m"]), float(acc["north_m"]))
-    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+    except (InputError, ValueError, TypeError, KeyError, AttributeError):
         return options  # no summary (a table from elsewhere or an older run): no reference term
     source = str(acc.get("source", "?")) + (" (assumed by the matcher)" if acc.get("assumed") else "")
     return options.replace(reference_sigma_m=sigma, reference_source=f"match summary {path.name}: {source}")

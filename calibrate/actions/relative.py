@@ -172,9 +172,11 @@ def _reference_gcps(gcps_path, cal_path: Path, model):
 
     if gcps_path is None:
         doc_path = Path(cal_path).parent / "calibration.json"
+        from sensor_models.readers.documents import load_json
+
         try:
-            named = json.loads(doc_path.read_text(encoding="utf-8")).get("gcp_file") if doc_path.is_file() else None
-        except (OSError, ValueError):
+            named = load_json(doc_path).get("gcp_file") if doc_path.is_file() else None
+        except (InputError, AttributeError):
             named = None
         if not named:
             return None, f"no GCP table: give --gcps (no gcp_file in {doc_path})"
