@@ -330,6 +330,7 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
               coarse_skip: bool = True) -> None:
     """Fill ``out`` (a row) step by step, so a failure keeps what was learnt before it."""
     from calibrate.accuracy import check_point_accuracy
+    from calibrate.actions._plausibility import check_dem_heights, check_dom_resolution
     from calibrate.from_gcps import points_of
     from gcpmatch.extract import extract_gcps, read_band
     from gcpmatch.options import MatchOptions
@@ -349,8 +350,10 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
             raise InputError(f"no such {what} file", path=str(p))
     image = read_band(model, band)
     dem = Dem.open(site.dem, vertical_datum=site.dem_datum, geoid=site.geoid)
+    check_dem_heights(dem, model, band=band)
     dom, _ = open_dom(DomSource(items=(str(site.dom),), band=site.dom_band,
                                 qa=() if site.dom_qa is None else (str(site.dom_qa),)))
+    check_dom_resolution(dom, model, band=band, source=site.dom)
     n_rows, n_cols = model.image_shape
     lon, lat, _ = model.image_to_ground([0.5 * n_rows], [0.5 * n_cols], dem=dem, band=band)
     out["center_lon_deg"], out["center_lat_deg"] = float(lon[0]), float(lat[0])

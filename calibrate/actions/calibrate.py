@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.actions._io import check_output_folder, staged_folder
+from calibrate.actions._plausibility import check_gcps_on_scene
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
 from calibrate.residual_layer import concatenate_layers, residual_layer, write_residual_layer
@@ -143,6 +144,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     t0 = time.perf_counter()
     check_output_folder(out_dir, inputs=[scene_path, gcps_path, image])  # before any work
     model, table = _read_inputs(scene_path, gcps_path, band, image)
+    implausible = check_gcps_on_scene(model, table.lon, table.lat, table.h, source=gcps_path, band=band)
     options = options_from_match_summary(options, gcps_path)
     say = progress or (lambda message: None)
     say(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
@@ -186,6 +188,8 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
             "residual_layer": "residuals.gpkg",
             "seconds": time.perf_counter() - t0,
         }
+        if implausible:
+            summary["implausible_accepted"] = implausible
         (tmp / "calibrate.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     return summary
 
