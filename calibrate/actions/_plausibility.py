@@ -5,8 +5,9 @@ reference orthoimage far coarser than the scene, the raster of another band, a G
 another scene. Each gives results that look like results (GCPs, a calibration), so each is
 refused here, before the work, in one line naming the file and the figure. Where a user can
 know better (a DEM of the sea floor, a coarse reference accepted knowingly) the commands'
-``--allow-implausible`` option turns the refusal into a warning on stderr: the CLI runs the
-stage inside :func:`accepting_implausible`, which every check consults when its ``allow`` is
+``--allow-implausible`` option turns the refusal into a warning (``gcpcal: warning: ...`` on
+stderr, and ``implausible_accepted`` in the summaries of ``match`` and ``calibrate``): the CLI runs
+the stage inside :func:`accepting_implausible`, which every check consults when its ``allow`` is
 None; a library caller passes ``allow=True`` or uses the same context manager.
 
 =====================================  =========================================================
@@ -29,7 +30,6 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-import logging
 import re
 from pathlib import Path
 
@@ -39,8 +39,6 @@ from sensor_models.errors import ImplausibleInputError
 
 __all__ = ["ALLOW_OPTION", "FOOTPRINT_MARGIN", "accepting_implausible", "MAX_DOM_GSD_RATIO", "PLAUSIBLE_HEIGHTS_M", "check_dem_heights",
            "check_dom_resolution", "check_gcps_on_scene", "check_scene_raster"]
-
-_log = logging.getLogger("gcpcal")
 
 #: The option that accepts an implausible input (a warning instead of the refusal).
 ALLOW_OPTION = "--allow-implausible"
@@ -75,7 +73,8 @@ FOOTPRINT_MARGIN = 0.5
 _MIN_GCPS_ON_SCENE = 0.5
 
 
-_ACCEPTING = contextvars.ContextVar("gcpcal_accepting_implausible", default=False)
+#: None: implausible inputs are refused; a list: they are accepted, and their warnings collected there.
+_ACCEPTED = contextvars.ContextVar("gcpcal_accepted_implausible", default=None)
 
 
 @contextlib.contextmanager
@@ -86,22 +85,30 @@ def accepting_implausible(allow: bool = True):
     ----------
     allow : bool
         Whether implausible inputs are accepted in the block.
+
+    Yields
+    ------
+    list of str
+        The warnings of the inputs accepted in the block (the CLI prints them at its end).
     """
-    token = _ACCEPTING.set(bool(allow))
+    accepted: list[str] = []
+    token = _ACCEPTED.set(accepted if allow else None)
     try:
-        yield
+        yield accepted
     finally:
-        _ACCEPTING.reset(token)
+        _ACCEPTED.reset(token)
 
 
 def _refuse_or_warn(message: str, *, path, allow: bool | None) -> list[str]:
-    """Raise the refusal, or (``allow``) log it and return it as the summary's warning."""
+    """Raise the refusal, or (``allow``) return it as a warning (also collected for the CLI)."""
+    accepted = _ACCEPTED.get()
     if allow is None:
-        allow = _ACCEPTING.get()
+        allow = accepted is not None
     if not allow:
         raise ImplausibleInputError(f"{message} ({ALLOW_OPTION} to proceed)", path=None if path is None else str(path))
     line = f"{path}: {message} (accepted: {ALLOW_OPTION})" if path is not None else message
-    _log.warning(line)
+    if accepted is not None:
+        accepted.append(line)
     return [line]
 
 

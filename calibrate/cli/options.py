@@ -157,8 +157,12 @@ def allow_implausible_option(func):
 
     @functools.wraps(func)
     def wrapper(*args, allow_implausible, **kwargs):
-        with accepting_implausible(allow_implausible):
-            return func(*args, **kwargs)
+        with accepting_implausible(allow_implausible) as accepted:
+            try:
+                return func(*args, **kwargs)
+            finally:  # also before an exit 1, 3 or 4: the user said yes to these inputs
+                for line in accepted:
+                    click.echo(f"gcpcal: warning: {line}", err=True)
 
     return click.option("--allow-implausible", "allow_implausible", is_flag=True,
                         help="Accept inputs whose figures a real one cannot have (DEM heights outside -500..9000 m, "
