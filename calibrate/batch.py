@@ -330,7 +330,7 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
               coarse_skip: bool = True) -> None:
     """Fill ``out`` (a row) step by step, so a failure keeps what was learnt before it."""
     from calibrate.accuracy import check_point_accuracy
-    from calibrate.actions._plausibility import check_dem_heights, check_dom_resolution
+    from calibrate.plausibility import check_dem_heights, check_dom_resolution
     from calibrate.from_gcps import points_of
     from gcpmatch.extract import extract_gcps, read_band
     from gcpmatch.options import MatchOptions

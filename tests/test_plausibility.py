@@ -3,7 +3,7 @@
 Legitimate inputs: the two demo fixtures (ideal and realistic HY-1C CZI scenes with their DOM
 and DEM) and the Pleiades tutorial pair on SRTM (``../shared/data``). Each check is bracketed:
 the same input moved just inside its limit passes, moved past it is refused
-(:mod:`calibrate.actions._plausibility`). The bad-input matrix (``test_bad_inputs.py``) proves
+(:mod:`calibrate.plausibility`). The bad-input matrix (``test_bad_inputs.py``) proves
 the refusals through every command.
 """
 
@@ -16,7 +16,7 @@ import pytest
 import rasterio
 from affine import Affine
 
-from calibrate.actions._plausibility import (MAX_DOM_GSD_RATIO, accepting_implausible, check_dem_heights,
+from calibrate.plausibility import (MAX_DOM_GSD_RATIO, accepting_implausible, check_dem_heights,
                                              check_dom_resolution, check_gcps_on_scene, check_scene_raster)
 from calibrate.cli import main
 from sensor_models.errors import ImplausibleInputError

@@ -83,7 +83,7 @@ def open_dem(dem_path, datum=None, geoid=None, *, model=None, band=None):
         under the scene's footprint (localized from -500 to 9000 m, plus half its size, at
         least 0.1 degree, on each side) is read. A single file is read whole, as before. The
         heights over the footprint are checked
-        (:func:`calibrate.actions._plausibility.check_dem_heights`).
+        (:func:`calibrate.plausibility.check_dem_heights`).
     band : str, optional
         Band of ``model`` whose footprint counts (default: its reference band).
 
@@ -101,7 +101,7 @@ def open_dem(dem_path, datum=None, geoid=None, *, model=None, band=None):
             bounds, margin = _footprint_box(model, band)
     dem = Dem.open(dem_path, vertical_datum=datum, geoid=geoid, bounds=bounds, margin_deg=margin)
     if model is not None:  # before any work: heights a terrain cannot have (a DEM in centimetres)
-        from calibrate.actions._plausibility import check_dem_heights
+        from calibrate.plausibility import check_dem_heights
 
         check_dem_heights(dem, model, band=band)
     return dem

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.actions._io import check_output_folder, staged_folder
-from calibrate.actions._plausibility import check_gcps_on_scene
+from calibrate.plausibility import check_gcps_on_scene
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
 from calibrate.residual_layer import concatenate_layers, residual_layer, write_residual_layer

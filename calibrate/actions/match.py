@@ -9,7 +9,7 @@ import numpy as np
 
 from calibrate.actions._io import check_output_files, open_dem, staged_files
 from calibrate.actions._l1a import scene_raster
-from calibrate.actions._plausibility import check_dom_resolution, check_scene_raster
+from calibrate.plausibility import check_dom_resolution, check_scene_raster
 from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
 from sensor_models.dom_inputs import dom_description, masked_fraction, open_dom, reference_accuracy

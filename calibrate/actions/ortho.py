@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
-from calibrate.actions._plausibility import check_dem_heights, check_scene_raster
+from calibrate.plausibility import check_dem_heights, check_scene_raster
 from calibrate.actions._status import open_usable_calibration, require_usable, status_fields
 from calibrate.config import OrthoOptions
 from sensor_models.errors import InputError

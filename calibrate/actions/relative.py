@@ -185,7 +185,7 @@ def _reference_gcps(gcps_path, cal_path: Path, model):
         if not found:
             return None, f"no GCP table: {named} (named by {doc_path}) is not found; give --gcps"
         gcps_path = found[0]
-    from calibrate.actions._plausibility import check_gcps_on_scene
+    from calibrate.plausibility import check_gcps_on_scene
 
     table = read_gcps(gcps_path, image_shape=model.image_shape)
     check_gcps_on_scene(model, table.lon, table.lat, table.h, source=gcps_path)

@@ -140,7 +140,7 @@ def dom_options(func):
 def allow_implausible_option(func):
     """Decorator: ``--allow-implausible``, under which the stage's plausibility checks warn instead of refusing.
 
-    The checks (:mod:`calibrate.actions._plausibility`: DEM heights, DOM resolution, the raster of
+    The checks (:mod:`calibrate.plausibility`: DEM heights, DOM resolution, the raster of
     another band, GCPs off the scene) run inside the command; the flag is not passed to it.
 
     Parameters
@@ -153,7 +153,7 @@ def allow_implausible_option(func):
     callable
         The callback with the option attached.
     """
-    from calibrate.actions._plausibility import accepting_implausible
+    from calibrate.plausibility import accepting_implausible
 
     @functools.wraps(func)
     def wrapper(*args, allow_implausible, **kwargs):
