@@ -189,3 +189,18 @@ def test_memory_error_inside_a_stage_is_one_line_naming_the_step(tmp_path, capsy
     assert lines[0].startswith("gcpcal: error: out of memory in gcpcal match, at "), lines
     assert "12.0 GiB" in lines[0]
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("reader", ["scene manifest", "sites YAML", "DIMAP", "OSSIM RPC", "simulation config"])
+def test_document_over_the_size_limit_is_refused_unread(reader, tmp_path, capsys):
+    """A 'manifest' of 300 MiB (sparse: nothing is written or read) is refused by its size."""
+    from sensor_models.readers.documents import MAX_DOCUMENT_BYTES
+
+    _, suffix, argv = READERS[reader]
+    path = tmp_path / f"huge{suffix}"
+    with open(path, "wb") as fh:
+        fh.truncate(MAX_DOCUMENT_BYTES + (44 << 20))
+    code = main(["-q", *map(str, argv(path, tmp_path / "w"))])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 1 and len(lines) == 1, lines
+    assert lines[0].startswith(f"gcpcal: error: {path}: is 300 MiB; a ") and "at most 256 MiB" in lines[0], lines
