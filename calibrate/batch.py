@@ -45,6 +45,7 @@ import numpy as np
 
 from calibrate._json import json_safe
 from sensor_models.errors import GcpcalError, InputError
+from sensor_models.readers.documents import csv_error, load_yaml, read_text
 
 __all__ = ["COLUMNS", "Site", "calibration_manifest", "read_sites", "summarize_rows", "validate_scene",
            "validate_sites"]
@@ -139,11 +140,7 @@ def read_sites(path) -> list[Site]:
     suffix = path.suffix.lower()
     if suffix not in (".yaml", ".yml", ".csv"):
         raise InputError("a sites file must be .yaml, .yml or .csv", path=str(path))
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"cannot read the sites file ({exc.strerror or exc})", path=str(path)) from None
-    entries = _yaml_entries(text, path) if suffix != ".csv" else _csv_entries(text, path)
+    entries = _yaml_entries(path) if suffix != ".csv" else _csv_entries(read_text(path), path)
     if not entries:
         raise InputError("lists no scene", path=str(path))
     base = path.resolve().parent
@@ -174,16 +171,8 @@ def read_sites(path) -> list[Site]:
     return out
 
 
-def _yaml_entries(text: str, path: Path) -> list[tuple[str, dict]]:
-    import yaml
-
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or "syntax error"
-        raise InputError(f"is not valid YAML{where}: {problem}", path=str(path)) from None
+def _yaml_entries(path: Path) -> list[tuple[str, dict]]:
+    doc = load_yaml(path)
     if doc is None:
         return []
     if not isinstance(doc, list):
@@ -200,6 +189,13 @@ def _yaml_entries(text: str, path: Path) -> list[tuple[str, dict]]:
 
 def _csv_entries(text: str, path: Path) -> list[tuple[str, dict]]:
     reader = csv.DictReader(io.StringIO(text))
+    try:
+        return _csv_records(reader, path)
+    except csv.Error as exc:  # bad quoting, a field over the csv module's limit
+        raise csv_error(exc, path, reader.line_num) from None
+
+
+def _csv_records(reader: csv.DictReader, path: Path) -> list[tuple[str, dict]]:
     header = [h.strip() for h in (reader.fieldnames or [])]
     missing = [c for c in _REQUIRED if c not in header]
     if missing:
@@ -334,6 +330,7 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
               coarse_skip: bool = True) -> None:
     """Fill ``out`` (a row) step by step, so a failure keeps what was learnt before it."""
     from calibrate.accuracy import check_point_accuracy
+    from calibrate.plausibility import check_dem_heights, check_dom_resolution
     from calibrate.from_gcps import points_of
     from gcpmatch.extract import extract_gcps, read_band
     from gcpmatch.options import MatchOptions
@@ -353,8 +350,10 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
             raise InputError(f"no such {what} file", path=str(p))
     image = read_band(model, band)
     dem = Dem.open(site.dem, vertical_datum=site.dem_datum, geoid=site.geoid)
+    check_dem_heights(dem, model, band=band)
     dom, _ = open_dom(DomSource(items=(str(site.dom),), band=site.dom_band,
                                 qa=() if site.dom_qa is None else (str(site.dom_qa),)))
+    check_dom_resolution(dom, model, band=band, source=site.dom)
     n_rows, n_cols = model.image_shape
     lon, lat, _ = model.image_to_ground([0.5 * n_rows], [0.5 * n_cols], dem=dem, band=band)
     out["center_lon_deg"], out["center_lat_deg"] = float(lon[0]), float(lat[0])

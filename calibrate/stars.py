@@ -53,7 +53,6 @@ stars (equations 1-19, tables 3-4, figure 8).
 
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -66,6 +65,7 @@ from scipy.spatial import cKDTree
 from calibrate.config import STAR_SCHEMES, StarOptions
 from calibrate.lsq import Chunk, Prior, solve
 from sensor_models.errors import InputError
+from sensor_models.readers.documents import load_json
 from sensor_models.geo_staring import GeoStaringModel, vectors_to_radec
 
 __all__ = [
@@ -117,10 +117,7 @@ def read_frame_list(path):
         path = path / "frames.json"
     if not path.is_file():
         raise InputError("frame list not found", path=str(path))
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise InputError(f"not valid JSON: {exc.msg} (line {exc.lineno})", path=str(path)) from None
+    doc = load_json(path)
     if not isinstance(doc, dict) or doc.get("kind") != "geo_star_frames":
         raise InputError("not a star frame list (kind must be 'geo_star_frames')", path=str(path), field="kind")
     unknown = set(doc) - {"format_version", "kind", "epoch_utc", "manifest", "frames"}

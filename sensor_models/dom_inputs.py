@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import os
 import re
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -232,10 +231,9 @@ def s2_radiometry(mtd_path: str, band: str):
         ``RADIO_ADD_OFFSET`` (L1C) or ``BOA_ADD_OFFSET`` (L2A) of the band; 0 when the file has
         none (processing baselines before 04.00).
     """
-    try:
-        root = ET.parse(mtd_path).getroot()
-    except (ET.ParseError, OSError) as exc:
-        raise InputError(f"cannot read the Sentinel-2 metadata ({exc})", path=mtd_path) from None
+    from sensor_models.readers.documents import parse_xml
+
+    root = parse_xml(mtd_path)
     by_tag = {}
     for el in root.iter():
         tag = el.tag.rsplit("}", 1)[-1]

@@ -41,6 +41,12 @@ class ManifestError(InputError):
     """A scene manifest or vendor metadata file is malformed (missing, unknown, wrong field)."""
 
 
+class ImplausibleInputError(InputError):
+    """A well-formed input whose figures a real one cannot have (a DEM in centimetres, a DOM far
+    coarser than the scene, another band's raster, another scene's GCPs); commands accept it
+    with ``--allow-implausible``."""
+
+
 class OutOfRangeError(GcpcalError, ValueError):
     """A time or coordinate lies outside the data that define the model (never extrapolated)."""
 

@@ -1004,10 +1004,10 @@ def _number(table, key, source, *, first_token=False) -> float:
 
 
 def _read_text(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8", errors="replace")
-    except OSError as err:
-        raise RpcError(f"cannot read: {err.strerror or err}", path=str(path)) from None
+    from sensor_models.readers.documents import MAX_DOCUMENT_BYTES, read_text
+
+    # bytes that are not UTF-8 become U+FFFD: every value used is then checked as a number
+    return read_text(path, error=RpcError, max_bytes=MAX_DOCUMENT_BYTES, kind="RPC", errors="replace")
 
 
 def _read_ossim_geom(path: Path) -> RpcModel:

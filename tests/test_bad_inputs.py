@@ -94,6 +94,43 @@ def _dem_voids(data, profile):
     return data, profile | {"dtype": "float32", "nodata": -32768.0}
 
 
+def _scaled(factor):
+    def edit(data, profile):
+        return (data.astype("float32") * factor), profile | {"dtype": "float32"}
+    return edit
+
+
+def _coarse_dom(src: Path, dst: Path, factor: int) -> Path:
+    """The DOM averaged over ``factor`` x ``factor`` pixels: a reference ``factor`` times coarser."""
+    from rasterio.enums import Resampling
+
+    with rasterio.open(src) as ds:
+        h, w = ds.height // factor, ds.width // factor
+        data = ds.read(out_shape=(ds.count, h, w), resampling=Resampling.average)
+        profile = ds.profile | {"height": h, "width": w, "compress": None, "tiled": False,
+                                "transform": ds.transform * Affine.scale(ds.width / w, ds.height / h)}
+        tags = ds.tags()
+    with rasterio.open(dst, "w", **profile) as out:
+        out.write(data)
+        out.update_tags(**tags)
+    return dst
+
+
+def _gcps_moved(src: Path, dst: Path, *, east_m=0.0, h_factor=1.0) -> Path:
+    """A GCP table with every ground point moved ``east_m`` east and its height scaled."""
+    lines = src.read_text().splitlines()
+    cols = lines[0].split(",")
+    lon_i, lat_i, h_i = cols.index("lon"), cols.index("lat"), cols.index("h")
+    out = [lines[0]]
+    for line in lines[1:]:
+        c = line.split(",")
+        c[lon_i] = f"{float(c[lon_i]) + east_m / (111_320.0 * np.cos(np.radians(float(c[lat_i])))):.9f}"
+        c[h_i] = f"{float(c[h_i]) * h_factor:.3f}"
+        out.append(",".join(c))
+    dst.write_text("\n".join(out) + "\n")
+    return dst
+
+
 def _all_cloud(data, profile):
     top = np.iinfo(data.dtype).max if np.issubdtype(data.dtype, np.integer) else 1.0
     return np.full_like(data, top), profile
@@ -183,6 +220,11 @@ def bad(tmp_path_factory) -> SimpleNamespace:
     ns.dem_far = _raster_copy(DEM, d / "dem_far.tif", shift_m=300_000.0)
     ns.dem_voids = _raster_copy(DEM, d / "dem_voids.tif", edit=_dem_voids)
     ns.cloud_image = _raster_copy(FIXTURE / "B2.tif", d / "B2_cloud.tif", edit=_all_cloud)
+    ns.dem_cm = _raster_copy(DEM, d / "dem_cm.tif", edit=_scaled(100.0))  # heights up to 150 km
+    ns.dem_x10 = _raster_copy(DEM, d / "dem_x10.tif", edit=_scaled(10.0))
+    ns.dom_coarse = _coarse_dom(DOM, d / "dom_150m.tif", 10)  # 150 m: 4.9 x the scene's 30 m
+    ns.b4_image = FIXTURE / "B4.tif"
+    ns.other_size_image = DOM
     ns.manifest = {name: _manifest_variant(d / f"m_{name.replace(' ', '_')}.json", edit)
                    for name, edit in [("unknown key", _unknown_key), ("missing field", _missing_field),
                                       ("NaN", _nan), ("non-monotonic times", _not_monotonic)]}
@@ -190,6 +232,8 @@ def bad(tmp_path_factory) -> SimpleNamespace:
     assert main(["-q", "match", str(SCENE), "--dom", str(DOM), "--dem", str(DEM), "--out", str(ns.gcps),
                  "--spacing", "48"]) == 0
     ns.gcp = _gcp_variants(ns.gcps, d)
+    ns.gcp["of a scene 55 km away"] = _gcps_moved(ns.gcps, d / "gcps_55km.csv", east_m=55_000.0)
+    ns.gcp["heights in centimetres"] = _gcps_moved(ns.gcps, d / "gcps_cm.csv", h_factor=100.0)
     ns.config_unknown = d / "config_unknown.json"
     ns.config_unknown.write_text(json.dumps({"scene": {"gsd_mm": 3}}))
     ns.sites_empty = d / "sites_empty.csv"
@@ -245,6 +289,7 @@ M = lambda name: (lambda b, w: b.manifest[name])  # noqa: E731
 G = lambda name: (lambda b, w: b.gcp[name])  # noqa: E731
 
 _MANIFEST_CASES = ("unknown key", "missing field", "NaN", "non-monotonic times")
+_IMPLAUSIBLE_GCP_CASES = ("of a scene 55 km away", "heights in centimetres")
 _GCP_CASES = ("missing column", "NaN", "duplicate id", "text in a number", "0 rows", "3 rows", "collinear rows",
               "far outside the image")
 
@@ -294,6 +339,8 @@ CASES = [
                                                        "--dem", b.dem_far], 1),
     Case("localize", "DEM with voids", lambda b, w: ["localize", SCENE, "--rows", "10", "--cols", "20",
                                                     "--dem", b.dem_voids], 1),
+    Case("localize", "DEM in centimetres", lambda b, w: ["localize", SCENE, "--rows", "10", "--cols", "20",
+                                                        "--dem", b.dem_cm], 1),
     Case("localize", "output under a file", _localize(lambda b, w: SCENE, "--out", "{work}/afile/p.csv"), 1,
          ("afile",), _file_prep),
     Case("localize", "output is a folder", _localize(lambda b, w: SCENE, "--out", "{work}"), 2),
@@ -306,6 +353,7 @@ CASES = [
     Case("rpc", "DEM without CRS", lambda b, w: ["rpc", SCENE, "--dem", b.dem_nocrs, "--out", w / "x_RPC.TXT"], 1),
     Case("rpc", "empty DEM", lambda b, w: ["rpc", SCENE, "--dem", b.empty_tif, "--out", w / "x_RPC.TXT"], 1),
     Case("rpc", "DEM with voids", lambda b, w: ["rpc", SCENE, "--dem", b.dem_voids, "--out", w / "x_RPC.TXT"], 1),
+    Case("rpc", "DEM in centimetres", lambda b, w: ["rpc", SCENE, "--dem", b.dem_cm, "--out", w / "x_RPC.TXT"], 1),
     Case("rpc", "output under a file", lambda b, w: ["rpc", SCENE, "--out", w / "afile" / "x_RPC.TXT"], 1,
          ("afile",), _file_prep),
     # demo
@@ -327,6 +375,15 @@ CASES = [
          ("gcps.csv", "gcps.summary.json", "gcps_residuals.gpkg")),
     Case("match", "truncated image", _match(extra=("--image", "{truncated_image}")), 1),
     Case("match", "all-cloud scene", _match(extra=("--image", "{cloud_image}")), 1),
+    Case("match", "DEM in centimetres", _match(dem=lambda b, w: b.dem_cm), 1),
+    Case("match", "DEM scaled by 10", _match(dem=lambda b, w: b.dem_x10), 1),
+    Case("match", "DOM 10x coarser", _match(dom=lambda b, w: b.dom_coarse), 1),
+    Case("match", "DOM 10x coarser, --allow-implausible", _match(dom=lambda b, w: b.dom_coarse,
+                                                                 extra=("--allow-implausible",)), 0,
+         ("gcps.csv", "gcps.summary.json", "gcps_residuals.gpkg")),
+    Case("match", "image of band B4 for B2", _match(extra=("--image", "{b4_image}")), 1),
+    Case("match", "image of band B4 given --band B2", _match(extra=("--image", "{b4_image}", "--band", "B2")), 1),
+    Case("match", "image of another size", _match(extra=("--image", "{other_size_image}")), 1),
     Case("match", "output under a file", _match(out="afile/gcps.csv"), 1, ("afile",), _file_prep),
     Case("match", "GeoTIFF over 10922 points", _match(extra=("--geotiff", "{work}/g.tif", "--spacing", "2")), 1),
     Case("match", "gpkg under a file", _match(extra=("--gpkg", "{work}/afile/x.gpkg")), 1, ("afile",), _file_prep),
@@ -339,6 +396,7 @@ CASES = [
            () if name not in ("3 rows", "collinear rows") else ("cal", "cal/calibrate.summary.json", "cal/calibration.json", "cal/manifest.json",
                                                                   "cal/residuals.gpkg"))
       for name in _GCP_CASES],
+    *[Case("calibrate", f"GCPs {name}", _calibrate(G(name)), 1) for name in _IMPLAUSIBLE_GCP_CASES],
     *[Case("calibrate", f"manifest {name}", (lambda n: lambda b, w: ["calibrate", b.manifest[n], "--gcps", b.gcps,
                                                                     "--out", w / "cal", "--no-report"])(name), 1)
       for name in _MANIFEST_CASES],
@@ -356,6 +414,10 @@ CASES = [
          1),
     Case("run", "too few GCPs, no star frames", lambda b, w: ["run", SCENE, "--dom", DOM, "--dem", DEM, "--out",
                                                                w / "r", "--min-gcps", "100000"], 3, SAME),
+    Case("run", "DEM in centimetres", lambda b, w: ["run", SCENE, "--dom", DOM, "--dem", b.dem_cm, "--out", w / "r"],
+         1),
+    Case("run", "DOM 10x coarser", lambda b, w: ["run", SCENE, "--dom", b.dom_coarse, "--dem", DEM, "--out", w / "r"],
+         1),
     Case("run", "output under a file", lambda b, w: ["run", SCENE, "--dom", DOM, "--out", w / "afile" / "r"], 1,
          ("afile",), _file_prep),
     # relative
@@ -368,6 +430,11 @@ CASES = [
     Case("relative", "manifest non-monotonic times", lambda b, w: ["relative", b.manifest["non-monotonic times"],
                                                                    "--calibration", b.calibration, "--dem", DEM,
                                                                    "--out", w / "rel"], 1),
+    Case("relative", "DEM in centimetres", lambda b, w: ["relative", SCENE, "--calibration", b.calibration,
+                                                        "--dem", b.dem_cm, "--out", w / "rel"], 1),
+    Case("relative", "GCPs of a scene 55 km away", lambda b, w: ["relative", SCENE, "--calibration", b.calibration,
+                                                                "--dem", DEM, "--gcps", b.gcp["of a scene 55 km away"],
+                                                                "--out", w / "rel"], 1),
     Case("relative", "output under a file", lambda b, w: ["relative", SCENE, "--calibration", b.calibration,
                                                           "--dem", DEM, "--out", w / "afile" / "rel"], 1,
          ("afile",), _file_prep),
@@ -393,6 +460,8 @@ CASES = [
     Case("ortho", "DEM not covering", _ortho(dem=lambda b, w: b.dem_far), 1),
     Case("ortho", "DEM with voids", _ortho(dem=lambda b, w: b.dem_voids), 1),
     Case("ortho", "empty DEM", _ortho(dem=lambda b, w: b.empty_tif), 1),
+    Case("ortho", "DEM in centimetres", _ortho(dem=lambda b, w: b.dem_cm), 1),
+    Case("ortho", "image of band B4 for B2", _ortho(extra=("--image", "{b4_image}", "--band", "B2")), 1),
     Case("ortho", "output under a file", lambda b, w: ["ortho", SCENE, "--dem", DEM, "--out", w / "afile" / "o.tif"],
          1, ("afile",), _file_prep),
     Case("ortho", "output is a folder", lambda b, w: ["ortho", SCENE, "--dem", DEM, "--out", w], 2),
@@ -426,6 +495,7 @@ CASES = [
     Case("truth error", "DEM not covering", _truth(extra=("--dem", "{dem_far}")), 1),
     Case("truth error", "DEM with voids", _truth(extra=("--dem", "{dem_voids}")), 1),
     Case("truth error", "DEM without CRS", _truth(extra=("--dem", "{dem_nocrs}")), 1),
+    Case("truth error", "DEM in centimetres", _truth(extra=("--dem", "{dem_cm}")), 1),
     Case("truth error", "output under a file", lambda b, w: ["truth", "error", SCENE, "--truth", TRUTH,
                                                              "--heights", "0", "--out", w / "afile" / "t.json"], 1,
          ("afile",), _file_prep),

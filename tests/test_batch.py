@@ -282,7 +282,7 @@ def test_sites_csv_errors(tmp_path, text, message):
 
 
 def test_sites_file_kind_and_presence(tmp_path):
-    with pytest.raises(InputError, match="cannot read the sites file"):
+    with pytest.raises(InputError, match=r"missing\.yaml: cannot read: No such file"):
         read_sites(tmp_path / "missing.yaml")
     (tmp_path / "sites.txt").write_text("x")
     with pytest.raises(InputError, match=r"must be \.yaml, \.yml or \.csv"):

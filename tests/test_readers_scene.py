@@ -34,7 +34,8 @@ def _imported_modules(path: Path) -> set[str]:
 def test_manifest_readers_do_not_import_each_other():
     assert "sensor_models.readers.geo_manifest" not in _imported_modules(READERS / "manifest.py")
     assert "sensor_models.readers.manifest" not in _imported_modules(READERS / "geo_manifest.py")
-    assert not any(m.startswith("sensor_models.readers.") and m != "sensor_models.readers._strict"
+    shared = ("sensor_models.readers._strict", "sensor_models.readers.documents")  # parsing pieces, no reader
+    assert not any(m.startswith("sensor_models.readers.") and m not in shared
                    for m in _imported_modules(READERS / "_common.py"))
 
 

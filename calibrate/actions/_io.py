@@ -87,7 +87,9 @@ def open_dem(dem_path, datum=None, geoid=None, *, model=None, band=None):
     model : SensorModel, optional
         The scene's model. With several tiles (or a ``.vrt``), only the part of the mosaic
         under the scene's footprint (localized from -500 to 9000 m, plus half its size, at
-        least 0.1 degree, on each side) is read. A single file is read whole, as before.
+        least 0.1 degree, on each side) is read. A single file is read whole, as before. The
+        heights over the footprint are checked
+        (:func:`calibrate.plausibility.check_dem_heights`).
     band : str, optional
         Band of ``model`` whose footprint counts (default: its reference band).
 
@@ -103,7 +105,12 @@ def open_dem(dem_path, datum=None, geoid=None, *, model=None, band=None):
         files = raster_inputs(dem_path, what="DEM")
         if len(files) > 1 or files[0].lower().endswith(".vrt"):
             bounds, margin = _footprint_box(model, band)
-    return Dem.open(dem_path, vertical_datum=datum, geoid=geoid, bounds=bounds, margin_deg=margin)
+    dem = Dem.open(dem_path, vertical_datum=datum, geoid=geoid, bounds=bounds, margin_deg=margin)
+    if model is not None:  # before any work: heights a terrain cannot have (a DEM in centimetres)
+        from calibrate.plausibility import check_dem_heights
+
+        check_dem_heights(dem, model, band=band)
+    return dem
 
 
 def _footprint_box(model, band):

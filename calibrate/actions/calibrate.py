@@ -36,6 +36,7 @@ import numpy as np
 
 from calibrate.actions._io import check_output_folder, staged_folder
 from calibrate.actions._status import record_product_check
+from calibrate.plausibility import check_gcps_on_scene
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
 from calibrate.residual_layer import concatenate_layers, residual_layer, write_residual_layer
@@ -79,10 +80,13 @@ def options_from_match_summary(options: CalibrationOptions, gcps_path) -> Calibr
     if options.reference_sigma_m is not None:
         return options if options.reference_source else options.replace(reference_source="option")
     path = match_summary_path(gcps_path)
+    from sensor_models.errors import InputError
+    from sensor_models.readers.documents import load_json
+
     try:
-        acc = json.loads(path.read_text(encoding="utf-8")).get("reference_accuracy")
+        acc = load_json(path).get("reference_accuracy")
         sigma = (float(acc["east_m"]), float(acc["north_m"]))
-    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+    except (InputError, ValueError, TypeError, KeyError, AttributeError):
         return options  # no summary (a table from elsewhere or an older run): no reference term
     source = str(acc.get("source", "?")) + (" (assumed by the matcher)" if acc.get("assumed") else "")
     return options.replace(reference_sigma_m=sigma, reference_source=f"match summary {path.name}: {source}")
@@ -145,6 +149,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     t0 = time.perf_counter()
     check_output_folder(out_dir, inputs=[scene_path, gcps_path, image])  # before any work
     model, table = _read_inputs(scene_path, gcps_path, band, image, self_check)
+    implausible = check_gcps_on_scene(model, table.lon, table.lat, table.h, source=gcps_path, band=band)
     options = options_from_match_summary(options, gcps_path)
     say = progress or (lambda message: None)
     say(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
@@ -190,6 +195,8 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
             "seconds": time.perf_counter() - t0,
         }
         record_product_check(summary, model)
+        if implausible:
+            summary["implausible_accepted"] = implausible
         (tmp / "calibrate.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     return summary
 

@@ -12,6 +12,7 @@ a model written by a failed calibration is refused (:mod:`calibrate.actions._sta
 from __future__ import annotations
 
 import csv
+import io
 import time
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from calibrate.actions._guard import InputSet, is_stdout
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
+from sensor_models.readers.documents import csv_error, read_text
 
 __all__ = ["GROUND_RANGES", "check_ground_points", "check_image_points", "csv_lines", "localize_points",
            "read_points_csv"]
@@ -46,26 +48,28 @@ def read_points_csv(path, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
         Column name -> float64 array of shape (N,), N >= 1.
     """
     path = Path(path)
+    reader = csv.DictReader(io.StringIO(read_text(path), newline=""))
     try:
-        fh = path.open(newline="", encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
-    with fh:
-        reader = csv.DictReader(fh)
-        header = reader.fieldnames or []
-        missing = [c for c in columns if c not in header]
-        if missing:
-            raise InputError(f"missing column(s) {', '.join(missing)} (header: {','.join(header)})", path=str(path))
-        values = {c: [] for c in columns}
-        for line, rec in enumerate(reader, start=2):
-            for c in columns:
-                try:
-                    v = float(rec[c])
-                except (TypeError, ValueError):
-                    raise InputError(f"row {line}: column '{c}' is not a number: {rec[c]!r}", path=str(path)) from None
-                if not np.isfinite(v):
-                    raise InputError(f"row {line}: column '{c}' is not finite", path=str(path))
-                values[c].append(v)
+        return _points(reader, path, columns)
+    except csv.Error as exc:  # bad quoting, a field over the csv module's limit
+        raise csv_error(exc, path, reader.line_num) from None
+
+
+def _points(reader: csv.DictReader, path: Path, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
+    header = reader.fieldnames or []
+    missing = [c for c in columns if c not in header]
+    if missing:
+        raise InputError(f"missing column(s) {', '.join(missing)} (header: {','.join(header)})", path=str(path))
+    values = {c: [] for c in columns}
+    for line, rec in enumerate(reader, start=2):
+        for c in columns:
+            try:
+                v = float(rec[c])
+            except (TypeError, ValueError):
+                raise InputError(f"row {line}: column '{c}' is not a number: {rec[c]!r}", path=str(path)) from None
+            if not np.isfinite(v):
+                raise InputError(f"row {line}: column '{c}' is not finite", path=str(path))
+            values[c].append(v)
     if not values[columns[0]]:
         raise InputError("holds no data rows", path=str(path))
     return {c: np.asarray(v) for c, v in values.items()}

@@ -11,6 +11,7 @@ from calibrate.actions._guard import InputSet
 from calibrate.actions._io import check_output_files, open_dem, staged_files
 from calibrate.actions._l1a import scene_raster
 from calibrate.actions._status import record_product_check
+from calibrate.plausibility import check_dom_resolution, check_scene_raster
 from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
 from sensor_models.dom_inputs import dom_description, masked_fraction, open_dom, reference_accuracy
@@ -127,11 +128,13 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     out_format = gcp_table_format(out_path)
     model = open_scene(scene_path, image=image, band=band, self_check=self_check)  # a crop's raster crops it
     band = band or getattr(model, "reference_band", None)
+    implausible = check_scene_raster(model, band, image)  # before any work: names and headers only
     scene = read_band(model, band, image)
     if geotiff_path is not None:  # before any work: the GeoTIFF's size limit, from the window count
         _check_geotiff_capacity(model, band, options, geotiff_path)
     dem = open_dem(dem_path, dem_datum, geoid, model=model, band=band)
     dom, dom_found = open_dom(dom_path)
+    implausible += check_dom_resolution(dom, model, band=band, source=_dom_name(dom_found, dom_path))
     mask = None
     if mask_path is not None:
         mask = read_band(model, band, mask_path)
@@ -145,6 +148,8 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         summary["residual_layer"] = str(residuals_path)
     summary.update(_dom_summary(dom, dom_found, model, band, dem))
     record_product_check(summary, model)
+    if implausible:
+        summary["implausible_accepted"] = implausible
     # every file moves in together at the end; with no GCP only the summary (an older table goes)
     staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
                           inputs=inputs)
@@ -166,6 +171,12 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",
                          path=str(scene_path))
     return summary
+
+
+def _dom_name(dom_found, dom_path) -> str:
+    """The DOM's file (the first one) for messages."""
+    files = list(getattr(dom_found, "files", None) or ())
+    return str(files[0]) if files else str(dom_path)
 
 
 def _check_geotiff_capacity(model, band, options: MatchOptions, geotiff_path) -> None:

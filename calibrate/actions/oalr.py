@@ -12,13 +12,16 @@ relative to the CSV): the marks are then located in the frames first (:func:`mar
 from __future__ import annotations
 
 import csv
+import io
 import json
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from calibrate.actions._io import check_output_folder, staged_folder
 from sensor_models.errors import InputError
+from sensor_models.readers.documents import csv_error, read_text
 
 __all__ = ["FRAME_COLUMNS", "MARK_COLUMNS", "marks_from_frames", "oalr_from_csv", "read_marks_csv"]
 
@@ -26,12 +29,21 @@ MARK_COLUMNS = ("time", "ccd1_x_px", "ccd1_y_px", "ccd2_x_px", "ccd2_y_px")
 FRAME_COLUMNS = ("time", "ccd1_frame", "ccd2_frame")
 
 
-def _header(path: Path) -> list[str]:
+@contextmanager
+def _csv_file(path: Path):
+    """The CSV decoded strictly (:func:`~sensor_models.readers.documents.read_text`) as a text
+    stream; a ``csv.Error`` inside the block (bad quoting, an over-long field) becomes an
+    InputError naming the file and the line."""
+    fh = io.StringIO(read_text(path), newline="")
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            return [h.strip() for h in next(csv.reader(fh), [])]
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+        yield fh
+    except csv.Error as exc:
+        raise csv_error(exc, path, fh.getvalue().count("\n", 0, fh.tell()) + 1) from None
+
+
+def _header(path: Path) -> list[str]:
+    with _csv_file(path) as fh:
+        return [h.strip() for h in next(csv.reader(fh), [])]
 
 
 def _read_frame(path: Path, *, listed_in: Path, line: int, column: str) -> np.ndarray:
@@ -71,7 +83,7 @@ def marks_from_frames(path) -> dict[str, np.ndarray]:
 
     path = Path(path)
     out = {c: [] for c in MARK_COLUMNS}
-    with path.open(newline="", encoding="utf-8") as fh:
+    with _csv_file(path) as fh:
         reader = csv.DictReader(fh)
         header = [h.strip() for h in (reader.fieldnames or [])]
         for c in header:
@@ -130,11 +142,7 @@ def read_marks_csv(path, *, ccd_size_px: float | None = None) -> dict[str, np.nd
         Column name -> float64 array of shape (N,).
     """
     path = Path(path)
-    try:
-        fh = path.open(newline="", encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
-    with fh:
+    with _csv_file(path) as fh:
         reader = csv.reader(fh)
         header = next(reader, None)
         if not header:

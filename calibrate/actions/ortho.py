@@ -16,6 +16,7 @@ import numpy as np
 from calibrate.actions._guard import InputSet
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import calibration_input, open_usable_calibration, require_usable, status_fields
+from calibrate.plausibility import check_dem_heights, check_scene_raster
 from calibrate.config import OrthoOptions
 from sensor_models.errors import InputError
 from sensor_models.readers.scene_input import missing_raster_message, open_scene
@@ -75,6 +76,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
                              f"px image, the scene {scene.image_shape[0]} x {scene.image_shape[1]}",
                              path=str(calib_file))
     band, image = _band_and_image(scene, geometry, band, image, scene_path)
+    check_scene_raster(scene, band, image if isinstance(image, (str, Path)) else None)
     dem, dem_windows = _open_dem(dem_path, dem_datum, geoid, geometry, band)
     try:
         dem_figures = _dem_under_scene(geometry, dem, band)
@@ -164,4 +166,11 @@ def _open_dem(dem_path, dem_datum, geoid, geometry, band):
     files = raster_inputs(dem_path, what="DEM")
     if len(files) > 1 or files[0].lower().endswith(".vrt"):
         return open_dem(dem_path, dem_datum, geoid, model=geometry, band=band), None
-    return open_ortho_dem(files[0], vertical_datum=dem_datum, geoid=geoid)
+    dem, windows = open_ortho_dem(files[0], vertical_datum=dem_datum, geoid=geoid)
+    try:
+        check_dem_heights(dem, geometry, band=band)  # as open_dem does
+    except BaseException:
+        if windows is not None:
+            windows.close()
+        raise
+    return dem, windows

@@ -177,9 +177,11 @@ def _reference_gcps(gcps_path, cal_path: Path, model):
 
     if gcps_path is None:
         doc_path = Path(cal_path).parent / "calibration.json"
+        from sensor_models.readers.documents import load_json
+
         try:
-            named = json.loads(doc_path.read_text(encoding="utf-8")).get("gcp_file") if doc_path.is_file() else None
-        except (OSError, ValueError):
+            named = load_json(doc_path).get("gcp_file") if doc_path.is_file() else None
+        except (InputError, AttributeError):
             named = None
         if not named:
             return None, f"no GCP table: give --gcps (no gcp_file in {doc_path})"
@@ -188,7 +190,11 @@ def _reference_gcps(gcps_path, cal_path: Path, model):
         if not found:
             return None, f"no GCP table: {named} (named by {doc_path}) is not found; give --gcps"
         gcps_path = found[0]
-    return read_gcps(gcps_path, image_shape=model.image_shape), ""
+    from calibrate.plausibility import check_gcps_on_scene
+
+    table = read_gcps(gcps_path, image_shape=model.image_shape)
+    check_gcps_on_scene(model, table.lon, table.lat, table.h, source=gcps_path)
+    return table, ""
 
 
 def _same_scene(scene, calibrated, path) -> None:

@@ -212,7 +212,7 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
     warning = require_usable(model, model_path, command="truth error")
     dem, coverage = None, {"warnings": []}
     if dem_path:
-        dem = open_dem(dem_path, dem_datum, geoid)
+        dem = open_dem(dem_path, dem_datum, geoid, model=true_model)
         lon, lat = footprint_sample_lonlat(true_model, 0.5 * sum(dem.height_range_m))
         coverage = check_dem_footprint(dem, lon, lat)
     result = truth_error(true_model, model, dem=dem, step_px=step_px, heights_m=heights_m)

@@ -5,7 +5,8 @@ code   meaning
 =====  ==========================================================================================
 0      success
 1      input or I/O error (bad or missing file, unwritable folder, full disk, unreadable raster,
-       unreachable Dask scheduler), or an internal error
+       unreachable Dask scheduler), memory exhausted (the command and step named), or an
+       internal error
 2      usage error (bad option or argument): one line ``gcpcal: error: <message> (gcpcal <command>
        --help)``; with ``-v`` click's usage and hint too
 3      the stage ran but failed (no convergence, every validation scene failed, ...)
@@ -93,6 +94,20 @@ def _one_line(text: str) -> str:
     return lines[0] if lines else ""
 
 
+#: Longest error line printed, characters: a message quoting a user's malformed file (a header of
+#: megabytes) is cut there.
+_MAX_LINE_CHARS = 1000
+
+
+def _escape_breaks(text: str) -> str:
+    """``text`` as one bounded line: line breaks it quotes from a user's file shown as ``\\n``,
+    cut after :data:`_MAX_LINE_CHARS` characters."""
+    text = str(text).replace("\r", "\\r").replace("\n", "\\n")
+    if len(text) > _MAX_LINE_CHARS:
+        text = f"{text[:_MAX_LINE_CHARS]}... ({len(text) - _MAX_LINE_CHARS} more characters)"
+    return text
+
+
 def _os_error_message(exc: OSError) -> str:
     """``/x/y: Permission denied`` (the file first, as the shell says it)."""
     what = exc.strerror or _one_line(exc) or type(exc).__name__
@@ -132,9 +147,66 @@ def _is_dask_error(exc: BaseException) -> bool:
     return module.split(".")[0] in ("dask", "distributed")
 
 
+#: What the libraries say when an allocation fails (OpenCV's ``cv::OutOfMemoryError``, GDAL's
+#: ``CPLE_OutOfMemory``, the loader mapping a library under an address-space limit, torch on a
+#: GPU, errno ENOMEM).
+_MEMORY_TEXTS = ("insufficient memory", "failed to allocate", "out of memory", "cannot allocate",
+                 "failed to map segment")
+
+#: Top-level packages of gcpcal, whose frames name the step that ran out of memory.
+_OWN_PACKAGES = ("calibrate", "gcpmatch", "sensor_models")
+
+
+def _memory_exhaustion(exc: BaseException) -> BaseException | None:
+    """The exception (``exc`` or one it chains from) that says memory ran out; None otherwise."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, MemoryError) or "OutOfMemory" in type(exc).__name__:
+            return exc
+        if not isinstance(exc, GcpcalError) and any(text in str(exc).lower() for text in _MEMORY_TEXTS):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _failing_step(exc: BaseException) -> str:
+    """``gcpcal <command>, at <module>.<function>``: where an exception was raised, in gcpcal's code."""
+    command, step = None, None
+    for frame, _ in traceback.walk_tb(exc.__traceback__):
+        module = frame.f_globals.get("__name__", "")
+        if module.split(".")[0] not in _OWN_PACKAGES:
+            continue
+        if module.startswith("calibrate.cli."):
+            name = module.rsplit(".", 1)[-1]
+            if not name.startswith("_") and name != "options":
+                command = name
+            continue
+        step = f"{module}.{frame.f_code.co_name}"
+    where = f"gcpcal {command}" if command else "gcpcal"
+    return f"{where}, at {step}" if step else where
+
+
+def _memory_message(exc: BaseException, cause: BaseException) -> str:
+    """One line: out of memory, in which command and step, what the library said, what to do."""
+    detail = _one_line(cause) or type(cause).__name__
+    if "Failed to allocate" in detail:  # OpenCV: "OpenCV(5.0.0) <file>:73: error: (-4:Insufficient memory) ..."
+        detail = detail[detail.index("Failed to allocate"):].split(" in function")[0]
+    module = type(cause).__module__
+    kind = type(cause).__name__ if module == "builtins" else f"{module.split('.')[0]}.{type(cause).__name__}"
+    return (f"out of memory in {_failing_step(exc)} ({kind}: {detail}): free memory or raise the "
+            "limit (ulimit -v), or work in smaller pieces (--block, --spacing, --workers, a crop)")
+
+
 def _user_error_message(exc: BaseException) -> str | None:
     """The message of an error a user or the machine caused; None for anything else (a bug)."""
-    from rasterio.errors import RasterioError
+    memory = _memory_exhaustion(exc)
+    if memory is not None:  # first: under the limit, even importing rasterio below may fail
+        return _memory_message(exc, memory)
+    try:
+        from rasterio.errors import RasterioError
+    except ImportError:  # rasterio cannot load here: no error can be one of its own
+        RasterioError = ()  # noqa: N806
 
     if isinstance(exc, GcpcalError):
         return str(exc)
@@ -194,7 +266,7 @@ def run_guarded(invoke, *, verbose: int = 0) -> int:
             return EXIT_INPUT
         if verbose >= 2:
             traceback.print_exc()
-        _say(f"error: {message}")
+        _say(f"error: {_escape_breaks(message)}")
         return EXIT_INPUT
     if isinstance(rv, int) and not isinstance(rv, bool):
         return rv

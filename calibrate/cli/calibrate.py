@@ -13,7 +13,8 @@ import click
 from calibrate.actions.calibrate import calibrate_scene
 from calibrate.cli._errors import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import accept_product_disagreement_option, echo_json, echo_warnings, exit_with_status, json_option, out_dir_option
+from calibrate.cli.options import (accept_product_disagreement_option, allow_implausible_option, echo_json, echo_warnings,
+                                   exit_with_status, json_option, out_dir_option)
 from calibrate.config import ATTITUDE_MODES, CALIBRATION_SCHEMES, ROBUST_LOSSES, CalibrationOptions
 
 __all__ = ["command"]
@@ -22,6 +23,7 @@ _EXIT_OF_STATUS = {"calibrated": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXI
 
 
 @click.command("calibrate")
+@allow_implausible_option
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
 @click.option("--gcps", "gcps_path", required=True, type=click.Path(dir_okay=False), help="GCP table (CSV, GeoPackage or GeoTIFF).")
 @out_dir_option()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.localize import csv_lines, localize_points
-from calibrate.cli.options import (accept_product_disagreement_option, add_options, constant_height_option, dem_options, echo_json, echo_warnings,
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, constant_height_option, dem_options, echo_json, echo_warnings,
                                    float_list, json_option, one_height_source)
 from sensor_models.errors import InputError
 
@@ -41,6 +41,7 @@ def _points(rows, cols, lon, lat, h_text, csv_path, inverse):
 
 
 @click.command("localize")
+@allow_implausible_option
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.option("--rows", help="Comma-separated rows (direct localization).")
 @click.option("--cols", help="Comma-separated columns (direct localization).")

@@ -8,7 +8,8 @@ from calibrate.actions.match import match_scene
 from calibrate.config import MatchOptions
 from gcpmatch.options import SIGMA_MODELS
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import accept_product_disagreement_option, add_options, dem_options, dom_options, echo_json, echo_warnings, json_option
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options,
+                                   dom_options, echo_json, echo_warnings, json_option)
 from sensor_models.dom_inputs import ASSUMED_REFERENCE_SIGMA_M
 from sensor_models.errors import InputError
 
@@ -16,6 +17,7 @@ __all__ = ["command"]
 
 
 @click.command("match")
+@allow_implausible_option
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
 @dom_options
 @add_options(dem_options)

@@ -15,7 +15,7 @@ import numpy as np
 from calibrate._json import json_default
 from sensor_models.errors import InputError
 
-__all__ = ["accept_product_disagreement_option", "add_options", "apply_verbosity", "constant_height_option", "dem_options", "dom_options", "echo_json",
+__all__ = ["accept_product_disagreement_option", "add_options", "allow_implausible_option", "apply_verbosity", "constant_height_option", "dem_options", "dom_options", "echo_json",
            "echo_warnings", "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source",
            "out_dir_option", "progress_printer", "quiet_of", "verbosity_options"]
 
@@ -166,6 +166,39 @@ def accept_product_disagreement_option(func):
         help="Open a vendor product (.DIM, DIMAP v2 or DigitalGlobe .XML) even when its model disagrees with the "
              "product's own corners or RPC beyond the reader's tolerance; the summary records the disagreement "
              "(docs/dimap.md, docs/worldview.md).")(wrapper)
+
+
+def allow_implausible_option(func):
+    """Decorator: ``--allow-implausible``, under which the stage's plausibility checks warn instead of refusing.
+
+    The checks (:mod:`calibrate.plausibility`: DEM heights, DOM resolution, the raster of
+    another band, GCPs off the scene) run inside the command; the flag is not passed to it.
+
+    Parameters
+    ----------
+    func : callable
+        The command's callback.
+
+    Returns
+    -------
+    callable
+        The callback with the option attached.
+    """
+    from calibrate.plausibility import accepting_implausible
+
+    @functools.wraps(func)
+    def wrapper(*args, allow_implausible, **kwargs):
+        with accepting_implausible(allow_implausible) as accepted:
+            try:
+                return func(*args, **kwargs)
+            finally:  # also before an exit 1, 3 or 4: the user said yes to these inputs
+                for line in accepted:
+                    click.echo(f"gcpcal: warning: {line}", err=True)
+
+    return click.option("--allow-implausible", "allow_implausible", is_flag=True,
+                        help="Accept inputs whose figures a real one cannot have (DEM heights outside -500..9000 m, "
+                             "a DOM over 4x coarser than the scene, another band's raster, GCPs off the scene) "
+                             "with a warning instead of refusing them.")(wrapper)
 
 
 #: ``-v/--verbose`` (count) and ``-q/--quiet``: on the group and, the same, on every command.

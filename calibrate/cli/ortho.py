@@ -6,7 +6,8 @@ import click
 
 from calibrate.actions.ortho import ortho_scene
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import accept_product_disagreement_option, add_options, dem_options, echo_json, echo_warnings, json_option
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options,
+                                   echo_json, echo_warnings, json_option)
 from calibrate.config import ORTHO_RESAMPLING, OrthoOptions
 from sensor_models.errors import InputError
 
@@ -14,6 +15,7 @@ __all__ = ["command"]
 
 
 @click.command("ortho")
+@allow_implausible_option
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
 @click.option("--calibration", type=click.Path(),
               help="Calibrated model (manifest.json or RPC), or the folder of 'gcpcal calibrate': the geometry. "

@@ -7,7 +7,7 @@ import click
 from calibrate.actions.relative import relative_calibration_stage
 from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import (accept_product_disagreement_option, add_options, dem_options, echo_json, echo_warnings, exit_with_status, json_option,
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options, echo_json, echo_warnings, exit_with_status, json_option,
                                    out_dir_option)
 from calibrate.config import ATTITUDE_MODES, ROBUST_LOSSES, CalibrationOptions
 from sensor_models.errors import InputError
@@ -73,6 +73,7 @@ def parse_rows(text: str | None):
 
 
 @click.command("relative")
+@allow_implausible_option
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
 @click.option("--calibration", "calibration", required=True, type=click.Path(),
               help="Calibrated manifest.json of the reference band (as written by 'gcpcal calibrate'), or its folder.")

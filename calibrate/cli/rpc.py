@@ -5,13 +5,14 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.rpc import RpcOutputUsageError, fit_rpcs
-from calibrate.cli.options import (accept_product_disagreement_option, add_options, dem_options, echo_json, echo_warnings, height_range_option, json_option,
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options, echo_json, echo_warnings, height_range_option, json_option,
                                    one_height_source)
 
 __all__ = ["command"]
 
 
 @click.command("rpc")
+@allow_implausible_option
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.option("--out", "out_path", required=True, type=click.Path(),
               help="One RPC: this exact file, *_RPC.TXT, *.RPB, or *.tif (a copy of the scene raster with RPC tags). "

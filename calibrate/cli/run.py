@@ -7,7 +7,7 @@ import click
 from calibrate.actions.run import MIN_COVERAGE, MIN_GCPS, run_scene
 from calibrate.cli._errors import EXIT_FAILED
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import (accept_product_disagreement_option, add_options, dem_options, dom_options, echo_json, echo_warnings, exit_with_status,
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options, dom_options, echo_json, echo_warnings, exit_with_status,
                                    json_option, out_dir_option)
 from sensor_models.errors import InputError
 
@@ -15,6 +15,7 @@ __all__ = ["command"]
 
 
 @click.command("run")
+@allow_implausible_option
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
 @dom_options
 @add_options(dem_options)

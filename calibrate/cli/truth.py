@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.simulate import truth_error_of
-from calibrate.cli.options import (add_options, constant_height_option, dem_options, echo_json, echo_warnings,
+from calibrate.cli.options import (add_options, allow_implausible_option, constant_height_option, dem_options, echo_json, echo_warnings,
                                    float_list, height_range_option, json_option, one_height_source)
 
 __all__ = ["command"]
@@ -17,6 +17,7 @@ def command():
 
 
 @command.command("error")
+@allow_implausible_option
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.option("--truth", "truth_path", required=True, type=click.Path(dir_okay=False), help="The TRUE model (truth_manifest.json of a simulation).")
 @add_options(dem_options)

@@ -45,16 +45,12 @@ def load_json(path: Path):
     Raises
     ------
     ManifestError
-        If the file cannot be read or is not valid JSON (with line and column).
+        If the file cannot be read, is not UTF-8 text, is too large or too deeply nested, or is
+        not valid JSON (with line and column): :func:`sensor_models.readers.documents.load_json`.
     """
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ManifestError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ManifestError(f"is not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})", path=str(path)) from None
+    from sensor_models.readers.documents import load_json as _load
+
+    return _load(path, error=ManifestError)
 
 
 def check_format_version(root: Fields) -> int:

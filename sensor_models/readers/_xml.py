@@ -8,11 +8,11 @@ field (the caller's ``where`` alone, or ``where/rel``) is :meth:`StrictXml.field
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 
 import numpy as np
 
 from sensor_models.errors import ManifestError
+from sensor_models.readers.documents import parse_xml
 
 __all__ = ["StrictXml"]
 
@@ -38,12 +38,7 @@ class StrictXml:
 
     def __init__(self, path):
         self.path = str(path)
-        try:
-            self.root = ET.parse(path).getroot()
-        except OSError as exc:
-            raise ManifestError(f"cannot read: {exc.strerror or exc}", path=self.path) from None
-        except ET.ParseError as exc:
-            raise ManifestError(f"is not well-formed XML ({exc})", path=self.path) from None
+        self.root = parse_xml(path, error=ManifestError)
         if self.root.tag != self.ROOT:
             raise ManifestError(f"root element is <{self.root.tag}>, expected <{self.ROOT}>: not a {self.DOCUMENT}",
                                 path=self.path, field=self.root.tag)

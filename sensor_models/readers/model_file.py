@@ -11,6 +11,9 @@ from sensor_models.errors import InputError
 
 __all__ = ["open_model", "xml_root"]
 
+#: Bytes of an XML file read to find its root element (prolog and comments come before it).
+_XML_HEAD_BYTES = 1 << 20
+
 #: Root element of a vendor XML file -> (module, reader function) of its geometric reader.
 _XML_READERS = {
     "Dimap_Document": ("sensor_models.readers.dimap_v2", "read_dimap_v2"),
@@ -95,11 +98,22 @@ def xml_root(path) -> str:
     import xml.etree.ElementTree as ET
 
     try:
-        for _, elem in ET.iterparse(path, events=("start",)):
+        with open(path, "rb") as fh:
+            head = fh.read(_XML_HEAD_BYTES)
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+    if b"\x00" in head:
+        raise InputError("NUL byte: not an XML text file", path=str(path))
+    parser = ET.XMLPullParser(events=("start",))
+    try:
+        parser.feed(head)  # one call: expat re-scans an unfinished token on every feed
+        for _, elem in parser.read_events():
             return elem.tag.rsplit("}", 1)[-1]
     except ET.ParseError as exc:
         raise InputError(f"not readable XML ({exc})", path=str(path)) from None
-    raise InputError("empty XML file", path=str(path))
+    if not head.strip():
+        raise InputError("empty XML file", path=str(path))
+    raise InputError(f"no root element in the first {_XML_HEAD_BYTES >> 10} KiB: not an XML product", path=str(path))
 
 
 def _read_vendor_xml(path: Path, **kwargs):

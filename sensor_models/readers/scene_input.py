@@ -248,12 +248,9 @@ def _dimap_data_file(path: Path, rel: str) -> tuple[Path | None, tuple[Path, ...
 
     A product tiled into several files gives no raster (the tiles are the candidates).
     """
-    import xml.etree.ElementTree as ET
+    from sensor_models.readers.documents import parse_xml
 
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise InputError(f"not readable XML ({exc})", path=str(path)) from None
+    root = parse_xml(path)
     hrefs = [e.get("href") for e in root.iterfind(rel) if e.get("href")]
     candidates = tuple(path.parent / h for h in hrefs)
     if len(candidates) != 1:  # none named, or a tiled product (one raster per tile)

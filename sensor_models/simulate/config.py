@@ -12,7 +12,6 @@ Units are in the names: ``_deg``, ``_arcsec``, ``_urad``, ``_px`` (detector pitc
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -333,12 +332,7 @@ def load_config(path=None) -> SimConfig:
     if path is None:
         return SimConfig().validate()
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"cannot read the configuration ({exc.strerror})", path=str(path)) from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"is not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})", path=str(path)) from None
+    from sensor_models.readers.documents import load_json
+
+    doc = load_json(path)
     return config_from_dict(doc, source=str(path))

@@ -117,12 +117,9 @@ def load_geo_config(path=None) -> GeoSimConfig:
     if path is None:
         return GeoSimConfig().validate()
     source = str(path)
-    try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(f"cannot read the configuration ({exc.strerror})", path=source) from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"is not valid JSON (line {exc.lineno}: {exc.msg})", path=source) from None
+    from sensor_models.readers.documents import load_json
+
+    doc = load_json(path)
     if not isinstance(doc, dict):
         raise InputError("the configuration must be a JSON object", path=source)
     base = GeoSimConfig()
