@@ -150,7 +150,20 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     record_product_check(summary, model)
     if implausible:
         summary["implausible_accepted"] = implausible
-    # every file moves in together at the end; with no GCP only the summary (an older table goes)
+    _write_outputs(table, summary, model=model, band=band, image=image, out_path=out_path, out_format=out_format,
+                   gpkg_path=gpkg_path, geotiff_path=geotiff_path, residuals_path=residuals_path, inputs=inputs)
+    if table is None or len(table) == 0:
+        raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",
+                         path=str(scene_path))
+    return summary
+
+
+
+def _write_outputs(table, summary, *, model, band, image, out_path, out_format, gpkg_path, geotiff_path,
+                   residuals_path, inputs) -> None:
+    """Write the GCP table (CSV or GeoPackage), the optional GeoPackage and GeoTIFF, the residual
+    layer and the summary; every file moves in together at the end, and with no GCP only the
+    summary (an older table goes)."""
     staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
                           inputs=inputs)
     with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp, residuals_tmp):
@@ -167,10 +180,6 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
                 write_gcps_gpkg(table, gpkg_tmp)
             write_residual_layer(model_residual_layer(model, table), residuals_tmp)
         summary_tmp.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-    if table is None or len(table) == 0:
-        raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",
-                         path=str(scene_path))
-    return summary
 
 
 def _dom_name(dom_found, dom_path) -> str:
