@@ -116,8 +116,6 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     InputError
         When no GCP could be extracted (the summary is written all the same).
     """
-    from calibrate.residual_layer import model_residual_layer, write_residual_layer
-    from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
     from sensor_models.readers import open_scene
 
     options.validate()  # before any work: e.g. --backend gpu without CUDA
@@ -164,6 +162,9 @@ def _write_outputs(table, summary, *, model, band, image, out_path, out_format, 
     """Write the GCP table (CSV or GeoPackage), the optional GeoPackage and GeoTIFF, the residual
     layer and the summary; every file moves in together at the end, and with no GCP only the
     summary (an older table goes)."""
+    from calibrate.residual_layer import model_residual_layer, write_residual_layer
+    from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
+
     staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
                           inputs=inputs)
     with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp, residuals_tmp):
