@@ -385,6 +385,7 @@ def main_parallax(args) -> None:
     """``--parallax``: synthetic jitter cases and (with ``--scene``) the scene with the joint path."""
     out_path = args.out.parent / "attitude_parallax.json" if args.out.name == "attitude.json" else args.out
     results = json.loads(out_path.read_text()) if out_path.exists() else {}
+    out_path.parent.mkdir(parents=True, exist_ok=True)
     skip = set(filter(None, args.skip.split(",")))
     if "synthetic" not in skip:
         cases = results.setdefault("synthetic", {})

@@ -347,6 +347,7 @@ def run_floor(args) -> None:
     print(f"after vs before: x{a['speedup_cpu']:.2f} (vs base x{a['speedup_cpu_vs_base']:.2f}); shifts differ by {a['shift_px_max']:.1e} px at most, "
           f"scores by {a['score_max']:.1e}, validity of {a['valid_differ']} pairs")
     out_path = args.out if args.out != ROOT / "bench" / "results" / "phase.json" else ROOT / "bench" / "results" / "phase_floor.json"
+    out_path.parent.mkdir(parents=True, exist_ok=True)
     out_path.write_text(json.dumps(result, indent=1) + "\n")
     print(f"wrote {out_path}")
 
