@@ -187,7 +187,7 @@ def scene(scene_dir: Path, gcps_csv: Path, work: Path, modes=("static", "auto"))
     return out
 
 
-# --------------------------------------------------------------------------- parallax (issue 16 item 2)
+# --------------------------------------------------------------------------- parallax
 def _jittered_truth(lab, lines, seed=5, installation=(2e-4, -1e-4, 3e-4), band_error_px=(0.3, -0.2)):
     """TRUE model: ``lab`` with an installation error, the jitter ``lines`` in its attitude
     (``[(amplitudes_urad (3,), frequency_hz), ...]``, random phases, sampled at 100 Hz) and

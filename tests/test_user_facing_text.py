@@ -1,7 +1,7 @@
 """User-facing text says what the tool does now; the development history lives in git.
 
-README.md, docs/*.md and every ``.py`` file of the packages (comments, docstrings, help texts,
-report templates and the strings they print) are scanned for references to the development
+README.md, docs/*.md and every ``.py`` file of the packages and of bench/ (comments, docstrings,
+help texts, report templates and the strings they print) are scanned for references to the development
 process: numbered sessions, issues or rounds ("session 7", "issue 13 item 3"), "today's" (the
 simulator as it stood when a line was written), the issue tracker, and figures of an earlier
 revision announced as such ("before the texture-poor land cover: 0.057 px").
@@ -15,13 +15,13 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("sensor_models", "gcpmatch", "calibrate")
+PACKAGES = ("sensor_models", "gcpmatch", "calibrate", "bench")
 
 #: Each pattern with what it catches. ``\s+`` so that a line break inside the phrase is no escape.
 PATTERNS = {
-    "numbered session": re.compile(r"\bsessions?\s+\d+", re.IGNORECASE),
-    "numbered issue": re.compile(r"\bissues?\s+#?\d+", re.IGNORECASE),
-    "numbered round": re.compile(r"\brounds?\s+\d+", re.IGNORECASE),
+    "numbered session": re.compile(r"\bsessions?[\s-]+\d+", re.IGNORECASE),
+    "numbered issue": re.compile(r"\bissues?[\s-]+#?\d+", re.IGNORECASE),
+    "numbered round": re.compile(r"\brounds?[\s-]+\d+", re.IGNORECASE),
     "today": re.compile(r"\btoday\b", re.IGNORECASE),
     # "star tracker" is an attitude sensor, not the issue tracker
     "tracker": re.compile(r"(?<!star[- ])\btrackers?\b", re.IGNORECASE),
@@ -105,6 +105,7 @@ def test_user_facing_text_holds_no_development_history():
     ("Session 7: the first pass", "numbered session"),
     ("(issue 17 item 3)", "numbered issue"),
     ("since session\n6 a fourth term", "numbered session"),
+    ("the session-4 scene", "numbered session"),
     ("numbered development round 3", "numbered round"),
     ("ideal (today's simulator)", "today"),
     ("as the tracker asks", "tracker"),
