@@ -187,7 +187,7 @@ def scene(scene_dir: Path, gcps_csv: Path, work: Path, modes=("static", "auto"))
     return out
 
 
-# --------------------------------------------------------------------------- parallax (issue 16 item 2)
+# --------------------------------------------------------------------------- parallax
 def _jittered_truth(lab, lines, seed=5, installation=(2e-4, -1e-4, 3e-4), band_error_px=(0.3, -0.2)):
     """TRUE model: ``lab`` with an installation error, the jitter ``lines`` in its attitude
     (``[(amplitudes_urad (3,), frequency_hz), ...]``, random phases, sampled at 100 Hz) and
@@ -385,6 +385,7 @@ def main_parallax(args) -> None:
     """``--parallax``: synthetic jitter cases and (with ``--scene``) the scene with the joint path."""
     out_path = args.out.parent / "attitude_parallax.json" if args.out.name == "attitude.json" else args.out
     results = json.loads(out_path.read_text()) if out_path.exists() else {}
+    out_path.parent.mkdir(parents=True, exist_ok=True)
     skip = set(filter(None, args.skip.split(",")))
     if "synthetic" not in skip:
         cases = results.setdefault("synthetic", {})

@@ -137,10 +137,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=12)
     parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "batch.json")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="JSON written (default bench/results/batch.json, or batch_coarse_skip.json with --coarse-skip)")
     parser.add_argument("--coarse-skip", action="store_true",
                         help="compare validation with and without the coarse-stage skip (one process) "
-                             "and write bench/results/batch_coarse_skip.json instead")
+                             "and write that comparison to --out instead")
     args = parser.parse_args()
     from calibrate.batch import read_sites
 
@@ -151,7 +152,8 @@ def main() -> None:
         doc = coarse_skip_compare(sites, calib, args.repeats)
         doc.update(command=f"python bench/bench_batch.py --coarse-skip --scenes {args.scenes} --repeats {args.repeats}",
                    machine=platform.platform(), cpu_count=os.cpu_count())
-        out = results / "batch_coarse_skip.json"
+        out = args.out or results / "batch_coarse_skip.json"
+        out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(doc, indent=1) + "\n")
         print(f"validation of {doc['scenes']} scenes: x{doc['speedup']:.2f} with the coarse skip "
               f"({doc['skipped']} skipped), planar RMSE changed by {doc['max_planar_rmse_change_px']:.3f} px at most; "
@@ -182,6 +184,7 @@ def main() -> None:
         "machine": platform.platform(),
         "python": platform.python_version(),
     }
+    args.out = args.out or results / "batch.json"
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(doc, indent=1) + "\n")
     print(f"{len(sites)} scenes: 1 worker {best[1]:.1f} s, 2 workers {best[2]:.1f} s -> speed ratio {ratio:.2f} "

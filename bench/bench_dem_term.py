@@ -1,4 +1,4 @@
-"""The user DEM's error at the seed's full width, with a perfect matcher (issue 13).
+"""The user DEM's error at the seed's full width, with a perfect matcher.
 
 A rendered ``realistic`` scene (``bench/bench_fullsize.py --scale 1 --lines N``) holds the TRUE
 model, the TRUE DEM (``reference/truth/dem_true.tif``) and the degraded user DEM

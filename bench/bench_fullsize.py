@@ -1,4 +1,4 @@
-"""Benchmark: the full-size seed-003 scene end to end (issue 17 item 7; issues 16 and 13 at full size).
+"""Benchmark: the full-size seed-003 scene end to end: time, memory and accuracy at full size.
 
 Seed 003's acquisition (HY-1C CZI): 2 cameras x 2 CCDs of about 5 450 detectors (21 800 in all) over
 a +-31 degree view, 4 bands, about 60 s. The geometry is ``bench/fullsize_seed003.json`` (a

@@ -1,4 +1,4 @@
-"""Diagnostic: match a full-width strip with a widened coarse stage, then calibrate and grade (issue 13).
+"""Diagnostic: match a full-width strip with a widened coarse stage, then calibrate and grade.
 
 ``gcpcal match`` fails on a 512-line strip of the seed's full width at its coarse stage (the
 21 800-column strip is reduced 14 times to 36 rows, and the LAB model's rotation moves it by

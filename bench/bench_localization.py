@@ -233,8 +233,8 @@ def _rpc_result(rpc, dem, rows, cols, best, out, shareloc, reason, after_rounds,
     return result
 
 
-def rpc_only(n: int, shareloc_python=None, repeat: int = 3) -> None:
-    """``--rpc-only``: the RPC-over-DEM comparison alone, written to ``localization_rpc.json``."""
+def rpc_only(n: int, shareloc_python=None, repeat: int = 3, out: Path | None = None) -> None:
+    """``--rpc-only``: the RPC-over-DEM comparison alone, written to ``out`` (default ``localization_rpc.json``)."""
     dem, dem_name = load_dem()
     model = example_pushbroom_model(n_rows=2000, installation=Installation(0.0, 0.0, np.radians(3.55)))
     r = bench_rpc_dem(model, dem, n, repeat=repeat, shareloc_python=shareloc_python)
@@ -243,7 +243,7 @@ def rpc_only(n: int, shareloc_python=None, repeat: int = 3) -> None:
         command += f" --shareloc-python {shareloc_python}"
     r.update(dem=dem_name, command=command, machine=platform.machine(), python=platform.python_version())
     print(json.dumps(r, indent=1))
-    out = ROOT / "bench" / "results" / "localization_rpc.json"
+    out = out or ROOT / "bench" / "results" / "localization_rpc.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(r, indent=1) + "\n")
 
@@ -251,10 +251,10 @@ def rpc_only(n: int, shareloc_python=None, repeat: int = 3) -> None:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=1_000_000)
-    parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "localization.json")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="JSON written (default bench/results/localization.json, or localization_rpc.json with --rpc-only)")
     parser.add_argument("--rpc-only", action="store_true",
-                        help="only the RPC-over-DEM comparison (base revision, current, GDAL); writes "
-                             "bench/results/localization_rpc.json")
+                        help="only the RPC-over-DEM comparison (base revision, current, GDAL), written to --out")
     parser.add_argument("--shareloc-python", default=None, metavar="PATH",
                         help="Python of an environment with shareloc installed: adds shareloc's C++ to the RPC "
                         "comparison (skipped with a printed reason when not given or not importable)")
@@ -262,7 +262,7 @@ def main():
     args = parser.parse_args()
     n = args.points
     if args.rpc_only:
-        rpc_only(n, args.shareloc_python, args.repeat)
+        rpc_only(n, args.shareloc_python, args.repeat, args.out)
         return
     rng = np.random.default_rng(42)
 
@@ -337,6 +337,7 @@ def main():
 
     results["max_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"peak memory {results['max_rss_mb']:.0f} MB")
+    args.out = args.out or ROOT / "bench" / "results" / "localization.json"
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2) + "\n")
     print(f"wrote {args.out}")

@@ -29,7 +29,7 @@ difference / reported sigma. ``--coverage-seeds`` repeats that chain on more rea
 (Sentinel-2 and procedural source, one per seed) for the coverage of the 95 % intervals.
 
 Usage: ``python bench/bench_matcher_realism.py --cache /tmp/mr [--variants a,b] [--out FILE]``
-(default ``--out bench/results/matcher_realism.json``; the session-5 sigma run:
+(default ``--out bench/results/matcher_realism.json``; the sigma-model comparison:
 ``--variants default,ccd,window_ref0 --calibrate default,ccd --coverage-seeds 3,5,7,9
 --out bench/results/matcher_realism_sigma.json``).
 """
@@ -279,7 +279,7 @@ def variants() -> dict:
     """Named (:class:`~gcpmatch.options.MatchOptions`, phase-correlation keywords) to measure."""
     from gcpmatch.options import MatchOptions
 
-    base = MatchOptions(sigma_model="ccd")  # the matcher candidates of session 4, with the sigma model they had
+    base = MatchOptions(sigma_model="ccd")  # the matcher candidates, with the per-CCD sigma model
     window = replace(base, sigma_model="window")
     return {
         "default": (MatchOptions(), None),  # window model, the reference accuracy the DOM states
@@ -308,7 +308,7 @@ def variants() -> dict:
         "sigma_window_ref0": (window, None),
         "sigma_window_ref0.65": (replace(window, reference_sigma_m=0.65), None),
         "sigma_window_ref1.3": (replace(window, reference_sigma_m=REALISTIC_REFERENCE_SIGMA_M), None),
-        # session 7: the phase kernel's first pass at half resolution (the default) against the
+        # the phase kernel's first pass at half resolution (the default) against the
         # full-resolution one, and the half one with the full one's peak-ratio threshold
         "first_pass_full": (MatchOptions(), {"first_pass": "full"}),
         "first_pass_half_pr2": (MatchOptions(), {"min_peak_ratio": 2.0}),

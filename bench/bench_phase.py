@@ -16,7 +16,7 @@ sensitive to other jobs on a shared machine); best of ``--repeat`` runs. Accurac
 mean (bias) of the error over all pairs, and over the accepted ones for gcpmatch.
 An ablation (accuracy only) measures the normalization floor ``eps`` and the low-pass.
 
-The FFT floor (``--floor``; issue 17 item 3): the least any batched phase correlation must
+The FFT floor (``--floor``): the least any batched phase correlation must
 do, timed in the same child process at 1 thread, alternating with the kernel of the base
 revision (``bench/baseline.py``) and the current kernel, on the same float32 window pairs (the
 matcher's chips are float32): per batch, ``scipy.fft.rfft2`` of both windows, the normalized
@@ -238,8 +238,8 @@ def fft_floor(ref, mov, batch: int, threads: int) -> np.ndarray:
     return np.concatenate(peaks)
 
 
-#: The kernel before session 7's change (session 6's: Newton refinement, first pass at full
-#: resolution): "before". Session 6 measured against f841fa9 (refinement on DFT-upsampled grids).
+#: A reference revision of the kernel timed as "before" (Newton refinement, first pass at full
+#: resolution); f841fa9 is the one with refinement on DFT-upsampled grids.
 SESSION_BASE_REV = "09ec0f2"
 
 
@@ -347,6 +347,7 @@ def run_floor(args) -> None:
     print(f"after vs before: x{a['speedup_cpu']:.2f} (vs base x{a['speedup_cpu_vs_base']:.2f}); shifts differ by {a['shift_px_max']:.1e} px at most, "
           f"scores by {a['score_max']:.1e}, validity of {a['valid_differ']} pairs")
     out_path = args.out if args.out != ROOT / "bench" / "results" / "phase.json" else ROOT / "bench" / "results" / "phase_floor.json"
+    out_path.parent.mkdir(parents=True, exist_ok=True)
     out_path.write_text(json.dumps(result, indent=1) + "\n")
     print(f"wrote {out_path}")
 

@@ -9,7 +9,7 @@ user has) projected through ``truth_manifest.json``, minus the matched (row, col
 
 ``--source`` gives the realistic profile its source radiance (default: the Sentinel-2 red band
 of ``../shared/data/real_textures``, when present; ``procedural`` for the procedural texture).
-The ideal profile always uses today's procedural reference (its DOM rendered the scene).
+The ideal profile always uses the default procedural reference (its DOM rendered the scene).
 
 Usage: ``python bench/bench_profiles.py --out /tmp/profiles [--gsd 20] [--source procedural] [--relief 600]``
 
@@ -64,7 +64,7 @@ ABLATIONS = {
     "no_lens": {"radial_k2_px": 0.0, "radial_k3_px": 0.0, "focal_plane_curvature_px": 0.0, "ccd_bending_px": 0.0,
                 "detector_irregularity_px": 0.0},
 }
-#: issue 13 items 1-4 of session 5, one at a time (each: realistic minus it)
+#: sun, broadband jitter, astigmatism, clouds: one at a time (each: realistic minus it)
 NO_SUN = {"sun_scene_date_time": None, "sun_dom_date_time": None}
 NO_BROADBAND = {"jitter_line2_amplitude_urad": (0.0, 0.0, 0.0), "jitter_floor_rms_urad": (0.0, 0.0, 0.0)}
 ABLATIONS.update({"no_sun": NO_SUN, "no_broadband_jitter": NO_BROADBAND,

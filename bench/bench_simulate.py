@@ -33,6 +33,7 @@ def main():
     ap.add_argument("--gsd", type=float, default=16.0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--procedural", action="store_true")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "simulate.json", help="JSON written")
     args = ap.parse_args()
 
     import pyproj
@@ -85,7 +86,7 @@ def main():
         "peak_rss_gb": peak_gb, "target_seconds": 60.0, "procedural": args.procedural,
     }
     print(json.dumps(result, indent=1))
-    out = ROOT / "bench" / "results" / "simulate.json"
+    out = args.out
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1) + "\n")
 

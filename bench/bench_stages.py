@@ -99,7 +99,7 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
         return lambda: [fn(model, dem, [dom.grid], band=band, ccd=c, row0=a, row1=b, **kw) for c, a, b in blocks]
 
     # "after" = the chips' settings; "per_pixel" = the adaptive path with a 1 mm height tolerance
-    # and 16-column nodes (session 5's chips), the path the chips' settings are checked against
+    # and 16-column nodes (the per-pixel chips), the path the chips' settings are checked against
     t_loc, loc_out = alternate({"before": loc(base.locate_block), "after": loc(locate.locate_block, **chip_settings(dom)),
                                 "per_pixel": loc(locate.locate_block, tolerance_m=locate.HEIGHT_TOLERANCE_M)}, repeat)
     d_uv = np.concatenate([np.hypot(p.uv[0][0] - q.uv[0][0], p.uv[0][1] - q.uv[0][1]).ravel()

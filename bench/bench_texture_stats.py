@@ -1,4 +1,4 @@
-"""Texture statistics of real imagery against the simulator's procedural texture (issue 13 item 1).
+"""Texture statistics of real imagery against the simulator's procedural texture.
 
 What a matcher sees of a texture, measured the same way on every source after block-averaging it
 to one ground sample distance (``--gsd``, 30 m: the Landsat-like reference DOM):

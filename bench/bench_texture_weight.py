@@ -41,7 +41,7 @@ CLASSES = ((0.0, 0.1, "<10%"), (0.1, 0.5, "10-50%"), (0.5, 0.9, "50-90%"), (0.9,
 def variants() -> dict:
     """Named ``MatchOptions`` overrides to measure."""
     return {
-        "default": {},  # since session 6: mismatch_sigma_scale 1
+        "default": {},  # mismatch_sigma_scale 1
         "no_mismatch": {"mismatch_sigma_scale": 0.0},  # the sigma model before
         "gate_snr_3.5": {"mismatch_sigma_scale": 0.0, "min_gradient_snr": 3.5},
         "gate_snr_4.5": {"mismatch_sigma_scale": 0.0, "min_gradient_snr": 4.5},

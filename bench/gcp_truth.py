@@ -1,4 +1,4 @@
-"""GCP truth error of a matched table, pooled and split by view angle (issue 13, full-width runs).
+"""GCP truth error of a matched table, pooled and split by view angle (full-width runs).
 
 Each matched GCP's image point ``(row, col)`` minus the TRUE model's projection of its ground
 point ``(lon, lat, h)`` (:func:`calibrate.experiments.simulate_seed003.gcp_truth_error`), split by

@@ -1,4 +1,4 @@
 """GCP extraction: reference chips in scene geometry, SIFT coarse matching, phase correlation.
 
-Depends on :mod:`sensor_models` only. (The matching pipeline lands with issue 4.)
+Depends on :mod:`sensor_models` only.
 """

@@ -15,7 +15,7 @@ Two models (:data:`gcpmatch.options.SIGMA_MODELS`; docs/matching.md, section "si
 
   with ``sigma_mm_px`` the pair's Cramer-Rao-shaped bound with its own mismatch as the noise
   (:func:`gcpmatch.texture.mismatch_cr_sigma_px`, rms of the two axes; ``k`` =
-  ``MatchOptions.mismatch_sigma_scale``, 1 by default since session 6, 0 for the model before):
+  ``MatchOptions.mismatch_sigma_scale``, 1 by default, 0 for the window model alone):
   the score is relative to each window, this term is not, and it carries what texture-poor ground
   loses (docs/matching.md, "Texture-poor ground");
 
@@ -46,9 +46,9 @@ FALLBACK_SIGMA_PX = 0.1
 MIN_SIGMA_PX = 0.01
 #: matching noise per axis, pixels, of a 64 px window whose score is 0.5 (``sqrt((1 - s) / s) =
 #: 1``): least-squares fit ``e^2 = a^2 (1 - s) / s + f^2`` of the squared per-axis truth errors
-#: of the 231 kept GCPs of the realistic profile without DOM error, refitted in session 7 with the
-#: Lanczos chips (a = 0.071 px, f = 0.032 px; session 5, bilinear chips: 0.074, 0.037); on the
-#: ideal scene the same fit gives a = 0.100 px, f = 0.007 px (bench/results/matcher_chips_lanczos.json)
+#: of the 231 kept GCPs of the realistic profile without DOM error, on Lanczos reference chips
+#: (a = 0.071 px, f = 0.032 px; docs/matching.md, "sigma_px"); on the ideal scene the same fit
+#: gives a = 0.100 px, f = 0.007 px (``bench/bench_matcher_realism.py``)
 SCORE_SIGMA_PX = 0.071
 #: matching floor per axis, pixels (64 px windows), from the same fit
 MATCH_FLOOR_PX = 0.032

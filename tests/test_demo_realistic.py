@@ -1,7 +1,7 @@
 """``gcpcal demo`` on its default scene, the ``realistic`` fixture (``fixtures/hy1c_czi_realistic``).
 
-The bounds come from one measured run (profile ``realistic``, this fixture, see README "Quick
-start") with about 40 % margin on each side: the realistic profile is still being extended
+The bounds come from one measured run (profile ``realistic``, this fixture, see README "What
+the demo does and prints") with about 40 % margin on each side: the realistic profile is still being extended
 (sun-angle shadows, broadband jitter), and the fixture is regenerated when it is. They bracket
 the figures from both sides, so a scene that became ideal again (truth error 0.029 px) or a
 pipeline that broke fails.

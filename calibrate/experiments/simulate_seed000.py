@@ -3,7 +3,7 @@
 Each session is one 20-minute sequence (seed 000: a specific time on consecutive days; 1024 x
 1024 frames of the 1250 mm / 25 um camera every 10 s) rendered by
 :func:`sensor_models.simulate.geo_stars.simulate_geo_stars` under the stars profile (``ideal``:
-today's; ``realistic``/``paper-000``: 1 arcsec attitude noise, an unmeasured 2 arcsec wobble
+the default sequence; ``realistic``/``paper-000``: 1 arcsec attitude noise, an unmeasured 2 arcsec wobble
 over 20 min, Hipparcos-level catalogue errors, pixel-phase and PRNU centroid systematics, orbit
 error: :mod:`sensor_models.simulate.star_truth`), then processed by
 :func:`calibrate.stars.process_frames` (detection, identification, tracks, stepwise calibration,
@@ -132,7 +132,7 @@ def _day_offsets_arcsec(profile, n_sessions: int) -> np.ndarray:
 
 
 def _run_sessions(work, profile, n_sessions: int, n_frames: int, first=None) -> list:
-    """Session 0 as the simulator sets it (or ``first``, already run); the others share its
+    """The first session as the simulator sets it (or ``first``, already run); the others share its
     installation plus a daily offset."""
     first = first if first is not None else run_session(work, profile, day=0, n_frames=n_frames)
     sessions = [first]
@@ -268,7 +268,7 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
 NOTES = [
     "Before: ours is set to the paper's table 3 means by construction (installation error chosen to give "
     "-7/-21 px at the centre): not a result.",
-    "After, ideal: ~0.02 px, 40x better than the paper: today's truth has 0.1 arcsec attitude noise, no "
+    "After, ideal: ~0.02 px, 40x better than the paper: the ideal truth has 0.1 arcsec attitude noise, no "
     "unmeasured motion, a perfect catalogue and an unbiased centroid.",
     "After, realistic (full 120-frame sessions, measured): the unmeasured 2 arcsec wobble and the 1 arcsec "
     "attitude noise share the error (0.32 px; 0.20 px without the wobble, 0.26 px with 0.1 arcsec noise); "

@@ -3,7 +3,7 @@
 Compensation (:func:`calibrate.schemes.compensate.run_seed002`): GF-4-like 10240 x 10240
 staring camera, seed 002 table 1 lens and table 2 installation errors, VCPs every 100 px (the
 paper's grid; ``quick``: every 500 px). Under ``ideal`` the TRUE interior is the cubic fitted to
-the lens (today); otherwise it is the physical lens itself (:mod:`sensor_models.simulate.staring_truth`)
+the lens (the default path); otherwise it is the physical lens itself (:mod:`sensor_models.simulate.staring_truth`)
 with the profile's ``k2``, ``k3`` and VCP noise.
 
 Thermal (:mod:`calibrate.schemes.thermal`): the installation drifts with the time of day; under
@@ -33,7 +33,7 @@ SIGMA_FLOOR_PX = 0.01
 
 
 def staring_models(profile, image_shape=(10240, 10240)):
-    """``(true_lab, truth, lab)`` of seed 002 under a staring profile; None for ``ideal`` (today's).
+    """``(true_lab, truth, lab)`` of seed 002 under a staring profile; None for ``ideal`` (the default path).
 
     Parameters
     ----------

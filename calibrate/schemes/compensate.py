@@ -561,7 +561,7 @@ def run_seed002(*, step_px: float = 100.0, start_px: float = 0.0, stop_px: float
     models : (StaringLab, GeoStaringModel, GeoStaringModel), optional
         ``(true_lab, truth, lab)`` to use instead of seed 002's (e.g. a TRUE model evaluating
         the physical lens, :mod:`sensor_models.simulate.staring_truth`); ``image_shape`` must
-        be theirs. Default: :func:`seed002_true_lab` fitted by the cubic, as today.
+        be theirs. Default: :func:`seed002_true_lab` fitted by the cubic.
 
     Returns
     -------

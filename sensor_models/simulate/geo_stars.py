@@ -281,7 +281,7 @@ def _installation_error(cfg: GeoStarsConfig, lab: GeoStaringModel, truth0: GeoSt
 
 
 def _build_models(cfg: GeoStarsConfig, rng, errors=None):
-    """LAB and TRUE models and the installation error; ``errors`` (StarTruthErrors) beyond today's."""
+    """LAB and TRUE models and the installation error; ``errors`` (StarTruthErrors) beyond the default ones."""
     n_rows, n_cols = (int(x) for x in cfg.image_shape)
     t_end = (int(cfg.n_frames) - 1) * float(cfg.frame_interval_s)
     t0, t1 = -60.0, t_end + 60.0
@@ -331,8 +331,8 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
         Shortcuts for the :class:`GeoStarsConfig` fields of the same names.
     profile : StarsProfile, optional
         Error profile (:mod:`sensor_models.simulate.profiles`): its attitude noise, jitter and
-        drift replace the configuration's, and its errors beyond today's
-        (:mod:`sensor_models.simulate.star_truth`) are injected. None or ``ideal``: today's
+        drift replace the configuration's, and its errors beyond the default ones
+        (:mod:`sensor_models.simulate.star_truth`) are injected. None or ``ideal``: the default
         sequence, byte for byte.
 
     Returns

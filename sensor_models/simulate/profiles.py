@@ -5,8 +5,9 @@ and the citation (or the word *assumption*) it comes from. Each field's unit and
 simulator injects it are in the field's metadata (``unit``, ``model``); :func:`profile_table`
 turns a profile into the rows of ``docs/error_budget.md``.
 
-* ``ideal``: today's simulator, byte for byte (:func:`sensor_models.simulate.pushbroom_sim.
-  simulate_pushbroom` takes its historical path; the fields record today's magnitudes).
+* ``ideal``: the simulator's default path (:func:`sensor_models.simulate.pushbroom_sim.
+  simulate_pushbroom` renders it byte for byte as without a profile; the fields record the
+  defaults' magnitudes).
 * ``realistic``: the truth lies outside the estimator's family, the radiometric kernel is the
   simulator's own (:mod:`sensor_models.simulate.kernel`) and the reference DOM and DEM differ
   from what rendered the scene (:mod:`sensor_models.simulate.reference_pair`).
@@ -15,7 +16,7 @@ Profiles of the other seeds are other dataclasses, one per kind of experiment, i
 :data:`KIND_PROFILES` (``kind`` -> name -> profile): :class:`StaringProfile` (seed 002 staring
 camera), :class:`ThermalProfile` (seed 002 section 3.3 thermal installation), :class:`StarsProfile`
 (seed 000 star tracks), :class:`OalrProfile` (seed 004 autocollimation) and the push-broom one
-(seed 003). Each kind has ``ideal`` (today's numbers), ``realistic`` and the ``paper-*`` profile
+(seed 003). Each kind has ``ideal`` (the defaults' numbers), ``realistic`` and the ``paper-*`` profile
 of its seed. :data:`PROFILES` stays the push-broom table (``gcpcal simulate pushbroom``);
 :func:`get_profile` looks up any kind.
 """
@@ -29,8 +30,8 @@ from sensor_models.errors import InputError
 __all__ = ["KIND_PROFILES", "OalrProfile", "PROFILES", "PushbroomProfile", "Sourced", "StaringProfile", "StarsProfile",
            "ThermalProfile", "get_profile", "profile_table"]
 
-TODAY = "today's simulator default (sensor_models/simulate/config.py)"
-ISSUE13 = "issue 13 (project's realistic range)"
+DEFAULT = "the simulator's default (sensor_models/simulate/config.py)"
+REALISTIC_RANGE = "project's realistic range"
 ASSUMPTION = "assumption (no public figure for this sensor; order of magnitude)"
 LIEBE = "Liebe 2002, Accuracy performance of star trackers - a tutorial, IEEE TAES 38(2):587-599 (arcsec class = ~5 urad)"
 TONG = ("Tong et al. 2015, ZY-3 image distortions caused by attitude oscillation, ISPRS J. Photogramm. "
@@ -70,7 +71,7 @@ class Sourced:
     value : float, tuple of float or str
         The magnitude, in the unit of the profile field that holds it.
     source : str
-        A citation, ``issue 13``, today's default, or ``assumption``.
+        A citation, the project's realistic range, a default of the code, or ``assumption``.
     """
 
     value: object
@@ -86,7 +87,7 @@ class _ProfileFields:
 
     @property
     def is_ideal(self) -> bool:
-        """True for the profile that takes today's path (the simulator's historical one)."""
+        """True for the profile that takes the simulator's default path."""
         return self.name == "ideal"
 
     def value(self, name: str):
@@ -179,13 +180,13 @@ class PushbroomProfile(_ProfileFields):
 
 
 def _ideal() -> PushbroomProfile:
-    s = lambda v: Sourced(v, TODAY)  # noqa: E731
+    s = lambda v: Sourced(v, DEFAULT)  # noqa: E731
     none = lambda v: Sourced(v, "not simulated in this profile")  # noqa: E731
     return PushbroomProfile(
         name="ideal",
         star_tracker_noise_urad=s(1.0), jitter_amplitude_urad=s((1.0, 1.0, 0.5)), jitter_frequency_hz=s(1.3),
         attitude_drift_arcsec_s=s((0.05, -0.04, 0.02)), orbit_bias_m=none(0.0), orbit_noise_m=s(1.0),
-        orbit_noise_period_s=Sourced(0.0, TODAY + ": white per sample"),
+        orbit_noise_period_s=Sourced(0.0, DEFAULT + ": white per sample"),
         radial_k2_px=none(0.0), radial_k3_px=none(0.0), focal_plane_curvature_px=none(0.0),
         ccd_bending_px=none(0.0), detector_irregularity_px=none(0.0),
         supersampling=none(1), motion_smear_lines=none(0.0), defocus_radius_px=none(0.0),
@@ -203,7 +204,7 @@ def _ideal() -> PushbroomProfile:
         jitter_floor_rms_urad=none((0.0, 0.0, 0.0)), jitter_floor_exponent=none(0.0),
         jitter_floor_band_hz=none((0.0, 0.0)), astigmatism_edge_px=none((0.0, 0.0)),
         sun_scene_date_time=none(None), sun_dom_date_time=none(None), skylight_fraction=none(0.0),
-        cloud_top_height_km=Sourced((0.0, 0.0), "today's clouds lie on the ground (no parallax, no shadow)"),
+        cloud_top_height_km=Sourced((0.0, 0.0), "the default clouds lie on the ground (no parallax, no shadow)"),
         cloud_layers=none(0), cloud_shadow=none(0.0),
     )
 
@@ -211,18 +212,18 @@ def _ideal() -> PushbroomProfile:
 def _realistic() -> PushbroomProfile:
     return PushbroomProfile(
         name="realistic",
-        star_tracker_noise_urad=Sourced(3.0, f"{ISSUE13}: a few urad; {LIEBE}"),
-        jitter_amplitude_urad=Sourced((5.0, 5.0, 2.0), f"{ISSUE13}: 5 urad at 0.3 Hz"),
-        jitter_frequency_hz=Sourced(0.3, f"{ISSUE13}: 0.1-1 Hz; {TONG}"),
-        attitude_drift_arcsec_s=Sourced((0.05, -0.04, 0.02), TODAY),
-        orbit_bias_m=Sourced(3.0, f"{ISSUE13}: 1-5 m"),
-        orbit_noise_m=Sourced(1.0, f"{ISSUE13}: 1-5 m"),
+        star_tracker_noise_urad=Sourced(3.0, f"{REALISTIC_RANGE}: a few urad; {LIEBE}"),
+        jitter_amplitude_urad=Sourced((5.0, 5.0, 2.0), f"{REALISTIC_RANGE}: 5 urad at 0.3 Hz"),
+        jitter_frequency_hz=Sourced(0.3, f"{REALISTIC_RANGE}: 0.1-1 Hz; {TONG}"),
+        attitude_drift_arcsec_s=Sourced((0.05, -0.04, 0.02), DEFAULT),
+        orbit_bias_m=Sourced(3.0, f"{REALISTIC_RANGE}: 1-5 m"),
+        orbit_noise_m=Sourced(1.0, f"{REALISTIC_RANGE}: 1-5 m"),
         orbit_noise_period_s=Sourced(600.0, f"{POD}; the 600 s floor: {ASSUMPTION}"),
         radial_k2_px=Sourced(0.4, ASSUMPTION),
         radial_k3_px=Sourced(-0.15, ASSUMPTION),
         focal_plane_curvature_px=Sourced(0.5, ASSUMPTION),
         ccd_bending_px=Sourced(0.3, ASSUMPTION),
-        detector_irregularity_px=Sourced(0.03, f"{ISSUE13} brief: 0.02-0.05 px rms"),
+        detector_irregularity_px=Sourced(0.03, f"{REALISTIC_RANGE}: 0.02-0.05 px rms"),
         supersampling=Sourced(4, "numerical choice: 4 x 4 samples over the box, x 4 over the smear"),
         motion_smear_lines=Sourced(1.0, "push-broom without TDI integrates over one line period"),
         defocus_radius_px=Sourced(0.6, f"{ASSUMPTION}; chosen so that the system MTF at Nyquist is in {S2_MTF}"),
@@ -233,8 +234,8 @@ def _realistic() -> PushbroomProfile:
         striping_dn=Sourced(2.0, ASSUMPTION),
         ccd_gain_step=Sourced(0.02, ASSUMPTION),
         nonlinearity=Sourced(0.02, ASSUMPTION),
-        snr=Sourced(100.0, TODAY),
-        bits=Sourced(12, TODAY),
+        snr=Sourced(100.0, DEFAULT),
+        bits=Sourced(12, DEFAULT),
         reference_resolution_m=Sourced(30.0, f"{SEED003}; Landsat 8 OLI multispectral 30 m"),
         reference_mtf_sigma_px=Sourced(0.5, ASSUMPTION),
         reference_gamma=Sourced(0.8, ASSUMPTION),
@@ -244,8 +245,8 @@ def _realistic() -> PushbroomProfile:
         procedural_rms_contrast=Sourced(0.195, S2_CONTRAST),
         texture_poor_fraction=Sourced(0.5, TEXTURE_POOR_FRACTION),
         texture_poor_attenuation=Sourced(0.17, TEXTURE_POOR_ATTENUATION),
-        dom_bias_m=Sourced((1.2, -0.9), f"{ISSUE13}: DOM error 1-3 m"),
-        dom_field_rms_m=Sourced(0.8, f"{ISSUE13}: DOM error 1-3 m"),
+        dom_bias_m=Sourced((1.2, -0.9), f"{REALISTIC_RANGE}: DOM error 1-3 m"),
+        dom_field_rms_m=Sourced(0.8, f"{REALISTIC_RANGE}: DOM error 1-3 m"),
         dom_field_scale_m=Sourced(3000.0, ASSUMPTION),
         dem_resolution_m=Sourced(90.0, FARR),
         dem_error_rms_m=Sourced(8.0, f"{RODRIGUEZ}; {FARR}"),
@@ -253,9 +254,9 @@ def _realistic() -> PushbroomProfile:
         dem_void_fraction=Sourced(0.003, f"{FARR}: voids in steep and dry terrain; {ASSUMPTION}"),
         jitter_line2_amplitude_urad=Sourced((1.5, 1.5, 0.5), f"{TONG}: the line; amplitude: {ASSUMPTION}"),
         jitter_line2_frequency_hz=Sourced(0.65, TONG),
-        jitter_floor_rms_urad=Sourced((1.0, 1.0, 0.5), f"{ISSUE13} brief: ~1 urad; {ASSUMPTION}"),
+        jitter_floor_rms_urad=Sourced((1.0, 1.0, 0.5), f"{REALISTIC_RANGE}: ~1 urad; {ASSUMPTION}"),
         jitter_floor_exponent=Sourced(1.0, f"pink (1/f) floor; {ASSUMPTION}"),
-        jitter_floor_band_hz=Sourced((0.05, 5.0), f"{ISSUE13} brief: 0.05-5 Hz"),
+        jitter_floor_band_hz=Sourced((0.05, 5.0), f"{REALISTIC_RANGE}: 0.05-5 Hz"),
         astigmatism_edge_px=Sourced((0.25, 0.08), f"{SEIDEL}; magnitude: {ASSUMPTION}"),
         sun_scene_date_time=Sourced((288, 10.5), f"{SUNSYNC}: 10:30 descending node, mid-October"),
         sun_dom_date_time=Sourced((213, 10.0), f"{LANDSAT_TIME}, early August (growing season)"),
@@ -337,7 +338,7 @@ class StarsProfile(_ProfileFields):
     orbit_bias_m: Sourced = _f("m (along track)", "the LAB orbit is displaced along the GEO arc")
     installation_day_to_day_arcsec: Sourced = _f(
         "arcsec (1 sigma, per axis, independent per session)",
-        "TRUE installation of session d = session 0's + an offset drawn per day: the thermal state at the same "
+        "TRUE installation of day d = the first day's + an offset drawn per day: the thermal state at the same "
         "time of day differs from day to day; matters only when sessions are pooled")
     sessions: Sourced = _f("daily 20-min sessions", "independent sequences (another date, noise and wobble each)")
     kind: str = "stars"
@@ -360,12 +361,12 @@ class OalrProfile(_ProfileFields):
 
 def _staring_profiles() -> dict:
     none = lambda v: Sourced(v, NOT_SIMULATED)  # noqa: E731
-    vcp_match = "seed 003: SIFT/phase matches against Landsat 0.3-0.5 px, taken for the VCPs' source; issue 13"
+    vcp_match = "seed 003: SIFT/phase matches against Landsat 0.3-0.5 px, taken for the VCPs' source; project's realistic range"
     return {
-        "ideal": StaringProfile("ideal", physical_truth=Sourced(False, "today: TRUE interior = 20-coefficient fit"),
+        "ideal": StaringProfile("ideal", physical_truth=Sourced(False, "the default path: TRUE interior = 20-coefficient fit"),
                                 radial_k2_corner_px=none(0.0), radial_k3_corner_px=none(0.0),
-                                vcp_noise_px=Sourced(0.0, "today's `gcpcal compensate` default")),
-        "realistic": StaringProfile("realistic", physical_truth=Sourced(True, "issue 13 item 3"),
+                                vcp_noise_px=Sourced(0.0, "`gcpcal compensate`'s default")),
+        "realistic": StaringProfile("realistic", physical_truth=Sourced(True, "project's realistic range: a TRUE lens outside the fitted family"),
                                     radial_k2_corner_px=Sourced(1.0, ASSUMPTION),
                                     radial_k3_corner_px=Sourced(-0.3, ASSUMPTION),
                                     vcp_noise_px=Sourced(0.3, vcp_match)),
@@ -379,19 +380,19 @@ def _staring_profiles() -> dict:
 def _thermal_profiles() -> dict:
     return {
         "ideal": ThermalProfile("ideal", day_to_day_arcsec=Sourced(0.0, NOT_SIMULATED),
-                                epoch_noise_arcsec=Sourced(0.3, "today's ThermalDrift default"),
-                                vcp_noise_px=Sourced(0.1, "today's `gcpcal thermal` default")),
-        "realistic": ThermalProfile("realistic", day_to_day_arcsec=Sourced(4.0, f"{ISSUE13}: 3-6 arcsec a day"),
-                                    epoch_noise_arcsec=Sourced(0.3, "today's ThermalDrift default"),
+                                epoch_noise_arcsec=Sourced(0.3, "ThermalDrift's default"),
+                                vcp_noise_px=Sourced(0.1, "`gcpcal thermal`'s default")),
+        "realistic": ThermalProfile("realistic", day_to_day_arcsec=Sourced(4.0, f"{REALISTIC_RANGE}: 3-6 arcsec a day"),
+                                    epoch_noise_arcsec=Sourced(0.3, "ThermalDrift's default"),
                                     vcp_noise_px=Sourced(0.3, "as the staring profile's VCP noise")),
         "paper-002": ThermalProfile("paper-002", day_to_day_arcsec=Sourced(0.0, f"{SEED002}: figure 11 is one daily curve"),
-                                    epoch_noise_arcsec=Sourced(0.3, "today's ThermalDrift default"),
+                                    epoch_noise_arcsec=Sourced(0.3, "ThermalDrift's default"),
                                     vcp_noise_px=Sourced(0.0, f"{SEED002}: no noise stated for the VCPs")),
     }
 
 
 def _stars_ideal() -> StarsProfile:
-    s = lambda v: Sourced(v, "today's GeoStarsConfig default")  # noqa: E731
+    s = lambda v: Sourced(v, "GeoStarsConfig's default")  # noqa: E731
     none = lambda v: Sourced(v, NOT_SIMULATED)  # noqa: E731
     return StarsProfile(
         "ideal", attitude_noise_arcsec=s(0.1), attitude_jitter_arcsec=s((0.2, 0.2, 0.2)), attitude_jitter_hz=s(0.02),
@@ -406,9 +407,9 @@ def _stars_profiles() -> dict:
     ideal = _stars_ideal()
     realistic = replace(
         ideal, name="realistic",
-        attitude_noise_arcsec=Sourced(1.0, f"{ISSUE13}: 1 arcsec of attitude noise; {LIEBE}"),
-        wobble_arcsec=Sourced(2.0, f"{ISSUE13}: unmeasured 2 arcsec wobble over 20 min"),
-        wobble_period_s=Sourced(1200.0, f"{ISSUE13}: 20 min; {SEED000}: 20-min daily sessions"),
+        attitude_noise_arcsec=Sourced(1.0, f"{REALISTIC_RANGE}: 1 arcsec of attitude noise; {LIEBE}"),
+        wobble_arcsec=Sourced(2.0, f"{REALISTIC_RANGE}: unmeasured 2 arcsec wobble over 20 min"),
+        wobble_period_s=Sourced(1200.0, f"{REALISTIC_RANGE}: 20 min; {SEED000}: 20-min daily sessions"),
         catalogue_position_mas=Sourced(1.0, HIPPARCOS),
         proper_motion_error_mas_yr=Sourced(1.0, HIPPARCOS),
         pixel_phase_px=Sourced(0.05, f"{JIA}; {ASSUMPTION}"),
@@ -425,7 +426,7 @@ def _stars_profiles() -> dict:
 def _oalr_profiles() -> dict:
     from dataclasses import replace
 
-    s = lambda v: Sourced(v, "today's render_cross default (calibrate/schemes/autocollimation.py)")  # noqa: E731
+    s = lambda v: Sourced(v, "render_cross's default (calibrate/schemes/autocollimation.py)")  # noqa: E731
     none = lambda v: Sourced(v, NOT_SIMULATED)  # noqa: E731
     ideal = OalrProfile("ideal", amplitude_e=s(1000.0), background_e=s(50.0), read_noise_e=s(10.0),
                         psf_sigma_px=s(0.8), prnu_rms=none(0.0), mount_drift_px=none(0.0),

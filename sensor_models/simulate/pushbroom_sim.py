@@ -188,8 +188,8 @@ def simulate_pushbroom(
         Write render times into ``summary.json`` (False: every output file is a function of
         the configuration and inputs only, e.g. for committed fixtures).
     profile : PushbroomProfile or str, optional
-        Error profile (:mod:`sensor_models.simulate.profiles`); None or ``"ideal"``: today's
-        simulator, byte for byte. ``"realistic"``:
+        Error profile (:mod:`sensor_models.simulate.profiles`); None or ``"ideal"``: the
+        default path, byte for byte. ``"realistic"``:
         :func:`sensor_models.simulate.realistic_sim.simulate_realistic` (``dom`` is then the
         scene's source radiance, optional; no ``dem``).
 

@@ -297,7 +297,7 @@ def _measured_orbit(cfg: SimConfig, orbit: Orbit, bias_m: float = 0.0) -> Orbit:
     if cfg.errors.orbit_noise_period_s > 0:
         error, rate = smooth_orbit_error(orbit.seconds, sigma, cfg.errors.orbit_noise_period_s, rng)
         pos, vel = orbit.position_m + error, orbit.velocity_m_s + rate
-    else:  # white per sample (the ideal profile's, today's)
+    else:  # white per sample (the ideal profile's)
         pos = orbit.position_m + rng.normal(0.0, sigma, orbit.position_m.shape)
         vel = None
     if bias_m > 0:  # a constant offset of the navigation solution, direction from the pass seed

@@ -1,8 +1,8 @@
-"""Star-track truth beyond today's (seed 000): what the LAB model and the catalogue do not know.
+"""Star-track truth beyond the default sequence (seed 000): what the LAB model and the catalogue do not know.
 
 :func:`sensor_models.simulate.geo_stars.simulate_geo_stars` takes a :class:`StarTruthErrors`
 (from a :class:`~sensor_models.simulate.profiles.StarsProfile` by :func:`truth_errors`); with
-none (``ideal``) it renders today's sequence byte for byte. Each error is drawn from its own
+none (``ideal``) it renders the default sequence byte for byte. Each error is drawn from its own
 generator (seeded from the sequence's seed), so switching one on does not change the others.
 
 * **Unmeasured wobble** (:func:`wobble_angles`): a sinusoid per axis in the TRUE attitude only
@@ -41,7 +41,7 @@ CATALOGUE_EPOCH_YEAR = 1991.25
 
 @dataclass(frozen=True)
 class StarTruthErrors:
-    """Errors of a star sequence that today's simulator does not inject (module docstring).
+    """Errors of a star sequence that the default simulator path does not inject (module docstring).
 
     Attributes
     ----------
@@ -69,7 +69,7 @@ class StarTruthErrors:
 
 
 def truth_errors(profile) -> StarTruthErrors | None:
-    """The :class:`StarTruthErrors` of a stars profile; None for ``ideal`` (today's path).
+    """The :class:`StarTruthErrors` of a stars profile; None for ``ideal`` (the default path).
 
     Parameters
     ----------

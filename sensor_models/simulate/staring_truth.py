@@ -2,7 +2,7 @@
 
 The LAB and compensated models of a staring camera hold the 20-coefficient cubic of seed 000
 eq. 4-5 (:class:`~sensor_models.geo_staring.StaringInterior`). When the TRUE model is that
-same cubic fitted to the physical lens (today's ``ideal`` path, ``GeoStaringModel.from_lab``),
+same cubic fitted to the physical lens (the ``ideal`` path, ``GeoStaringModel.from_lab``),
 every scheme that frees the interior reaches 1e-7 px: the estimator fits its own family.
 
 Here the TRUE interior is the physical (laboratory) lens evaluated at every pixel: principal

@@ -1,4 +1,4 @@
-"""Texture-poor land cover for the ``realistic`` profile's procedural source radiance (issue 13 item 1).
+"""Texture-poor land cover for the ``realistic`` profile's procedural source radiance.
 
 Real scenes hold ground where phase correlation finds nothing: homogeneous fields, bare plains,
 uniform forest canopy, water. On the real Sentinel-2 and Landsat-8 crops of docs/error_budget.md only 0.43-0.66

@@ -1,7 +1,7 @@
 """Texture statistics a matcher cares about, measured alike on real crops and procedural textures.
 
-Used to calibrate the procedural texture of the ``realistic`` profile on real imagery (issue 13
-item 1; ``bench/bench_texture_stats.py`` measures every source, docs/error_budget.md "Texture
+Used to calibrate the procedural texture of the ``realistic`` profile on real imagery
+(``bench/bench_texture_stats.py`` measures every source, docs/error_budget.md "Texture
 calibrated on real crops"):
 
 * :func:`rms_contrast_median`: median over ``window x window`` blocks of ``std / mean`` of the

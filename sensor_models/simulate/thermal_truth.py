@@ -1,8 +1,8 @@
 """Day-to-day variation of a staring camera's TRUE installation (not a function of the time of day).
 
 A daily thermal cycle repeats only approximately: the Sun's declination, eclipses, heater duty
-and the bracket's history change it from one day to the next. Issue 13 puts that variation at
-3-6 arcsec a day. It is modelled as a random walk of per-day offsets (one independent Gaussian
+and the bracket's history change it from one day to the next. The project's realistic
+range for that variation is 3-6 arcsec a day (docs/error_budget.md). It is modelled as a random walk of per-day offsets (one independent Gaussian
 step of ``sigma_arcsec_per_day`` per axis and day), interpolated smoothly through the days'
 midpoints (cubic Hermite, monotone, so no overshoot), added to the TRUE installation only:
 no harmonic model of the time of day can predict it.
