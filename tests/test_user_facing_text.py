@@ -41,20 +41,14 @@ ALLOWED_PHRASES = (
 #: hits are fixed after those changes are merged. This set is to be emptied, never extended.
 PENDING_FILES = frozenset({
     "docs/attitude.md",
-    "docs/cli.md",
-    "docs/dimap.md",
-    "docs/dimap_v2.md",
-    "docs/worldview.md",
-    "docs/inputs.md",
     "calibrate/attitude.py",
     "sensor_models/attitude_correction.py",
     "calibrate/parallax.py",
     "sensor_models/rpc.py",
     "sensor_models/rpc_fit.py",
-    "calibrate/cli/experiment.py",
 })
 #: Folders whose every file is pending, for the same reason.
-PENDING_FOLDERS = ("calibrate/actions/", "calibrate/cli/")
+PENDING_FOLDERS: tuple[str, ...] = ()
 
 
 def _user_facing_files() -> list[Path]:

@@ -14,7 +14,7 @@ __all__ = ["command"]
 @click.command("experiment")
 @click.argument("seed", type=click.Choice(sorted(EXPERIMENTS)))
 @click.option("--profile", type=click.Choice(PROFILE_CHOICES), default="ideal", show_default=True,
-              help="Error profile: ideal (today's simulator), realistic, or the seed's paper-* setting.")
+              help="Error profile: ideal (the unit-test simulator), realistic, or the seed's paper-* setting.")
 @out_dir_option()
 @click.option("--quick", is_flag=True, help="Reduced run (under about a minute): fewer frames, points and trials.")
 @click.option("--source", type=click.Path(dir_okay=False),
