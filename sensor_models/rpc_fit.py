@@ -49,6 +49,7 @@ References
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from math import comb
 
 import numpy as np
@@ -56,7 +57,7 @@ import numpy as np
 from sensor_models.errors import InputError, RpcError
 from sensor_models.rpc import RpcModel, _terms
 
-__all__ = ["FORMS", "denominator_lower_bound", "fit_rpc", "normalization"]
+__all__ = ["FORMS", "RpcTile", "denominator_lower_bound", "fit_rpc", "fit_rpc_tiles", "normalization"]
 
 #: The forms :func:`fit_rpc` fits: ratios of cubics, or cubics (denominators 1).
 FORMS = ("rational", "polynomial")
@@ -355,13 +356,13 @@ def _check_options(height_range_m, grid_shape, check_grid_shape, form, regulariz
 
 
 def _errors(rpc, pts):
-    """``(max, rms, max row, max col)`` image errors (pixels) of ``rpc`` on grid points."""
+    """``((max, rms, max row, max col), residual (N, 2))``: image errors (pixels) on grid points."""
     R, C, lon, lat, h = pts
     r, c = rpc.ground_to_image(lon, lat, h)
     dr, dc = r - R, c - C
     d = np.hypot(dr, dc)
     return (float(np.max(d)), float(np.sqrt(np.mean(d * d))), float(np.max(np.abs(dr))),
-            float(np.max(np.abs(dc))))  # fmt: skip
+            float(np.max(np.abs(dc)))), np.stack([dr, dc], axis=1)  # fmt: skip
 
 
 def fit_rpc(model, *, band=None, height_range_m, form="rational", grid_shape=(21, 21, 7), check_grid_shape=None,
@@ -411,8 +412,13 @@ def fit_rpc(model, *, band=None, height_range_m, form="rational", grid_shape=(21
     InputError
         Invalid options.
     """
-    heights, grid_shape, check_shape = _check_options(height_range_m, grid_shape, check_grid_shape, form,
-                                                      regularization, max_iterations)
+    options = _check_options(height_range_m, grid_shape, check_grid_shape, form, regularization, max_iterations)
+    rpc, report, _ = _fit(model, band, *options, form, regularization, int(max_iterations))
+    return rpc, report
+
+
+def _fit(model, band, heights, grid_shape, check_shape, form, regularization, max_iterations):
+    """:func:`fit_rpc` on checked options; also returns the check points and their residuals."""
     image_shape = tuple(int(n) for n in model.image_shape)
     fit_pts, dropped = _localize(model, band, image_shape, heights, grid_shape, centres=False)
     if fit_pts[0].size < 2 * 39:
@@ -427,13 +433,14 @@ def fit_rpc(model, *, band=None, height_range_m, form="rational", grid_shape=(21
     fit, val = _Samples(fit_pts, norm), _Samples(val_pts, norm)
     rational = form == "rational"
     lams = (0.0, *_LAMBDA_LADDER) if regularization is None else (float(regularization),)
-    line, samp = (_choose(fit, val, k, rational, lams, int(max_iterations)) for k in (0, 1))
+    line, samp = (_choose(fit, val, k, rational, lams, max_iterations) for k in (0, 1))
     rpc = RpcModel(line_num=line["num"], line_den=line["den"], samp_num=samp["num"], samp_den=samp["den"],
                    image_shape=image_shape, **norm)  # fmt: skip
-    fit_e, check_e, val_e = _errors(rpc, fit_pts), _errors(rpc, check_pts), _errors(rpc, val_pts)
+    fit_e, val_e = _errors(rpc, fit_pts)[0], _errors(rpc, val_pts)[0]
+    check_e, residual = _errors(rpc, check_pts)
     min_den = min(float(np.min(np.abs(s.T @ d))) for s in (fit, _Samples(check_pts, norm))
                   for d in (line["den"], samp["den"]))  # fmt: skip
-    return rpc, {
+    report = {
         "form": form,
         "fit_max_px": fit_e[0], "fit_rms_px": fit_e[1], "fit_max_row_px": fit_e[2], "fit_max_col_px": fit_e[3],
         "check_max_px": check_e[0], "check_rms_px": check_e[1], "check_max_row_px": check_e[2],
@@ -449,3 +456,117 @@ def fit_rpc(model, *, band=None, height_range_m, form="rational", grid_shape=(21
         "grid_shape": list(grid_shape), "validation_grid_shape": list(val_shape),
         "check_grid_shape": list(check_shape), "height_range_m": list(heights),
     }  # fmt: skip
+    return rpc, report, (check_pts, residual)
+
+
+# ---------------------------------------------------------------------------------------------
+# Tiles: where one RPC cannot follow the model
+# ---------------------------------------------------------------------------------------------
+class _Window:
+    """Pixels ``[row0, row0 + n_rows) x [col0, col0 + n_cols)`` of a model as an image of its own."""
+
+    def __init__(self, model, row0, col0, shape):
+        self.model, self.row0, self.col0 = model, int(row0), int(col0)
+        self.image_shape = (int(shape[0]), int(shape[1]))
+
+    def image_to_ground(self, row, col, *, height, **kwargs):
+        return self.model.image_to_ground(np.asarray(row) + self.row0, np.asarray(col) + self.col0, height=height,
+                                          **kwargs)
+
+
+@dataclass(frozen=True)
+class RpcTile:
+    """One RPC of :func:`fit_rpc_tiles`: the pixels it covers, the RPC and its fit report.
+
+    Attributes
+    ----------
+    first_row, first_col : int
+        The tile's first pixel in the fitted model's image (its RPC's pixel (0.5, 0.5)).
+    rpc : RpcModel
+        The RPC of the tile's pixels (``rpc.image_shape`` = the tile's shape).
+    report : dict
+        Of :func:`fit_rpc`.
+    """
+
+    first_row: int
+    first_col: int
+    rpc: RpcModel
+    report: dict
+
+
+def _split_axis(check_pts, residual):
+    """0 (rows) or 1 (columns): the axis along which the residual varies most.
+
+    The share of the residual's sum of squares explained by its means per check-grid row,
+    and per check-grid column (an analysis of variance); the larger share wins (rows on a tie:
+    attitude and orbit act along rows).
+    """
+    shares = []
+    for coord in check_pts[:2]:
+        _, group = np.unique(coord, return_inverse=True)
+        count = np.bincount(group).astype(np.float64)
+        ss = 0.0
+        for k in range(2):
+            means = np.bincount(group, weights=residual[:, k]) / count
+            ss += float(np.sum(count * means**2))
+        shares.append(ss)
+    return 0 if shares[0] >= shares[1] else 1
+
+
+def fit_rpc_tiles(model, *, band=None, height_range_m, max_error_px, min_tile_px=64, form="rational",
+                  grid_shape=(21, 21, 7), check_grid_shape=None, regularization=None, max_iterations=20):
+    """RPCs over tiles of the image, each within ``max_error_px`` of the model on its check grid.
+
+    One RPC is fitted to the whole image (:func:`fit_rpc`). Where its check-grid maximum error
+    exceeds ``max_error_px``, the image is halved along the axis along which the check-grid
+    residual varies most (:func:`_split_axis`: attitude and orbit changes faster than a cubic
+    in time vary along rows, look directions beyond a cubic along columns), and each half is
+    fitted again, recursively. A tile is not halved below ``min_tile_px`` pixels on that axis;
+    such a tile is kept with its error (the caller reports it).
+
+    Parameters
+    ----------
+    model : SensorModel
+        As for :func:`fit_rpc`.
+    band : str, optional
+    height_range_m : (float, float)
+    max_error_px : float
+        The check-grid maximum error each tile must reach, pixels (> 0).
+    min_tile_px : int
+        Smallest tile side a split may produce, pixels (>= 8).
+    form, grid_shape, check_grid_shape, regularization, max_iterations
+        As for :func:`fit_rpc`.
+
+    Returns
+    -------
+    list of RpcTile
+        In row-major order of their first pixels; one tile (the whole image) when one RPC is
+        within ``max_error_px``.
+
+    Raises
+    ------
+    InputError
+        Invalid options.
+    RpcError
+        As :func:`fit_rpc`.
+    """
+    options = _check_options(height_range_m, grid_shape, check_grid_shape, form, regularization, max_iterations)
+    if not (math.isfinite(max_error_px) and max_error_px > 0.0):
+        raise InputError(f"max_error_px must be > 0, got {max_error_px!r}")
+    if int(min_tile_px) < 8:
+        raise InputError(f"min_tile_px must be >= 8, got {min_tile_px!r}")
+    tiles, todo = [], [(0, 0, tuple(int(n) for n in model.image_shape))]
+    while todo:
+        row0, col0, shape = todo.pop()
+        view = model if (row0, col0, shape) == (0, 0, tuple(model.image_shape)) else _Window(model, row0, col0, shape)
+        rpc, report, (check_pts, residual) = _fit(view, band, *options, form, regularization, int(max_iterations))
+        axis = _split_axis(check_pts, residual)
+        if report["check_max_px"] <= max_error_px or shape[axis] < 2 * int(min_tile_px):
+            tiles.append(RpcTile(row0, col0, rpc, report))
+            continue
+        half = shape[axis] // 2
+        if axis == 0:
+            todo += [(row0, col0, (half, shape[1])), (row0 + half, col0, (shape[0] - half, shape[1]))]
+        else:
+            todo += [(row0, col0, (shape[0], half)), (row0, col0 + half, (shape[0], shape[1] - half))]
+    return sorted(tiles, key=lambda t: (t.first_row, t.first_col))
