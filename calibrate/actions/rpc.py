@@ -44,7 +44,7 @@ DEFAULT_HEIGHT_RANGE_M = (-100.0, 3000.0)
 #: tiles (pixels): the accuracy at which an RPC stands in for a rigorous model (Tao & Hu 2001).
 DEFAULT_MAX_ERROR_PX = 0.01
 #: Smallest tile side (pixels) a split may produce.
-MIN_TILE_PX = 64
+MIN_TILE_PX = 32
 
 _FILE_SUFFIXES = ("_rpc.txt", ".rpb", ".tif", ".tiff")
 
