@@ -10,8 +10,10 @@ layers ``h`` spanning ``height_range_m``: ``model.image_to_ground(row, col, heig
 * the *validation* grid: the centres of the fit grid's cells (``n - 1`` per axis), which chooses
   the regularization;
 * the *check* grid: ``check_grid_shape`` cell centres (default ``2 (n - 1)`` per axis, the
-  quarter points of the fit cells), which neither the fit nor the choice of regularization sees;
-  its errors are the ones reported.
+  quarter points of the fit cells) plus the first and last pixel centres on the row and column
+  axes (the largest errors sit on the image's borders), all at the cell-centre heights: no
+  point of it is a fit or validation point, and it covers the whole image and height range.
+  Its errors are the ones reported.
 
 Offsets and scales are the RPC00B normalization (centre and half-span of the ground and image
 extents, :func:`normalization`). With ``T`` the 20 RPC00B monomials of the normalized ground
@@ -153,20 +155,27 @@ def denominator_lower_bound(den, *, depth=_BERNSTEIN_DEPTH) -> float:
 # ---------------------------------------------------------------------------------------------
 # Grids and normalization
 # ---------------------------------------------------------------------------------------------
-def _axis(lo, hi, n, *, centres):
-    """``n`` nodes spanning [lo, hi]: the ends included, or the centres of ``n`` equal cells."""
+def _axis(lo, hi, n, *, centres, ends=False):
+    """``n`` nodes spanning [lo, hi]: the ends included, or the centres of ``n`` equal cells
+    (and, with ``ends``, both ends too: ``n + 2`` nodes)."""
     if centres:
-        return lo + (np.arange(n) + 0.5) * (hi - lo) / n
+        mid = lo + (np.arange(n) + 0.5) * (hi - lo) / n
+        return np.concatenate([[lo], mid, [hi]]) if ends else mid
     if n == 1:
         return np.array([(lo + hi) / 2.0])
     return np.linspace(lo, hi, n)
 
 
-def _localize(model, band, shape_px, heights, grid, *, centres):
-    """Localize a ``grid = (rows, cols, heights)`` grid; ``(row, col, lon, lat, h)`` and drops."""
+def _localize(model, band, shape_px, heights, grid, *, centres, edges=False):
+    """Localize a ``grid = (rows, cols, heights)`` grid; ``(row, col, lon, lat, h)`` and drops.
+
+    ``centres``: cell centres on every axis; ``edges`` adds the first and last pixel centres to
+    the row and column axes (not to the heights), so the grid reaches the image's borders.
+    """
     n_rows, n_cols = shape_px
     nr, nc, nh = grid
-    axes = (_axis(0.5, n_rows - 0.5, nr, centres=centres), _axis(0.5, n_cols - 0.5, nc, centres=centres),
+    axes = (_axis(0.5, n_rows - 0.5, nr, centres=centres, ends=edges),
+            _axis(0.5, n_cols - 0.5, nc, centres=centres, ends=edges),
             _axis(heights[0], heights[1], nh, centres=centres))
     R, C, Hh = (a.reshape(-1) for a in np.meshgrid(*axes, indexing="ij"))
     kwargs = {} if band is None else {"band": band}
@@ -383,7 +392,8 @@ def fit_rpc(model, *, band=None, height_range_m, form="rational", grid_shape=(21
         Fit grid ``(rows, cols, heights)``, ends included (>= 4 heights when the range is not
         a single height).
     check_grid_shape : (int, int, int), optional
-        Independent check grid (cell centres), default ``2 (n - 1)`` per axis.
+        Independent check grid (cell centres, plus the image's border rows and columns), default
+        ``2 (n - 1)`` cells per axis.
     regularization : float, optional
         Fixed ridge weight ``lambda`` (relative to unit-norm design columns); default None:
         chosen on the validation grid from 0 and 1e-16 ... 1e-4.
@@ -426,7 +436,7 @@ def _fit(model, band, heights, grid_shape, check_shape, form, regularization, ma
                        "need at least 78")  # fmt: skip
     val_shape = tuple(max(1, n - 1) for n in grid_shape)
     val_pts, dropped_v = _localize(model, band, image_shape, heights, val_shape, centres=True)
-    check_pts, dropped_c = _localize(model, band, image_shape, heights, check_shape, centres=True)
+    check_pts, dropped_c = _localize(model, band, image_shape, heights, check_shape, centres=True, edges=True)
     if val_pts[0].size == 0 or check_pts[0].size == 0:
         raise RpcError("no validation or check-grid point could be localized")
     norm = normalization(fit_pts[2], fit_pts[3], heights, image_shape)
