@@ -6,6 +6,7 @@ that no fit, validation or check grid used.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -180,3 +181,25 @@ def test_real_product_rpc_tiles_reach_a_hundredth_of_a_pixel(shared_data, name):
 
     window = _Window(view, tile.first_row, tile.first_col, tile.rpc.image_shape)
     assert _max_error_px(window, tile.rpc, 1000, seed=worst) <= 0.015
+
+
+def test_cli_writes_the_polynomial_form_only_when_asked_and_warns_when_one_rpc_misses(tmp_path, capsys):
+    from calibrate.cli import main
+    from sensor_models.rpc import RpcModel
+
+    forms = {}
+    for form in ("rational", "polynomial"):
+        out = tmp_path / f"{form}_RPC.TXT"
+        args = ["rpc", str(IDEAL), "--ccd", "cam1_ccd2", "--out", str(out), "--height-range", "0", "500", "--json"]
+        code = main(args + (["--form", form] if form == "polynomial" else []))
+        captured = capsys.readouterr()
+        assert code == 0, captured.err
+        summary = json.loads(captured.out)
+        (entry,) = summary["rpcs"]
+        forms[form] = (entry["fit"], RpcModel.read(out))
+        # one RPC in a file: written, and the miss of 0.01 px is said (the scene's attitude)
+        assert summary["check_max_px"] > 0.01 and "miss 0.01 px" in " ".join(summary["warnings"])
+    (fit_r, rpc_r), (fit_p, rpc_p) = forms["rational"], forms["polynomial"]
+    assert fit_r["form"] == "rational" and np.count_nonzero(rpc_r.line_den[1:]) > 0
+    assert fit_p["form"] == "polynomial" and np.array_equal(rpc_p.line_den, np.eye(20)[0])
+    assert fit_r["check_max_px"] < fit_p["check_max_px"]
