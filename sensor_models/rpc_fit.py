@@ -358,7 +358,8 @@ def _check_options(height_range_m, grid_shape, check_grid_shape, form, regulariz
     if form not in FORMS:
         raise InputError(f"form must be one of {FORMS}, got {form!r}")
     if regularization is not None and not (math.isfinite(regularization) and regularization >= 0.0):
-        raise InputError(f"regularization must be finite and >= 0 (or None: chosen on the data), got {regularization!r}")
+        raise InputError(f"regularization must be finite and >= 0 (or None: chosen on the data), "
+                         f"got {regularization!r}")
     if int(max_iterations) < 1:
         raise InputError(f"max_iterations must be >= 1, got {max_iterations!r}")
     return (h_lo, h_hi), grid_shape, check_grid_shape

@@ -135,8 +135,8 @@ def _check_source(src, raster, index, image_shape, first_row, first_col, out_sha
     if not 1 <= int(index) <= src.count:
         raise InputError(f"has {src.count} band(s); band {index} was asked for", path=str(raster))
     if first_row < 0 or first_row + out_shape[0] > src.height or first_col < 0 or first_col + out_shape[1] > src.width:
-        raise InputError(f"rows {first_row}..{first_row + out_shape[0]}, columns {first_col}..{first_col + out_shape[1]} "
-                         "are not inside the raster", path=str(raster))  # fmt: skip
+        raise InputError(f"rows {first_row}..{first_row + out_shape[0]}, columns {first_col}.."
+                         f"{first_col + out_shape[1]} are not inside the raster", path=str(raster))  # fmt: skip
 
 
 def _copy_with_rpc(src, index: int, tmp: Path, rpc, first_row: int, first_col: int, tags: dict) -> None:
