@@ -15,7 +15,7 @@ __all__ = ["command"]
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.option("--out", "out_path", required=True, type=click.Path(),
               help="One RPC: this exact file, *_RPC.TXT, *.RPB, or *.tif (a copy of the scene raster with RPC tags). "
-                   "Several CCDs: a folder (<ccd>_RPC.TXT and <ccd>.tif per CCD).")
+                   "Several CCDs, or tiles: a folder (<ccd>_RPC.TXT and <ccd>.tif per CCD or tile).")
 @click.option("--image", type=click.Path(dir_okay=False),
               help="Scene raster copied into a *.tif output (default: the manifest's raster of the band); a crop "
                    "with a pixel geotransform crops the model.")
