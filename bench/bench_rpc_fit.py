@@ -11,7 +11,7 @@ errors (pixels) of:
 * the tiles ``gcpcal rpc`` writes into a folder (``rpc_fit.fit_rpc_tiles``, 0.01 px, 32 px):
   their number and largest error.
 
-Writes ``bench/results/rpc_fit.json``. Usage: ``python bench/bench_rpc_fit.py [--out FILE]``.
+Writes ``bench/results/rpc_fit.json``. Usage: ``python bench/bench_rpc_fit.py [--out FILE] [--only NAME ...]``.
 """
 
 from __future__ import annotations
@@ -46,9 +46,10 @@ PRODUCTS += [("SPOT 6", SHARED / "products/SPOT6.XML"), ("WorldView-2", SHARED /
 
 def cubic_attitude(model: PushbroomModel) -> PushbroomModel:
     """``model`` with its attitude replaced by the least-squares cubic in time of the rotation
-    vector (relative to mid-scene) over the scene and 64 lines beyond each end."""
+    vector (relative to mid-scene) over the scene and up to 64 lines beyond each end."""
     lt = model.line_timing
     t0, t1 = sorted((float(lt.seconds(-64.0)), float(lt.seconds(model.n_rows + 64.0))))
+    t0, t1 = max(t0, model.attitude.span[0]), min(t1, model.attitude.span[1])
     t = np.linspace(t0, t1, 200)
     mid = model.attitude.rotation([(t0 + t1) / 2.0])[0]
     rv = (mid.inv() * model.attitude.rotation(t)).as_rotvec()
@@ -79,9 +80,12 @@ def one_product(path: Path) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "rpc_fit.json")
+    parser.add_argument("--only", nargs="*", help="product names to run (default: all)")
     args = parser.parse_args()
     results = {}
     for name, path in PRODUCTS:
+        if args.only and name not in args.only:
+            continue
         if not path.exists():
             print(f"{name}: {path} not found, skipped")
             continue
