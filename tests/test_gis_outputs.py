@@ -247,35 +247,49 @@ def _gdal_round_trip(tif, ours: RpcModel, lon, lat, h):
 
 
 def test_rpc_per_ccd_level1a_round_trips_through_gdal(tmp_path, capsys):
+    """One RPC per CCD misses 0.01 px on this scene (its attitude and orbit samples vary faster
+    than a cubic over the scene), so each CCD is split into row tiles: each tile's GeoTIFF holds
+    exactly its pixels, GDAL reads its RPC, and it lands within 0.01 px of the rigorous model."""
     out = tmp_path / "l1a"
     code, _, err = _run(capsys, "rpc", SCENE, "--out", out, "--height-range", "0", "500", "--json")
     assert code == 0, err
     summary = json.loads((out / "rpc.summary.json").read_text())
     model = open_model(SCENE)
-    names = [a.name for a in model.detector_arrays("B2")]
+    arrays = {a.name: (i, a) for i, a in enumerate(model.detector_arrays("B2"))}
+    entries = summary["rpcs"]
+    assert {e["ccd"] for e in entries} == set(arrays) and len(entries) > len(arrays)  # tiled
+    assert summary["check_max_px"] <= 0.01 and summary["max_error_px"] == 0.01
+    stems = [Path(e["output"]).name[: -len("_RPC.TXT")] for e in entries]
     assert sorted(p.name for p in out.iterdir() if p.name != ".gcpcal-outputs.json") == sorted(
-        ["rpc.summary.json"] + [f"{n}_RPC.TXT" for n in names] + [f"{n}.tif" for n in names])
+        ["rpc.summary.json"] + [f"{n}_RPC.TXT" for n in stems] + [f"{n}.tif" for n in stems])
     scene = _read_band(FIXTURE / "B2.tif")
     rng = np.random.default_rng(3)
-    for i, (entry, array) in enumerate(zip(summary["rpcs"], model.detector_arrays("B2"))):
-        tif = out / f"{array.name}.tif"
-        assert entry["ccd"] == array.name and entry["raster"] == str(tif)
+    covered = {name: np.zeros(model.image_shape[0], int) for name in arrays}
+    for entry, stem in zip(entries, stems):
+        i, array = arrays[entry["ccd"]]
+        r0, c0, (n_r, n_c) = entry["first_row"], entry["first_col"], entry["shape"]
+        assert c0 == array.first_col and n_c == array.n_detectors  # rows split, not columns
+        assert stem == f"{array.name}_r{r0}_c0" and entry["fit"]["form"] == "rational"
+        covered[array.name][r0:r0 + n_r] += 1
+        tif = out / f"{stem}.tif"
         with rasterio.open(tif) as ds:
             pixels, tags = ds.read(1), ds.tags()
-        assert np.array_equal(pixels, scene[:, array.first_col:array.first_col + array.n_detectors])
+        assert np.array_equal(pixels, scene[r0:r0 + n_r, c0:c0 + n_c])
         assert float(tags["GCPCAL_RPC_CHECK_MAX_PX"]) == entry["fit"]["check_max_px"]
+        assert int(tags["GCPCAL_FIRST_ROW"]) == r0
         view = model.detector_view("B2", i)
-        r = rng.uniform(0.5, view.image_shape[0] - 0.5, 40)
-        c = rng.uniform(0.5, view.image_shape[1] - 0.5, 40)
+        r = rng.uniform(0.5, n_r - 0.5, 40)  # tile pixels, not the check grid's
+        c = rng.uniform(0.5, n_c - 0.5, 40)
         h = rng.uniform(0.0, 500.0, 40)
-        lon, lat, _ = view.image_to_ground(r, c, height=h)
-        ours = RpcModel.read(out / f"{array.name}_RPC.TXT")
-        assert _gdal_round_trip(tif, ours, lon, lat, h).max() < 0.01  # GDAL reads the same RPC
+        lon, lat, _ = view.image_to_ground(r + r0, c, height=h)
+        ours = RpcModel.read(out / f"{stem}_RPC.TXT")
+        assert _gdal_round_trip(tif, ours, lon, lat, h).max() < 1e-3  # GDAL reads the same RPC
         with rasterio.open(tif) as ds, RPCTransformer(ds.rpcs) as tr:
             rows, cols = tr.rowcol(lon, lat, h, op=np.positive)
         err_px = np.hypot(np.asarray(rows) - r, np.asarray(cols) - c)
-        # against the rigorous CCD model: within the fit error the summary and the TIFF state
-        assert err_px.max() <= 1.2 * entry["fit"]["check_max_px"] and entry["fit"]["check_max_px"] < 0.2
+        # against the rigorous CCD model, at points no fit or check grid used
+        assert err_px.max() <= 0.01 and entry["fit"]["check_max_px"] <= 0.01
+    assert all(np.all(v == 1) for v in covered.values())  # the tiles cover every row once
 
 
 def test_rpc_out_is_written_exactly(tmp_path, capsys):
@@ -299,8 +313,10 @@ def test_rpc_out_is_written_exactly(tmp_path, capsys):
     # a *.tif is a copy of the scene raster: a model with no raster needs --image
     code, out, err = _run(capsys, "rpc", EXAMPLE, "--ccd", "ccd1", "--out", tmp_path / "ex.tif")
     assert code == 1 and "give --image" in err and not (tmp_path / "ex.tif").exists()
-    # ... while a folder gets the text RPCs, and says why there is no raster
-    code, out, err = _run(capsys, "rpc", EXAMPLE, "--out", tmp_path / "ex", "--height-range", "0", "100")
+    # ... while a folder gets the text RPCs, and says why there is no raster (one RPC per CCD
+    # within the tolerance asked for)
+    code, out, err = _run(capsys, "rpc", EXAMPLE, "--out", tmp_path / "ex", "--height-range", "0", "100",
+                          "--max-error-px", "1")
     assert code == 0 and "no raster" in err
     assert sorted(p.name for p in (tmp_path / "ex").iterdir() if p.name != ".gcpcal-outputs.json") == ["ccd1_RPC.TXT", "ccd2_RPC.TXT", "rpc.summary.json"]
 

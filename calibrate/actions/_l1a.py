@@ -71,9 +71,9 @@ def _open(raster):
         raise InputError(f"cannot open the scene raster: {exc}", path=str(raster)) from None
 
 
-def write_l1a_with_rpc(raster, index: int, out_path, rpc, *, image_shape, first_col: int = 0,
+def write_l1a_with_rpc(raster, index: int, out_path, rpc, *, image_shape, first_col: int = 0, first_row: int = 0,
                        fit_report: dict | None = None, extra_tags: dict | None = None) -> Path:
-    """Write band ``index`` of ``raster`` (columns ``first_col ...``) with ``rpc`` as GeoTIFF RPC tags.
+    """Write band ``index`` of ``raster`` (a window from ``first_row, first_col``) with ``rpc`` as RPC tags.
 
     Parameters
     ----------
@@ -89,6 +89,8 @@ def write_l1a_with_rpc(raster, index: int, out_path, rpc, *, image_shape, first_
         ``(n_rows, n_cols)`` of the whole scene the raster must have.
     first_col : int
         First scene column copied (a CCD's ``first_col``); ``rpc.image_shape[1]`` columns follow.
+    first_row : int
+        First scene row copied (a tile's); ``rpc.image_shape[0]`` rows follow.
     fit_report : dict, optional
         Of :func:`sensor_models.rpc.fit_rpc`: its errors go to the :data:`FIT_TAGS` items.
     extra_tags : dict of str to str, optional
@@ -114,8 +116,8 @@ def write_l1a_with_rpc(raster, index: int, out_path, rpc, *, image_shape, first_
     src = _open(raster)
     tmp = temporary_beside(out_path, ".tif")
     try:
-        _check_source(src, raster, index, image_shape, first_col, rpc.image_shape)
-        _copy_with_rpc(src, index, tmp, rpc, first_col, tags)
+        _check_source(src, raster, index, image_shape, first_row, first_col, rpc.image_shape)
+        _copy_with_rpc(src, index, tmp, rpc, first_row, first_col, tags)
         _check_written(tmp, out_path, rpc.image_shape)
         os.replace(tmp, out_path)
     except RasterioError as exc:
@@ -126,18 +128,18 @@ def write_l1a_with_rpc(raster, index: int, out_path, rpc, *, image_shape, first_
     return out_path
 
 
-def _check_source(src, raster, index, image_shape, first_col, out_shape) -> None:
+def _check_source(src, raster, index, image_shape, first_row, first_col, out_shape) -> None:
     if (src.height, src.width) != tuple(image_shape):
         raise InputError(f"the raster is {src.height} x {src.width} px but the model describes "
                          f"{tuple(image_shape)}", path=str(raster))  # fmt: skip
     if not 1 <= int(index) <= src.count:
         raise InputError(f"has {src.count} band(s); band {index} was asked for", path=str(raster))
-    if out_shape[0] != src.height or first_col < 0 or first_col + out_shape[1] > src.width:
-        raise InputError(f"columns {first_col}..{first_col + out_shape[1]} are not inside the raster",
-                         path=str(raster))  # fmt: skip
+    if first_row < 0 or first_row + out_shape[0] > src.height or first_col < 0 or first_col + out_shape[1] > src.width:
+        raise InputError(f"rows {first_row}..{first_row + out_shape[0]}, columns {first_col}.."
+                         f"{first_col + out_shape[1]} are not inside the raster", path=str(raster))  # fmt: skip
 
 
-def _copy_with_rpc(src, index: int, tmp: Path, rpc, first_col: int, tags: dict) -> None:
+def _copy_with_rpc(src, index: int, tmp: Path, rpc, first_row: int, first_col: int, tags: dict) -> None:
     """Tiled deflate GeoTIFF: pixels in row blocks of ~16 MiB, RPC tags, metadata."""
     import rasterio
     from rasterio.windows import Window
@@ -150,7 +152,8 @@ def _copy_with_rpc(src, index: int, tmp: Path, rpc, first_col: int, tags: dict) 
     with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(tmp, "w", **profile) as dst:
         for r0 in range(0, n_rows, step):
             h = min(step, n_rows - r0)
-            dst.write(src.read(index, window=Window(first_col, r0, n_cols, h)), 1, window=Window(0, r0, n_cols, h))
+            dst.write(src.read(index, window=Window(first_col, first_row + r0, n_cols, h)), 1,
+                      window=Window(0, r0, n_cols, h))
         if src.descriptions[index - 1]:
             dst.set_band_description(1, src.descriptions[index - 1])
         dst.update_tags(**tags)

@@ -1,17 +1,23 @@
-"""Stage action of ``gcpcal rpc``: an RPC fitted to a model over its image and height range.
+"""Stage action of ``gcpcal rpc``: RPCs fitted to a model over its image and height range.
 
 What ``--out PATH`` gets (docs/calibration_outputs.md, "RPC output"):
 
-* a FILE when one RPC is fitted (an RPC or staring-camera model, a push-broom band with one
+* a FILE when one RPC is asked for (an RPC or staring-camera model, a push-broom band with one
   CCD, or ``--ccd``): ``*_RPC.TXT`` or ``*.RPB`` (text), or ``*.tif``: a georeferenced level-1A,
   a copy of the scene raster's band (the CCD's columns for ``--ccd``) with the RPC as GeoTIFF
   RPC tags and its fit errors in the metadata (:mod:`calibrate.actions._l1a`). PATH is written
-  exactly; its summary is ``PATH.summary.json``.
+  exactly; its summary is ``PATH.summary.json``. One RPC is written even when it misses
+  ``max_error_px`` (the summary's ``warnings`` say so).
 * a FOLDER otherwise (a push-broom band with several CCDs), and whenever PATH is an existing
-  folder or a name without a suffix (any other suffix is a usage error): per CCD ``<ccd>_RPC.TXT`` and, when the scene's raster
-  is known (manifest ``rasters`` or ``--image``), ``<ccd>.tif`` (that CCD's columns with its
-  RPC); plus ``rpc.summary.json``. An RPC describes one smooth image, and the stitched raster
-  jumps where CCDs meet, so each CCD gets its own RPC and raster.
+  folder or a name without a suffix (any other suffix is a usage error). An RPC describes one
+  smooth image: the stitched raster jumps where CCDs meet, so each CCD gets its own RPCs; and
+  where one RPC cannot follow the model within ``max_error_px`` on its check grid (attitude or
+  orbit varying faster than a cubic over the scene, look directions beyond a cubic), the CCD's
+  image is split into tiles, each with its own RPC (:func:`sensor_models.rpc_fit.fit_rpc_tiles`).
+  Per RPC: ``<ccd>_RPC.TXT`` (one tile) or ``<ccd>_r<row>_c<col>_RPC.TXT`` (tiles; row and
+  column of the tile's first pixel in the CCD's image) and, when the scene's raster is known
+  (manifest ``rasters`` or ``--image``), the same name with ``.tif`` (those pixels with that
+  RPC); plus ``rpc.summary.json``.
 
 A file PATH for a band with several CCDs is a usage error (:class:`RpcOutputUsageError`, exit 2).
 """
@@ -31,10 +37,15 @@ from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
 from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
 
-__all__ = ["DEFAULT_HEIGHT_RANGE_M", "RpcOutputUsageError", "fit_rpcs", "out_is_folder"]
+__all__ = ["DEFAULT_HEIGHT_RANGE_M", "DEFAULT_MAX_ERROR_PX", "RpcOutputUsageError", "fit_rpcs", "out_is_folder"]
 
 #: Ellipsoidal heights (m) spanned by the fit when neither a DEM nor a range is given.
 DEFAULT_HEIGHT_RANGE_M = (-100.0, 3000.0)
+#: Check-grid maximum error an RPC must reach before a folder output splits the image into
+#: tiles (pixels): the accuracy at which an RPC stands in for a rigorous model (Tao & Hu 2001).
+DEFAULT_MAX_ERROR_PX = 0.01
+#: Smallest tile side (pixels) a split may produce.
+MIN_TILE_PX = 32
 
 _FILE_SUFFIXES = ("_rpc.txt", ".rpb", ".tif", ".tiff")
 
@@ -112,7 +123,8 @@ def _open_inputs(model_path, band, image, self_check):
 
 
 def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None, height_range=None, band=None,
-             ccd=None, image=None, self_check: str = "refuse") -> dict:
+             ccd=None, image=None, self_check: str = "refuse", form="rational",
+             max_error_px=DEFAULT_MAX_ERROR_PX) -> dict:
     """Fit and write the RPC(s) of a model (see the module docstring for what ``out_path`` gets).
 
     Parameters
@@ -136,12 +148,18 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
     self_check : {"refuse", "warn"}
         For a vendor product whose model disagrees with its own statements: refuse, or proceed
         and record the disagreement (``product_check``, ``warnings``) in the summary.
+    form : {"rational", "polynomial"}
+        RPC00B with free denominators (default), or cubic polynomials (denominators 1).
+    max_error_px : float
+        Check-grid maximum error each RPC must reach (pixels); a folder output splits an image
+        into tiles until it does, a file output warns when it does not.
 
     Returns
     -------
     dict
-        The summary (``rpcs``: per RPC its ``ccd``, ``first_col``, ``output``, ``raster`` (the
-        level-1A GeoTIFF or None) and ``fit`` report; ``check_max_px``; ``warnings``).
+        The summary (``rpcs``: per RPC its ``ccd``, ``first_row``, ``first_col`` (scene pixel
+        of its first pixel), ``shape``, ``output``, ``raster`` (the level-1A GeoTIFF or None)
+        and ``fit`` report; ``check_max_px`` (the largest); ``max_error_px``; ``warnings``).
 
     Raises
     ------
@@ -171,11 +189,11 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
         raise InputError(f"a *.tif output is a copy of the scene raster, and the scene lists no raster for band "
                          f"{band!r}: give --image, or write *_RPC.TXT / *.RPB", path=str(out))
     context = dict(band=band, raster=raster, height_range=height_range, model_path=model_path,
-                   n_rows_cols=tuple(model.image_shape))
+                   n_rows_cols=tuple(model.image_shape), form=form, max_error_px=float(max_error_px))
     if folder:
         with staged_folder(out, ".rpc-", inputs=inputs) as tmp:
-            fits = [_fit_one(t, _folder_outputs(tmp, out, t[1], model, raster), context) for t in targets]
-            summary = _summary(model, model_path, height_range, warning, coverage, fits, t0)
+            fits = [entry for t in targets for entry in _fit_tiles(t, tmp, out, model, context)]
+            summary = _summary(model, model_path, height_range, warning, coverage, fits, t0, max_error_px)
             if raster is None:
                 summary["warnings"].append(f"the scene lists no raster for band {band!r}: wrote the RPCs only "
                                            "(give --image for georeferenced level-1A copies)")
@@ -183,37 +201,59 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
         return summary
     with staged_files(out, summary_path, inputs=inputs) as (staged, staged_summary):
         fits = [_fit_one(targets[0], [(staged, out)], context)]
-        summary = _summary(model, model_path, height_range, warning, coverage, fits, t0)
+        summary = _summary(model, model_path, height_range, warning, coverage, fits, t0, max_error_px)
         write_summary(staged_summary, summary)
     return summary
 
 
-def _folder_outputs(tmp: Path, out: Path, ccd_name, model, raster):
-    """``[(staged path, final path)]`` of one RPC in a folder output: text RPC, then the L1A."""
-    name = ccd_name or Path(str(getattr(model, "source", "") or "scene")).stem or "scene"
-    pairs = [(tmp / f"{name}_RPC.TXT", out / f"{name}_RPC.TXT")]
-    if raster is not None:
-        pairs.append((tmp / f"{name}.tif", out / f"{name}.tif"))
-    return pairs
+def _fit_kwargs(ccd_name, context) -> dict:
+    band = context["band"]
+    kwargs = {"band": band} if (ccd_name is None and band is not None) else {}
+    return dict(kwargs, height_range_m=tuple(context["height_range"]), form=context["form"])
+
+
+def _fit_tiles(target, tmp: Path, out: Path, model, context) -> list[dict]:
+    """Fit the RPC tiles of one CCD (or image) and write them into the staged folder."""
+    from sensor_models.rpc_fit import fit_rpc_tiles
+
+    view, ccd_name, first_col = target
+    tiles = fit_rpc_tiles(view, max_error_px=context["max_error_px"], min_tile_px=MIN_TILE_PX,
+                          **_fit_kwargs(ccd_name, context))
+    stem = ccd_name or Path(str(getattr(model, "source", "") or "scene")).stem or "scene"
+    entries = []
+    for tile in tiles:
+        name = stem if len(tiles) == 1 else f"{stem}_r{tile.first_row}_c{tile.first_col}"
+        pairs = [(tmp / f"{name}_RPC.TXT", out / f"{name}_RPC.TXT")]
+        if context["raster"] is not None:
+            pairs.append((tmp / f"{name}.tif", out / f"{name}.tif"))
+        entries.append(_write(tile.rpc, tile.report, ccd_name, tile.first_row, first_col + tile.first_col, pairs,
+                              context))
+    return entries
 
 
 def _fit_one(target, outputs, context) -> dict:
     """Fit one RPC and write it to each ``(staged, final)`` path; its summary entry."""
-    from sensor_models.rpc import fit_rpc
+    from sensor_models.rpc_fit import fit_rpc
 
     view, ccd_name, first_col = target
+    fitted, report = fit_rpc(view, **_fit_kwargs(ccd_name, context))
+    return _write(fitted, report, ccd_name, 0, first_col, outputs, context)
+
+
+def _write(fitted, report, ccd_name, first_row, first_col, outputs, context) -> dict:
+    """Write one RPC (text or level-1A GeoTIFF) to each ``(staged, final)`` path; its summary entry."""
     band = context["band"]
-    kwargs = {"band": band} if (ccd_name is None and band is not None) else {}
-    fitted, report = fit_rpc(view, height_range_m=tuple(context["height_range"]), **kwargs)
-    entry = {"ccd": ccd_name, "first_col": int(first_col), "output": None, "raster": None, "fit": report}
+    entry = {"ccd": ccd_name, "first_row": int(first_row), "first_col": int(first_col),
+             "shape": list(fitted.image_shape), "output": None, "raster": None, "fit": report}
     for staged, final in outputs:
         if final.suffix.lower() in (".tif", ".tiff"):
             path, index = context["raster"]
             extra = {"GCPCAL_RPC_HEIGHT_RANGE_M": " ".join(repr(float(h)) for h in context["height_range"]),
                      "GCPCAL_MODEL": str(context["model_path"]), "GCPCAL_BAND": str(band or ""),
-                     "GCPCAL_CCD": ccd_name or "", "GCPCAL_FIRST_COL": str(int(first_col))}
+                     "GCPCAL_CCD": ccd_name or "", "GCPCAL_FIRST_ROW": str(int(first_row)),
+                     "GCPCAL_FIRST_COL": str(int(first_col))}
             write_l1a_with_rpc(path, index, staged, fitted, image_shape=context["n_rows_cols"], first_col=first_col,
-                               fit_report=report, extra_tags=extra)
+                               first_row=first_row, fit_report=report, extra_tags=extra)
             entry["raster"] = str(final)
             entry["source_raster"] = path
         else:
@@ -222,13 +262,21 @@ def _fit_one(target, outputs, context) -> dict:
     return entry
 
 
-def _summary(model, model_path, height_range, warning, coverage, fits, t0) -> dict:
+def _summary(model, model_path, height_range, warning, coverage, fits, t0, max_error_px) -> dict:
+    misses = [f for f in fits if f["fit"]["check_max_px"] > max_error_px]
+    extra = []
+    if misses:
+        worst = max(f["fit"]["check_max_px"] for f in misses)
+        extra.append(f"{len(misses)} of {len(fits)} RPC(s) miss {max_error_px:g} px on their check grid (worst "
+                     f"{worst:.3g} px): the model varies faster than one RPC can follow; a folder --out splits the "
+                     f"image into tiles (down to {MIN_TILE_PX} px) until each RPC is within it")
     return {
         "command": "rpc",
         "model": str(model_path),
         "height_range_m": list(height_range),
-        **status_fields(model, warning, *coverage.pop("warnings")),
+        **status_fields(model, warning, *coverage.pop("warnings"), *extra),
         **coverage,
+        "max_error_px": float(max_error_px),
         "rpcs": fits,
         "check_max_px": max(f["fit"]["check_max_px"] for f in fits),
         "seconds": round(time.perf_counter() - t0, 3),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from calibrate.actions.rpc import RpcOutputUsageError, fit_rpcs
+from calibrate.actions.rpc import DEFAULT_MAX_ERROR_PX, MIN_TILE_PX, RpcOutputUsageError, fit_rpcs
 from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options, echo_json, echo_warnings, height_range_option, json_option,
                                    one_height_source)
 
@@ -16,7 +16,7 @@ __all__ = ["command"]
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.option("--out", "out_path", required=True, type=click.Path(),
               help="One RPC: this exact file, *_RPC.TXT, *.RPB, or *.tif (a copy of the scene raster with RPC tags). "
-                   "Several CCDs: a folder (<ccd>_RPC.TXT and <ccd>.tif per CCD).")
+                   "Several CCDs, or tiles: a folder (<ccd>_RPC.TXT and <ccd>.tif per CCD or tile).")
 @click.option("--image", type=click.Path(dir_okay=False),
               help="Scene raster copied into a *.tif output (default: the manifest's raster of the band); a crop "
                    "with a pixel geotransform crops the model.")
@@ -24,9 +24,16 @@ __all__ = ["command"]
 @height_range_option
 @click.option("--band", help="Band (multi-band models; default: the reference band).")
 @click.option("--ccd", help="CCD name: one RPC for that CCD's columns (then --out may be a file).")
+@click.option("--form", type=click.Choice(["rational", "polynomial"]), default="rational", show_default=True,
+              help="RPC00B with free denominators, or cubic polynomials (denominators 1).")
+@click.option("--max-error-px", type=click.FloatRange(min=0.0, min_open=True), default=DEFAULT_MAX_ERROR_PX,
+              show_default=True,
+              help="Check-grid maximum error each RPC must reach; a folder --out splits an image into tiles "
+                   f"(down to {MIN_TILE_PX} px) until it does, a file --out warns.")
 @accept_product_disagreement_option
 @json_option
-def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_range, band, ccd, as_json, self_check):
+def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_range, band, ccd, form, max_error_px,
+            as_json, self_check):
     """Fit an RPC to MODEL over its image and height range and write it.
 
     --out is written exactly. One RPC (an RPC or staring-camera model, a one-CCD band, or --ccd)
@@ -37,9 +44,17 @@ def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_rang
     counted from the CCD's first detector) and raster (<ccd>.tif); a file name there is a usage
     error (exit 2).
 
+    Where one RPC misses --max-error-px (default 0.01 px) on its check grid because the model
+    varies faster than an RPC can follow (attitude or orbit changing faster than a cubic over the
+    scene, look directions beyond a cubic), a folder --out splits the CCD's image into tiles, each
+    with its own RPC and raster (<ccd>_r<row>_c<col>_RPC.TXT and .tif, first pixel of the tile in
+    the CCD's image); a file --out keeps one RPC and warns.
+
     The height range comes from --dem (its minimum and maximum over the scene, with a margin) or
-    --height-range. The fit is terrain-independent; its errors on an independent check grid are
-    reported in the summary (OUT.summary.json, or rpc.summary.json in the folder).
+    --height-range. The fit is terrain-independent (Tao & Hu's reweighted least squares with a
+    ridge term chosen on a validation grid; denominators proved free of zeros over the normalized
+    cube); its errors on an independent check grid are reported in the summary (OUT.summary.json,
+    or rpc.summary.json in the folder).
 
     MODEL is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
     beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
@@ -48,16 +63,20 @@ def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_rang
     one_height_source(height_range=height_range, dem=dem_path)
     try:
         summary = fit_rpcs(model_path, out_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
-                           height_range=height_range, band=band, ccd=ccd, image=image, self_check=self_check)
+                           height_range=height_range, band=band, ccd=ccd, image=image, self_check=self_check,
+                           form=form, max_error_px=max_error_px)
     except RpcOutputUsageError as exc:
         raise click.UsageError(str(exc)) from None
     echo_warnings(summary)
     if as_json:
         echo_json(summary)
         return
+    tiled = len(summary["rpcs"]) > len({f["ccd"] for f in summary["rpcs"]})
     for f in summary["rpcs"]:
         rep = f["fit"]
         label = f" (CCD {f['ccd']})" if f["ccd"] else ""
+        if tiled:
+            label += f" rows {f['first_row']}+{f['shape'][0]}, cols {f['first_col']}+{f['shape'][1]}"
         also = f" and {f['raster']}" if f["raster"] and f["raster"] != f["output"] else ""
-        click.echo(f"wrote {f['output']}{also}{label}: RPC fit check-grid max {rep['check_max_px']:.2e} px, "
+        click.echo(f"wrote {f['output']}{also}{label}: {rep['form']} RPC, check-grid max {rep['check_max_px']:.2e} px, "
                    f"rms {rep['check_rms_px']:.2e} px")
