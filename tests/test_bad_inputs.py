@@ -698,7 +698,7 @@ def test_ctrl_c_during_validate_is_one_line_and_leaves_nothing(tmp_path, tmp_pat
     work.mkdir()
     code, lines = _interrupt(["-q", "validate", str(root / "sites.csv"), "--calibration", str(root / "calibrated"),
                               "--out", str(work / "o"), "--workers", "2"],
-                             lambda f, err: bool(list(f.glob(".o.validate-*/**/*.csv"))), work)
+                             lambda f, err: bool(list(f.glob(".o.gcpcal-stage.*/**/*.csv"))), work)
     assert code == 130, lines
     assert lines == ["gcpcal: interrupted"]
     assert _files(work) == []

@@ -150,7 +150,7 @@ def test_validation_table_against_the_truth(series, tmp_path):
     assert "mean of 3 scene(s)" in page and page.count("failed:") == 3 and "validation_planar.png" in page
     assert (out / "validation_planar.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.stem for p in (out / "points").glob("*.csv")) == sorted(names[:3])
-    assert not list(out.glob(".validate-*"))
+    assert not list(out.glob(".*gcpcal-stage*"))
 
 
 def test_validation_with_and_without_the_coarse_skip_agrees(series):

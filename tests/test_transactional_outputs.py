@@ -338,7 +338,7 @@ def test_ctrl_c_during_validate_is_one_line_and_leaves_nothing(small_series, tmp
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, start_new_session=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
-        if list(tmp_path.glob(".o.validate-*/**/*.csv")):  # the first scene is done: work is under way
+        if list(tmp_path.glob(".o.gcpcal-stage.*/**/*.csv")):  # the first scene is done: work is under way
             break
         time.sleep(0.05)
     assert proc.poll() is None, "validate ended before it could be interrupted"
