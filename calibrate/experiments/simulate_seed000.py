@@ -16,11 +16,17 @@ the result states the number.
 
 Sensitivity: accuracy against the attitude noise (the observation-noise analogue for stars) and
 against the unmeasured wobble amplitude (jitter). DEM and DOM errors do not apply to stars.
+
+Speed: the sessions are independent (each its own seed), so they run in worker processes
+(:class:`_Sessions`, one per core this process may use); day 0 goes first, as the other days
+take its installation. Each session's figures are those of a run in one process.
 """
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -30,7 +36,7 @@ from calibrate.config import StarOptions
 from calibrate.experiments.results import ExperimentResult, PaperTable, SensitivityCurve
 from sensor_models.simulate.profiles import Sourced, get_profile, profile_table
 
-__all__ = ["FULL_SESSIONS", "PAPER", "run", "run_session"]
+__all__ = ["FULL_SESSIONS", "PAPER", "default_workers", "run", "run_session"]
 
 #: sessions of a full ``paper-000`` run: the paper's 20 days (a session takes ~40 s on a quiet core)
 FULL_SESSIONS = 20
@@ -131,34 +137,90 @@ def _day_offsets_arcsec(profile, n_sessions: int) -> np.ndarray:
     return out
 
 
-def _run_sessions(work, profile, n_sessions: int, n_frames: int, first=None) -> list:
-    """Session 0 as the simulator sets it (or ``first``, already run); the others share its
-    installation plus a daily offset."""
-    first = first if first is not None else run_session(work, profile, day=0, n_frames=n_frames)
-    sessions = [first]
+def default_workers() -> int:
+    """Worker processes for the sessions: the cores this process may run on.
+
+    Returns
+    -------
+    int
+    """
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # platforms without CPU affinity
+        return max(1, os.cpu_count() or 1)
+
+
+def _init_worker() -> None:
+    """One OpenCV thread per worker process (the workers already fill the cores)."""
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+class _Sessions:
+    """Sessions run once each, in worker processes (``workers`` > 1) or in this one.
+
+    ``submit`` returns a future of :func:`run_session`'s dict; a session already asked for
+    (same magnitudes, day, frames and installation) returns the first one's future.
+    """
+
+    def __init__(self, work: Path, workers: int):
+        self.work = Path(work)
+        self.workers = int(workers)
+        self.futures: dict = {}
+        self.pool = None
+        if self.workers > 1:
+            import multiprocessing
+
+            ctx = multiprocessing.get_context("forkserver")
+            ctx.set_forkserver_preload(["calibrate.experiments.simulate_seed000", "calibrate.stars",
+                                        "calibrate.star_pooling", "sensor_models.simulate.geo_stars"])
+            self.pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker)
+
+    def submit(self, profile, *, day: int, n_frames: int, installation_error_arcsec=()) -> Future:
+        inst = tuple(float(x) for x in installation_error_arcsec)
+        key = (_magnitudes(profile), int(day), int(n_frames), inst)
+        if key not in self.futures:
+            kw = dict(day=int(day), n_frames=int(n_frames), installation_error_arcsec=inst)
+            if self.pool is not None:
+                self.futures[key] = self.pool.submit(run_session, self.work, profile, **kw)
+            else:
+                done = Future()
+                done.set_result(run_session(self.work, profile, **kw))
+                self.futures[key] = done
+        return self.futures[key]
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _following_days(sessions: _Sessions, profile, first: dict, n_sessions: int, n_frames: int) -> list:
+    """Futures of days 1..n-1: day 0's installation plus the profile's daily offset."""
     base = np.asarray(first["installation_error_arcsec"], dtype=np.float64)
     offsets = _day_offsets_arcsec(profile, n_sessions)
-    for day in range(1, n_sessions):
-        sessions.append(run_session(work, profile, day=day, n_frames=n_frames,
-                                    installation_error_arcsec=tuple(base + offsets[day])))
-    return sessions
+    return [sessions.submit(profile, day=day, n_frames=n_frames, installation_error_arcsec=tuple(base + offsets[day]))
+            for day in range(1, n_sessions)]
 
 
-def _day_to_day_curve(work, profile, n_frames: int, sessions: list, quick: bool) -> SensitivityCurve:
-    """Pooled held-out error against the day-to-day installation change (``CURVE_SESSIONS`` days
-    per point; day 0 is shared, its installation has no offset)."""
+def _day_to_day_plan(profile, quick: bool, n_sessions: int) -> tuple:
+    """Points of the day-to-day curve: the offsets (arcsec), the sessions pooled per point and the
+    varied profile of each offset (None: the profile's own value, its sessions are reused)."""
     own = float(profile.value("installation_day_to_day_arcsec"))
     xs = sorted({own, 4.0 if quick else 0.0} | (set() if quick else {2.0, 4.0}))
-    k = min(len(sessions), 2 if quick else CURVE_SESSIONS)
+    k = min(n_sessions, 2 if quick else CURVE_SESSIONS)
+    varied = {x: None if x == own else replace(profile, name=f"{profile.name}-day{x:g}",
+                                                installation_day_to_day_arcsec=Sourced(x, "sensitivity"))
+              for x in xs}
+    return xs, k, varied
+
+
+def _day_to_day_curve(profile, n_frames: int, xs, k: int, runs: dict) -> SensitivityCurve:
+    """Pooled held-out error against the day-to-day installation change (``runs``: offset -> the
+    ``k`` sessions of that point; day 0 is shared, its installation has no offset)."""
     mean_abs, two_sigma = [], []
     for x in xs:
-        if x == own:
-            run_k = sessions[:k]
-        else:
-            varied = replace(profile, name=f"{profile.name}-day{x:g}",
-                             installation_day_to_day_arcsec=Sourced(x, "sensitivity"))
-            run_k = _run_sessions(work, varied, k, n_frames, first=sessions[0])
-        doc = _pooled_figures(run_k)
+        doc = _pooled_figures(runs[x])
         mean_abs.append(0.5 * (doc["ra_mean_abs_px"] + doc["de_mean_abs_px"]))
         two_sigma.append(0.5 * (doc["ra_two_sigma_px"] + doc["de_two_sigma_px"]))
     return SensitivityCurve("installation_day_to_day", "day-to-day installation change (arcsec, 1 sigma per axis)",
@@ -190,39 +252,58 @@ def _magnitudes(profile) -> tuple:
     return tuple(str(row[1]) for row in profile_table(profile))
 
 
-def _curves(work, profile, n_frames, quick, first: dict) -> list:
-    """Sensitivity curves; ``first`` is the day-0 session of ``profile`` at ``n_frames`` (reused)."""
-    cache = {(_magnitudes(profile), n_frames): first}
-
-    def acc(p):
-        key = (_magnitudes(p), n_frames)
-        if key not in cache:
-            cache[key] = run_session(work, p, day=0, n_frames=n_frames)
-        s = cache[key]
-        return 0.5 * (s["ra_mean_abs_px"] + s["de_mean_abs_px"]), 0.5 * (s["ra_two_sigma_px"] + s["de_two_sigma_px"])
-
+def _curve_plan(profile, quick: bool) -> list:
+    """Attitude-noise and wobble curves: ``(field, xs, label, profiles)``, one day-0 profile per point."""
     base = profile if not profile.is_ideal else replace(profile, name="ideal-varied")
     own = {"attitude_noise_arcsec": profile.value("attitude_noise_arcsec"), "wobble_arcsec": profile.value("wobble_arcsec")}
-    curves = []
+    plan = []
     for field, xs, label in (("attitude_noise_arcsec", [0.1, 1.0] if quick else [0.1, 0.5, 1.0, 2.0],
                               "measured-attitude noise (arcsec, 1 sigma)"),
                              ("wobble_arcsec", [0.0, 2.0] if quick else [0.0, 1.0, 2.0, 4.0],
                               "unmeasured wobble amplitude (arcsec, 20 min period)")):
         if quick:  # the profile's own value and one other
             xs = sorted({float(own[field]), xs[1] if float(own[field]) == xs[0] else xs[0]})
-        mean_abs, two_sigma = [], []
-        for x in xs:
-            p = replace(base, name=f"{profile.name}-{field}-{x:g}", **{field: Sourced(x, "sensitivity")})
-            m, t = acc(p)
-            mean_abs.append(m)
-            two_sigma.append(t)
+        plan.append((field, xs, label, [replace(base, name=f"{profile.name}-{field}-{x:g}",
+                                                **{field: Sourced(x, "sensitivity")}) for x in xs]))
+    return plan
+
+
+def _curves(profile, n_frames, plan: list, runs: list) -> list:
+    """Sensitivity curves of :func:`_curve_plan`; ``runs[i][j]``: the session of point ``j`` of curve ``i``."""
+    curves = []
+    for (field, xs, label, _), points in zip(plan, runs):
+        mean_abs = [0.5 * (s["ra_mean_abs_px"] + s["de_mean_abs_px"]) for s in points]
+        two_sigma = [0.5 * (s["ra_two_sigma_px"] + s["de_two_sigma_px"]) for s in points]
         curves.append(SensitivityCurve(field.replace("_arcsec", ""), label, "held-out error (px)", xs,
                                        {"mean |RA|,|DE| px": mean_abs, "2-sigma px": two_sigma},
                                        f"one session of {n_frames} frames per point; other magnitudes: {profile.name}"))
     return curves
 
 
-def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentResult:
+def _all_sessions(work, profile, n_sessions: int, n_frames: int, quick: bool, workers: int) -> tuple:
+    """Every session of the experiment: the profile's days, the curves' day-0 variants and the
+    day-to-day curve's days (day 0 first; the other days once its installation is known)."""
+    runner = _Sessions(work, workers)
+    try:
+        first = runner.submit(profile, day=0, n_frames=n_frames)
+        plan = _curve_plan(profile, quick)
+        curve_runs = [[runner.submit(p, day=0, n_frames=n_frames) for p in profiles] for *_, profiles in plan]
+        days = [first] + _following_days(runner, profile, first.result(), n_sessions, n_frames)
+        day_plan, day_runs = None, {}
+        if n_sessions > 1:
+            xs, k, varied = _day_to_day_plan(profile, quick, n_sessions)
+            day_plan = (xs, k)
+            day_runs = {x: days[:k] if v is None else [first] + _following_days(runner, v, first.result(), k, n_frames)
+                        for x, v in varied.items()}
+        days = [f.result() for f in days]
+        curve_runs = [[f.result() for f in row] for row in curve_runs]
+        day_runs = {x: [f.result() for f in row] for x, row in day_runs.items()}
+    finally:
+        runner.close()
+    return days, (plan, curve_runs), (day_plan, day_runs)
+
+
+def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int | None = None) -> ExperimentResult:
     """Run the seed 000 experiment (module docstring).
 
     Parameters
@@ -234,6 +315,9 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
         runs); two points per sensitivity curve (one of them the profile's own).
     work_dir : Path
         Scratch folder (frames).
+    workers : int, optional
+        Processes running the sessions (default :func:`default_workers`; 1: all in this one).
+        The figures do not depend on it.
 
     Returns
     -------
@@ -245,7 +329,8 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
     n_frames = 30 if quick else 120
     wanted = int(profile.value("sessions"))
     n_sessions = min(wanted, QUICK_SESSIONS if quick else FULL_SESSIONS)
-    sessions = _run_sessions(work, profile, n_sessions, n_frames)
+    sessions, (plan, curve_runs), (day_plan, day_runs) = _all_sessions(
+        work, profile, n_sessions, n_frames, quick, default_workers() if workers is None else int(workers))
     alone = _session_mean(sessions)
     pooled = _pooled_figures(sessions) if n_sessions > 1 else None
     headline = {**{k: v for k, v in alone.items() if k.endswith("_px")}, "tracks": alone["tracks"],
@@ -259,8 +344,8 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
                "sessions_run": n_sessions, "sessions_of_profile": wanted, "paper_days": 20, "paper_tracks": 437,
                "day_to_day_installation_arcsec": float(profile.value("installation_day_to_day_arcsec"))},
         tables=[_table(alone, pooled)],
-        curves=_curves(work, profile, n_frames, quick, sessions[0])
-        + ([_day_to_day_curve(work, profile, n_frames, sessions, quick)] if pooled is not None else []),
+        curves=_curves(profile, n_frames, plan, curve_runs)
+        + ([_day_to_day_curve(profile, n_frames, *day_plan, day_runs)] if pooled is not None else []),
         headline=headline, profile_rows=[(profile.name, *row) for row in profile_table(profile)], notes=NOTES)
     result.seconds = time.perf_counter() - t0
     return result
