@@ -177,6 +177,18 @@ def test_experiment_004_quick(tmp_path, capsys):
     for k in ("sigma_f_mm", "sigma_rot_x_arcsec", "sigma_rot_z_arcsec"):
         mc = paper["headline"][k]
         assert 0.75 < mc / _cell(paper, k, "ours eq. 2-5 propagation at flight sigma_k") < 1.25, k
+    # table 4: the four rows, the paper's values, ours from the measured mark noise inside the
+    # Monte Carlo's interval, and the factor to the paper's within the mark-noise explanation
+    t4 = next(i for i, t in enumerate(paper["tables"]) if "seed 004 table 4" in t["source"])
+    rows = {r[0]: r for r in paper["tables"][t4]["rows"]}
+    assert {"sigma_f_mm", "sigma_rot_x_arcsec", "sigma_rot_y_arcsec", "sigma_rot_z_arcsec"} <= set(rows)
+    assert _cell(paper, "sigma_f_mm", "paper", table=t4) == 0.0015
+    assert _cell(paper, "sigma_rot_z_arcsec", "paper", table=t4) == 0.0936
+    for k in ("sigma_f_mm", "sigma_rot_x_arcsec", "sigma_rot_y_arcsec", "sigma_rot_z_arcsec"):
+        ours = _cell(paper, k, "ours", table=t4)
+        assert _cell(paper, k, "Monte Carlo 95 % low", table=t4) < ours < _cell(paper, k, "Monte Carlo 95 % high", table=t4)
+        assert 0.5 < ours / _cell(paper, k, "paper", table=t4) < 3.0, k
+    assert any("Table 4" in n for n in paper["notes"])
 
 
 @pytest.mark.slow
