@@ -3,8 +3,9 @@
 Runs :func:`calibrate.experiments.simulate_seed000.run` (``--profile paper-000``: the paper's 20
 daily sessions of 120 frames, each calibrated alone and all pooled, plus the sensitivity
 curves' sessions) with ``--workers`` processes, and records the wall time, the load of the
-machine before and after (``/proc/loadavg``, the machine is shared), the tables, curves and
-headline. With ``--reference`` (an earlier output of this script, e.g. from another revision or
+machine before and after (``/proc/loadavg``, the machine is shared), the CPU seconds of all
+sessions and that divided by the workers (the wall time on idle cores, bar the serial rest), the
+tables, curves and headline. With ``--reference`` (an earlier output of this script, e.g. from another revision or
 worker count) it also records the largest absolute difference of any number of the tables,
 curves and headline, and where.
 
@@ -97,7 +98,10 @@ def main(argv=None) -> dict:
         "profile": args.profile, "quick": bool(args.quick), "workers": workers,
         "usable_cores": default_workers(), "machine": platform.machine(), "python": platform.python_version(),
         "wall_s": round(wall, 2), "load_before": load_before, "load_after": _load(),
-        "sessions_run": result.scale["sessions_run"], "tracks": result.headline.get("tracks"),
+        "sessions_run": result.scale["sessions_run"], "sessions_simulated": result.scale["sessions_simulated"],
+        "session_cpu_s": result.scale["session_cpu_s"],
+        "cpu_bound_wall_s": round(result.scale["session_cpu_s"] / workers, 1),
+        "tracks": result.headline.get("tracks"),
         "tables": [asdict(t) for t in result.tables], "curves": [asdict(c) for c in result.curves],
         "headline": result.headline,
     }

@@ -150,6 +150,13 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def _timed_session(work: Path, profile, **kw) -> tuple:
+    """:func:`run_session` and the CPU seconds its process spent on it."""
+    c0 = time.process_time()
+    out = run_session(work, profile, **kw)
+    return out, time.process_time() - c0
+
+
 def _init_worker() -> None:
     """One OpenCV thread per worker process (the workers already fill the cores)."""
     import cv2
@@ -162,12 +169,14 @@ class _Sessions:
 
     ``submit`` returns a future of :func:`run_session`'s dict; a session already asked for
     (same magnitudes, day, frames and installation) returns the first one's future.
+    ``cpu_s`` sums the CPU seconds of the sessions finished so far (wherever they ran).
     """
 
     def __init__(self, work: Path, workers: int):
         self.work = Path(work)
         self.workers = int(workers)
         self.futures: dict = {}
+        self.cpu_s = 0.0
         self.pool = None
         if self.workers > 1:
             import multiprocessing
@@ -183,12 +192,30 @@ class _Sessions:
         if key not in self.futures:
             kw = dict(day=int(day), n_frames=int(n_frames), installation_error_arcsec=inst)
             if self.pool is not None:
-                self.futures[key] = self.pool.submit(run_session, self.work, profile, **kw)
+                timed = self.pool.submit(_timed_session, self.work, profile, **kw)
             else:
-                done = Future()
-                done.set_result(run_session(self.work, profile, **kw))
-                self.futures[key] = done
+                timed = Future()
+                timed.set_result(_timed_session(self.work, profile, **kw))
+            self.futures[key] = self._untimed(timed)
         return self.futures[key]
+
+    def _untimed(self, timed: Future) -> Future:
+        """A future of the session's dict alone; its CPU time added to ``cpu_s``."""
+        out = Future()
+
+        def done(f):
+            if f.cancelled():
+                out.cancel()
+                return
+            if f.exception() is not None:
+                out.set_exception(f.exception())
+                return
+            result, cpu = f.result()
+            self.cpu_s += cpu
+            out.set_result(result)
+
+        timed.add_done_callback(done)
+        return out
 
     def close(self) -> None:
         if self.pool is not None:
@@ -282,7 +309,8 @@ def _curves(profile, n_frames, plan: list, runs: list) -> list:
 
 def _all_sessions(work, profile, n_sessions: int, n_frames: int, quick: bool, workers: int) -> tuple:
     """Every session of the experiment: the profile's days, the curves' day-0 variants and the
-    day-to-day curve's days (day 0 first; the other days once its installation is known)."""
+    day-to-day curve's days (day 0 first; the other days once its installation is known); and
+    ``{"simulated": sessions run, "cpu_s": their CPU seconds}``."""
     runner = _Sessions(work, workers)
     try:
         first = runner.submit(profile, day=0, n_frames=n_frames)
@@ -300,7 +328,7 @@ def _all_sessions(work, profile, n_sessions: int, n_frames: int, quick: bool, wo
         day_runs = {x: [f.result() for f in row] for x, row in day_runs.items()}
     finally:
         runner.close()
-    return days, (plan, curve_runs), (day_plan, day_runs)
+    return days, (plan, curve_runs), (day_plan, day_runs), {"simulated": len(runner.futures), "cpu_s": runner.cpu_s}
 
 
 def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int | None = None) -> ExperimentResult:
@@ -329,7 +357,7 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int |
     n_frames = 30 if quick else 120
     wanted = int(profile.value("sessions"))
     n_sessions = min(wanted, QUICK_SESSIONS if quick else FULL_SESSIONS)
-    sessions, (plan, curve_runs), (day_plan, day_runs) = _all_sessions(
+    sessions, (plan, curve_runs), (day_plan, day_runs), cost = _all_sessions(
         work, profile, n_sessions, n_frames, quick, default_workers() if workers is None else int(workers))
     alone = _session_mean(sessions)
     pooled = _pooled_figures(sessions) if n_sessions > 1 else None
@@ -342,7 +370,8 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int |
         "000", profile_name, quick, "Seed 000: geostationary staring camera calibrated from the relative motion of stars",
         scale={"frames_per_session": n_frames, "frame_interval_s": 10.0, "image_shape": [1024, 1024],
                "sessions_run": n_sessions, "sessions_of_profile": wanted, "paper_days": 20, "paper_tracks": 437,
-               "day_to_day_installation_arcsec": float(profile.value("installation_day_to_day_arcsec"))},
+               "day_to_day_installation_arcsec": float(profile.value("installation_day_to_day_arcsec")),
+               "sessions_simulated": cost["simulated"], "session_cpu_s": round(cost["cpu_s"], 1)},
         tables=[_table(alone, pooled)],
         curves=_curves(profile, n_frames, plan, curve_runs)
         + ([_day_to_day_curve(profile, n_frames, *day_plan, day_runs)] if pooled is not None else []),
