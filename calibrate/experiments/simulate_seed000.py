@@ -25,6 +25,7 @@ take its installation. Each session's figures are those of a run in one process.
 from __future__ import annotations
 
 import os
+import shutil
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import replace
@@ -59,7 +60,7 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
     Parameters
     ----------
     work : Path
-        Scratch folder for the frames.
+        Scratch folder for the frames (removed once read; the manifest and truth stay).
     profile : StarsProfile
     day : int
         Day index (the date and the noise seed).
@@ -88,7 +89,9 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
     simulated = simulate_geo_stars(folder, config=config, profile=profile)
     paths, seconds, manifest = read_frame_list(folder)
     lab = read_geo_manifest(manifest)
-    r = process_frames([load_frame(p) for p in paths], seconds, lab, options=OPTIONS)
+    frames = [load_frame(p) for p in paths]
+    shutil.rmtree(folder / "frames", ignore_errors=True)  # scratch, in memory now (2 MB a frame)
+    r = process_frames(frames, seconds, lab, options=OPTIONS)
     a = r.accuracy
     out = {"success": bool(r.success), "tracks": int(r.frames["n_tracks"]),
            "installation_error_arcsec": simulated["installation_error_arcsec"],
