@@ -13,7 +13,7 @@ from sensor_models.errors import InputError
 
 #: the paper-004 profile's rendering (sensor_models/simulate/profiles.py)
 RENDER = dict(psf_sigma_px=0.8, amplitude_e=1000.0, background_e=50.0, read_noise_e=10.0)
-SPREAD = {"delta_f_mm": 0.03, "rot_x_arcsec": 0.05, "rot_y_arcsec": 0.05, "rot_z_arcsec": 2.0}
+SPREAD = {"delta_f_mm": 0.003, "rot_x_arcsec": 0.005, "rot_y_arcsec": 0.005, "rot_z_arcsec": 0.2}
 
 
 def test_table4_rows_are_table2_at_the_averaged_mark_noise():
