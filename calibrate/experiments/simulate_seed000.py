@@ -184,9 +184,12 @@ class _Sessions:
         if self.workers > 1:
             import multiprocessing
 
-            ctx = multiprocessing.get_context("forkserver")
-            ctx.set_forkserver_preload(["calibrate.experiments.simulate_seed000", "calibrate.stars",
-                                        "calibrate.star_pooling", "sensor_models.simulate.geo_stars"])
+            if "forkserver" in multiprocessing.get_all_start_methods():  # no threads inherited, imports once
+                ctx = multiprocessing.get_context("forkserver")
+                ctx.set_forkserver_preload(["calibrate.experiments.simulate_seed000", "calibrate.stars",
+                                            "calibrate.star_pooling", "sensor_models.simulate.geo_stars"])
+            else:
+                ctx = multiprocessing.get_context("spawn")
             self.pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker)
 
     def submit(self, profile, *, day: int, n_frames: int, installation_error_arcsec=()) -> Future:
@@ -348,7 +351,8 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int |
         Scratch folder (frames).
     workers : int, optional
         Processes running the sessions (default :func:`default_workers`; 1: all in this one).
-        The figures do not depend on it.
+        The figures do not depend on it. With more than one, a script that calls ``run`` must
+        do so under ``if __name__ == "__main__":`` (the workers import the main module).
 
     Returns
     -------
