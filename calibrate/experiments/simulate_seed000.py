@@ -39,7 +39,7 @@ from sensor_models.simulate.profiles import Sourced, get_profile, profile_table
 
 __all__ = ["FULL_SESSIONS", "PAPER", "default_workers", "run", "run_session"]
 
-#: sessions of a full ``paper-000`` run: the paper's 20 days (a session takes ~40 s on a quiet core)
+#: sessions of a full ``paper-000`` run: the paper's 20 days (a session of 120 frames: ~6 CPU-s)
 FULL_SESSIONS = 20
 #: sessions of a quick run of a profile with several sessions (enough to exercise the pooling)
 QUICK_SESSIONS = 2
