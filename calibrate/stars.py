@@ -250,7 +250,7 @@ def load_frame(frame) -> np.ndarray:
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         try:
             with rasterio.open(path) as src:
-                return src.read(1).astype(np.float32)
+                return src.read(1, out_dtype=np.float32)
         except rasterio.errors.RasterioIOError as exc:
             raise InputError(f"cannot read the frame: {exc}", path=str(path)) from None
 

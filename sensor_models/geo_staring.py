@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -539,6 +540,27 @@ def _as_vectors(vectors) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- the model
+@lru_cache(maxsize=2048)
+def _earth_at(epoch_ns: int, seconds: float):
+    """Earth rotation (default IERS tables) over one instant: the models of a frame instant share
+    it (a sequence's LAB and TRUE models and their copies are placed at the same instants).
+
+    Parameters
+    ----------
+    epoch_ns : int
+        Epoch, nanoseconds since 1970 (UTC, as ``numpy.datetime64[ns]``).
+    seconds : float
+        Seconds after the epoch.
+
+    Returns
+    -------
+    EarthRotation
+    """
+    from sensor_models.frames import EarthRotation
+
+    return EarthRotation(np.datetime64(epoch_ns, "ns"), seconds, seconds)
+
+
 class GeoStaringModel(SensorModel):
     """One frame of a geostationary area-array staring camera (module docstring).
 
@@ -632,10 +654,10 @@ class GeoStaringModel(SensorModel):
 
     # ------------------------------------------------------------------ construction
     def _exterior_at_frame(self):
-        from sensor_models.frames import EarthRotation, orbital_to_frame_mat
+        from sensor_models.frames import orbital_to_frame_mat
 
         t = np.array([self.frame_seconds])
-        earth = EarthRotation(self.epoch, self.frame_seconds, self.frame_seconds)
+        earth = _earth_at(int(np.datetime64(self.epoch, "ns").astype(np.int64)), self.frame_seconds)
         c_g2i = earth.gcrf_to_itrf_mat(t)[0]
         pos, vel = self.orbit.state(t)
         if self.orbit.frame == "gcrf":

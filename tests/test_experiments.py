@@ -177,6 +177,18 @@ def test_experiment_004_quick(tmp_path, capsys):
     for k in ("sigma_f_mm", "sigma_rot_x_arcsec", "sigma_rot_z_arcsec"):
         mc = paper["headline"][k]
         assert 0.75 < mc / _cell(paper, k, "ours eq. 2-5 propagation at flight sigma_k") < 1.25, k
+    # table 4: the four rows, the paper's values, ours from the measured mark noise inside the
+    # Monte Carlo's interval, and the factor to the paper's within the mark-noise explanation
+    t4 = next(i for i, t in enumerate(paper["tables"]) if "seed 004 table 4" in t["source"])
+    rows = {r[0]: r for r in paper["tables"][t4]["rows"]}
+    assert {"sigma_f_mm", "sigma_rot_x_arcsec", "sigma_rot_y_arcsec", "sigma_rot_z_arcsec"} <= set(rows)
+    assert _cell(paper, "sigma_f_mm", "paper", table=t4) == 0.0015
+    assert _cell(paper, "sigma_rot_z_arcsec", "paper", table=t4) == 0.0936
+    for k in ("sigma_f_mm", "sigma_rot_x_arcsec", "sigma_rot_y_arcsec", "sigma_rot_z_arcsec"):
+        ours = _cell(paper, k, "ours", table=t4)
+        assert _cell(paper, k, "Monte Carlo 95 % low", table=t4) < ours < _cell(paper, k, "Monte Carlo 95 % high", table=t4)
+        assert 0.5 < ours / _cell(paper, k, "paper", table=t4) < 3.0, k
+    assert any("Table 4" in n for n in paper["notes"])
 
 
 @pytest.mark.slow
@@ -240,3 +252,27 @@ def test_experiment_000_paper_pools_its_sessions(tmp_path, capsys):
         assert 0.05 < h[f"{k}_mean_abs_px"] < 2.0
     assert _cell(paper, "mean |RA| after (px)", "ours, one calibration of all sessions") == h["pooled_ra_mean_abs_px"]
     assert "installation_day_to_day" in {c["name"] for c in paper["curves"]}
+
+
+def test_seed000_sessions_in_worker_processes_equal_those_of_one_process(tmp_path):
+    """The sessions of experiment 000 run in worker processes (its speed at the paper's scale):
+    the same figures and track points as in this process, to the last bit; a session asked for
+    twice runs once."""
+    from calibrate.experiments.simulate_seed000 import _Sessions, run_session
+
+    profile = get_profile("paper-000", "stars")
+    inst = (1.0, -2.0, 3.0)
+    pool = _Sessions(tmp_path / "pool", workers=2)
+    try:
+        future = pool.submit(profile, day=1, n_frames=30, installation_error_arcsec=inst)
+        assert pool.submit(profile, day=1, n_frames=30, installation_error_arcsec=list(inst)) is future
+        got = future.result()
+    finally:
+        pool.close()
+    want = run_session(tmp_path / "one", profile, day=1, n_frames=30, installation_error_arcsec=inst)
+    assert {k: v for k, v in got.items() if k != "session"} == {k: v for k, v in want.items() if k != "session"}
+    assert got["tracks"] > 0 and got["installation_error_arcsec"] == pytest.approx(list(inst), abs=1e-3)
+    for name in ("row_smooth", "col_smooth", "virtual_gcrf", "check"):
+        np.testing.assert_array_equal(getattr(got["session"].observations, name),
+                                      getattr(want["session"].observations, name))
+    np.testing.assert_array_equal(got["session"].body_to_gcrf, want["session"].body_to_gcrf)

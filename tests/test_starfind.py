@@ -558,3 +558,21 @@ def test_real_image_against_sep_and_sextractor(sep_data):
     assert 10 <= out["ours"][1] <= 25 and 2 <= out["sep"][1] <= 10
     assert 0.01 < out["ours"][2] < 0.035 and 0.025 < out["sep"][2] < 0.07
     assert out["ours"][3] == 44 and out["sep"][3] >= 42
+
+
+def test_render_stars_noise_is_the_per_pixel_formula_bit_for_bit():
+    """The noisy frame equals ``image + z sqrt(max(image, 0) / gain + (read / gain)^2)`` with the
+    same normal draws ``z``, pixel for pixel and to the last bit (the standard deviation is
+    evaluated per pixel only where stars add light), for stars on and across the edges."""
+    rng = np.random.default_rng(11)
+    rc = np.concatenate([rng.uniform(-4.0, 68.0, (40, 2)), [[0.2, 0.3], [63.9, 63.7], [32.0, 32.0], [32.0, 32.0]]])
+    flux = rng.uniform(50.0, 5e4, rc.shape[0])
+    for background, gain, read in ((100.0, 2.0, 10.0), (0.0, 1.0, 0.0), (-3.0, 1.5, 4.0)):
+        clean = render_stars((64, 70), rc, flux, sigma_px=1.2, background=background)
+        got = render_stars((64, 70), rc, flux, sigma_px=1.2, background=background, gain_e_per_adu=gain,
+                           read_noise_e=read, rng=np.random.default_rng(5))
+        z = np.random.default_rng(5).standard_normal((64, 70))
+        want = clean + z * np.sqrt(np.maximum(clean, 0.0) / gain + (read / gain) ** 2)
+        np.testing.assert_array_equal(got, want)
+    assert render_stars((8, 8), np.zeros((0, 2)), [], sigma_px=1.0, background=5.0,
+                        rng=np.random.default_rng(0)).shape == (8, 8)

@@ -16,11 +16,18 @@ the result states the number.
 
 Sensitivity: accuracy against the attitude noise (the observation-noise analogue for stars) and
 against the unmeasured wobble amplitude (jitter). DEM and DOM errors do not apply to stars.
+
+Speed: the sessions are independent (each its own seed), so they run in worker processes
+(:class:`_Sessions`, one per core this process may use); day 0 goes first, as the other days
+take its installation. Each session's figures are those of a run in one process.
 """
 
 from __future__ import annotations
 
+import os
+import shutil
 import time
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -30,9 +37,9 @@ from calibrate.config import StarOptions
 from calibrate.experiments.results import ExperimentResult, PaperTable, SensitivityCurve
 from sensor_models.simulate.profiles import Sourced, get_profile, profile_table
 
-__all__ = ["FULL_SESSIONS", "PAPER", "run", "run_session"]
+__all__ = ["FULL_SESSIONS", "PAPER", "default_workers", "run", "run_session"]
 
-#: sessions of a full ``paper-000`` run: the paper's 20 days (a session takes ~40 s on a quiet core)
+#: sessions of a full ``paper-000`` run: the paper's 20 days (a session of 120 frames: ~6 CPU-s)
 FULL_SESSIONS = 20
 #: sessions of a quick run of a profile with several sessions (enough to exercise the pooling)
 QUICK_SESSIONS = 2
@@ -53,7 +60,7 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
     Parameters
     ----------
     work : Path
-        Scratch folder for the frames.
+        Scratch folder for the frames (removed once read; the manifest and truth stay).
     profile : StarsProfile
     day : int
         Day index (the date and the noise seed).
@@ -82,7 +89,9 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
     simulated = simulate_geo_stars(folder, config=config, profile=profile)
     paths, seconds, manifest = read_frame_list(folder)
     lab = read_geo_manifest(manifest)
-    r = process_frames([load_frame(p) for p in paths], seconds, lab, options=OPTIONS)
+    frames = [load_frame(p) for p in paths]
+    shutil.rmtree(folder / "frames", ignore_errors=True)  # scratch, in memory now (2 MB a frame)
+    r = process_frames(frames, seconds, lab, options=OPTIONS)
     a = r.accuracy
     out = {"success": bool(r.success), "tracks": int(r.frames["n_tracks"]),
            "installation_error_arcsec": simulated["installation_error_arcsec"],
@@ -131,34 +140,120 @@ def _day_offsets_arcsec(profile, n_sessions: int) -> np.ndarray:
     return out
 
 
-def _run_sessions(work, profile, n_sessions: int, n_frames: int, first=None) -> list:
-    """The first session as the simulator sets it (or ``first``, already run); the others share its
-    installation plus a daily offset."""
-    first = first if first is not None else run_session(work, profile, day=0, n_frames=n_frames)
-    sessions = [first]
+def default_workers() -> int:
+    """Worker processes for the sessions: the cores this process may run on.
+
+    Returns
+    -------
+    int
+    """
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # platforms without CPU affinity
+        return max(1, os.cpu_count() or 1)
+
+
+def _timed_session(work: Path, profile, **kw) -> tuple:
+    """:func:`run_session` and the CPU seconds its process spent on it."""
+    c0 = time.process_time()
+    out = run_session(work, profile, **kw)
+    return out, time.process_time() - c0
+
+
+def _init_worker() -> None:
+    """One OpenCV thread per worker process (the workers already fill the cores)."""
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+class _Sessions:
+    """Sessions run once each, in worker processes (``workers`` > 1) or in this one.
+
+    ``submit`` returns a future of :func:`run_session`'s dict; a session already asked for
+    (same magnitudes, day, frames and installation) returns the first one's future.
+    ``cpu_s`` sums the CPU seconds of the sessions finished so far (wherever they ran).
+    """
+
+    def __init__(self, work: Path, workers: int):
+        self.work = Path(work)
+        self.workers = int(workers)
+        self.futures: dict = {}
+        self.cpu_s = 0.0
+        self.pool = None
+        if self.workers > 1:
+            import multiprocessing
+
+            if "forkserver" in multiprocessing.get_all_start_methods():  # no threads inherited, imports once
+                ctx = multiprocessing.get_context("forkserver")
+                ctx.set_forkserver_preload(["calibrate.experiments.simulate_seed000", "calibrate.stars",
+                                            "calibrate.star_pooling", "sensor_models.simulate.geo_stars"])
+            else:
+                ctx = multiprocessing.get_context("spawn")
+            self.pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker)
+
+    def submit(self, profile, *, day: int, n_frames: int, installation_error_arcsec=()) -> Future:
+        inst = tuple(float(x) for x in installation_error_arcsec)
+        key = (_magnitudes(profile), int(day), int(n_frames), inst)
+        if key not in self.futures:
+            kw = dict(day=int(day), n_frames=int(n_frames), installation_error_arcsec=inst)
+            if self.pool is not None:
+                timed = self.pool.submit(_timed_session, self.work, profile, **kw)
+            else:
+                timed = Future()
+                timed.set_result(_timed_session(self.work, profile, **kw))
+            self.futures[key] = self._untimed(timed)
+        return self.futures[key]
+
+    def _untimed(self, timed: Future) -> Future:
+        """A future of the session's dict alone; its CPU time added to ``cpu_s``."""
+        out = Future()
+
+        def done(f):
+            if f.cancelled():
+                out.cancel()
+                return
+            if f.exception() is not None:
+                out.set_exception(f.exception())
+                return
+            result, cpu = f.result()
+            self.cpu_s += cpu
+            out.set_result(result)
+
+        timed.add_done_callback(done)
+        return out
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _following_days(sessions: _Sessions, profile, first: dict, n_sessions: int, n_frames: int) -> list:
+    """Futures of days 1..n-1: day 0's installation plus the profile's daily offset."""
     base = np.asarray(first["installation_error_arcsec"], dtype=np.float64)
     offsets = _day_offsets_arcsec(profile, n_sessions)
-    for day in range(1, n_sessions):
-        sessions.append(run_session(work, profile, day=day, n_frames=n_frames,
-                                    installation_error_arcsec=tuple(base + offsets[day])))
-    return sessions
+    return [sessions.submit(profile, day=day, n_frames=n_frames, installation_error_arcsec=tuple(base + offsets[day]))
+            for day in range(1, n_sessions)]
 
 
-def _day_to_day_curve(work, profile, n_frames: int, sessions: list, quick: bool) -> SensitivityCurve:
-    """Pooled held-out error against the day-to-day installation change (``CURVE_SESSIONS`` days
-    per point; day 0 is shared, its installation has no offset)."""
+def _day_to_day_plan(profile, quick: bool, n_sessions: int) -> tuple:
+    """Points of the day-to-day curve: the offsets (arcsec), the sessions pooled per point and the
+    varied profile of each offset (None: the profile's own value, its sessions are reused)."""
     own = float(profile.value("installation_day_to_day_arcsec"))
     xs = sorted({own, 4.0 if quick else 0.0} | (set() if quick else {2.0, 4.0}))
-    k = min(len(sessions), 2 if quick else CURVE_SESSIONS)
+    k = min(n_sessions, 2 if quick else CURVE_SESSIONS)
+    varied = {x: None if x == own else replace(profile, name=f"{profile.name}-day{x:g}",
+                                                installation_day_to_day_arcsec=Sourced(x, "sensitivity"))
+              for x in xs}
+    return xs, k, varied
+
+
+def _day_to_day_curve(profile, n_frames: int, xs, k: int, runs: dict) -> SensitivityCurve:
+    """Pooled held-out error against the day-to-day installation change (``runs``: offset -> the
+    ``k`` sessions of that point; day 0 is shared, its installation has no offset)."""
     mean_abs, two_sigma = [], []
     for x in xs:
-        if x == own:
-            run_k = sessions[:k]
-        else:
-            varied = replace(profile, name=f"{profile.name}-day{x:g}",
-                             installation_day_to_day_arcsec=Sourced(x, "sensitivity"))
-            run_k = _run_sessions(work, varied, k, n_frames, first=sessions[0])
-        doc = _pooled_figures(run_k)
+        doc = _pooled_figures(runs[x])
         mean_abs.append(0.5 * (doc["ra_mean_abs_px"] + doc["de_mean_abs_px"]))
         two_sigma.append(0.5 * (doc["ra_two_sigma_px"] + doc["de_two_sigma_px"]))
     return SensitivityCurve("installation_day_to_day", "day-to-day installation change (arcsec, 1 sigma per axis)",
@@ -190,39 +285,59 @@ def _magnitudes(profile) -> tuple:
     return tuple(str(row[1]) for row in profile_table(profile))
 
 
-def _curves(work, profile, n_frames, quick, first: dict) -> list:
-    """Sensitivity curves; ``first`` is the day-0 session of ``profile`` at ``n_frames`` (reused)."""
-    cache = {(_magnitudes(profile), n_frames): first}
-
-    def acc(p):
-        key = (_magnitudes(p), n_frames)
-        if key not in cache:
-            cache[key] = run_session(work, p, day=0, n_frames=n_frames)
-        s = cache[key]
-        return 0.5 * (s["ra_mean_abs_px"] + s["de_mean_abs_px"]), 0.5 * (s["ra_two_sigma_px"] + s["de_two_sigma_px"])
-
+def _curve_plan(profile, quick: bool) -> list:
+    """Attitude-noise and wobble curves: ``(field, xs, label, profiles)``, one day-0 profile per point."""
     base = profile if not profile.is_ideal else replace(profile, name="ideal-varied")
     own = {"attitude_noise_arcsec": profile.value("attitude_noise_arcsec"), "wobble_arcsec": profile.value("wobble_arcsec")}
-    curves = []
+    plan = []
     for field, xs, label in (("attitude_noise_arcsec", [0.1, 1.0] if quick else [0.1, 0.5, 1.0, 2.0],
                               "measured-attitude noise (arcsec, 1 sigma)"),
                              ("wobble_arcsec", [0.0, 2.0] if quick else [0.0, 1.0, 2.0, 4.0],
                               "unmeasured wobble amplitude (arcsec, 20 min period)")):
         if quick:  # the profile's own value and one other
             xs = sorted({float(own[field]), xs[1] if float(own[field]) == xs[0] else xs[0]})
-        mean_abs, two_sigma = [], []
-        for x in xs:
-            p = replace(base, name=f"{profile.name}-{field}-{x:g}", **{field: Sourced(x, "sensitivity")})
-            m, t = acc(p)
-            mean_abs.append(m)
-            two_sigma.append(t)
+        plan.append((field, xs, label, [replace(base, name=f"{profile.name}-{field}-{x:g}",
+                                                **{field: Sourced(x, "sensitivity")}) for x in xs]))
+    return plan
+
+
+def _curves(profile, n_frames, plan: list, runs: list) -> list:
+    """Sensitivity curves of :func:`_curve_plan`; ``runs[i][j]``: the session of point ``j`` of curve ``i``."""
+    curves = []
+    for (field, xs, label, _), points in zip(plan, runs):
+        mean_abs = [0.5 * (s["ra_mean_abs_px"] + s["de_mean_abs_px"]) for s in points]
+        two_sigma = [0.5 * (s["ra_two_sigma_px"] + s["de_two_sigma_px"]) for s in points]
         curves.append(SensitivityCurve(field.replace("_arcsec", ""), label, "held-out error (px)", xs,
                                        {"mean |RA|,|DE| px": mean_abs, "2-sigma px": two_sigma},
                                        f"one session of {n_frames} frames per point; other magnitudes: {profile.name}"))
     return curves
 
 
-def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentResult:
+def _all_sessions(work, profile, n_sessions: int, n_frames: int, quick: bool, workers: int) -> tuple:
+    """Every session of the experiment: the profile's days, the curves' day-0 variants and the
+    day-to-day curve's days (day 0 first; the other days once its installation is known); and
+    ``{"simulated": sessions run, "cpu_s": their CPU seconds}``."""
+    runner = _Sessions(work, workers)
+    try:
+        first = runner.submit(profile, day=0, n_frames=n_frames)
+        plan = _curve_plan(profile, quick)
+        curve_runs = [[runner.submit(p, day=0, n_frames=n_frames) for p in profiles] for *_, profiles in plan]
+        days = [first] + _following_days(runner, profile, first.result(), n_sessions, n_frames)
+        day_plan, day_runs = None, {}
+        if n_sessions > 1:
+            xs, k, varied = _day_to_day_plan(profile, quick, n_sessions)
+            day_plan = (xs, k)
+            day_runs = {x: days[:k] if v is None else [first] + _following_days(runner, v, first.result(), k, n_frames)
+                        for x, v in varied.items()}
+        days = [f.result() for f in days]
+        curve_runs = [[f.result() for f in row] for row in curve_runs]
+        day_runs = {x: [f.result() for f in row] for x, row in day_runs.items()}
+    finally:
+        runner.close()
+    return days, (plan, curve_runs), (day_plan, day_runs), {"simulated": len(runner.futures), "cpu_s": runner.cpu_s}
+
+
+def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int | None = None) -> ExperimentResult:
     """Run the seed 000 experiment (module docstring).
 
     Parameters
@@ -234,6 +349,10 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
         runs); two points per sensitivity curve (one of them the profile's own).
     work_dir : Path
         Scratch folder (frames).
+    workers : int, optional
+        Processes running the sessions (default :func:`default_workers`; 1: all in this one).
+        The figures do not depend on it. With more than one, a script that calls ``run`` must
+        do so under ``if __name__ == "__main__":`` (the workers import the main module).
 
     Returns
     -------
@@ -245,7 +364,8 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
     n_frames = 30 if quick else 120
     wanted = int(profile.value("sessions"))
     n_sessions = min(wanted, QUICK_SESSIONS if quick else FULL_SESSIONS)
-    sessions = _run_sessions(work, profile, n_sessions, n_frames)
+    sessions, (plan, curve_runs), (day_plan, day_runs), cost = _all_sessions(
+        work, profile, n_sessions, n_frames, quick, default_workers() if workers is None else int(workers))
     alone = _session_mean(sessions)
     pooled = _pooled_figures(sessions) if n_sessions > 1 else None
     headline = {**{k: v for k, v in alone.items() if k.endswith("_px")}, "tracks": alone["tracks"],
@@ -257,10 +377,11 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
         "000", profile_name, quick, "Seed 000: geostationary staring camera calibrated from the relative motion of stars",
         scale={"frames_per_session": n_frames, "frame_interval_s": 10.0, "image_shape": [1024, 1024],
                "sessions_run": n_sessions, "sessions_of_profile": wanted, "paper_days": 20, "paper_tracks": 437,
-               "day_to_day_installation_arcsec": float(profile.value("installation_day_to_day_arcsec"))},
+               "day_to_day_installation_arcsec": float(profile.value("installation_day_to_day_arcsec")),
+               "sessions_simulated": cost["simulated"], "session_cpu_s": round(cost["cpu_s"], 1)},
         tables=[_table(alone, pooled)],
-        curves=_curves(work, profile, n_frames, quick, sessions[0])
-        + ([_day_to_day_curve(work, profile, n_frames, sessions, quick)] if pooled is not None else []),
+        curves=_curves(profile, n_frames, plan, curve_runs)
+        + ([_day_to_day_curve(profile, n_frames, *day_plan, day_runs)] if pooled is not None else []),
         headline=headline, profile_rows=[(profile.name, *row) for row in profile_table(profile)], notes=NOTES)
     result.seconds = time.perf_counter() - t0
     return result

@@ -450,9 +450,12 @@ def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, ma
         img = render_stars(shape, at, flux, sigma_px=cfg.psf_sigma_px,
                            background=cfg.background_adu, gain_e_per_adu=cfg.gain_e_per_adu,
                            read_noise_e=cfg.read_noise_e, rng=rng)
-        if gain is not None:
-            img = cfg.background_adu + (img - cfg.background_adu) * gain
-        dn = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
+        if gain is not None:  # background + (img - background) * gain, in place
+            img -= cfg.background_adu
+            img *= gain
+            img += cfg.background_adu
+        np.rint(img, out=img)
+        dn = np.clip(img, 0, 65535, out=img).astype(np.uint16)
         name = f"frames/frame_{k:04d}.tif"
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
