@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 
 from sensor_models.locgrid import InverseLocalizationGrid  # noqa: E402
 from sensor_models.pushbroom_types import Installation  # noqa: E402
-from sensor_models.rpc import fit_rpc  # noqa: E402
+from sensor_models.rpc_fit import fit_rpc  # noqa: E402
 from sensor_models.synthetic import example_pushbroom_model  # noqa: E402
 from sensor_models.terrain import Dem  # noqa: E402
 

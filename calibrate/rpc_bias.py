@@ -20,7 +20,7 @@ bias:
 equilibrates the normal equations. The corrected model folds ``a0, a1, b0, b2`` into its
 offsets and scales when written (:meth:`RpcModel.write`); the cross terms ``a2, b1`` cannot
 be written to an RPC file (``writable=False`` in the result; refit with
-:func:`sensor_models.rpc.fit_rpc` instead).
+:func:`sensor_models.rpc_fit.fit_rpc` instead).
 
 References
 ----------

@@ -48,7 +48,7 @@ bias.col.b1, bias.col.b2``; all default to zero. The correction is applied by
 
 Fitting
 -------
-:func:`sensor_models.rpc_fit.fit_rpc` (also importable from here) fits a terrain-independent RPC
+:func:`sensor_models.rpc_fit.fit_rpc` fits a terrain-independent RPC
 to any :class:`~sensor_models.base.SensorModel` from a 3-D grid of image points localized at
 several heights, by the iteratively reweighted linearized least squares of Tao & Hu [2]_ with a
 Tikhonov (ridge) term chosen on a validation grid, and certifies that the denominators have no
@@ -78,7 +78,7 @@ from sensor_models.atomic import temporary_beside
 from sensor_models.base import ParameterVector, SensorModel, as_float_arrays
 from sensor_models.errors import InputError, RpcError
 
-__all__ = ["RPC00B_TERMS", "RpcModel", "fit_rpc"]
+__all__ = ["RPC00B_TERMS", "RpcModel"]
 
 #: The 20 monomials of an RPC00B cubic, in coefficient order (L = lon, P = lat, H = height,
 #: all normalized).
@@ -1149,15 +1149,3 @@ def _write_geotiff(model: RpcModel, path: Path, template) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-
-
-# ---------------------------------------------------------------------------------------------
-# Fitting lives in sensor_models.rpc_fit (it imports this module)
-# ---------------------------------------------------------------------------------------------
-def __getattr__(name):
-    """``fit_rpc`` from :mod:`sensor_models.rpc_fit`, imported on first use (no import cycle)."""
-    if name == "fit_rpc":
-        from sensor_models.rpc_fit import fit_rpc
-
-        return fit_rpc
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -254,7 +254,7 @@ def test_extend_attitude_holds_the_end_rate(model):
 def test_rpc_fitted_to_the_model_lands_on_the_frame(model):
     """The product's own RPC is absent; an RPC fitted to the rigorous model over 0-2000 m
     reproduces it to a few thousandths of a pixel and lands on the producer's frame too."""
-    from sensor_models.rpc import fit_rpc
+    from sensor_models.rpc_fit import fit_rpc
 
     rpc, report = fit_rpc(model, height_range_m=(0.0, 2000.0))
     assert report["check_max_px"] < 0.01

@@ -242,7 +242,7 @@ def test_rewrite_replaces_old_figures_and_leaves_pyplot_alone(case, tmp_path):
 def test_rpc_bias_result_is_unwrapped(tmp_path):
     """A non-push-broom model: no distortion figure, every parameter in the main table."""
     from calibrate.rpc_bias import compensate_rpc_bias
-    from sensor_models.rpc import fit_rpc
+    from sensor_models.rpc_fit import fit_rpc
 
     design = CameraDesign(n_ccds=1, detectors_per_ccd=600, band_names=("B1",), band_offsets_px=(0.0,))
     model = example_pushbroom_model(n_rows=600, design=design)

@@ -20,7 +20,7 @@ from sensor_models.errors import InputError
 __all__ = ["FIT_TAGS", "scene_raster", "write_l1a_with_rpc"]
 
 #: Dataset metadata items (default domain) of the L1A GeoTIFF, from the fit report of
-#: :func:`sensor_models.rpc.fit_rpc`: item -> report key (pixels).
+#: :func:`sensor_models.rpc_fit.fit_rpc`: item -> report key (pixels).
 FIT_TAGS = {
     "GCPCAL_RPC_CHECK_MAX_PX": "check_max_px",
     "GCPCAL_RPC_CHECK_RMS_PX": "check_rms_px",
@@ -92,7 +92,7 @@ def write_l1a_with_rpc(raster, index: int, out_path, rpc, *, image_shape, first_
     first_row : int
         First scene row copied (a tile's); ``rpc.image_shape[0]`` rows follow.
     fit_report : dict, optional
-        Of :func:`sensor_models.rpc.fit_rpc`: its errors go to the :data:`FIT_TAGS` items.
+        Of :func:`sensor_models.rpc_fit.fit_rpc`: its errors go to the :data:`FIT_TAGS` items.
     extra_tags : dict of str to str, optional
         More dataset metadata items.
 
