@@ -51,6 +51,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calibrate import attitude as _attitude
+from calibrate.pspline import recovered_spectrum
 from calibrate._json import json_safe
 from calibrate.config import CalibrationOptions
 from calibrate.lsq import PROBE_POINTS, Chunk, LsqResult, Prior, robust_weights, solve
@@ -754,9 +755,7 @@ def _select_attitude(static, points, weight, groups, options):
 def _time_varying(model, static, points, weight, groups, skipped, options, bands, ccd_idx):
     """Choose the attitude basis around the static solution; solve it with exterior and interior."""
     chosen, covariance, table, seconds, w, t_img = _select_attitude(static, points, weight, groups, options)
-    info = {"mode": options.attitude, "candidates": table,
-            "selected": {"kind": "static", "n_terms": 0} if chosen is None
-            else {"kind": chosen.kind, "n_terms": chosen.n_terms, "knot_spacing_s": chosen.knot_spacing_s}}
+    info = _attitude.selection_info(options.attitude, chosen, table)
     if chosen is None:
         return replace(static, attitude=info)
     # the correction's mean over the GCPs is a constant rotation: the installation takes it
@@ -766,6 +765,7 @@ def _time_varying(model, static, points, weight, groups, skipped, options, bands
     info["coefficients_covariance_rad2"] = covariance
     spectrum = _attitude.jitter_spectrum(chosen, *t_img)
     info["jitter"] = {axis: v["peak"] for axis, v in spectrum["axes"].items()}
+    info["spectrum"] = recovered_spectrum(chosen, *t_img)
     start = static.model.with_attitude_correction(chosen)
     # one pass of the scheme with the correction held, from the static solution (the exterior
     # takes the correction's mean; the interior sheds what the attitude error had bent it by)
