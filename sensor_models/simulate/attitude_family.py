@@ -29,7 +29,7 @@ from sensor_models.pushbroom_types import Installation
 from sensor_models.synthetic import CameraDesign, example_pushbroom_model
 
 __all__ = ["AXES", "FamilyRanges", "SceneDraw", "draw_scene", "jitter_angles", "lab_model", "line_period_s",
-           "synthetic_gcps", "synthetic_ties", "true_model", "truth_error", "without_time_variation"]
+           "gcp_rows", "max_gap_s", "synthetic_gcps", "synthetic_ties", "true_model", "truth_error", "without_time_variation"]
 
 AXES = ("roll", "pitch", "yaw")
 #: sample rate of the TRUE attitude, Hz (33 samples per period of the fastest 3 Hz jitter)
@@ -225,6 +225,18 @@ def true_model(draw: SceneDraw, lab: PushbroomModel) -> PushbroomModel:
                           reference_band=lab.reference_band)
 
 
+def gcp_rows(draw: SceneDraw) -> np.ndarray:
+    """Image rows (N,) of the draw's GCPs, before noise (uniform over the lines)."""
+    return np.random.default_rng([draw.seed, 1]).uniform(0.5, draw.n_rows - 0.5, draw.n_gcps)
+
+
+def max_gap_s(draw: SceneDraw) -> float:
+    """Longest time between consecutive GCP lines (and from the scene's ends), seconds."""
+    rows = np.sort(gcp_rows(draw))
+    gaps = np.diff(np.concatenate([[0.0], rows, [draw.n_rows]]))
+    return float(gaps.max() * draw.duration_s / draw.n_rows)
+
+
 def synthetic_gcps(draw: SceneDraw, truth: PushbroomModel, *, noise=True):
     """The draw's GCPs: random reference-band pixels at random heights, through the TRUE model.
 
@@ -244,7 +256,8 @@ def synthetic_gcps(draw: SceneDraw, truth: PushbroomModel, *, noise=True):
     rng = np.random.default_rng([draw.seed, 1])
     n = draw.n_gcps
     band = truth.reference_band
-    rows = rng.uniform(0.5, truth.n_rows - 0.5, n)
+    rows = gcp_rows(draw)
+    rng.uniform(size=n)  # the rows' draws
     cols = rng.uniform(0.5, truth.n_cols - 0.5, n)
     lon, lat, h = truth.image_to_ground(rows, cols, height=rng.uniform(0.0, 1500.0, n), band=band)
     err = rng.normal(0.0, draw.noise_px, (2, n)) if noise else np.zeros((2, n))
