@@ -123,16 +123,14 @@ def run_draw(draw) -> dict:
         joint = calibrate_with_parallax(gcp_only, ties, gcps, height=300.0)
         out["success"] &= bool(joint.success)
         final = joint.model
-        corr = joint.correction
         out["gcp_only_px"] = fam.truth_error(truth, gcp_only)
         sel = joint.to_dict()["selected"]
         chosen = next((r for r in joint.candidates if r.get("chosen")), {})
         out["selection"] = {**sel, "edf": chosen.get("n_parameters"), "lambda": chosen.get("lambda")}
     else:
-        static_model, final, corr = static.model, auto.model, auto.model.attitude_correction
+        static_model, final = static.model, auto.model
         sel = (auto.attitude or {}).get("selected", {})
         out["selection"] = {k: sel.get(k) for k in ("kind", "n_terms", "knot_spacing_s", "edf", "lambda")}
-    del corr
     static_px = fam.truth_error(truth, static_model)
     auto_px = fam.truth_error(truth, final)
     n = draw.n_gcps

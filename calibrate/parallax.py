@@ -333,7 +333,8 @@ def _cholesky_ridge(normal, rhs, ridge, penalty=None):
     """As :func:`calibrate.attitude.ridge_solution`, by Cholesky (several times faster than eigh).
 
     Columns without data and without ridge (a CCD with no tie) get a unit ridge; every column a
-    relative 1e-12 one. ``penalty`` (P, P) is a further quadratic penalty. The hat matrix's trace is ``P - trace(A^-1 D (R + S) D)`` of the scaled matrix
+    relative 1e-12 one. ``penalty`` (P, P) is a further quadratic penalty. The hat matrix's trace
+    is ``P - trace(A^-1 D (R + S) D)`` of the scaled matrix
     ``A = D (N + R + S) D``.
     """
     from scipy.linalg import cho_factor, cho_solve, solve_triangular

@@ -163,7 +163,8 @@ class Smoothing:
         return self.score
 
     def to_dict(self) -> dict:
-        """JSON form: ``lambda``, ``edf``, ``criterion`` ("blocked-cv" or "gcv"), ``n_folds``, ``score``, ``curve`` (lists).
+        """JSON form: ``lambda``, ``edf``, ``criterion`` ("blocked-cv" or "gcv"), ``n_folds``,
+        ``score``, ``at_bound`` and ``curve`` (lists).
 
         Returns
         -------
