@@ -51,6 +51,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calibrate import attitude as _attitude
+from calibrate.pspline import recovered_spectrum
 from calibrate._json import json_safe
 from calibrate.config import CalibrationOptions
 from calibrate.lsq import PROBE_POINTS, Chunk, LsqResult, Prior, robust_weights, solve
@@ -728,8 +729,18 @@ def calibrate_model(
     return with_honest_covariance(result, points, weight, groups, options)  # the reference DOM's common shift
 
 
+#: further rounds of the time-varying attitude after the first (choice and one pass of the scheme)
+ATTITUDE_REFINE_ROUNDS = 2
+#: the rounds stop when the correction moves by less than this, micro-radians rms over the lines
+ATTITUDE_REFINE_TOL_URAD = 0.05
+
+
 def _select_attitude(static, points, weight, groups, options):
-    """Candidate bases fitted to the static residuals; the chosen one (calibrate.attitude)."""
+    """Candidate bases fitted to the static residuals; the chosen one (calibrate.attitude).
+
+    When ``static.model`` carries a correction (a refinement round), its linear effect is
+    added back to the residuals, so that every candidate is fitted to "static" residuals.
+    """
     fitted = static.model
     n = points["row"].size
     jac_delta = np.full((n, 2, 3), np.nan)
@@ -746,17 +757,44 @@ def _select_attitude(static, points, weight, groups, options):
         seconds=seconds[used], image_span_s=t_img[1] - t_img[0], min_span_fraction=options.min_span_fraction,
         support_s=(float(np.min(seconds[used])), float(np.max(seconds[used]))) if np.any(used) else None)
     yaw = None if options.attitude_yaw_sigma_urad is None else options.attitude_yaw_sigma_urad * 1e-6
-    chosen, covariance, table = _attitude.select_correction(jac_delta, seconds, static.residuals_after, w,
+    residuals = static.residuals_after
+    base = getattr(fitted, "attitude_correction", None)
+    if base is not None:
+        residuals = residuals + np.einsum("nia,na->ni", jac_delta, base.angles(seconds))
+    chosen, covariance, table = _attitude.select_correction(jac_delta, seconds, residuals, w,
                                                             candidates, yaw_sigma_rad=yaw)
     return chosen, covariance, table, seconds, w, t_img
 
 
 def _time_varying(model, static, points, weight, groups, skipped, options, bands, ccd_idx):
-    """Choose the attitude basis around the static solution; solve it with exterior and interior."""
-    chosen, covariance, table, seconds, w, t_img = _select_attitude(static, points, weight, groups, options)
-    info = {"mode": options.attitude, "candidates": table,
-            "selected": {"kind": "static", "n_terms": 0} if chosen is None
-            else {"kind": chosen.kind, "n_terms": chosen.n_terms, "knot_spacing_s": chosen.knot_spacing_s}}
+    """Choose the attitude basis around the static solution; solve it with exterior and interior.
+
+    Then up to :data:`ATTITUDE_REFINE_ROUNDS` rounds choose it again around the new exterior and
+    interior (which no longer carry what the attitude error had bent them by) and solve them
+    once more, until the correction moves by less than :data:`ATTITUDE_REFINE_TOL_URAD` rms.
+    """
+    result = _attitude_round(model, static, static, points, weight, groups, skipped, options, bands, ccd_idx)
+    if result.model is static.model or result.attitude.get("failed"):
+        return result
+    rounds = 1
+    for _ in range(ATTITUDE_REFINE_ROUNDS):
+        again = _attitude_round(model, static, result, points, weight, groups, skipped, options, bands, ccd_idx)
+        if again.attitude.get("failed") or again.model.attitude_correction is None:
+            break
+        t = result.model.line_timing.seconds(np.linspace(0.0, float(result.model.n_rows), 512))
+        moved = float(np.sqrt(np.mean(np.square(again.model.attitude_correction.angles(t)
+                                                 - result.model.attitude_correction.angles(t))))) * 1e6
+        result, rounds = again, rounds + 1
+        if moved < ATTITUDE_REFINE_TOL_URAD:
+            break
+    result.attitude["rounds"] = rounds
+    return result
+
+
+def _attitude_round(model, static, around, points, weight, groups, skipped, options, bands, ccd_idx):
+    """One choice of the correction around ``around`` and one pass of the scheme with it held."""
+    chosen, covariance, table, seconds, w, t_img = _select_attitude(around, points, weight, groups, options)
+    info = _attitude.selection_info(options.attitude, chosen, table)
     if chosen is None:
         return replace(static, attitude=info)
     # the correction's mean over the GCPs is a constant rotation: the installation takes it
@@ -766,7 +804,8 @@ def _time_varying(model, static, points, weight, groups, skipped, options, bands
     info["coefficients_covariance_rad2"] = covariance
     spectrum = _attitude.jitter_spectrum(chosen, *t_img)
     info["jitter"] = {axis: v["peak"] for axis, v in spectrum["axes"].items()}
-    start = static.model.with_attitude_correction(chosen)
+    info["spectrum"] = recovered_spectrum(chosen, *t_img)
+    start = around.model.with_attitude_correction(chosen)
     # one pass of the scheme with the correction held, from the static solution (the exterior
     # takes the correction's mean; the interior sheds what the attitude error had bent it by)
     problem = _Problem(start, points, weight, groups, options.chunk_points)

@@ -11,7 +11,10 @@ time ``t_i`` respond linearly to the angles: ``r_i ~ J_i delta(t_i)``, ``J_i = d
 delta`` (2, 3) (:meth:`PushbroomModel.attitude_angle_jacobian`). For a candidate basis
 ``phi_k(t)`` (plus a constant, which is the installation's freedom) the weighted least-squares
 fit of ``sum_k c_k phi_k(t_i) J_i`` to ``r_i`` gives a residual sum ``RSS`` and effective number
-of parameters ``p`` (trace of the ridge hat matrix); the candidate of least
+of parameters ``p`` (trace of the hat matrix). The spline candidate is a P-spline: knots as
+dense as the observations' times, a difference penalty whose weight is chosen by generalized
+cross-validation (:mod:`calibrate.pspline`), so its ``p`` is the effective degrees of freedom
+the data support. Among static, drift and P-spline the candidate of least
 
 .. math::  BIC = m \\ln(RSS / m) + p \\ln m
 
@@ -24,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
+from calibrate.pspline import MAX_PSPLINE_SEGMENTS, N_FOLDS, difference_penalty, pspline_segments, smooth, time_folds
 from sensor_models.attitude_correction import AXES, AttitudeCorrection
 
 __all__ = [
@@ -31,25 +35,26 @@ __all__ = [
     "REGULARIZATION_SIGMA_RAD",
     "basis_columns",
     "candidate_corrections",
+    "choose_candidate",
     "correction_band",
+    "held_out_masks",
     "jitter_spectrum",
     "ridge_solution",
     "ridge_weights",
     "select_correction",
+    "selection_info",
+    "spline_penalty",
 ]
 
 #: standard deviation of the ridge pseudo-observation ``c = 0`` of every correction coefficient,
 #: radians: far above the micro-radian corrections, it only pins the spline's constant mode
-#: (the installation's) and segments without GCPs
+#: (the installation's)
 REGULARIZATION_SIGMA_RAD = (1e-4, 1e-4, 1e-4)
-#: most spline segments tried (the chunked normal equations hold 3 (n + 3) columns)
-MAX_SEGMENTS = 64
-#: fewest GCPs per spline coefficient and axis for a candidate to be tried
-MIN_POINTS_PER_COEFFICIENT = 20
-#: fewest lines per spline segment
-MIN_LINES_PER_SEGMENT = 8
-#: fewest GCPs in each spline segment between the first and the last GCP
-MIN_POINTS_PER_SEGMENT = 10
+#: most P-spline segments for GCPs alone (:data:`calibrate.pspline.MAX_PSPLINE_SEGMENTS`)
+MAX_SEGMENTS = MAX_PSPLINE_SEGMENTS
+#: level of the test that keeps a time-varying correction over the static model
+#: (:func:`choose_candidate`): the rate of scenes without time-varying error that get one
+SIGNIFICANCE = 1e-3
 
 
 def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int, n_lines: float,
@@ -60,28 +65,29 @@ def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int,
     Parameters
     ----------
     mode : {"static", "drift", "spline", "auto"}
-        ``drift``: static, rate, rate + quadratic; ``spline``: static and cubic B-splines of
-        2, 3, 4, 6, 8, 11, 16, ... segments; ``auto``: all of them.
+        ``drift``: static, rate, rate + quadratic; ``spline``: static and the P-spline (dense
+        cubic B-splines whose smoothing :func:`select_correction` chooses,
+        :mod:`calibrate.pspline`); ``auto``: all of them.
     t0_s, t1_s : float
         Time span of the basis, seconds since the model's epoch.
     n_points : int
-        GCPs used (bounds the number of coefficients).
+        Observations used (no time-varying candidate with fewer than 2).
     n_lines : float
         Image lines in the span (bounds the segment length).
     seconds : ndarray, shape (N,), optional
-        Times of the GCPs used. When given, time-varying candidates need GCPs over at least
-        ``min_span_fraction`` of ``image_span_s`` (seconds), and a spline needs at least
-        ``MIN_POINTS_PER_SEGMENT`` GCPs in every segment between the first and last GCP.
+        Times of the observations used: their distinct times set the P-spline's knot spacing
+        (:func:`calibrate.pspline.pspline_segments`), and time-varying candidates need them over
+        at least ``min_span_fraction`` of ``image_span_s`` (seconds). Without them the knots
+        are ``n_points`` distinct times' worth, spread evenly.
     image_span_s : float, optional
         Duration of the image lines, seconds.
     min_span_fraction : float
         See ``seconds``.
     max_segments : int
-        Most spline segments tried (:data:`MAX_SEGMENTS` for GCPs alone; the band parallax's
-        dense tie points support more, :mod:`calibrate.parallax`).
+        Most P-spline segments (:data:`MAX_SEGMENTS`; the band parallax passes its own).
     support_s : (float, float), optional
-        First and last observation time, seconds. When given, the splines span it and hold
-        their end values beyond it (``outside="hold"``, :mod:`sensor_models.attitude_correction`):
+        First and last observation time, seconds. When given, the spline spans it and holds
+        its end values beyond it (``outside="hold"``, :mod:`sensor_models.attitude_correction`):
         lines before the first or after the last observation are not extrapolated.
 
     Returns
@@ -90,28 +96,21 @@ def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int,
         None is the static model.
     """
     out = [None]
+    if n_points < 2:
+        return out
     if seconds is not None and image_span_s:
         if np.ptp(seconds) < min_span_fraction * image_span_s:
             return out  # GCPs on a few lines do not observe a function of time
     if mode in ("drift", "auto"):
         out += [AttitudeCorrection("drift", t0_s, t1_s, d) for d in (1, 2)]
     if mode in ("spline", "auto"):
-        limit = min(max_segments, n_points // MIN_POINTS_PER_COEFFICIENT - 3, int(n_lines // MIN_LINES_PER_SEGMENT))
-        n_seg = sorted({int(round(2 ** (k / 2))) for k in range(2, int(2 * np.log2(max_segments)) + 1)})
         s0, s1, outside = (t0_s, t1_s, "continue") if support_s is None else (*support_s, "hold")
         if s1 > s0:
-            out += [AttitudeCorrection("spline", s0, s1, n, outside=outside) for n in n_seg
-                    if n <= limit and _segments_filled(seconds, s0, s1, n)]
+            lines = n_lines * (s1 - s0) / (t1_s - t0_s)
+            times = np.linspace(s0, s1, int(n_points)) if seconds is None else seconds
+            n_seg = pspline_segments(times, s0, s1, n_lines=lines, max_segments=max_segments)
+            out.append(AttitudeCorrection("spline", s0, s1, n_seg, outside=outside))
     return out
-
-
-def _segments_filled(seconds, t0_s, t1_s, n_segments):
-    """Every segment between the first and the last GCP holds ``MIN_POINTS_PER_SEGMENT`` GCPs."""
-    if seconds is None:
-        return True
-    seg = np.clip(((seconds - t0_s) / (t1_s - t0_s) * n_segments).astype(np.intp), 0, n_segments - 1)
-    counts = np.bincount(seg, minlength=n_segments)[seg.min() : seg.max() + 1]
-    return bool(counts.min() >= MIN_POINTS_PER_SEGMENT)
 
 
 def _sparse_basis(correction, seconds):
@@ -190,6 +189,60 @@ def ridge_solution(normal, rhs, ridge):
         Effective number of parameters.
     """
     return _ridge_solution(normal, rhs, ridge)
+
+
+def spline_penalty(correction, k, n_columns):
+    """The P-spline's difference penalty ``S`` (n_columns, n_columns), per axis; None if not a spline.
+
+    Block ``a`` (columns ``a K .. a K + K - 1``, ``K = k``) is ``D^T D`` of
+    :func:`calibrate.pspline.difference_penalty`; further columns (nuisance) are unpenalized.
+
+    Parameters
+    ----------
+    correction : AttitudeCorrection or None
+    k : int
+        Columns per axis.
+    n_columns : int
+        Columns of the whole design (``>= 3 k``).
+
+    Returns
+    -------
+    ndarray, shape (n_columns, n_columns) or None
+    """
+    if correction is None or correction.kind != "spline":
+        return None
+    block = difference_penalty(k)
+    out = np.zeros((n_columns, n_columns))
+    for a in range(3):
+        out[a * k:(a + 1) * k, a * k:(a + 1) * k] = block
+    return out
+
+
+def held_out_masks(correction, seconds):
+    """Held-out observations of each fold of the P-spline's blocked cross-validation.
+
+    Blocks of twice the knot spacing (:func:`calibrate.pspline.time_folds`): about the mean
+    spacing of the observations' distinct lines, so that points of one image line (a row of
+    matched GCPs) leave together and are predicted from the lines around them.
+
+    Parameters
+    ----------
+    correction : AttitudeCorrection
+        The P-spline candidate.
+    seconds : ndarray, shape (N,)
+        Time of each observation.
+
+    Returns
+    -------
+    list of ndarray of bool, shape (N,)
+        One mask per fold with held-out observations.
+    """
+    return _held_out(correction, seconds)
+
+
+def _held_out(correction, seconds):
+    fold = time_folds(seconds, correction.t0_s, 2.0 * correction.knot_spacing_s, N_FOLDS)
+    return [fold == k for k in range(N_FOLDS) if np.any(fold == k)]
 
 
 def _n_columns(correction):
@@ -288,14 +341,27 @@ def select_correction(jac_delta, seconds, residuals, weights, candidates, *, yaw
     table, solutions = [], []
     for cand in candidates:
         normal, rhs, k = _normal_equations(jac_delta, seconds, residuals, weights, cand)
-        coef, inv, dof = _ridge_solution(normal, rhs, _ridge(cand, k, yaw_sigma_rad))
-        rss = max(rss0 - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
+        ridge = _ridge(cand, k, yaw_sigma_rad)
+        penalty = spline_penalty(cand, k, 3 * k)
+        smoothing = None
+        if penalty is None:
+            coef, inv, dof = _ridge_solution(normal, rhs, ridge)
+            rss = max(rss0 - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
+        else:
+            folds = []
+            for held in _held_out(cand, seconds):
+                w_h = np.where(held, weights, 0.0)
+                n_h, b_h, _ = _normal_equations(jac_delta, seconds, residuals, w_h, cand)
+                folds.append((n_h, b_h, float(np.sum(w_h[:, None] * residuals**2))))
+            coef, inv, dof, rss, smoothing = smooth(normal, rhs, rss0, m, penalty, ridge, folds=folds)
         bic = m * np.log(rss / m) + dof * np.log(m)
         solutions.append((coef, inv * rss / max(m - dof, 1.0), k))
-        table.append({"kind": "static" if cand is None else cand.kind,
-                      "n_terms": 0 if cand is None else cand.n_terms,
-                      "n_parameters": round(dof, 2), "rss": float(rss), "bic": float(bic), "chosen": False})
-    best = int(np.argmin([row["bic"] for row in table]))
+        row = {"kind": "static" if cand is None else cand.kind, "n_terms": 0 if cand is None else cand.n_terms,
+               "n_parameters": round(dof, 2), "rss": float(rss), "bic": float(bic), "chosen": False}
+        if smoothing is not None:
+            row["smoothing"] = smoothing.to_dict()
+        table.append(row)
+    best = choose_candidate(table, m)
     table[best]["chosen"] = True
     cand = candidates[best]
     if cand is None:
@@ -306,6 +372,88 @@ def select_correction(jac_delta, seconds, residuals, weights, candidates, *, yaw
         keep = keep[:, 1:]
     keep = keep.reshape(-1)
     return cand.with_coefficients(coef[keep]), cov[np.ix_(keep, keep)], table
+
+
+def selection_info(mode: str, chosen, table) -> dict:
+    """The ``attitude`` record of ``calibration.json`` for a selection (docs/attitude.md).
+
+    Parameters
+    ----------
+    mode : str
+        ``CalibrationOptions.attitude``.
+    chosen : AttitudeCorrection or None
+    table : list of dict
+        Candidate rows (:func:`select_correction`).
+
+    Returns
+    -------
+    dict
+        ``mode``, ``candidates``, ``selected`` (``kind``, ``n_terms``, and for a correction
+        ``knot_spacing_s``, ``edf``; for the P-spline also ``lambda`` and ``criterion``) and,
+        when a P-spline was fitted, ``smoothing`` (its criterion curve, chosen or not).
+    """
+    row = next((r for r in table if r["chosen"]), None)
+    if chosen is None:
+        selected = {"kind": "static", "n_terms": 0, "edf": None if row is None else row["n_parameters"]}
+    else:
+        selected = {"kind": chosen.kind, "n_terms": chosen.n_terms, "knot_spacing_s": chosen.knot_spacing_s,
+                    "edf": row["n_parameters"]}
+        if "smoothing" in row:
+            selected.update({"lambda": row["smoothing"]["lambda"], "criterion": row["smoothing"]["criterion"]})
+    rows = [{k: v for k, v in r.items() if k != "smoothing"} | (
+        {"lambda": r["smoothing"]["lambda"]} if "smoothing" in r else {}) for r in table]
+    info = {"mode": mode, "candidates": rows, "selected": selected}
+    spline = next((r for r in table if "smoothing" in r), None)
+    if spline is not None:
+        info["smoothing"] = {"n_segments": spline["n_terms"], "edf": spline["n_parameters"], **spline["smoothing"]}
+    return info
+
+
+def choose_candidate(table, m: int, *, alpha: float = SIGNIFICANCE) -> int:
+    """Index of the chosen candidate: least GCV among the time-varying ones, if significant.
+
+    The time-varying candidate of least ``GCV = m RSS / (m - p)^2`` is kept when the
+    approximate F-test of "no time variation" (Hastie and Tibshirani 1990, section 3.9: effective
+    degrees of freedom ``p`` in place of parameter counts)
+
+    .. math::  F = \\frac{(RSS_0 - RSS) / (p - p_0)}{RSS / (m - p)}
+               > F_{1-\\alpha}(p - p_0,\\; m - p)
+
+    rejects the static model (``RSS_0``, ``p_0``) at level ``alpha``; otherwise the static one.
+
+    Parameters
+    ----------
+    table : list of dict
+        Rows with ``kind`` (``"static"`` for the static candidate), ``rss`` and ``n_parameters``.
+    m : int
+        Weighted residuals.
+    alpha : float
+        Level of the test (:data:`SIGNIFICANCE`).
+
+    Returns
+    -------
+    int
+        Also writes ``gcv``, ``f_statistic`` and ``p_value`` into the time-varying rows.
+    """
+    from scipy.stats import f as f_dist
+
+    static = next((i for i, r in enumerate(table) if r["kind"] == "static"), None)
+    for r in table:
+        r["gcv"] = float(m * r["rss"] / max(m - r["n_parameters"], 1e-3) ** 2)
+    varying = [i for i, r in enumerate(table) if r["kind"] != "static"]
+    if not varying:
+        return 0 if static is None else static
+    best = min(varying, key=lambda i: table[i]["gcv"])
+    if static is None:
+        return best
+    r0 = table[static]
+    for i in varying:
+        r = table[i]
+        d1, d2 = r["n_parameters"] - r0["n_parameters"], m - r["n_parameters"]
+        if d1 > 1e-6 and d2 > 0:
+            stat = ((r0["rss"] - r["rss"]) / d1) / (r["rss"] / d2)
+            r["f_statistic"], r["p_value"] = float(stat), float(f_dist.sf(stat, d1, d2))
+    return best if table[best].get("p_value", 1.0) < alpha else static
 
 
 def correction_band(correction: AttitudeCorrection, covariance, seconds):

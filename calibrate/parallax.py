@@ -29,8 +29,10 @@ delta``): jitter at frequencies the GCP rows cannot reach, with the gain ``|2 si
 J_i delta(t_i)``) hold the low frequencies. Both enter ONE weighted least squares for the
 correction's coefficients, together with per (band, CCD) polynomials in the detector index for
 the row and column of the ties (the linearized interior that the relative calibration solves;
-:func:`joint_select`). The basis (static, drift, uniform cubic splines of 2 .. ``max_segments``
-segments) is chosen by BIC on the joint residuals, as :func:`calibrate.attitude.select_correction`
+:func:`joint_select`). The basis (static, drift, or the P-spline with knots as dense as the
+observations' times and its smoothing chosen by blocked cross-validation, :mod:`calibrate.pspline`) is chosen on the
+joint residuals (least GCV, kept when an F-test rejects the static model), as
+:func:`calibrate.attitude.select_correction`
 does on the GCPs alone. :func:`calibrate.relative.relative_calibration` alternates this step
 with the interiors (``parallax=True``).
 """
@@ -42,7 +44,9 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 import scipy.sparse as sp
 
-from calibrate.attitude import basis_columns, candidate_corrections, ridge_solution, ridge_weights
+from calibrate.attitude import (basis_columns, candidate_corrections, choose_candidate, held_out_masks, ridge_solution,
+                                ridge_weights, spline_penalty)
+from calibrate.pspline import smooth
 from sensor_models.errors import InputError
 
 __all__ = ["MAX_JOINT_SEGMENTS", "TRANSFER_STEP_PX", "AngleObservations", "ParallaxResult", "calibrate_with_parallax",
@@ -51,13 +55,8 @@ __all__ = ["MAX_JOINT_SEGMENTS", "TRANSFER_STEP_PX", "AngleObservations", "Paral
 
 #: step of the central differences of the transfer map's 2x2 Jacobian ``A``, px
 TRANSFER_STEP_PX = 0.5
-#: most spline segments tried on joint data (dense ties resolve segments of tens of lines)
+#: most P-spline segments on joint data (dense ties resolve segments of tens of lines)
 MAX_JOINT_SEGMENTS = 256
-#: standard deviation of the pseudo-observation "second difference of neighbouring spline
-#: coefficients = 0" (P-spline penalty, Eilers and Marx 1996), radians: far weaker than the ties
-#: where there are observations, it makes the coefficients of the end segments (few
-#: observations) continue their neighbours instead of swinging
-SECOND_DIFFERENCE_SIGMA_RAD = 1e-5
 #: a GCP whose residual exceeds this many robust standard deviations is left out of the fit
 GCP_REJECT_SIGMAS = 5.0
 
@@ -272,9 +271,9 @@ def joint_candidates(mode, model, observations, *, min_span_fraction: float = 0.
     """Candidate bases for the joint data (:func:`calibrate.attitude.candidate_corrections`).
 
     Every observation with weight counts at its first term's time (the GCP's line, the
-    band's line of a tie), so a spline's segments must each hold ``MIN_POINTS_PER_SEGMENT``
-    observations: segments shorter than the tie rows' spacing are not tried. The splines span
-    the observations' times (every term) and hold their end values beyond.
+    band's line of a tie): their distinct times set the P-spline's knots
+    (:func:`calibrate.pspline.pspline_segments`). The spline spans the observations' times
+    (every term) and holds its end values beyond.
 
     Parameters
     ----------
@@ -330,24 +329,12 @@ def _design(observations, correction, n_groups: int, n_poly: int):
     return x, np.concatenate(resid), np.concatenate(weight), k
 
 
-def _difference_penalty(cand, k, n_columns):
-    """``S^-2 D2^T D2`` per axis on a spline's coefficients (P, P); None for other candidates."""
-    if cand is None or cand.kind != "spline" or k < 3:
-        return None
-    d2 = np.diff(np.eye(k), n=2, axis=0)
-    block = d2.T @ d2 / SECOND_DIFFERENCE_SIGMA_RAD**2
-    out = np.zeros((n_columns, n_columns))
-    for a in range(3):
-        out[a * k:(a + 1) * k, a * k:(a + 1) * k] = block
-    return out
-
-
 def _cholesky_ridge(normal, rhs, ridge, penalty=None):
     """As :func:`calibrate.attitude.ridge_solution`, by Cholesky (several times faster than eigh).
 
     Columns without data and without ridge (a CCD with no tie) get a unit ridge; every column a
-    relative 1e-12 one. ``penalty`` (P, P) is a further quadratic penalty (the spline's second
-    differences). The hat matrix's trace is ``P - trace(A^-1 D (R + S) D)`` of the scaled matrix
+    relative 1e-12 one. ``penalty`` (P, P) is a further quadratic penalty. The hat matrix's trace
+    is ``P - trace(A^-1 D (R + S) D)`` of the scaled matrix
     ``A = D (N + R + S) D``.
     """
     from scipy.linalg import cho_factor, cho_solve, solve_triangular
@@ -370,7 +357,7 @@ def _cholesky_ridge(normal, rhs, ridge, penalty=None):
 
 def joint_select(observations, candidates, *, base=None, interior_terms: int = 3, yaw_sigma_rad=None,
                  reweight: bool = True):
-    """Choose the basis of least BIC on GCPs and ties together, and its linearized solution.
+    """Choose the basis on GCPs and ties together (:func:`calibrate.attitude.choose_candidate`) and solve it.
 
     Parameters
     ----------
@@ -400,7 +387,8 @@ def joint_select(observations, candidates, *, base=None, interior_terms: int = 3
         Of the chosen coefficients, scaled by the a-posteriori variance factor, rad^2.
     table : list of dict
         Per candidate ``kind``, ``n_terms``, ``n_parameters`` (effective), ``rss`` (weighted, px^2),
-        ``bic``, ``chosen``; the chosen row also ``variance_factors`` per block label.
+        ``bic``, ``gcv``, ``chosen`` (the P-spline's also ``smoothing``, its criterion curve); the
+        chosen row also ``variance_factors`` per block label.
     """
     if not candidates:
         raise InputError("no candidate basis to fit", field="attitude")
@@ -429,7 +417,7 @@ def joint_select(observations, candidates, *, base=None, interior_terms: int = 3
 
 
 def _select(static_obs, candidates, *, n_groups, n_poly, yaw_sigma_rad):
-    """Fit every candidate; the BIC table, the solutions and the index of the least BIC."""
+    """Fit every candidate; the table, the solutions and the index of the chosen one."""
     table, solutions = [], []
     for cand in candidates:
         x, r, w, k = _design(static_obs, cand, n_groups, n_poly)
@@ -438,13 +426,27 @@ def _select(static_obs, candidates, *, n_groups, n_poly, yaw_sigma_rad):
         rhs = xw @ r
         m = int(np.count_nonzero(w))
         ridge = np.concatenate([ridge_weights(cand, k, yaw_sigma_rad=yaw_sigma_rad), np.zeros(normal.shape[0] - 3 * k)])
-        coef, inv, dof = _cholesky_ridge(normal, rhs, ridge, _difference_penalty(cand, k, normal.shape[0]))
-        rss = max(float(w @ r**2) - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
+        penalty = spline_penalty(cand, k, normal.shape[0])
+        smoothing = None
+        if penalty is None:
+            coef, inv, dof = _cholesky_ridge(normal, rhs, ridge)
+            rss = max(float(w @ r**2) - 2.0 * coef @ rhs + coef @ normal @ coef, 1e-300)
+        else:  # the P-spline: its smoothing chosen by blocked cross-validation (calibrate.pspline)
+            times = np.concatenate([np.repeat(o.seconds[0], 2) for o in static_obs])
+            folds = []
+            for held in held_out_masks(cand, times):
+                w_h = np.where(held, w, 0.0)
+                xw_h = x.T.multiply(w_h[None, :]).tocsr()
+                folds.append(((xw_h @ x).toarray(), xw_h @ r, float(w_h @ r**2)))
+            coef, inv, dof, rss, smoothing = smooth(normal, rhs, float(w @ r**2), m, penalty, ridge, folds=folds)
         bic = m * np.log(rss / m) + dof * np.log(m)
         solutions.append((coef[: 3 * k], inv[: 3 * k, : 3 * k] * rss / max(m - dof, 1.0), k, coef))
-        table.append({"kind": "static" if cand is None else cand.kind, "n_terms": 0 if cand is None else cand.n_terms,
-                      "n_parameters": round(dof, 2), "rss": rss, "bic": float(bic), "chosen": False})
-    return table, solutions, int(np.argmin([row["bic"] for row in table]))
+        row = {"kind": "static" if cand is None else cand.kind, "n_terms": 0 if cand is None else cand.n_terms,
+               "n_parameters": round(dof, 2), "rss": rss, "bic": float(bic), "chosen": False}
+        if smoothing is not None:
+            row["smoothing"] = smoothing.to_dict()
+        table.append(row)
+    return table, solutions, choose_candidate(table, m)
 
 
 def _block_variance_factors(static_obs, cand, coef, *, n_groups, n_poly, yaw_sigma_rad):
@@ -479,7 +481,7 @@ class ParallaxResult:
     covariance : ndarray or None
         Of the joint coefficients, rad^2.
     candidates : list of dict
-        BIC table of the last round (:func:`joint_select`).
+        Candidate table of the last round (:func:`joint_select`).
     n_gcps, n_ties : int
         Observations with weight in the last round (ties: every band).
     rounds : int

@@ -189,6 +189,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
             "covariance_factor": doc.get("covariance_factor"),
             "reference_accuracy": doc.get("reference_accuracy"),
             "coverage": coverage,
+            "attitude": _attitude_summary(getattr(result, "calibration", result)),
             "model": model_file,
             "residual_layer": "residuals.gpkg",
             "warnings": [],
@@ -252,6 +253,17 @@ def _group_rmse(accuracy, coverage, n_arrays):
     if summary is None and n_arrays == 1:
         summary = accuracy.absolute
     return None if summary is None else summary.to_dict()["rmse_px"]
+
+
+def _attitude_summary(result):
+    """The time-varying attitude chosen (``calibration.json`` ``attitude``, short): None when not tried."""
+    info = getattr(result, "attitude", None)
+    if not info:
+        return None
+    out = {"mode": info["mode"], "selected": info["selected"]}
+    if "jitter" in info:
+        out["jitter"] = info["jitter"]
+    return out
 
 
 def _finite(x):

@@ -32,7 +32,7 @@ _EXIT_OF_STATUS = {"calibrated": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXI
 @click.option("--robust", type=click.Choice(ROBUST_LOSSES), default=CalibrationOptions.robust, show_default=True,
               help="Robust loss.")
 @click.option("--attitude", type=click.Choice(ATTITUDE_MODES), default=CalibrationOptions.attitude, show_default=True,
-              help="Time-varying attitude correction (push-broom): none, drift, B-spline, or chosen by BIC (docs/attitude.md).")
+              help="Time-varying attitude correction (push-broom): none, drift, P-spline (smoothing by blocked cross-validation), or chosen by the data (docs/attitude.md).")
 @click.option("--reference-sigma-m", "reference_sigma_m", metavar="E[,N]", default=None,
               help="Geolocation accuracy of the reference the GCPs come from, m (1 sigma east[,north]); its common "
                    "shift enters the parameters' covariance (default: reference_accuracy of the match summary "
@@ -108,6 +108,19 @@ def _print_summary(out_dir, summary) -> None:
     if ref.get("east_m") is not None:
         vf_text += f"; reference term {ref['east_m']:.3g}/{ref['north_m']:.3g} m (E/N)"
     click.echo(f"{out_dir}: {state} ({summary['message']}); {checks}{vf_text}")
+    att = summary.get("attitude")
+    if att:
+        sel = att["selected"]
+        text = f"attitude ({att['mode']}): {sel['kind']}"
+        if sel["kind"] != "static":
+            text += f", {sel['n_terms']} terms ({sel['knot_spacing_s']:.3g} s apart)"
+        if sel.get("edf") is not None:
+            text += f", {sel['edf']:.1f} effective parameters"
+        if sel.get("lambda") is not None:
+            text += f", smoothing {sel['lambda']:.3g} ({sel['criterion']})"
+        peaks = [f"{a} {p['amplitude_urad']:.2g} urad at {p['frequency_hz']:.2g} Hz"
+                 for a, p in (att.get("jitter") or {}).items() if p]
+        click.echo(text + (f"; dominant: {', '.join(peaks)}" if peaks else ""))
     rows = summary.get("coverage") or []
     if not rows:
         return

@@ -55,8 +55,9 @@ def _print_table(summary: dict, out_dir) -> None:
              else "not the user's DEM")
     out.print(f"error against the TRUE model: every CCD and band, both models on the TRUE DEM ({dem}: {whose})")
     selected = summary["attitude"]["selected"]
+    edf = "" if selected.get("edf") is None else f", {selected['edf']:.1f} effective parameters"
     out.print(f"attitude correction from the GCPs ({summary['attitude']['mode']}): {selected['kind']}, "
-              f"{selected['n_terms']} terms")
+              f"{selected['n_terms']} terms{edf}")
     parallax = summary.get("parallax") or {}
     if parallax.get("used"):
         joint = parallax["selected"]

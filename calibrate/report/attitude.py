@@ -101,10 +101,16 @@ def section_attitude(result, figure) -> str:
     sel = info["selected"]
     chosen = "static (no correction)" if sel["kind"] == "static" else f"{sel['kind']} ({sel['n_terms']})"
     intro = (f"<p>Mode <code>{_e(info['mode'])}</code>: candidate bases were fitted to the static solution's "
-             f"residuals and the one of least BIC kept: <b>{_e(chosen)}</b> (docs/attitude.md).</p>")
-    rows = [[_e(c["kind"]), str(c["n_terms"]), _fmt(c["n_parameters"]), _fmt(c["rss"]), _fmt(c["bic"], 6),
-             "yes" if c["chosen"] else ""] for c in info["candidates"]]
-    table = _table(["basis", "terms", "parameters (effective)", "weighted RSS (px²)", "BIC", "chosen"], rows)
+             "residuals; the time-varying one of least GCV is kept when an F-test rejects the static model "
+             f"(level 0.001): <b>{_e(chosen)}</b> (docs/attitude.md).</p>")
+    sm = info.get("smoothing")
+    if sm:
+        intro += (f"<p>P-spline of {sm['n_segments']} segments, smoothing λ = {sm['lambda']:.3g} chosen by "
+                  f"{_e(sm['criterion'])} ({sm.get('n_folds', 0)} folds): {sm['edf']:.1f} effective parameters.</p>")
+    rows = [[_e(c["kind"]), str(c["n_terms"]), _fmt(c["n_parameters"]), _fmt(c["rss"]), _fmt(c.get("gcv"), 6),
+             _fmt(c.get("p_value"), 3), "yes" if c["chosen"] else ""] for c in info["candidates"]]
+    table = _table(["basis", "terms", "parameters (effective)", "weighted RSS (px²)", "GCV", "F-test p",
+                    "chosen"], rows)
     jitter = info.get("jitter") or {}
     if jitter:
         jrows = [[_e(a), _fmt((p or {}).get("amplitude_urad")), _fmt((p or {}).get("frequency_hz"))]
@@ -210,8 +216,8 @@ def section_parallax(relative, figure) -> str:
             p = (peaks.get(name) or {}).get("peak") or {}
             rows.append([_e(label), _e(name), _fmt(p.get("amplitude_urad")), _fmt(p.get("frequency_hz"))])
     table = _table(["estimate", "axis", "amplitude (µrad)", "frequency (Hz)"], rows)
-    cands = [[_e(c["kind"]), str(c["n_terms"]), _fmt(c["n_parameters"]), _fmt(c["bic"], 6), "yes" if c["chosen"] else ""]
-             for c in joint.candidates]
+    cands = [[_e(c["kind"]), str(c["n_terms"]), _fmt(c["n_parameters"]), _fmt(c.get("gcv"), 6),
+              _fmt(c.get("p_value"), 3), "yes" if c["chosen"] else ""] for c in joint.candidates]
     return (intro + "<p>Dominant sinusoid per axis:</p>" + table + "<p>Joint candidates:</p>"
-            + _table(["basis", "terms", "parameters (effective)", "BIC", "chosen"], cands)
+            + _table(["basis", "terms", "parameters (effective)", "GCV", "F-test p", "chosen"], cands)
             + (_figure_html(figure) if figure else ""))
