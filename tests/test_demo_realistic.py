@@ -26,13 +26,9 @@ from compare_outputs import compare_folders
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "fixtures" / "hy1c_czi_realistic"
 
-#: measured on 2026-11-24 (profile realistic, fixtures/hy1c_czi_realistic with its texture-poor patches,
-#: session 6): ``gcpcal demo`` (before the patches: 0.070, 0.276, 0.057 px, 682 GCPs); with the
-#: mismatch term in sigma_px (MatchOptions.mismatch_sigma_scale = 1, bench/bench_texture_weight.py):
-#: truth 0.0785 / 0.287 px against 0.0793 / 0.291 px without it, check and GCPs unchanged; session 7,
-#: Lanczos reference chips and the phase kernel's half-resolution first pass: 637 GCPs, check
-#: 0.078 px, truth 0.0773 / 0.284 px (session 6: 636, 0.087, 0.0785 / 0.287)
-MEASURED = {"truth_rms_px": 0.0773, "truth_max_px": 0.284, "check_after_px": 0.078, "gcps": 637}
+#: measured on 2026-11-28 (profile realistic, fixtures/hy1c_czi_realistic): ``gcpcal demo`` with the
+#: FLANN coarse stage and the P-spline attitude correction (README "What the demo does and prints")
+MEASURED = {"truth_rms_px": 0.0780, "truth_max_px": 0.291, "check_after_px": 0.072, "gcps": 636}
 MARGIN = 0.4
 
 
