@@ -145,7 +145,11 @@ def test_calibrate_residual_layer_is_the_calibrations_own_residuals(calibrated, 
     np.testing.assert_array_equal(layer["resid_along_px"][fitted], np.asarray(pts["row_residual_after_px"], float))
     np.testing.assert_array_equal(layer["resid_across_px"][fitted], np.asarray(pts["col_residual_after_px"], float))
     assert list(layer["kind"][fitted] == "gcp") == list(pts["inlier"])
-    assert 0 < (layer["kind"] == "outlier").sum() < 10  # the fit rejected a few, not many
+    # the fit rejected a few, not many: with the time-varying attitude the ideal fixture's fit
+    # leaves 0.019 px rms, and about 9 % of its GCPs (matching errors of a few hundredths of a
+    # pixel) fall outside its robust threshold, while the check points improve (0.031 px against
+    # 0.067 px with a static attitude)
+    assert 0 < (layer["kind"] == "outlier").sum() < 0.12 * fitted.sum()
 
     checks = ~fitted
     rmse = math.sqrt(np.mean(layer["resid_along_px"][checks] ** 2 + layer["resid_across_px"][checks] ** 2))
