@@ -173,9 +173,9 @@ def scene_height_m(model, dem, *, band=None, iterations: int = 3) -> float:
 #: Scene keypoints of the first SIFT pass (the DOM keeps the full budget: its search window is
 #: larger than the scene, and where clouds or bare ground leave the scene few features, the DOM's
 #: strongest ones would lie elsewhere). Measured, one thread, CPU time of the coarse stage with
-#: the brute-force matcher and 12 000 features against FLANN and this budget: realistic demo 2.73
-#: -> 1.15 s (pre-correction against the TRUE model 2.37 px rms both), Pleiades tutorial pair
-#: 1.53 -> 0.53 s (the two pre-corrections 0.69 px apart), a 60 %-cloud scene 0.23 -> 0.22 px
+#: the brute-force matcher and 12 000 features against FLANN and this budget: realistic demo 2.72
+#: -> 0.93 s (pre-correction against the TRUE model 2.37 px rms both), Pleiades tutorial pair
+#: 1.42 -> 0.48 s (the two pre-corrections 0.69 px apart), a 60 %-cloud scene 0.23 -> 0.22 px
 #: against the TRUE model.
 FIRST_FEATURE_BUDGET = 4000
 #: RANSAC inliers below which the first pass is not trusted and the full budget runs: an affine
