@@ -97,14 +97,18 @@ def normalized(text: str, *, data: Path | None = None, work: Path | None = None)
 #: Lines whose figures come from the matched GCP set (match, residuals, calibration, RPC offsets).
 #: Between machines a window on a rejection threshold may flip (the last bits of floating point
 #: differ between CPUs), so the counts and the figures computed from them may differ slightly:
-#: counts by up to ``COUNT_RTOL`` (1 %, at least 1), percentages by 1 point, other figures by
-#: ``FIGURE_ATOL`` (0.05 px, lines or m) plus one unit of the last printed digit. One GCP more or
-#: less among 460 with ~5 px residuals moves a mean or an RMS by about 0.01 px. Every other line
-#: (coordinates, sizes, CRSs, error messages) must be printed exactly.
+#: counts by up to ``COUNT_RTOL`` (2 %, at least 1), percentages by 1 point, other figures by
+#: ``FIGURE_ATOL`` (0.05 px, lines or m) plus one unit of the last printed digit plus
+#: ``FIGURE_RTOL`` (0.1 %) of figures below 1000 (not of offsets such as LINE_OFF). Measured
+#: between an AVX-512 CPU and the same machine with AVX2 kernels (NPY_DISABLE_CPU_FEATURES,
+#: OPENBLAS_CORETYPE): SIFT matches 479 / 484 (1.0 %), GCPs 463 / 464, check RMSE before
+#: calibration 62.765 / 62.823 px, recovered bias 60.06 / 60.03 lines; the tolerances are about
+#: twice that. Every other line (coordinates, sizes, CRSs, error messages) must be printed exactly.
 GCP_LINE = re.compile(r"GCPs|inliers|points|LINE_OFF|line_off|SIFT matches")
-COUNT_WORDS = re.compile(r"\s*(GCPs|check points|inliers|points|windows|SIFT matches)\b")
-COUNT_RTOL = 0.01
+COUNT_WORDS = re.compile(r"\s*(GCPs|check points|inliers|points|SIFT matches)\b")
+COUNT_RTOL = 0.02
 FIGURE_ATOL = 0.05
+FIGURE_RTOL = 0.001
 _NUMBER = re.compile(r"-?\d+(?:\.\d+)?")
 
 
@@ -116,7 +120,8 @@ def _close(doc: str, printed: str, *, count: bool, percent: bool) -> bool:
     if percent:
         return abs(a - b) <= 1.0
     unit = 10.0 ** -len(doc.split(".")[1]) if "." in doc else 1.0
-    return abs(a - b) <= FIGURE_ATOL + unit + 1e-12
+    relative = FIGURE_RTOL * abs(a) if abs(a) < 1000.0 else 0.0
+    return abs(a - b) <= FIGURE_ATOL + unit + relative + 1e-12
 
 
 def line_agrees(doc_line: str, printed_line: str) -> bool:
@@ -201,7 +206,7 @@ def test_normalized_masks_timings_and_folders_only():
 def test_line_agrees_tolerates_the_matched_set_and_nothing_else():
     doc = "work/gcps.csv: 460 GCPs + 115 check points from 3540 windows (16 % usable, 0 % cloud) in N s"
     assert line_agrees(doc, doc.replace("460 GCPs", "459 GCPs").replace("16 %", "17 %"))
-    assert not line_agrees(doc, doc.replace("460 GCPs", "450 GCPs"))  # 2 %: a user notices
+    assert not line_agrees(doc, doc.replace("460 GCPs", "445 GCPs"))  # 3 %: a user notices
     assert not line_agrees(doc, doc.replace("3540 windows", "3600 windows"))
     rms = "cal: calibrated (RPC bias (offset) a0=-63, b0=-4.127; RMS 63.2 -> 4.87 px over 460 inliers of 460 GCPs)"
     assert line_agrees(rms, rms.replace("4.87 px", "4.89 px").replace("b0=-4.127", "b0=-4.131"))
