@@ -186,16 +186,20 @@ MIN_FIRST_INLIERS = 50
 FLANN_TREES, FLANN_CHECKS = 4, 64
 
 
-def _sift_matches_opencv(img_a, mask_a, img_b, mask_b, n_features, *, seed: int = 0, dom_features=None):
-    """OpenCV SIFT on two uint8 images, FLANN k-d tree matching with Lowe's ratio test (0.8).
+def _sift_features(img, mask, n_features):
+    """OpenCV SIFT keypoints and descriptors of a uint8 image, the ``n_features`` strongest
+    (``mask`` True where usable)."""
+    return cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.01).detectAndCompute(
+        img, mask.astype(np.uint8) * 255)
+
+
+def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0):
+    """FLANN k-d tree matching of two images' SIFT features with Lowe's ratio test (0.8).
 
     The trees are randomized by OpenCV's generator of the calling thread, seeded here, so the
     matches do not depend on what ran before in the process.
     """
-    kp_a, des_a = cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.01).detectAndCompute(
-        img_a, mask_a.astype(np.uint8) * 255)
-    kp_b, des_b = cv2.SIFT_create(nfeatures=dom_features or n_features, contrastThreshold=0.01).detectAndCompute(
-        img_b, mask_b.astype(np.uint8) * 255)
+    (kp_a, des_a), (kp_b, des_b) = scene_features, dom_features
     if des_a is None or des_b is None or len(kp_a) < 2 or len(kp_b) < 2:
         return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32), len(kp_a), len(kp_b)
     cv2.setRNGSeed(seed)
@@ -488,23 +492,22 @@ def _sift_ransac(warped, warped_valid, dom_small, *, n_features, ransac_px, seed
         _check_matches(ps, n_kp_s, n_kp_d)
         return ps, pd, n_kp_s, n_kp_d, _enough(ransac_inliers(ps, pd, threshold_px=ransac_px, seed=seed,
                                                               device=device))
+    dom_features = _sift_features(dom_u8, dom_valid, n_features)  # the full budget in both passes
     first = min(n_features, FIRST_FEATURE_BUDGET)
-    if first < n_features:  # the full budget only where the first is not enough
+    if first < n_features:  # the full budget in the scene only where the first is not enough
         try:
-            found = _sift_ransac_opencv(warped, warped_valid, dom_u8, dom_valid, first, ransac_px, seed,
-                                        dom_features=n_features)
+            found = _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, first), dom_features,
+                                        ransac_px, seed)
             if int(found[-1].sum()) >= MIN_FIRST_INLIERS:
                 return found
         except CoarseMatchError:
             pass
-    return _sift_ransac_opencv(warped, warped_valid, dom_u8, dom_valid, n_features, ransac_px, seed)
+    return _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, n_features), dom_features, ransac_px, seed)
 
 
-def _sift_ransac_opencv(warped, warped_valid, dom_u8, dom_valid, n_features, ransac_px, seed, *, dom_features=None):
-    """OpenCV SIFT with ``n_features`` in the scene (``dom_features`` in the DOM, default the same),
-    FLANN ratio matches, seeded affine RANSAC."""
-    ps, pd, n_kp_s, n_kp_d = _sift_matches_opencv(warped, warped_valid > 0, dom_u8, dom_valid, n_features,
-                                                  seed=seed, dom_features=dom_features)
+def _sift_ransac_opencv(scene_features, dom_features, ransac_px, seed):
+    """FLANN ratio matches of the scene's and the DOM's SIFT features, seeded affine RANSAC."""
+    ps, pd, n_kp_s, n_kp_d = _sift_matches_opencv(scene_features, dom_features, seed=seed)
     _check_matches(ps, n_kp_s, n_kp_d)
     cv2.setRNGSeed(seed)
     _, mask = cv2.estimateAffine2D(ps, pd, method=cv2.RANSAC, ransacReprojThreshold=ransac_px,
