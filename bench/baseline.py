@@ -24,7 +24,7 @@ def load_baseline(path: str, rev: str = BASE_REV) -> types.ModuleType:
     Parameters
     ----------
     path : str
-        Source file, e.g. ``"sensor_models/locate.py"``.
+        Source file, e.g. ``"sensor_models/imaging/locate.py"``.
     rev : str
         Git revision.
 

@@ -3,7 +3,7 @@
 Three parts, each written to ``--out`` (default ``bench/results/attitude.json``):
 
 * ``sensitivity``: truth error against jitter amplitude, static vs auto. A TRUE model
-  (:func:`sensor_models.synthetic.example_pushbroom_model`, 3000 lines = 22.6 s, an
+  (:func:`sensor_models.models.synthetic.example_pushbroom_model`, 3000 lines = 22.6 s, an
   installation error, a sinusoidal jitter of amplitude A on roll and pitch and A/2 on yaw at
   ``--frequency`` Hz) gives ``--n-gcps`` synthetic GCPs (random pixels and heights, 0.1 px
   Gaussian noise, no image matching); the LAB model is calibrated with ``--attitude static``
@@ -15,7 +15,7 @@ Three parts, each written to ``--out`` (default ``bench/results/attitude.json``)
   --profile realistic``) and its matched GCPs through the user's chain, ``gcpcal calibrate
   --attitude static|auto`` then ``gcpcal relative``; truth error of the reference band over
   every line (columns every 8 px) and of every band on the 16 px grid of
-  :func:`sensor_models.compare.model_difference` (band-to-band: the other bands).
+  :func:`sensor_models.models.compare.model_difference` (band-to-band: the other bands).
 
 Usage: ``python bench/bench_attitude.py [--quick] [--scene S --gcps G]``
 """
@@ -38,8 +38,8 @@ N_ROWS = 3000
 
 
 def _truth_models(amplitude_urad, frequency_hz, seed=3):
-    from sensor_models.pushbroom_types import Installation
-    from sensor_models.synthetic import example_pushbroom_model
+    from sensor_models.models.pushbroom_types import Installation
+    from sensor_models.models.synthetic import example_pushbroom_model
 
     a = amplitude_urad * 1e-6
     truth = example_pushbroom_model(
@@ -62,7 +62,7 @@ def _gcps(truth, n, seed=0, noise_px=0.1):
 def every_line_error(truth, model, *, band=None, col_step=None, dem=None, height_m=500.0) -> dict:
     """RMS / max (px) of ``model`` against ``truth`` over every image line of one band.
 
-    Per CCD (forced, as :func:`sensor_models.compare.model_difference` does: CCDs overlap), the
+    Per CCD (forced, as :func:`sensor_models.models.compare.model_difference` does: CCDs overlap), the
     pixels of every line at columns every ``col_step`` (default: 6 per CCD) are localized by the
     truth (on ``dem`` or at ``height_m``) and projected back by ``model``.
     """
@@ -94,7 +94,7 @@ def _calibrate(lab, gcps, mode):
 
 
 def sensitivity(amplitudes, frequency_hz, n_gcps) -> list:
-    from sensor_models.synthetic import example_pushbroom_model
+    from sensor_models.models.synthetic import example_pushbroom_model
 
     lab = example_pushbroom_model(n_rows=N_ROWS)
     rows = []
@@ -114,7 +114,7 @@ def sensitivity(amplitudes, frequency_hz, n_gcps) -> list:
 
 
 def speed(n_gcps, frequency_hz) -> dict:
-    from sensor_models.synthetic import example_pushbroom_model
+    from sensor_models.models.synthetic import example_pushbroom_model
 
     lab = example_pushbroom_model(n_rows=N_ROWS)
     truth = _truth_models(10.0, frequency_hz)
@@ -136,9 +136,9 @@ def _gcpcal(*args) -> None:
 
 
 def scene(scene_dir: Path, gcps_csv: Path, work: Path, modes=("static", "auto")) -> dict:
-    from sensor_models.compare import model_difference
+    from sensor_models.models.compare import model_difference
     from sensor_models.readers import open_model
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     truth = open_model(scene_dir / "truth_manifest.json")
     dem_path = scene_dir / "reference" / "dem.tif"
@@ -196,9 +196,9 @@ def _jittered_truth(lab, lines, seed=5, installation=(2e-4, -1e-4, 3e-4), band_e
 
     from scipy.spatial.transform import Rotation
 
-    from sensor_models.ephemeris import Attitude
-    from sensor_models.pushbroom import PushbroomModel
-    from sensor_models.pushbroom_types import Installation
+    from sensor_models.geometry.ephemeris import Attitude
+    from sensor_models.models.pushbroom import PushbroomModel
+    from sensor_models.models.pushbroom_types import Installation
 
     rng = np.random.default_rng(seed)
     t = np.arange(lab.attitude.seconds[0], lab.attitude.seconds[-1], 0.01)
@@ -242,7 +242,7 @@ def _two_line_fit(correction, t_lo, t_hi, f_lo, f_hi):
     """Per axis: amplitude and frequency of the two sinusoids near ``f_lo`` and ``f_hi`` in a correction."""
     from scipy.optimize import least_squares
 
-    from sensor_models.attitude_correction import AXES
+    from sensor_models.models.attitude_correction import AXES
 
     t = np.linspace(t_lo, t_hi, 4096)
     tc = t - t.mean()
@@ -291,7 +291,7 @@ def parallax_case(*, n_rows, lines, n_gcps, tie_row_step, tie_col_step, tie_nois
     from calibrate.absolute import calibrate_model
     from calibrate.config import CalibrationOptions
     from calibrate.parallax import calibrate_with_parallax
-    from sensor_models.synthetic import example_pushbroom_model
+    from sensor_models.models.synthetic import example_pushbroom_model
 
     lab = example_pushbroom_model(n_rows=n_rows)
     truth = _jittered_truth(lab, lines, seed=seed)

@@ -33,7 +33,7 @@ import numpy as np  # noqa: E402
 from calibrate.absolute import calibrate_model  # noqa: E402
 from calibrate.config import CalibrationOptions  # noqa: E402
 from gcpmatch.gcps import GcpTable  # noqa: E402
-from sensor_models.synthetic import CameraDesign, example_pushbroom_model  # noqa: E402
+from sensor_models.models.synthetic import CameraDesign, example_pushbroom_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 BANDS = ("B1", "B2", "B3", "B4")

@@ -44,9 +44,9 @@ def _ccd_pairs(folder: Path):
     """
     from gcpmatch.extract import read_band
     from gcpmatch.reference import reference_for_ccd
-    from sensor_models.raster import MapImage
+    from sensor_models.maps.raster import MapImage
     from sensor_models.readers import open_model
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     model = open_model(folder / "truth_manifest.json")
     dem, dom = Dem.open(folder / "reference" / "dem.tif"), MapImage.open(folder / "reference" / "dom.tif")

@@ -85,8 +85,8 @@ def _calibrate(scene: Path, gcps: Path, out: Path, changes: dict) -> dict:
 
 def _truth_error_px(scene: Path, cal_dir: Path, band: str) -> float:
     """RMS (px) of the calibrated model of ``band`` against the TRUE model, on the true DEM."""
-    from sensor_models.compare import model_difference
-    from sensor_models.terrain import Dem
+    from sensor_models.models.compare import model_difference
+    from sensor_models.terrain.dem import Dem
     from sensor_models.readers import open_model
 
     dem = Dem.open(scene / "reference" / "truth" / "dem_true.tif")
@@ -135,7 +135,7 @@ def demo_runs(fixture: Path) -> dict:
     from calibrate.absolute import calibrate_model
     from calibrate.actions.demo import _match, _open_fixture
     from calibrate.config import CalibrationOptions
-    from sensor_models.compare import model_difference
+    from sensor_models.models.compare import model_difference
 
     fx = _open_fixture(fixture)
     band = fx["reference_band"]

@@ -30,11 +30,11 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from sensor_models.locgrid import InverseLocalizationGrid  # noqa: E402
-from sensor_models.pushbroom_types import Installation  # noqa: E402
-from sensor_models.rpc_fit import fit_rpc  # noqa: E402
-from sensor_models.synthetic import example_pushbroom_model  # noqa: E402
-from sensor_models.terrain import Dem  # noqa: E402
+from sensor_models.models.locgrid import InverseLocalizationGrid  # noqa: E402
+from sensor_models.models.pushbroom_types import Installation  # noqa: E402
+from sensor_models.models.rpc_fit import fit_rpc  # noqa: E402
+from sensor_models.models.synthetic import example_pushbroom_model  # noqa: E402
+from sensor_models.terrain.dem import Dem  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DEM = ROOT.parent / "shared" / "data" / "dem"
@@ -74,7 +74,7 @@ def _rpc_scene(model, dem, n: int):
     from baseline import BASE_REV, load_baseline
 
     rpc, _ = fit_rpc(model.ccd_view(0), height_range_m=dem.height_range_m)
-    base_rpc = load_baseline("sensor_models/rpc.py").RpcModel(**rpc._init_kwargs())
+    base_rpc = load_baseline("sensor_models/models/rpc.py").RpcModel(**rpc._init_kwargs())
     rng = np.random.default_rng(7)
     rows = rng.uniform(300.0, 1700.0, n)
     cols = rng.uniform(50.0, rpc.image_shape[1] - 50.0, n)

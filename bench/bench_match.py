@@ -45,8 +45,8 @@ def main():
     from sensor_models.readers import open_model
     from sensor_models.simulate.config import SimConfig
     from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
-    from sensor_models.raster import MapImage
-    from sensor_models.terrain import Dem
+    from sensor_models.maps.raster import MapImage
+    from sensor_models.terrain.dem import Dem
 
     scene = ROOT / "bench" / "results" / f"match_scene_{args.rows}x{args.detectors}"
     if not (scene / "summary.json").exists():
@@ -99,7 +99,7 @@ def _use_baseline_stages() -> None:
     import gcpmatch.extract as extract
     import gcpmatch.reference as reference
 
-    base_locate = load_baseline("sensor_models/locate.py")
+    base_locate = load_baseline("sensor_models/imaging/locate.py")
     reference.locate_block = lambda *a, tolerance_m=None, **k: base_locate.locate_block(*a, **k)
     extract.detect_clouds = load_baseline("gcpmatch/clouds.py").detect_clouds
 

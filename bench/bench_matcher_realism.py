@@ -17,7 +17,7 @@ calibration: rms of (truth error / sigma_px) per axis and the truth-error rms pe
 sigma_px.
 
 A variant whose ``reference_sigma_m`` is None takes the reference accuracy as production does
-(:func:`sensor_models.dom_inputs.reference_accuracy`: the tags the simulator writes into the
+(:func:`sensor_models.maps.dom_inputs.reference_accuracy`: the tags the simulator writes into the
 realistic DOM), projected per CCD into rows and columns through the pre-corrected model
 (:func:`gcpmatch.uncertainty.reference_sigma_px`).
 
@@ -124,9 +124,9 @@ def prepare_windows(scene: Path, options) -> dict:
     from gcpmatch.coarse import scene_height_m
     from gcpmatch.reference import reference_for_ccd, scene_gsd_m
     from gcpmatch.uncertainty import reference_sigma_px
-    from sensor_models.raster import MapImage
+    from sensor_models.maps.raster import MapImage
     from sensor_models.readers import open_model, open_scene
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     model = open_scene(scene / "manifest.json")
     truth = open_model(scene / "truth_manifest.json")
@@ -183,7 +183,7 @@ def prepare_windows(scene: Path, options) -> dict:
 
 def load_windows(cache: Path, profile: str, gsd_m: float, source, options) -> dict:
     """:func:`prepare_windows` of the cached scene, itself cached as ``PROFILE_windows.npz``."""
-    from sensor_models.dom_inputs import reference_accuracy
+    from sensor_models.maps.dom_inputs import reference_accuracy
 
     path = cache / (f"{profile}_w{options.window_px}_s{options.spacing_px}_psf{options.psf_sigma_px}"
                     f"_{chip_interpolation()}_windows.npz")
@@ -201,7 +201,7 @@ def run_variant(win: dict, options, phase_options: dict | None = None) -> dict:
     """Correlate, reject and assign sigma with ``options``; the kept windows' errors and sigmas."""
     from gcpmatch.extract import correlate_pairs, reject_outliers
 
-    from sensor_models.dom_inputs import reference_accuracy
+    from sensor_models.maps.dom_inputs import reference_accuracy
 
     acc = win["stated_accuracy"] if options.reference_sigma_m is None else reference_accuracy(
         [], given_m=options.reference_sigma_m)
@@ -370,7 +370,7 @@ ARCSEC_PER_RAD = 206264.806
 def reference_floor_arcsec(scene: Path) -> float:
     """The angle that the DOM's stated accuracy (per axis) subtends from the orbit, arcsec: the
     part of a roll or pitch error that all GCPs share (their common reference error)."""
-    from sensor_models.dom_inputs import reference_accuracy
+    from sensor_models.maps.dom_inputs import reference_accuracy
 
     altitude_m = json.loads((scene / "truth.json").read_text())["orbit"]["altitude_m"]
     return reference_accuracy([str(scene / "reference" / "dom.tif")]).per_axis_m / altitude_m * ARCSEC_PER_RAD

@@ -7,7 +7,7 @@ for that child; the inputs are prepared beforehand in this process (not measured
 
 What runs at each size (all synthetic, seeded; the files go to ``--tmp``):
 
-* ``ortho``: a 4-CCD push-broom model (``sensor_models.synthetic.example_pushbroom_model``, GSD
+* ``ortho``: a 4-CCD push-broom model (``sensor_models.models.synthetic.example_pushbroom_model``, GSD
   ``--gsd``; 30 m at 6000 x 4096 as in the issue, 10 m at 20000 x 20000) written as a manifest;
   its raster is uint16, tiled, a 512 x 512 random tile repeated; the DEM is a geographic float32
   GeoTIFF with 1 arc-second nodes (SRTM-1 spacing, ~30 m) over the footprint plus 0.05 degrees,
@@ -63,7 +63,7 @@ def _gsd(size: str) -> float:
 
 def build_model(rows: int, cols: int, gsd_m: float):
     """The 4-CCD push-broom model of the ortho case (image ``rows x cols``)."""
-    from sensor_models.synthetic import CameraDesign, example_pushbroom_model
+    from sensor_models.models.synthetic import CameraDesign, example_pushbroom_model
 
     design = CameraDesign(n_ccds=4, detectors_per_ccd=cols // 4, ifov_rad=gsd_m / ORBIT_ALTITUDE_M,
                           ccd_overlap_detectors=16)

@@ -2,7 +2,7 @@
 
 Synthetic HY-1C-like push-broom scenes (4 CCDs, 10 m GSD, jittered attitude; uint16 rasters of
 a repeated random texture, tiled) over a synthetic geographic DEM (150 m nodes, 200 - 1700 m of
-relief) are orthorectified with :func:`sensor_models.ortho.orthorectify_to_file` near their
+relief) are orthorectified with :func:`sensor_models.imaging.ortho.orthorectify_to_file` near their
 GSD. Three cases double the scene side each time; the largest (``--scene``) gives an output of
 ``--side`` pixels on its longer side (the footprint's bounding box; the scene is rotated by the
 orbit's heading).
@@ -43,7 +43,7 @@ OVERLAP = 16
 
 
 def build_model(scene: int):
-    from sensor_models.synthetic import CameraDesign, example_pushbroom_model
+    from sensor_models.models.synthetic import CameraDesign, example_pushbroom_model
 
     design = CameraDesign(n_ccds=4, detectors_per_ccd=scene // 4, ifov_rad=IFOV_RAD, ccd_overlap_detectors=OVERLAP)
     return example_pushbroom_model(n_rows=scene, design=design, attitude_kwargs={
@@ -53,7 +53,7 @@ def build_model(scene: int):
 def build_dem():
     from rasterio.transform import from_origin
 
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     step = 1.0 / 720.0  # ~150 m
     n_rows, n_cols = int(2.4 / step), int(3.4 / step)
@@ -95,7 +95,7 @@ def worker(args):
     """One case in this (fresh) process; prints one JSON line."""
     import cv2
 
-    from sensor_models.ortho import ortho_grid, orthorectify_to_file
+    from sensor_models.imaging.ortho import ortho_grid, orthorectify_to_file
 
     cv2.setNumThreads(1)
     model = build_model(args.scene)

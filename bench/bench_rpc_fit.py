@@ -29,10 +29,10 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from sensor_models.ephemeris import Attitude  # noqa: E402
-from sensor_models.pushbroom import PushbroomModel  # noqa: E402
+from sensor_models.geometry.ephemeris import Attitude  # noqa: E402
+from sensor_models.models.pushbroom import PushbroomModel  # noqa: E402
 from sensor_models.readers import open_model  # noqa: E402
-from sensor_models.rpc_fit import fit_rpc, fit_rpc_tiles  # noqa: E402
+from sensor_models.models.rpc_fit import fit_rpc, fit_rpc_tiles  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"

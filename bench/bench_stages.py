@@ -50,9 +50,9 @@ def alternate(funcs: dict, repeat: int) -> dict:
 
 
 def open_scene(rows: int, detectors: int):
-    from sensor_models.raster import MapImage
+    from sensor_models.maps.raster import MapImage
     from sensor_models.readers import open_model
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     scene = ROOT / "bench" / "results" / f"match_scene_{rows}x{detectors}"
     if not (scene / "summary.json").exists():
@@ -64,14 +64,14 @@ def open_scene(rows: int, detectors: int):
 def bench_reference(model, dem, dom, repeat: int) -> dict:
     """Reference chips, locate_block and the DEM intersection: base revision vs current."""
     import gcpmatch.reference as reference
-    import sensor_models.locate as locate
-    from sensor_models.dem_intersect import intersect_dem_adaptive
+    import sensor_models.imaging.locate as locate
+    from sensor_models.terrain.intersect import intersect_dem_adaptive
 
-    base = load_baseline("sensor_models/locate.py")
+    base = load_baseline("sensor_models/imaging/locate.py")
     # "before" is the base revision's whole chip pipeline: its reference_for_ccd, locate_block,
     # sample_map_image and MapImage (a file opened per window read, masked reads)
     base_reference = load_baseline("gcpmatch/reference.py")
-    base_raster = load_baseline("sensor_models/raster.py")
+    base_raster = load_baseline("sensor_models/maps/raster.py")
     base_reference.locate_block = base.locate_block
     base_reference.sample_map_image = base_raster.sample_map_image
     dom_before = base_raster.MapImage.open(dom.path)
@@ -152,7 +152,7 @@ def bench_reference(model, dem, dom, repeat: int) -> dict:
 def chip_settings(dom) -> dict:
     """The ``locate_block`` keywords :func:`gcpmatch.reference.reference_for_ccd` uses."""
     import gcpmatch.reference as reference
-    import sensor_models.locate as locate
+    import sensor_models.imaging.locate as locate
 
     return {"tolerance_m": locate.HEIGHT_TOLERANCE_M, "node_step_cols": reference.NODE_STEP_COLS,
             "position_tolerance_m": reference.POSITION_TOLERANCE_DOM_PX * dom.grid.resolution_m}
@@ -175,7 +175,7 @@ def bench_exact(model, dem, dom, band: str = "B2") -> dict:
     ``image_to_ground(row, col, dem=dem)`` (first crossing, heights to 1e-4 m) projected into the
     DOM grid, against the chips' settings and the per-pixel adaptive path (1 mm, 16-column nodes).
     """
-    import sensor_models.locate as locate
+    import sensor_models.imaging.locate as locate
 
     project = locate.MapProjector(dom.grid)
     rows = model.image_shape[0]
@@ -196,9 +196,9 @@ def bench_sampling(model, dem, dom, dom_before, base_raster, band: str, n_ccd: i
     """The DOM sampling of the chips alone (read, blur, remap) on the same node indices:
     the base revision's ``sample_map_image`` and ``MapImage`` vs the current ones."""
     import gcpmatch.reference as reference
-    import sensor_models.locate as locate
-    from sensor_models.psf import psf_sigma_dom_px
-    from sensor_models.raster import sample_map_image
+    import sensor_models.imaging.locate as locate
+    from sensor_models.imaging.psf import psf_sigma_dom_px
+    from sensor_models.maps.raster import sample_map_image
 
     sigma = psf_sigma_dom_px(reference.scene_gsd_m(model, band=band), dom.grid.resolution_m, 0.45)
     rows = model.image_shape[0]

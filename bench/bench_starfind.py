@@ -2,7 +2,7 @@
 
 Frames: 20-50 pixel-integrated Gaussian stars (sigma 1.2 px) at random sub-pixel positions,
 peak SNR 10-200, on a sloped background of 100 ADU with shot and 5 e- read noise, stored as
-uint16 like a camera's output. Per frame, :func:`gcpmatch.stars.detect_stars` estimates the
+uint16 like a camera's output. Per frame, :func:`gcpmatch.star_tracks.detect_stars` estimates the
 background, detects and centroids (``iwc``, ``gaussian`` and ``windowed``, side by side on the
 same frames); the centroid RMS error against the truth is reported with the speed.
 
@@ -75,7 +75,7 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gcpmatch.stars import (  # noqa: E402
+from gcpmatch.star_tracks import (  # noqa: E402
     CENTROID_METHODS,
     CameraPointing,
     StarPatternIndex,
@@ -86,8 +86,8 @@ from gcpmatch.stars import (  # noqa: E402
     read_fits_image,
     read_sextractor_catalog,
 )
-from sensor_models.psf import render_stars  # noqa: E402
-from sensor_models.stars import StarCatalog, apparent_directions  # noqa: E402
+from sensor_models.imaging.psf import render_stars  # noqa: E402
+from sensor_models.geometry.star_catalogue import StarCatalog, apparent_directions  # noqa: E402
 
 cv2.setNumThreads(1)
 SHAPE = (1024, 1024)

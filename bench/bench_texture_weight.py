@@ -76,7 +76,7 @@ def gcp_truth(fixture: Path, gcps_csv: Path, patches, window_px: int = 64) -> di
 
     from gcpmatch.gcps import read_gcps
     from sensor_models.readers import open_model
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     table = read_gcps(gcps_csv)
     use = np.asarray(table.kind) == "gcp"

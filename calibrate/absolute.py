@@ -667,7 +667,7 @@ def calibrate_model(
     Parameters
     ----------
     model : SensorModel
-        Initial (e.g. laboratory) model; :class:`~sensor_models.pushbroom.PushbroomModel` or a
+        Initial (e.g. laboratory) model; :class:`~sensor_models.models.pushbroom.PushbroomModel` or a
         staring camera for the exterior/interior schemes, any model for ``scheme="joint"``.
     gcps : GcpTable
         Observed image coordinates ``row, col`` (pixels, first pixel centre at 0.5) of ground

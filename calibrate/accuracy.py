@@ -37,7 +37,7 @@ from calibrate._json import json_safe
 from calibrate.config import CalibrationOptions
 from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
-from sensor_models.geodesy import geodetic_to_ecef
+from sensor_models.geometry.geodesy import geodetic_to_ecef
 
 __all__ = [
     "AccuracyReport",

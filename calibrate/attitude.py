@@ -1,7 +1,7 @@
 """Time-varying attitude in the calibration: candidate bases, selection by BIC, ridge, spectrum.
 
 The push-broom model carries an optional body-frame attitude correction ``delta(t)``
-(:mod:`sensor_models.attitude_correction`): a drift (rate, optionally quadratic) or a cubic
+(:mod:`sensor_models.models.attitude_correction`): a drift (rate, optionally quadratic) or a cubic
 B-spline in time. :func:`calibrate.absolute.calibrate_model` first calibrates the static model,
 then (``CalibrationOptions.attitude`` other than ``"static"``) chooses the basis here and solves
 it with the exterior and interior (docs/attitude.md).
@@ -28,7 +28,7 @@ import numpy as np
 import scipy.linalg
 
 from calibrate.pspline import MAX_PSPLINE_SEGMENTS, N_FOLDS, difference_penalty, pspline_segments, smooth, time_folds
-from sensor_models.attitude_correction import AXES, AttitudeCorrection
+from sensor_models.models.attitude_correction import AXES, AttitudeCorrection
 
 __all__ = [
     "MAX_SEGMENTS",
@@ -87,7 +87,7 @@ def candidate_corrections(mode: str, t0_s: float, t1_s: float, *, n_points: int,
         Most P-spline segments (:data:`MAX_SEGMENTS`; the band parallax passes its own).
     support_s : (float, float), optional
         First and last observation time, seconds. When given, the spline spans it and holds
-        its end values beyond it (``outside="hold"``, :mod:`sensor_models.attitude_correction`):
+        its end values beyond it (``outside="hold"``, :mod:`sensor_models.models.attitude_correction`):
         lines before the first or after the last observation are not extrapolated.
 
     Returns

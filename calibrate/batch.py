@@ -45,7 +45,7 @@ import numpy as np
 
 from calibrate._json import json_safe
 from sensor_models.errors import GcpcalError, InputError
-from sensor_models.readers.documents import csv_error, load_yaml, read_text
+from sensor_models.files.documents import csv_error, load_yaml, read_text
 
 __all__ = ["COLUMNS", "Site", "calibration_manifest", "read_sites", "summarize_rows", "validate_scene",
            "validate_sites"]
@@ -90,7 +90,7 @@ class Site:
     band : str or None
         Band to match (default: the scene's reference band).
     dom_band : str or None
-        Band of a DOM product folder (``B04``, ``B4``; :mod:`sensor_models.dom_inputs`).
+        Band of a DOM product folder (``B04``, ``B4``; :mod:`sensor_models.maps.dom_inputs`).
     dom_qa : Path or None
         QA raster masking the DOM (default: the one beside the band, when found).
     """
@@ -334,9 +334,9 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     from calibrate.from_gcps import points_of
     from gcpmatch.extract import extract_gcps, read_band
     from gcpmatch.options import MatchOptions
-    from sensor_models.dom_inputs import DomSource, open_dom
+    from sensor_models.maps.dom_inputs import DomSource, open_dom
     from sensor_models.readers import open_model, open_scene
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     lab = open_scene(site.scene)
     out["date"] = str(np.datetime_as_string(np.datetime64(lab.epoch, "s")))[:10] if hasattr(lab, "epoch") else None

@@ -220,7 +220,7 @@ class CalibrationOptions(_Options):
 
 @dataclass(frozen=True)
 class StarOptions(_Options):
-    """Options of the star-track calibration (:func:`calibrate.stars.process_frames`, seed 000).
+    """Options of the star-track calibration (:func:`calibrate.star_calibration.process_frames`, seed 000).
 
     Attributes
     ----------
@@ -292,7 +292,7 @@ class StarOptions(_Options):
 
 @dataclass(frozen=True)
 class OrthoOptions(_Options):
-    """Options of orthorectification (:func:`sensor_models.ortho.orthorectify_to_file`).
+    """Options of orthorectification (:func:`sensor_models.imaging.ortho.orthorectify_to_file`).
 
     Attributes
     ----------
@@ -331,7 +331,7 @@ class OrthoOptions(_Options):
             raise InputError(f"check_points must be >= 0, got {self.check_points}", field="check_points")
 
     def to_kwargs(self) -> dict:
-        """Keyword arguments of :func:`sensor_models.ortho.orthorectify_to_file`.
+        """Keyword arguments of :func:`sensor_models.imaging.ortho.orthorectify_to_file`.
 
         Returns
         -------

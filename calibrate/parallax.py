@@ -9,7 +9,7 @@ position ``q`` in band ``b``) is the observation
 .. math::  q = T_b(p) = F_b(F_{ref}^{-1}(p; c); c)
 
 of the transfer map through the ground ``G = F_ref^-1(p)``, where ``c`` are the coefficients of
-the body-frame attitude correction ``delta(t)`` (:mod:`sensor_models.attitude_correction`). Its
+the body-frame attitude correction ``delta(t)`` (:mod:`sensor_models.models.attitude_correction`). Its
 derivative in a coefficient ``c_{a,j}`` of axis ``a``, basis function ``B_j``, is
 
 .. math::  \\frac{\\partial q}{\\partial c_{a,j}} = J_b[:, a]\\, B_j(t_b)

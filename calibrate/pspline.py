@@ -1,7 +1,7 @@
 """Penalized B-spline (P-spline) attitude correction: dense knots, smoothing chosen on the data.
 
 The time-varying attitude correction ``delta_a(t) = sum_j c_{a,j} B_j(t)`` (roll, pitch, yaw;
-uniform cubic B-splines, :mod:`sensor_models.attitude_correction`) is given knots as dense as
+uniform cubic B-splines, :mod:`sensor_models.models.attitude_correction`) is given knots as dense as
 the observations' time sampling allows (:func:`pspline_segments`) and the roughness penalty of
 Eilers and Marx (1996):
 

@@ -17,7 +17,7 @@ Two corrections to the least-squares covariance ``C = sigma0^2 (J^T W J)^-1``
    same reference DOM, whose geolocation error is, to first order, one shift
    ``d = (east, north)`` metres shared by all points, with covariance
    ``Sigma_d = diag(sigma_e^2, sigma_n^2)`` (the DOM's stated accuracy,
-   :func:`sensor_models.dom_inputs.reference_accuracy`). Observation equations
+   :func:`sensor_models.maps.dom_inputs.reference_accuracy`). Observation equations
    ``l_i = f_i(x, X_i + d)`` linearize to ``dl = J dx + A d`` with ``A_i = d(row, col) /
    d(east, north)`` at GCP ``i`` (pixels per metre); the weighted least-squares estimate
    ``dx = (J^T W J)^-1 J^T W (dl - A d)`` then moves by ``-G d`` with::
@@ -31,7 +31,7 @@ Two corrections to the least-squares covariance ``C = sigma0^2 (J^T W J)^-1``
    interior, fitted in the frame the exterior fixes, and the attitude correction, whose mean is
    held by the installation, do not take it), otherwise every estimated parameter. ``W`` are
    the final weights (prior weight times robust weight). ``A`` comes from projecting each GCP's
-   ground point shifted east and north (:func:`sensor_models.ground_shift.ground_shift_jacobian`).
+   ground point shifted east and north (:func:`sensor_models.imaging.ground_shift.ground_shift_jacobian`).
    ``Cov_ref`` is added to the covariance; sigmas and correlations follow.
 
 References
@@ -46,8 +46,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from sensor_models.geodesy import degrees_per_metre
-from sensor_models.ground_shift import ground_shift_jacobian
+from sensor_models.geometry.geodesy import degrees_per_metre
+from sensor_models.imaging.ground_shift import ground_shift_jacobian
 
 __all__ = ["FIELD_CUTOFF", "covariance_floor", "field_covariance", "floor_factor", "with_honest_covariance"]
 

@@ -61,7 +61,7 @@ from gcpmatch.gcps import GcpTable
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.phase import Reject, phase_correlate
 from sensor_models.errors import InputError
-from sensor_models.pushbroom import PushbroomModel
+from sensor_models.models.pushbroom import PushbroomModel
 
 __all__ = ["BandResult", "RelativeResult", "TiePoints", "match_band", "registration_error",
            "relative_calibration"]

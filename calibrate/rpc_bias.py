@@ -7,7 +7,7 @@ image space, so Grodecki & Dial [1]_ correct them there::
     row = row_rpc + a0 + a1 row_rpc + a2 col_rpc
     col = col_rpc + b0 + b1 row_rpc + b2 col_rpc
 
-:class:`~sensor_models.rpc.RpcModel` carries exactly this correction as its parameters
+:class:`~sensor_models.models.rpc.RpcModel` carries exactly this correction as its parameters
 (``bias.row.a0 .. bias.col.b2``), with analytic derivatives, so the estimate is a (linear)
 robust least-squares fit of the chosen terms from GCPs, starting from the model's current
 bias:
@@ -20,7 +20,7 @@ bias:
 equilibrates the normal equations. The corrected model folds ``a0, a1, b0, b2`` into its
 offsets and scales when written (:meth:`RpcModel.write`); the cross terms ``a2, b1`` cannot
 be written to an RPC file (``writable=False`` in the result; refit with
-:func:`sensor_models.rpc_fit.fit_rpc` instead).
+:func:`sensor_models.models.rpc_fit.fit_rpc` instead).
 
 References
 ----------
@@ -39,7 +39,7 @@ from calibrate.absolute import CalibrationResult, calibrate_model
 from calibrate.config import CalibrationOptions
 from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
-from sensor_models.rpc import BIAS_NAMES, RpcModel
+from sensor_models.models.rpc import BIAS_NAMES, RpcModel
 
 __all__ = ["BIAS_TERMS", "RpcBiasResult", "compensate_rpc_bias"]
 

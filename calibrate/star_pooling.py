@@ -1,7 +1,7 @@
 """One staring-camera calibration from star tracks of several sessions (seed 000 section 3.2).
 
 Seed 000 observes the stars for 20 minutes at one time of day on 20 consecutive days and
-verifies the model on the 437 tracks of all days together. :func:`calibrate.stars.process_frames`
+verifies the model on the 437 tracks of all days together. :func:`calibrate.star_calibration.process_frames`
 calibrates one session (one frame sequence) at a time; this module pools the tracks of several
 sessions of one camera into one installation and interior, and scores every session's held-out
 points with it. Whatever changed between the days (the thermal state of the installation at that
@@ -15,13 +15,13 @@ frame 0 of the first session,
     w'' = B0_1 B0_d^T w'_d = B0_1 M l(row, col),
 
 gives points that the first session's frame-0 model images at the same pixels, so
-:func:`calibrate.stars.calibrate_tracks` solves one ``M`` and ``l`` from all of them. The GEO
+:func:`calibrate.star_calibration.calibrate_tracks` solves one ``M`` and ``l`` from all of them. The GEO
 orbit does not enter: the apparent directions of the catalogue stars already hold the aberration
 of each frame's velocity.
 
 Scoring. A held-out point of session ``d`` (frame ``k``, attitude ``B_k``) is mapped by the
 pooled model to ``B_k M l(row, col)`` and compared with its catalogue direction
-(:func:`calibrate.stars.radec_errors_px`, seed 000 eq. 18-19).
+(:func:`calibrate.star_calibration.radec_errors_px`, seed 000 eq. 18-19).
 """
 
 from __future__ import annotations
@@ -31,10 +31,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibrate.config import StarOptions
-from calibrate.stars import (StarCalibrationResult, StarObservations, calibrate_tracks, radec_accuracy,
+from calibrate.star_calibration import (StarCalibrationResult, StarObservations, calibrate_tracks, radec_accuracy,
                              radec_errors_px)
 from sensor_models.errors import InputError
-from sensor_models.geo_staring import GeoStaringModel
+from sensor_models.models.geo_staring import GeoStaringModel
 
 __all__ = ["StarSession", "calibrate_pooled"]
 
@@ -59,7 +59,7 @@ class StarSession:
 
     @classmethod
     def from_result(cls, result: StarCalibrationResult, lab_model: GeoStaringModel, seconds) -> "StarSession":
-        """The session of a :func:`calibrate.stars.process_frames` run.
+        """The session of a :func:`calibrate.star_calibration.process_frames` run.
 
         Parameters
         ----------
@@ -112,14 +112,14 @@ def calibrate_pooled(sessions, *, options: StarOptions = StarOptions()) -> dict:
         Sessions of one camera (same LAB installation and interior), any dates.
     options : StarOptions
         ``scheme``, ``interior_degree``, ``interior_prior_px`` and ``robust`` of
-        :func:`calibrate.stars.calibrate_tracks`.
+        :func:`calibrate.star_calibration.calibrate_tracks`.
 
     Returns
     -------
     dict
         ``success``, ``message``, ``sessions``, ``calibration_points``, ``parameters``
         (name -> value over the first session's parameter names), ``runs`` (the least-squares
-        steps), ``before`` and ``after`` (:func:`calibrate.stars` accuracy dicts of every held-out
+        steps), ``before`` and ``after`` (:func:`calibrate.star_calibration` accuracy dicts of every held-out
         point of every session: LAB and pooled model), ``per_session`` (mean absolute RA/DE
         error after, pixels, and the point count of each session).
 

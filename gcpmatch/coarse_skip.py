@@ -38,7 +38,7 @@ def model_offset_px(scene: np.ndarray, model, dem, dom, *, band: str, window_px:
     model : PushbroomModel
         The current model; a model that is one detector array (not split in CCDs) is not
         checked.
-    dem : sensor_models.terrain.Dem
+    dem : sensor_models.terrain.dem.Dem
         Terrain heights above the ellipsoid, metres.
     dom : MapImage
         Reference orthoimage.

@@ -31,7 +31,7 @@ def _ground(model, rows, cols, *, band, height_m, array=None):
 
 def _dom_valid(dom, lon, lat, max_cells: int = 512) -> np.ndarray:
     """Whether the DOM has data at each ground point (inside the raster and not no-data)."""
-    from sensor_models.locate import MapProjector
+    from sensor_models.maps.grid import MapProjector
 
     ok = np.isfinite(lon) & np.isfinite(lat)
     out = np.zeros(lon.shape, bool)

@@ -37,7 +37,7 @@ from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.reference import reference_for_ccd, reference_for_image, scene_gsd_m
 from gcpmatch.texture import band_noise_dn, gradient_snr, weak_texture
 from gcpmatch.uncertainty import reference_sigma_px, window_sigma
-from sensor_models.dom_inputs import ReferenceAccuracy, reference_accuracy
+from sensor_models.maps.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs
 from sensor_models.errors import InputError
 
@@ -106,7 +106,7 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
     accuracy : ReferenceAccuracy, optional
         The DOM's geolocation accuracy (``sigma_model="window"``); ``options.reference_sigma_m``
         wins when set; default: what ``dom.path`` states, else assumed
-        (:func:`sensor_models.dom_inputs.reference_accuracy`).
+        (:func:`sensor_models.maps.dom_inputs.reference_accuracy`).
 
     Returns
     -------

@@ -81,7 +81,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_models.atomic import temporary_beside
+from sensor_models.files.atomic import temporary_beside
 from sensor_models.errors import InputError
 
 __all__ = [

@@ -91,7 +91,7 @@ class MatchOptions:
     reference_sigma_m : float or None
         Geolocation accuracy of the reference DOM (and its DEM's effect), metres per axis (1
         sigma), as its producer states it; >= 0. None (default): what the DOM states
-        (:func:`sensor_models.dom_inputs.reference_accuracy`: its GDAL tags or a Landsat MTL),
+        (:func:`sensor_models.maps.dom_inputs.reference_accuracy`: its GDAL tags or a Landsat MTL),
         else an assumed value that the summary names. Used by ``sigma_model="window"``.
     min_gradient_snr : float
         Absolute texture gate: a window whose scene gradient snr (rms forward difference over the

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sensor_models.geodesy import enu_basis, geodetic_to_ecef
+from sensor_models.geometry.geodesy import enu_basis, geodetic_to_ecef
 
 __all__ = ["PrecorrectResult", "exterior_names", "fit_exterior_in_ground", "fit_ccd_offsets"]
 

@@ -1,10 +1,10 @@
 """The reference orthoimage resampled into scene geometry, so matching compares like with like.
 
 For each CCD of a band, every scene pixel is intersected with the DEM through the current model
-(:func:`sensor_models.locate.locate_block`: exact model on a node grid every 16 lines and 32
+(:func:`sensor_models.imaging.locate.locate_block`: exact model on a node grid every 16 lines and 32
 columns, per-pixel DEM intersection stopped at 1e-3 DOM px of position) and the DOM is sampled
 there after a Gaussian blur that mimics what one scene
-pixel integrates (:func:`sensor_models.psf.psf_sigma_dom_px`), with 8 x 8 Lanczos taps
+pixel integrates (:func:`sensor_models.imaging.psf.psf_sigma_dom_px`), with 8 x 8 Lanczos taps
 (``CHIP_INTERPOLATION``). DOMs in any CRS and resolution work; DOM no-data and areas outside
 the DOM or the DEM become NaN.
 
@@ -21,14 +21,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from sensor_models.locate import HEIGHT_TOLERANCE_M, locate_block
-from sensor_models.psf import psf_sigma_dom_px
-from sensor_models.raster import MapImage, sample_map_image
+from sensor_models.imaging.locate import HEIGHT_TOLERANCE_M, locate_block
+from sensor_models.imaging.psf import psf_sigma_dom_px
+from sensor_models.maps.raster import MapImage, sample_map_image
 
 __all__ = ["CHIP_INTERPOLATION", "POSITION_TOLERANCE_DOM_PX", "grid_resolution_m", "reference_for_ccd",
            "reference_for_image", "scene_gsd_m"]
 
-#: resampling kernel of the reference chips (module docstring; ``sensor_models.raster.INTERPOLATIONS``)
+#: resampling kernel of the reference chips (module docstring; ``sensor_models.maps.raster.INTERPOLATIONS``)
 CHIP_INTERPOLATION = "lanczos"
 
 #: the DEM intersection of the chips stops once its bound on the horizontal position error is
@@ -73,7 +73,7 @@ def scene_gsd_m(model, *, band=None, height_m: float = 0.0) -> float:
     float
         Ground sample distance, metres.
     """
-    from sensor_models.geodesy import geodetic_to_ecef
+    from sensor_models.geometry.geodesy import geodetic_to_ecef
 
     n_rows = model.image_shape[0]
     arrays = model.detector_arrays(band)  # stay inside one CCD: stitched CCDs jump at their edges
@@ -95,7 +95,7 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
     ----------
     model : PushbroomModel
         The current model of the scene.
-    dem : sensor_models.terrain.Dem
+    dem : sensor_models.terrain.dem.Dem
         Terrain heights above the ellipsoid, metres.
     dom : MapImage
         Reference orthoimage (any CRS and resolution).
@@ -110,7 +110,7 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
     block_lines, workers : int
         Lines per block and threads rendering blocks.
     interpolation : {"lanczos", "cubic", "linear"}
-        DOM resampling kernel (:func:`sensor_models.raster.sample_map_image`).
+        DOM resampling kernel (:func:`sensor_models.maps.raster.sample_map_image`).
 
     Returns
     -------
@@ -135,7 +135,7 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
 
     from concurrent.futures import ThreadPoolExecutor
 
-    from sensor_models.locate import dem_planes
+    from sensor_models.imaging.locate import dem_planes
 
     dem_planes(dem)  # shared sampling planes, built once before the threads
     starts = list(range(row0, row1, block_lines))
@@ -161,7 +161,7 @@ def reference_for_image(model, dem, dom: MapImage, *, band=None, psf_sigma_px: f
     ----------
     model : SensorModel
         The current model of the scene.
-    dem : sensor_models.terrain.Dem
+    dem : sensor_models.terrain.dem.Dem
         Terrain heights above the ellipsoid, metres.
     dom : MapImage
         Reference orthoimage (any CRS and resolution).
@@ -172,14 +172,14 @@ def reference_for_image(model, dem, dom: MapImage, *, band=None, psf_sigma_px: f
     block_lines : int
         Lines localized at a time (bounds the memory).
     interpolation : {"lanczos", "cubic", "linear"}
-        DOM resampling kernel (:func:`sensor_models.raster.sample_map_image`).
+        DOM resampling kernel (:func:`sensor_models.maps.raster.sample_map_image`).
 
     Returns
     -------
     ndarray of float32, shape ``model.image_shape``
         The reference at every pixel centre ``(i + 0.5, j + 0.5)``; NaN outside the DOM or DEM.
     """
-    from sensor_models.locate import MapProjector
+    from sensor_models.maps.grid import MapProjector
 
     n_rows, n_cols = model.image_shape
     sigma = psf_sigma_dom_px(scene_gsd_m(model, band=band, height_m=float(np.mean(dem.height_range_m))),

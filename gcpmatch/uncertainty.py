@@ -8,7 +8,7 @@ Two models (:data:`gcpmatch.options.SIGMA_MODELS`; docs/matching.md, section "si
   terms), and nothing of the errors that all matches share (the reference's geolocation error).
 * ``"window"`` (default): per window, the matching noise predicted from its phase-correlation
   score ``s`` (the coherent share of the cross-power), a floor of the matching itself, and the
-  reference's stated geolocation accuracy (:func:`sensor_models.dom_inputs.reference_accuracy`)::
+  reference's stated geolocation accuracy (:func:`sensor_models.maps.dom_inputs.reference_accuracy`)::
 
       sigma_px^2 = (SCORE_SIGMA_PX sqrt((1 - s) / s))^2 + MATCH_FLOOR_PX^2 + sigma_ref_px^2
                    + (k sigma_mm_px)^2
@@ -127,7 +127,7 @@ def reference_sigma_px(model, east_m: float, north_m: float, *, band, first_col:
     """A reference's east / north geolocation error projected into image rows and columns, pixels.
 
     The ground -> image Jacobian ``J = d(row, col) / d(east, north)`` (px per m,
-    :func:`sensor_models.ground_shift.ground_shift_jacobian`) at the ground point under the
+    :func:`sensor_models.imaging.ground_shift.ground_shift_jacobian`) at the ground point under the
     detector array's centre (on the ellipsoid at ``height_m``); the image covariance is
     ``J diag(east^2, north^2) J^T``.
 
@@ -153,7 +153,7 @@ def reference_sigma_px(model, east_m: float, north_m: float, *, band, first_col:
     sigma_row_px, sigma_col_px : float
         Standard deviations along rows and columns, pixels (NaN where the model cannot localize).
     """
-    from sensor_models.ground_shift import ground_shift_jacobian
+    from sensor_models.imaging.ground_shift import ground_shift_jacobian
 
     r0, c0 = model.image_shape[0] / 2.0, first_col + n_detectors / 2.0
     kw = {} if array is None else {"array": array}

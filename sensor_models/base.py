@@ -280,7 +280,7 @@ class SensorModel(abc.ABC):
             Continuous image coordinates (first pixel centre at 0.5).
         height : float or array_like, optional
             Ellipsoidal height in metres of the ground surface (exclusive with ``dem``).
-        dem : sensor_models.terrain.Dem, optional
+        dem : sensor_models.terrain.dem.Dem, optional
             Terrain to intersect.
         band : str, optional
             Spectral band for multi-band models (default: :attr:`reference_band`).
@@ -411,7 +411,7 @@ class SensorModel(abc.ABC):
 
         A column inside an array's range belongs to it; a column outside every array belongs to
         the nearest one. (Not to be confused with a CCD's detector coordinate
-        :meth:`sensor_models.pushbroom_types.CcdLook.detector_index`.)
+        :meth:`sensor_models.models.pushbroom_types.CcdLook.detector_index`.)
 
         Parameters
         ----------

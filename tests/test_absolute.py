@@ -16,7 +16,7 @@ from calibrate.absolute import calibrate_model, parameter_unit
 from calibrate.config import CalibrationOptions
 from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
-from sensor_models.synthetic import CameraDesign, example_pushbroom_model
+from sensor_models.models.synthetic import CameraDesign, example_pushbroom_model
 
 IFOV = 50.0 / 782_121.0
 INSTALLATION_DEG = {"roll": 0.3, "pitch": -0.2, "yaw": 0.5}
@@ -409,7 +409,7 @@ def _rpc_gcps(rpc, n, seed):
 
 def test_rpc_bias_offset_recovers_the_60_line_shift(shared_data, tmp_path):
     from calibrate.rpc_bias import compensate_rpc_bias
-    from sensor_models.rpc import RpcModel
+    from sensor_models.models.rpc import RpcModel
 
     good, biased = _pleiades(shared_data)
     row, col, lon, lat, h = _rpc_gcps(good, 100, seed=20)

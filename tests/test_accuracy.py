@@ -19,7 +19,7 @@ from calibrate.accuracy import (
     summarize_residuals,
 )
 from sensor_models.errors import InputError
-from sensor_models.synthetic import CameraDesign, example_pushbroom_model
+from sensor_models.models.synthetic import CameraDesign, example_pushbroom_model
 
 
 @pytest.fixture(scope="module")

@@ -13,11 +13,11 @@ from calibrate.absolute import calibrate_model
 from calibrate.attitude import MAX_SEGMENTS, candidate_corrections, jitter_spectrum
 from calibrate.config import CalibrationOptions
 from gcpmatch.gcps import GcpTable
-from sensor_models.attitude_correction import AttitudeCorrection, rotation_matrices
+from sensor_models.models.attitude_correction import AttitudeCorrection, rotation_matrices
 from sensor_models.errors import InputError, ManifestError
-from sensor_models.pushbroom_types import Installation
+from sensor_models.models.pushbroom_types import Installation
 from sensor_models.readers.manifest import read_pushbroom_manifest, write_manifest
-from sensor_models.synthetic import example_pushbroom_model
+from sensor_models.models.synthetic import example_pushbroom_model
 
 N_ROWS = 3000  # 22.6 s of lines at 7.5 ms
 JITTER_HZ = 0.5

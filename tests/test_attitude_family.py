@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from calibrate.pspline import difference_penalty, pspline_segments, recovered_spectrum, smooth
-from sensor_models.attitude_correction import AttitudeCorrection
+from sensor_models.models.attitude_correction import AttitudeCorrection
 from sensor_models.simulate import attitude_family as fam
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -16,11 +16,11 @@ from calibrate.parallax import (AngleObservations, calibrate_with_parallax, join
                                 tie_observations, tie_transfer)
 from calibrate.relative import TiePoints
 from gcpmatch.gcps import GcpTable
-from sensor_models.attitude_correction import AttitudeCorrection
-from sensor_models.ephemeris import Attitude
-from sensor_models.pushbroom import PushbroomModel
-from sensor_models.pushbroom_types import Installation
-from sensor_models.synthetic import example_pushbroom_model
+from sensor_models.models.attitude_correction import AttitudeCorrection
+from sensor_models.geometry.ephemeris import Attitude
+from sensor_models.models.pushbroom import PushbroomModel
+from sensor_models.models.pushbroom_types import Installation
+from sensor_models.models.synthetic import example_pushbroom_model
 
 HEIGHT_M = 300.0
 IFOV_RAD = 50.0 / 782_121.0  # the example camera's

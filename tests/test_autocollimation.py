@@ -117,7 +117,7 @@ def test_locate_cross_rejects_bad_frames():
 # ---------------------------------------------------------------- push-broom correction
 @pytest.fixture(scope="module")
 def nominal_model():
-    from sensor_models.synthetic import CameraDesign, example_pushbroom_model
+    from sensor_models.models.synthetic import CameraDesign, example_pushbroom_model
 
     return example_pushbroom_model(n_rows=500, design=CameraDesign(band_names=("B1",), band_offsets_px=(0.0,)))
 

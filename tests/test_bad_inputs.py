@@ -203,7 +203,7 @@ def _gcp_variants(table_csv: Path, folder: Path) -> dict[str, Path]:
 @pytest.fixture(scope="module")
 def bad(tmp_path_factory) -> SimpleNamespace:
     """Every damaged input of the matrix, built once."""
-    from sensor_models.simulate.geo_stars import GeoStarsConfig, simulate_geo_stars
+    from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
 
     d = tmp_path_factory.mktemp("bad_inputs")
     ns = SimpleNamespace(root=d, missing=d / "missing.tif", missing_json=d / "missing.json")

@@ -30,8 +30,8 @@ def bench():
 
 @pytest.fixture(scope="module")
 def scene(bench):
-    from sensor_models.pushbroom_types import Installation
-    from sensor_models.synthetic import example_pushbroom_model
+    from sensor_models.models.pushbroom_types import Installation
+    from sensor_models.models.synthetic import example_pushbroom_model
 
     dem, _ = bench.load_dem()
     model = example_pushbroom_model(n_rows=2000, installation=Installation(0.0, 0.0, np.radians(3.55)))

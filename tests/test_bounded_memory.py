@@ -21,9 +21,9 @@ import pytest
 import rasterio
 
 from sensor_models import open_model
-from sensor_models.ortho import orthorectify_to_file
-from sensor_models.ortho_dem import DemWindows, open_ortho_dem
-from sensor_models.terrain import Dem
+from sensor_models.imaging.ortho import orthorectify_to_file
+from sensor_models.terrain.dem_windows import DemWindows, open_ortho_dem
+from sensor_models.terrain.dem import Dem
 
 ROOT = Path(__file__).resolve().parents[1]
 FIX = ROOT / "fixtures" / "hy1c_czi"
@@ -69,7 +69,7 @@ def test_small_dem_is_read_whole():
 
 
 def test_windows_refuse_what_the_whole_dem_refuses(tmp_path):
-    from sensor_models.terrain import DemError
+    from sensor_models.terrain.dem import DemError
 
     bare = tmp_path / "bare.tif"  # no vertical datum declared
     with rasterio.open(DEM) as src:
@@ -86,8 +86,8 @@ def test_windows_refuse_what_the_whole_dem_refuses(tmp_path):
 
 @pytest.mark.shared_data
 def test_windowed_dem_ortho_is_byte_identical_on_pleiades(shared_data, tmp_path):
-    from sensor_models.rpc import RpcModel
-    from sensor_models.terrain import Geoid
+    from sensor_models.models.rpc import RpcModel
+    from sensor_models.terrain.dem import Geoid
 
     folder = shared_data / "pleiades_ventoux"
     with rasterio.open(folder / "left_image.tif") as ds:
@@ -128,8 +128,8 @@ def _synthetic_scene(folder: Path, side: int):
 _PEAK_CHILD = """
 import json, sys
 from pathlib import Path
-from sensor_models.ortho import orthorectify_to_file
-from sensor_models.ortho_dem import open_ortho_dem
+from sensor_models.imaging.ortho import orthorectify_to_file
+from sensor_models.terrain.dem_windows import open_ortho_dem
 from sensor_models import open_model
 
 def status(key):
@@ -146,7 +146,7 @@ if what == "ortho":
     summary = orthorectify_to_file(model, image, dem, out, block=128, dem_windows=windows)
     shape = summary["shape"]
 else:  # the whole DEM, as the ortho loaded it before
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
     shape = list(Dem.open(dem_path).shape)
 print(json.dumps({"added_mib": status("VmHWM") - base, "shape": shape}))
 """

@@ -1,4 +1,4 @@
-"""Resampling kernels of ``sensor_models.raster.sample_map_image`` and the matcher's chips.
+"""Resampling kernels of ``sensor_models.maps.raster.sample_map_image`` and the matcher's chips.
 
 A DOM coarser than the scene is upsampled into the scene's geometry. The tests sample a smooth,
 band-limited map (a sum of plane waves below 0.3 cycles per DOM pixel, known exactly everywhere)
@@ -15,7 +15,7 @@ from affine import Affine
 
 from gcpmatch.reference import CHIP_INTERPOLATION
 from sensor_models.errors import InputError
-from sensor_models.raster import INTERPOLATIONS, MapImage, sample_map_image
+from sensor_models.maps.raster import INTERPOLATIONS, MapImage, sample_map_image
 
 N = 96
 WAVES = [(0.11, 0.05, 0.3, 40.0), (-0.07, 0.19, 1.1, 25.0), (0.23, -0.13, 2.0, 15.0), (0.02, 0.27, 0.7, 10.0)]

@@ -133,8 +133,8 @@ def test_rpc_accuracy(rpc_run):
 
 def test_rpc_read_back(rpc_run):
     from sensor_models.readers.scene import read_manifest
-    from sensor_models.rpc import RpcModel
-    from sensor_models.rpc_fit import fit_rpc
+    from sensor_models.models.rpc import RpcModel
+    from sensor_models.models.rpc_fit import fit_rpc
 
     out, summary = rpc_run
     model = read_manifest(EXAMPLE)

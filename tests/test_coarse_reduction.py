@@ -37,9 +37,9 @@ def test_reduction_factor(shape, target, expected):
 @pytest.fixture(scope="module")
 def demo_inputs():
     from gcpmatch.extract import read_band
-    from sensor_models.raster import MapImage
+    from sensor_models.maps.raster import MapImage
     from sensor_models.readers import open_scene
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     model = open_scene(FIXTURE / "manifest.json")
     band = model.reference_band

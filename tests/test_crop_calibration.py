@@ -22,7 +22,7 @@ from rasterio.transform import RPCTransformer
 
 from calibrate.cli import main
 from gcpmatch.gcps import GcpTable, write_gcps_csv
-from sensor_models.rpc import RpcModel
+from sensor_models.models.rpc import RpcModel
 
 pytestmark = pytest.mark.filterwarnings("ignore", category=NotGeoreferencedWarning)
 

@@ -103,7 +103,7 @@ def test_forty_percent_gross_outliers_barely_move_the_calibration(demo_run):
     from gcpmatch.gcps import GcpTable, read_gcps
     from sensor_models.readers import open_model
     from sensor_models.simulate.truth import truth_error
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     out, _ = demo_run
     fixture = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from sensor_models.errors import ManifestError
-from sensor_models.geodesy import (
+from sensor_models.geometry.geodesy import (
     WGS84_A_M,
     WGS84_B_M,
     ecef_to_geodetic,
@@ -73,10 +73,10 @@ def intersect_ellipsoid(origin, direction, h_m):
 
 
 def localize(model, rows, cols, h_m):
-    """``image_to_ground`` at height ``h_m``; until ``sensor_models.terrain`` exists the rays of
+    """``image_to_ground`` at height ``h_m``; until ``sensor_models.terrain.dem`` exists the rays of
     the model are intersected here (same geometry, no DEM needed)."""
     try:
-        import sensor_models.terrain  # noqa: F401
+        import sensor_models.terrain.dem  # noqa: F401
     except ImportError:
         origin, direction = model.rays_itrf(rows, cols)
         lon, lat, _ = ecef_to_geodetic(intersect_ellipsoid(origin, direction, h_m))

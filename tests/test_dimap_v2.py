@@ -24,7 +24,7 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from sensor_models.errors import ManifestError
-from sensor_models.geodesy import geodetic_to_ecef
+from sensor_models.geometry.geodesy import geodetic_to_ecef
 from sensor_models.readers.dimap_v2 import (
     EXTENSION_LINES,
     extend_attitude,
@@ -163,8 +163,8 @@ def test_other_pixel_conventions_miss_the_frame(model, d_row, d_col, at_least_m)
 def test_other_quaternion_readings_miss_the_earth(model, reading):
     """Q3 read as the scalar, or the rotation read the other way round: no ray lands near the
     frame (they miss the Earth altogether)."""
-    from sensor_models.ephemeris import Attitude
-    from sensor_models.pushbroom import PushbroomModel
+    from sensor_models.geometry.ephemeris import Attitude
+    from sensor_models.models.pushbroom import PushbroomModel
 
     q = model.attitude.quaternions_xyzw
     q = q[:, [3, 0, 1, 2]] if reading == "scalar-last" else q * [-1.0, -1.0, -1.0, 1.0]
@@ -183,7 +183,7 @@ def test_satellite_frame_is_along_across_down(model):
     That is gcpcal's camera frame (X along track, Y across, Z towards the Earth). The rows
     advance 14 degrees off the Earth-relative velocity in this scene, and body X with them.
     """
-    from sensor_models.geodesy import geodetic_to_ecef
+    from sensor_models.geometry.geodesy import geodetic_to_ecef
 
     t = model.line_timing.seconds(np.array([1000.0, 12000.0, 24000.0]))
     pos = model.orbit.position(t)
@@ -254,7 +254,7 @@ def test_extend_attitude_holds_the_end_rate(model):
 def test_rpc_fitted_to_the_model_lands_on_the_frame(model):
     """The product's own RPC is absent; an RPC fitted to the rigorous model over 0-2000 m
     reproduces it to a few thousandths of a pixel and lands on the producer's frame too."""
-    from sensor_models.rpc_fit import fit_rpc
+    from sensor_models.models.rpc_fit import fit_rpc
 
     rpc, report = fit_rpc(model, height_range_m=(0.0, 2000.0))
     assert report["check_max_px"] < 0.01

@@ -63,7 +63,7 @@ def test_every_kind_has_ideal_realistic_and_its_paper_profile_with_sources():
 def test_ideal_profiles_record_todays_defaults():
     from calibrate.schemes.autocollimation import render_cross
     from calibrate.schemes.thermal import ThermalDrift
-    from sensor_models.simulate.geo_stars import GeoStarsConfig
+    from sensor_models.simulate.star_sky import GeoStarsConfig
 
     stars, cfg = get_profile("ideal", "stars"), GeoStarsConfig()
     for name in ("attitude_noise_arcsec", "attitude_jitter_arcsec", "attitude_jitter_hz", "attitude_drift_arcsec_s"):
@@ -88,7 +88,7 @@ def _digest(folder: Path) -> str:
 
 
 def test_star_profile_ideal_is_todays_sequence_and_realistic_differs(tmp_path):
-    from sensor_models.simulate.geo_stars import simulate_geo_stars
+    from sensor_models.simulate.star_sky import simulate_geo_stars
 
     kw = dict(n_frames=3, seed=3, image_shape=(256, 256))
     simulate_geo_stars(tmp_path / "none", **kw)

@@ -65,7 +65,7 @@ def data(tmp_path_factory):
     """Inputs of every command, copied into a folder of their own (their checksums are watched)."""
     from dataclasses import replace
 
-    from sensor_models.simulate.geo_stars import GeoStarsConfig, simulate_geo_stars
+    from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
 
     root = tmp_path_factory.mktemp("fault_inputs")
     shutil.copytree(FIXTURE, root / "s")

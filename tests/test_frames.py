@@ -1,4 +1,4 @@
-"""Tests of sensor_models.frames and sensor_models.timescales.
+"""Tests of sensor_models.geometry.frames and sensor_models.geometry.timescales.
 
 The GCRF -> ITRF rotation is checked against astropy (an independent implementation of the
 same IAU 2006/2000A CIO-based chain, used here only as a cross-check) with astropy's bundled
@@ -14,9 +14,9 @@ import erfa
 import numpy as np
 import pytest
 
-from sensor_models import frames, timescales
+from sensor_models.geometry import frames, timescales
 from sensor_models.errors import InputError, OutOfRangeError
-from sensor_models.frames import EarthRotation, gcrf_to_itrf_mat, orbital_to_frame_mat
+from sensor_models.geometry.frames import EarthRotation, gcrf_to_itrf_mat, orbital_to_frame_mat
 
 RAD_TO_MAS = 180.0 / np.pi * 3600.0 * 1000.0
 GM_EARTH_M3_S2 = 3.986004418e14

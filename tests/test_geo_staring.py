@@ -10,7 +10,7 @@ import pytest
 from affine import Affine
 
 from sensor_models.errors import InputError, ManifestError
-from sensor_models.geo_staring import (
+from sensor_models.models.geo_staring import (
     GF4_LIKE_CAMERA,
     GF4_LIKE_SHAPE,
     SEED000_CAMERA,
@@ -22,10 +22,10 @@ from sensor_models.geo_staring import (
     fit_interior,
     radec_to_vectors,
 )
-from sensor_models.geodesy import geodetic_to_ecef
-from sensor_models.pushbroom_types import Installation
+from sensor_models.geometry.geodesy import geodetic_to_ecef
+from sensor_models.models.pushbroom_types import Installation
 from sensor_models.readers.geo_manifest import geo_manifest_to_dict, read_geo_manifest, write_geo_manifest
-from sensor_models.terrain import Dem
+from sensor_models.terrain.dem import Dem
 
 ARCSEC = np.radians(1.0 / 3600.0)
 #: a laboratory camera with every term of seed 002 table 1, on seed 000's array (larger

@@ -24,7 +24,7 @@ from calibrate.cli import main
 from calibrate.residual_layer import RESIDUAL_FIELDS, read_residual_layer, residual_layer
 from gcpmatch.gcps import GcpTable, read_gcps
 from sensor_models.readers import open_model
-from sensor_models.rpc import RpcModel
+from sensor_models.models.rpc import RpcModel
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "fixtures" / "hy1c_czi"

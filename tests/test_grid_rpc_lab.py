@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sensor_models.lab import LabBand, LabCamera, LabCcd, detector_angles, lab_to_directional_angles
-from sensor_models.locgrid import InverseLocalizationGrid
-from sensor_models.pushbroom_types import Installation
-from sensor_models.rpc_fit import fit_rpc
-from sensor_models.synthetic import example_pushbroom_model
+from sensor_models.models.lab import LabBand, LabCamera, LabCcd, detector_angles, lab_to_directional_angles
+from sensor_models.models.locgrid import InverseLocalizationGrid
+from sensor_models.models.pushbroom_types import Installation
+from sensor_models.models.rpc_fit import fit_rpc
+from sensor_models.models.synthetic import example_pushbroom_model
 
 JITTER = dict(bias_rad=(2e-4, -3e-4, 1e-3), jitter_amplitude_rad=(2e-6, 2e-6, 1e-6), jitter_frequency_hz=1.3, seed=5)
 

@@ -20,6 +20,10 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ("sensor_models", "gcpmatch", "calibrate")
 SIMULATOR = "sensor_models.simulate"
 CLI_MODULES = ("calibrate.cli", "calibrate.__main__")  # and calibrate.cli.*, calibrate.cli_*
+#: the rooms of ``sensor_models``, lowest first (docs/architecture.md): a room imports only from
+#: itself and the rooms before it; the package's ``__init__`` (the public API) may import any room
+SENSOR_MODEL_ROOMS = ("errors", "base", "files", "geometry", "maps", "terrain", "models", "imaging",
+                      "readers", "simulate")
 
 
 
@@ -152,8 +156,8 @@ def test_the_scan_sees_the_packages_and_their_imports():
     """Not vacuous: every layer has modules, and known edges (module level and lazy) are found."""
     for package in LAYERS:
         assert package in MODULES and sum(m.startswith(package + ".") for m in MODULES) >= 5
-    assert "sensor_models.locate" in GRAPH["gcpmatch.reference"]  # module level
-    assert "sensor_models.locate" in GRAPH["sensor_models.ortho"]  # inside a function
+    assert "sensor_models.imaging.locate" in GRAPH["gcpmatch.reference"]  # module level
+    assert "sensor_models.imaging.locate" in GRAPH["sensor_models.imaging.ortho"]  # inside a function
     assert "sensor_models.simulate.truth" in GRAPH["sensor_models.simulate.pushbroom_sim"]
 
 
@@ -163,6 +167,36 @@ def test_imports_go_one_way():
         ("upward", f"{a} -> {b}"): f"{a} (line {line}) imports {b}, a higher layer"
         for a, edges in GRAPH.items() for b, line in edges.items() if _layer(b) > _layer(a)
     }
+    assert not _report(failures), "\n".join(_report(failures))
+
+
+def _room(module: str) -> str | None:
+    """The room of a ``sensor_models`` module (None: the package itself or another package)."""
+    parts = module.split(".")
+    return parts[1] if parts[0] == "sensor_models" and len(parts) > 1 else None
+
+
+def test_sensor_models_has_no_module_outside_its_rooms():
+    """At the package's top level only errors.py, base.py and __init__.py; every other module
+    lives in one of the rooms."""
+    stray = sorted(m for m in MODULES if m.startswith("sensor_models.") and _room(m) not in SENSOR_MODEL_ROOMS)
+    assert not stray, f"modules outside the rooms {SENSOR_MODEL_ROOMS}: {stray}"
+    top = sorted(p.name for p in (ROOT / "sensor_models").glob("*.py"))
+    assert top == ["__init__.py", "base.py", "errors.py"], top
+
+
+def test_sensor_model_rooms_import_downward_only():
+    """geometry <- maps <- terrain <- models <- imaging <- readers <- simulate (errors, base and
+    files below them all): no arrow runs back up."""
+    failures = {}
+    for a, edges in GRAPH.items():
+        ra = _room(a)
+        if ra is None:
+            continue
+        for b, line in edges.items():
+            rb = _room(b)
+            if rb is not None and SENSOR_MODEL_ROOMS.index(rb) > SENSOR_MODEL_ROOMS.index(ra):
+                failures[("room", f"{a} -> {b}")] = f"{a} (line {line}) imports {b}: room {rb} is above {ra}"
     assert not _report(failures), "\n".join(_report(failures))
 
 

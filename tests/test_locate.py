@@ -15,10 +15,11 @@ import pytest
 from affine import Affine
 
 from gcpmatch.reference import NODE_STEP_COLS, POSITION_TOLERANCE_DOM_PX
-from sensor_models.locate import HEIGHT_TOLERANCE_M, MapGrid, MapProjector, dem_planes, locate_block
-from sensor_models.raster import MapImage
+from sensor_models.imaging.locate import HEIGHT_TOLERANCE_M, dem_planes, locate_block
+from sensor_models.maps.grid import MapGrid, MapProjector
+from sensor_models.maps.raster import MapImage
 from sensor_models.readers import open_model
-from sensor_models.terrain import Dem
+from sensor_models.terrain.dem import Dem
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
 BAND = "B2"

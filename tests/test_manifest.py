@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sensor_models.errors import ManifestError
-from sensor_models.lab import LabBand, LabCamera, LabCcd, detector_angles
+from sensor_models.models.lab import LabBand, LabCamera, LabCcd, detector_angles
 from sensor_models.readers.manifest import write_manifest
 from sensor_models.readers.scene import read_manifest
 

@@ -17,9 +17,9 @@ from sensor_models.errors import GcpcalError, InputError
 from sensor_models.readers import open_model
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
-from sensor_models.raster import MapImage
+from sensor_models.maps.raster import MapImage
 from sensor_models.simulate.truth import truth_error
-from sensor_models.terrain import Dem
+from sensor_models.terrain.dem import Dem
 
 
 def _config(**errors) -> SimConfig:

@@ -79,9 +79,9 @@ def realistic_s2_scene(tmp_path_factory, shared_data):
 def _match(scene, options):
     """The production matcher on a simulated scene: (GcpTable, summary); the DOM's tags are read as a user's are."""
     from gcpmatch.extract import extract_gcps, read_band
-    from sensor_models.raster import MapImage
+    from sensor_models.maps.raster import MapImage
     from sensor_models.readers import open_scene
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     model = open_scene(scene / "manifest.json")
     band = model.reference_band
@@ -201,7 +201,7 @@ def test_match_command_takes_the_sigma_model(tmp_path):
 
     from calibrate.cli import main
     from gcpmatch.gcps import read_gcps
-    from sensor_models.dom_inputs import ACCURACY_TAG, ASSUMED_REFERENCE_SIGMA_M
+    from sensor_models.maps.dom_inputs import ACCURACY_TAG, ASSUMED_REFERENCE_SIGMA_M
 
     fixture = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
     dom = fixture / "reference" / "dom.tif"

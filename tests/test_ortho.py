@@ -1,4 +1,4 @@
-"""Orthorectification to Cloud-Optimized GeoTIFFs (sensor_models.ortho, ``gcpcal ortho``).
+"""Orthorectification to Cloud-Optimized GeoTIFFs (sensor_models.imaging.ortho, ``gcpcal ortho``).
 
 Geometry: the node-grid positions against exact inverse localization; resampling convention on
 a linear ramp; COG layout, atomic output; the CLI; and the acceptance test on the HY-1C-like
@@ -21,8 +21,8 @@ from calibrate.cli import main
 from gcpmatch.phase import phase_correlate
 from sensor_models import open_model
 from sensor_models.errors import InputError
-from sensor_models.ortho import OrthoGeometry, ortho_grid, orthorectify, orthorectify_to_file, utm_crs
-from sensor_models.terrain import Dem
+from sensor_models.imaging.ortho import OrthoGeometry, ortho_grid, orthorectify, orthorectify_to_file, utm_crs
+from sensor_models.terrain.dem import Dem
 
 ROOT = Path(__file__).resolve().parents[1]
 FIX = ROOT / "fixtures" / "hy1c_czi"

@@ -17,7 +17,7 @@ import rasterio
 from calibrate.parallax import _with_ground
 from calibrate.relative import TiePoints
 from sensor_models.readers import open_scene
-from sensor_models.terrain import Dem
+from sensor_models.terrain.dem import Dem
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
 

@@ -194,7 +194,7 @@ def test_memory_error_inside_a_stage_is_one_line_naming_the_step(tmp_path, capsy
 @pytest.mark.parametrize("reader", ["scene manifest", "sites YAML", "DIMAP", "OSSIM RPC", "simulation config"])
 def test_document_over_the_size_limit_is_refused_unread(reader, tmp_path, capsys):
     """A 'manifest' of 300 MiB (sparse: nothing is written or read) is refused by its size."""
-    from sensor_models.readers.documents import MAX_DOCUMENT_BYTES
+    from sensor_models.files.documents import MAX_DOCUMENT_BYTES
 
     _, suffix, argv = READERS[reader]
     path = tmp_path / f"huge{suffix}"

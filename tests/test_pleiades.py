@@ -19,10 +19,10 @@ from affine import Affine
 from calibrate.rpc_bias import compensate_rpc_bias
 from gcpmatch.extract import extract_gcps
 from gcpmatch.options import MatchOptions
-from sensor_models.ortho import orthorectify
-from sensor_models.rpc import RpcModel
-from sensor_models.raster import MapImage
-from sensor_models.terrain import Dem
+from sensor_models.imaging.ortho import orthorectify
+from sensor_models.models.rpc import RpcModel
+from sensor_models.maps.raster import MapImage
+from sensor_models.terrain.dem import Dem
 
 pytestmark = pytest.mark.shared_data
 

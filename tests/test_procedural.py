@@ -16,7 +16,7 @@ from sensor_models.simulate.procedural import (
     generate_reference,
     illumination,
 )
-from sensor_models.terrain import Dem
+from sensor_models.terrain.dem import Dem
 
 LON, LAT = 5.3, 44.2  # Provence: UTM zone 31N
 

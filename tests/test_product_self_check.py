@@ -330,7 +330,7 @@ def test_dimap_v2_compares_an_rpc_given_with_the_product(shared_data, tmp_path):
     """The product's own RPC_*.XML is not in the shared data: an RPC fitted to the rigorous model
     (written as _RPC.TXT) agrees; one fitted to the model one line late, or another product's
     RPC (the Pleiades Ventoux .geom), is refused."""
-    from sensor_models.rpc_fit import fit_rpc
+    from sensor_models.models.rpc_fit import fit_rpc
 
     meta = parse_dimap_v2(product_path(shared_data, "SPOT6"))
     model = build_dimap_v2(meta)

@@ -14,12 +14,12 @@ import pytest
 
 from sensor_models.base import DetectorArray, SensorModel
 from sensor_models.errors import InputError
-from sensor_models.geo_staring import example_geo_staring_model
-from sensor_models.pushbroom import CcdView
-from sensor_models.pushbroom_types import CcdLook
+from sensor_models.models.geo_staring import example_geo_staring_model
+from sensor_models.models.pushbroom import CcdView
+from sensor_models.models.pushbroom_types import CcdLook
 from sensor_models.readers import open_model
-from sensor_models.rpc import RpcModel
-from sensor_models.rpc_fit import fit_rpc
+from sensor_models.models.rpc import RpcModel
+from sensor_models.models.rpc_fit import fit_rpc
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 PLEIADES_GEOM = Path(__file__).resolve().parents[2] / "shared" / "data" / "pleiades_ventoux" / "left_image.geom"

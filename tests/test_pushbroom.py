@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sensor_models.errors import InputError, OutOfRangeError
-from sensor_models.pushbroom_types import Installation
-from sensor_models.synthetic import example_pushbroom_model
+from sensor_models.models.pushbroom_types import Installation
+from sensor_models.models.synthetic import example_pushbroom_model
 
 ATTITUDE = dict(
     bias_rad=(2e-4, -3e-4, 1e-3),
@@ -145,7 +145,7 @@ def test_rows_outside_the_data_are_errors_and_unseen_points_nan(model):
 def test_row_time_and_ground_track_are_consistent(model):
     """Successive lines step by one line period of ground track (about one IFOV on the ground)."""
     lon, lat, h = model.image_to_ground([500.5, 600.5], [1016.5, 1016.5], height=0.0)
-    from sensor_models.geodesy import geodetic_to_ecef
+    from sensor_models.geometry.geodesy import geodetic_to_ecef
 
     xyz = geodetic_to_ecef(lon, lat, h)
     step_m = np.linalg.norm(xyz[1] - xyz[0]) / 100.0
@@ -154,7 +154,7 @@ def test_row_time_and_ground_track_are_consistent(model):
 
 def test_round_trip_over_real_srtm(shared_data):
     """Acceptance: image -> DEM -> image over the real SRTM tile (EGM96 heights converted)."""
-    from sensor_models.terrain import Dem
+    from sensor_models.terrain.dem import Dem
 
     dem = Dem.open(shared_data / "dem" / "N44E005.hgt", vertical_datum="egm96", geoid=shared_data / "dem" / "egm96_15.gtx")
     model = example_pushbroom_model(n_rows=1500, installation=Installation(0.0, 0.0, np.radians(3.55)), attitude_kwargs=ATTITUDE)

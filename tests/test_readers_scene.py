@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from sensor_models.errors import ManifestError
-from sensor_models.geo_staring import GeoStaringModel, example_geo_staring_model
-from sensor_models.pushbroom import PushbroomModel
+from sensor_models.models.geo_staring import GeoStaringModel, example_geo_staring_model
+from sensor_models.models.pushbroom import PushbroomModel
 from sensor_models.readers import open_model
 from sensor_models.readers.geo_manifest import read_geo_manifest, write_geo_manifest
 from sensor_models.readers.manifest import pushbroom_model_from_document
@@ -34,7 +34,7 @@ def _imported_modules(path: Path) -> set[str]:
 def test_manifest_readers_do_not_import_each_other():
     assert "sensor_models.readers.geo_manifest" not in _imported_modules(READERS / "manifest.py")
     assert "sensor_models.readers.manifest" not in _imported_modules(READERS / "geo_manifest.py")
-    shared = ("sensor_models.readers._strict", "sensor_models.readers.documents")  # parsing pieces, no reader
+    shared = ("sensor_models.readers._strict", "sensor_models.files.documents")  # parsing pieces, no reader
     assert not any(m.startswith("sensor_models.readers.") and m not in shared
                    for m in _imported_modules(READERS / "_common.py"))
 

@@ -12,7 +12,7 @@ import pytest
 import rasterio
 from scipy.spatial.transform import Rotation
 
-from sensor_models.locate import MapGrid
+from sensor_models.maps.grid import MapGrid
 from sensor_models.simulate.clouds3d import CloudLayers, apparent_clouds, ground_shadow, ray_slope
 from sensor_models.simulate.config import config_from_dict
 from sensor_models.simulate.illumination import Sun, cast_shadow, illumination, sun_angles_deg
@@ -202,7 +202,7 @@ def test_ray_slope_points_to_the_satellite():
     import pyproj
     from affine import Affine
 
-    from sensor_models.frames import gcrf_to_itrf_mat
+    from sensor_models.geometry.frames import gcrf_to_itrf_mat
 
     cfg = config_from_dict(MEDIUM)
     m = build_models(cfg).true_model

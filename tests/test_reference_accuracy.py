@@ -1,6 +1,6 @@
 """The reference DOM's stated geolocation accuracy: option, GDAL tags, Landsat MTL, assumed.
 
-``sensor_models.dom_inputs.reference_accuracy`` feeds the reference term of the window sigma
+``sensor_models.maps.dom_inputs.reference_accuracy`` feeds the reference term of the window sigma
 model (docs/matching.md, "sigma_px"); ``gcpmatch.uncertainty.reference_sigma_px`` projects it
 into image rows and columns. Rasters are real GeoTIFFs written with rasterio.
 """
@@ -16,7 +16,7 @@ import pytest
 import rasterio
 from rasterio.transform import from_origin
 
-from sensor_models.dom_inputs import (ACCURACY_TAG, ACCURACY_TAG_X, ACCURACY_TAG_Y,
+from sensor_models.maps.dom_inputs import (ACCURACY_TAG, ACCURACY_TAG_X, ACCURACY_TAG_Y,
                                       reference_accuracy, stated_accuracy)
 from sensor_models.errors import InputError
 

@@ -19,10 +19,10 @@ import pytest
 from calibrate.absolute import calibrate_model
 from calibrate.config import CalibrationOptions
 from calibrate.reference_covariance import floor_factor
-from sensor_models.ground_shift import ground_shift_jacobian
+from sensor_models.imaging.ground_shift import ground_shift_jacobian
 from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
-from sensor_models.synthetic import CameraDesign, example_pushbroom_model
+from sensor_models.models.synthetic import CameraDesign, example_pushbroom_model
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi_realistic"
 EXTERIOR = ("installation.roll", "installation.pitch", "installation.yaw")
@@ -103,8 +103,8 @@ def test_common_ground_shift_moves_roll_and_pitch_as_predicted(true_model, schem
 
 def test_staring_camera_gets_the_term_too():
     """A geostationary staring camera: 100 m east moves the installation by what G predicts (~0.58 arcsec)."""
-    from sensor_models.geo_staring import example_geo_staring_model
-    from sensor_models.pushbroom_types import Installation
+    from sensor_models.models.geo_staring import example_geo_staring_model
+    from sensor_models.models.pushbroom_types import Installation
 
     arcsec = np.pi / 180.0 / 3600.0
     installation = Installation(72 * arcsec, -72 * arcsec, 72 * arcsec)

@@ -25,7 +25,7 @@ from sensor_models.errors import InputError
 from sensor_models.readers import open_model
 from sensor_models.readers.manifest import write_manifest
 from sensor_models.simulate.truth import truth_error
-from sensor_models.terrain import Dem
+from sensor_models.terrain.dem import Dem
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
 OTHERS = ("B1", "B3", "B4")

@@ -24,7 +24,7 @@ from calibrate.report import write_report
 from calibrate.report.calibration_figures import image_difference_px, look_difference_px
 from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
-from sensor_models.synthetic import CameraDesign, example_pushbroom_model
+from sensor_models.models.synthetic import CameraDesign, example_pushbroom_model
 
 IFOV = 50.0 / 782_121.0
 ARCSEC = 180.0 * 3600.0 / np.pi
@@ -242,7 +242,7 @@ def test_rewrite_replaces_old_figures_and_leaves_pyplot_alone(case, tmp_path):
 def test_rpc_bias_result_is_unwrapped(tmp_path):
     """A non-push-broom model: no distortion figure, every parameter in the main table."""
     from calibrate.rpc_bias import compensate_rpc_bias
-    from sensor_models.rpc_fit import fit_rpc
+    from sensor_models.models.rpc_fit import fit_rpc
 
     design = CameraDesign(n_ccds=1, detectors_per_ccd=600, band_names=("B1",), band_offsets_px=(0.0,))
     model = example_pushbroom_model(n_rows=600, design=design)

@@ -17,9 +17,9 @@ from rasterio.transform import RPCTransformer
 
 from sensor_models.base import SensorModel
 from sensor_models.errors import InputError, RpcError
-from sensor_models.geodesy import ecef_to_geodetic, enu_basis, geodetic_to_ecef
-from sensor_models.rpc import BIAS_NAMES, RpcModel
-from sensor_models.rpc_fit import fit_rpc
+from sensor_models.geometry.geodesy import ecef_to_geodetic, enu_basis, geodetic_to_ecef
+from sensor_models.models.rpc import BIAS_NAMES, RpcModel
+from sensor_models.models.rpc_fit import fit_rpc
 
 HEIGHTS_M = (0.0, 450.0, 1075.0, 1900.0)
 

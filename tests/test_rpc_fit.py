@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sensor_models.ephemeris import Attitude
+from sensor_models.geometry.ephemeris import Attitude
 from sensor_models.errors import InputError
-from sensor_models.pushbroom import PushbroomModel
+from sensor_models.models.pushbroom import PushbroomModel
 from sensor_models.readers import open_model
-from sensor_models.rpc import _terms
-from sensor_models.rpc_fit import denominator_lower_bound, fit_rpc, fit_rpc_tiles
+from sensor_models.models.rpc import _terms
+from sensor_models.models.rpc_fit import denominator_lower_bound, fit_rpc, fit_rpc_tiles
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
@@ -177,7 +177,7 @@ def test_real_product_rpc_tiles_reach_a_hundredth_of_a_pixel(shared_data, name):
         assert tile.report["denominator_lower_bound"] > 0.0
     worst = max(range(len(tiles)), key=lambda k: tiles[k].report["check_max_px"])
     tile = tiles[worst]
-    from sensor_models.rpc_fit import _Window
+    from sensor_models.models.rpc_fit import _Window
 
     window = _Window(view, tile.first_row, tile.first_col, tile.rpc.image_shape)
     assert _max_error_px(window, tile.rpc, 1000, seed=worst) <= 0.015
@@ -185,7 +185,7 @@ def test_real_product_rpc_tiles_reach_a_hundredth_of_a_pixel(shared_data, name):
 
 def test_cli_writes_the_polynomial_form_only_when_asked_and_warns_when_one_rpc_misses(tmp_path, capsys):
     from calibrate.cli import main
-    from sensor_models.rpc import RpcModel
+    from sensor_models.models.rpc import RpcModel
 
     forms = {}
     for form in ("rational", "polynomial"):

@@ -26,7 +26,7 @@ from scipy.ndimage import gaussian_filter
 
 from calibrate.cli import main
 from sensor_models.readers import open_model, open_scene
-from sensor_models.rpc import RpcModel
+from sensor_models.models.rpc import RpcModel
 
 pytestmark = pytest.mark.filterwarnings("ignore", category=NotGeoreferencedWarning)
 

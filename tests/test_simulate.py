@@ -17,7 +17,7 @@ from sensor_models.simulate.config import SimConfig, config_from_dict, load_conf
 from sensor_models.simulate.pushbroom_sim import footprint_lonlat, simulate_pushbroom
 from sensor_models.simulate.scene import build_models
 from sensor_models.simulate.truth import truth_error
-from sensor_models.terrain import Dem
+from sensor_models.terrain.dem import Dem
 
 
 def small_config(**radiometry) -> SimConfig:
@@ -149,7 +149,7 @@ def test_truth_error_of_true_model_is_zero_and_brackets_a_known_shift():
     same = truth_error(models.true_model, models.true_model, step_px=24)
     assert same["max_px"] < 1e-6
     # a pure roll of one IFOV moves every pixel by about one column
-    from sensor_models.pushbroom_types import Installation
+    from sensor_models.models.pushbroom_types import Installation
 
     t = models.true_model
     inst = t.installation

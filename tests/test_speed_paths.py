@@ -1,6 +1,6 @@
 """The fast paths of the matcher against the slow ones they replace, with accuracy bounds.
 
-* The adaptive DEM intersection (:mod:`sensor_models.dem_intersect`: coarse-grid start, one
+* The adaptive DEM intersection (:mod:`sensor_models.terrain.intersect`: coarse-grid start, one
   chord step everywhere, Newton steps only where the convergence mask says so) against the fixed
   four-step solver, on the embedded fixture (``fixtures/hy1c_czi``, heights 0..1500 m).
 """
@@ -12,12 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensor_models.dem_intersect import _intersect_dem
-from sensor_models.locate import HEIGHT_TOLERANCE_M, MapGrid, MapProjector, _pixel_layers, dem_planes, locate_block
-from sensor_models.dem_intersect import intersect_dem_adaptive
-from sensor_models.raster import MapImage
+from sensor_models.terrain.intersect import _intersect_dem
+from sensor_models.imaging.locate import HEIGHT_TOLERANCE_M, _pixel_layers, dem_planes, locate_block
+from sensor_models.maps.grid import MapGrid, MapProjector
+from sensor_models.terrain.intersect import intersect_dem_adaptive
+from sensor_models.maps.raster import MapImage
 from sensor_models.readers import open_model
-from sensor_models.terrain import Dem
+from sensor_models.terrain.dem import Dem
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
 BAND = "B2"
@@ -164,7 +165,7 @@ def test_chip_settings_agree_with_the_per_pixel_path_on_steep_oblique_relief(ste
     """
     from gcpmatch.reference import NODE_STEP_COLS, POSITION_TOLERANCE_DOM_PX
 
-    import sensor_models.locate as locate
+    import sensor_models.imaging.locate as locate
 
     model, dem, grid = steep_scene
     chips = {"tolerance_m": HEIGHT_TOLERANCE_M, "position_tolerance_m": POSITION_TOLERANCE_DOM_PX * 15.0,
@@ -192,7 +193,7 @@ def test_height_tolerance_for_position_follows_the_view_angle(layers, scene):
     vertical ray gets no height bound; a position tolerance of zero, or one without the
     adaptive solver, is refused."""
     from sensor_models.errors import InputError
-    from sensor_models.locate import height_tolerance_for_position
+    from sensor_models.imaging.locate import height_tolerance_for_position
 
     _, dem, _ = scene
     lay, _ = layers
@@ -212,7 +213,7 @@ def test_blocked_row_interpolation_equals_the_catmull_rom_matrix():
     """The small per-interval products give the dense Catmull-Rom matrix product to float32
     rounding, for node steps that divide the block or not, and for rows wider than one product
     (columns split into chunks)."""
-    from sensor_models.locate import _catmull_rom_taps, _interp_rows_blocked, catmull_rom_matrix
+    from sensor_models.imaging.locate import _catmull_rom_taps, _interp_rows_blocked, catmull_rom_matrix
 
     rng = np.random.default_rng(4)
     for n_out, step, n_cols in ((512, 16.0, 300), (100, 7.0, 5000), (1, 16.0, 3)):
@@ -369,8 +370,8 @@ def _chip_nodes(scene, ccd=1, rows=(0, 160)):
 def test_chip_sampling_without_weight_division_stays_within_a_thousandth_of_a_dn(scene):
     """The matcher's path (no normalized convolution on a window without no-data, one file
     handle per thread) against the exact path on the fixture's DOM (DN about 200-3000)."""
-    from sensor_models.psf import psf_sigma_dom_px
-    from sensor_models.raster import sample_map_image
+    from sensor_models.imaging.psf import psf_sigma_dom_px
+    from sensor_models.maps.raster import sample_map_image
 
     _, _, dom = scene
     u, v = _chip_nodes(scene)
@@ -389,7 +390,7 @@ def test_chip_sampling_without_weight_division_stays_within_a_thousandth_of_a_dn
 def test_chip_sampling_keeps_the_no_data_rule_when_the_window_has_holes(scene):
     """A DOM with a no-data hole: the fast path falls back to the normalized convolution, so
     the NaN footprint and the values equal the exact path's bit for bit."""
-    from sensor_models.raster import sample_map_image
+    from sensor_models.maps.raster import sample_map_image
 
     _, _, dom = scene
     values = dom.read(0, dom.grid.shape[0], 0, dom.grid.shape[1])

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from calibrate.config import StarOptions
-from calibrate.stars import _smooth_track, process_frames, radec_errors_px, read_frame_list
+from calibrate.star_calibration import _smooth_track, process_frames, radec_errors_px, read_frame_list
 from sensor_models.errors import InputError
 from sensor_models.readers.geo_manifest import read_geo_manifest
-from sensor_models.simulate.geo_stars import GeoStarsConfig, simulate_geo_stars
+from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
 
 #: a star of the default field (Orion-Gemini Milky Way, 2023-08-02 14:40 UTC from 105 E)
 ONE_STAR = 30886
@@ -37,10 +37,10 @@ def test_simulation_matches_seed000_initial_errors(sequence):
     assert 20.0 < np.abs(truth["installation_error_arcsec"]).max() < 150.0
     truth_model = read_geo_manifest(out / "truth_manifest.json")
     # the error formula (eq. 18-19) is zero for the true model at the rendered positions
-    from calibrate.stars import _resolve_catalog
+    from calibrate.star_calibration import _resolve_catalog
 
     cat = _resolve_catalog("hipparcos", 10.0)
-    from sensor_models.stars import catalog_stars_in_frame
+    from sensor_models.geometry.star_catalogue import catalog_stars_in_frame
 
     m5 = truth_model.at_frame(truth["stars"][5]["seconds"])
     idx, vec, row, col = catalog_stars_in_frame(m5, cat, cat.unit_vectors(), 0.0)

@@ -7,10 +7,10 @@ import pytest
 
 from calibrate.config import StarOptions
 from calibrate.star_pooling import StarSession, calibrate_pooled
-from calibrate.stars import load_frame, process_frames, read_frame_list
+from calibrate.star_calibration import load_frame, process_frames, read_frame_list
 from sensor_models.errors import InputError
 from sensor_models.readers.geo_manifest import read_geo_manifest
-from sensor_models.simulate.geo_stars import GeoStarsConfig, simulate_geo_stars
+from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
 
 OPTIONS = StarOptions(mag_limit=10.5, compare_joint=False)
 ARCSEC_PX = 1.0 / 4.125  # seed 000 camera: 25 um / 1250 mm = 20 urad = 4.125 arcsec per pixel

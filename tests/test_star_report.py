@@ -1,4 +1,4 @@
-"""Star-track calibration report (calibrate.report.stars): figures, numbers, atomic output."""
+"""Star-track calibration report (calibrate.report.star_report): figures, numbers, atomic output."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import re
 import numpy as np
 import pytest
 
-from calibrate.report.stars import SEED_000, held_out_errors, write_star_report
+from calibrate.report.star_report import SEED_000, held_out_errors, write_star_report
 from sensor_models.errors import InputError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -18,9 +18,9 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """A short simulated sequence calibrated with the figure 8 study (about 3 s)."""
-    from calibrate.stars import process_frames, read_frame_list
+    from calibrate.star_calibration import process_frames, read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
-    from sensor_models.simulate.geo_stars import simulate_geo_stars
+    from sensor_models.simulate.star_sky import simulate_geo_stars
 
     sim = tmp_path_factory.mktemp("star_report") / "sim"
     simulate_geo_stars(sim, n_frames=40, seed=0)
@@ -151,7 +151,7 @@ def test_failure_while_drawing_keeps_previous_report(run, tmp_path):
 
 def test_cli_writes_the_report(tmp_path):
     from calibrate.cli import main
-    from sensor_models.simulate.geo_stars import simulate_geo_stars
+    from sensor_models.simulate.star_sky import simulate_geo_stars
 
     simulate_geo_stars(tmp_path / "sim", n_frames=30, seed=1)
     assert main(["stars", str(tmp_path / "sim"), "--out", str(tmp_path / "cal")]) == 0
@@ -204,7 +204,7 @@ def _sky_frames(sim, out, *, fmt, hot_pixels=300, seed=0):
 
 @pytest.fixture(scope="module")
 def sim20(tmp_path_factory):
-    from sensor_models.simulate.geo_stars import simulate_geo_stars
+    from sensor_models.simulate.star_sky import simulate_geo_stars
 
     sim = tmp_path_factory.mktemp("sim20") / "sim"
     simulate_geo_stars(sim, n_frames=20, seed=0)
@@ -235,7 +235,7 @@ def test_starless_frames_say_so_instead_of_counting_detections(sim20, tmp_path):
 
 def test_starless_fits_frames_say_so(sim20, tmp_path):
     """The same with FITS frames written by astropy, through the library (process_frames)."""
-    from calibrate.stars import process_frames, read_frame_list
+    from calibrate.star_calibration import process_frames, read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
 
     sky = _sky_frames(sim20, tmp_path / "sky", fmt="fits", seed=1)

@@ -1,4 +1,4 @@
-"""Star detection, centroids and identification (gcpmatch.stars).
+"""Star detection, centroids and identification (gcpmatch.star_tracks).
 
 Real data (``../shared/data/stars``): ``image.fits`` with its SExtractor catalogue
 ``image.cat`` (the sep project's test image), and ``tetra3_Alt60_Azi45.tiff`` (tetra3's test
@@ -15,7 +15,7 @@ import scipy.ndimage as ndi
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from gcpmatch.stars import (
+from gcpmatch.star_tracks import (
     CENTROID_METHODS,
     FLAG_EDGE,
     FLAG_SATURATED,
@@ -31,10 +31,10 @@ from gcpmatch.stars import (
     read_sextractor_catalog,
     rowcol_to_fits,
 )
-from gcpmatch.stars import identify
+from gcpmatch.star_tracks import identify
 from sensor_models.errors import InputError
-from sensor_models.psf import render_stars
-from sensor_models.stars import StarCatalog, apparent_directions, radec_to_unit
+from sensor_models.imaging.psf import render_stars
+from sensor_models.geometry.star_catalogue import StarCatalog, apparent_directions, radec_to_unit
 
 SIGMA_PX = 1.2
 BACKGROUND = 100.0

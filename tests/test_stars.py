@@ -1,4 +1,4 @@
-"""Star catalogue and apparent directions (sensor_models.stars).
+"""Star catalogue and apparent directions (sensor_models.geometry.star_catalogue).
 
 Independent reference: astropy (test-only dependency). ``SkyCoord.apply_space_motion`` then
 ``transform_to(GCRS(obstime, obsgeoloc, obsgeovel))`` gives the proper direction seen by an
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sensor_models.errors import InputError, OutOfRangeError
-from sensor_models.stars import (
+from sensor_models.geometry.star_catalogue import (
     AU_M,
     StarCatalog,
     apparent_directions,
@@ -186,7 +186,7 @@ def test_light_deflection_follows_the_elongation_law():
     cat = StarCatalog.load(mag_limit=4.0)
     with_ld = apparent_directions(cat, EPOCH, aberration=False)
     without = apparent_directions(cat, EPOCH, aberration=False, light_deflection=False)
-    from sensor_models.timescales import tt_jd
+    from sensor_models.geometry.timescales import tt_jd
 
     tt1, tt2 = tt_jd(EPOCH, 0.0)
     pvh, _ = erfa.epv00(float(tt1), float(tt2))

@@ -21,7 +21,7 @@ from sensor_models.base import CalibrationStatus
 from sensor_models.errors import DemError, InputError
 from sensor_models.readers import open_model
 from sensor_models.readers.manifest import write_manifest
-from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
+from sensor_models.terrain.dem import Dem, check_dem_footprint, footprint_sample_lonlat
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "fixtures" / "hy1c_czi"
@@ -319,7 +319,7 @@ def test_simulate_pushbroom_reports_small_voids(tmp_path, capsys):
 # --------------------------------------------------------------------------- star frames of the camera
 @pytest.fixture(scope="module")
 def star_sequences(tmp_path_factory):
-    from sensor_models.simulate.geo_stars import GeoStarsConfig, simulate_geo_stars
+    from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
 
     root = tmp_path_factory.mktemp("stars")
     cfg = GeoStarsConfig(n_frames=3, mag_limit=6.0)
@@ -346,7 +346,7 @@ def test_run_refuses_star_frames_of_another_camera(star_sequences, tmp_path, cap
 
 def test_frames_of_the_same_size_but_another_pixel_angle_are_refused(star_sequences):
     from calibrate.actions.stars import read_star_inputs
-    from calibrate.stars import check_frames_camera
+    from calibrate.star_calibration import check_frames_camera
 
     frames, _, _, lab = read_star_inputs(star_sequences / "small")
     other = SimpleNamespace(image_shape=lab.image_shape, ifov_rad=lab.ifov_rad * 1.5)
@@ -358,16 +358,16 @@ def test_frames_of_the_same_size_but_another_pixel_angle_are_refused(star_sequen
 
 @pytest.mark.parametrize("success", [True, False])
 def test_stars_writes_its_status_into_the_manifest(star_sequences, tmp_path, monkeypatch, success):
-    import calibrate.report.stars
-    import calibrate.stars
+    import calibrate.report.star_report
+    import calibrate.star_calibration
     from calibrate.actions.stars import stars_sequence
 
     def fake_process_frames(frames, seconds, lab, **_):  # the estimation itself is tested elsewhere
         doc = {"success": success, "message": "ok" if success else "3 tracks", "timings": {}}
         return SimpleNamespace(success=success, message=doc["message"], model=lab, to_dict=lambda points: dict(doc))
 
-    monkeypatch.setattr(calibrate.stars, "process_frames", fake_process_frames)
-    monkeypatch.setattr(calibrate.report.stars, "write_star_report", lambda *a, **k: None)
+    monkeypatch.setattr(calibrate.star_calibration, "process_frames", fake_process_frames)
+    monkeypatch.setattr(calibrate.report.star_report, "write_star_report", lambda *a, **k: None)
     doc = stars_sequence(star_sequences / "small", tmp_path / "out")
     want = "calibrated" if success else "failed"
     assert doc["calibration_status"] == want

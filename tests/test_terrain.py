@@ -1,4 +1,4 @@
-"""Tests of sensor_models.terrain: geoid, DEM access, ray/ellipsoid and ray/DEM intersection.
+"""Tests of sensor_models.terrain.dem: geoid, DEM access, ray/ellipsoid and ray/DEM intersection.
 
 The ray/DEM tests compare the first crossing found by :meth:`Dem.intersect` with an
 independent brute-force march (steps of 1/100 node spacing, exact geodetic conversions,
@@ -14,8 +14,8 @@ import pytest
 from affine import Affine
 
 from sensor_models.errors import DemError, GeoidGridMissingError, InputError
-from sensor_models.geodesy import ecef_to_geodetic, enu_basis, geodetic_to_ecef
-from sensor_models.terrain import Dem, Geoid, intersect_ellipsoid
+from sensor_models.geometry.geodesy import ecef_to_geodetic, enu_basis, geodetic_to_ecef
+from sensor_models.terrain.dem import Dem, Geoid, intersect_ellipsoid
 
 ALTITUDE_M = 700e3
 
@@ -29,7 +29,7 @@ ALTITUDE_M = 700e3
 @pytest.fixture(autouse=True)
 def _no_installed_geoid(monkeypatch):
     """These tests say what happens without a geoid: hide any EGM96 grid installed in PROJ's folders."""
-    import sensor_models.terrain as terrain
+    import sensor_models.terrain.dem as terrain
 
     monkeypatch.setattr(terrain, "proj_data_dirs", lambda: [])
 

@@ -25,8 +25,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sensor_models.errors import InputError, ManifestError
-from sensor_models.geodesy import geodetic_to_ecef
-from sensor_models.pushbroom_types import LineTiming
+from sensor_models.geometry.geodesy import geodetic_to_ecef
+from sensor_models.models.pushbroom_types import LineTiming
 from sensor_models.readers.worldview import (
     dg_to_pixel,
     is_worldview,

@@ -32,7 +32,7 @@ from calibrate.actions._guard import (check_file_target, check_folder_target, cu
                                       is_stdout)
 from calibrate.actions._ledger import LEDGER_NAME
 from calibrate.actions._staging import clean_stale, fault_point, make_stage_dir, make_temp_file
-from sensor_models.atomic import atomic_write_text
+from sensor_models.files.atomic import atomic_write_text
 from sensor_models.errors import InputError
 
 __all__ = ["OUTPUT_MARKER", "check_output_files", "check_output_folder", "final_paths", "open_dem", "staged_files",
@@ -78,12 +78,12 @@ def open_dem(dem_path, datum=None, geoid=None, *, model=None, band=None):
     ----------
     dem_path : str, Path or sequence of them
         DEM raster (any CRS rasterio reads), or tiles: a list, a comma list, a folder, a glob
-        or a ``.vrt`` (mosaicked through a GDAL VRT, :mod:`sensor_models.mosaic`).
+        or a ``.vrt`` (mosaicked through a GDAL VRT, :mod:`sensor_models.maps.mosaic`).
     datum : {"ellipsoid", "egm96"} or None
         Vertical datum of the heights when the file does not declare it.
     geoid : str or Path or None
         Geoid grid for EGM96 heights (default: the EGM96 grid in PROJ's data directories,
-        :func:`sensor_models.terrain.find_egm96_grid`).
+        :func:`sensor_models.terrain.dem.find_egm96_grid`).
     model : SensorModel, optional
         The scene's model. With several tiles (or a ``.vrt``), only the part of the mosaic
         under the scene's footprint (localized from -500 to 9000 m, plus half its size, at
@@ -95,10 +95,10 @@ def open_dem(dem_path, datum=None, geoid=None, *, model=None, band=None):
 
     Returns
     -------
-    sensor_models.terrain.Dem
+    sensor_models.terrain.dem.Dem
     """
-    from sensor_models.mosaic import raster_inputs
-    from sensor_models.terrain import Dem
+    from sensor_models.maps.mosaic import raster_inputs
+    from sensor_models.terrain.dem import Dem
 
     bounds, margin = None, 0.0
     if model is not None:
@@ -117,7 +117,7 @@ def _footprint_box(model, band):
     """``(lon_min, lat_min, lon_max, lat_max), margin_deg`` around a model's footprint, or ``(None, 0)``."""
     import numpy as np
 
-    from sensor_models.terrain import footprint_sample_lonlat
+    from sensor_models.terrain.dem import footprint_sample_lonlat
 
     lon, lat = zip(*(footprint_sample_lonlat(model, h, n_side=9, band=band) for h in _FOOTPRINT_HEIGHTS_M))
     lon, lat = np.concatenate(lon), np.concatenate(lat)

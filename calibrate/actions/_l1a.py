@@ -14,13 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_models.atomic import temporary_beside
+from sensor_models.files.atomic import temporary_beside
 from sensor_models.errors import InputError
 
 __all__ = ["FIT_TAGS", "scene_raster", "write_l1a_with_rpc"]
 
 #: Dataset metadata items (default domain) of the L1A GeoTIFF, from the fit report of
-#: :func:`sensor_models.rpc_fit.fit_rpc`: item -> report key (pixels).
+#: :func:`sensor_models.models.rpc_fit.fit_rpc`: item -> report key (pixels).
 FIT_TAGS = {
     "GCPCAL_RPC_CHECK_MAX_PX": "check_max_px",
     "GCPCAL_RPC_CHECK_RMS_PX": "check_rms_px",
@@ -83,7 +83,7 @@ def write_l1a_with_rpc(raster, index: int, out_path, rpc, *, image_shape, first_
         Its band to copy (1-based).
     out_path : str or Path
         Destination GeoTIFF; written beside, checked (GDAL reads the RPC back) and renamed.
-    rpc : sensor_models.rpc.RpcModel
+    rpc : sensor_models.models.rpc.RpcModel
         The RPC of the copied pixels: its ``image_shape`` is the output's shape.
     image_shape : (int, int)
         ``(n_rows, n_cols)`` of the whole scene the raster must have.
@@ -92,7 +92,7 @@ def write_l1a_with_rpc(raster, index: int, out_path, rpc, *, image_shape, first_
     first_row : int
         First scene row copied (a tile's); ``rpc.image_shape[0]`` rows follow.
     fit_report : dict, optional
-        Of :func:`sensor_models.rpc_fit.fit_rpc`: its errors go to the :data:`FIT_TAGS` items.
+        Of :func:`sensor_models.models.rpc_fit.fit_rpc`: its errors go to the :data:`FIT_TAGS` items.
     extra_tags : dict of str to str, optional
         More dataset metadata items.
 

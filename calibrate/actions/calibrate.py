@@ -81,7 +81,7 @@ def options_from_match_summary(options: CalibrationOptions, gcps_path) -> Calibr
         return options if options.reference_source else options.replace(reference_source="option")
     path = match_summary_path(gcps_path)
     from sensor_models.errors import InputError
-    from sensor_models.readers.documents import load_json
+    from sensor_models.files.documents import load_json
 
     try:
         acc = load_json(path).get("reference_accuracy")

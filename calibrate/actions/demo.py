@@ -77,8 +77,8 @@ def fixture_profile(fixture_dir) -> str:
 def _open_fixture(fixture_dir: Path) -> dict:
     """The LAB and TRUE models, the user's DEM and DOM, the TRUE DEM and the band order of the fixture."""
     from sensor_models.readers import open_model
-    from sensor_models.raster import MapImage
-    from sensor_models.terrain import Dem
+    from sensor_models.maps.raster import MapImage
+    from sensor_models.terrain.dem import Dem
 
     lab = open_model(fixture_dir / "manifest.json")
     reference_band = lab.reference_band
@@ -152,7 +152,7 @@ def _score(fx: dict, merged, model, ref_pts, step) -> dict:
     """Phase 3: accuracy on the check points, against the truth, and versus the number of GCPs."""
     from calibrate.accuracy import check_point_accuracy, error_versus_gcp_count
     from calibrate.from_gcps import points_of
-    from sensor_models.compare import model_difference
+    from sensor_models.models.compare import model_difference
 
     lab, truth, true_dem = fx["lab"], fx["truth"], fx["true_dem"]
     step("scoring on check points and against the true model")

@@ -22,7 +22,7 @@ from calibrate.actions._guard import InputSet, is_stdout
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
-from sensor_models.readers.documents import csv_error, read_text
+from sensor_models.files.documents import csv_error, read_text
 
 __all__ = ["GROUND_RANGES", "check_ground_points", "check_image_points", "csv_lines", "localize_points",
            "read_points_csv"]

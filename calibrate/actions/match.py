@@ -14,7 +14,7 @@ from calibrate.actions._status import record_product_check
 from calibrate.plausibility import check_dom_resolution, check_scene_raster
 from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
-from sensor_models.dom_inputs import dom_description, masked_fraction, open_dom, reference_accuracy
+from sensor_models.maps.dom_inputs import dom_description, masked_fraction, open_dom, reference_accuracy
 from sensor_models.errors import InputError
 
 __all__ = ["GCP_TABLE_SUFFIXES", "gcp_table_format", "match_scene", "residual_layer_path"]
@@ -72,9 +72,9 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     scene_path : str or Path
         SCENE in any form :func:`sensor_models.readers.open_scene` reads (manifest, model file
         with its raster, raster with an RPC).
-    dom_path : str, Path, sequence of them or sensor_models.dom_inputs.DomSource
+    dom_path : str, Path, sequence of them or sensor_models.maps.dom_inputs.DomSource
         Reference orthoimage (any CRS): a raster, tiles, a Landsat or Sentinel-2 band or product
-        folder with its band, QA and radiometry (:func:`sensor_models.dom_inputs.open_dom`).
+        folder with its band, QA and radiometry (:func:`sensor_models.maps.dom_inputs.open_dom`).
     dem_path : str, Path or sequence of them
         DEM (any CRS), or tiles (:func:`calibrate.actions._io.open_dem`).
     out_path : str or Path
@@ -201,7 +201,7 @@ def _check_geotiff_capacity(model, band, options: MatchOptions, geotiff_path) ->
 
 def _dom_summary(dom, dom_found, model, band, dem) -> dict:
     """What the DOM was resolved to, and the share of it under the footprint that its QA masks."""
-    from sensor_models.terrain import footprint_sample_lonlat
+    from sensor_models.terrain.dem import footprint_sample_lonlat
 
     fields = dom_description(dom_found)
     share = None

@@ -21,7 +21,7 @@ import numpy as np
 
 from calibrate.actions._io import check_output_folder, staged_folder
 from sensor_models.errors import InputError
-from sensor_models.readers.documents import csv_error, read_text
+from sensor_models.files.documents import csv_error, read_text
 
 __all__ = ["FRAME_COLUMNS", "MARK_COLUMNS", "marks_from_frames", "oalr_from_csv", "read_marks_csv"]
 
@@ -31,7 +31,7 @@ FRAME_COLUMNS = ("time", "ccd1_frame", "ccd2_frame")
 
 @contextmanager
 def _csv_file(path: Path):
-    """The CSV decoded strictly (:func:`~sensor_models.readers.documents.read_text`) as a text
+    """The CSV decoded strictly (:func:`~sensor_models.files.documents.read_text`) as a text
     stream; a ``csv.Error`` inside the block (bad quoting, an over-long field) becomes an
     InputError naming the file and the line."""
     fh = io.StringIO(read_text(path), newline="")
@@ -223,7 +223,7 @@ def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0
     from calibrate._json import json_safe
     from calibrate.schemes.autocollimation import (ARCSEC, DEFAULT_PIXEL_UM, OalrGeometry, changes_from_displacements,
                                            reproduce_table3)
-    from sensor_models.atomic import atomic_write_text
+    from sensor_models.files.atomic import atomic_write_text
 
     path = Path(path)
     check_output_folder(out_dir, inputs=[path])  # before any work

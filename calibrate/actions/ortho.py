@@ -2,7 +2,7 @@
 
 :func:`ortho_scene` reads the inputs, takes the geometry from the calibrated model
 (``calibration``) and the pixels from the scene's rasters, and calls
-:func:`sensor_models.ortho.orthorectify_to_file`; it writes ``OUT`` and ``OUT.summary.json``
+:func:`sensor_models.imaging.ortho.orthorectify_to_file`; it writes ``OUT`` and ``OUT.summary.json``
 (``OUT`` with the suffix ``.summary.json``).
 """
 
@@ -56,7 +56,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     dict
         The summary written to ``OUT.summary.json``.
     """
-    from sensor_models.ortho import orthorectify_to_file
+    from sensor_models.imaging.ortho import orthorectify_to_file
 
     t0 = time.perf_counter()
     out_path = Path(out_path)
@@ -149,7 +149,7 @@ def _dem_under_scene(geometry, dem, band) -> dict:
 
     Part of an ortho outside the DEM is no-data, which the summary's valid share shows: no warning.
     """
-    from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
+    from sensor_models.terrain.dem import check_dem_footprint, footprint_sample_lonlat
 
     kwargs = {} if band is None or getattr(geometry, "bands", None) is None else {"band": band}
     lon, lat = footprint_sample_lonlat(geometry, float(np.mean(dem.height_range_m)), **kwargs)
@@ -159,9 +159,9 @@ def _dem_under_scene(geometry, dem, band) -> dict:
 
 def _open_dem(dem_path, dem_datum, geoid, geometry, band):
     """``(Dem, DemWindows or None)``: tiles are read under the scene only (:func:`open_dem`); one large
-    file is read by windows per output block (:func:`sensor_models.ortho_dem.open_ortho_dem`)."""
-    from sensor_models.mosaic import raster_inputs
-    from sensor_models.ortho_dem import open_ortho_dem
+    file is read by windows per output block (:func:`sensor_models.terrain.dem_windows.open_ortho_dem`)."""
+    from sensor_models.maps.mosaic import raster_inputs
+    from sensor_models.terrain.dem_windows import open_ortho_dem
 
     files = raster_inputs(dem_path, what="DEM")
     if len(files) > 1 or files[0].lower().endswith(".vrt"):

@@ -89,7 +89,7 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
         Missing or malformed files, unknown band, a calibration of another scene.
     """
     from calibrate.relative import relative_calibration
-    from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
+    from sensor_models.terrain.dem import check_dem_footprint, footprint_sample_lonlat
 
     from calibrate.actions._status import calibration_input, open_usable_calibration
 
@@ -177,7 +177,7 @@ def _reference_gcps(gcps_path, cal_path: Path, model):
 
     if gcps_path is None:
         doc_path = Path(cal_path).parent / "calibration.json"
-        from sensor_models.readers.documents import load_json
+        from sensor_models.files.documents import load_json
 
         try:
             named = load_json(doc_path).get("gcp_file") if doc_path.is_file() else None

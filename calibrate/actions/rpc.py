@@ -13,7 +13,7 @@ What ``--out PATH`` gets (docs/calibration_outputs.md, "RPC output"):
   smooth image: the stitched raster jumps where CCDs meet, so each CCD gets its own RPCs; and
   where one RPC cannot follow the model within ``max_error_px`` on its check grid (attitude or
   orbit varying faster than a cubic over the scene, look directions beyond a cubic), the CCD's
-  image is split into tiles, each with its own RPC (:func:`sensor_models.rpc_fit.fit_rpc_tiles`).
+  image is split into tiles, each with its own RPC (:func:`sensor_models.models.rpc_fit.fit_rpc_tiles`).
   Per RPC: ``<ccd>_RPC.TXT`` (one tile) or ``<ccd>_r<row>_c<col>_RPC.TXT`` (tiles; row and
   column of the tile's first pixel in the CCD's image) and, when the scene's raster is known
   (manifest ``rasters`` or ``--image``), the same name with ``.tif`` (those pixels with that
@@ -35,7 +35,7 @@ from calibrate.actions._io import (check_output_files, check_output_folder, open
 from calibrate.actions._l1a import scene_raster, write_l1a_with_rpc
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
-from sensor_models.terrain import check_dem_footprint, footprint_sample_lonlat
+from sensor_models.terrain.dem import check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["DEFAULT_HEIGHT_RANGE_M", "DEFAULT_MAX_ERROR_PX", "RpcOutputUsageError", "fit_rpcs", "out_is_folder"]
 
@@ -214,7 +214,7 @@ def _fit_kwargs(ccd_name, context) -> dict:
 
 def _fit_tiles(target, tmp: Path, out: Path, model, context) -> list[dict]:
     """Fit the RPC tiles of one CCD (or image) and write them into the staged folder."""
-    from sensor_models.rpc_fit import fit_rpc_tiles
+    from sensor_models.models.rpc_fit import fit_rpc_tiles
 
     view, ccd_name, first_col = target
     tiles = fit_rpc_tiles(view, max_error_px=context["max_error_px"], min_tile_px=MIN_TILE_PX,
@@ -233,7 +233,7 @@ def _fit_tiles(target, tmp: Path, out: Path, model, context) -> list[dict]:
 
 def _fit_one(target, outputs, context) -> dict:
     """Fit one RPC and write it to each ``(staged, final)`` path; its summary entry."""
-    from sensor_models.rpc_fit import fit_rpc
+    from sensor_models.models.rpc_fit import fit_rpc
 
     view, ccd_name, first_col = target
     fitted, report = fit_rpc(view, **_fit_kwargs(ccd_name, context))

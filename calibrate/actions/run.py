@@ -106,7 +106,7 @@ def _decide(model, gcp_file, match, failure, min_gcps, min_coverage):
 
 def _mark_failed(model_file: Path, message: str) -> None:
     """Record a failed status in a manifest a failed step left (so no command uses it)."""
-    from sensor_models.atomic import atomic_write_text
+    from sensor_models.files.atomic import atomic_write_text
 
     doc = json.loads(model_file.read_text(encoding="utf-8"))
     doc["calibration"] = {"status": "failed", "message": message, "uncalibrated": [], "unverified": []}
@@ -154,7 +154,7 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
         Scene manifest.
     dom_path, dem_path : str or Path
         Reference orthoimage and DEM; also tiles, products and a
-        :class:`sensor_models.dom_inputs.DomSource` (:func:`calibrate.actions.match.match_scene`).
+        :class:`sensor_models.maps.dom_inputs.DomSource` (:func:`calibrate.actions.match.match_scene`).
     out_dir : str or Path
         Output folder: ``gcps.csv``, ``calibration/`` or ``stars/``, ``run.summary.json``.
     star_frames : str or Path, optional
@@ -181,7 +181,7 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
         The summary written to ``run.summary.json`` (``path``, ``reason``, ``success``,
         ``product_check``, ...).
     """
-    from sensor_models.atomic import atomic_write_text
+    from sensor_models.files.atomic import atomic_write_text
     from sensor_models.readers import open_scene
 
     t0 = time.perf_counter()

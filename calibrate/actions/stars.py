@@ -1,12 +1,12 @@
 """Stage action of ``gcpcal stars`` (and the star path of ``gcpcal run``): star-track calibration.
 
-``frames_path`` is a frame list (``frames.json``, format in :func:`calibrate.stars.read_frame_list`)
+``frames_path`` is a frame list (``frames.json``, format in :func:`calibrate.star_calibration.read_frame_list`)
 or the folder holding it; the frame times come from it and the model from the manifest it names
 (``manifest`` overrides). Writes ``OUT/stars.json`` (tracks, calibration, accuracy, track
 points), ``OUT/manifest.json`` (the calibrated model of frame 0, its ``calibration`` status
 ``calibrated``; a failed estimation's model is kept with status ``failed``, which every command
 refuses) and ``OUT/report.html`` with ``OUT/figures/*.png``
-(:func:`calibrate.report.stars.write_star_report`). Frames of another camera than the manifest's
+(:func:`calibrate.report.star_report.write_star_report`). Frames of another camera than the manifest's
 are refused before any work (:func:`read_star_inputs`).
 """
 
@@ -52,9 +52,9 @@ def read_star_inputs(frames_path, manifest=None, *, scene_model=None, scene_sour
     ------
     InputError
         A malformed list, no manifest, or frames whose image size or pixel angle differ from
-        the camera's (:func:`calibrate.stars.check_frames_camera`).
+        the camera's (:func:`calibrate.star_calibration.check_frames_camera`).
     """
-    from calibrate.stars import check_frames_camera, read_frame_list
+    from calibrate.star_calibration import check_frames_camera, read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
 
     frames, seconds, listed = read_frame_list(frames_path)
@@ -92,8 +92,8 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, options: StarOptions 
     dict
         The document written to ``stars.json`` (``success``, ``message``, ``accuracy``, ...).
     """
-    from calibrate.stars import process_frames
-    from sensor_models.atomic import atomic_write_text
+    from calibrate.star_calibration import process_frames
+    from sensor_models.files.atomic import atomic_write_text
     from sensor_models.base import CalibrationStatus
     from sensor_models.readers.geo_manifest import write_geo_manifest
 
@@ -115,7 +115,7 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, options: StarOptions 
     doc["calibration_status"] = "calibrated" if result.success else "failed"
     doc["timings"]["command_s"] = time.perf_counter() - t0
     atomic_write_text(out_dir / "stars.json", json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    from calibrate.report.stars import write_star_report
+    from calibrate.report.star_report import write_star_report
 
     write_star_report(out_dir, doc, result=result)
     return doc

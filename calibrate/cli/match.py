@@ -10,7 +10,7 @@ from gcpmatch.options import SIGMA_MODELS
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options,
                                    dom_options, echo_json, echo_warnings, json_option)
-from sensor_models.dom_inputs import ASSUMED_REFERENCE_SIGMA_M
+from sensor_models.maps.dom_inputs import ASSUMED_REFERENCE_SIGMA_M
 from sensor_models.errors import InputError
 
 __all__ = ["command"]

@@ -89,7 +89,7 @@ def one_height_source(**given) -> str | None:
 
 
 def _dom_option_list():
-    from sensor_models.reference_qa import QA_LAYOUTS
+    from sensor_models.maps.reference_qa import QA_LAYOUTS
 
     return [
         click.option("--dom", "dom_items", multiple=True, required=True, type=click.Path(),
@@ -113,7 +113,7 @@ def dom_options(func):
 
     Adds ``--dom`` (repeatable), ``--dom-band``, ``--dom-qa`` (repeatable), ``--dom-qa-layout``,
     ``--no-dom-qa``, ``--dom-scale`` and ``--dom-offset``; the command receives them as one
-    :class:`sensor_models.dom_inputs.DomSource` in its ``dom_path`` argument.
+    :class:`sensor_models.maps.dom_inputs.DomSource` in its ``dom_path`` argument.
 
     Parameters
     ----------
@@ -125,7 +125,7 @@ def dom_options(func):
     callable
         The callback with the options attached.
     """
-    from sensor_models.dom_inputs import DomSource
+    from sensor_models.maps.dom_inputs import DomSource
 
     @functools.wraps(func)
     def wrapper(*args, dom_items, dom_band, dom_qa, dom_qa_layout, no_dom_qa, dom_scale, dom_offset, **kwargs):

@@ -2,11 +2,11 @@
 
 Each session is one 20-minute sequence (seed 000: a specific time on consecutive days; 1024 x
 1024 frames of the 1250 mm / 25 um camera every 10 s) rendered by
-:func:`sensor_models.simulate.geo_stars.simulate_geo_stars` under the stars profile (``ideal``:
+:func:`sensor_models.simulate.star_sky.simulate_geo_stars` under the stars profile (``ideal``:
 the default sequence; ``realistic``/``paper-000``: 1 arcsec attitude noise, an unmeasured 2 arcsec wobble
 over 20 min, Hipparcos-level catalogue errors, pixel-phase and PRNU centroid systematics, orbit
 error: :mod:`sensor_models.simulate.star_truth`), then processed by
-:func:`calibrate.stars.process_frames` (detection, identification, tracks, stepwise calibration,
+:func:`calibrate.star_calibration.process_frames` (detection, identification, tracks, stepwise calibration,
 five held-out points per track). Accuracy is seed 000's: mean absolute RA/DE error of the
 held-out points (table 3) and the 2-sigma bound of their normal fit (table 4), pixels.
 
@@ -78,9 +78,9 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
         (a :class:`calibrate.star_pooling.StarSession`, for pooling; not JSON).
     """
     from calibrate.star_pooling import StarSession
-    from calibrate.stars import load_frame, process_frames, read_frame_list
+    from calibrate.star_calibration import load_frame, process_frames, read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
-    from sensor_models.simulate.geo_stars import GeoStarsConfig, simulate_geo_stars
+    from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
 
     epoch = str(np.datetime64("2023-08-02T14:40:00") + np.timedelta64(int(day), "D"))
     inst = tuple(float(x) for x in installation_error_arcsec)
@@ -186,8 +186,8 @@ class _Sessions:
 
             if "forkserver" in multiprocessing.get_all_start_methods():  # no threads inherited, imports once
                 ctx = multiprocessing.get_context("forkserver")
-                ctx.set_forkserver_preload(["calibrate.experiments.simulate_seed000", "calibrate.stars",
-                                            "calibrate.star_pooling", "sensor_models.simulate.geo_stars"])
+                ctx.set_forkserver_preload(["calibrate.experiments.simulate_seed000", "calibrate.star_calibration",
+                                            "calibrate.star_pooling", "sensor_models.simulate.star_sky"])
             else:
                 ctx = multiprocessing.get_context("spawn")
             self.pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker)

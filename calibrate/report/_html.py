@@ -1,5 +1,5 @@
 """HTML and figure helpers shared by the calibration reports (:mod:`calibrate.report`,
-:mod:`calibrate.report.stars`): page style, escaping, number formatting, tables, Agg figures
+:mod:`calibrate.report.star_report`): page style, escaping, number formatting, tables, Agg figures
 embedded as PNG files, and the atomic move of a finished report into place.
 """
 

@@ -14,7 +14,7 @@ import numpy as np
 from calibrate.attitude import correction_band, jitter_spectrum
 from calibrate.report._html import escape as _e, figure_html as _figure_html, fmt as _fmt
 from calibrate.report._html import new_figure as _new_figure, save_figure as _save, table as _table
-from sensor_models.attitude_correction import AXES
+from sensor_models.models.attitude_correction import AXES
 
 __all__ = ["figure_attitude", "figure_parallax", "section_attitude", "section_parallax"]
 

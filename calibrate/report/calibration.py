@@ -132,7 +132,7 @@ def write_report(
         final model graded against ``truth_model``.
     truth_error : dict, optional
         ``{"after": model_difference(truth, final model), "before": model_difference(truth,
-        initial model)}`` (:func:`sensor_models.compare.model_difference`; ``before``
+        initial model)}`` (:func:`sensor_models.models.compare.model_difference`; ``before``
         optional): adds the TRUE-model section (:mod:`calibrate.report.truth`), with a figure of
         the error against the detector when ``truth_model`` is given.
 

@@ -2,7 +2,7 @@
 
 A simulated scene is rendered with a TRUE model and delivered with the LAB model an analyst
 would have (``fixtures/hy1c_czi``). :func:`section_truth` tabulates
-:func:`sensor_models.compare.model_difference` of the calibrated model (and of the LAB model)
+:func:`sensor_models.models.compare.model_difference` of the calibrated model (and of the LAB model)
 against the truth: the image-space error ``(row, col)_model - (row, col)_truth`` of a dense grid
 of every band and CCD localized by the truth on the DEM, as RMS and maximum in pixels, per band
 and CCD, per band and over everything (the numbers ``gcpcal demo`` writes to ``summary.json``:

@@ -3,7 +3,7 @@
 The optical-axis location recorder (OALR) images two cross marks through the camera's own light
 path on two small area CCDs (SMCCDs) placed at both ends of the linear CCD, a baseline ``L``
 apart along the camera's Y axis (across track). Frames follow
-:mod:`sensor_models.pushbroom_types`: X along track, Y across track (the linear array and the
+:mod:`sensor_models.models.pushbroom_types`: X along track, Y across track (the linear array and the
 baseline), Z along the boresight. Channel 1 sits at ``y = -L/2``, channel 2 at ``y = +L/2``.
 On an SMCCD, ``x`` is the column and ``y`` the row coordinate, in pixels, continuous, with the
 centre of the first pixel at 0.5 (the project's convention).

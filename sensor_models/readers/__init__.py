@@ -3,14 +3,14 @@
 ========================================  =========================================
 file                                      model
 ========================================  =========================================
-``*.json`` (gcpcal scene manifest)        :class:`~sensor_models.pushbroom.PushbroomModel` or
-                                          :class:`~sensor_models.geo_staring.GeoStaringModel`
-``*.DIM`` (SPOT 1-5 DIMAP level 1A)       :class:`~sensor_models.pushbroom.PushbroomModel`
-``*.geom`` (OSSIM keyword list, RPC)      :class:`~sensor_models.rpc.RpcModel`
-``*.RPB``, ``*_RPC.TXT``                  :class:`~sensor_models.rpc.RpcModel`
+``*.json`` (gcpcal scene manifest)        :class:`~sensor_models.models.pushbroom.PushbroomModel` or
+                                          :class:`~sensor_models.models.geo_staring.GeoStaringModel`
+``*.DIM`` (SPOT 1-5 DIMAP level 1A)       :class:`~sensor_models.models.pushbroom.PushbroomModel`
+``*.geom`` (OSSIM keyword list, RPC)      :class:`~sensor_models.models.rpc.RpcModel`
+``*.RPB``, ``*_RPC.TXT``                  :class:`~sensor_models.models.rpc.RpcModel`
 ``*.XML`` DIMAP v2 (``Dimap_Document``)   :func:`sensor_models.readers.dimap_v2.read_dimap_v2`
 ``*.XML`` WorldView (``isd``)             :func:`sensor_models.readers.worldview.read_worldview`
-a raster with RPC metadata (GeoTIFF...)   :class:`~sensor_models.rpc.RpcModel`
+a raster with RPC metadata (GeoTIFF...)   :class:`~sensor_models.models.rpc.RpcModel`
 ========================================  =========================================
 
 The vendor readers (``.DIM``, DIMAP v2 and WorldView ``.XML``) compare the model they build with

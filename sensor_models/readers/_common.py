@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_models.atomic import atomic_write_text
+from sensor_models.files.atomic import atomic_write_text
 from sensor_models.base import CALIBRATION_STATUSES, CalibrationStatus
-from sensor_models.ephemeris import ATTITUDE_FRAMES, ORBIT_FRAMES, Attitude, Orbit
+from sensor_models.geometry.ephemeris import ATTITUDE_FRAMES, ORBIT_FRAMES, Attitude, Orbit
 from sensor_models.errors import InputError, ManifestError
-from sensor_models.pushbroom_types import Installation
+from sensor_models.models.pushbroom_types import Installation
 from sensor_models.readers._strict import Fields
 
 FORMAT_VERSION = 1
@@ -46,9 +46,9 @@ def load_json(path: Path):
     ------
     ManifestError
         If the file cannot be read, is not UTF-8 text, is too large or too deeply nested, or is
-        not valid JSON (with line and column): :func:`sensor_models.readers.documents.load_json`.
+        not valid JSON (with line and column): :func:`sensor_models.files.documents.load_json`.
     """
-    from sensor_models.readers.documents import load_json as _load
+    from sensor_models.files.documents import load_json as _load
 
     return _load(path, error=ManifestError)
 
@@ -85,9 +85,9 @@ def epoch_field(fields: Fields, key: str) -> np.datetime64:
     Returns
     -------
     numpy.datetime64
-        The epoch in UTC, nanosecond resolution (:func:`sensor_models.timescales.parse_utc`).
+        The epoch in UTC, nanosecond resolution (:func:`sensor_models.geometry.timescales.parse_utc`).
     """
-    from sensor_models.timescales import parse_utc
+    from sensor_models.geometry.timescales import parse_utc
 
     text = fields.string(key)
     try:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from sensor_models.errors import ManifestError
-from sensor_models.readers.documents import parse_xml
+from sensor_models.files.documents import parse_xml
 
 __all__ = ["StrictXml"]
 

@@ -2,7 +2,7 @@
 
 :func:`parse_dimap` reads the geometric content of a SPOT scene ``METADATA.DIM`` (DIMAP 1.1,
 profile ``SPOTSCENE_1A``) into a :class:`DimapMetadata` of plain arrays; :func:`read_dimap`
-turns it into a :class:`~sensor_models.pushbroom.PushbroomModel`. The frames and conventions
+turns it into a :class:`~sensor_models.models.pushbroom.PushbroomModel`. The frames and conventions
 are described, with their sources, in ``docs/dimap.md``; in short:
 
 * Times are UTC ISO strings; the model epoch is ``SCENE_CENTER_TIME`` and every time is SI
@@ -311,7 +311,7 @@ class _Xml(StrictXml):
         return self.parse_time(value, where)
 
     def parse_time(self, value: str, where: str) -> np.datetime64:
-        from sensor_models.timescales import parse_utc
+        from sensor_models.geometry.timescales import parse_utc
 
         if not _TIME_RE.match(value):
             raise self.error(where, f"must be a UTC time YYYY-MM-DDThh:mm:ss[.ffffff], got {value!r}")
@@ -741,7 +741,7 @@ def dimap_orbit(meta: DimapMetadata):
         Frame ``"itrf"``, seconds since ``meta.epoch``, positions in metres and Earth-relative
         velocities in m/s (inertial file velocities are converted).
     """
-    from sensor_models.ephemeris import Orbit
+    from sensor_models.geometry.ephemeris import Orbit
 
     return Orbit(meta.epoch, meta.ephemeris_seconds, meta.position_m, meta.earth_relative_velocity_m_s, frame="itrf")
 
@@ -898,7 +898,7 @@ def fit_look_polynomials(look: DimapLookAngles, n_cols: int, *, max_residual_px:
 
 
 def read_dimap(path, *, band: int | None = None, attitude: str = "measured", self_check: str = "refuse"):
-    """Build a :class:`~sensor_models.pushbroom.PushbroomModel` from a SPOT 1-5 DIMAP file.
+    """Build a :class:`~sensor_models.models.pushbroom.PushbroomModel` from a SPOT 1-5 DIMAP file.
 
     Parameters
     ----------
@@ -952,9 +952,9 @@ def read_dimap(path, *, band: int | None = None, attitude: str = "measured", sel
 
 def _build_model(meta: DimapMetadata, fits: dict, attitude: str):
     """The push-broom model of parsed DIMAP metadata with fitted look polynomials and an attitude mode."""
-    from sensor_models.ephemeris import Attitude
-    from sensor_models.pushbroom import PushbroomModel
-    from sensor_models.pushbroom_types import CcdLook, LineTiming
+    from sensor_models.geometry.ephemeris import Attitude
+    from sensor_models.models.pushbroom import PushbroomModel
+    from sensor_models.models.pushbroom_types import CcdLook, LineTiming
 
     try:
         orbit = dimap_orbit(meta)

@@ -2,7 +2,7 @@
 
 :func:`parse_dimap_v2` (in :mod:`._dimap_v2_parse`) reads the ``Geometric_Data/Refined_Model``
 of a ``DIM_*.XML`` into a :class:`DimapV2Metadata`; :func:`read_dimap_v2` turns it into a
-:class:`~sensor_models.pushbroom.PushbroomModel`; :func:`is_dimap_v2` tells such a file from
+:class:`~sensor_models.models.pushbroom.PushbroomModel`; :func:`is_dimap_v2` tells such a file from
 others cheaply and :func:`raster_paths` lists the raster tiles it names. Conventions, each
 checked on a real SPOT 6 file (``docs/dimap_v2.md``):
 
@@ -21,7 +21,7 @@ checked on a real SPOT 6 file (``docs/dimap_v2.md``):
   ``tan psi_y = -XLOS``; the detector index ``s = col - 0.5`` is ``COL - 1``.
 
 The ephemeris and attitudes of a sensor product end at the first and the last lines, and
-:class:`~sensor_models.pushbroom.PushbroomModel` needs a line beyond each end: the reader adds
+:class:`~sensor_models.models.pushbroom.PushbroomModel` needs a line beyond each end: the reader adds
 one sample ``EXTENSION_LINES`` lines beyond each end (orbit: a local polynomial; attitude: the
 end rotation rate held), recorded in ``model.dimap_v2_extension_s``.
 """
@@ -219,7 +219,7 @@ def extend_attitude(seconds, rotations: Rotation, *, before_s: float, after_s: f
 
 def _exterior(meta: DimapV2Metadata):
     """ITRF :class:`Orbit` and satellite -> ITRF :class:`Attitude`, extended by the margin."""
-    from sensor_models.ephemeris import Attitude, Orbit
+    from sensor_models.geometry.ephemeris import Attitude, Orbit
 
     margin = EXTENSION_LINES * meta.line_period_s
     t0, t1 = -margin, meta.end_seconds + margin
@@ -236,7 +236,7 @@ def _exterior(meta: DimapV2Metadata):
 
 
 def band_look(band: DimapV2Band):
-    """The :class:`~sensor_models.pushbroom_types.CcdLook` of a DIMAP v2 band.
+    """The :class:`~sensor_models.models.pushbroom_types.CcdLook` of a DIMAP v2 band.
 
     Parameters
     ----------
@@ -251,7 +251,7 @@ def band_look(band: DimapV2Band):
         ``tan psi_y = -XLOS(s)`` in the detector index ``s = COL - 1``, each padded with zero
         coefficients to at least ``MIN_LOOK_COEFFICIENTS`` (the geometry is unchanged).
     """
-    from sensor_models.pushbroom_types import CcdLook
+    from sensor_models.models.pushbroom_types import CcdLook
 
     def padded(coefficients):
         c = np.asarray(coefficients, dtype=np.float64)
@@ -262,7 +262,7 @@ def band_look(band: DimapV2Band):
 
 
 def read_dimap_v2(path, *, band: str | None = None, rpc=None, self_check: str = "refuse"):
-    """Build a :class:`~sensor_models.pushbroom.PushbroomModel` from a DIMAP v2 sensor product.
+    """Build a :class:`~sensor_models.models.pushbroom.PushbroomModel` from a DIMAP v2 sensor product.
 
     Parameters
     ----------
@@ -273,7 +273,7 @@ def read_dimap_v2(path, *, band: str | None = None, rpc=None, self_check: str = 
         its ``BAND_ID``; the first is the reference band).
     rpc : str or Path or RpcModel, optional
         The product's RPC, to compare the model with (any file
-        :meth:`RpcModel.read <sensor_models.rpc.RpcModel.read>` reads, in its pixel convention).
+        :meth:`RpcModel.read <sensor_models.models.rpc.RpcModel.read>` reads, in its pixel convention).
         Default: the file the product names (``Rational_Function_Model/.../COMPONENT_PATH``)
         when it lies beside the metadata in such a form; else only the ``Dataset_Extent``.
     self_check : {"refuse", "warn"}
@@ -319,8 +319,8 @@ def build_dimap_v2(meta: DimapV2Metadata, *, band: str | None = None, rpc=None, 
     PushbroomModel
         As :func:`read_dimap_v2`.
     """
-    from sensor_models.pushbroom import PushbroomModel
-    from sensor_models.pushbroom_types import LineTiming
+    from sensor_models.models.pushbroom import PushbroomModel
+    from sensor_models.models.pushbroom_types import LineTiming
     from sensor_models.readers.product_checks import check_dimap_v2
     from sensor_models.readers.self_check import check_policy, enforce
 
@@ -357,7 +357,7 @@ def build_dimap_v2(meta: DimapV2Metadata, *, band: str | None = None, rpc=None, 
 
 def _product_rpc(meta: DimapV2Metadata, rpc):
     """The RPC to compare with: the one given, or the product's own when gcpcal reads its form."""
-    from sensor_models.rpc import RpcModel
+    from sensor_models.models.rpc import RpcModel
 
     if rpc is not None:
         return rpc if isinstance(rpc, RpcModel) else RpcModel.read(rpc)

@@ -4,7 +4,7 @@ Same family as the push-broom scene manifest (``docs/manifest.md``): JSON, ``for
 1, every field typed, and a missing field, an unknown key, a wrong type, a NaN or
 non-increasing times raise :class:`ManifestError` naming the file and the field. The format is
 documented in ``docs/geo_manifest.md``; one manifest describes one frame (one exposure
-instant) of :class:`~sensor_models.geo_staring.GeoStaringModel`.
+instant) of :class:`~sensor_models.models.geo_staring.GeoStaringModel`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from sensor_models.errors import GcpcalError, InputError, ManifestError
-from sensor_models.geo_staring import GeoStaringModel, PointingMirror, StaringInterior, StaringLab, fit_interior
+from sensor_models.models.geo_staring import GeoStaringModel, PointingMirror, StaringInterior, StaringLab, fit_interior
 from sensor_models.readers._common import (calibration_from_fields, FORMAT_VERSION, attitude_from_fields, check_format_version, epoch_field,
                                            exterior_to_dict, installation_from_fields, iso_utc, load_json,
                                            orbit_from_fields, raster_from_fields, raster_to_dict, write_document)

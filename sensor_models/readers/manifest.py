@@ -10,15 +10,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sensor_models.attitude_correction import AttitudeCorrection
+import numpy as np
+
+from sensor_models.models.attitude_correction import AttitudeCorrection
 from sensor_models.errors import GcpcalError, InputError, ManifestError
-from sensor_models.pushbroom import PushbroomModel
-from sensor_models.pushbroom_types import CcdLook, LineTiming
+from sensor_models.models.pushbroom import PushbroomModel
+from sensor_models.models.pushbroom_types import CcdLook, LineTiming
 from sensor_models.readers._common import (calibration_from_fields, FORMAT_VERSION, SENSOR_TYPES, RasterRef, attitude_from_fields,
                                            check_format_version, epoch_field, exterior_to_dict,
                                            installation_from_fields, iso_utc, load_json, orbit_from_fields,
                                            raster_from_fields, raster_to_dict, write_document)
 from sensor_models.readers._strict import Fields
+from sensor_models.models.lab import LabBand, LabCamera, LabCcd, lab_to_directional_angles
 
 __all__ = ["SENSOR", "manifest_to_dict", "pushbroom_model_from_document", "read_pushbroom_manifest", "write_manifest"]
 
@@ -38,12 +41,60 @@ def _ccd(f: Fields) -> CcdLook:
     return CcdLook(name, first_col, n_det, tx, ty)
 
 
+def _lab_interior(f: Fields):
+    """Read the ``interior`` object of a manifest with ``model = "lab"`` (strict).
+
+    Parameters
+    ----------
+    f : Fields
+        The ``interior`` object (``docs/manifest.md``): focal length and pixel size in mm,
+        principal point in mm, distortion, tilt and rotation in radians, bands of CCDs.
+
+    Returns
+    -------
+    dict of str to tuple of CcdLook
+        Band name -> directional-angle polynomials per CCD (:func:`lab_to_directional_angles`).
+    """
+    fb = f.sub("bands")
+    bands = []
+    for name in fb.obj:
+        b = Fields(fb.raw(name), f"{fb.where}.{name}", fb.path)
+        offset = b.array("offset_mm", (2,), np.zeros(2))
+        entries = b.raw("ccds")
+        if not isinstance(entries, list) or not entries:
+            raise b.error("ccds", "must be a non-empty list")
+        ccds = []
+        for i, e in enumerate(entries):
+            c = Fields(e, f"{b.where}.ccds[{i}]", b.path)
+            ccds.append(
+                LabCcd(c.string("name"), c.integer("first_col", minimum=0), c.integer("n_detectors", minimum=1), c.number("x_mm"), c.number("y_mm"))
+            )
+            c.finish()
+        b.finish()
+        bands.append(LabBand(name, tuple(ccds), tuple(offset)))
+    fb.finish()
+    try:
+        camera = LabCamera(
+            focal_length_mm=f.number("focal_length_mm", positive=True),
+            pixel_size_mm=f.number("pixel_size_mm", positive=True),
+            bands=tuple(bands),
+            principal_point_mm=tuple(f.array("principal_point_mm", (2,), np.zeros(2))),
+            radial_k=tuple(f.array("radial_k", (3,), np.zeros(3))),
+            decentering_p=tuple(f.array("decentering_p", (2,), np.zeros(2))),
+            tilt_rad=f.number("tilt_rad", 0.0),
+            rotation_rad=f.number("rotation_rad", 0.0),
+            polynomial_degree=f.integer("polynomial_degree", 3),
+        )
+    except InputError as exc:
+        raise f.error(exc.field.split(".")[-1] if exc.field else "interior", exc.reason) from None
+    out, _ = lab_to_directional_angles(camera)
+    return out
+
+
 def _interior(f: Fields):
     model = f.string("model", choices=("directional_angles", "lab"))
     if model == "lab":
-        from sensor_models.lab import lab_from_fields
-
-        bands = lab_from_fields(f)
+        bands = _lab_interior(f)
     else:
         fb = f.sub("bands")
         bands = {}

@@ -39,7 +39,7 @@ def open_model(path, *, self_check: str = "refuse", **kwargs):
     **kwargs
         Passed to the reader of that kind (:func:`~sensor_models.readers.scene.read_manifest`,
         :func:`~sensor_models.readers.dimap.read_dimap`, :meth:`RpcModel.read
-        <sensor_models.rpc.RpcModel.read>`).
+        <sensor_models.models.rpc.RpcModel.read>`).
 
     Returns
     -------
@@ -70,7 +70,7 @@ def open_model(path, *, self_check: str = "refuse", **kwargs):
 
         model = read_manifest(path, **kwargs)
     else:
-        from sensor_models.rpc import RpcModel
+        from sensor_models.models.rpc import RpcModel
 
         model = RpcModel.read(path, **kwargs)
     model.product_check = None

@@ -209,7 +209,7 @@ def _is_model_file(path: Path) -> bool:
 
 def _model_of_raster(path: Path, **kwargs):
     """The RPC of a raster: GDAL's (tags, ``.RPB``, ``_RPC.TXT``), else ``X.geom`` beside it."""
-    from sensor_models.rpc import RpcModel
+    from sensor_models.models.rpc import RpcModel
 
     shape, has_rpc = _raster_rpc(path)
     if has_rpc:
@@ -248,7 +248,7 @@ def _dimap_data_file(path: Path, rel: str) -> tuple[Path | None, tuple[Path, ...
 
     A product tiled into several files gives no raster (the tiles are the candidates).
     """
-    from sensor_models.readers.documents import parse_xml
+    from sensor_models.files.documents import parse_xml
 
     root = parse_xml(path)
     hrefs = [e.get("href") for e in root.iterfind(rel) if e.get("href")]

@@ -303,7 +303,7 @@ def horizontal_distance_m(lon_a, lat_a, lon_b, lat_b, h_m) -> np.ndarray:
     ndarray
         Broadcast shape.
     """
-    from sensor_models.geodesy import geodetic_to_ecef
+    from sensor_models.geometry.geodesy import geodetic_to_ecef
 
     a = geodetic_to_ecef(lon_a, lat_a, h_m)
     b = geodetic_to_ecef(lon_b, lat_b, h_m)

@@ -3,7 +3,7 @@
 :func:`parse_worldview` reads the geometric content of a Basic1B product's combined XML (root
 ``<isd>`` with the ``IMD``, ``EPH``, ``ATT``, ``GEO``, ``RPB`` and ``TIL`` sections) into a
 :class:`WorldViewMetadata` of plain arrays; :func:`read_worldview` builds a rigorous
-:class:`~sensor_models.pushbroom.PushbroomModel` from it (the line-of-sight physics lives in
+:class:`~sensor_models.models.pushbroom.PushbroomModel` from it (the line-of-sight physics lives in
 :mod:`sensor_models.readers.worldview_los`). Frames and conventions are described, with their
 sources and the measured agreement, in ``docs/worldview.md``; in short:
 
@@ -164,7 +164,7 @@ class WorldViewMetadata:
         ``CX, CY, CZ`` (only zero is accepted).
     bands : tuple of WorldViewBand
     rpb : dict or None
-        The ``RPB/IMAGE`` values under :class:`~sensor_models.rpc.RpcModel` keyword names.
+        The ``RPB/IMAGE`` values under :class:`~sensor_models.models.rpc.RpcModel` keyword names.
     tile_files : tuple of str
         ``TIL/TILE/FILENAME`` entries, as written.
     """
@@ -241,7 +241,7 @@ class WorldViewMetadata:
         """
         if self.rpb is None:
             return None
-        from sensor_models.rpc import RpcModel
+        from sensor_models.models.rpc import RpcModel
 
         return RpcModel(**self.rpb, image_shape=(self.n_rows, self.n_cols), source=self.path)
 
@@ -260,7 +260,7 @@ class _Xml(StrictXml):
         return f"{where}/{rel}"
 
     def time(self, parent, rel: str, where: str) -> np.datetime64:
-        from sensor_models.timescales import parse_utc
+        from sensor_models.geometry.timescales import parse_utc
 
         value = self.text(parent, rel, where)
         try:
@@ -605,7 +605,7 @@ def raster_paths(path) -> list[Path]:
 
 def read_worldview(path, *, band: str | None = None, aberration: bool = True, refraction: bool = True,
                    refraction_height_m: float | None = None, self_check: str = "refuse"):
-    """Build a rigorous :class:`~sensor_models.pushbroom.PushbroomModel` from a level-1B XML.
+    """Build a rigorous :class:`~sensor_models.models.pushbroom.PushbroomModel` from a level-1B XML.
 
     Parameters
     ----------

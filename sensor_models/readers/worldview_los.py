@@ -161,8 +161,8 @@ def refraction_displacement_m(zenith_rad, h_m, lat_deg):
 
 def _refract(position_m, direction, h_ref):
     """Straight directions from the satellite to the refraction-displaced ground points."""
-    from sensor_models.geodesy import ecef_to_geodetic
-    from sensor_models.terrain import intersect_ellipsoid
+    from sensor_models.geometry.geodesy import ecef_to_geodetic
+    from sensor_models.terrain.dem import intersect_ellipsoid
 
     x = intersect_ellipsoid(position_m, direction, np.full(direction.shape[0], h_ref))
     lon, lat, _ = ecef_to_geodetic(x)
@@ -180,7 +180,7 @@ def _refract(position_m, direction, h_ref):
 
 def _true_directions(pos, vel, d_app, h_ref, *, aberration, refraction):
     """Corrected unit directions (N, 3) and the refraction shifts (N,) (zeros if off)."""
-    from sensor_models.terrain import intersect_ellipsoid
+    from sensor_models.terrain.dem import intersect_ellipsoid
 
     d = d_app
     if aberration:
@@ -268,7 +268,7 @@ def _fit_look(s, tan_x, tan_y, n_cols, ifov):
 
 def build_model(meta, bands, *, aberration: bool = True, refraction: bool = True,
                 refraction_height_m: float | None = None):
-    """A :class:`~sensor_models.pushbroom.PushbroomModel` from parsed WorldView metadata.
+    """A :class:`~sensor_models.models.pushbroom.PushbroomModel` from parsed WorldView metadata.
 
     Parameters
     ----------
@@ -290,9 +290,9 @@ def build_model(meta, bands, *, aberration: bool = True, refraction: bool = True
         ``time_residual_px`` (how far the per-detector correction moves over the image
         span from its mean) and ``polynomial_residual_px`` (cubic fit), both in pixels).
     """
-    from sensor_models.ephemeris import Attitude, Orbit
-    from sensor_models.pushbroom import PushbroomModel
-    from sensor_models.pushbroom_types import CcdLook, LineTiming
+    from sensor_models.geometry.ephemeris import Attitude, Orbit
+    from sensor_models.models.pushbroom import PushbroomModel
+    from sensor_models.models.pushbroom_types import CcdLook, LineTiming
 
     if refraction_height_m is None:
         refraction_height_m = float(np.mean(bands[0].corner_hae_m))

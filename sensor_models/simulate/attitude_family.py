@@ -3,7 +3,7 @@
 Each draw (:func:`draw_scene`) picks, from documented ranges (:class:`FamilyRanges`), a scene
 duration, a GCP count and noise, one band or four, an installation error, a drift and a jitter
 made of one to three sinusoids per axis with random frequencies, amplitudes and phases. The TRUE
-model (:func:`true_model`) is the laboratory model of :func:`sensor_models.synthetic.
+model (:func:`true_model`) is the laboratory model of :func:`sensor_models.models.synthetic.
 example_pushbroom_model` with that installation and with the jitter and drift rotated into its
 measured attitude, sampled at 100 Hz and interpolated by the model like any measured attitude:
 sums of sinusoids are outside the spline and drift families the calibration estimates. GCPs
@@ -23,10 +23,10 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sensor_models.ephemeris import Attitude
-from sensor_models.pushbroom import PushbroomModel
-from sensor_models.pushbroom_types import Installation
-from sensor_models.synthetic import CameraDesign, example_pushbroom_model
+from sensor_models.geometry.ephemeris import Attitude
+from sensor_models.models.pushbroom import PushbroomModel
+from sensor_models.models.pushbroom_types import Installation
+from sensor_models.models.synthetic import CameraDesign, example_pushbroom_model
 
 __all__ = ["AXES", "FamilyRanges", "SceneDraw", "draw_scene", "jitter_angles", "lab_model", "line_period_s",
            "gcp_rows", "max_gap_s", "synthetic_gcps", "synthetic_ties", "true_model", "truth_error", "without_time_variation"]

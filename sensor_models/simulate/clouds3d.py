@@ -148,7 +148,7 @@ def ray_slope(model, grid, *, band: str, ccd: int, row: float, n_nodes: int = 9,
     ----------
     model : PushbroomModel
         The TRUE model.
-    grid : sensor_models.locate.MapGrid
+    grid : sensor_models.maps.grid.MapGrid
         The ground grid (its ``transform`` and ``crs``).
     band : str
         Band.

@@ -332,7 +332,7 @@ def load_config(path=None) -> SimConfig:
     if path is None:
         return SimConfig().validate()
     path = Path(path)
-    from sensor_models.readers.documents import load_json
+    from sensor_models.files.documents import load_json
 
     doc = load_json(path)
     return config_from_dict(doc, source=str(path))

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_models.atomic import move_tree_into
+from sensor_models.files.atomic import move_tree_into
 from sensor_models.errors import InputError
 
 __all__ = ["GeoSimConfig", "load_geo_config", "simulate_geo_earth"]
@@ -117,7 +117,7 @@ def load_geo_config(path=None) -> GeoSimConfig:
     if path is None:
         return GeoSimConfig().validate()
     source = str(path)
-    from sensor_models.readers.documents import load_json
+    from sensor_models.files.documents import load_json
 
     doc = load_json(path)
     if not isinstance(doc, dict):
@@ -133,8 +133,8 @@ def load_geo_config(path=None) -> GeoSimConfig:
 
 
 def _models(cfg: GeoSimConfig):
-    from sensor_models.geo_staring import StaringLab, example_geo_staring_model
-    from sensor_models.pushbroom_types import Installation
+    from sensor_models.models.geo_staring import StaringLab, example_geo_staring_model
+    from sensor_models.models.pushbroom_types import Installation
 
     altitude = 35_786_000.0
     focal = cfg.pixel_size_mm * altitude / cfg.gsd_m
@@ -228,9 +228,9 @@ def _geo_reference(cfg: GeoSimConfig, truth, tmp: Path, dom, dem, geoid):
     import pyproj
 
     from sensor_models.simulate.pushbroom_sim import _check_covers, _utm_crs
-    from sensor_models.locate import MapGrid
-    from sensor_models.raster import MapImage
-    from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
+    from sensor_models.maps.grid import MapGrid
+    from sensor_models.maps.raster import MapImage
+    from sensor_models.terrain.dem import Dem, check_dem_footprint, footprint_sample_lonlat
 
     border, other = _frame_border(cfg.image_px)
     if dom is None:
@@ -270,9 +270,9 @@ def _render_frame(cfg: GeoSimConfig, truth, dom_img, dem_obj, path: Path, block_
     from rasterio.windows import Window
 
     from sensor_models.simulate.pushbroom_sim import _dom_scale
-    from sensor_models.locate import dem_planes, locate_block
-    from sensor_models.psf import psf_sigma_dom_px
-    from sensor_models.raster import sample_map_image
+    from sensor_models.imaging.locate import dem_planes, locate_block
+    from sensor_models.imaging.psf import psf_sigma_dom_px
+    from sensor_models.maps.raster import sample_map_image
     from sensor_models.simulate.radiometry import to_dn
 
     n = cfg.image_px

@@ -1,8 +1,8 @@
 """The simulator's own radiometric kernel (``realistic`` profile).
 
-Independent of the matcher's chip resampling (:func:`sensor_models.raster.sample_map_image`, a
+Independent of the matcher's chip resampling (:func:`sensor_models.maps.raster.sample_map_image`, a
 Gaussian-prefiltered bicubic): nothing here calls it. The geometry (which ground point a pixel
-centre sees) still comes from :func:`sensor_models.locate.locate_block` through the TRUE model.
+centre sees) still comes from :func:`sensor_models.imaging.locate.locate_block` through the TRUE model.
 
 Signal chain of one detector sample, in order:
 

@@ -114,8 +114,8 @@ from affine import Affine
 from scipy import fft as sp_fft
 from scipy import ndimage
 
-from sensor_models.dom_inputs import ACCURACY_TAG
-from sensor_models.atomic import temporary_beside
+from sensor_models.maps.dom_inputs import ACCURACY_TAG
+from sensor_models.files.atomic import temporary_beside
 from sensor_models.errors import InputError
 
 __all__ = ["LandCover", "ReferenceData", "generate_reference", "illumination"]
@@ -204,9 +204,9 @@ class ReferenceData:
 
         Both files are written to temporaries beside their targets and renamed only once both
         are complete, so a failure leaves no partial file. The DEM carries the metadata item
-        ``VERTICAL_DATUM=ellipsoid``, so :meth:`sensor_models.terrain.Dem.open` reads it
+        ``VERTICAL_DATUM=ellipsoid``, so :meth:`sensor_models.terrain.dem.Dem.open` reads it
         without arguments; the DOM states its geolocation accuracy, 0 m
-        (``GEOLOCATION_RMSE_M``, :mod:`sensor_models.dom_inputs`: a scene rendered from this DOM
+        (``GEOLOCATION_RMSE_M``, :mod:`sensor_models.maps.dom_inputs`: a scene rendered from this DOM
         sees it without error); both carry ``GCPCAL_PROCEDURAL`` (JSON of the generator's
         arguments). No timestamp is written: the same data give the same bytes.
 

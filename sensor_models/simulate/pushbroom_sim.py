@@ -12,7 +12,7 @@
 
 A given DEM must cover the whole footprint (the message says which share it covers); voids
 under the footprint are reported (``summary.json``: ``dem_coverage``, ``dem_void_fraction``,
-``warnings``) and more than :data:`sensor_models.terrain.MAX_FOOTPRINT_VOID_FRACTION` (5 %) of the
+``warnings``) and more than :data:`sensor_models.terrain.dem.MAX_FOOTPRINT_VOID_FRACTION` (5 %) of the
 footprint in voids is refused, since void pixels would render as 0.
 
 Every file is written in a hidden temporary folder inside ``out_dir`` and moved into place at
@@ -35,17 +35,18 @@ import numpy as np
 import pyproj
 import rasterio
 
-from sensor_models.atomic import move_tree_into
+from sensor_models.files.atomic import move_tree_into
 from sensor_models.errors import InputError
-from sensor_models.locate import MapGrid, dem_planes, locate_block
-from sensor_models.psf import psf_sigma_dom_px
-from sensor_models.raster import MapImage, sample_map_image
+from sensor_models.imaging.locate import dem_planes, locate_block
+from sensor_models.maps.grid import MapGrid
+from sensor_models.imaging.psf import psf_sigma_dom_px
+from sensor_models.maps.raster import MapImage, sample_map_image
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.radiometry import smooth_field, to_dn
 from sensor_models.simulate.render_io import (GDAL_CACHE_MB, PhaseClock, check_covers, footprint_lonlat, render_scene,
                                              step_progress, utm_crs, write_outputs)
 from sensor_models.simulate.scene import SceneModels, build_models
-from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
+from sensor_models.terrain.dem import Dem, check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["footprint_lonlat", "simulate_pushbroom"]
 

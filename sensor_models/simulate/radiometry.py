@@ -1,7 +1,7 @@
 """The radiometry of a simulated scene.
 
-(Map images and their resampling live in :mod:`sensor_models.raster`, the pixel response in
-:mod:`sensor_models.psf`.)
+(Map images and their resampling live in :mod:`sensor_models.maps.raster`, the pixel response in
+:mod:`sensor_models.imaging.psf`.)
 
 * :func:`smooth_field`: seeded band-limited random fields (seasonal change, clouds) on a coarse
   grid.

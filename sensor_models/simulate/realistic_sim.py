@@ -34,7 +34,8 @@ import numpy as np
 import pyproj
 
 from sensor_models.errors import InputError
-from sensor_models.locate import MapGrid, dem_planes, locate_block
+from sensor_models.imaging.locate import dem_planes, locate_block
+from sensor_models.maps.grid import MapGrid
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.clouds3d import apparent_clouds, cloud_layers, ground_shadow, ray_slope
 from sensor_models.simulate.illumination import Sun, resample_to_grid, sun_angles_deg, terrain_light_on_grid
@@ -48,7 +49,7 @@ from sensor_models.simulate.reference_pair import DEM_NODATA, degrade_dem, degra
 from sensor_models.simulate.scene import build_models, ccd_layout
 from sensor_models.simulate.true_lens import cubic_residual_px, lens_extras
 from sensor_models.simulate.truth import truth_error
-from sensor_models.terrain import Dem, check_dem_footprint, footprint_sample_lonlat
+from sensor_models.terrain.dem import Dem, check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["apply_profile", "detector_gains", "field_weights", "mtf_nyquist", "simulate_realistic", "source_radiance"]
 
@@ -313,9 +314,9 @@ def _lit_sources(cfg: SimConfig, profile, source, data):
 
 
 def _stated_dom_accuracy(profile) -> dict:
-    """The DOM's accuracy as its producer would state it (GDAL tags of sensor_models.dom_inputs): the
+    """The DOM's accuracy as its producer would state it (GDAL tags of sensor_models.maps.dom_inputs): the
     profile's per-axis rms, bias and field together, rounded to 0.1 m; not the drawn field's."""
-    from sensor_models.dom_inputs import ACCURACY_TAG_X, ACCURACY_TAG_Y
+    from sensor_models.maps.dom_inputs import ACCURACY_TAG_X, ACCURACY_TAG_Y
 
     (bias_e, bias_n), field = profile.value("dom_bias_m"), profile.value("dom_field_rms_m")
     return {ACCURACY_TAG_X: f"{np.hypot(bias_e, field):.1f}", ACCURACY_TAG_Y: f"{np.hypot(bias_n, field):.1f}"}

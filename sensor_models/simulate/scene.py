@@ -2,7 +2,7 @@
 
 The camera is seed 003's kind: ``n_cameras`` cameras of ``ccds_per_camera`` linear CCDs each,
 all bands on every CCD, stitched across track into one raster per band. Both models come from a
-physical lab camera (:mod:`sensor_models.lab`):
+physical lab camera (:mod:`sensor_models.models.lab`):
 
 * LAB (what a user receives, written in the manifest): the design focal length, CCD positions
   and band offsets, no distortion, zero installation angles, the measured attitude (nominal
@@ -26,12 +26,12 @@ import numpy as np
 from numpy.polynomial import polynomial as P
 from scipy.spatial.transform import Rotation
 
-from sensor_models.ephemeris import Attitude, Orbit
-from sensor_models.lab import LabBand, LabCamera, LabCcd, detector_angles
-from sensor_models.pushbroom import PushbroomModel
-from sensor_models.pushbroom_types import CcdLook, Installation, LineTiming, rot_x, rot_y, rot_z
+from sensor_models.geometry.ephemeris import Attitude, Orbit
+from sensor_models.models.lab import LabBand, LabCamera, LabCcd, detector_angles
+from sensor_models.models.pushbroom import PushbroomModel
+from sensor_models.models.pushbroom_types import CcdLook, Installation, LineTiming, rot_x, rot_y, rot_z
 from sensor_models.simulate.config import SimConfig
-from sensor_models.synthetic import GM_EARTH_M3_S2, circular_orbit
+from sensor_models.models.synthetic import GM_EARTH_M3_S2, circular_orbit
 
 __all__ = ["SceneModels", "build_models"]
 
@@ -202,7 +202,7 @@ def true_looks(camera: LabCamera, camera_of_ccd, camera2_rotation_rad, *, extra_
 
 
 def lab_looks(camera: LabCamera):
-    """Directional angles of the lab camera (:func:`sensor_models.lab.lab_to_directional_angles`).
+    """Directional angles of the lab camera (:func:`sensor_models.models.lab.lab_to_directional_angles`).
 
     Parameters
     ----------
@@ -215,7 +215,7 @@ def lab_looks(camera: LabCamera):
     residual_rad : float
         Largest fit residual of ``tan psi`` over all CCDs and bands.
     """
-    from sensor_models.lab import lab_to_directional_angles
+    from sensor_models.models.lab import lab_to_directional_angles
 
     bands, residual = lab_to_directional_angles(camera)
     return bands, max(residual.values())

@@ -53,7 +53,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 
-from sensor_models.atomic import atomic_write_text
+from sensor_models.files.atomic import atomic_write_text
 from sensor_models.errors import InputError
 from sensor_models.simulate.config import SimConfig
 

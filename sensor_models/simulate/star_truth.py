@@ -1,6 +1,6 @@
 """Star-track truth beyond the default sequence (seed 000): what the LAB model and the catalogue do not know.
 
-:func:`sensor_models.simulate.geo_stars.simulate_geo_stars` takes a :class:`StarTruthErrors`
+:func:`sensor_models.simulate.star_sky.simulate_geo_stars` takes a :class:`StarTruthErrors`
 (from a :class:`~sensor_models.simulate.profiles.StarsProfile` by :func:`truth_errors`); with
 none (``ideal``) it renders the default sequence byte for byte. Each error is drawn from its own
 generator (seeded from the sequence's seed), so switching one on does not change the others.

@@ -1,12 +1,12 @@
 """Error of a model against the TRUE model of a simulated scene, in pixels (``gcpcal truth error``).
 
-The comparison itself is production code, :func:`sensor_models.compare.model_difference`; this
+The comparison itself is production code, :func:`sensor_models.models.compare.model_difference`; this
 module names its use with the simulator's TRUE model as the reference.
 """
 
 from __future__ import annotations
 
-from sensor_models.compare import model_difference
+from sensor_models.models.compare import model_difference
 
 __all__ = ["truth_error"]
 
@@ -31,7 +31,7 @@ def truth_error(true_model, model, *, dem=None, heights_m=None, step_px: float =
     Returns
     -------
     dict
-        :func:`sensor_models.compare.model_difference`'s statistics; errors are
+        :func:`sensor_models.models.compare.model_difference`'s statistics; errors are
         ``model - truth`` in pixels.
     """
     return model_difference(true_model, model, dem=dem, step_px=step_px, heights_m=heights_m, bands=bands)

@@ -1,0 +1,1 @@
+"""Frames, time scales, orbit and attitude samples, geodesy and star directions."""

@@ -1,0 +1,1 @@
+"""Map rasters: reference orthoimages (DOMs), their products, mosaics and quality bands."""

@@ -1,0 +1,1 @@
+"""Terrain: geoid, DEM access, line-of-sight intersection with the ground, DEM windows and footprints."""
