@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import importlib
 import os
 from pathlib import Path
 
@@ -10,13 +11,16 @@ import click
 import pytest
 
 import calibrate.cli as cli_package
-from calibrate.cli import COMMAND_MODULES, cli, main
+from calibrate.cli import COMMANDS, cli, load_all_commands, main
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI_DIR = ROOT / "calibrate" / "cli"
 ACTIONS_DIR = ROOT / "calibrate" / "actions"
 EXAMPLE = str(ROOT / "fixtures" / "example_pushbroom" / "manifest.json")
 SHARED_MODULES = {"__init__", "options", "_errors", "_progress"}
+
+
+ALL_COMMANDS = load_all_commands()
 
 
 def _command_paths(group: click.Group, prefix=()):
@@ -28,17 +32,48 @@ def _command_paths(group: click.Group, prefix=()):
 
 def test_every_command_module_is_registered():
     on_disk = {p.stem for p in CLI_DIR.glob("*.py")} - SHARED_MODULES
-    registered = {m.__name__.rsplit(".", 1)[1] for m in COMMAND_MODULES}
+    registered = {module.rsplit(".", 1)[1] for module, _ in COMMANDS.values()}
     assert on_disk == registered
-    assert {m.command.name for m in COMMAND_MODULES} == set(cli.commands)
-    for module in COMMAND_MODULES:
-        assert cli.commands[module.command.name] is module.command
+    assert set(ALL_COMMANDS) == set(COMMANDS) == set(cli.commands)
+    for name, (module_name, _) in COMMANDS.items():
+        module = importlib.import_module(module_name)
+        assert ALL_COMMANDS[name] is module.command and module.command.name == name
         assert module.__doc__, f"{module.__name__} has no module docstring"
 
 
 def test_registration_is_explicit():
+    """The command table is a literal (no discovery of modules on disk)."""
     source = (CLI_DIR / "__init__.py").read_text(encoding="utf-8")
-    assert "importlib" not in source and "ModuleNotFoundError" not in source
+    assert "ModuleNotFoundError" not in source and "pkgutil" not in source and "glob(" not in source
+    table = next(node for node in ast.parse(source).body
+                 if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") == "COMMANDS")
+    assert isinstance(table.value, ast.Dict) and all(isinstance(k, ast.Constant) for k in table.value.keys)
+
+
+def test_the_command_table_shows_each_commands_own_summary():
+    """``gcpcal --help`` lists the commands without importing them: each line must be the
+    command's own first sentence."""
+    for name, (_, summary) in COMMANDS.items():
+        assert summary == ALL_COMMANDS[name].get_short_help_str(limit=10**6), name
+
+
+def test_top_level_help_imports_no_command_and_answers_fast():
+    """``gcpcal --help`` in a fresh interpreter imports no command module (nor numpy's heavy
+    users); its wall time is printed, bounded loosely since CI machines are shared."""
+    import subprocess
+    import sys
+    import time
+
+    code = ("import sys, time; t = time.perf_counter(); from calibrate.cli import main; "
+            "code = main(['--help']); loaded = sorted(m for m in sys.modules if m.startswith('calibrate.cli.') "
+            "and m.rsplit('.', 1)[1] not in ('options', '_errors', '_progress')); "
+            "print(repr(loaded), 'scipy' in sys.modules, 'cv2' in sys.modules, code)")
+    t0 = time.perf_counter()
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    wall = time.perf_counter() - t0
+    print(f"gcpcal --help in a fresh interpreter: {wall:.3f} s")
+    assert out.strip().splitlines()[-1] == "[] False False 0", out
+    assert wall < 3.0
 
 
 @pytest.mark.parametrize("path", list(_command_paths(cli)), ids=" ".join)

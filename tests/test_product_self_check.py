@@ -290,10 +290,11 @@ PRODUCT_COMMANDS = ("calibrate", "match", "relative", "localize", "ortho", "rpc"
 
 
 def test_every_command_opening_a_product_offers_the_option():
-    from calibrate.cli import cli
+    from calibrate.cli import load_all_commands
 
+    commands = load_all_commands()
     for name in PRODUCT_COMMANDS:
-        options = {o for p in cli.commands[name].params for o in getattr(p, "opts", ())}
+        options = {o for p in commands[name].params for o in getattr(p, "opts", ())}
         assert "--accept-product-disagreement" in options, name
 
 

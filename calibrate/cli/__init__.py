@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import importlib
 import logging
 import signal
 import sys
@@ -18,17 +19,84 @@ import threading
 
 import click
 
-from calibrate.cli import (calibrate, compensate, demo, experiment, localize, match, oalr, ortho, relative, rpc, run,
-                           simulate, stars, thermal, truth, validate)
 from calibrate.actions._guard import allow_overwrite, running_command
 from calibrate.cli._errors import Interrupted, note_signal, quiet_cluster_logs, run_guarded
 from calibrate.cli.options import add_options, apply_verbosity, verbosity_options
 from sensor_models import __version__
 
-__all__ = ["COMMAND_MODULES", "cli", "main"]
+__all__ = ["COMMANDS", "cli", "load_all_commands", "main"]
+
+#: Every command, registered explicitly: name -> (its module, the one line ``gcpcal --help``
+#: shows, which is the first sentence of the command's own help). A command's module (and the
+#: libraries behind it) is imported only when that command runs or prints its help, so that
+#: ``gcpcal --help`` and ``gcpcal --version`` answer at once; ``tests/test_cli_structure.py``
+#: checks that every line equals the command's own.
+COMMANDS = {
+    "localize": ("calibrate.cli.localize", "Localize points through MODEL, image -> ground or ground -> image."),
+    "rpc": ("calibrate.cli.rpc", "Fit an RPC to MODEL over its image and height range and write it."),
+    "demo": ("calibrate.cli.demo", "Run the main job on an embedded fixture and write OUT/summary.json."),
+    "match": ("calibrate.cli.match",
+              "Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation)."),
+    "calibrate": ("calibrate.cli.calibrate",
+                  "Calibrate SCENE's model from GCPs; write calibration.json, the calibrated model and report.html."),
+    "run": ("calibrate.cli.run",
+            "Calibrate SCENE from GCPs, or from star frames when clouds leave too few (says which and why)."),
+    "relative": ("calibrate.cli.relative",
+                 "Calibrate every band of SCENE against its calibrated reference band (band-to-band)."),
+    "validate": ("calibrate.cli.validate",
+                 "Validate a calibration on the scenes of SITES (YAML or CSV: name, scene, dom, dem)."),
+    "ortho": ("calibrate.cli.ortho", "Orthorectify a band of SCENE on the DEM into a Cloud-Optimized GeoTIFF."),
+    "stars": ("calibrate.cli.stars",
+              "Calibrate a staring camera from star tracks in FRAMES (a frames.json or its folder)."),
+    "compensate": ("calibrate.cli.compensate",
+                   "Seed 002 simulation: ICO, ECO, ECBIC, ICBEC and joint compensation from virtual control points."),
+    "thermal": ("calibrate.cli.thermal",
+                "Simulate and model the daily thermal drift of a staring camera's installation angles."),
+    "oalr": ("calibrate.cli.oalr",
+             "Focal-length change and camera rotations from OALR cross marks in MARKS.csv (seed 004)."),
+    "truth": ("calibrate.cli.truth", "Compare models with the truth of a simulated scene."),
+    "simulate": ("calibrate.cli.simulate", "Simulate scenes with known truth."),
+    "experiment": ("calibrate.cli.experiment",
+                   "Run seed SEED's experiment (000 stars, 002 staring schemes + thermal, 003 push-broom, 004 OALR)."),
+}
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+def _short(text: str, limit: int) -> str:
+    """``text`` cut at a word boundary to at most ``limit`` characters, with "..." when cut."""
+    if len(text) <= limit:
+        return text
+    cut = text[: max(limit - 3, 1)].rsplit(" ", 1)[0]
+    return cut.rstrip(" ,;:") + "..."
+
+
+class _CommandsOnDemand(click.Group):
+    """A click group that imports a command's module the first time the command is asked for."""
+
+    def list_commands(self, ctx):
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx, name):
+        if name not in self.commands and name in COMMANDS:
+            command = importlib.import_module(COMMANDS[name][0]).command
+            _accept_verbosity(command)
+            self.add_command(command)
+        return self.commands.get(name)
+
+    def format_commands(self, ctx, formatter):
+        """The command table from :data:`COMMANDS`, without importing any command."""
+        width = max(len(name) for name in COMMANDS)
+        limit = formatter.width - 6 - width
+        rows = [(name, _short(COMMANDS[name][1], limit)) for name in self.list_commands(ctx)]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+
+def load_all_commands() -> dict[str, click.Command]:
+    """Every command, imported and registered: name -> click command (for tests and docs)."""
+    return {name: cli.get_command(None, name) for name in COMMANDS}
+
+
+@click.group(cls=_CommandsOnDemand, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="gcpcal")
 @add_options(verbosity_options)
 @click.pass_context
@@ -51,11 +119,6 @@ def cli(ctx, verbose, quiet):
     ctx.ensure_object(dict)
     ctx.obj.update(quiet=False, verbose=0)
     apply_verbosity(ctx, verbose, quiet)
-
-
-#: Every command module, registered explicitly in this order (``gcpcal --help`` sorts them).
-COMMAND_MODULES = (localize, rpc, demo, match, calibrate, run, relative, validate, ortho, stars, compensate, thermal,
-                   oalr, truth, simulate, experiment)
 
 
 #: ``--overwrite``, on every command that writes (every command but the groups).
@@ -94,11 +157,6 @@ def _accept_verbosity(command: click.Command, path: str = "") -> None:
     if group:
         for sub in command.commands.values():
             _accept_verbosity(sub, name)
-
-
-for _module in COMMAND_MODULES:
-    _accept_verbosity(_module.command)
-    cli.add_command(_module.command)
 
 
 def _verbosity(args: list[str]) -> int:
