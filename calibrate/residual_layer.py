@@ -14,6 +14,13 @@ the point's height (:func:`calibrate.accuracy.ground_steps`); then
 ``resid_along_m = resid_along_px * gsd_along_m`` and likewise across. ``resid_planar_m`` is the
 length of the ground vector ``resid_along_px g_row + resid_across_px g_col`` (equal to the root
 sum of squares of the two only when rows and columns are perpendicular on the ground).
+``resid_east_m`` and ``resid_north_m`` are that ground vector's components in the local
+east-north plane (the ground displacement from the modelled to the observed position), and
+``resid_azimuth_deg`` its direction, clockwise from north in [0, 360): what a GIS arrow or
+rotation symbol draws.
+
+Each stage names its layer after itself (:data:`LAYER_NAMES`), so that two files loaded in one
+GIS project stay apart.
 """
 
 from __future__ import annotations
@@ -24,11 +31,14 @@ import numpy as np
 
 from sensor_models.errors import InputError
 
-__all__ = ["KINDS", "RESIDUAL_FIELDS", "concatenate_layers", "model_residual_layer", "read_residual_layer", "residual_layer",
+__all__ = ["KINDS", "LAYER_NAMES", "RESIDUAL_FIELDS", "concatenate_layers", "model_residual_layer", "read_residual_layer", "residual_layer",
            "write_residual_layer"]
 
 #: Point kinds: fitted GCP, independent check point, GCP the fit rejected as an outlier.
 KINDS = ("gcp", "check", "outlier")
+
+#: Stage -> the name of its residual layer.
+LAYER_NAMES = {"match": "match_residuals", "calibrate": "calibration_residuals", "validate": "validation_residuals"}
 
 #: Field name -> (GeoPackage type, unit, meaning), in layer order (after ``fid`` and ``geom``).
 RESIDUAL_FIELDS = {
@@ -49,6 +59,9 @@ RESIDUAL_FIELDS = {
     "resid_along_m": ("REAL", "m", "resid_along_px x gsd_along_m"),
     "resid_across_m": ("REAL", "m", "resid_across_px x gsd_across_m"),
     "resid_planar_m": ("REAL", "m", "length of the residual's ground vector"),
+    "resid_east_m": ("REAL", "m", "east component of the residual's ground vector"),
+    "resid_north_m": ("REAL", "m", "north component of the residual's ground vector"),
+    "resid_azimuth_deg": ("REAL", "deg", "direction of the residual's ground vector, clockwise from north"),
     "gsd_along_m": ("REAL", "m/px", "ground length of a one-row step at the point (model's)"),
     "gsd_across_m": ("REAL", "m/px", "ground length of a one-column step at the point (model's)"),
 }
@@ -127,6 +140,8 @@ def residual_layer(model, table, residuals_px, kind, *, site: str = "") -> dict[
             "sigma_px": table.sigma_px, "resid_along_px": res[:, 0], "resid_across_px": res[:, 1],
             "resid_planar_px": np.hypot(res[:, 0], res[:, 1]), "resid_along_m": res[:, 0] * gsd_row,
             "resid_across_m": res[:, 1] * gsd_col, "resid_planar_m": np.linalg.norm(vec, axis=1),
+            "resid_east_m": vec[:, 0], "resid_north_m": vec[:, 1],
+            "resid_azimuth_deg": np.mod(np.degrees(np.arctan2(vec[:, 0], vec[:, 1])), 360.0),
             "gsd_along_m": gsd_row, "gsd_across_m": gsd_col}
     return {k: _column(k, cols[k]) for k in RESIDUAL_FIELDS}
 
@@ -188,7 +203,7 @@ def concatenate_layers(layers) -> dict[str, np.ndarray]:
                                           for x in layers])) for k in RESIDUAL_FIELDS}
 
 
-def write_residual_layer(columns: dict, path, *, layer: str = "residuals") -> Path:
+def write_residual_layer(columns: dict, path, *, layer: str) -> Path:
     """Write a residual layer as an OGC GeoPackage (EPSG:4326 POINT Z); atomically.
 
     Written by GDAL through :func:`pyogrio.raw.write`, as
@@ -203,7 +218,7 @@ def write_residual_layer(columns: dict, path, *, layer: str = "residuals") -> Pa
         Destination (``*.gpkg``); its folder must exist. Written to a temporary file beside it and
         renamed.
     layer : str
-        Layer name.
+        Layer name (:data:`LAYER_NAMES` for the stages' files).
 
     Returns
     -------
@@ -225,15 +240,15 @@ def write_residual_layer(columns: dict, path, *, layer: str = "residuals") -> Pa
                              what="the residual layer")
 
 
-def read_residual_layer(path, *, layer: str = "residuals") -> dict[str, np.ndarray]:
+def read_residual_layer(path, *, layer: str | None = None) -> dict[str, np.ndarray]:
     """Read a residual layer written by :func:`write_residual_layer`.
 
     Parameters
     ----------
     path : str or Path
         The GeoPackage.
-    layer : str
-        Layer name.
+    layer : str, optional
+        Layer name; default: the file's only layer.
 
     Returns
     -------
@@ -250,6 +265,12 @@ def read_residual_layer(path, *, layer: str = "residuals") -> dict[str, np.ndarr
     from pyogrio.errors import DataSourceError, DataLayerError
 
     try:
+        if layer is None:
+            layers = [str(name) for name, _ in pyogrio.list_layers(path)]
+            if len(layers) != 1:
+                raise InputError(f"holds {len(layers)} layers ({', '.join(layers)}): name the residual layer",
+                                 path=str(path))
+            layer = layers[0]
         meta, _, geometry, values = pyogrio.raw.read(path, layer=layer)
     except (DataSourceError, DataLayerError) as exc:
         raise InputError(f"cannot read the residual layer: {exc}", path=str(path)) from None

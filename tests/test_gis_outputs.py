@@ -376,6 +376,40 @@ def test_pleiades_residual_metres_follow_its_half_metre_pixels(ventoux):
     assert 0.4 < np.median(layer["gsd_along_m"]) < 1.0 and 0.4 < np.median(layer["gsd_across_m"]) < 1.0
 
 
+def test_pleiades_residual_east_north_and_azimuth_are_the_ground_displacement(ventoux):
+    """East, north and azimuth of the residual against pyproj's geodesic between the modelled and
+    the observed positions localized at the point's height (an independent computation: no GSD,
+    no linearization); shifts in four directions so that every quadrant of the azimuth is hit."""
+    with rasterio.open(ventoux / "left_image.tif") as ds:
+        t = ds.transform
+    crop = RpcModel.read(ventoux / "left_image.geom").cropped(int(t.f), int(t.c), (500, 500))
+    rng = np.random.default_rng(11)
+    n = 40
+    r, c, h = rng.uniform(20, 480, n), rng.uniform(20, 480, n), rng.uniform(300.0, 1500.0, n)
+    lon, lat, _ = crop.image_to_ground(r, c, height=h)
+    shift = np.array([[1.5, -2.0], [-0.7, 0.4], [2.2, 1.1], [-1.3, -0.9]])[np.arange(n) % 4]
+    table = GcpTable.from_arrays(r + shift[:, 0], c + shift[:, 1], lon, lat, h, sigma_px=0.1)
+    res, _ = check_residuals(crop, table.row, table.col, lon, lat, h)
+    layer = residual_layer(crop, table, res, "check")
+    olon, olat, _ = crop.image_to_ground(table.row, table.col, height=h)
+    az, _, dist = GEOD.inv(lon, lat, olon, olat)
+    east, north = dist * np.sin(np.radians(az)), dist * np.cos(np.radians(az))
+    np.testing.assert_allclose(layer["resid_east_m"], east, atol=0.01 * np.abs(dist).max())
+    np.testing.assert_allclose(layer["resid_north_m"], north, atol=0.01 * np.abs(dist).max())
+    d_az = (layer["resid_azimuth_deg"] - np.mod(az, 360.0) + 180.0) % 360.0 - 180.0
+    assert np.abs(d_az).max() < 1.0 and (layer["resid_azimuth_deg"] >= 0).all() and (layer["resid_azimuth_deg"] < 360).all()
+    np.testing.assert_allclose(np.hypot(layer["resid_east_m"], layer["resid_north_m"]), layer["resid_planar_m"], rtol=1e-12)
+    assert len({int(a // 90) for a in layer["resid_azimuth_deg"]}) >= 3
+
+
+def test_each_stage_names_its_residual_layer(matched, calibrated):
+    """Loaded together in a GIS, the match and calibration layers keep distinct names."""
+    import pyogrio
+
+    assert [name for name, _ in pyogrio.list_layers(matched / "gcps_residuals.gpkg")] == ["match_residuals"]
+    assert [name for name, _ in pyogrio.list_layers(calibrated / "residuals.gpkg")] == ["calibration_residuals"]
+
+
 def test_layer_names_each_point_s_ccd_when_the_table_names_none(tmp_path):
     """A GCP table without a ``ccd`` column: the layer finds each point's CCD from its column."""
     truth = open_model(FIXTURE / "truth_manifest.json")

@@ -39,7 +39,7 @@ from calibrate.actions._status import record_product_check
 from calibrate.plausibility import check_gcps_on_scene
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
-from calibrate.residual_layer import concatenate_layers, residual_layer, write_residual_layer
+from calibrate.residual_layer import LAYER_NAMES, concatenate_layers, residual_layer, write_residual_layer
 
 __all__ = ["calibrate_scene", "match_summary_path", "options_from_match_summary"]
 
@@ -164,7 +164,8 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
         doc = _calibration_doc(result, scene_path, gcps_path, acc_before, acc_after, coverage, status)
         (tmp / "calibration.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         model_file = _write_model(result.model, model, tmp, out_dir, failed=status.status == "failed")
-        write_residual_layer(_residual_layer(result, table, acc_after, band), tmp / "residuals.gpkg")
+        write_residual_layer(_residual_layer(result, table, acc_after, band), tmp / "residuals.gpkg",
+                             layer=LAYER_NAMES["calibrate"])
         if report and acc_before is not None:
             from calibrate.report import write_report
 

@@ -162,7 +162,7 @@ def _write_outputs(table, summary, *, model, band, image, out_path, out_format, 
     """Write the GCP table (CSV or GeoPackage), the optional GeoPackage and GeoTIFF, the residual
     layer and the summary; every file moves in together at the end, and with no GCP only the
     summary (an older table goes)."""
-    from calibrate.residual_layer import model_residual_layer, write_residual_layer
+    from calibrate.residual_layer import LAYER_NAMES, model_residual_layer, write_residual_layer
     from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
 
     staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
@@ -179,7 +179,7 @@ def _write_outputs(table, summary, *, model, band, image, out_path, out_format, 
                 write_gcps_csv(table, csv_tmp)
             if gpkg_tmp is not None:
                 write_gcps_gpkg(table, gpkg_tmp)
-            write_residual_layer(model_residual_layer(model, table), residuals_tmp)
+            write_residual_layer(model_residual_layer(model, table), residuals_tmp, layer=LAYER_NAMES["match"])
         summary_tmp.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
 
 

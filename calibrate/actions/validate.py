@@ -191,7 +191,8 @@ def write_scene_points(points_dir, table, name: str, residuals: dict | None = No
     path = Path(points_dir) / f"{_safe_name(name)}.csv"
     write_gcps_csv(table, path)
     if residuals is not None:
-        write_residual_layer(residuals, Path(points_dir) / f"{_safe_name(name)}_residuals.gpkg")
+        write_residual_layer(residuals, Path(points_dir) / f"{_safe_name(name)}_residuals.gpkg",
+                             layer=f"{_safe_name(name)}_residuals")
     return path
 
 
@@ -213,12 +214,13 @@ def merge_residual_layers(out_dir, rows) -> str:
     str
         ``"residuals.gpkg"``, the layer's name relative to ``out_dir``.
     """
-    from calibrate.residual_layer import concatenate_layers, read_residual_layer, write_residual_layer
+    from calibrate.residual_layer import LAYER_NAMES, concatenate_layers, read_residual_layer, write_residual_layer
 
     points_dir = Path(out_dir) / "points"
     parts = [points_dir / f"{_safe_name(r['name'])}_residuals.gpkg" for r in rows]
     parts = [p for p in dict.fromkeys(parts) if p.is_file()]
-    write_residual_layer(concatenate_layers(read_residual_layer(p) for p in parts), Path(out_dir) / "residuals.gpkg")
+    write_residual_layer(concatenate_layers(read_residual_layer(p) for p in parts), Path(out_dir) / "residuals.gpkg",
+                         layer=LAYER_NAMES["validate"])
     for p in parts:
         p.unlink()
     return "residuals.gpkg"
