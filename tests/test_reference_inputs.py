@@ -175,17 +175,18 @@ def test_window_read_of_a_mosaic_does_not_hold_the_mosaic(tmp_path):
 # -- QA layouts -------------------------------------------------------------------------------
 
 # Values of the real pre-Collection BQA crop, decoded by hand (bits 15-14 cloud confidence,
-# 13-12 cirrus confidence, 11-10 snow/ice, 5-4 water; 3 = high):
-#   20480 = 0b01_01_00_00_0000_0000  cloud low,  cirrus low            -> kept
-#   20512 = 0b01_01_00_00_0010_0000  cloud low,  cirrus low, water med -> kept
-#   23552 = 0b01_01_11_00_0000_0000  cloud low,  cirrus low, snow high -> kept
-#   28672 = 0b01_11_00_00_0000_0000  cloud low,  cirrus HIGH           -> masked
-#   36864 = 0b10_01_00_00_0000_0000  cloud med,  cirrus low            -> kept
-#   45056 = 0b10_11_00_00_0000_0000  cloud med,  cirrus HIGH           -> masked
-#   53248 = 0b11_01_00_00_0000_0000  cloud HIGH, cirrus low            -> masked
-#   61440 = 0b11_11_00_00_0000_0000  cloud HIGH, cirrus HIGH           -> masked
-BQA_BY_HAND = {20480: False, 20512: False, 23552: False, 28672: True, 36864: False, 45056: True, 53248: True,
+# 13-12 cirrus confidence, 11-10 snow/ice, 5-4 water; 3 = high); masked by default / with cirrus:
+#   20480 = 0b01_01_00_00_0000_0000  cloud low,  cirrus low            -> kept   / kept
+#   20512 = 0b01_01_00_00_0010_0000  cloud low,  cirrus low, water med -> kept   / kept
+#   23552 = 0b01_01_11_00_0000_0000  cloud low,  cirrus low, snow high -> kept   / kept
+#   28672 = 0b01_11_00_00_0000_0000  cloud low,  cirrus HIGH           -> kept   / masked
+#   36864 = 0b10_01_00_00_0000_0000  cloud med,  cirrus low            -> kept   / kept
+#   45056 = 0b10_11_00_00_0000_0000  cloud med,  cirrus HIGH           -> kept   / masked
+#   53248 = 0b11_01_00_00_0000_0000  cloud HIGH, cirrus low            -> masked / masked
+#   61440 = 0b11_11_00_00_0000_0000  cloud HIGH, cirrus HIGH           -> masked / masked
+BQA_BY_HAND = {20480: False, 20512: False, 23552: False, 28672: False, 36864: False, 45056: False, 53248: True,
                61440: True}
+BQA_CIRRUS_BY_HAND = {**BQA_BY_HAND, 28672: True, 45056: True}
 
 
 def test_pre_collection_bqa_bits_by_hand(shared_data):
@@ -197,6 +198,7 @@ def test_pre_collection_bqa_bits_by_hand(shared_data):
         rows, cols = np.nonzero(qa == value)
         assert rows.size, value
         assert bool(invalid_from_qa(qa[rows[0], cols[0]], "landsat-pre-collection")) is masked, value
+        assert bool(invalid_from_qa(value, "landsat-pre-collection", cirrus=True)) is BQA_CIRRUS_BY_HAND[value], value
     assert set(np.unique(qa)) <= set(BQA_BY_HAND) | {28704, 36896, 45088, 53280, 61472}  # + bit 5 (water)
     # the same values read as Collection 2 would say something else: the layouts differ
     assert bool(invalid_from_qa(28672, "landsat-c2")) is False
@@ -214,7 +216,8 @@ def test_landsat_band_opened_with_its_bqa_beside(shared_data):
     values = image.read(0, qa.shape[0], 0, qa.shape[1])
     np.testing.assert_array_equal(np.isnan(values), expected)
     np.testing.assert_array_equal(values[~expected], dn[~expected])
-    assert abs(expected.mean() - 120488 / qa.size) < 1e-12  # counted by hand from the value histogram
+    # counted by hand from the value histogram: 53248 x 2591, 53280 x 41, 61440 x 20140, 61472 x 4
+    assert abs(expected.mean() - 22776 / qa.size) < 1e-12
     bare, _ = open_dom(DomSource(items=(str(folder / "l8_B4.tif"),), use_qa=False))
     assert not np.isnan(bare.read(0, 10, 0, 10)).any()
 
@@ -233,12 +236,40 @@ def test_bqa_masks_the_15_m_panchromatic_band_at_its_own_pixels(shared_data):
     np.testing.assert_array_equal(np.isnan(values[np.ix_(odd_r, odd_c)]),
                                   flagged[np.ix_((odd_r - 1) // 2, (odd_c - 1) // 2)])
     assert not np.isnan(values[np.ix_(odd_r, odd_c)]).all() and np.isnan(values[np.ix_(odd_r, odd_c)]).any()
-    assert 0.25 < np.isnan(values).mean() < 0.4
+    assert 0.05 < np.isnan(values).mean() < 0.08  # high cloud: 6.0 % of the 30 m QA, plus the edge row
+
+
+def test_landsat_bqa_masks_cloud_not_cirrus_and_says_how_much(shared_data, tmp_path):
+    """The real pre-Collection BQA: cloud (high) masks 6.0 % of the crop, cirrus (high) 31 % more
+    only with --dom-mask-cirrus; a user's mask (nonzero = unusable) adds to the QA."""
+    folder = shared_data / "real_textures" / "landsat8"
+    with rasterio.open(folder / "l8_BQA.tif") as ds:
+        qa, profile = ds.read(1), ds.profile
+    image, found = open_dom(folder / "l8_B4.tif")
+    share = np.isnan(image.read(0, qa.shape[0], 0, qa.shape[1])).mean()
+    assert not found.qa_cirrus and abs(share - np.mean((qa >> 14) == 3)) < 1e-12
+    assert 0.05 < share < 0.07
+    image, _ = open_dom(DomSource(items=(str(folder / "l8_B4.tif"),), qa_cirrus=True))
+    with_cirrus = np.isnan(image.read(0, qa.shape[0], 0, qa.shape[1])).mean()
+    assert abs(with_cirrus - np.mean(((qa >> 14) == 3) | (((qa >> 12) & 3) == 3))) < 1e-12 and with_cirrus > 0.3
+    user = np.zeros(qa.shape, dtype=np.uint8)
+    user[:100, :] = 7
+    profile.update(dtype="uint8", nodata=None)
+    with rasterio.open(tmp_path / "mine.tif", "w", **profile) as ds:
+        ds.write(user, 1)
+    image, found = open_dom(DomSource(items=(str(folder / "l8_B4.tif"),), mask=(str(tmp_path / "mine.tif"),)))
+    masked = np.isnan(image.read(0, qa.shape[0], 0, qa.shape[1]))
+    np.testing.assert_array_equal(masked, ((qa >> 14) == 3) | (user != 0))
+    assert found.mask_files == [str(tmp_path / "mine.tif")]
+    # the mask alone, without any QA
+    image, _ = open_dom(DomSource(items=(str(folder / "l8_B4.tif"),), use_qa=False, mask=(str(tmp_path / "mine.tif"),)))
+    np.testing.assert_array_equal(np.isnan(image.read(0, qa.shape[0], 0, qa.shape[1])), user != 0)
 
 
 def test_collection_2_qa_pixel_bits():
-    for bit in range(5):  # fill, dilated cloud, cirrus, cloud, cloud shadow
+    for bit in (0, 1, 3, 4):  # fill, dilated cloud, cloud, cloud shadow
         assert invalid_from_qa(1 << bit, "landsat-c2"), bit
+    assert not invalid_from_qa(1 << 2, "landsat-c2") and invalid_from_qa(1 << 2, "landsat-c2", cirrus=True)
     for bit in range(5, 16):  # snow, clear, water, confidences: not masks by themselves
         assert not invalid_from_qa(1 << bit, "landsat-c2"), bit
     assert not invalid_from_qa(21824, "landsat-c2")  # clear land, low cloud confidence
@@ -252,15 +283,19 @@ def test_collection_2_qa_pixel_bits():
 
 def test_collection_1_bqa_bits():
     assert invalid_from_qa(1, "landsat-c1") and invalid_from_qa(1 << 4, "landsat-c1")
-    assert invalid_from_qa(3 << 7, "landsat-c1") and invalid_from_qa(3 << 11, "landsat-c1")
+    assert invalid_from_qa(3 << 7, "landsat-c1") and not invalid_from_qa(3 << 11, "landsat-c1")
+    assert invalid_from_qa(3 << 11, "landsat-c1", cirrus=True)
     assert not invalid_from_qa(2 << 7, "landsat-c1") and not invalid_from_qa(2 << 11, "landsat-c1")
     assert not invalid_from_qa(2720, "landsat-c1")  # clear: cloud, shadow, snow, cirrus confidence low
 
 
 def test_sentinel2_scl_classes():
     classes = np.arange(12)
-    np.testing.assert_array_equal(invalid_from_qa(classes, "s2-scl"),
+    np.testing.assert_array_equal(invalid_from_qa(classes, "s2-scl"), np.isin(classes, [0, 1, 3, 8, 9]))
+    np.testing.assert_array_equal(invalid_from_qa(classes, "s2-scl", cirrus=True),
                                   np.isin(classes, [0, 1, 3, 8, 9, 10]))
+    np.testing.assert_array_equal(invalid_from_qa(np.array([0, 1, 255, -3]), "mask"), [False, True, True, True])
+    np.testing.assert_array_equal(invalid_from_qa(np.array([0.0, np.nan, 0.5]), "mask"), [False, False, True])
     with pytest.raises(InputError, match="unknown QA layout"):
         invalid_from_qa(classes, "landsat-c3")
 
@@ -344,7 +379,7 @@ def test_sentinel2_l2a_finest_band_and_scl_at_20_m(tmp_path):
     image, found = open_dom(DomSource(items=(str(tmp_path / "S2B_MSIL2A_X.SAFE"),), band="4"))
     assert found.files[0].endswith("_B04_10m.jp2") and found.qa_layout == "s2-scl"
     values = image.read(0, 4, 0, 6)
-    masked = np.kron(np.isin(scl, [3, 9, 10]), np.ones((2, 2), dtype=bool))  # each 20 m class covers 2 x 2
+    masked = np.kron(np.isin(scl, [3, 9]), np.ones((2, 2), dtype=bool))  # 10 (thin cirrus) kept; each 20 m class covers 2 x 2
     np.testing.assert_array_equal(np.isnan(values), masked)
     np.testing.assert_allclose(values[~masked], 0.2, rtol=1e-6)  # (3000 - 1000) / 10000
 

@@ -205,11 +205,17 @@ def _dom_summary(dom, dom_found, model, band, dem) -> dict:
 
     fields = dom_description(dom_found)
     share = None
-    if dom.qa_path is not None:
+    if dom.has_mask:
         lon, lat = footprint_sample_lonlat(model, float(np.mean(dem.height_range_m)), band=band)
         share = masked_fraction(dom, lon, lat)
     fields["dom_masked_fraction"] = share
     if share is not None:
-        fields["dom_note"] = (f"the DOM's QA ({dom_found.qa_layout}) masks {100 * share:.0f} % of the reference under "
-                              "the scene (cloud, shadow, cirrus, fill): windows there have no reference")
+        what = []
+        if dom_found.qa_files:
+            flags = "cloud, shadow, fill" + (", cirrus" if dom_found.qa_cirrus else "")
+            what.append(f"the DOM's QA ({dom_found.qa_layout}: {flags})")
+        if dom_found.mask_files:
+            what.append("the DOM mask")
+        fields["dom_note"] = (f"{' and '.join(what)} mask {100 * share:.1f} % of the reference under the scene: "
+                              "windows there have no reference")
     return fields

@@ -102,6 +102,10 @@ def _dom_option_list():
         click.option("--dom-qa-layout", type=click.Choice(QA_LAYOUTS),
                      help="Bit layout of --dom-qa when its name does not tell (QA_PIXEL, BQA, SCL)."),
         click.option("--no-dom-qa", is_flag=True, help="Use no QA mask, not even one found beside the band."),
+        click.option("--dom-mask-cirrus", is_flag=True,
+                     help="Mask the QA's cirrus pixels too (by default only fill, cloud and cloud shadow are masked)."),
+        click.option("--dom-mask", "dom_mask", multiple=True, type=click.Path(),
+                     help="Your own mask of the DOM (any raster in the DOM's CRS, nonzero = do not use), with the QA."),
         click.option("--dom-scale", type=float,
                      help="DOM value = DN * scale + offset (overrides the product's metadata)."),
         click.option("--dom-offset", type=float, help="See --dom-scale."),
@@ -112,7 +116,7 @@ def dom_options(func):
     """Decorator: the reference-orthoimage options, handed to the command as ``dom_path``.
 
     Adds ``--dom`` (repeatable), ``--dom-band``, ``--dom-qa`` (repeatable), ``--dom-qa-layout``,
-    ``--no-dom-qa``, ``--dom-scale`` and ``--dom-offset``; the command receives them as one
+    ``--no-dom-qa``, ``--dom-mask-cirrus``, ``--dom-mask`` (repeatable), ``--dom-scale`` and ``--dom-offset``; the command receives them as one
     :class:`sensor_models.maps.dom_inputs.DomSource` in its ``dom_path`` argument.
 
     Parameters
@@ -128,10 +132,11 @@ def dom_options(func):
     from sensor_models.maps.dom_inputs import DomSource
 
     @functools.wraps(func)
-    def wrapper(*args, dom_items, dom_band, dom_qa, dom_qa_layout, no_dom_qa, dom_scale, dom_offset, **kwargs):
+    def wrapper(*args, dom_items, dom_band, dom_qa, dom_qa_layout, no_dom_qa, dom_mask_cirrus, dom_mask, dom_scale,
+                dom_offset, **kwargs):
         kwargs["dom_path"] = DomSource(items=tuple(dom_items), band=dom_band, qa=tuple(dom_qa),
                                        qa_layout=dom_qa_layout, scale=dom_scale, offset=dom_offset,
-                                       use_qa=not no_dom_qa)
+                                       use_qa=not no_dom_qa, qa_cirrus=dom_mask_cirrus, mask=tuple(dom_mask))
         return func(*args, **kwargs)
 
     return add_options(_dom_option_list())(wrapper)

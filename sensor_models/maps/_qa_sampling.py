@@ -20,7 +20,7 @@ def _centre_indices(start: int, stop: int, n_out: int, origin: float, step: floa
     return np.floor((ground - q_origin) / q_step).astype(np.int64)
 
 
-def sample_qa_invalid(qa_path: str, layout: str, transform, window, out_shape) -> np.ndarray:
+def sample_qa_invalid(qa_path: str, layout: str, transform, window, out_shape, *, cirrus: bool = False) -> np.ndarray:
     """Flagged DOM pixels of ``window``, from the QA pixel under each output pixel's centre.
 
     Parameters
@@ -28,13 +28,15 @@ def sample_qa_invalid(qa_path: str, layout: str, transform, window, out_shape) -
     qa_path : str
         QA raster, north-up, in the DOM's CRS.
     layout : str
-        Its layout (:data:`sensor_models.maps.reference_qa.QA_LAYOUTS`).
+        Its layout (:data:`sensor_models.maps.reference_qa.QA_LAYOUTS` or ``"mask"``).
     transform : affine.Affine
         The DOM's pixel-corner geotransform (north-up).
     window : (int, int, int, int)
         ``row0, row1, col0, col1`` in DOM pixels (half-open).
     out_shape : (int, int)
         Output rows and columns (the window's shape, or smaller for a decimated read).
+    cirrus : bool
+        Mask cirrus too (:func:`~sensor_models.maps.reference_qa.invalid_from_qa`).
 
     Returns
     -------
@@ -62,7 +64,7 @@ def sample_qa_invalid(qa_path: str, layout: str, transform, window, out_shape) -
         shape = (math.ceil((r_hi - r_lo) / k), math.ceil((c_hi - c_lo) / k))
         values = ds.read(1, window=Window(c_lo, r_lo, c_hi - c_lo, r_hi - r_lo), out_shape=shape,
                          resampling=Resampling.nearest)
-    flagged = invalid_from_qa(values, layout)
+    flagged = invalid_from_qa(values, layout, cirrus=cirrus)
     rr = np.clip((rows[inside_r] - r_lo) // k, 0, shape[0] - 1)
     cc = np.clip((cols[inside_c] - c_lo) // k, 0, shape[1] - 1)
     out[np.ix_(inside_r, inside_c)] = flagged[np.ix_(rr, cc)]

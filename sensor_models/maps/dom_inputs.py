@@ -84,6 +84,10 @@ class DomSource:
         Override of ``value = DN * scale + offset``.
     use_qa : bool
         False: no QA, not even one found beside the band.
+    qa_cirrus : bool
+        The QA's cirrus flags mask too (by default cirrus is a flag, not a mask).
+    mask : tuple of str
+        The user's own mask raster(s) in the DOM's CRS: nonzero = unusable; applied with the QA.
     """
 
     items: tuple = ()
@@ -93,11 +97,13 @@ class DomSource:
     scale: float | None = None
     offset: float | None = None
     use_qa: bool = True
+    qa_cirrus: bool = False
+    mask: tuple = ()
 
     @property
     def paths(self) -> tuple:
-        """The items and QA files given (for checks that outputs do not overwrite inputs)."""
-        return tuple(self.items) + tuple(self.qa)
+        """The items, QA and mask files given (for checks that outputs do not overwrite inputs)."""
+        return tuple(self.items) + tuple(self.qa) + tuple(self.mask)
 
     def __str__(self) -> str:
         return ",".join(self.items)
@@ -110,6 +116,8 @@ class ResolvedDom:
     files: list
     qa_files: list = field(default_factory=list)
     qa_layout: str | None = None
+    qa_cirrus: bool = False
+    mask_files: list = field(default_factory=list)
     scale: float = 1.0
     offset: float = 0.0
     nodata: float | None = None
@@ -329,7 +337,9 @@ def resolve_dom(source) -> ResolvedDom:
     if source.qa and not source.use_qa:
         raise InputError("--dom-qa and --no-dom-qa contradict each other; give one", field="dom_qa")
     files = _band_inputs(source)
-    dom = ResolvedDom(files=files, qa_layout=source.qa_layout)
+    dom = ResolvedDom(files=files, qa_layout=source.qa_layout, qa_cirrus=bool(source.qa_cirrus))
+    if source.mask:
+        dom.mask_files = raster_inputs(source.mask, what="DOM mask")
     if all(_is_sentinel2(f) for f in files):
         _resolve_s2(files, dom)
     elif all(_landsat_id(f) is not None for f in files):
@@ -370,7 +380,8 @@ def open_dom(source):
 
     dom = resolve_dom(source)
     image = MapImage.open(dom.files, nodata=dom.nodata, scale=dom.scale, offset=dom.offset,
-                          qa_path=dom.qa_files or None, qa_layout=dom.qa_layout)
+                          qa_path=dom.qa_files or None, qa_layout=dom.qa_layout, qa_cirrus=dom.qa_cirrus,
+                          mask_path=dom.mask_files or None)
     dom.qa_layout = image.qa_layout
     return image, dom
 
@@ -386,15 +397,16 @@ def dom_description(dom: ResolvedDom) -> dict:
     -------
     dict
         ``dom_files``, ``dom_product``, ``dom_scale``, ``dom_offset``, ``dom_qa_files``,
-        ``dom_qa_layout``, ``dom_notes``.
+        ``dom_qa_layout``, ``dom_qa_masks_cirrus``, ``dom_mask_files``, ``dom_notes``.
     """
     return {"dom_files": list(dom.files), "dom_product": dom.product, "dom_scale": dom.scale,
             "dom_offset": dom.offset, "dom_qa_files": list(dom.qa_files), "dom_qa_layout": dom.qa_layout,
-            "dom_notes": list(dom.notes)}
+            "dom_qa_masks_cirrus": bool(dom.qa_cirrus) if dom.qa_files else None,
+            "dom_mask_files": list(dom.mask_files), "dom_notes": list(dom.notes)}
 
 
 def masked_fraction(image, lon_deg, lat_deg, *, max_side: int = 512):
-    """Share of the DOM under a footprint that its QA masks (cloud, shadow, cirrus, fill).
+    """Share of the DOM under a footprint that its QA and the user's mask mask.
 
     The DOM window bounding the footprint's points is looked at decimated to at most
     ``max_side`` pixels a side.
@@ -411,11 +423,11 @@ def masked_fraction(image, lon_deg, lat_deg, *, max_side: int = 512):
     Returns
     -------
     float or None
-        In ``[0, 1]``; None without a QA raster or when the footprint misses the DOM.
+        In ``[0, 1]``; None without a QA raster or mask, or when the footprint misses the DOM.
     """
     import pyproj
 
-    if image.qa_path is None:
+    if not image.has_mask:
         return None
     to_map = pyproj.Transformer.from_crs("EPSG:4326", image.grid.crs, always_xy=True)
     lon = np.asarray(lon_deg, dtype=np.float64).ravel()

@@ -20,6 +20,7 @@ import pyproj
 from affine import Affine
 
 from sensor_models.errors import InputError
+from sensor_models.maps.reference_qa import MASK_LAYOUT
 from sensor_models.maps.grid import MapGrid
 
 __all__ = ["INTERPOLATIONS", "MapImage", "sample_map_image"]
@@ -45,6 +46,10 @@ class MapImage:
         QA raster in the same CRS (any pixel size): its flagged pixels read as NaN.
     qa_layout : str or None
         How ``qa_path`` is coded (:data:`sensor_models.maps.reference_qa.QA_LAYOUTS`).
+    qa_cirrus : bool
+        The QA's cirrus flags mask too (by default they do not).
+    mask_path : str or None
+        A user's mask in the same CRS (any pixel size): nonzero pixels read as NaN.
     """
 
     grid: MapGrid
@@ -55,6 +60,8 @@ class MapImage:
     offset: float = 0.0
     qa_path: str | None = None
     qa_layout: str | None = None
+    qa_cirrus: bool = False
+    mask_path: str | None = None
     _session: "_ReadSession | None" = field(default=None, init=False, repr=False, compare=False)
 
     @classmethod
@@ -79,7 +86,8 @@ class MapImage:
 
     @classmethod
     def open(cls, path, *, what: str = "DOM", nodata=None, scale: float = 1.0, offset: float = 0.0,
-             qa_path=None, qa_layout: str | None = None) -> "MapImage":
+             qa_path=None, qa_layout: str | None = None, qa_cirrus: bool = False,
+             mask_path=None) -> "MapImage":
         """A map image on disk, read lazily by windows (band 1).
 
         Parameters
@@ -98,6 +106,10 @@ class MapImage:
         qa_layout : str, optional
             Layout of the QA raster; from its name or values when None
             (:func:`sensor_models.maps.reference_qa.qa_layout_of`).
+        qa_cirrus : bool
+            The QA's cirrus flags mask too.
+        mask_path : str, os.PathLike or sequence of them, optional
+            A user's mask raster (or tiles) in the DOM's CRS: nonzero pixels read as NaN.
 
         Returns
         -------
@@ -115,6 +127,9 @@ class MapImage:
         image = cls(grid, None, path, declared if declared is not None else nodata, float(scale), float(offset))
         if qa_path is not None:
             image.qa_path, image.qa_layout = _open_qa(qa_path, qa_layout, grid, what=what)
+            image.qa_cirrus = bool(qa_cirrus)
+        if mask_path is not None:
+            image.mask_path, _ = _open_qa(mask_path, MASK_LAYOUT, grid, what=what, kind="mask")
         return image
 
     @contextmanager
@@ -227,14 +242,19 @@ class MapImage:
         """``block`` (pixels ``[row0:row1, col0:col1]`` at any shape) with nodata and QA as NaN, scaled."""
         if self.nodata is not None and not np.isnan(self.nodata):
             block[block == self.nodata] = np.nan
-        if self.qa_path is not None:
+        if self.has_mask:
             block[self.qa_invalid(row0, row1, col0, col1, block.shape)] = np.nan
         if self.scale != 1.0 or self.offset != 0.0:
             block = (block * np.float32(self.scale) + np.float32(self.offset)).astype(np.float32)
         return block
 
+    @property
+    def has_mask(self) -> bool:
+        """Whether a QA raster or a user's mask masks pixels of this image."""
+        return self.qa_path is not None or self.mask_path is not None
+
     def qa_invalid(self, row0: int, row1: int, col0: int, col1: int, out_shape) -> np.ndarray:
-        """Where the QA raster flags the pixels ``[row0:row1, col0:col1]``, sampled at ``out_shape``.
+        """Where the QA raster or the user's mask flags the pixels ``[row0:row1, col0:col1]``, sampled at ``out_shape``.
 
         Each output pixel takes the QA pixel under its centre (nearest neighbour, the QA may
         have another pixel size). A large window is read from the QA decimated (nearest) so
@@ -251,14 +271,18 @@ class MapImage:
         Returns
         -------
         ndarray of bool, shape ``out_shape``
-            True where the DOM pixel must not be used; all False without a QA raster.
+            True where the DOM pixel must not be used; all False without a QA raster or mask.
         """
         from sensor_models.maps._qa_sampling import sample_qa_invalid
 
-        if self.qa_path is None:
-            return np.zeros(tuple(out_shape), dtype=bool)
-        return sample_qa_invalid(self.qa_path, self.qa_layout, self.grid.transform, (row0, row1, col0, col1),
-                                 tuple(out_shape))
+        out = np.zeros(tuple(out_shape), dtype=bool)
+        window = (row0, row1, col0, col1)
+        if self.qa_path is not None:
+            out |= sample_qa_invalid(self.qa_path, self.qa_layout, self.grid.transform, window, tuple(out_shape),
+                                     cirrus=self.qa_cirrus)
+        if self.mask_path is not None:
+            out |= sample_qa_invalid(self.mask_path, MASK_LAYOUT, self.grid.transform, window, tuple(out_shape))
+        return out
 
 
 _SESSION_LOCK = threading.Lock()
@@ -319,20 +343,22 @@ def _open_grid(path: str, *, what: str):
         raise InputError(f"cannot be read as a {what} raster ({exc})", path=path) from None
 
 
-def _open_qa(qa_path, qa_layout, grid: MapGrid, *, what: str):
-    """``(path GDAL opens, layout)`` of a QA raster or its tiles, checked against the DOM's CRS."""
+def _open_qa(qa_path, qa_layout, grid: MapGrid, *, what: str, kind: str = "QA"):
+    """``(path GDAL opens, layout)`` of a QA raster (or a user's mask) or its tiles, checked
+    against the DOM's CRS."""
     from sensor_models.maps.mosaic import mosaic_path, raster_inputs
     from sensor_models.maps.reference_qa import qa_layout_of
 
-    files = raster_inputs(qa_path, what=f"{what} QA")
-    layouts = {qa_layout_of(f, layout=qa_layout) for f in files}
+    files = raster_inputs(qa_path, what=f"{what} {kind}")
+    layouts = {MASK_LAYOUT if qa_layout == MASK_LAYOUT else qa_layout_of(f, layout=qa_layout) for f in files}
     if len(layouts) > 1:
         raise InputError(f"the QA tiles have different layouts ({', '.join(sorted(layouts))})", path=files[0])
-    qa = mosaic_path(files, what=f"{what}-QA")
-    qa_grid, _ = _open_grid(qa, what=f"{what} QA")
-    if not qa_grid.crs.equals(grid.crs, ignore_axis_order=True):
-        raise InputError(f"the QA raster's CRS ({qa_grid.crs.name}) differs from the {what}'s ({grid.crs.name})",
-                         path=files[0])
+    qa = mosaic_path(files, what=f"{what}-{kind}")
+    qa_grid, _ = _open_grid(qa, what=f"{what} {kind}")
+    if qa_grid.crs is None or not qa_grid.crs.equals(grid.crs, ignore_axis_order=True):
+        crs_name = qa_grid.crs.name if qa_grid.crs is not None else "none"
+        raise InputError(f"the {kind} raster's CRS ({crs_name}) differs from the {what}'s ({grid.crs.name})",
+                         path=files[0], field="crs")
     return qa, layouts.pop()
 
 

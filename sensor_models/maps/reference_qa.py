@@ -3,7 +3,12 @@
 A Landsat or Sentinel-2 band used as a DOM comes with a quality raster: Landsat's bit-packed
 ``QA_PIXEL`` (Collection 2) or ``BQA`` (Collection 1 and pre-Collection), Sentinel-2's scene
 classification ``SCL`` (Level-2A, 20 m). :func:`invalid_from_qa` turns its values into a
-boolean mask, True where the DOM pixel must not be used (fill, cloud, cloud shadow, cirrus);
+boolean mask, True where the DOM pixel must not be used: fill, cloud and cloud shadow. Cirrus is
+a flag, not a mask: thin cirrus leaves the ground's texture visible to phase correlation, and on
+a hazy date the cirrus bits cover most of a scene (two thirds of the Landsat-8 crop of
+``../shared/data`` at "high" confidence, 31 %), so it is masked only when asked
+(``cirrus=True``, ``--dom-mask-cirrus``). A user's own mask (any raster, nonzero = unusable)
+has the layout ``mask``;
 :func:`qa_layout_of` says which layout a file has, from its name and, for a ``BQA`` file, from
 its values.
 
@@ -11,17 +16,21 @@ Layouts (bit 0 is the least significant bit):
 
 ``landsat-c2`` (Landsat 8-9 Collection 2 Level-1 ``QA_PIXEL``) [1]_
     bit 0 fill, bit 1 dilated cloud, bit 2 cirrus (high confidence), bit 3 cloud (high
-    confidence), bit 4 cloud shadow (high confidence). Masked: any of bits 0-4.
+    confidence), bit 4 cloud shadow (high confidence). Masked: bits 0, 1, 3, 4 (and 2 with
+    cirrus).
 ``landsat-c1`` (Landsat 8 Collection 1 ``BQA``) [2]_
     bit 0 designated fill, bit 4 cloud, bits 7-8 cloud shadow confidence, bits 11-12 cirrus
     confidence (two-bit confidences: 0 not determined, 1 low, 2 medium, 3 high). Masked: fill,
-    cloud, shadow or cirrus confidence high.
+    cloud, shadow confidence high (and cirrus confidence high with cirrus).
 ``landsat-pre-collection`` (Landsat 8 pre-Collection ``BQA``, 2013-2017) [3]_
-    bit 0 designated fill, bits 12-13 cirrus confidence, bits 14-15 cloud confidence. Masked:
-    fill, cloud or cirrus confidence high (3: 67-100 %).
+    bit 0 designated fill, bits 12-13 cirrus confidence, bits 14-15 cloud confidence (no
+    shadow bits). Masked: fill, cloud confidence high (3: 67-100 %) (and cirrus confidence
+    high with cirrus).
 ``s2-scl`` (Sentinel-2 Level-2A scene classification) [4]_
     classes 0 no data, 1 saturated or defective, 3 cloud shadows, 8 cloud medium probability,
-    9 cloud high probability, 10 thin cirrus are masked.
+    9 cloud high probability are masked (and 10 thin cirrus with cirrus).
+``mask`` (a user's own mask)
+    any raster: nonzero values are unusable.
 
 References
 ----------
@@ -44,13 +53,16 @@ import numpy as np
 
 from sensor_models.errors import InputError
 
-__all__ = ["QA_LAYOUTS", "invalid_from_qa", "qa_layout_from_name", "qa_layout_of"]
+__all__ = ["MASK_LAYOUT", "QA_LAYOUTS", "invalid_from_qa", "qa_layout_from_name", "qa_layout_of"]
 
-#: QA layouts gcpcal decodes (see the module docstring).
+#: QA layouts of products gcpcal decodes (see the module docstring).
 QA_LAYOUTS = ("landsat-c2", "landsat-c1", "landsat-pre-collection", "s2-scl")
+#: The layout of a user's own mask: nonzero = unusable.
+MASK_LAYOUT = "mask"
 
-#: Scene-classification classes of Sentinel-2 L2A masked out of a DOM.
-S2_SCL_MASKED = (0, 1, 3, 8, 9, 10)
+#: Scene-classification classes of Sentinel-2 L2A masked out of a DOM (10, thin cirrus, with cirrus).
+S2_SCL_MASKED = (0, 1, 3, 8, 9)
+S2_SCL_CIRRUS = 10
 
 _HIGH = 3  # a two-bit confidence of 67-100 %
 
@@ -60,15 +72,18 @@ def _field(values: np.ndarray, first_bit: int, n_bits: int) -> np.ndarray:
     return (values >> first_bit) & ((1 << n_bits) - 1)
 
 
-def invalid_from_qa(values, layout: str) -> np.ndarray:
-    """Pixels a QA raster marks as fill, cloud, cloud shadow or cirrus.
+def invalid_from_qa(values, layout: str, *, cirrus: bool = False) -> np.ndarray:
+    """Pixels a QA raster marks as fill, cloud or cloud shadow (and cirrus when asked).
 
     Parameters
     ----------
     values : array_like of int, any shape
-        QA values (Landsat: unsigned 16-bit words; Sentinel-2 SCL: class numbers).
-    layout : {"landsat-c2", "landsat-c1", "landsat-pre-collection", "s2-scl"}
+        QA values (Landsat: unsigned 16-bit words; Sentinel-2 SCL: class numbers; a user's mask:
+        anything, nonzero = unusable).
+    layout : {"landsat-c2", "landsat-c1", "landsat-pre-collection", "s2-scl", "mask"}
         How the values are coded (module docstring).
+    cirrus : bool
+        Mask cirrus too (high confidence; Sentinel-2: thin cirrus).
 
     Returns
     -------
@@ -80,16 +95,20 @@ def invalid_from_qa(values, layout: str) -> np.ndarray:
     InputError
         Unknown layout.
     """
+    if layout == MASK_LAYOUT:
+        v = np.asarray(values)
+        return (v != 0) & ~np.isnan(v) if v.dtype.kind == "f" else v != 0
     q = np.asarray(values).astype(np.int64)
     if layout == "landsat-c2":
-        return (q & 0b11111) != 0
+        return (q & (0b11011 | (0b100 if cirrus else 0))) != 0
     if layout == "landsat-c1":
-        return (((q & 1) != 0) | ((q & (1 << 4)) != 0) | (_field(q, 7, 2) == _HIGH)
-                | (_field(q, 11, 2) == _HIGH))
+        out = ((q & 1) != 0) | ((q & (1 << 4)) != 0) | (_field(q, 7, 2) == _HIGH)
+        return out | (_field(q, 11, 2) == _HIGH) if cirrus else out
     if layout == "landsat-pre-collection":
-        return ((q & 1) != 0) | (_field(q, 14, 2) == _HIGH) | (_field(q, 12, 2) == _HIGH)
+        out = ((q & 1) != 0) | (_field(q, 14, 2) == _HIGH)
+        return out | (_field(q, 12, 2) == _HIGH) if cirrus else out
     if layout == "s2-scl":
-        return np.isin(q, S2_SCL_MASKED)
+        return np.isin(q, S2_SCL_MASKED + ((S2_SCL_CIRRUS,) if cirrus else ()))
     raise InputError(f"unknown QA layout {layout!r}; one of {', '.join(QA_LAYOUTS)}", field="dom_qa_layout")
 
 
