@@ -58,6 +58,55 @@ def test_localize_inverse_json_and_round_trip(capsys):
     assert np.max(err_px) < 1e-6
 
 
+def _gcpcal(*argv, stdin: str = ""):
+    """The console script in a subprocess, text on standard input."""
+    exe = shutil.which("gcpcal") or str(Path(sys.executable).with_name("gcpcal"))
+    return subprocess.run([exe, *map(str, argv)], input=stdin, capture_output=True, text=True, timeout=120)
+
+
+def test_localize_streams_csv_and_json_lines_through_a_pipe(tmp_path):
+    """``--csv -`` / ``--jsonl -`` read standard input and ``--out -`` writes standard output, so
+    that two gcpcal localize calls chain in a shell pipe back to the starting pixels; JSON lines
+    keep their other keys; a .jsonl output file is JSON lines; nothing else lands on stdout."""
+    rows, cols = [0.5, 1000.0, 1999.5], [0.5, 1000.25, 2047.5]
+    csv_in = "row,col\n" + "".join(f"{r},{c}\n" for r, c in zip(rows, cols))
+    res = _gcpcal("localize", EXAMPLE, "--csv", "-", "--height", "300", "--out", "-", stdin=csv_in)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.splitlines()[0] == "row,col,lon,lat,h" and len(res.stdout.splitlines()) == 4
+    back = _gcpcal("localize", EXAMPLE, "--csv", "-", "--inverse", "--out", "-", stdin=res.stdout)
+    assert back.returncode == 0, back.stderr
+    got = np.loadtxt(back.stdout.splitlines()[1:], delimiter=",")
+    np.testing.assert_allclose(got[:, 0], rows, atol=1e-3)  # 1e-10 degrees written (~1 cm)
+    np.testing.assert_allclose(got[:, 1], cols, atol=1e-3)
+    jl_in = "".join(json.dumps({"id": f"p{i}", "row": r, "col": c, "note": "kept"}) + "\n"
+                    for i, (r, c) in enumerate(zip(rows, cols))) + "\n"  # a blank line is skipped
+    res = _gcpcal("localize", EXAMPLE, "--jsonl", "-", "--height", "300", "--out", "-", stdin=jl_in)
+    assert res.returncode == 0, res.stderr
+    recs = [json.loads(line) for line in res.stdout.splitlines()]
+    assert [r["id"] for r in recs] == ["p0", "p1", "p2"] and {r["note"] for r in recs} == {"kept"}
+    assert set(recs[0]) == {"id", "row", "col", "note", "lon", "lat", "h"} and recs[1]["h"] == 300.0
+    back = _gcpcal("localize", EXAMPLE, "--jsonl", "-", "--inverse", "--out", tmp_path / "back.jsonl",
+                   stdin=res.stdout)
+    assert back.returncode == 0 and back.stdout == "", back.stderr
+    again = [json.loads(line) for line in (tmp_path / "back.jsonl").read_text().splitlines()]
+    np.testing.assert_allclose([r["row"] for r in again], rows, atol=1e-3)
+    assert [r["id"] for r in again] == ["p0", "p1", "p2"]
+    assert json.loads((tmp_path / "back.summary.json").read_text())["points"] == 3
+
+
+@pytest.mark.parametrize("stdin, message", [
+    ('{"row": "x", "col": 1}\n', "<stdin>: field 'row': line 1: must be a finite number"),
+    ('{"row": 1}\n', "field 'col': line 1"),
+    ("[1, 2]\n", "line 1: a JSON object is needed"),
+    ("{not json\n", "line 1: not JSON"),
+    ("\n\n", "holds no points"),
+])
+def test_localize_json_lines_errors_name_the_line_and_key(stdin, message):
+    res = _gcpcal("localize", EXAMPLE, "--jsonl", "-", "--height", "0", "--out", "-", stdin=stdin)
+    assert res.returncode == 1 and res.stdout == ""
+    assert len(res.stderr.strip().splitlines()) == 1 and message in res.stderr, res.stderr
+
+
 def test_localize_csv_out(capsys, tmp_path):
     pts = tmp_path / "pts.csv"
     pts.write_text("id,row,col\na,0.5,0.5\nb,1000,1000\nc,1999.5,2047.5\n", encoding="utf-8")

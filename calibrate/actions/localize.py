@@ -3,6 +3,11 @@
 Image coordinates put the first pixel's centre at ``(0.5, 0.5)``; ground points are WGS84
 longitude and latitude in degrees and heights in metres above the ellipsoid.
 
+Points stream as rio and gdaltransform do: ``-`` reads them from standard input (CSV with a
+header, or JSON lines: one object per line with ``row``/``col`` or ``lon``/``lat``/``h``, other
+keys passed through) and writes the results on standard output (CSV, or JSON lines when the
+points came as JSON lines); a file output ending in ``.jsonl`` or ``.ndjson`` is JSON lines.
+
 Inputs are checked before anything is computed: image points outside the image
 (``0 <= row <= n_rows``, ``0 <= col <= n_cols``) and ground coordinates outside
 :data:`GROUND_RANGES` are refused with one line naming the field (no NaN, no per-point flag), and
@@ -13,6 +18,8 @@ from __future__ import annotations
 
 import csv
 import io
+import json
+import sys
 import time
 from pathlib import Path
 
@@ -22,10 +29,24 @@ from calibrate.actions._guard import InputSet, is_stdout
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
-from sensor_models.files.documents import csv_error, read_text
+from sensor_models.files.documents import csv_error, decode_text, read_text
 
-__all__ = ["GROUND_RANGES", "check_ground_points", "check_image_points", "csv_lines", "localize_points",
-           "read_points_csv"]
+__all__ = ["GROUND_RANGES", "JSON_LINES_SUFFIXES", "STDIN_NAME", "check_ground_points", "check_image_points",
+           "csv_lines", "json_lines", "localize_points", "read_points_csv", "read_points_json_lines"]
+
+#: File suffixes of JSON lines outputs.
+JSON_LINES_SUFFIXES = (".jsonl", ".ndjson")
+#: How standard input is named in messages.
+STDIN_NAME = "<stdin>"
+#: Decimals written per column (CSV and JSON lines): 1e-6 px, 1e-10 degree (~1e-5 m), 0.1 mm.
+_DECIMALS = {"row": 6, "col": 6, "lon": 10, "lat": 10, "h": 4}
+
+
+def _points_text(path) -> tuple[str, str]:
+    """``(text, name for messages)`` of a points file, or of standard input for ``-``."""
+    if str(path) == "-":
+        return decode_text(sys.stdin.buffer.read(), STDIN_NAME), STDIN_NAME
+    return read_text(Path(path)), str(path)
 
 #: Accepted ranges of ground coordinates: ``[low, high)`` for ``lon`` (degrees; 0..360 east is
 #: accepted too), ``[low, high]`` for ``lat`` (degrees) and ``h`` (metres above the ellipsoid).
@@ -47,15 +68,85 @@ def read_points_csv(path, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
     dict
         Column name -> float64 array of shape (N,), N >= 1.
     """
-    path = Path(path)
-    reader = csv.DictReader(io.StringIO(read_text(path), newline=""))
+    text, path = _points_text(path)
+    reader = csv.DictReader(io.StringIO(text, newline=""))
     try:
         return _points(reader, path, columns)
     except csv.Error as exc:  # bad quoting, a field over the csv module's limit
         raise csv_error(exc, path, reader.line_num) from None
 
 
-def _points(reader: csv.DictReader, path: Path, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
+def read_points_json_lines(path, columns: tuple[str, ...]) -> tuple[dict[str, np.ndarray], list[dict]]:
+    """Read points from JSON lines: one object per line holding ``columns`` (numbers).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file, or ``-`` for standard input.
+    columns : tuple of str
+        Keys every object must hold (``row, col`` or ``lon, lat, h``).
+
+    Returns
+    -------
+    points : dict
+        Column name -> float64 array of shape (N,), N >= 1.
+    records : list of dict
+        The N objects as read (their other keys are passed through to the output).
+
+    Raises
+    ------
+    InputError
+        A line that is not a JSON object, a missing key, a value that is not a finite number, no
+        point at all; the message names the file (or standard input), the line and the key.
+    """
+    text, name = _points_text(path)
+    records, values = [], {c: [] for c in columns}
+    for line_no, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+        except (json.JSONDecodeError, RecursionError) as exc:
+            raise InputError(f"line {line_no}: not JSON ({getattr(exc, 'msg', 'nested too deep')})", path=name) from None
+        if not isinstance(rec, dict):
+            raise InputError(f"line {line_no}: a JSON object is needed, got {type(rec).__name__}", path=name)
+        for c in columns:
+            v = rec.get(c)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                raise InputError(f"line {line_no}: must be a finite number, got {v!r}", path=name, field=c)
+            values[c].append(float(v))
+        records.append(rec)
+    if not records:
+        raise InputError("holds no points", path=name)
+    return {c: np.asarray(v) for c, v in values.items()}, records
+
+
+def json_lines(table: dict, records: list[dict] | None = None) -> list[str]:
+    """JSON lines of localized points: each input object (if any) with the five results set.
+
+    Parameters
+    ----------
+    table : dict
+        ``row, col, lon, lat, h``: float arrays of shape (N,).
+    records : list of dict, optional
+        The N input objects whose other keys are kept.
+
+    Returns
+    -------
+    list of str
+        N lines, without line ends; a point not localized has nulls.
+    """
+    out = []
+    for i in range(table["row"].size):
+        rec = dict(records[i]) if records is not None else {}
+        for k, d in _DECIMALS.items():
+            v = float(table[k][i])
+            rec[k] = round(v, d) if np.isfinite(v) else None
+        out.append(json.dumps(rec, ensure_ascii=False))
+    return out
+
+
+def _points(reader: csv.DictReader, path: str, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
     header = reader.fieldnames or []
     missing = [c for c in columns if c not in header]
     if missing:
@@ -159,8 +250,9 @@ def csv_lines(table: dict) -> list[str]:
     return lines
 
 
-def _write_csv(out_path: Path, table: dict, summary: dict, inputs) -> None:
-    lines = csv_lines(table)
+def _write_points(out_path: Path, table: dict, summary: dict, inputs, records) -> None:
+    jsonl = out_path.suffix.lower() in JSON_LINES_SUFFIXES
+    lines = json_lines(table, records) if jsonl else csv_lines(table)
     with staged_files(out_path, out_path.with_suffix(".summary.json"), inputs=inputs) as (csv_tmp, summary_tmp):
         csv_tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
         write_summary(summary_tmp, summary | {"output": str(out_path)})
@@ -202,7 +294,8 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
         Anything :func:`sensor_models.open_model` reads.
     points : dict
         ``row, col`` (direct) or ``lon, lat, h`` (inverse): float64 arrays of shape (N,); or
-        ``{"csv": path}`` to read those columns from a CSV file.
+        ``{"csv": path}`` / ``{"jsonl": path}`` to read them from a CSV or JSON lines file
+        (``-``: standard input).
     direction : {"direct", "inverse"}
         Image -> ground, or ground -> image.
     height : float, optional
@@ -212,8 +305,9 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     band : str, optional
         Band of a multi-band model; default: the reference band.
     out_path : str or Path, optional
-        CSV ``row,col,lon,lat,h``; ``.summary.json`` goes beside it. ``-``: nothing is written
-        (the caller prints :func:`csv_lines` on standard output).
+        CSV ``row,col,lon,lat,h`` (JSON lines for a ``.jsonl``/``.ndjson`` name);
+        ``.summary.json`` goes beside it. ``-``: nothing is written (the caller prints
+        :func:`csv_lines` or :func:`json_lines` on standard output).
     self_check : {"refuse", "warn"}
         For a vendor product whose model disagrees with its own statements: refuse, or proceed
         and record the disagreement (``product_check``, ``warnings``) in the summary.
@@ -222,20 +316,24 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     -------
     dict
         The summary (``points``, ``not_localized``, ...) plus ``results``: ``row, col, lon, lat,
-        h`` arrays of shape (N,).
+        h`` arrays of shape (N,), and ``records``: the input JSON objects (None for other inputs).
     """
     from sensor_models.readers import open_scene
 
     t0 = time.perf_counter()
-    inputs = InputSet([model_path, points.get("csv"), dem_path, geoid])
+    given = points.get("csv", points.get("jsonl"))
+    inputs = InputSet([model_path, None if str(given) == "-" else given, dem_path, geoid])
     to_stdout = is_stdout(out_path)
     if out_path and not to_stdout:  # before any work
         check_output_files(Path(out_path), Path(out_path).with_suffix(".summary.json"), inputs=inputs)
     columns = ("row", "col") if direction == "direct" else ("lon", "lat", "h")
-    source = None
+    source, records = None, None
     if "csv" in points:
-        source = str(points["csv"])
-        points = read_points_csv(Path(points["csv"]), columns)
+        source = STDIN_NAME if str(points["csv"]) == "-" else str(points["csv"])
+        points = read_points_csv(points["csv"], columns)
+    elif "jsonl" in points:
+        source = STDIN_NAME if str(points["jsonl"]) == "-" else str(points["jsonl"])
+        points, records = read_points_json_lines(points["jsonl"], columns)
     model = open_scene(model_path, self_check=self_check)  # a raster with its RPC, or a crop, or a model file
     warning = require_usable(model, model_path, command="localize")
     kwargs = {} if band is None else {"band": band}
@@ -270,5 +368,5 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
         "seconds": round(time.perf_counter() - t0, 4),
     }
     if out_path and not to_stdout:
-        _write_csv(Path(out_path), table, summary, inputs)
-    return summary | {"results": table}
+        _write_points(Path(out_path), table, summary, inputs, records)
+    return summary | {"results": table, "records": records}
