@@ -79,7 +79,8 @@ def window_count(model, band: str, options: MatchOptions) -> int:
 
 
 def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndarray | None = None,
-                 options: MatchOptions = MatchOptions(), progress=None, accuracy: ReferenceAccuracy | None = None):
+                 options: MatchOptions = MatchOptions(), progress=None, accuracy: ReferenceAccuracy | None = None,
+                 progress_count=None):
     """Dense GCPs of one band of a scene (see the module docstring).
 
     Parameters
@@ -107,6 +108,9 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
         The DOM's geolocation accuracy (``sigma_model="window"``); ``options.reference_sigma_m``
         wins when set; default: what ``dom.path`` states, else assumed
         (:func:`sensor_models.maps.dom_inputs.reference_accuracy`).
+    progress_count : callable(int, int), optional
+        Called with ``(windows done, windows in all)`` after the coarse stage and after each
+        batch of windows.
 
     Returns
     -------
@@ -120,7 +124,8 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
     """
     opt = options.validate()
     with opencv_threads(opt.thread_count()):
-        return _extract(model, scene, dem, dom, band=band, mask=mask, opt=opt, accuracy=accuracy, progress=progress)
+        return _extract(model, scene, dem, dom, band=band, mask=mask, opt=opt, accuracy=accuracy, progress=progress,
+                        progress_count=progress_count)
 
 
 @contextmanager
@@ -134,7 +139,7 @@ def opencv_threads(n: int):
         cv2.setNumThreads(before)
 
 
-def _extract(model, scene, dem, dom, *, band, mask, opt: MatchOptions, accuracy, progress):
+def _extract(model, scene, dem, dom, *, band, mask, opt: MatchOptions, accuracy, progress, progress_count=None):
     """:func:`extract_gcps` with validated options, inside the thread setting."""
     t0 = time.perf_counter()
     scene = _checked_scene(model, scene, mask)
@@ -147,7 +152,9 @@ def _extract(model, scene, dem, dom, *, band, mask, opt: MatchOptions, accuracy,
     if progress:
         progress(f"coarse stage: {coarse.n_inliers} SIFT matches, model pre-corrected")
     height_m = scene_height_m(model_pc, dem, band=band)
-    tally = _Tally(height_m=height_m, mask_given=mask is not None, accuracy=_accuracy(dom, opt, accuracy))
+    tally = _Tally(height_m=height_m, mask_given=mask is not None, accuracy=_accuracy(dom, opt, accuracy),
+                   count=progress_count, windows_total=window_count(model_pc, band, opt))
+    tally.windows_done_by(0)
     # no DOM read session across CCDs (MapImage.reading): at full size it fills GDAL's block cache
     # (+1.27 GB peak, 2931 -> 4205 MiB) for no end-to-end gain (84.0 vs 86.3 s; docs/speed.md)
     for i, look in enumerate(model_pc.detector_arrays(band)):
@@ -187,6 +194,15 @@ class _Tally:
     n_windows: int = 0
     t_ref: float = 0.0
     t_phase: float = 0.0
+    count: object = None  # progress_count(done, total) of extract_gcps
+    windows_total: int = 0
+    windows_done: int = 0
+
+    def windows_done_by(self, k: int) -> None:
+        """``k`` more windows done: tell the progress counter."""
+        self.windows_done += int(k)
+        if self.count is not None:
+            self.count(self.windows_done, self.windows_total)
 
 
 def _checked_scene(model, scene, mask) -> np.ndarray:
@@ -245,7 +261,7 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
     n = rr.size
     tally.n_windows += n
     t1 = time.perf_counter()
-    status, std_r, shift, quality = _correlate_windows(img, ref, msk, rr, cc, opt)
+    status, std_r, shift, quality = _correlate_windows(img, ref, msk, rr, cc, opt, on_batch=tally.windows_done_by)
     tally.t_phase += time.perf_counter() - t1
     ref_rc_px = _reference_px(tally, model_pc, band, look, ccd)
     keep, r_c, c_c, sigma = reject_outliers(status, std_r, shift, rr, cc, (rs.size, cs.size), look.first_col, opt,
@@ -330,8 +346,10 @@ def _cause(report, counts, dem, dom) -> str:
     return "windows rejected: " + (", ".join(f"{k} {v}" for v, k in top) or "no window fits the CCD")
 
 
-def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
+def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions, on_batch=None):
     """Screen and phase-correlate the windows at upper-left corners ``(rr, cc)``, in batches.
+
+    ``on_batch(k)``, when given, is called after each batch with the number of windows it held.
 
     Returns
     -------
@@ -372,6 +390,8 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
         status[a:b][(status[a:b] == "") & cloudy] = "cloud"
         go = np.flatnonzero(status[a:b] == "")
         if go.size == 0:
+            if on_batch is not None:
+                on_batch(b - a)
             continue
         pm = correlate_pairs(wr[go], ws[go], opt)
         shift[a + go] = pm.shift_px
@@ -382,6 +402,8 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions):
             batch_quality.update(gradient_snr_row=snr[:, 0], gradient_snr_col=snr[:, 1])
         for k, v in batch_quality.items():
             quality.setdefault(k, np.full(n, np.nan))[a + go] = v
+        if on_batch is not None:
+            on_batch(b - a)
     return status, std_r, shift, quality
 
 

@@ -256,6 +256,38 @@ def test_stage_progress_forced_terminal_and_quiet():
     assert StageProgress("x", quiet=False, console=plain).live is False
 
 
+def test_counted_progress_off_a_terminal_prints_tenths_with_time_left(monkeypatch, capsys):
+    """Off a terminal, counted work prints a plain line at each further tenth once the stage has
+    run 2 s, with the time left from the rate since counting began; nothing before 2 s, none
+    under -q."""
+    import io
+
+    from rich.console import Console
+
+    import calibrate.cli._progress as progress_module
+    from calibrate.cli._progress import StageProgress, format_seconds
+
+    clock = [100.0]
+    monkeypatch.setattr(progress_module.time, "perf_counter", lambda: clock[0])
+    with StageProgress("gcpcal match: windows", quiet=False, console=Console(file=io.StringIO())) as progress:
+        progress.count(0, 1000)
+        clock[0] += 1.0
+        progress.count(150, 1000)  # 1 s: too early for a line
+        clock[0] += 2.0
+        progress.count(300, 1000)  # 3 s, 300 done at 100/s: 7 s left
+        progress.count(320, 1000)  # same tenth: no line
+        clock[0] += 7.0
+        progress.count(1000, 1000)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == ["gcpcal match: windows 30 % (300/1000), 3 s, about 7 s left",
+                     "gcpcal match: windows 100 % (1000/1000), 10 s"]
+    with StageProgress("x", quiet=True, console=Console(file=io.StringIO())) as progress:
+        clock[0] += 5.0
+        progress.count(5, 10)
+    assert capsys.readouterr().err == ""
+    assert [format_seconds(s) for s in (0.4, 59.6, 200, 3725)] == ["0 s", "1 min 00 s", "3 min 20 s", "1 h 02 min"]
+
+
 # ----------------------------------------------------------------------------- tables keep whole names
 def test_validate_table_folds_long_scene_names():
     from rich.console import Console

@@ -64,7 +64,7 @@ def residual_layer_path(gcps_path) -> Path:
 
 def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_datum=None, band=None, image=None,
                 mask_path=None, gpkg_path=None, geotiff_path=None, options: MatchOptions = MatchOptions(),
-                progress=None, self_check: str = "refuse") -> dict:
+                progress=None, self_check: str = "refuse", progress_count=None) -> dict:
     """Read the inputs, extract GCPs, write the CSV (+ GeoPackage/GeoTIFF) and the summary.
 
     Parameters
@@ -99,6 +99,8 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         Matching settings.
     progress : callable(str), optional
         Receives progress messages.
+    progress_count : callable(int, int), optional
+        Receives ``(windows done, windows in all)`` as the windows are matched.
     self_check : {"refuse", "warn"}
         For a vendor product whose model disagrees with its own statements: refuse, or proceed
         and record the disagreement (``product_check``, ``warnings``) in the summary.
@@ -139,7 +141,7 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         mask = np.nan_to_num(mask) != 0
     accuracy = reference_accuracy(dom_found.files, given_m=options.reference_sigma_m)  # option, DOM's tags/MTL, assumed
     table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress,
-                                  accuracy=accuracy)
+                                  accuracy=accuracy, progress_count=progress_count)
     out_path = Path(out_path)
     summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
     if table is not None and len(table) > 0:

@@ -64,11 +64,11 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpk
     options = MatchOptions(window_px=window, spacing_px=spacing, max_offset_px=max_offset,
                            check_fraction=check_fraction, backend=backend, sigma_model=sigma_model,
                            reference_sigma_m=reference_sigma_m, threads=threads)
-    with stage_progress(ctx, "gcpcal match", as_json) as progress:
+    with stage_progress(ctx, "gcpcal match: windows", as_json) as progress:
         summary = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=out_path, geoid=geoid,
                               dem_datum=dem_datum, band=band, image=image, mask_path=mask_path, gpkg_path=gpkg_path,
                               geotiff_path=geotiff_path, options=options, progress=progress.message,
-                              self_check=self_check)
+                              self_check=self_check, progress_count=progress.count)
     echo_warnings(summary)
     if as_json:
         echo_json(summary)
