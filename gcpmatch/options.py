@@ -88,9 +88,9 @@ class MatchOptions:
     lowpass_cycles_px : float or None
         Standard deviation, cycles/px, of a Gaussian weight on the cross-power spectrum
         (``lowpass`` of :func:`gcpmatch.phase.phase_correlate`); None for none; > 0.
-    reference_sigma_m : float or None
-        Geolocation accuracy of the reference DOM (and its DEM's effect), metres per axis (1
-        sigma), as its producer states it; >= 0. None (default): what the DOM states
+    reference_sigma_m : float, (float, float) or None
+        Geolocation accuracy of the reference DOM (and its DEM's effect), metres (1 sigma): one
+        value for both axes or ``(east, north)``, as its producer states it; >= 0. None (default): what the DOM states
         (:func:`sensor_models.maps.dom_inputs.reference_accuracy`: its GDAL tags or a Landsat MTL),
         else an assumed value that the summary names. Used by ``sigma_model="window"``.
     min_gradient_snr : float
@@ -128,7 +128,7 @@ class MatchOptions:
     sigma_model: str = "window"
     phase_eps: float = 0.5
     lowpass_cycles_px: float | None = None
-    reference_sigma_m: float | None = None
+    reference_sigma_m: float | tuple[float, float] | None = None
     coarse_skip: bool = False
     min_gradient_snr: float = 0.0
     texture_sigma_px: float = 0.0
@@ -188,10 +188,12 @@ class MatchOptions:
                                                    or not self.lowpass_cycles_px > 0):
             raise InputError(f"low-pass must be > 0 cycles/px or None, got {self.lowpass_cycles_px!r}",
                              field="lowpass_cycles_px")
-        if self.reference_sigma_m is not None and (not _is_real(self.reference_sigma_m)
-                                                   or not self.reference_sigma_m >= 0):
-            raise InputError(f"reference sigma must be >= 0 metres, got {self.reference_sigma_m!r}",
-                             field="reference_sigma_m")
+        if self.reference_sigma_m is not None:
+            values = (self.reference_sigma_m if isinstance(self.reference_sigma_m, (tuple, list))
+                      else (self.reference_sigma_m,))
+            if len(values) not in (1, 2) or not all(_is_real(v) and v >= 0 for v in values):
+                raise InputError(f"reference sigma must be one or two (east, north) values >= 0 metres, got "
+                                 f"{self.reference_sigma_m!r}", field="reference_sigma_m")
         for name in ("min_gradient_snr", "texture_sigma_px", "mismatch_sigma_scale"):
             value = getattr(self, name)
             if not _is_real(value) or not value >= 0.0 or value == float("inf"):

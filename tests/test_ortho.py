@@ -324,8 +324,17 @@ def test_gcp_geotiff_warps_with_gdal(demo, tmp_path):
 
 
 # ---------------------------------------------------------------- CLI errors
+def test_missing_dem_is_a_usage_error_marked_in_the_help(tmp_path, capsys):
+    """--dem is required (the help says so) and a missing one is a usage error (exit 2)."""
+    assert main(["ortho", str(LAB), "--out", str(tmp_path / "o.tif")]) == 2
+    assert "Missing option '--dem'" in capsys.readouterr().err
+    assert main(["ortho", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "--dem PATH" in out and "[required]" in out.split("--dem PATH", 1)[1].split("--dem-datum", 1)[0]
+    assert not list(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize("args, message", [
-    (["--out", "{tmp}/o.tif"], "--dem is required"),
     (["--dem", str(DEM), "--out", "{tmp}/o.tif", "--band", "B9"], "unknown band 'B9'"),
     (["--dem", str(DEM), "--out", "{tmp}/o.tif", "--crs", "EPSG:4326"], "geographic"),
     (["--dem", str(DEM), "--out", "{tmp}/o.tif", "--crs", "EPSG:99999999"], "unknown CRS"),

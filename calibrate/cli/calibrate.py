@@ -6,15 +6,15 @@ Exit codes follow the run's status (:mod:`calibrate.coverage`): 0 ``calibrated``
 
 from __future__ import annotations
 
-import math
 
 import click
 
 from calibrate.actions.calibrate import calibrate_scene
 from calibrate.cli._errors import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import (accept_product_disagreement_option, allow_implausible_option, echo_json, echo_warnings,
-                                   exit_with_status, json_option, out_dir_option)
+from calibrate.cli.options import (accept_product_disagreement_option, allow_implausible_option, east_north_metres,
+                                   echo_json, echo_warnings, exit_with_status, json_option, out_dir_option,
+                                   reference_sigma_option)
 from calibrate.config import ATTITUDE_MODES, CALIBRATION_SCHEMES, ROBUST_LOSSES, CalibrationOptions
 
 __all__ = ["command"]
@@ -33,10 +33,8 @@ _EXIT_OF_STATUS = {"calibrated": EXIT_OK, "partial": EXIT_PARTIAL, "failed": EXI
               help="Robust loss.")
 @click.option("--attitude", type=click.Choice(ATTITUDE_MODES), default=CalibrationOptions.attitude, show_default=True,
               help="Time-varying attitude correction (push-broom): none, drift, P-spline (smoothing by blocked cross-validation), or chosen by the data (docs/attitude.md).")
-@click.option("--reference-sigma-m", "reference_sigma_m", metavar="E[,N]", default=None,
-              help="Geolocation accuracy of the reference the GCPs come from, m (1 sigma east[,north]); its common "
-                   "shift enters the parameters' covariance (default: reference_accuracy of the match summary "
-                   "beside the GCP table, else no such term).")
+@reference_sigma_option("the reference the GCPs come from; its common shift enters the parameters' covariance "
+                        "(default: reference_accuracy of the match summary beside the GCP table, else no such term).")
 @click.option("--reference-field-m", "reference_field_m", metavar="RMS,LENGTH", default=None,
               help="Part of that error that is a smooth field: its rms per axis and correlation length, m (the rest "
                    "is one common shift; docs/calibration_outputs.md).")
@@ -57,7 +55,7 @@ def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, attitude, refer
     Exit 0: calibrated; 4: partial (CCDs not calibrated or not verified, named); 3: failed.
     """
     options = CalibrationOptions(scheme=scheme, robust=robust, attitude=attitude,
-                                 reference_sigma_m=_east_north(reference_sigma_m, "--reference-sigma-m"),
+                                 reference_sigma_m=reference_sigma_m,
                                  reference_field_m=_pair(reference_field_m, "--reference-field-m"))
     with stage_progress(ctx, "gcpcal calibrate", as_json) as progress:
         summary = calibrate_scene(scene_path, gcps_path, out_dir, options=options, band=band, image=image,
@@ -72,23 +70,9 @@ def command(ctx, scene_path, gcps_path, out_dir, scheme, robust, attitude, refer
         exit_with_status(ctx, code, summary.get("status_message") or summary["message"])
 
 
-def _east_north(text, hint, sizes=(1, 2)):
-    """None, or a pair of metres >= 0 from ``A`` (both) or ``A,B``."""
-    if text is None:
-        return None
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) not in sizes or not all(math.isfinite(v) and v >= 0.0 for v in values):
-        form = "A,B" if sizes == (2,) else "A or A,B"
-        raise click.BadParameter(f"expected {form} (metres >= 0), got {text!r}", param_hint=hint)
-    return (values[0], values[-1])
-
-
 def _pair(text, hint):
     """``--reference-field-m RMS,LENGTH``: None or (rms, length) metres, length > 0."""
-    value = _east_north(text, hint, sizes=(2,))
+    value = east_north_metres(text, hint, sizes=(2,))
     if value is not None and value[1] <= 0.0:
         raise click.BadParameter(f"the correlation length must be > 0 m, got {text!r}", param_hint=hint)
     return value

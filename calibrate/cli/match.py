@@ -8,10 +8,10 @@ from calibrate.actions.match import match_scene
 from calibrate.config import MatchOptions
 from gcpmatch.options import SIGMA_MODELS
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options,
-                                   dom_options, echo_json, echo_warnings, json_option)
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option,
+                                   dom_options, echo_json, echo_warnings, json_option, reference_sigma_option,
+                                   required_dem_options, window_option)
 from sensor_models.maps.dom_inputs import ASSUMED_REFERENCE_SIGMA_M
-from sensor_models.errors import InputError
 
 __all__ = ["command"]
 
@@ -20,7 +20,7 @@ __all__ = ["command"]
 @allow_implausible_option
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
 @dom_options
-@add_options(dem_options)
+@add_options(required_dem_options)
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="GCP table (CSV); a .summary.json goes beside it.")
 @click.option("--gpkg", "gpkg_path", type=click.Path(dir_okay=False), help="Also write the GCPs as a GeoPackage layer.")
 @click.option("--geotiff", "geotiff_path", type=click.Path(dir_okay=False), help="Also write the GCPs into a GeoTIFF (GDAL GCPs).")
@@ -29,8 +29,7 @@ __all__ = ["command"]
 @click.option("--mask", "mask_path", type=click.Path(dir_okay=False), help="Cloud/invalid mask raster in scene geometry (nonzero = invalid).")
 @click.option("--check-fraction", type=click.FloatRange(0.0, 0.9), default=MatchOptions.check_fraction, show_default=True,
               help="Share of matches kept as independent check points.")
-@click.option("--window", type=click.IntRange(min=16), default=MatchOptions.window_px, show_default=True,
-              help="Phase-correlation window, pixels.")
+@window_option(MatchOptions.window_px, square=True)
 @click.option("--spacing", type=click.IntRange(min=1), default=MatchOptions.spacing_px, show_default=True,
               help="Window grid spacing, pixels.")
 @click.option("--max-offset", type=click.FloatRange(min=1.0), default=MatchOptions.max_offset_px, show_default=True,
@@ -40,11 +39,9 @@ __all__ = ["command"]
 @click.option("--sigma-model", type=click.Choice(SIGMA_MODELS), default=MatchOptions.sigma_model, show_default=True,
               help="Per-GCP sigma: 'window' (from each window's correlation score plus the reference's accuracy) "
                    "or 'ccd' (the spread of each CCD's matches); docs/matching.md.")
-@click.option("--reference-sigma-m", type=click.FloatRange(min=0.0), default=None,
-              help="Geolocation accuracy of the DOM (1-sigma per axis, m), as its producer states it "
-                   "(default: the DOM's GEOLOCATION_RMSE_M or GEOMETRIC_RMSE_X/Y tags, or GEOMETRIC_RMSE_MODEL_X/Y "
-                   "of a Landsat MTL beside it, else an assumed "
-                   f"{ASSUMED_REFERENCE_SIGMA_M:.1f} m); used by --sigma-model window.")
+@reference_sigma_option("the DOM's, as its producer states it (default: the DOM's GEOLOCATION_RMSE_M or "
+                        "GEOMETRIC_RMSE_X/Y tags, or GEOMETRIC_RMSE_MODEL_X/Y of a Landsat MTL beside it, else an "
+                        f"assumed {ASSUMED_REFERENCE_SIGMA_M:.1f} m); used by --sigma-model window.")
 @click.option("--threads", type=click.IntRange(min=0), default=MatchOptions.threads, show_default=True,
               help="Threads for the reference chips, FFTs and OpenCV; 0: every core. The GCPs do not depend on it.")
 @accept_product_disagreement_option
@@ -59,8 +56,6 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpk
     beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
     .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
     """
-    if dem_path is None:
-        raise InputError("--dem is required: GCPs need terrain heights")
     options = MatchOptions(window_px=window, spacing_px=spacing, max_offset_px=max_offset,
                            check_fraction=check_fraction, backend=backend, sigma_model=sigma_model,
                            reference_sigma_m=reference_sigma_m, threads=threads)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 
 import click
 import numpy as np
@@ -29,21 +30,138 @@ def _tiles(ctx, param, value):
 
 _TILE_FORMS = "repeat the option, or give a comma list, a folder, a glob (quoted) or a .vrt"
 
-#: ``--dem``, ``--dem-datum``, ``--geoid`` (keywords ``dem_path``, ``dem_datum``, ``geoid``).
-dem_options = [
-    click.option("--dem", "dem_path", multiple=True, callback=_tiles, type=click.Path(),
-                 help=f"DEM raster (any CRS rasterio reads), or tiles mosaicked on the fly (SRTM .hgt, Copernicus "
-                      f"GLO-30): {_TILE_FORMS}."),
-    click.option(
-        "--dem-datum",
-        type=click.Choice(["ellipsoid", "egm96"]),
-        default=None,
-        help="Vertical datum of the DEM heights when the file does not declare it.",
-    ),
-    click.option("--geoid", type=click.Path(dir_okay=False),
-                 help="Geoid grid (e.g. egm96_15.gtx) for egm96 heights; default: us_nga_egm96_15.tif or "
-                      "egm96_15.gtx in PROJ's data directories."),
-]
+def _dem_option_list(required: bool) -> list:
+    """``--dem`` (required or not), ``--dem-datum``, ``--geoid``."""
+    return [
+        click.option("--dem", "dem_path", multiple=True, callback=_tiles, type=click.Path(), required=required,
+                     help=f"DEM raster (any CRS rasterio reads), or tiles mosaicked on the fly (SRTM .hgt, Copernicus "
+                          f"GLO-30): {_TILE_FORMS}."),
+        click.option(
+            "--dem-datum",
+            type=click.Choice(["ellipsoid", "egm96"]),
+            default=None,
+            help="Vertical datum of the DEM heights when the file does not declare it.",
+        ),
+        click.option("--geoid", type=click.Path(dir_okay=False),
+                     help="Geoid grid (e.g. egm96_15.gtx) for egm96 heights; default: us_nga_egm96_15.tif or "
+                          "egm96_15.gtx in PROJ's data directories."),
+    ]
+
+
+#: ``--dem``, ``--dem-datum``, ``--geoid`` (keywords ``dem_path``, ``dem_datum``, ``geoid``), for
+#: commands that can work without a DEM (a constant height instead).
+dem_options = _dem_option_list(required=False)
+#: The same with ``--dem`` required (marked so in the help; a missing one is a usage error, exit 2),
+#: for commands that need terrain (match, run, relative, ortho).
+required_dem_options = _dem_option_list(required=True)
+
+
+def parse_window(text: str, *, square: bool = False):
+    """The ``--window`` value of every command: ``"64"`` -> 64, ``"64x32"`` -> ``(64, 32)``.
+
+    Parameters
+    ----------
+    text : str
+        ``N`` (square) or ``ROWSxCOLS``; even sizes >= 16 pixels.
+    square : bool
+        The command matches square windows only (``match``): ``RxC`` must have R == C.
+
+    Returns
+    -------
+    int or (int, int)
+        Window size, pixels (an int for a square window).
+
+    Raises
+    ------
+    click.BadParameter
+        Not of that form (a usage error, exit 2).
+    """
+    try:
+        sizes = [int(v) for v in str(text).lower().split("x")]
+        if len(sizes) not in (1, 2) or any(v < 16 or v % 2 for v in sizes):
+            raise ValueError
+    except ValueError:
+        raise click.BadParameter(f"expected N or ROWSxCOLS, even numbers of pixels >= 16, got {text!r}",
+                                 param_hint="'--window'") from None
+    if len(sizes) == 2 and sizes[0] == sizes[1]:
+        sizes = sizes[:1]
+    if square and len(sizes) == 2:
+        raise click.BadParameter(f"this command matches square windows: give N, got {text!r}", param_hint="'--window'")
+    return sizes[0] if len(sizes) == 1 else tuple(sizes)
+
+
+def window_option(default: int, *, square: bool = False):
+    """``--window N|RxC`` (keyword ``window``): the phase-correlation window, one syntax everywhere.
+
+    Parameters
+    ----------
+    default : int
+        Default side, pixels.
+    square : bool
+        Only square windows (``RxC`` with R != C is refused).
+
+    Returns
+    -------
+    callable
+        A click option decorator; the command receives an int or ``(rows, cols)``.
+    """
+    shape = "N (square)" if square else "N (square) or ROWSxCOLS (e.g. 64x32)"
+    return click.option("--window", "window", default=str(default), show_default=True, metavar="N|RxC",
+                        callback=lambda ctx, param, value: parse_window(value, square=square),
+                        help=f"Phase-correlation window, pixels: {shape}; even, >= 16.")
+
+
+def east_north_metres(text, hint: str, sizes=(1, 2)):
+    """None, or a pair of metres >= 0 from ``A`` (both) or ``A,B`` (east, north).
+
+    Parameters
+    ----------
+    text : str or None
+        The option's value.
+    hint : str
+        The option's name, for the message.
+    sizes : tuple of int
+        How many values are accepted.
+
+    Returns
+    -------
+    (float, float) or None
+
+    Raises
+    ------
+    click.BadParameter
+        Not of that form.
+    """
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in sizes or not all(math.isfinite(v) and v >= 0.0 for v in values):
+        form = "A,B" if sizes == (2,) else "A or A,B"
+        raise click.BadParameter(f"expected {form} (metres >= 0), got {text!r}", param_hint=hint)
+    return (values[0], values[-1])
+
+
+def reference_sigma_option(help_text: str):
+    """``--reference-sigma-m E[,N]`` (keyword ``reference_sigma_m``): one spelling and one form in
+    every command: the reference's geolocation accuracy, metres, 1 sigma east[,north].
+
+    Parameters
+    ----------
+    help_text : str
+        What the command does with it and its default.
+
+    Returns
+    -------
+    callable
+        A click option decorator; the command receives None or ``(east, north)`` metres.
+    """
+    return click.option("--reference-sigma-m", "reference_sigma_m", metavar="E[,N]", default=None,
+                        callback=lambda ctx, param, value: east_north_metres(value, "'--reference-sigma-m'"),
+                        help="Geolocation accuracy of the reference, m (1 sigma east[,north]); " + help_text)
+
 
 # The height family (docs/cli.md, "Terrain heights"): one spelling and one meaning in every command
 # that localizes on the ground (localize, rpc, ortho, truth error, relative):

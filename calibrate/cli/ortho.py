@@ -6,10 +6,9 @@ import click
 
 from calibrate.actions.ortho import ortho_scene
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options,
-                                   echo_json, echo_warnings, json_option)
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option,
+                                   echo_json, echo_warnings, json_option, required_dem_options)
 from calibrate.config import ORTHO_RESAMPLING, OrthoOptions
-from sensor_models.errors import InputError
 
 __all__ = ["command"]
 
@@ -20,7 +19,7 @@ __all__ = ["command"]
 @click.option("--calibration", type=click.Path(),
               help="Calibrated model (manifest.json or RPC), or the folder of 'gcpcal calibrate': the geometry. "
                    "Default: SCENE's own model.")
-@add_options(dem_options)
+@add_options(required_dem_options)
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
               help="Orthoimage (Cloud-Optimized GeoTIFF); OUT.summary.json goes beside it.")
 @click.option("--band", help="Band (default: the reference band).")
@@ -47,8 +46,6 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_path, 
     beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
     .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
     """
-    if dem_path is None:
-        raise InputError("--dem is required: orthorectification needs terrain heights")
     options = OrthoOptions(crs=crs, resolution_m=resolution, resampling=resampling, block=block)
     with stage_progress(ctx, "gcpcal ortho: blocks", as_json) as progress:
         summary = ortho_scene(scene_path, out_path, dem_path=dem_path, calibration=calibration, dem_datum=dem_datum,

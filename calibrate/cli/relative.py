@@ -7,12 +7,13 @@ import click
 from calibrate.actions.relative import relative_calibration_stage
 from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options, echo_json, echo_warnings, exit_with_status, json_option,
-                                   out_dir_option)
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option,
+                                   echo_json, echo_warnings, exit_with_status, json_option, out_dir_option,
+                                   required_dem_options, window_option)
 from calibrate.config import ATTITUDE_MODES, ROBUST_LOSSES, CalibrationOptions
 from sensor_models.errors import InputError
 
-__all__ = ["command", "parse_rows", "parse_window"]
+__all__ = ["command", "parse_rows"]
 
 
 def _parallax_line(p: dict) -> str:
@@ -24,28 +25,6 @@ def _parallax_line(p: dict) -> str:
     if sel["kind"] == "spline":
         basis += f" segments ({sel['knot_spacing_s']:.3f} s knots)"
     return f"parallax: {p['ties']} tie points and {p['gcps']} GCPs entered; attitude {basis}"
-
-
-def parse_window(text: str):
-    """The ``--window`` value: ``"64"`` -> 64, ``"64x32"`` -> ``(64, 32)``.
-
-    Parameters
-    ----------
-    text : str
-        ``N`` or ``ROWSxCOLS``; even sizes >= 16 pixels.
-
-    Returns
-    -------
-    int or (int, int)
-        Window size, pixels.
-    """
-    try:
-        sizes = [int(v) for v in text.lower().split("x")]
-        if len(sizes) not in (1, 2) or any(v < 16 or v % 2 for v in sizes):
-            raise ValueError
-    except ValueError:
-        raise InputError(f"--window must be N or ROWSxCOLS, even numbers of pixels >= 16, got {text!r}") from None
-    return sizes[0] if len(sizes) == 1 else tuple(sizes)
 
 
 def parse_rows(text: str | None):
@@ -77,12 +56,13 @@ def parse_rows(text: str | None):
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
 @click.option("--calibration", "calibration", required=True, type=click.Path(),
               help="Calibrated manifest.json of the reference band (as written by 'gcpcal calibrate'), or its folder.")
-@add_options(dem_options)
+@add_options(required_dem_options)
 @out_dir_option()
 @click.option("--reference-band", help="Reference band (default: the calibrated model's reference band).")
-@click.option("--window", "window_text", default="64", show_default=True, metavar="N|RxC",
-              help="Phase-correlation window, pixels: N (square) or ROWSxCOLS (e.g. 64x32); even, >= 16.")
-@click.option("--spacing", type=click.IntRange(min=1), default=24, show_default=True, help="Window grid spacing, pixels.")
+@window_option(64)
+@click.option("--spacing", type=click.IntRange(min=1), default=24, show_default=True,
+              help="Window grid spacing, pixels (denser than match's: each band's interior is fitted per CCD from "
+                   "these tie points alone).")
 @click.option("--rows", "rows_text", metavar="R0:R1", help="Reference-band lines holding the tie points (default: all).")
 @click.option("--robust", type=click.Choice(ROBUST_LOSSES), default=CalibrationOptions.robust, show_default=True,
               help="Robust loss of the interior solve.")
@@ -97,7 +77,7 @@ def parse_rows(text: str | None):
 @accept_product_disagreement_option
 @json_option
 @click.pass_context
-def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, reference_band, window_text, spacing,
+def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, reference_band, window, spacing,
             rows_text, robust, parallax, gcps_path, attitude, as_json, self_check):
     """Calibrate every band of SCENE against its calibrated reference band (band-to-band).
 
@@ -114,12 +94,10 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_dir, r
     SCENE is the push-broom scene (a gcpcal manifest with its rasters); an RPC has no
     bands to calibrate against each other.
     """
-    if dem_path is None:
-        raise InputError("--dem is required: the reference band's tie points are localized on the terrain")
     with stage_progress(ctx, "gcpcal relative", as_json) as progress:
         summary = relative_calibration_stage(
             scene_path, calibration, dem_path, out_dir, reference_band=reference_band, dem_datum=dem_datum,
-            geoid=geoid, window_px=parse_window(window_text), spacing_px=spacing, rows=parse_rows(rows_text),
+            geoid=geoid, window_px=window, spacing_px=spacing, rows=parse_rows(rows_text),
             options=CalibrationOptions(robust=robust, attitude=attitude), parallax=parallax, gcps_path=gcps_path,
             progress=progress.message, self_check=self_check)
     echo_warnings(summary)

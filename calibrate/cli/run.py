@@ -7,9 +7,9 @@ import click
 from calibrate.actions.run import MIN_COVERAGE, MIN_GCPS, run_scene
 from calibrate.cli._errors import EXIT_FAILED
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, dem_options, dom_options, echo_json, echo_warnings, exit_with_status,
-                                   json_option, out_dir_option)
-from sensor_models.errors import InputError
+from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option,
+                                   dom_options, echo_json, echo_warnings, exit_with_status, json_option,
+                                   out_dir_option, required_dem_options)
 
 __all__ = ["command"]
 
@@ -18,7 +18,7 @@ __all__ = ["command"]
 @allow_implausible_option
 @click.argument("scene_path", metavar="SCENE", type=click.Path(dir_okay=False))
 @dom_options
-@add_options(dem_options)
+@add_options(required_dem_options)
 @click.option("--star-frames", type=click.Path(), help="Star sequence (frames.json or its folder) for the fallback.")
 @out_dir_option()
 @click.option("--min-gcps", type=click.IntRange(min=1), default=MIN_GCPS, show_default=True,
@@ -36,8 +36,6 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, star_frames, 
     beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
     .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
     """
-    if dem_path is None:
-        raise InputError("--dem is required: GCPs need terrain heights")
     with stage_progress(ctx, "gcpcal run", as_json) as progress:
         summary = run_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_dir=out_dir, star_frames=star_frames,
                             dem_datum=dem_datum, geoid=geoid, min_gcps=min_gcps, min_coverage=min_coverage,

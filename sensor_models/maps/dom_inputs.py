@@ -587,15 +587,16 @@ def stated_accuracy(files):
     return ReferenceAccuracy(max(a.east_m for a in found), max(a.north_m for a in found), worst.source)
 
 
-def reference_accuracy(files, *, given_m: float | None = None) -> ReferenceAccuracy:
+def reference_accuracy(files, *, given_m=None) -> ReferenceAccuracy:
     """The DOM's geolocation accuracy per axis, in the order of the module docstring (step 4).
 
     Parameters
     ----------
     files : sequence of str
         The DOM's band files.
-    given_m : float or None
-        The user's value, metres per axis (``--reference-sigma-m``); wins when given.
+    given_m : float, (float, float) or None
+        The user's value, metres: both axes, or ``(east, north)`` (``--reference-sigma-m``);
+        wins when given.
 
     Returns
     -------
@@ -603,7 +604,8 @@ def reference_accuracy(files, *, given_m: float | None = None) -> ReferenceAccur
         ``assumed`` is True when neither the user nor the files state it.
     """
     if given_m is not None:
-        return ReferenceAccuracy(float(given_m), float(given_m), "option")
+        east, north = (given_m[0], given_m[-1]) if isinstance(given_m, (tuple, list)) else (given_m, given_m)
+        return ReferenceAccuracy(float(east), float(north), "option")
     stated = stated_accuracy(files)
     if stated is not None:
         return stated
