@@ -140,7 +140,7 @@ def check_dem_heights(dem, model, *, band=None, allow: bool | None = None) -> li
     ImplausibleInputError
         Naming the DEM, the heights found and the range accepted.
     """
-    from sensor_models.terrain.dem import footprint_sample_lonlat
+    from sensor_models.terrain.footprint import footprint_sample_lonlat
 
     low, high = PLAUSIBLE_HEIGHTS_M
     h_lo, h_hi = dem.height_range_m
@@ -314,7 +314,7 @@ def check_gcps_on_scene(model, lon, lat, h, *, source, band=None, allow: bool | 
     list of str
         The warnings (with ``allow``), else empty.
     """
-    from sensor_models.terrain.dem import footprint_sample_lonlat
+    from sensor_models.terrain.footprint import footprint_sample_lonlat
 
     lon, lat, h = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (lon, lat, h))
     finite = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(h)  # the readers refuse the others
