@@ -165,7 +165,7 @@ def check_dom_resolution(dom, model, *, band=None, source=None, allow: bool | No
     dom : sensor_models.maps.raster.MapImage
         The reference orthoimage (``grid.resolution_m``: its pixel, metres).
     model : SensorModel
-        The scene's model (:func:`sensor_models.imaging.ortho.scene_gsd_m` at 0 m).
+        The scene's model (:func:`sensor_models.imaging.ortho_grid.scene_gsd_m` at 0 m).
     band : str, optional
         Band matched (default: the reference band).
     source : str or Path, optional
@@ -178,7 +178,7 @@ def check_dom_resolution(dom, model, *, band=None, source=None, allow: bool | No
     list of str
         The warning (with ``allow``), else empty.
     """
-    from sensor_models.imaging.ortho import scene_gsd_m
+    from sensor_models.imaging.ortho_grid import scene_gsd_m
 
     dom_m = float(dom.grid.resolution_m)
     gsd_m = float(scene_gsd_m(model, band=band))
