@@ -50,7 +50,7 @@ def run(fixture: str, work: Path) -> list[dict]:
     from calibrate.cli import main
     from calibrate.experiments.simulate_seed003 import gcp_truth_error
     from gcpmatch.gcps import read_gcps
-    from sensor_models.imaging.ortho import scene_gsd_m
+    from sensor_models.imaging.ortho_grid import scene_gsd_m
     from sensor_models.readers import open_scene
 
     fx = ROOT / "fixtures" / fixture

@@ -95,7 +95,8 @@ def worker(args):
     """One case in this (fresh) process; prints one JSON line."""
     import cv2
 
-    from sensor_models.imaging.ortho import ortho_grid, orthorectify_to_file
+    from sensor_models.imaging.ortho import orthorectify_to_file
+    from sensor_models.imaging.ortho_grid import ortho_grid
 
     cv2.setNumThreads(1)
     model = build_model(args.scene)

@@ -140,7 +140,7 @@ def check_dem_heights(dem, model, *, band=None, allow: bool | None = None) -> li
     ImplausibleInputError
         Naming the DEM, the heights found and the range accepted.
     """
-    from sensor_models.terrain.dem import footprint_sample_lonlat
+    from sensor_models.terrain.footprint import footprint_sample_lonlat
 
     low, high = PLAUSIBLE_HEIGHTS_M
     h_lo, h_hi = dem.height_range_m
@@ -165,7 +165,7 @@ def check_dom_resolution(dom, model, *, band=None, source=None, allow: bool | No
     dom : sensor_models.maps.raster.MapImage
         The reference orthoimage (``grid.resolution_m``: its pixel, metres).
     model : SensorModel
-        The scene's model (:func:`sensor_models.imaging.ortho.scene_gsd_m` at 0 m).
+        The scene's model (:func:`sensor_models.imaging.ortho_grid.scene_gsd_m` at 0 m).
     band : str, optional
         Band matched (default: the reference band).
     source : str or Path, optional
@@ -178,7 +178,7 @@ def check_dom_resolution(dom, model, *, band=None, source=None, allow: bool | No
     list of str
         The warning (with ``allow``), else empty.
     """
-    from sensor_models.imaging.ortho import scene_gsd_m
+    from sensor_models.imaging.ortho_grid import scene_gsd_m
 
     dom_m = float(dom.grid.resolution_m)
     gsd_m = float(scene_gsd_m(model, band=band))
@@ -314,7 +314,7 @@ def check_gcps_on_scene(model, lon, lat, h, *, source, band=None, allow: bool | 
     list of str
         The warnings (with ``allow``), else empty.
     """
-    from sensor_models.terrain.dem import footprint_sample_lonlat
+    from sensor_models.terrain.footprint import footprint_sample_lonlat
 
     lon, lat, h = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (lon, lat, h))
     finite = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(h)  # the readers refuse the others

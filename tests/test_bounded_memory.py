@@ -69,7 +69,7 @@ def test_small_dem_is_read_whole():
 
 
 def test_windows_refuse_what_the_whole_dem_refuses(tmp_path):
-    from sensor_models.terrain.dem import DemError
+    from sensor_models.errors import DemError
 
     bare = tmp_path / "bare.tif"  # no vertical datum declared
     with rasterio.open(DEM) as src:
@@ -87,7 +87,7 @@ def test_windows_refuse_what_the_whole_dem_refuses(tmp_path):
 @pytest.mark.shared_data
 def test_windowed_dem_ortho_is_byte_identical_on_pleiades(shared_data, tmp_path):
     from sensor_models.models.rpc import RpcModel
-    from sensor_models.terrain.dem import Geoid
+    from sensor_models.terrain.geoid import Geoid
 
     folder = shared_data / "pleiades_ventoux"
     with rasterio.open(folder / "left_image.tif") as ds:

@@ -157,7 +157,7 @@ def test_the_scan_sees_the_packages_and_their_imports():
     for package in LAYERS:
         assert package in MODULES and sum(m.startswith(package + ".") for m in MODULES) >= 5
     assert "sensor_models.imaging.locate" in GRAPH["gcpmatch.reference"]  # module level
-    assert "sensor_models.imaging.locate" in GRAPH["sensor_models.imaging.ortho"]  # inside a function
+    assert "sensor_models.imaging.locate" in GRAPH["sensor_models.imaging.ortho_geometry"]  # inside a function
     assert "sensor_models.simulate.truth" in GRAPH["sensor_models.simulate.pushbroom_sim"]
 
 

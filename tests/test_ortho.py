@@ -21,7 +21,9 @@ from calibrate.cli import main
 from gcpmatch.phase import phase_correlate
 from sensor_models import open_model
 from sensor_models.errors import InputError
-from sensor_models.imaging.ortho import OrthoGeometry, ortho_grid, orthorectify, orthorectify_to_file, utm_crs
+from sensor_models.imaging.ortho import orthorectify, orthorectify_to_file
+from sensor_models.imaging.ortho_geometry import OrthoGeometry
+from sensor_models.imaging.ortho_grid import ortho_grid, utm_crs
 from sensor_models.terrain.dem import Dem
 
 ROOT = Path(__file__).resolve().parents[1]

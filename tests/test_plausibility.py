@@ -20,7 +20,7 @@ from calibrate.plausibility import (MAX_DOM_GSD_RATIO, accepting_implausible, ch
                                              check_dom_resolution, check_gcps_on_scene, check_scene_raster)
 from calibrate.cli import main
 from sensor_models.errors import ImplausibleInputError
-from sensor_models.imaging.ortho import scene_gsd_m
+from sensor_models.imaging.ortho_grid import scene_gsd_m
 from sensor_models.maps.raster import MapImage
 from sensor_models.readers import open_scene
 from sensor_models.terrain.dem import Dem

@@ -17,7 +17,8 @@ from sensor_models.errors import GcpcalError, GeoidGridMissingError, InputError
 from sensor_models.maps.mosaic import mosaic_path, raster_inputs, write_vrt
 from sensor_models.maps.raster import MapImage
 from sensor_models.maps.reference_qa import invalid_from_qa, qa_layout_from_name, qa_layout_of
-from sensor_models.terrain.dem import Dem, find_egm96_grid
+from sensor_models.terrain.dem import Dem
+from sensor_models.terrain.geoid import find_egm96_grid
 
 UTM31 = "EPSG:32631"
 

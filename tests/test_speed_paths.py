@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensor_models.terrain.intersect import _intersect_dem
+from sensor_models.terrain.intersect import intersect_dem_fixed
 from sensor_models.imaging.locate import HEIGHT_TOLERANCE_M, _pixel_layers, dem_planes, locate_block
 from sensor_models.maps.grid import MapGrid, MapProjector
 from sensor_models.terrain.intersect import intersect_dem_adaptive
@@ -73,7 +73,7 @@ def test_convergence_mask_refines_the_pixels_that_need_it(layers, scene):
     mid-height everywhere) converges through the mask too."""
     _, dem, _ = scene
     lay, h_lo = layers
-    exact = _intersect_dem(dem, *lay, h_lo, 12)[0]
+    exact = intersect_dem_fixed(dem, *lay, h_lo, 12)[0]
     ok = np.isfinite(exact)
     assert ok.mean() > 0.9
     rough = intersect_dem_adaptive(dem, *lay, h_lo, chord_steps=1, max_refine_steps=0)[0]

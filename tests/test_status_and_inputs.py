@@ -21,7 +21,8 @@ from sensor_models.base import CalibrationStatus
 from sensor_models.errors import DemError, InputError
 from sensor_models.readers import open_model
 from sensor_models.readers.manifest import write_manifest
-from sensor_models.terrain.dem import Dem, check_dem_footprint, footprint_sample_lonlat
+from sensor_models.terrain.dem import Dem
+from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "fixtures" / "hy1c_czi"

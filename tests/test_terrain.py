@@ -1,4 +1,4 @@
-"""Tests of sensor_models.terrain.dem: geoid, DEM access, ray/ellipsoid and ray/DEM intersection.
+"""Tests of sensor_models.terrain: geoid, DEM access, ray/ellipsoid and ray/DEM intersection.
 
 The ray/DEM tests compare the first crossing found by :meth:`Dem.intersect` with an
 independent brute-force march (steps of 1/100 node spacing, exact geodetic conversions,
@@ -15,7 +15,9 @@ from affine import Affine
 
 from sensor_models.errors import DemError, GeoidGridMissingError, InputError
 from sensor_models.geometry.geodesy import ecef_to_geodetic, enu_basis, geodetic_to_ecef
-from sensor_models.terrain.dem import Dem, Geoid, intersect_ellipsoid
+from sensor_models.terrain.dem import Dem
+from sensor_models.terrain.ellipsoid import intersect_ellipsoid
+from sensor_models.terrain.geoid import Geoid
 
 ALTITUDE_M = 700e3
 
@@ -29,9 +31,9 @@ ALTITUDE_M = 700e3
 @pytest.fixture(autouse=True)
 def _no_installed_geoid(monkeypatch):
     """These tests say what happens without a geoid: hide any EGM96 grid installed in PROJ's folders."""
-    import sensor_models.terrain.dem as terrain
+    import sensor_models.terrain.geoid as geoid
 
-    monkeypatch.setattr(terrain, "proj_data_dirs", lambda: [])
+    monkeypatch.setattr(geoid, "proj_data_dirs", lambda: [])
 
 def rays_through(lon, lat, h, incidence_deg, azimuth_deg, altitude_m=ALTITUDE_M):
     """Rays from a satellite ``altitude_m`` above ground points, passing through them.

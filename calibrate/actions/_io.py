@@ -83,7 +83,7 @@ def open_dem(dem_path, datum=None, geoid=None, *, model=None, band=None):
         Vertical datum of the heights when the file does not declare it.
     geoid : str or Path or None
         Geoid grid for EGM96 heights (default: the EGM96 grid in PROJ's data directories,
-        :func:`sensor_models.terrain.dem.find_egm96_grid`).
+        :func:`sensor_models.terrain.geoid.find_egm96_grid`).
     model : SensorModel, optional
         The scene's model. With several tiles (or a ``.vrt``), only the part of the mosaic
         under the scene's footprint (localized from -500 to 9000 m, plus half its size, at
@@ -117,7 +117,7 @@ def _footprint_box(model, band):
     """``(lon_min, lat_min, lon_max, lat_max), margin_deg`` around a model's footprint, or ``(None, 0)``."""
     import numpy as np
 
-    from sensor_models.terrain.dem import footprint_sample_lonlat
+    from sensor_models.terrain.footprint import footprint_sample_lonlat
 
     lon, lat = zip(*(footprint_sample_lonlat(model, h, n_side=9, band=band) for h in _FOOTPRINT_HEIGHTS_M))
     lon, lat = np.concatenate(lon), np.concatenate(lat)

@@ -203,7 +203,7 @@ def _check_geotiff_capacity(model, band, options: MatchOptions, geotiff_path) ->
 
 def _dom_summary(dom, dom_found, model, band, dem) -> dict:
     """What the DOM was resolved to, and the share of it under the footprint that its QA masks."""
-    from sensor_models.terrain.dem import footprint_sample_lonlat
+    from sensor_models.terrain.footprint import footprint_sample_lonlat
 
     fields = dom_description(dom_found)
     share = None

@@ -149,7 +149,7 @@ def _dem_under_scene(geometry, dem, band) -> dict:
 
     Part of an ortho outside the DEM is no-data, which the summary's valid share shows: no warning.
     """
-    from sensor_models.terrain.dem import check_dem_footprint, footprint_sample_lonlat
+    from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
     kwargs = {} if band is None or getattr(geometry, "bands", None) is None else {"band": band}
     lon, lat = footprint_sample_lonlat(geometry, float(np.mean(dem.height_range_m)), **kwargs)

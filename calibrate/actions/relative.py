@@ -89,7 +89,7 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
         Missing or malformed files, unknown band, a calibration of another scene.
     """
     from calibrate.relative import relative_calibration
-    from sensor_models.terrain.dem import check_dem_footprint, footprint_sample_lonlat
+    from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
     from calibrate.actions._status import calibration_input, open_usable_calibration
 

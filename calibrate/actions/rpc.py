@@ -35,7 +35,7 @@ from calibrate.actions._io import (check_output_files, check_output_folder, open
 from calibrate.actions._l1a import scene_raster, write_l1a_with_rpc
 from calibrate.actions._status import require_usable, status_fields
 from sensor_models.errors import InputError
-from sensor_models.terrain.dem import check_dem_footprint, footprint_sample_lonlat
+from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["DEFAULT_HEIGHT_RANGE_M", "DEFAULT_MAX_ERROR_PX", "RpcOutputUsageError", "fit_rpcs", "out_is_folder"]
 

@@ -10,7 +10,7 @@ from dataclasses import replace
 from calibrate.actions._guard import InputSet, is_stdout
 from calibrate.actions._io import check_output_files, final_paths, open_dem, staged_files, staged_folder, write_summary
 from calibrate.actions._status import require_usable, status_fields
-from sensor_models.terrain.dem import check_dem_footprint, footprint_sample_lonlat
+from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["PROFILE_NAMES", "pushbroom_config", "simulate_geo_earth_scene", "simulate_geo_star_frames",
            "simulate_pushbroom_scene", "simulate_validation_series", "truth_error_of"]

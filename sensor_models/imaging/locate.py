@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from affine import Affine
 
-from sensor_models.terrain.intersect import _intersect_dem, dem_planes, intersect_dem_adaptive
+from sensor_models.terrain.intersect import dem_planes, intersect_dem_adaptive, intersect_dem_fixed
 from sensor_models.errors import InputError
 from sensor_models.models.pushbroom import _catmull_rom_weights
 from sensor_models.terrain.dem import Dem
@@ -242,7 +242,7 @@ def locate_block(
                            rows_last=tolerance_m is not None,
                            col_step=None if node_step_cols is None else float(max(1, node_step_cols)))
     if tolerance_m is None:
-        h, u_dem, v_dem = _intersect_dem(dem, *layers[0], np.float32(h_lo), newton_iterations)
+        h, u_dem, v_dem = intersect_dem_fixed(dem, *layers[0], np.float32(h_lo), newton_iterations)
     else:
         if position_tolerance_m is not None:
             tolerance_m = max(tolerance_m, height_tolerance_for_position(dem, *layers[0][2:], position_tolerance_m))

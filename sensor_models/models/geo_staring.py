@@ -855,7 +855,7 @@ class GeoStaringModel(SensorModel):
         -------
         lon_deg, lat_deg, h_m : ndarray, shape of the broadcast ``row, col``
         """
-        from sensor_models.terrain.dem import intersect_ellipsoid
+        from sensor_models.terrain.ellipsoid import intersect_ellipsoid
 
         self._band(band)
         self._check_array(band, array)

@@ -532,7 +532,7 @@ class PushbroomModel(SensorModel):
         -------
         lon_deg, lat_deg, h_m : ndarray, shape of the broadcast ``row, col``
         """
-        from sensor_models.terrain.dem import intersect_ellipsoid
+        from sensor_models.terrain.ellipsoid import intersect_ellipsoid
 
         ccd = _merge_array(ccd, array)
         if (height is None) == (dem is None):

@@ -144,7 +144,7 @@ def check_worldview_pointing(meta) -> None:
 
     from sensor_models.geometry.ephemeris import Attitude, Orbit
     from sensor_models.readers.worldview_los import camera_tangents
-    from sensor_models.terrain.dem import intersect_ellipsoid
+    from sensor_models.terrain.ellipsoid import intersect_ellipsoid
 
     band = meta.bands[0]
     t = float(np.mean(meta.seconds(np.array([0.5, meta.tlc_lines[-1] + 0.5]))))

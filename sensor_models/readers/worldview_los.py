@@ -162,7 +162,7 @@ def refraction_displacement_m(zenith_rad, h_m, lat_deg):
 def _refract(position_m, direction, h_ref):
     """Straight directions from the satellite to the refraction-displaced ground points."""
     from sensor_models.geometry.geodesy import ecef_to_geodetic
-    from sensor_models.terrain.dem import intersect_ellipsoid
+    from sensor_models.terrain.ellipsoid import intersect_ellipsoid
 
     x = intersect_ellipsoid(position_m, direction, np.full(direction.shape[0], h_ref))
     lon, lat, _ = ecef_to_geodetic(x)
@@ -180,7 +180,7 @@ def _refract(position_m, direction, h_ref):
 
 def _true_directions(pos, vel, d_app, h_ref, *, aberration, refraction):
     """Corrected unit directions (N, 3) and the refraction shifts (N,) (zeros if off)."""
-    from sensor_models.terrain.dem import intersect_ellipsoid
+    from sensor_models.terrain.ellipsoid import intersect_ellipsoid
 
     d = d_app
     if aberration:

@@ -230,7 +230,8 @@ def _geo_reference(cfg: GeoSimConfig, truth, tmp: Path, dom, dem, geoid):
     from sensor_models.simulate.pushbroom_sim import _check_covers, _utm_crs
     from sensor_models.maps.grid import MapGrid
     from sensor_models.maps.raster import MapImage
-    from sensor_models.terrain.dem import Dem, check_dem_footprint, footprint_sample_lonlat
+    from sensor_models.terrain.dem import Dem
+    from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
     border, other = _frame_border(cfg.image_px)
     if dom is None:

@@ -12,7 +12,7 @@
 
 A given DEM must cover the whole footprint (the message says which share it covers); voids
 under the footprint are reported (``summary.json``: ``dem_coverage``, ``dem_void_fraction``,
-``warnings``) and more than :data:`sensor_models.terrain.dem.MAX_FOOTPRINT_VOID_FRACTION` (5 %) of the
+``warnings``) and more than :data:`sensor_models.terrain.footprint.MAX_FOOTPRINT_VOID_FRACTION` (5 %) of the
 footprint in voids is refused, since void pixels would render as 0.
 
 Every file is written in a hidden temporary folder inside ``out_dir`` and moved into place at
@@ -46,7 +46,8 @@ from sensor_models.simulate.radiometry import smooth_field, to_dn
 from sensor_models.simulate.render_io import (GDAL_CACHE_MB, PhaseClock, check_covers, footprint_lonlat, render_scene,
                                              step_progress, utm_crs, write_outputs)
 from sensor_models.simulate.scene import SceneModels, build_models
-from sensor_models.terrain.dem import Dem, check_dem_footprint, footprint_sample_lonlat
+from sensor_models.terrain.dem import Dem
+from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["footprint_lonlat", "simulate_pushbroom"]
 

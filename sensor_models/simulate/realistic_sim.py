@@ -49,7 +49,8 @@ from sensor_models.simulate.reference_pair import DEM_NODATA, degrade_dem, degra
 from sensor_models.simulate.scene import build_models, ccd_layout
 from sensor_models.simulate.true_lens import cubic_residual_px, lens_extras
 from sensor_models.simulate.truth import truth_error
-from sensor_models.terrain.dem import Dem, check_dem_footprint, footprint_sample_lonlat
+from sensor_models.terrain.dem import Dem
+from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["apply_profile", "detector_gains", "field_weights", "mtf_nyquist", "simulate_realistic", "source_radiance"]
 

@@ -235,7 +235,7 @@ def write_outputs(cfg, models, tmp: Path, initial, reference_files, dem_figures,
     reference_files : dict
         Reference file names (written into both documents).
     dem_figures : dict
-        :func:`sensor_models.terrain.dem.check_dem_footprint` of the user's DEM.
+        :func:`sensor_models.terrain.footprint.check_dem_footprint` of the user's DEM.
     clouds : (int, bool)
         Cloud pixels of the reference band, whether a mask was written.
     render_seconds : float

@@ -103,17 +103,18 @@ class DemWindows:
     def __init__(self, path, datum: str, geoid=None):
         import rasterio
 
-        from sensor_models.terrain.dem import _GridGeometry, _horizontal_crs
+        from sensor_models.terrain.datum import horizontal_crs
+        from sensor_models.terrain.grid_geometry import GridGeometry
 
         self.path = os.fspath(path)
         self._ds = rasterio.open(self.path)
         self.transform = self._ds.transform
-        self.crs = _horizontal_crs(pyproj.CRS.from_wkt(self._ds.crs.to_wkt()))
+        self.crs = horizontal_crs(pyproj.CRS.from_wkt(self._ds.crs.to_wkt()))
         self.shape = (self._ds.height, self._ds.width)
         self._scale = self._ds.scales[0] if self._ds.scales else 1.0
         self._offset = self._ds.offsets[0] if self._ds.offsets else 0.0
         self._geoid = geoid if datum == "egm96" else None
-        self._geometry = _GridGeometry(self.transform, self.crs, self.shape)
+        self._geometry = GridGeometry(self.transform, self.crs, self.shape)
         self.nodes_read = 0
         self.largest_window_nodes = 0
 
@@ -205,7 +206,8 @@ def open_ortho_dem(path, *, vertical_datum=None, geoid=None, max_nodes: int = MA
     import rasterio
     from rasterio.errors import RasterioError
 
-    from sensor_models.terrain.dem import Dem, DemError
+    from sensor_models.errors import DemError
+    from sensor_models.terrain.dem import Dem
 
     source = os.fspath(path)
     try:
@@ -228,25 +230,26 @@ def _checked_datum(source: str, vertical_datum, geoid) -> str:
     """The file's vertical datum, checked as :meth:`Dem.open` checks it (on a 2 x 2 node window)."""
     import rasterio
 
-    from sensor_models.terrain.dem import Dem, _check_datum_name, _declared_datum, _tagged_datum
+    from sensor_models.terrain.datum import check_datum_name, declared_datum, tagged_datum
+    from sensor_models.terrain.dem import Dem
 
     with rasterio.open(source) as ds:
         crs = None if ds.crs is None else pyproj.CRS.from_wkt(ds.crs.to_wkt())
         centre = ds.transform * (0.5 * ds.width, 0.5 * ds.height)
     if crs is not None:  # Dem.open on a small window raises the errors a whole read would
-        from sensor_models.terrain.dem import _horizontal_crs
+        from sensor_models.terrain.datum import horizontal_crs
 
-        lon, lat = pyproj.Transformer.from_crs(_horizontal_crs(crs), "EPSG:4326", always_xy=True).transform(*centre)
+        lon, lat = pyproj.Transformer.from_crs(horizontal_crs(crs), "EPSG:4326", always_xy=True).transform(*centre)
         Dem.open(source, vertical_datum=vertical_datum, geoid=geoid,
                  bounds=(lon - 1e-6, lat - 1e-6, lon + 1e-6, lat + 1e-6), margin_deg=0.0)
-    datum = _check_datum_name(vertical_datum)
-    return datum or _declared_datum(crs, source=source) or _tagged_datum(source)
+    datum = check_datum_name(vertical_datum)
+    return datum or declared_datum(crs, source=source) or tagged_datum(source)
 
 
 def _as_geoid_or_none(geoid, datum: str, source: str):
-    from sensor_models.terrain.dem import _as_geoid
+    from sensor_models.terrain.geoid import as_geoid
 
-    return _as_geoid(geoid, dem_source=source) if datum == "egm96" else None
+    return as_geoid(geoid, dem_source=source) if datum == "egm96" else None
 
 
 def _read_coarse(source: str, max_nodes: int):

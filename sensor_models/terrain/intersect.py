@@ -1,7 +1,7 @@
 """Per-pixel DEM intersection of straight-ray layers: the fixed solver and the adaptive one.
 
 Used by :func:`sensor_models.imaging.locate.locate_block`. :func:`dem_planes` holds the DEM's heights
-and gradients for one-pass bilinear sampling. The fixed solver (:func:`_intersect_dem`) runs
+and gradients for one-pass bilinear sampling. The fixed solver (:func:`intersect_dem_fixed`) runs
 four steps (two of them sampling the
 height and its gradient) on every pixel of a block, from one mid-height start. Most of that work
 is wasted: the intersection height varies smoothly from pixel to pixel wherever the terrain does.
@@ -35,7 +35,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["dem_planes", "intersect_dem_adaptive"]
+__all__ = ["dem_planes", "intersect_dem_adaptive", "intersect_dem_fixed"]
 
 #: pixels per row of the compact arrays the refinement steps sample (cv2.remap needs < 32767)
 _COMPACT_WIDTH = 4096
@@ -74,7 +74,7 @@ def intersect_dem_adaptive(dem, u_lo, v_lo, du, dv, h_lo, *, tolerance_m: float 
     if not tolerance_m > 0:
         raise ValueError(f"tolerance_m must be > 0, got {tolerance_m}")
     h_lo = np.float32(h_lo)
-    t, inv_slope = _coarse_start(dem, u_lo, v_lo, du, dv, h_lo, int(coarse_step), _intersect_dem)
+    t, inv_slope = _coarse_start(dem, u_lo, v_lo, du, dv, h_lo, int(coarse_step), intersect_dem_fixed)
     heights = _dem_heights(dem)
     u = np.empty(u_lo.shape, dtype=np.float32)
     v = np.empty(v_lo.shape, dtype=np.float32)
@@ -237,7 +237,7 @@ def dem_planes(dem) -> np.ndarray:
     return cached
 
 
-def _intersect_dem(dem, u_lo, v_lo, du, dv, h_lo, iterations: int):
+def intersect_dem_fixed(dem, u_lo, v_lo, du, dv, h_lo, iterations: int):
     """Per-pixel Newton solution of ``h = D(u_lo + (h - h_lo) du, v_lo + (h - h_lo) dv)``.
 
     The first two steps are full Newton steps (height and gradient sampled); the later ones
