@@ -56,14 +56,14 @@ def patch_mask(fixture: Path):
     from make_hy1c_fixture import config
 
     from sensor_models.simulate.profiles import PROFILES
-    from sensor_models.simulate.realistic_sim import _setup
+    from sensor_models.simulate.realistic_sim import realistic_setup
     from sensor_models.simulate.texture_poor import texture_poor_mask
 
     truth = json.loads((fixture / "truth.json").read_text())
     profile = PROFILES.get(truth.get("profile", "ideal"))
     if profile is None or float(profile.value("texture_poor_fraction")) == 0.0:
         return None
-    cfg, _, _, source, _, data = _setup(config(), profile, None)
+    cfg, _, _, source, _, data = realistic_setup(config(), profile, None)
     res_m = abs(source[1].a)
     mask = texture_poor_mask(source[0].shape, res_m, float(profile.value("texture_poor_fraction")),
                              seed=[cfg.seed, 40], exclude=data.water_mask)

@@ -32,14 +32,10 @@ from sensor_models.geometry.geodesy import (
     enu_basis,
     geodetic_to_ecef,
 )
-from sensor_models.readers.dimap import (
-    MAX_FIT_RESIDUAL_PX,
-    dimap_to_pixel,
-    fit_look_polynomials,
-    parse_dimap,
-    pixel_to_dimap,
-    read_dimap,
-)
+from sensor_models.readers.dimap import read_dimap
+from sensor_models.readers.dimap_interior import MAX_FIT_RESIDUAL_PX, fit_look_polynomials
+from sensor_models.readers.dimap_parse import parse_dimap
+from sensor_models.readers.dimap_common import dimap_to_pixel, pixel_to_dimap
 
 MISSIONS = [1, 2, 3, 4, 5]
 #: nominal ground sample distance of these products (m): SPOT 1-4 panchromatic (P, M) 10 m,
@@ -165,7 +161,7 @@ def test_parse_reads_the_geometry(shared_data, mission):
 
 def test_spot1_4_angular_speeds_integrate_to_the_second_absolute_sample(shared_data):
     """The integral of the speeds from the first AOCS angle lands near the second one."""
-    from sensor_models.readers.dimap import attitude_angles
+    from sensor_models.readers.dimap_exterior import attitude_angles
 
     for mission in (1, 2, 3, 4):
         meta = parse_dimap(dim_path(shared_data, mission))
@@ -236,7 +232,7 @@ def test_spot1_4_measured_attitude_moves_the_vertices_by_its_own_angles(shared_d
     d_meas = np.hypot(*east_north_m(lon_m, lat_m, lons, lats))
     d_nom = np.hypot(*east_north_m(lon_n, lat_n, lons, lats))
     # bound: the attitude rotation angle times the slant range, with a 1/cos^2 stretch off nadir
-    from sensor_models.readers.dimap import attitude_angles
+    from sensor_models.readers.dimap_exterior import attitude_angles
 
     ypr = attitude_angles(meta, meta.seconds(rows))
     origin, _ = nominal.rays_itrf(rows, cols)

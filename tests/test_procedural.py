@@ -10,12 +10,8 @@ import pytest
 from scipy import ndimage
 
 from sensor_models.errors import InputError
-from sensor_models.simulate.procedural import (
-    LandCover,
-    ReferenceData,
-    generate_reference,
-    illumination,
-)
+from sensor_models.simulate.procedural import ReferenceData, generate_reference
+from sensor_models.simulate.procedural_cover import LandCover, illumination
 from sensor_models.terrain.dem import Dem
 
 LON, LAT = 5.3, 44.2  # Provence: UTM zone 31N

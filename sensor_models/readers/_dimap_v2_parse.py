@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_models.readers.dimap import (
+from sensor_models.readers.dimap_common import (
     EARTH_ROTATION_RAD_S,
-    _check_increasing,
-    _seconds_since,
-    _velocity_kind,
-    _Xml,
+    DimapXml,
+    check_increasing,
     dimap_to_pixel,
+    ephemeris_velocity_kind,
+    seconds_since,
 )
 
 __all__ = ["DimapV2Band", "DimapV2Metadata", "parse_dimap_v2"]
@@ -147,7 +147,7 @@ class DimapV2Metadata:
 # sections
 
 
-def _identification(x: _Xml) -> dict:
+def _identification(x: DimapXml) -> dict:
     """Format and version, profile, mission, raster size and pixel origin."""
     r = x.root
     w = f"{_R}/Metadata_Identification/METADATA_FORMAT"
@@ -172,7 +172,7 @@ def _identification(x: _Xml) -> dict:
                 n_rows=sizes["NROWS"], n_cols=sizes["NCOLS"], n_bands=sizes["NBANDS"])
 
 
-def _timing(x: _Xml, n_rows: int) -> dict:
+def _timing(x: DimapXml, n_rows: int) -> dict:
     """``Time_Range/START`` as the epoch, the line period, and the check of ``END``."""
     w = f"{_R}/{_MODEL}/Time"
     node = x.node(x.root, f"{_MODEL}/Time", w)
@@ -186,7 +186,7 @@ def _timing(x: _Xml, n_rows: int) -> dict:
     period = x.number(node, "Time_Stamp/LINE_PERIOD", pw) * _PERIOD_UNITS[unit]
     if not period > 0.0:
         raise x.error(pw, f"must be positive, got {period}")
-    end_s = float(_seconds_since([end], epoch)[0])
+    end_s = float(seconds_since([end], epoch)[0])
     expected = (n_rows - 1) * period
     if abs(end_s - expected) > TIME_RANGE_TOLERANCE_LINES * period:
         raise x.error(
@@ -198,7 +198,7 @@ def _timing(x: _Xml, n_rows: int) -> dict:
     return dict(epoch=epoch, line_period_s=period, end_seconds=end_s)
 
 
-def _check_reference_line(x: _Xml, node, epoch, period: float) -> None:
+def _check_reference_line(x: DimapXml, node, epoch, period: float) -> None:
     """Optional ``Time_Stamp/REFERENCE_LINE`` + ``REFERENCE_TIME`` must agree with ``START``.
 
     The line dating used is ``START + (ROW - 1) * LINE_PERIOD`` (verified on a real file); a
@@ -213,7 +213,7 @@ def _check_reference_line(x: _Xml, node, epoch, period: float) -> None:
     if line is None or not has_time:
         missing = "REFERENCE_LINE" if line is None else "REFERENCE_TIME"
         raise x.error(f"{w}/{missing}", "is missing (REFERENCE_LINE and REFERENCE_TIME come together)")
-    ref_s = float(_seconds_since([x.time(node, "Time_Stamp/REFERENCE_TIME", f"{w}/REFERENCE_TIME")], epoch)[0])
+    ref_s = float(seconds_since([x.time(node, "Time_Stamp/REFERENCE_TIME", f"{w}/REFERENCE_TIME")], epoch)[0])
     expected = (line - 1.0) * period
     if abs(ref_s - expected) > TIME_RANGE_TOLERANCE_LINES * period:
         raise x.error(
@@ -223,7 +223,7 @@ def _check_reference_line(x: _Xml, node, epoch, period: float) -> None:
         )
 
 
-def _check_geocentric(x: _Xml) -> None:
+def _check_geocentric(x: DimapXml) -> None:
     """The model's CRS must be WGS84 geocentric (ITRF) and its time scale UTC."""
     w = f"{_R}/{_MODEL}/Coordinate_Reference_System"
     code = x.text(x.root, f"{_MODEL}/Coordinate_Reference_System/Geodetic_CRS/GEODETIC_CRS_CODE",
@@ -236,7 +236,7 @@ def _check_geocentric(x: _Xml) -> None:
         raise x.error(f"{w}/Temporal_CRS/TEMPORAL_CRS_NAME", f"only UTC is supported, got {scale!r}")
 
 
-def _vector(x: _Xml, parent, rel: str, where: str) -> list[float]:
+def _vector(x: DimapXml, parent, rel: str, where: str) -> list[float]:
     """Three numbers separated by blanks (``LOCATION_XYZ``, ``VELOCITY_XYZ``)."""
     text = x.text(parent, rel, where)
     parts = text.split()
@@ -249,32 +249,32 @@ def _vector(x: _Xml, parent, rel: str, where: str) -> list[float]:
     return values
 
 
-def _ephemeris(x: _Xml, epoch) -> dict:
+def _ephemeris(x: DimapXml, epoch) -> dict:
     """ITRF state vectors; inertial velocities are made Earth-relative."""
     w = f"{_R}/{_MODEL}/Ephemeris/Point_List/Point"
     points = x.nodes(x.root, f"{_MODEL}/Ephemeris/Point_List/Point", w, minimum=4)
     times = [x.time(p, "TIME", f"{w}/TIME") for p in points]
     position = np.array([_vector(x, p, "LOCATION_XYZ", f"{w}/LOCATION_XYZ") for p in points])
     velocity = np.array([_vector(x, p, "VELOCITY_XYZ", f"{w}/VELOCITY_XYZ") for p in points])
-    seconds = _seconds_since(times, epoch)
-    _check_increasing(x, seconds, f"{w}/TIME")
+    seconds = seconds_since(times, epoch)
+    check_increasing(x, seconds, f"{w}/TIME")
     radius = np.linalg.norm(position, axis=1)
     if np.any((radius < 6.3e6) | (radius > 8.0e6)):
         raise x.error(f"{w}/LOCATION_XYZ", "positions must be metres from the Earth's centre (LEO)")
-    kind = _velocity_kind(x, seconds, position, velocity, f"{w}/VELOCITY_XYZ")
+    kind = ephemeris_velocity_kind(x, seconds, position, velocity, f"{w}/VELOCITY_XYZ")
     if kind == "inertial":
         velocity = velocity - np.cross([0.0, 0.0, EARTH_ROTATION_RAD_S], position)
     return dict(ephemeris_seconds=seconds, position_m=position, velocity_m_s=velocity, velocity_kind=kind)
 
 
-def _attitudes(x: _Xml, epoch) -> dict:
+def _attitudes(x: DimapXml, epoch) -> dict:
     """Quaternions ``(Q0, Q1, Q2, Q3)``, ``Q0`` the scalar, satellite -> ITRF."""
     w = f"{_R}/{_MODEL}/Attitudes/Quaternion_List/Quaternion"
     nodes = x.nodes(x.root, f"{_MODEL}/Attitudes/Quaternion_List/Quaternion", w, minimum=4)
     times = [x.time(q, "TIME", f"{w}/TIME") for q in nodes]
     quats = np.array([[x.number(q, k, f"{w}/{k}") for k in ("Q0", "Q1", "Q2", "Q3")] for q in nodes])
-    seconds = _seconds_since(times, epoch)
-    _check_increasing(x, seconds, f"{w}/TIME")
+    seconds = seconds_since(times, epoch)
+    check_increasing(x, seconds, f"{w}/TIME")
     norm = np.linalg.norm(quats, axis=1)
     bad = np.nonzero(np.abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE)[0]
     if bad.size:
@@ -282,7 +282,7 @@ def _attitudes(x: _Xml, epoch) -> dict:
     return dict(attitude_seconds=seconds, quaternions_wxyz=quats / norm[:, None])
 
 
-def _coefficients(x: _Xml, parent, prefix: str, where: str) -> np.ndarray:
+def _coefficients(x: DimapXml, parent, prefix: str, where: str) -> np.ndarray:
     """``PREFIX_0``, ``PREFIX_1`` ... up to the first missing power (at least ``PREFIX_0``)."""
     coefs = []
     while parent.find(f"{prefix}_{len(coefs)}") is not None:
@@ -295,7 +295,7 @@ def _coefficients(x: _Xml, parent, prefix: str, where: str) -> np.ndarray:
     return np.array(coefs)
 
 
-def _bands(x: _Xml, n_cols: int) -> dict:
+def _bands(x: DimapXml, n_cols: int) -> dict:
     """Per-band swath and look-angle polynomials; instrument biases must be zero."""
     cal = f"{_MODEL}/Geometric_Calibration/Instrument_Calibration"
     w = f"{_R}/{cal}/Band_Calibration_List/Band_Calibration"
@@ -325,7 +325,7 @@ def _bands(x: _Xml, n_cols: int) -> dict:
     return dict(bands=tuple(bands))
 
 
-def _extent(x: _Xml) -> dict:
+def _extent(x: DimapXml) -> dict:
     """``Dataset_Extent`` vertices and centre, converted to gcpcal's pixel convention."""
     w = f"{_R}/Dataset_Content/Dataset_Extent"
     node = x.node(x.root, "Dataset_Content/Dataset_Extent", w)
@@ -347,7 +347,7 @@ def _extent(x: _Xml) -> dict:
     )
 
 
-def _gsd(x: _Xml) -> dict:
+def _gsd(x: DimapXml) -> dict:
     """Mean ``Use_Area`` ground sample distances (optional)."""
     w = f"{_R}/Geometric_Data/Use_Area/Located_Geometric_Values/Ground_Sample_Distance"
     across, along = [], []
@@ -358,7 +358,7 @@ def _gsd(x: _Xml) -> dict:
                 gsd_along_m=float(np.mean(along)) if along else None)
 
 
-def _references(x: _Xml) -> dict:
+def product_references(x: DimapXml) -> dict:
     """Raster tiles (in ``tile_R``, ``tile_C`` order) and the RPC file the product names."""
     w = f"{_R}/Raster_Data/Data_Access/Data_Files/Data_File"
     tiles = []
@@ -380,7 +380,7 @@ def _references(x: _Xml) -> dict:
     return dict(raster_hrefs=tuple(h for _, h in sorted(tiles)), rpc_href=rpc_href)
 
 
-def _check_coverage(x: _Xml, meta: dict) -> None:
+def _check_coverage(x: DimapXml, meta: dict) -> None:
     """The ephemeris and the attitudes must cover the first to the last line."""
     span = (0.0, meta["end_seconds"])
     for key, rel in (("ephemeris_seconds", "Ephemeris/Point_List/Point/TIME"),
@@ -416,11 +416,11 @@ def parse_dimap_v2(path) -> DimapV2Metadata:
         the error names the file and the XML path of the field.
     """
     path = Path(path)
-    x = _Xml(path)
+    x = DimapXml(path)
     ident = _identification(x)
     timing = _timing(x, ident["n_rows"])
     _check_geocentric(x)
     fields = dict(**ident, **timing, **_ephemeris(x, timing["epoch"]), **_attitudes(x, timing["epoch"]),
-                  **_bands(x, ident["n_cols"]), **_extent(x), **_gsd(x), **_references(x))
+                  **_bands(x, ident["n_cols"]), **_extent(x), **_gsd(x), **product_references(x))
     _check_coverage(x, fields)
     return DimapV2Metadata(path=str(path), **fields)

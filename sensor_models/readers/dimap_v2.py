@@ -35,8 +35,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sensor_models.errors import InputError, ManifestError
-from sensor_models.readers._dimap_v2_parse import DimapV2Band, DimapV2Metadata, _references, parse_dimap_v2
-from sensor_models.readers.dimap import _Xml
+from sensor_models.readers._dimap_v2_parse import DimapV2Band, DimapV2Metadata, product_references, parse_dimap_v2
+from sensor_models.readers.dimap_common import DimapXml
 
 __all__ = [
     "DimapV2Band",
@@ -116,8 +116,8 @@ def raster_paths(path) -> list[Path]:
         The file is not readable DIMAP, or a ``Data_File`` has no ``href``.
     """
     path = Path(path)
-    x = _Xml(path)
-    return [path.parent / href for href in _references(x)["raster_hrefs"]]
+    x = DimapXml(path)
+    return [path.parent / href for href in product_references(x)["raster_hrefs"]]
 
 
 def _fit_state_polynomial(seconds, position_m, velocity_m_s, degree: int):

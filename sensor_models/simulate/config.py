@@ -231,7 +231,7 @@ def _jsonable(v):
     return list(v) if isinstance(v, tuple) else v
 
 
-def _coerce(value, default, where: str, source: str):
+def coerce_value(value, default, where: str, source: str):
     """Check ``value`` against the type of ``default``; return it in that type."""
 
     def err(why):
@@ -298,7 +298,7 @@ def config_from_dict(doc, *, source: str = "<config>") -> SimConfig:
         if key not in sections:
             raise InputError(f"unknown key {key!r} (known: {', '.join(sections)})", path=source, field="(root)")
         if key == "seed":
-            seed = _coerce(value, 0, "seed", source)
+            seed = coerce_value(value, 0, "seed", source)
             if seed < 0:
                 raise InputError("must be >= 0", path=source, field="seed")
             kwargs["seed"] = seed
@@ -311,7 +311,7 @@ def config_from_dict(doc, *, source: str = "<config>") -> SimConfig:
         for k, v in value.items():
             if k not in known:
                 raise InputError(f"unknown key {k!r}", path=source, field=key)
-            changes[k] = _coerce(v, getattr(sec_default, k), f"{key}.{k}", source)
+            changes[k] = coerce_value(v, getattr(sec_default, k), f"{key}.{k}", source)
         kwargs[key] = replace(sec_default, **changes)
     return replace(base, **kwargs).validate(source)
 

@@ -112,7 +112,7 @@ def load_geo_config(path=None) -> GeoSimConfig:
     InputError
         Unreadable file, invalid JSON, unknown key or bad value (naming it).
     """
-    from sensor_models.simulate.config import _coerce
+    from sensor_models.simulate.config import coerce_value
 
     if path is None:
         return GeoSimConfig().validate()
@@ -128,7 +128,7 @@ def load_geo_config(path=None) -> GeoSimConfig:
     for key, value in doc.items():
         if key not in known:
             raise InputError(f"unknown key {key!r}", path=source, field="(root)")
-        changes[key] = _coerce(value, getattr(base, key), key, source)
+        changes[key] = coerce_value(value, getattr(base, key), key, source)
     return replace(base, **changes).validate(source)
 
 
@@ -227,7 +227,7 @@ def _geo_reference(cfg: GeoSimConfig, truth, tmp: Path, dom, dem, geoid):
     """
     import pyproj
 
-    from sensor_models.simulate.pushbroom_sim import _check_covers, _utm_crs
+    from sensor_models.simulate.render_io import check_covers, utm_crs
     from sensor_models.maps.grid import MapGrid
     from sensor_models.maps.raster import MapImage
     from sensor_models.terrain.dem import Dem
@@ -238,7 +238,7 @@ def _geo_reference(cfg: GeoSimConfig, truth, tmp: Path, dom, dem, geoid):
         from sensor_models.simulate.procedural import generate_reference
 
         lon, lat, _ = truth.image_to_ground(border, other, height=cfg.mean_height_m)
-        crs = _utm_crs(float(np.mean(lon)), float(np.mean(lat)))
+        crs = utm_crs(float(np.mean(lon)), float(np.mean(lat)))
         x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
         data = generate_reference(float(np.mean(lon)), float(np.mean(lat)), float(np.ptp(x)) + 2 * cfg.margin_m,
                                   float(np.ptp(y)) + 2 * cfg.margin_m, seed=cfg.seed,
@@ -255,8 +255,8 @@ def _geo_reference(cfg: GeoSimConfig, truth, tmp: Path, dom, dem, geoid):
     h_lo, h_hi = dem_obj.height_range_m
     lon, lat = (np.concatenate(a) for a in zip(*(truth.image_to_ground(border, other, height=h)[:2]
                                                   for h in (h_lo, h_hi))))
-    _check_covers(dom_img.grid, lon, lat, what="DOM", path=dom_img.path)
-    _check_covers(MapGrid.of_dem(dem_obj), lon, lat, what="DEM", path=dem_obj.source)
+    check_covers(dom_img.grid, lon, lat, what="DOM", path=dom_img.path)
+    check_covers(MapGrid.of_dem(dem_obj), lon, lat, what="DEM", path=dem_obj.source)
     grid_lon, grid_lat = footprint_sample_lonlat(truth, 0.5 * (h_lo + h_hi), n_side=65)
     reference["dem_figures"] = check_dem_footprint(dem_obj, grid_lon, grid_lat, min_coverage=1.0)
     return dom_img, dem_obj, reference
@@ -270,7 +270,7 @@ def _render_frame(cfg: GeoSimConfig, truth, dom_img, dem_obj, path: Path, block_
     from rasterio.errors import NotGeoreferencedWarning
     from rasterio.windows import Window
 
-    from sensor_models.simulate.pushbroom_sim import _dom_scale
+    from sensor_models.simulate.pushbroom_sim import dom_scale
     from sensor_models.imaging.locate import dem_planes, locate_block
     from sensor_models.imaging.psf import psf_sigma_dom_px
     from sensor_models.maps.raster import sample_map_image
@@ -279,7 +279,7 @@ def _render_frame(cfg: GeoSimConfig, truth, dom_img, dem_obj, path: Path, block_
     n = cfg.image_px
     dem_planes(dem_obj)
     sigma = psf_sigma_dom_px(cfg.gsd_m, dom_img.grid.resolution_m, cfg.psf_sigma_px)
-    scale = _dom_scale(dom_img)
+    scale = dom_scale(dom_img)
     profile = dict(driver="GTiff", width=n, height=n, count=1, dtype="uint16", compress="deflate", predictor=2,
                    tiled=False, blockysize=16)
     with warnings.catch_warnings():

@@ -51,9 +51,6 @@ from sensor_models.terrain.footprint import check_dem_footprint, footprint_sampl
 
 __all__ = ["footprint_lonlat", "simulate_pushbroom"]
 
-# historical private names, used by geo_sim and series
-_utm_crs, _check_covers, _render_scene, _write_outputs = utm_crs, check_covers, render_scene, write_outputs
-
 #: coarse grid factor (DOM pixels per node) of the seasonal and cloud fields
 FIELD_FACTOR = 8
 
@@ -66,7 +63,7 @@ def _procedural_reference(cfg: SimConfig, models: SceneModels, out_dir: Path):
     h_lo = ref.mean_height_m - ref.relief_m - 100.0
     h_hi = ref.mean_height_m + ref.relief_m + 100.0
     lon, lat = footprint_lonlat(models.true_model, (h_lo, h_hi))
-    crs = _utm_crs(float(lon.mean()), float(lat.mean()))
+    crs = utm_crs(float(lon.mean()), float(lat.mean()))
     to_map = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
     x, y = to_map.transform(lon, lat)
     width = float(np.ptp(x)) + 2.0 * ref.margin_m
@@ -92,7 +89,7 @@ class _Renderer:
         self.dom = dom
         r = cfg.radiometry
         self.sigma_dom = psf_sigma_dom_px(cfg.scene.gsd_m, dom.grid.resolution_m, r.psf_sigma_px)
-        self.dom_scale = _dom_scale(dom)
+        self.dom_scale = dom_scale(dom)
         n_rows, n_cols = dom.grid.shape
         shape = (n_rows // FIELD_FACTOR + 2, n_cols // FIELD_FACTOR + 2)
         res = dom.grid.resolution_m * FIELD_FACTOR
@@ -132,7 +129,7 @@ class _Renderer:
         return dn, alpha
 
 
-def _dom_scale(dom: MapImage) -> float:
+def dom_scale(dom: MapImage) -> float:
     """DN of a bright land pixel (99.5th percentile of a decimated read): reflectance 1.0."""
     n_rows, n_cols = dom.grid.shape
     if dom._array is not None:
@@ -259,13 +256,13 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
     setup_done(2)
     bands = list(cfg.camera.bands)
     n_ccd = len(model.band_ccds(cfg.camera.reference_band))
-    cloud_pixels, has_mask = _render_scene(renderer, model, tmp, bands, cfg.camera.reference_band, n_ccd,
-                                           block_lines, workers, block_progress)
+    cloud_pixels, has_mask = render_scene(renderer, model, tmp, bands, cfg.camera.reference_band, n_ccd,
+                                          block_lines, workers, block_progress)
     render_seconds = clock.mark("blocks")  # the whole render: models, reference and blocks
     initial = truth_error(model, models.lab_model, dem=dem, step_px=32)
     clock.mark("truth_error")
-    return _write_outputs(cfg, models, tmp, initial, reference_files, dem_figures, (cloud_pixels, has_mask),
-                          render_seconds, workers, t_start, record_timings, phases=clock)
+    return write_outputs(cfg, models, tmp, initial, reference_files, dem_figures, (cloud_pixels, has_mask),
+                         render_seconds, workers, t_start, record_timings, phases=clock)
 
 
 def _reference(cfg, models: SceneModels, tmp: Path, dom_path, dem_path, geoid):
@@ -284,9 +281,9 @@ def _reference(cfg, models: SceneModels, tmp: Path, dom_path, dem_path, geoid):
         reference_files = {"dom": os.path.abspath(dom_path), "dem": os.path.abspath(dem_path)}
     h_lo, h_hi = dem.height_range_m
     lon, lat = footprint_lonlat(models.true_model, (h_lo, h_hi))
-    _check_covers(dom.grid, lon, lat, what="DOM", path=dom.path)
+    check_covers(dom.grid, lon, lat, what="DOM", path=dom.path)
     # the whole footprint on the DEM (the share covered is said), voids reported, too many refused
     grid_lon, grid_lat = footprint_sample_lonlat(models.true_model, 0.5 * (h_lo + h_hi), n_side=65)
     dem_figures = check_dem_footprint(dem, grid_lon, grid_lat, min_coverage=1.0)
-    _check_covers(MapGrid.of_dem(dem), lon, lat, what="DEM", path=dem.source)
+    check_covers(MapGrid.of_dem(dem), lon, lat, what="DEM", path=dem.source)
     return dom, dem, reference_files, dem_figures

@@ -425,7 +425,7 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     tmp = Path(tmp)
     clock = PhaseClock(t_start)
     setup_done, block_progress = step_progress(progress, cfg.scene.n_rows, block_lines)
-    cfg, models, lens, source, true_dem, data = _setup(cfg, profile, dom_path)
+    cfg, models, lens, source, true_dem, data = realistic_setup(cfg, profile, dom_path)
     clock.mark("models")
     setup_done(1)
     scene_source, dom_source, sky = _lit_sources(cfg, profile, source, data)
@@ -454,7 +454,7 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
                          extra_summary={"profile": profile.name, "injected": injected}, phases=clock)
 
 
-def _setup(cfg: SimConfig, profile, dom_path):
+def realistic_setup(cfg: SimConfig, profile, dom_path):
     """Effective configuration, models (centred on a given source), lens, source radiance, TRUE DEM."""
     cfg = apply_profile(cfg, profile)
     lens = lens_extras(profile, cfg.seed)
@@ -497,7 +497,7 @@ def source_radiance(cfg: SimConfig, profile) -> tuple:
     water : ndarray of bool, shape (H, W)
         Sea, lakes and rivers.
     """
-    _, _, _, source, _, data = _setup(cfg, profile, None)
+    _, _, _, source, _, data = realistic_setup(cfg, profile, None)
     return source[0], source[1], data.water_mask
 
 
