@@ -16,7 +16,7 @@ from sensor_models.models.attitude_correction import AttitudeCorrection
 from sensor_models.errors import GcpcalError, InputError, ManifestError
 from sensor_models.models.pushbroom import PushbroomModel
 from sensor_models.models.pushbroom_types import CcdLook, LineTiming
-from sensor_models.readers._common import (calibration_from_fields, FORMAT_VERSION, SENSOR_TYPES, RasterRef, attitude_from_fields,
+from sensor_models.readers._common import (calibration_from_fields, FORMAT_VERSION, SENSOR_TYPES, attitude_from_fields,
                                            check_format_version, epoch_field, exterior_to_dict,
                                            installation_from_fields, iso_utc, load_json, orbit_from_fields,
                                            raster_from_fields, raster_to_dict, write_document)
