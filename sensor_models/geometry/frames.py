@@ -42,7 +42,7 @@ from sensor_models.geometry.timescales import (
     DAY_S,
     MJD_ZERO_JD,
     EarthOrientation,
-    _erfa,
+    call_erfa,
     default_eop,
     epoch_tai_jd,
     parse_utc,
@@ -81,9 +81,9 @@ def _earth_orientation_at(tai1, tai2, eop: EarthOrientation):
 def _factors(tt1, tt2, xp, yp):
     """The slowly varying factors ``rc2i`` (GCRS->CIRS) and ``rpom`` (TIRS->ITRS)."""
     # c2i06a takes TT: GCRS -> CIRS matrix Q^T of IAU 2006/2000A (eq. 5.10 with X, Y, s)
-    rc2i = _erfa(erfa.c2i06a, tt1, tt2, what="IAU 2006/2000A precession-nutation")
+    rc2i = call_erfa(erfa.c2i06a, tt1, tt2, what="IAU 2006/2000A precession-nutation")
     # sp00 takes TT: TIO locator s' (eq. 5.13), ~ -47 µas per century
-    sp = _erfa(erfa.sp00, tt1, tt2, what="TIO locator")
+    sp = call_erfa(erfa.sp00, tt1, tt2, what="TIO locator")
     # pom00: polar-motion matrix W = R3(-s') R2(xp) R1(yp) (eq. 5.3), xp, yp in radians
     rpom = erfa.pom00(xp, yp, sp)
     return rc2i, rpom
@@ -261,7 +261,7 @@ class EarthRotation:
         if days.size == 0:
             return grid
         # utctai takes UTC (0h of each day) and returns TAI
-        day_tai1, day_tai2 = _erfa(erfa.utctai, MJD_ZERO_JD + days, 0.0, what="UTC -> TAI")
+        day_tai1, day_tai2 = call_erfa(erfa.utctai, MJD_ZERO_JD + days, 0.0, what="UTC -> TAI")
         e1, e2 = epoch_tai_jd(self.epoch)
         day_s = ((day_tai1 - e1) + (day_tai2 - e2)) * DAY_S
         # skip knots within 1 ms of a grid node (no useful interval; the kink error is nil)

@@ -77,7 +77,7 @@ ARCSEC_TO_RAD = np.pi / (180.0 * 3600.0)
 # ERFA boundary: ERFA reports problems as ErfaWarning ("dubious year": the leap-second table
 # may be out of date for this date) or ErfaError; both become gcpcal errors here.
 # --------------------------------------------------------------------------------------------
-def _erfa(func, *args, what: str):
+def call_erfa(func, *args, what: str):
     """Call an ERFA function, turning its warnings and errors into :class:`OutOfRangeError`."""
     with warnings.catch_warnings():
         warnings.simplefilter("error", erfa.ErfaWarning)
@@ -205,12 +205,12 @@ def _epoch_tai_jd_cached(epoch_ns: int) -> tuple[float, float]:
     minute, rest = divmod(rest, 60_000_000_000)
     second = rest / 1e9  # < 60 s, exact to ~1e-15 s
     # dtf2d takes a UTC calendar date and time ('UTC' scale: knows leap-second days)
-    utc1, utc2 = _erfa(
+    utc1, utc2 = call_erfa(
         erfa.dtf2d, "UTC", date.year, date.month, date.day, hour, minute, second,
         what=f"epoch {epoch}",
     )
     # utctai takes a UTC quasi-JD and returns TAI
-    tai1, tai2 = _erfa(erfa.utctai, utc1, utc2, what=f"epoch {epoch}")
+    tai1, tai2 = call_erfa(erfa.utctai, utc1, utc2, what=f"epoch {epoch}")
     return float(tai1), float(tai2)
 
 
@@ -295,7 +295,7 @@ def tai_to_utc_jd(tai1, tai2):
     utc1, utc2 : ndarray
         UTC two-part quasi-Julian date (ERFA convention on leap-second days).
     """
-    return _erfa(erfa.taiutc, tai1, tai2, what="TAI -> UTC")
+    return call_erfa(erfa.taiutc, tai1, tai2, what="TAI -> UTC")
 
 
 def utc_jd_to_mjd(utc1, utc2) -> np.ndarray:
@@ -335,7 +335,7 @@ def utc_to_ut1_jd(utc1, utc2, eop: EarthOrientation | None = None):
     eop = default_eop() if eop is None else eop
     day_mjd, day_fraction = utc_jd_to_day(utc1, utc2)
     dut1_s = eop.ut1_minus_utc_s(day_mjd, day_fraction=day_fraction)
-    return _erfa(erfa.utcut1, utc1, utc2, dut1_s, what="UTC -> UT1")
+    return call_erfa(erfa.utcut1, utc1, utc2, dut1_s, what="UTC -> UT1")
 
 
 def utc_jd_to_day(utc1, utc2):
@@ -358,7 +358,7 @@ def utc_jd_to_day(utc1, utc2):
     day_fraction : ndarray of float
         Fraction of the day in [0, 1) (ERFA quasi-fraction on a leap-second day).
     """
-    year, month, day, fraction = _erfa(erfa.jd2cal, utc1, utc2, what="UTC calendar date")
+    year, month, day, fraction = call_erfa(erfa.jd2cal, utc1, utc2, what="UTC calendar date")
     _, day_mjd = erfa.cal2jd(year, month, day)
     return day_mjd, fraction
 
