@@ -418,8 +418,8 @@ CASES = [
          1),
     Case("run", "DOM 10x coarser", lambda b, w: ["run", SCENE, "--dom", b.dom_coarse, "--dem", DEM, "--out", w / "r"],
          1),
-    Case("run", "output under a file", lambda b, w: ["run", SCENE, "--dom", DOM, "--out", w / "afile" / "r"], 1,
-         ("afile",), _file_prep),
+    Case("run", "output under a file", lambda b, w: ["run", SCENE, "--dom", DOM, "--dem", DEM, "--out",
+                                                     w / "afile" / "r"], 1, ("afile",), _file_prep),
     # relative
     Case("relative", "nonexistent calibration", lambda b, w: ["relative", SCENE, "--calibration", b.missing_json,
                                                               "--dem", DEM, "--out", w / "rel"], 1),

@@ -31,6 +31,7 @@ from calibrate._json import json_default
 from calibrate.actions._guard import (check_file_target, check_folder_target, current_command, input_set,
                                       is_stdout)
 from calibrate.actions._ledger import LEDGER_NAME
+from calibrate.actions._provenance import note_terrain, provenance_record, stage_inputs
 from calibrate.actions._staging import clean_stale, fault_point, make_stage_dir, make_temp_file
 from sensor_models.files.atomic import atomic_write_text
 from sensor_models.errors import InputError
@@ -46,7 +47,8 @@ _WRITE_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EFBIG, errno.EAC
 
 
 def write_summary(path, summary: dict) -> Path:
-    """Write a stage's JSON summary atomically.
+    """Write a stage's JSON summary atomically, with its ``provenance`` block
+    (:func:`calibrate.actions._provenance.provenance_record`) unless it holds one.
 
     Parameters
     ----------
@@ -60,6 +62,8 @@ def write_summary(path, summary: dict) -> Path:
     Path
         ``path``.
     """
+    if "provenance" not in summary:
+        summary = {**summary, "provenance": provenance_record()}
     atomic_write_text(Path(path), json.dumps(summary, indent=2, default=json_default) + "\n")
     return Path(path)
 
@@ -106,6 +110,7 @@ def open_dem(dem_path, datum=None, geoid=None, *, model=None, band=None):
         if len(files) > 1 or files[0].lower().endswith(".vrt"):
             bounds, margin = _footprint_box(model, band)
     dem = Dem.open(dem_path, vertical_datum=datum, geoid=geoid, bounds=bounds, margin_deg=margin)
+    note_terrain(dem)
     if model is not None:  # before any work: heights a terrain cannot have (a DEM in centimetres)
         from calibrate.plausibility import check_dem_heights
 
@@ -342,7 +347,8 @@ def staged_folder(out_dir, prefix: str = ".stage-", *, inputs=()):
         tmp = make_stage_dir(out_dir.parent, out_dir.name)
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; the output folder gets the usual mode
         fault_point("staging")
-        yield tmp
+        with stage_inputs(inputs):
+            yield tmp
         fault_point("written")
         _name_final_folder(tmp, given)
         check_folder_target(out_dir, inputs)  # again, just before the move: nothing changed meanwhile
@@ -393,7 +399,8 @@ def staged_files(*paths, inputs=()):
             staged.append(stages[final.parent] / final.name)
         it = iter(staged)
         fault_point("staging")
-        yield [None if p is None else next(it) for p in paths]
+        with stage_inputs(inputs):
+            yield [None if p is None else next(it) for p in paths]
         fault_point("written")
         for final in finals:  # again, just before the move
             check_file_target(final, inputs)

@@ -36,6 +36,7 @@ import numpy as np
 
 from calibrate.actions._io import check_output_folder, staged_folder
 from calibrate.actions._status import record_product_check
+from calibrate.actions._provenance import note, provenance_record, with_provenance
 from calibrate.plausibility import check_gcps_on_scene
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
@@ -58,6 +59,26 @@ def match_summary_path(gcps_path) -> Path:
         ``gcps_path`` with the suffix ``.summary.json`` (it may not exist).
     """
     return Path(gcps_path).with_suffix(".summary.json")
+
+
+def note_gcp_origin(gcps_path) -> None:
+    """Record in the provenance where the GCP table came from: the match summary's command line,
+    inputs (scene, DOM, DEM with their checksums) and terrain, when a summary is beside it.
+
+    Parameters
+    ----------
+    gcps_path : str or Path
+    """
+    from sensor_models.errors import InputError
+    from sensor_models.files.documents import load_json
+
+    try:
+        upstream = load_json(match_summary_path(gcps_path)).get("provenance")
+    except (InputError, AttributeError):
+        return
+    if isinstance(upstream, dict):
+        note("gcps_from", {k: upstream.get(k) for k in ("command_line", "created_utc", "inputs", "terrain",
+                                                         "reference_accuracy")})
 
 
 def options_from_match_summary(options: CalibrationOptions, gcps_path) -> CalibrationOptions:
@@ -151,6 +172,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     model, table = _read_inputs(scene_path, gcps_path, band, image, self_check)
     implausible = check_gcps_on_scene(model, table.lon, table.lat, table.h, source=gcps_path, band=band)
     options = options_from_match_summary(options, gcps_path)
+    note_gcp_origin(gcps_path)
     say = progress or (lambda message: None)
     say(f"{len(table.gcps())} GCPs, {len(table.checks())} check points")
     say(f"fitting the model ({options.scheme})")
@@ -172,7 +194,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
             say("writing the report")
             write_report(tmp, result=getattr(result, "calibration", result), accuracy_before=acc_before,
                          accuracy_after=acc_after, initial_model=model, gcps=g, checks=checks,
-                         coverage=coverage, status=status)
+                         coverage=coverage, status=status, provenance=provenance_record())
         summary = {
             "kind": "gcpcal.calibrate",
             "success": bool(result.success),
@@ -199,7 +221,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
         record_product_check(summary, model)
         if implausible:
             summary["implausible_accepted"] = implausible
-        (tmp / "calibrate.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+        (tmp / "calibrate.summary.json").write_text(json.dumps(with_provenance(summary), indent=1) + "\n", encoding="utf-8")
     return summary
 
 

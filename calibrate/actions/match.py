@@ -11,6 +11,7 @@ from calibrate.actions._guard import InputSet
 from calibrate.actions._io import check_output_files, open_dem, staged_files
 from calibrate.actions._l1a import scene_raster
 from calibrate.actions._status import record_product_check
+from calibrate.actions._provenance import note, with_provenance
 from calibrate.plausibility import check_dom_resolution, check_scene_raster
 from gcpmatch.extract import extract_gcps, read_band, window_count
 from gcpmatch.options import MatchOptions
@@ -140,6 +141,8 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         mask = read_band(model, band, mask_path)
         mask = np.nan_to_num(mask) != 0
     accuracy = reference_accuracy(dom_found.files, given_m=options.reference_sigma_m)  # option, DOM's tags/MTL, assumed
+    note("reference_accuracy", {"east_m": accuracy.east_m, "north_m": accuracy.north_m, "source": accuracy.source,
+                                "assumed": accuracy.assumed})
     table, summary = extract_gcps(model, scene, dem, dom, band=band, mask=mask, options=options, progress=progress,
                                   accuracy=accuracy, progress_count=progress_count)
     out_path = Path(out_path)
@@ -182,7 +185,7 @@ def _write_outputs(table, summary, *, model, band, image, out_path, out_format, 
             if gpkg_tmp is not None:
                 write_gcps_gpkg(table, gpkg_tmp)
             write_residual_layer(model_residual_layer(model, table), residuals_tmp, layer=LAYER_NAMES["match"])
-        summary_tmp.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+        summary_tmp.write_text(json.dumps(with_provenance(summary), indent=1) + "\n", encoding="utf-8")
 
 
 def _dom_name(dom_found, dom_path) -> str:

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.actions._io import check_output_folder, staged_folder
+from calibrate.actions._provenance import with_provenance
 from sensor_models.errors import InputError
 from sensor_models.files.documents import csv_error, read_text
 
@@ -251,7 +252,7 @@ def oalr_from_csv(path, out_dir, *, reference: int = 0, focal_mm: float = 6550.0
     if table3:
         doc["table3"] = reproduce_table3(geometry)
     with staged_folder(out_dir, ".oalr-", inputs=[path]) as stage:
-        atomic_write_text(stage / "oalr.json", json.dumps(json_safe(doc), indent=1, allow_nan=False) + "\n")
+        atomic_write_text(stage / "oalr.json", json.dumps(json_safe(with_provenance(doc)), indent=1, allow_nan=False) + "\n")
     return doc
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from calibrate.actions._guard import InputSet
 from calibrate.actions._io import check_output_files, open_dem, staged_files, write_summary
 from calibrate.actions._status import calibration_input, open_usable_calibration, require_usable, status_fields
+from calibrate.actions._provenance import geotiff_tags
 from calibrate.plausibility import check_dem_heights, check_scene_raster
 from calibrate.config import OrthoOptions
 from sensor_models.errors import InputError
@@ -85,7 +86,7 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
             result = orthorectify_to_file(geometry, image, dem, tif_tmp, crs=options.crs,
                                           resolution_m=options.resolution_m, band=band,
                                           resampling=options.resampling, block=options.block, progress=say,
-                                          dem_windows=dem_windows)
+                                          dem_windows=dem_windows, tags=geotiff_tags())
             summary = _summary(result, out_path, summary_path, scene_path, calib_file, geometry, image, dem_path,
                                status_fields(geometry, scene_warning, calib_warning, product=scene), dem_figures, t0)
             write_summary(summary_tmp, summary)

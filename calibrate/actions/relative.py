@@ -24,6 +24,7 @@ import numpy as np
 from calibrate._json import json_safe
 from calibrate.actions._io import open_dem, staged_folder
 from calibrate.actions._status import record_product_check
+from calibrate.actions._provenance import with_provenance
 from calibrate.config import CalibrationOptions
 from sensor_models.errors import InputError
 
@@ -140,7 +141,7 @@ def _write_outputs(stage: Path, out_dir: Path, scene, result, report: dict, refe
     (stage / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     (stage / "relative.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
     summary = record_product_check(_summary(result, reference_band, time.perf_counter() - t0), scene)
-    (stage / "relative.summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    (stage / "relative.summary.json").write_text(json.dumps(with_provenance(summary), indent=1) + "\n", encoding="utf-8")
     return summary
 
 

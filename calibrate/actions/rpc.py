@@ -34,6 +34,7 @@ from calibrate.actions._io import (check_output_files, check_output_folder, open
                                    write_summary)
 from calibrate.actions._l1a import scene_raster, write_l1a_with_rpc
 from calibrate.actions._status import require_usable, status_fields
+from calibrate.actions._provenance import geotiff_tags
 from sensor_models.errors import InputError
 from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
@@ -251,7 +252,7 @@ def _write(fitted, report, ccd_name, first_row, first_col, outputs, context) -> 
             extra = {"GCPCAL_RPC_HEIGHT_RANGE_M": " ".join(repr(float(h)) for h in context["height_range"]),
                      "GCPCAL_MODEL": str(context["model_path"]), "GCPCAL_BAND": str(band or ""),
                      "GCPCAL_CCD": ccd_name or "", "GCPCAL_FIRST_ROW": str(int(first_row)),
-                     "GCPCAL_FIRST_COL": str(int(first_col))}
+                     "GCPCAL_FIRST_COL": str(int(first_col)), **geotiff_tags()}
             write_l1a_with_rpc(path, index, staged, fitted, image_shape=context["n_rows_cols"], first_col=first_col,
                                first_row=first_row, fit_report=report, extra_tags=extra)
             entry["raster"] = str(final)

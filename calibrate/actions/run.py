@@ -34,6 +34,7 @@ from calibrate.actions.calibrate import calibrate_scene
 from calibrate.actions.match import match_scene
 from calibrate.actions._status import FailedCalibrationError, record_product_check, require_usable, status_fields
 from calibrate.actions.stars import read_star_inputs, stars_sequence
+from calibrate.actions._provenance import with_provenance
 from gcpmatch.options import MatchOptions
 from sensor_models.errors import GcpcalError, InputError
 
@@ -215,5 +216,5 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
     summary.update(_own_status(out_dir, summary))
     record_product_check(summary, model)
     summary["seconds"] = time.perf_counter() - t0
-    atomic_write_text(out_dir / "run.summary.json", json.dumps(summary, indent=1, default=str) + "\n")
+    atomic_write_text(out_dir / "run.summary.json", json.dumps(with_provenance(summary), indent=1, default=str) + "\n")
     return summary

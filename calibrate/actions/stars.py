@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from calibrate.actions._io import staged_output
+from calibrate.actions._provenance import with_provenance
 from calibrate.config import StarOptions
 from sensor_models.errors import InputError
 
@@ -114,7 +115,7 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, options: StarOptions 
         write_geo_manifest(result.model, out_dir / "manifest.json")
     doc["calibration_status"] = "calibrated" if result.success else "failed"
     doc["timings"]["command_s"] = time.perf_counter() - t0
-    atomic_write_text(out_dir / "stars.json", json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    atomic_write_text(out_dir / "stars.json", json.dumps(with_provenance(doc), indent=1, allow_nan=False) + "\n")
     from calibrate.report.star_report import write_star_report
 
     write_star_report(out_dir, doc, result=result)

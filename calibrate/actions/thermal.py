@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from calibrate.actions._io import check_output_folder, staged_folder
+from calibrate.actions._provenance import with_provenance
 from sensor_models.errors import InputError
 
 __all__ = ["thermal_experiment"]
@@ -93,6 +94,6 @@ def thermal_experiment(out_dir, *, days: float = 5.0, interval_min: float = 30.0
         plot_thermal_angles(tmp / "thermal_angles.png", series, model, train=train, drift=drift)
         plot_positioning(tmp / "thermal_positioning.png", times[test], errors)
         doc["timings"] = {"command_s": time.perf_counter() - t_start}
-        text = json.dumps(json_safe(doc), indent=1, allow_nan=False) + "\n"
+        text = json.dumps(json_safe(with_provenance(doc)), indent=1, allow_nan=False) + "\n"
         (tmp / "thermal.json").write_text(text, encoding="utf-8")
     return doc

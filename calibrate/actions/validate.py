@@ -28,6 +28,7 @@ import numpy as np
 from calibrate._json import json_safe
 from calibrate.batch import COLUMNS
 from calibrate.actions._io import final_paths, staged_folder
+from calibrate.actions._provenance import with_provenance
 from sensor_models.errors import InputError
 
 __all__ = ["check_scheduler_address", "merge_residual_layers", "run_validation", "validate_calibration",
@@ -266,7 +267,7 @@ def write_outputs(out_dir, rows, summary, *, title: str | None = None) -> dict:
             writer.writerow({c: _csv_cell(r.get(c)) for c in COLUMNS})
         (tmp / files["csv"]).write_text(buf.getvalue(), encoding="utf-8")
         doc = json_safe({**summary, "files": files, "columns": list(COLUMNS), "rows": rows})
-        (tmp / files["json"]).write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+        (tmp / files["json"]).write_text(json.dumps(with_provenance(doc), indent=1, allow_nan=False) + "\n", encoding="utf-8")
         _bar_plot(rows, summary, tmp / files["plot"])
         (tmp / files["html"]).write_text(_html_page(rows, summary, files, title), encoding="utf-8")
         for name in files.values():

@@ -20,6 +20,7 @@ import threading
 import click
 
 from calibrate.actions._guard import allow_overwrite, running_command
+from calibrate.actions._provenance import command_line
 from calibrate.cli._errors import Interrupted, note_signal, quiet_cluster_logs, run_guarded
 from calibrate.cli.options import add_options, apply_verbosity, verbosity_options
 from sensor_models import __version__
@@ -224,7 +225,7 @@ def main(argv=None) -> int:
     if threading.current_thread() is threading.main_thread():
         previous = {signum: signal.signal(signum, _on_signal) for signum in _HANDLED}
     try:
-        with _worker_config(args):
+        with _worker_config(args), command_line(args):
             return run_guarded(lambda: cli.main(args=args, prog_name="gcpcal", standalone_mode=False),
                                verbose=_verbosity(args))
     finally:

@@ -200,3 +200,92 @@ def figure_html(fig) -> str:
         f'<figure><img src="{escape(fig["src"])}" alt="{escape(fig["caption"])}">'
         f"<figcaption>{escape(fig['caption'])}</figcaption></figure>"
     )
+
+
+def value_html(value, depth: int = 0) -> str:
+    """A value of a report's free-form section as HTML: text, a number, a list, or a table of a
+    mapping (nested to two levels, deeper values as compact text), never a raw JSON dump.
+
+    Parameters
+    ----------
+    value : object
+        JSON-like value (numbers, strings, mappings, sequences, numpy scalars/arrays).
+    depth : int
+        Nesting level of the call (tables nest to two levels).
+
+    Returns
+    -------
+    str
+        HTML.
+    """
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, np.generic):
+        value = value.item()
+    if value is None:
+        return "–"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, (int, float)):
+        return fmt(value, 6)
+    if isinstance(value, str):
+        return escape(value)
+    if isinstance(value, dict):
+        if depth >= 2:
+            return escape(", ".join(f"{k}: {v}" for k, v in value.items()))
+        return table(["", ""], [[escape(k), value_html(v, depth + 1)] for k, v in value.items()], left=2)
+    if isinstance(value, (list, tuple)):
+        if all(isinstance(v, dict) for v in value) and value and depth < 2:
+            keys = list(dict.fromkeys(k for v in value for k in v))
+            return table([escape(k) for k in keys], [[value_html(v.get(k), 2) for k in keys] for v in value],
+                         left=len(keys))
+        return escape(", ".join(str(fmt(v, 6) if isinstance(v, float) else v) for v in value))
+    return escape(str(value))
+
+
+def section_provenance(record: dict) -> str:
+    """The "Inputs and provenance" section of a report from a provenance record.
+
+    Parameters
+    ----------
+    record : dict
+        :func:`calibrate.actions._provenance.provenance_record`.
+
+    Returns
+    -------
+    str
+        HTML: the version, command line and time; the input files (path, size, SHA-256); the
+        terrain (DEM, vertical datum, geoid); the reference's accuracy and its source.
+    """
+    head = [["gcpcal", escape(record.get("gcpcal_version", ""))],
+            ["command", f"<code>{escape(record.get('command_line') or '(called from Python)')}</code>"],
+            ["created", escape(record.get("created_utc", ""))],
+            ["python / platform", escape(f"{record.get('python', '')} / {record.get('platform', '')}")]]
+    terrain = record.get("terrain") or {}
+    if terrain:
+        head.append(["DEM", escape(f"{terrain.get('dem')} (heights {terrain.get('vertical_datum')}"
+                                   + (f", geoid {terrain.get('geoid')}" if terrain.get("geoid") else "") + ")")])
+    acc = record.get("reference_accuracy") or {}
+    if acc:
+        head.append(["reference accuracy",
+                     escape(f"{fmt(acc.get('east_m'), 3)} m east, {fmt(acc.get('north_m'), 3)} m north (1 sigma), "
+                            f"{'assumed' if acc.get('assumed') else 'from ' + str(acc.get('source'))}")])
+    rows = [[escape(i.get("path")), "–" if i.get("bytes") is None else f"{i['bytes']:,}",
+             f"<code>{escape(i.get('sha256') or i.get('sha256_note') or '–')}</code>"]
+            for i in record.get("inputs", [])]
+    upstream = record.get("gcps_from") or {}
+    if upstream:
+        head.append(["GCPs made by", f"<code>{escape(upstream.get('command_line') or '?')}</code> "
+                                     f"({escape(upstream.get('created_utc') or '')})"])
+        up_terrain = upstream.get("terrain") or {}
+        if up_terrain:
+            head.append(["GCPs' DEM", escape(f"{up_terrain.get('dem')} (heights {up_terrain.get('vertical_datum')}"
+                                             + (f", geoid {up_terrain.get('geoid')}" if up_terrain.get("geoid")
+                                                else "") + ")")])
+        rows += [[escape(i.get("path")) + " (matching)", "–" if i.get("bytes") is None else f"{i['bytes']:,}",
+                  f"<code>{escape(i.get('sha256') or i.get('sha256_note') or '–')}</code>"]
+                 for i in upstream.get("inputs") or []]
+    out = table(["", ""], head, left=2)
+    if rows:
+        out += table(["input file", "bytes", "SHA-256"], rows, left=1)
+    return out

@@ -47,7 +47,6 @@ through ``pyplot``, so the caller's backend and global figure state are untouche
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 import tempfile
@@ -60,7 +59,7 @@ import numpy as np
 from calibrate.absolute import CalibrationResult, parameter_unit
 from calibrate.accuracy import AccuracyReport
 from calibrate.report._html import CSS as _CSS, escape as _e, figure_html as _figure_html, fmt as _fmt
-from calibrate.report._html import move_into_place as _move_into_place, table as _table
+from calibrate.report._html import move_into_place as _move_into_place, section_provenance, table as _table, value_html
 from calibrate.report._inputs import ReportContext, check_result, point_columns, unwrap_result
 from calibrate.report.attitude import figure_attitude, figure_parallax, section_attitude, section_parallax
 from calibrate.report.band_to_band import figure_band_to_band, section_band_to_band
@@ -92,6 +91,7 @@ def write_report(
     status=None,
     relative=None,
     truth_error=None,
+    provenance: dict | None = None,
 ) -> Path:
     """Write ``out_dir/report.html`` and its PNG figures in ``out_dir/figures/``.
 
@@ -136,6 +136,11 @@ def write_report(
         optional): adds the TRUE-model section (:mod:`calibrate.report.truth`), with a figure of
         the error against the detector when ``truth_model`` is given.
 
+    provenance : dict, optional
+        :func:`calibrate.actions._provenance.provenance_record`: shown first, under the title
+        (version, command line, every input with its size and SHA-256, DEM datum and geoid,
+        the reference's accuracy and its source).
+
     Returns
     -------
     Path
@@ -158,7 +163,7 @@ def write_report(
         ctx.coverage, ctx.status = list(coverage or []), status
         ctx.relative, ctx.truth_error = relative, truth_error
         figures = _figures(ctx, error_vs_count, tmp / "figures")
-        text = _html(ctx, figures, error_vs_count, str(title), extra)
+        text = _html(ctx, figures, error_vs_count, str(title), extra, provenance)
         (tmp / "report.html").write_text(text, encoding="utf-8")
         _move_into_place(tmp, out_dir)
     finally:
@@ -235,8 +240,9 @@ def _checked_inputs(result, accuracy_before, accuracy_after, gcps, checks, error
 
 
 
-def _html(ctx: ReportContext, figures, error_vs_count, title, extra) -> str:
+def _html(ctx: ReportContext, figures, error_vs_count, title, extra, provenance=None) -> str:
     sections = [
+        *([("provenance", "Inputs and provenance", section_provenance(provenance))] if provenance else []),
         ("summary", "Summary", _section_summary(ctx) + _figure_html(figures["vectors"])),
         *([("coverage", "Coverage per CCD", _section_coverage(ctx))] if ctx.coverage else []),
         ("parameters", "Parameters", _section_parameters(ctx) + "".join(_figure_html(f) for f in figures["distortion"])),
@@ -489,16 +495,7 @@ def _section_convergence(ctx: ReportContext) -> str:
 
 
 def _section_extra(extra: Mapping) -> str:
-    rows = []
-    for key, value in extra.items():
-        if isinstance(value, str):
-            text = _e(value)
-        elif isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
-            text = _fmt(value, 6)
-        else:
-            text = f"<pre>{_e(json.dumps(value, indent=1, default=_json_default))}</pre>"
-        rows.append([_e(key), text])
-    return _table(["key", "value"], rows, left=2)
+    return _table(["key", "value"], [[_e(key), value_html(value)] for key, value in extra.items()], left=2)
 
 
 def _json_default(value):

@@ -132,7 +132,7 @@ def _block_size(block: int, scale: float) -> int:
 def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=None, band=None,
                          resampling: str = "bilinear", block: int = 1024, nodata=0, dtype=None,
                          node_step_px: float = 16.0, check_points: int = 256, seed: int = 0,
-                         progress=None, dem_windows=None) -> dict:
+                         progress=None, dem_windows=None, tags: dict | None = None) -> dict:
     """Orthorectify one band into a Cloud-Optimized GeoTIFF, block by block, atomically.
 
     Parameters
@@ -172,6 +172,8 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         Read the pixels' heights from the DEM file block by block
         (:func:`sensor_models.terrain.dem_windows.open_ortho_dem`); ``dem`` then only serves the
         footprint, the default resolution and the mean height.
+    tags : dict of str to str, optional
+        More GDAL metadata items of the output (e.g. the caller's provenance).
 
     Returns
     -------
@@ -205,7 +207,7 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         _check_nodata(nodata, out_dtype)
         step = _block_size(block, geometry.scale)
         plan = _BlockPlan(geometry, source, step, RESAMPLING[resampling], out_dtype, nodata, check_points, seed)
-        t_cog = _write_cog(plan, out_path, model=model, band=band, resampling=resampling, progress=progress)
+        t_cog = _write_cog(plan, out_path, model=model, band=band, resampling=resampling, progress=progress, tags=tags)
     finally:
         source.close()
     summary = _summary(plan, out_path, band=band, resampling=resampling, step=step)
@@ -290,7 +292,7 @@ class _BlockPlan:
                 progress(k + 1, len(self.blocks))
 
 
-def _write_cog(plan: _BlockPlan, out_path: Path, *, model, band, resampling, progress) -> float:
+def _write_cog(plan: _BlockPlan, out_path: Path, *, model, band, resampling, progress, tags=None) -> float:
     """Write the blocks into a tiled GeoTIFF, copy it to a COG and move that into place.
 
     Returns the seconds the COG copy took.
@@ -314,7 +316,7 @@ def _write_cog(plan: _BlockPlan, out_path: Path, *, model, band, resampling, pro
             with rasterio.open(tmp, "w", **profile) as dst:
                 dst.set_band_description(1, str(band) if band is not None else "image")
                 dst.update_tags(GCPCAL_ORTHO_MODEL=getattr(model, "name", "") or model.kind,
-                                GCPCAL_ORTHO_BAND=str(band), GCPCAL_ORTHO_RESAMPLING=resampling)
+                                GCPCAL_ORTHO_BAND=str(band), GCPCAL_ORTHO_RESAMPLING=resampling, **(tags or {}))
                 plan.write(dst, progress)
             if plan.n_valid == 0:
                 raise InputError("no output pixel lies on both the image and the DEM: does the DEM cover the "

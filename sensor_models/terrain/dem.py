@@ -77,6 +77,10 @@ class Dem:
         WGS84.
     source : str, optional
         Where the heights came from (shown in messages).
+    source_datum : {"ellipsoid", "egm96"}
+        The vertical datum of the heights as read (they are held as ellipsoidal heights).
+    geoid_source : str, optional
+        The geoid grid that converted EGM96 heights (None for ellipsoidal ones).
 
     Attributes
     ----------
@@ -84,13 +88,18 @@ class Dem:
     crs : pyproj.CRS
     shape : tuple of int
     source : str or None
+    source_datum : str
+    geoid_source : str or None
     """
 
-    def __init__(self, heights_m, transform, crs, *, source: str | None = None):
+    def __init__(self, heights_m, transform, crs, *, source: str | None = None, source_datum: str = "ellipsoid",
+                 geoid_source: str | None = None):
         z = np.ascontiguousarray(np.asarray(heights_m, dtype=np.float64))
         if z.ndim != 2 or min(z.shape) < 2:
             raise InputError(f"a DEM needs at least 2 x 2 nodes, got shape {z.shape}", path=source)
         self.source = source
+        self.source_datum = source_datum
+        self.geoid_source = geoid_source
         self.transform = as_affine(transform)
         self.crs = horizontal_crs(pyproj.CRS.from_user_input(crs))
         self.shape = z.shape
@@ -253,6 +262,8 @@ class Dem:
                     f"{int(uncovered.sum())} DEM nodes"
                 )
             values = values + undulation
+            return cls(values, transform, crs, source=source, source_datum="egm96",
+                       geoid_source=None if grid.source is None else str(grid.source))
         return cls(values, transform, crs, source=source)
 
     # -- geometry of the grid -------------------------------------------------------------
