@@ -34,7 +34,8 @@ against the truth:
    only under the ``ideal`` profile, where it is the TRUE one), ``status`` (the coverage gate of the reference band's calibration,
    :mod:`calibrate.coverage`, made ``partial`` when a band-to-band calibration fails or
    leaves a CCD's interior unestimated),
-   ``variance_factor``, ``attitude`` (the correction selected), ``coverage`` and ``seconds``.
+   ``variance_factor``, ``attitude`` (the correction selected), ``coverage``, ``model`` (the
+   final model's file, ``relative/manifest.json``) and ``seconds``.
 """
 
 from __future__ import annotations
@@ -94,9 +95,9 @@ def _user_path(fx: dict, out_dir: Path, spacing_px: int, step):
     """Phases 1 and 2: the user's match -> calibrate -> relative (:func:`calibrate.pipelines.scene.scene_pipeline`).
 
     Returns the final model's file (relative to ``out_dir``), the GCP table the match stage
-    wrote, the reference band's CalibrationResult, the
-    RelativeResult (its ``model``: the final model), the reference band's GCP columns, the
-    per-band summary rows and the match figures.
+    wrote, the reference band's CalibrationResult, the RelativeResult (its ``model``: the final
+    model; None when the calibration failed), the reference band's GCP columns, the per-band
+    summary rows and the match figures.
     """
     from calibrate.from_gcps import points_of
     from calibrate.pipelines.scene import GCP_FILE, scene_pipeline
