@@ -133,15 +133,25 @@ def demo_runs(fixture: Path) -> dict:
     """The demo's match and reference-band calibration on ``fixture``, per variant: variance factor,
     installation sigma and z against the exact-observation fit, truth error of the reference band."""
     from calibrate.absolute import calibrate_model
-    from calibrate.actions.demo import _match, _open_fixture
     from calibrate.config import CalibrationOptions
+    from calibrate.pipelines.demo import TRUE_DEM, fixture_profile
+    from calibrate.pipelines.scene import GCP_FILE, match_step
+    from gcpmatch.gcps import read_gcps
+    from gcpmatch.options import MatchOptions
     from sensor_models.models.compare import model_difference
+    from sensor_models.readers import open_model
+    from sensor_models.terrain.dem import Dem
 
-    fx = _open_fixture(fixture)
-    band = fx["reference_band"]
-    with tempfile.TemporaryDirectory() as tmp:
-        merged, summaries = _match(fx, Path(tmp), 16)
-    acc = summaries[band]["reference_accuracy"]
+    reference = fixture / "reference"
+    true_dem = fixture / TRUE_DEM if (fixture / TRUE_DEM).exists() else reference / "dem.tif"
+    fx = {"lab": open_model(fixture / "manifest.json"), "truth": open_model(fixture / "truth_manifest.json"),
+          "true_dem": Dem.open(true_dem), "profile": fixture_profile(fixture)}
+    band = fx["lab"].reference_band
+    with tempfile.TemporaryDirectory() as tmp:  # the demo's match step (gcpcal match --spacing 16)
+        summary = match_step(fixture / "manifest.json", tmp, dom_path=reference / "dom.tif",
+                             dem_path=reference / "dem.tif", options=MatchOptions(spacing_px=16))
+        merged = read_gcps(Path(tmp) / GCP_FILE)
+    acc = summary["reference_accuracy"]
     gcps = merged.gcps()
     exact = _exact_table(fx["truth"], gcps, band)
     out = {"fixture": fixture.name, "profile": fx["profile"], "gcps": len(gcps), "reference_accuracy": acc,

@@ -1,6 +1,6 @@
 """Matcher variants on the realistic demo, with each GCP's truth error split by texture class.
 
-Runs ``gcpcal demo`` (:func:`calibrate.actions.demo.run_demo`, fixture ``hy1c_czi_realistic``
+Runs ``gcpcal demo`` (:func:`calibrate.pipelines.demo.run_demo`, fixture ``hy1c_czi_realistic``
 unless ``--fixture``) once per variant of :class:`gcpmatch.options.MatchOptions`, side by side in
 one process, and reports per variant: GCP count, the GCP truth error (rms, px, 2-D) per texture
 class, the truth / sigma calibration of the GCPs, the demo's truth error (rms / max over every CCD
@@ -125,7 +125,7 @@ def run_variant(fixture: Path, overrides: dict, out: Path) -> dict:
     import functools
 
     import gcpmatch.options as mo
-    from calibrate.actions.demo import run_demo
+    from calibrate.pipelines.demo import run_demo
 
     original = mo.MatchOptions
     mo.MatchOptions = functools.partial(original, **overrides)

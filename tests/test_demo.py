@@ -35,7 +35,7 @@ def test_demo_calibrates_the_fixture_from_hundreds_of_pixels_to_a_tenth(demo_run
     # the calibrated manifest opens and names the fixture's rasters
     from sensor_models.readers import open_model
 
-    model = open_model(out / "manifest.json")
+    model = open_model(out / "relative" / "manifest.json")
     assert set(model.rasters) == {"B1", "B2", "B3", "B4"}
     assert all(__import__("os").path.exists(r["path"]) for r in model.rasters.values())
 

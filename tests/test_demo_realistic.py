@@ -107,7 +107,7 @@ def test_a_ccd_without_gcps_ends_partial_and_is_named(tmp_path, monkeypatch, cap
     import shutil
     import warnings
 
-    from calibrate.actions import demo as demo_action
+    from calibrate.pipelines import demo as demo_action
     from rasterio.errors import NotGeoreferencedWarning
 
     scene = tmp_path / "scene"

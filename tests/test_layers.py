@@ -24,6 +24,10 @@ CLI_MODULES = ("calibrate.cli", "calibrate.__main__")  # and calibrate.cli.*, ca
 #: itself and the rooms before it; the package's ``__init__`` (the public API) may import any room
 SENSOR_MODEL_ROOMS = ("errors", "base", "files", "geometry", "maps", "terrain", "models", "imaging",
                       "readers", "simulate")
+#: the tiers of ``calibrate``, lowest first (docs/architecture.md): the library (every other module,
+#: ``calibrate.experiments`` included) <- ``actions`` <- ``pipelines`` <- ``cli``; a tier imports only
+#: from itself and the tiers before it (``calibrate.__main__`` counts as the CLI)
+CALIBRATE_TIERS = ("library", "actions", "pipelines", "cli")
 
 
 
@@ -197,6 +201,33 @@ def test_sensor_model_rooms_import_downward_only():
             rb = _room(b)
             if rb is not None and SENSOR_MODEL_ROOMS.index(rb) > SENSOR_MODEL_ROOMS.index(ra):
                 failures[("room", f"{a} -> {b}")] = f"{a} (line {line}) imports {b}: room {rb} is above {ra}"
+    assert not _report(failures), "\n".join(_report(failures))
+
+
+def _tier(module: str) -> str | None:
+    """The tier of a ``calibrate`` module (None: another package)."""
+    parts = module.split(".")
+    if parts[0] != "calibrate":
+        return None
+    if _is_cli(module):
+        return "cli"
+    return parts[1] if len(parts) > 1 and parts[1] in ("actions", "pipelines") else "library"
+
+
+def test_calibrate_tiers_import_downward_only():
+    """library <- actions <- pipelines <- cli: actions never import a pipeline, the library (the
+    seed experiments included) never imports an action or a pipeline."""
+    assert _tier("calibrate.pipelines.demo") == "pipelines" and _tier("calibrate.experiments.registry") == "library"
+    assert "calibrate.pipelines.scene" in GRAPH["calibrate.pipelines.demo"]  # not vacuous
+    failures = {}
+    for a, edges in GRAPH.items():
+        ta = _tier(a)
+        if ta is None:
+            continue
+        for b, line in edges.items():
+            tb = _tier(b)
+            if tb is not None and CALIBRATE_TIERS.index(tb) > CALIBRATE_TIERS.index(ta):
+                failures[("tier", f"{a} -> {b}")] = f"{a} (line {line}) imports {b}: tier {tb} is above {ta}"
     assert not _report(failures), "\n".join(_report(failures))
 
 

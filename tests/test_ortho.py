@@ -260,12 +260,12 @@ def _shifts(image, dom, window=64, step=32):
 @pytest.mark.slow  # the demo's calibration: 6 s on an idle machine, 25 s on a busy one
 def test_calibrated_ortho_matches_dom(demo, tmp_path, capsys):
     out = tmp_path / "b2_ortho.tif"
-    code = main(["ortho", str(LAB), "--calibration", str(demo), "--dem", str(DEM), "--out", str(out), "--json"])
+    code = main(["ortho", str(LAB), "--calibration", str(demo / "relative"), "--dem", str(DEM), "--out", str(out), "--json"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     summary = json.loads(captured.out)
     assert summary == json.loads(out.with_suffix(".summary.json").read_text())
-    assert summary["calibration"] == str(demo / "manifest.json") and summary["band"] == "B2"
+    assert summary["calibration"] == str(demo / "relative" / "manifest.json") and summary["band"] == "B2"
     assert summary["image"] == str(B2) and summary["geometry_check_max_px"] < 0.01
     ortho, dom, _, _ = _dom_on(out)
     shifts, windows = _shifts(ortho, dom)
@@ -309,7 +309,7 @@ def test_gcp_geotiff_warps_with_gdal(demo, tmp_path):
         transform, width, height = calculate_default_transform(gcp_crs, dst_crs, src.width, src.height, gcps=gcps)
         assert 20.0 < transform.a < 40.0 and 600 < width < 1100 and 450 < height < 900
         ortho = tmp_path / "calibrated.tif"
-        orthorectify_to_file(open_model(demo / "manifest.json"), B2, Dem.open(DEM), ortho)
+        orthorectify_to_file(open_model(demo / "relative" / "manifest.json"), B2, Dem.open(DEM), ortho)
         _, dom, grid_transform, grid_crs = _dom_on(ortho)
         rms = {}
         for method, options in (("polynomial", {}), ("tps", {"SRC_METHOD": "GCP_TPS"})):

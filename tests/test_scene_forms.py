@@ -273,7 +273,7 @@ def test_crop_without_pixel_geotransform_is_refused(gen, tmp_path, capsys):
 
 def test_manifest_rasters_unchanged():
     """A gcpcal manifest: open_scene gives the manifest's own rasters (what open_model gives)."""
-    from calibrate.actions.demo import FIXTURE_DIR
+    from calibrate.pipelines.demo import FIXTURE_DIR
 
     manifest = FIXTURE_DIR / "manifest.json"
     scene, model = open_scene(manifest), open_model(manifest)

@@ -144,7 +144,7 @@ def test_a_lab_model_has_no_status_and_no_warning(tmp_path, capsys):
 
 
 def test_run_marks_its_failed_result_unusable(tmp_path):
-    from calibrate.actions.run import _own_status
+    from calibrate.pipelines.run import _own_status
 
     cal = tmp_path / "calibration"
     manifest_with(None, cal)
@@ -155,7 +155,7 @@ def test_run_marks_its_failed_result_unusable(tmp_path):
 
 
 def test_run_refuses_its_own_result_when_it_says_failed(tmp_path):
-    from calibrate.actions.run import _own_status
+    from calibrate.pipelines.run import _own_status
 
     manifest_with(CalibrationStatus("failed", "collinear GCPs"), tmp_path / "calibration")
     fields = _own_status(tmp_path, {"success": True, "model": "calibration/manifest.json"})
@@ -401,7 +401,7 @@ def test_ortho_uses_a_partial_calibration_and_says_so(partial, tmp_path, capsys)
 
 
 def test_run_without_a_result_leaves_earlier_files_alone(tmp_path):
-    from calibrate.actions.run import _own_status
+    from calibrate.pipelines.run import _own_status
 
     old = manifest_with(None, tmp_path / "calibration")  # an earlier run's output
     before = old.read_text()

@@ -132,7 +132,7 @@ def _read_inputs(scene_path, gcps_path, band, image, self_check):
 
 
 def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptions = CalibrationOptions(), band=None,
-                    image=None, report=True, progress=None, self_check: str = "refuse") -> dict:
+                    image=None, report=True, progress=None, self_check: str = "refuse", on_result=None) -> dict:
     """Run the calibration stage (see the module docstring).
 
     Parameters
@@ -159,6 +159,11 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     self_check : {"refuse", "warn"}
         For a vendor product whose model disagrees with its own statements: refuse, or proceed
         and record the disagreement (``product_check``, ``warnings``) in the summary.
+    on_result : callable, optional
+        Receives the fit (:class:`calibrate.absolute.CalibrationResult`, or the
+        :class:`calibrate.rpc_bias.RpcBiasResult` of an RPC; ``result.model`` the calibrated model,
+        its ``calibration`` the run's status) once the outputs are in place: for a pipeline that
+        reports on it (:mod:`calibrate.pipelines.demo`).
 
     Returns
     -------
@@ -222,6 +227,8 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
         if implausible:
             summary["implausible_accepted"] = implausible
         (tmp / "calibrate.summary.json").write_text(json.dumps(with_provenance(summary), indent=1) + "\n", encoding="utf-8")
+    if on_result is not None:
+        on_result(result)
     return summary
 
 

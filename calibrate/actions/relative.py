@@ -36,7 +36,7 @@ _OUTPUTS = ("manifest.json", "relative.json", "relative.summary.json")
 def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, reference_band=None, dem_datum=None,
                                geoid=None, window_px=64, spacing_px: int = 24, rows=None,
                                options: CalibrationOptions = CalibrationOptions(), parallax: bool = True,
-                               gcps_path=None, progress=None, self_check: str = "refuse") -> dict:
+                               gcps_path=None, progress=None, self_check: str = "refuse", on_result=None) -> dict:
     """Calibrate every band of a scene against its calibrated reference band.
 
     Parameters
@@ -77,6 +77,10 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
     self_check : {"refuse", "warn"}
         For a vendor product whose model disagrees with its own statements: refuse, or proceed
         and record the disagreement (``product_check``, ``warnings``) in the summary.
+    on_result : callable, optional
+        Receives the :class:`calibrate.relative.RelativeResult` (``result.model``: every band
+        calibrated, its ``calibration`` the output's status) once the outputs are in place: for a
+        pipeline that reports on it (:mod:`calibrate.pipelines.demo`).
 
     Returns
     -------
@@ -112,6 +116,8 @@ def relative_calibration_stage(scene_path, calibration, dem_path, out_dir, *, re
         report.update({"scene": str(scene_path), "calibration": str(cal_path), "dem": str(dem_path)})
         result.model.calibration = _output_status(result, calibrated.calibration)
         summary = _write_outputs(stage, Path(out_dir), scene, result, report, reference_band, t0)
+    if on_result is not None:
+        on_result(result)
     return summary | {"warnings": ([warning] if warning else []) + summary.get("warnings", [])}
 
 

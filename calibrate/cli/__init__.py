@@ -1,7 +1,8 @@
 """The ``gcpcal`` command line: one click group, one module per command.
 
 Each command module (``calibrate/cli/<name>.py``, attribute ``command``) parses its options,
-builds the options value and hands off to its stage action in :mod:`calibrate.actions`; it
+builds the options value and hands off to its stage action in :mod:`calibrate.actions` (or, for a
+command that runs several stages, to its composition in :mod:`calibrate.pipelines`); it
 prints the action's summary (a line, a table or ``--json``) and maps the outcome to the exit
 code. Shared options live in :mod:`calibrate.cli.options`; :func:`main` is the one error
 boundary (:mod:`calibrate.cli._errors`). Library code never calls ``sys.exit``.

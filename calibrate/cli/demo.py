@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from calibrate.actions.demo import DEFAULT_FIXTURE, FIXTURES, run_demo
+from calibrate.pipelines.demo import DEFAULT_FIXTURE, FIXTURES, run_demo
 from calibrate.cli._errors import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import echo_json, exit_with_status, json_option, out_dir_option

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from calibrate.actions.experiment import experiment_stage
+from calibrate.pipelines.experiment import experiment_stage
 from calibrate.cli.options import echo_json, json_option, out_dir_option
 from calibrate.experiments.registry import EXPERIMENTS, PROFILE_CHOICES
 

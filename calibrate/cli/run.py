@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from calibrate.actions.run import MIN_COVERAGE, MIN_GCPS, run_scene
+from calibrate.pipelines.run import MIN_COVERAGE, MIN_GCPS, run_scene
 from calibrate.cli._errors import EXIT_FAILED
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option,

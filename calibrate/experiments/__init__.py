@@ -12,4 +12,9 @@ and ``report.html``.
 Experiments are simulations by nature: only the ``simulate_seed*`` modules import
 :mod:`sensor_models.simulate` (the layer rule: only ``*simulate*`` modules may;
 tests/test_layers.py); the registry, results and report do not.
+
+Experiments are library code: they import neither the stage actions nor the pipelines. The one
+that runs the user's chain (:mod:`.simulate_seed003`) is handed the scene pipeline
+(``run_experiment(..., pipeline=)``) by :mod:`calibrate.pipelines.experiment`, the
+``gcpcal experiment`` stage.
 """

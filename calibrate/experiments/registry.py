@@ -6,12 +6,14 @@ import importlib
 
 from sensor_models.errors import InputError
 
-__all__ = ["EXPERIMENTS", "PROFILE_CHOICES", "profiles_of", "run_experiment"]
+__all__ = ["EXPERIMENTS", "NEEDS_PIPELINE", "PROFILE_CHOICES", "profiles_of", "run_experiment"]
 
 #: seed -> (module under calibrate.experiments, its ``paper-*`` profile)
 EXPERIMENTS = {"000": ("simulate_seed000", "paper-000"), "002": ("simulate_seed002", "paper-002"),
                "003": ("simulate_seed003", "paper-003"),
                "004": ("simulate_seed004", "paper-004")}
+#: the seeds whose experiment runs the user's chain through the scene pipeline (``run_experiment(pipeline=)``)
+NEEDS_PIPELINE = ("003",)
 #: every profile name the command accepts (each seed takes ideal, realistic and its own paper-*)
 PROFILE_CHOICES = ("ideal", "realistic", "paper-000", "paper-002", "paper-003", "paper-004")
 
@@ -31,7 +33,7 @@ def profiles_of(seed: str) -> tuple:
     return ("ideal", "realistic", EXPERIMENTS[seed][1])
 
 
-def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=None, source=None):
+def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=None, source=None, pipeline=None):
     """Run one experiment.
 
     Parameters
@@ -46,6 +48,10 @@ def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=Non
         Scratch folder for simulated data.
     source : str or Path, optional
         Source radiance raster of experiment 003's ``realistic`` scene.
+    pipeline : callable, optional
+        The scene pipeline experiment 003 runs the user's chain through
+        (:func:`calibrate.pipelines.scene.scene_pipeline`, handed in by ``gcpcal experiment``:
+        experiments never import the stage actions); required by seed 003, unused by the others.
 
     Returns
     -------
@@ -65,4 +71,6 @@ def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=Non
         raise InputError("--source applies to experiment 003 (the push-broom scene's radiance)", field="source")
     module = importlib.import_module(f"calibrate.experiments.{EXPERIMENTS[seed][0]}")
     kwargs = {} if source is None else {"source": source}
+    if seed in NEEDS_PIPELINE:
+        kwargs["pipeline"] = pipeline
     return module.run(profile, quick=quick, work_dir=work_dir, **kwargs)

@@ -2,9 +2,11 @@
 
 The user's chain on a simulated scene (:func:`run_chain`): ``simulate pushbroom --profile P``
 (TRUE model, the profile's radiometric kernel, reference DOM/DEM that differ from what rendered
-the scene), ``match`` against the reference DOM and DEM, ``calibrate`` (exterior then interior),
-and the error against the TRUE model on the reference band (``truth error``; the other bands are
-not calibrated here) and of the GCPs themselves
+the scene), then, through the scene pipeline the caller hands in (``gcpcal experiment`` gives
+:func:`calibrate.pipelines.scene.scene_pipeline`: the stage actions a user runs; this module never
+imports them), ``match`` against the reference DOM and DEM, ``calibrate`` (exterior then
+interior), and the error against the TRUE model on the reference band (``truth error``; the
+other bands are not calibrated here) and of the GCPs themselves
 (:func:`gcp_truth_error`). Seed 003 table 4 (per-CCD along/across/planar accuracy before and
 after calibration, check points against the DOM) is set beside our check-point RMSE per CCD and
 our truth error (which the paper cannot measure).
@@ -91,16 +93,20 @@ def gcp_truth_error(truth, table) -> dict:
             "max_px": float(err.max())}
 
 
-def run_chain(work: Path, profile, *, config: dict, source=None) -> dict:
-    """simulate -> match -> calibrate -> truth error for one profile (library calls of the stages).
+def run_chain(work: Path, profile, *, config: dict, pipeline, source=None) -> dict:
+    """simulate -> match -> calibrate -> truth error for one profile (the stages a user runs).
 
     Parameters
     ----------
     work : Path
-        Scratch folder (``<profile>/`` scene, GCPs, calibration).
+        Scratch folder (``<profile>/`` the scene, ``<profile>_run/`` the pipeline's folder: GCPs,
+        calibration).
     profile : PushbroomProfile
     config : dict
         :func:`scene_config`.
+    pipeline : callable
+        The scene pipeline (:func:`calibrate.pipelines.scene.scene_pipeline`), run without the
+        relative step and without the calibrate step's report, graded against the TRUE model.
     source : str or Path, optional
         DOM to render from (default: procedural).
 
@@ -110,9 +116,6 @@ def run_chain(work: Path, profile, *, config: dict, source=None) -> dict:
         ``match`` counts, ``check_rmse_px`` before/after, ``per_ccd`` check RMSE (row, col, planar)
         before/after, ``truth_error_px``, ``gcp_truth_error_px`` and the paths used.
     """
-    from calibrate.actions.calibrate import calibrate_scene
-    from calibrate.actions.match import match_scene
-    from calibrate.actions.simulate import truth_error_of
     from gcpmatch.gcps import read_gcps
     from sensor_models.readers import open_model
     from sensor_models.simulate.config import config_from_dict
@@ -121,12 +124,11 @@ def run_chain(work: Path, profile, *, config: dict, source=None) -> dict:
     scene, name = work / profile.name, profile.name
     simulate_pushbroom(scene, config=config_from_dict(config), dom=source, profile=profile)
     dom, dem = scene / "reference" / "dom.tif", scene / "reference" / "dem.tif"
-    gcps = work / f"{name}_gcps.csv"
-    match = match_scene(scene / "manifest.json", dom_path=dom, dem_path=dem, out_path=gcps)
-    calibrate_scene(scene / "manifest.json", gcps, work / f"{name}_cal", report=False)
-    cal = json.loads((work / f"{name}_cal" / "calibration.json").read_text())
+    run = pipeline(scene / "manifest.json", dom_path=dom, dem_path=dem, out_dir=work / f"{name}_run", relative=False,
+                   report=False, truth_path=scene / "truth_manifest.json")
+    match, t_err, gcps = run.match, run.truth, Path(run.match["gcp_file"])
+    cal = json.loads(((run.out_dir / run.model).parent / "calibration.json").read_text())
     truth = open_model(scene / "truth_manifest.json")
-    t_err = truth_error_of(work / f"{name}_cal" / "manifest.json", scene / "truth_manifest.json", dem_path=dem)
     ref = [r for r in t_err.get("per_ccd", []) if r.get("band") == truth.reference_band and r.get("n_points")]
     n = np.array([r["n_points"] for r in ref], dtype=np.float64)
     ref_rms = float(np.sqrt(np.sum(n * np.array([r["rms_px"] for r in ref]) ** 2) / n.sum())) if ref else None
@@ -258,7 +260,7 @@ def _table4(chain: dict) -> PaperTable:
          "ours across after", "ours planar before", "ours planar after", "ours truth error B2"), rows)
 
 
-def run(profile_name: str, *, quick: bool = False, work_dir=None, source=None) -> ExperimentResult:
+def run(profile_name: str, *, quick: bool = False, work_dir=None, source=None, pipeline=None) -> ExperimentResult:
     """Run the seed 003 experiment (module docstring).
 
     Parameters
@@ -272,6 +274,8 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, source=None) -
     source : str or Path, optional
         Source radiance raster of the ``realistic`` scene (e.g. a Sentinel-2 band); default: the
         procedural texture. Only the full ``realistic`` run takes one.
+    pipeline : callable
+        The scene pipeline the user's chain runs through (:func:`run_chain`); required.
 
     Returns
     -------
@@ -281,6 +285,8 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, source=None) -
     ------
     InputError
         ``source`` with another profile or ``quick``, or a source that does not exist.
+    TypeError
+        Without ``pipeline``.
     """
     t0 = time.perf_counter()
     if source is not None:
@@ -288,10 +294,13 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, source=None) -
             raise InputError("--source is the realistic profile's source radiance (a full run)", field="source")
         if not Path(source).is_file():
             raise InputError("no such file", path=str(source), field="source")
+    if pipeline is None:
+        raise TypeError("the seed 003 experiment runs the user's chain: give pipeline= (the scene pipeline, "
+                        "calibrate.pipelines.scene.scene_pipeline, as gcpcal experiment does)")
     profile = get_profile(profile_name, "pushbroom")
     work = Path(work_dir)
     config = scene_config(profile_name, quick=quick)
-    chain = run_chain(work, profile, config=config, source=source)
+    chain = run_chain(work, profile, config=config, pipeline=pipeline, source=source)
     gsd = config["scene"]["gsd_m"]
     jitter_hz = float(profile.value("jitter_frequency_hz"))
     curves = gcp_sensitivity(chain["paths"]["scene"], chain["paths"]["gcps"], quick=quick, gsd_m=gsd,

@@ -1,12 +1,17 @@
-"""Stage action of ``gcpcal run``: calibrate from GCPs, or from stars when clouds hide the ground.
+"""``gcpcal run``: calibrate from GCPs, or from stars when clouds hide the ground.
 
-1. The scene is matched against the DOM and DEM (:func:`calibrate.actions.match.match_scene`).
+A composition of the stage actions a user runs, in the scene pipeline's layout
+(:mod:`calibrate.pipelines.scene`):
+
+1. The scene is matched against the DOM and DEM (:func:`calibrate.pipelines.scene.match_step`:
+   :func:`calibrate.actions.match.match_scene` into ``gcps.csv``).
 2. The GCPs are judged sufficient when there are at least ``min_gcps`` of kind ``gcp`` and they
    cover at least ``min_coverage`` of a 4 x 4 partition of the image (clustered GCPs under a
    hole in the clouds cannot fix a 20-coefficient interior). The matching's own verdict counts
    too: a coarse stage that found no consistent SIFT matches (all clouds, no texture) means no
    GCPs at all.
-3. Sufficient GCPs: the model is calibrated from them (:mod:`calibrate.actions.calibrate`).
+3. Sufficient GCPs: the model is calibrated from them (:func:`calibrate.pipelines.scene.calibrate_step`:
+   :func:`calibrate.actions.calibrate.calibrate_scene` into ``calibration/``).
    Otherwise, with star frames (a ``frames.json`` sequence of the same camera with its mirror
    turned to deep space), the camera is calibrated from the stars
    (:mod:`calibrate.actions.stars`); without them the run fails with the reason.
@@ -30,11 +35,10 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.actions._io import staged_output
-from calibrate.actions.calibrate import calibrate_scene
-from calibrate.actions.match import match_scene
 from calibrate.actions._status import FailedCalibrationError, record_product_check, require_usable, status_fields
 from calibrate.actions.stars import read_star_inputs, stars_sequence
 from calibrate.actions._provenance import with_provenance
+from calibrate.pipelines.scene import CALIBRATION_DIR, GCP_FILE, calibrate_step, match_step
 from gcpmatch.options import MatchOptions
 from sensor_models.errors import GcpcalError, InputError
 
@@ -71,14 +75,15 @@ def gcp_coverage(row, col, image_shape, cells: int = 4) -> float:
     return float(np.unique(i * cells + j).size / cells**2)
 
 
-def _match(scene_path, gcp_file, *, dom_path, dem_path, dem_datum, geoid, spacing_px, self_check):
-    """Match the scene; return ``(match summary, failure message or None)``."""
+def _match(scene_path, out_dir: Path, *, dom_path, dem_path, dem_datum, geoid, spacing_px, self_check):
+    """Match the scene; return ``(match summary, failure message or None)``: a failed match is a
+    reason to fall back on the stars, a user's mistake is not."""
     try:
-        match = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=gcp_file, geoid=geoid,
-                            dem_datum=dem_datum, options=MatchOptions(spacing_px=spacing_px), self_check=self_check)
+        match = match_step(scene_path, out_dir, dom_path=dom_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
+                           options=MatchOptions(spacing_px=spacing_px), self_check=self_check)
         return match, None
     except GcpcalError as exc:
-        if isinstance(exc, InputError) and not Path(gcp_file).with_suffix(".summary.json").exists() and \
+        if isinstance(exc, InputError) and not (out_dir / GCP_FILE).with_suffix(".summary.json").exists() and \
                 "no GCP" not in str(exc):
             raise  # a user mistake (missing file, bad DEM): not a reason to fall back
         return {}, str(exc)
@@ -124,7 +129,7 @@ def _own_status(out_dir: Path, summary: dict) -> dict:
 
     model_name = summary.get("model")
     if not model_name:  # only what this run's step wrote, never a file of an earlier run
-        model_name = {"gcps": "calibration/manifest.json", "stars": "stars/manifest.json"}.get(summary.get("path"))
+        model_name = {"gcps": f"{CALIBRATION_DIR}/manifest.json", "stars": "stars/manifest.json"}.get(summary.get("path"))
     model_file = out_dir / model_name if model_name and (out_dir / model_name).is_file() else None
     if not summary.get("success"):
         if model_file is not None and model_file.suffix == ".json":
@@ -192,18 +197,18 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
     if star_frames is not None:  # frames of another camera are refused before any work
         read_star_inputs(star_frames, scene_model=model, scene_source=scene_path)
     out_dir.mkdir(parents=True, exist_ok=True)
-    gcp_file = out_dir / "gcps.csv"
+    gcp_file = out_dir / GCP_FILE
     step("matching the scene against the DOM")
-    match, failure = _match(scene_path, gcp_file, dom_path=dom_path, dem_path=dem_path, dem_datum=dem_datum,
+    match, failure = _match(scene_path, out_dir, dom_path=dom_path, dem_path=dem_path, dem_datum=dem_datum,
                             geoid=geoid, spacing_px=spacing_px, self_check=self_check)
     enough, reason, n_gcps, coverage = _decide(model, gcp_file, match, failure, min_gcps, min_coverage)
     summary = {"kind": "gcpcal.run", "scene": str(scene_path), "gcps": n_gcps, "coverage": coverage,
                "cloud_fraction": match.get("cloud_fraction"), "reason": reason}
     if enough:
         step("calibrating from the GCPs")
-        result = calibrate_scene(scene_path, gcp_file, out_dir / "calibration", report=True, self_check=self_check)
+        result = calibrate_step(scene_path, out_dir, report=True, self_check=self_check)
         summary.update(path="gcps", success=result["success"], message=result["message"],
-                       check_rmse_px=result["check_rmse_px"], model="calibration/" + result["model"])
+                       check_rmse_px=result["check_rmse_px"], model=f"{CALIBRATION_DIR}/{result['model']}" if result.get("model") else None)
     elif star_frames is not None:
         step(f"falling back on the star frames ({reason})")
         doc = stars_sequence(star_frames, out_dir / "stars")

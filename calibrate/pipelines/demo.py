@@ -1,4 +1,4 @@
-"""Stage action of ``gcpcal demo``: the main job, end to end, on an embedded HY-1C-like scene.
+"""``gcpcal demo``: the scene pipeline a user runs, on an embedded HY-1C-like scene, graded against the truth.
 
 Two embedded fixtures (:data:`FIXTURES`, ``fixtures/make_hy1c_fixture.py``) hold a simulated
 level-1A scene (two cameras x two CCDs x 192 detectors, four bands, 512 lines, 30 m) whose LAB
@@ -13,15 +13,19 @@ that rendered it:
 * ``ideal`` (``fixtures/hy1c_czi``): the ``ideal`` profile, whose DOM and DEM are what rendered the
   scene: a unit-test scene, not an accuracy claim.
 
-The demo does what an analyst does with a new scene, then grades it against the truth:
+The demo does what an analyst does with a new scene, through the very stage actions the commands
+call (:func:`calibrate.pipelines.scene.scene_pipeline`, folder layout there), then grades it
+against the truth:
 
-1. **match** the reference band against the DOM and DEM (coarse SIFT pre-correction, dense phase
-   correlation), a fifth of the matches kept apart as check points (``gcps.csv``);
-2. **calibrate** the reference band: exterior (installation roll, pitch, yaw, and the
-   time-varying attitude correction chosen by BIC, :mod:`calibrate.attitude`) then interior
-   (directional angles of each CCD), iterated (seed 003 section 2.2.1); then every other band
-   against the calibrated reference band from dense band-to-band tie points (seed 003 section
-   2.2.2, :mod:`calibrate.relative`);
+1. **match** (``gcpcal match --spacing 16``) the reference band against the DOM and DEM (coarse
+   SIFT pre-correction, dense phase correlation), a fifth of the matches kept apart as check
+   points (``gcps.csv``);
+2. **calibrate** (``gcpcal calibrate``, into ``calibration/``) the reference band: exterior
+   (installation roll, pitch, yaw, and the time-varying attitude correction chosen by BIC,
+   :mod:`calibrate.attitude`) then interior (directional angles of each CCD), iterated (seed 003
+   section 2.2.1); then (``gcpcal relative``, ``manifest.json``) every other band against the
+   calibrated reference band from dense band-to-band tie points, with the band parallax (seed 003
+   section 2.2.2, :mod:`calibrate.relative`);
 3. **report**: check-point accuracy before and after (never used in a fit), overall and per CCD,
    the HTML report with figures, and ``summary.json`` with ``fixture``, ``profile``, ``gcps``,
    ``check_points``, ``check_rmse_px {before, after}``, ``check_rmse_per_ccd_px``,
@@ -30,7 +34,8 @@ The demo does what an analyst does with a new scene, then grades it against the 
    only under the ``ideal`` profile, where it is the TRUE one), ``status`` (the coverage gate of the reference band's calibration,
    :mod:`calibrate.coverage`, made ``partial`` when a band-to-band calibration fails or
    leaves a CCD's interior unestimated),
-   ``variance_factor``, ``attitude`` (the correction selected), ``coverage`` and ``seconds``.
+   ``variance_factor``, ``attitude`` (the correction selected), ``coverage``, ``model`` (the
+   final model's file, ``relative/manifest.json``) and ``seconds``.
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.actions._io import staged_output, write_summary
-from calibrate.config import CalibrationOptions
+from calibrate.actions._provenance import provenance_record
 
 __all__ = ["DEFAULT_FIXTURE", "FIXTURES", "FIXTURE_DIR", "TRUE_DEM", "fixture_profile", "run_demo"]
 
@@ -75,77 +80,47 @@ def fixture_profile(fixture_dir) -> str:
 
 
 def _open_fixture(fixture_dir: Path) -> dict:
-    """The LAB and TRUE models, the user's DEM and DOM, the TRUE DEM and the band order of the fixture."""
+    """The LAB and TRUE models, the TRUE DEM and the paths the user's path takes (scene, DOM, DEM)."""
     from sensor_models.readers import open_model
-    from sensor_models.maps.raster import MapImage
     from sensor_models.terrain.dem import Dem
 
-    lab = open_model(fixture_dir / "manifest.json")
-    reference_band = lab.reference_band
-    dem = Dem.open(fixture_dir / "reference" / "dem.tif")
     # under the ideal profile the user's DEM is the one that rendered the scene
     true_dem_path = TRUE_DEM if (fixture_dir / TRUE_DEM).exists() else Path("reference") / "dem.tif"
-    return {"lab": lab, "truth": open_model(fixture_dir / "truth_manifest.json"), "dem": dem,
-            "true_dem": Dem.open(fixture_dir / true_dem_path) if true_dem_path == TRUE_DEM else dem,
-            "true_dem_path": true_dem_path.as_posix(), "profile": fixture_profile(fixture_dir),
-            "dom": MapImage.open(fixture_dir / "reference" / "dom.tif"),
-            "reference_band": reference_band,
-            "bands": [reference_band] + [b for b in lab.bands if b != reference_band]}
+    return {"scene": fixture_dir / "manifest.json", "dom": fixture_dir / "reference" / "dom.tif",
+            "dem": fixture_dir / "reference" / "dem.tif", "lab": open_model(fixture_dir / "manifest.json"),
+            "truth": open_model(fixture_dir / "truth_manifest.json"), "true_dem": Dem.open(fixture_dir / true_dem_path),
+            "true_dem_path": true_dem_path.as_posix(), "profile": fixture_profile(fixture_dir)}
 
 
-def _match(fx: dict, out_dir: Path, spacing_px: int):
-    """Phase 1: GCPs of the reference band against the DOM and DEM; writes ``gcps.csv``."""
-    from gcpmatch.extract import extract_gcps, read_band
-    from gcpmatch.options import MatchOptions
-    from gcpmatch.gcps import write_gcps_csv
+def _user_path(fx: dict, out_dir: Path, spacing_px: int, step):
+    """Phases 1 and 2: the user's match -> calibrate -> relative (:func:`calibrate.pipelines.scene.scene_pipeline`).
 
-    lab, band = fx["lab"], fx["reference_band"]
-    merged, summary = extract_gcps(lab, read_band(lab, band), fx["dem"], fx["dom"], band=band,
-                                   options=MatchOptions(spacing_px=spacing_px))
-    if merged is None:
-        raise RuntimeError(f"band {band}: no GCP ({summary.get('message')})")
-    match_summaries = {band: {key: summary[key] for key in ("gcps", "check_points", "usable_fraction",
-                                                            "cloud_fraction")}}
-    match_summaries[band]["coarse_inliers"] = summary["coarse"]["inliers"]
-    match_summaries[band]["seconds"] = summary["timings"]["total_s"]
-    match_summaries[band]["reference_accuracy"] = summary.get("reference_accuracy")  # the calibration's reference term
-    write_gcps_csv(merged, out_dir / "gcps.csv")
-    return merged, match_summaries
-
-
-def _calibrate(fx: dict, merged, out_dir: Path, step, reference_accuracy=None):
-    """Phase 2: the reference band absolutely, then every other band against it; writes the manifest.
-
-    Returns the reference band's CalibrationResult, the RelativeResult (its ``model``: the final
-    model), the GCP columns and the per-band summary rows.
+    Returns the final model's file (relative to ``out_dir``), the GCP table the match stage
+    wrote, the reference band's CalibrationResult, the RelativeResult (its ``model``: the final
+    model; None when the calibration failed), the reference band's GCP columns, the per-band
+    summary rows and the match figures.
     """
-    from calibrate.absolute import calibrate_model
     from calibrate.from_gcps import points_of
-    from calibrate.relative import relative_calibration
-    from gcpmatch.extract import read_band
-    from sensor_models.readers.manifest import write_manifest
+    from calibrate.pipelines.scene import GCP_FILE, scene_pipeline
+    from gcpmatch.gcps import read_gcps
+    from gcpmatch.options import MatchOptions
 
-    lab, reference_band = fx["lab"], fx["reference_band"]
-    step(f"calibrating {reference_band}: exterior then interior")
-    ref_pts = points_of(merged.gcps())
-    # seed 003 2.2.1: exterior then interior (the default scheme)
-    acc = reference_accuracy or {}
-    sigma_m = (acc["east_m"], acc["north_m"]) if acc.get("east_m") is not None else None
-    result = calibrate_model(lab, merged.gcps(), options=CalibrationOptions(
-        reference_sigma_m=sigma_m, reference_source=f"match: {acc.get('source')}" if sigma_m else None))
+    run = scene_pipeline(fx["scene"], dom_path=fx["dom"], dem_path=fx["dem"], out_dir=out_dir,
+                         match_options=MatchOptions(spacing_px=spacing_px), report=False, progress=step)
+    merged, match, result, relative = read_gcps(out_dir / GCP_FILE), run.match, run.calibration, run.relative_result
+    reference_band = match["band"]
+    match_summaries = {reference_band: {key: match[key] for key in ("gcps", "check_points", "usable_fraction",
+                                                                    "cloud_fraction")}}
+    match_summaries[reference_band].update(coarse_inliers=match["coarse"]["inliers"],
+                                           seconds=match["timings"]["total_s"],
+                                           reference_accuracy=match.get("reference_accuracy"))
     band_results = {reference_band: {"success": bool(result.success), "message": result.message}}
-    step(f"band-to-band calibration against {reference_band}")  # seed 003 2.2.2
-    # with the band parallax: the GCPs and the tie points estimate the attitude correction together
-    relative = relative_calibration(result.model, {b: read_band(lab, b) for b in fx["bands"]}, fx["dem"],
-                                    reference_band=reference_band, gcps=merged.gcps(), parallax=True)
-    for band, r in relative.bands.items():
+    for band, r in (relative.bands.items() if relative is not None else ()):
         skipped = [] if r.calibration is None else r.calibration.skipped
         band_results[band] = {"success": bool(r.success), "message": r.message,
                               "tie_rms_before_px": r.before.get("rms_px"), "tie_rms_after_px": r.after.get("rms_px"),
                               "ccds_not_calibrated": [f"{band}.{k['ccd']}" for k in skipped]}
-    write_manifest(relative.model, out_dir / "manifest.json",
-                   rasters={b: ref["path"] for b, ref in (lab.rasters or {}).items()})
-    return result, relative, ref_pts, band_results
+    return run.model, merged, result, relative, points_of(merged.gcps()), band_results, match_summaries
 
 
 def _score(fx: dict, merged, model, ref_pts, step) -> dict:
@@ -259,15 +234,16 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
     Parameters
     ----------
     out_dir : str or Path
-        Output folder: ``gcps.csv``, ``manifest.json``, ``report.html``, ``figures/``,
-        ``summary.json``.
+        Output folder: the scene pipeline's (``gcps.csv``, ``calibration/``, ``manifest.json``,
+        ``relative.json``, :mod:`calibrate.pipelines.scene`), then ``report.html``, ``figures/``
+        and ``summary.json``.
     fixture_dir : Path
         The scene (default: :data:`FIXTURE_DIR`, the embedded ``realistic`` fixture; any folder
         written by ``gcpcal simulate pushbroom`` will do).
     progress : callable(str), optional
         Receives progress messages.
     spacing_px : int
-        Matching window spacing, pixels.
+        Matching window spacing, pixels (``gcpcal match --spacing``).
 
     Returns
     -------
@@ -281,13 +257,11 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
     step = progress or (lambda message: None)
     out_dir, fixture_dir = Path(out_dir), Path(fixture_dir)  # out_dir: the staging folder (staged_output)
     fx = _open_fixture(fixture_dir)
-    step(f"matching band {fx['reference_band']} against the DOM")
-    merged, match_summaries = _match(fx, out_dir, spacing_px)
-    result, relative, ref_pts, band_results = _calibrate(
-        fx, merged, out_dir, step, match_summaries[fx["reference_band"]].get("reference_accuracy"))
-    sc = _score(fx, merged, relative.model, ref_pts, step)
+    model_file, merged, result, relative, ref_pts, band_results, match_summaries = _user_path(fx, out_dir, spacing_px,
+                                                                                           step)
+    sc = _score(fx, merged, result.model if relative is None else relative.model, ref_pts, step)
     summary = _summary(fx, fixture_dir, merged, result, band_results, match_summaries, sc)
-    summary["parallax"] = {k: v for k, v in (relative.parallax or {}).items()
+    summary["parallax"] = {k: v for k, v in ((relative.parallax if relative is not None else None) or {}).items()
                            if k in ("used", "reason", "message", "ties", "gcps", "rounds", "selected", "gcp_only")}
     step("writing the report")
     write_report(out_dir, result=result, accuracy_before=sc["before"], accuracy_after=sc["after"],
@@ -296,7 +270,9 @@ def run_demo(out_dir, *, fixture_dir: Path = FIXTURE_DIR, progress=None, spacing
                  extra={k: summary[k] for k in ("fixture", "profile", "truth_dem", "gcps", "check_points", "attitude")},
                  relative=relative,
                  truth_error={"after": sc["truth"], "before": sc["truth_lab"]}, coverage=_report_coverage(summary["coverage"], sc),
-                 status=CalibrationStatus(summary["status"], summary["status_message"]))
+                 status=CalibrationStatus(summary["status"], summary["status_message"]),
+                 provenance=provenance_record())
+    summary["model"] = model_file
     summary["report"] = "report.html"
     summary["seconds"] = time.perf_counter() - t_start
     write_summary(out_dir / "summary.json", summary)

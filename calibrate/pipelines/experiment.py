@@ -1,6 +1,9 @@
-"""Stage action of ``gcpcal experiment``: run a seed experiment and write its folder.
+"""``gcpcal experiment``: run a seed experiment and write its folder.
 
-Simulated data go to a scratch folder beside the output (removed afterwards); the outputs
+The experiments (:mod:`calibrate.experiments`) are library code: the one that runs the user's
+chain (seed 003: simulate -> match -> calibrate -> truth error) is handed the scene pipeline
+(:func:`calibrate.pipelines.scene.scene_pipeline`), so it runs the very stage actions a user runs
+and never imports them itself. Simulated data go to a scratch folder beside the output (removed afterwards); the outputs
 (``experiment.json``, ``sensitivity/*.json|png``, ``report.html``) are staged and moved into
 ``OUT`` whole (:func:`calibrate.actions._io.staged_folder`).
 """
@@ -36,15 +39,15 @@ def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool 
     dict
         The document written to ``experiment.json``.
     """
+    from calibrate.actions._staging import make_stage_dir
     from calibrate.experiments.registry import run_experiment
     from calibrate.experiments.report import write_experiment
-
-    from calibrate.actions._staging import make_stage_dir
+    from calibrate.pipelines.scene import scene_pipeline
 
     with staged_folder(out_dir, ".experiment-", inputs=[source]) as stage:
         work = make_stage_dir(stage.parent, f"{Path(out_dir).name}-work")  # named so a later run can clean it
         try:
-            result = run_experiment(seed, profile, quick=quick, work_dir=work, source=source)
+            result = run_experiment(seed, profile, quick=quick, work_dir=work, source=source, pipeline=scene_pipeline)
         finally:
             shutil.rmtree(work, ignore_errors=True)
         return write_experiment(result, stage)
