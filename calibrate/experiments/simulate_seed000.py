@@ -77,8 +77,9 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
         ``ra/de_two_sigma_px``, ``installation_error_arcsec`` (the TRUE one) and ``session``
         (a :class:`calibrate.star_pooling.StarSession`, for pooling; not JSON).
     """
+    from calibrate.star_calibration import process_frames
+    from calibrate.star_frames import load_frame, read_frame_list
     from calibrate.star_pooling import StarSession
-    from calibrate.star_calibration import load_frame, process_frames, read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
     from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
 
