@@ -62,7 +62,7 @@ def test_every_kind_has_ideal_realistic_and_its_paper_profile_with_sources():
 
 def test_ideal_profiles_record_todays_defaults():
     from calibrate.schemes.autocollimation import render_cross
-    from calibrate.schemes.thermal import ThermalDrift
+    from calibrate.schemes.thermal_simulation import ThermalDrift
     from sensor_models.simulate.star_sky import GeoStarsConfig
 
     stars, cfg = get_profile("ideal", "stars"), GeoStarsConfig()

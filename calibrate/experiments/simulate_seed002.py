@@ -86,8 +86,9 @@ def thermal_series_errors(profile, *, days: float, interval_min: float, day_to_d
     dict
         ``constant_rms_px``, ``predicted_rms_px``, ``epoch_fit_rms_px``, ``orders``.
     """
-    from calibrate.schemes.thermal import (DAY_S, ThermalDrift, ThermalModel, evaluate_positioning,
-                                           simulate_thermal_series)
+    from calibrate.schemes.thermal import DAY_S, evaluate_positioning
+    from calibrate.schemes.thermal_model import ThermalModel
+    from calibrate.schemes.thermal_simulation import ThermalDrift, simulate_thermal_series
     from sensor_models.models.geo_staring import example_geo_staring_model
     from sensor_models.simulate.thermal_truth import day_to_day_offsets
 
