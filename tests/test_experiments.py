@@ -119,7 +119,7 @@ def test_star_truth_pieces_have_their_magnitudes():
 
 def test_physical_staring_truth_lies_outside_the_cubic_and_schemes_stop_at_its_residual():
     from calibrate.experiments.simulate_seed002 import staring_models
-    from calibrate.schemes.compensate import run_seed002
+    from calibrate.schemes.compensation_study import run_seed002
 
     assert staring_models(get_profile("ideal", "staring")) is None
     lens, truth, lab = staring_models(get_profile("realistic", "staring"))
