@@ -258,11 +258,11 @@ def test_seed000_sessions_in_worker_processes_equal_those_of_one_process(tmp_pat
     """The sessions of experiment 000 run in worker processes (its speed at the paper's scale):
     the same figures and track points as in this process, to the last bit; a session asked for
     twice runs once."""
-    from calibrate.experiments.simulate_seed000 import _Sessions, run_session
+    from calibrate.experiments.simulate_seed000 import SessionPool, run_session
 
     profile = get_profile("paper-000", "stars")
     inst = (1.0, -2.0, 3.0)
-    pool = _Sessions(tmp_path / "pool", workers=2)
+    pool = SessionPool(tmp_path / "pool", workers=2)
     try:
         future = pool.submit(profile, day=1, n_frames=30, installation_error_arcsec=inst)
         assert pool.submit(profile, day=1, n_frames=30, installation_error_arcsec=list(inst)) is future
