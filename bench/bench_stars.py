@@ -5,7 +5,7 @@ rendered by :func:`sensor_models.simulate.star_sky.simulate_geo_stars` and read 
 Timed, best of ``--repeat``:
 
 * star processing, per core (every thread pool pinned to one thread): detection + centroid
-  (:func:`calibrate.star_calibration.detect_frames`), prediction of the catalogue stars with the LAB model,
+  (:func:`calibrate.star_frames.detect_frames`), prediction of the catalogue stars with the LAB model,
   identification (offset vote + nearest neighbours) and association into tracks with the
   smoothing spline; frames per second;
 * the same on 2 cores: the frames split between two worker processes for detection (frames are
@@ -41,14 +41,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _detect(frames, centroid="iwc"):
     cv2.setNumThreads(1)
-    from calibrate.star_calibration import detect_frames
+    from calibrate.star_frames import detect_frames
 
     return detect_frames(frames, centroid=centroid)[0]
 
 
 def _associate(tables, models, catalog, seconds):
     """Prediction, identification and the tracks of one sequence."""
-    from calibrate.star_calibration import identify, predict_catalog
+    from calibrate.star_identification import identify, predict_catalog
 
     pred = predict_catalog(models, catalog, margin_px=120.0)
     pairs, offset = identify(tables, pred)
@@ -73,10 +73,12 @@ def main(argv=None) -> dict:
     cv2.setNumThreads(1)
 
     from calibrate.config import StarOptions
-    from calibrate.star_calibration import calibrate_tracks, load_frame, process_frames, read_frame_list
+    from calibrate.star_calibration import process_frames
+    from calibrate.star_frames import load_frame, read_frame_list
+    from calibrate.star_solution import calibrate_tracks
+    from sensor_models.geometry.star_catalogue import StarCatalog
     from sensor_models.readers.geo_manifest import read_geo_manifest
     from sensor_models.simulate.star_sky import simulate_geo_stars
-    from sensor_models.geometry.star_catalogue import StarCatalog
 
     results = {"platform": platform.platform(), "cpus": os.cpu_count(), "frames": args.frames}
     tmp_dir = tempfile.TemporaryDirectory()

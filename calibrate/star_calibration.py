@@ -45,6 +45,14 @@ Pipeline (:func:`process_frames`)
    absolute values, RMS and a normal fit with its 2-sigma bounds
    (:func:`calibrate.accuracy.fit_normal`, seed 000 table 4) are reported before and after.
 
+Modules
+-------
+This module runs the pipeline and holds its result (:class:`StarCalibrationResult`); the steps
+live in :mod:`calibrate.star_frames` (frame list, frames, detection), :mod:`calibrate.star_identification`
+(prediction and identification), :mod:`calibrate.star_observations` (tracks and their smoothing),
+:mod:`calibrate.star_solution` (the least squares) and :mod:`calibrate.star_accuracy` (the
+held-out errors).
+
 References
 ----------
 Seed 000: on-orbit geometric calibration of a geostationary camera from the relative motion of
@@ -54,685 +62,22 @@ stars (equations 1-19, tables 3-4, figure 8).
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import make_smoothing_spline
-from scipy.spatial import cKDTree
 
-from calibrate.config import STAR_SCHEMES, StarOptions
-from calibrate.lsq import Chunk, Prior, solve
+from calibrate.config import StarOptions
+from calibrate.star_accuracy import error_versus_track_points, radec_accuracy, radec_errors_px
+from calibrate.star_frames import check_frame_seconds, detect_frames
+from calibrate.star_identification import identify, predict_catalog
+from calibrate.star_observations import StarObservations, smooth_tracks
+from calibrate.star_solution import calibrate_tracks
 from sensor_models.errors import InputError
-from sensor_models.files.documents import load_json
-from sensor_models.models.geo_staring import GeoStaringModel, vectors_to_radec
+from sensor_models.models.geo_staring import GeoStaringModel
 
-__all__ = [
-    "StarCalibrationResult",
-    "StarObservations",
-    "calibrate_tracks",
-    "check_frames_camera",
-    "detect_frames",
-    "error_versus_track_points",
-    "identify",
-    "load_frame",
-    "predict_catalog",
-    "process_frames",
-    "radec_accuracy",
-    "radec_errors_px",
-    "read_frame_list",
-]
+__all__ = ["StarCalibrationResult", "process_frames", "resolve_catalog"]
 
-_EXTERIOR = ("installation.roll", "installation.pitch", "installation.yaw")
 ARCSEC = np.pi / (180.0 * 3600.0)
-
-
-# --------------------------------------------------------------------------- inputs
-def read_frame_list(path):
-    """Read a frame list (``frames.json``, written by ``gcpcal simulate geo-stars``).
-
-    Format (JSON, ``format_version`` 1, ``kind: "geo_star_frames"``)::
-
-        {"format_version": 1, "kind": "geo_star_frames", "epoch_utc": "...",
-         "manifest": "manifest.json",
-         "frames": [{"path": "frames/frame_0000.tif", "seconds": 0.0}, ...]}
-
-    Paths are relative to the list's folder; seconds count from the manifest's epoch and must
-    increase strictly. ``path`` may also be the folder holding ``frames.json``.
-
-    Parameters
-    ----------
-    path : path
-        ``frames.json`` or the folder holding it.
-
-    Returns
-    -------
-    frames : list of Path
-    seconds : ndarray, shape (F,)
-    manifest : Path or None
-    """
-    path = Path(path)
-    if path.is_dir():
-        path = path / "frames.json"
-    if not path.is_file():
-        raise InputError("frame list not found", path=str(path))
-    doc = load_json(path)
-    if not isinstance(doc, dict) or doc.get("kind") != "geo_star_frames":
-        raise InputError("not a star frame list (kind must be 'geo_star_frames')", path=str(path), field="kind")
-    unknown = set(doc) - {"format_version", "kind", "epoch_utc", "manifest", "frames"}
-    if unknown:
-        raise InputError(f"unknown keys {sorted(unknown)}", path=str(path))
-    if doc.get("format_version") != 1:
-        raise InputError(f"unsupported version {doc.get('format_version')!r}", path=str(path), field="format_version")
-    entries = doc.get("frames")
-    if not isinstance(entries, list) or not entries:
-        raise InputError("must be a non-empty list", path=str(path), field="frames")
-    frames, seconds = [], []
-    for k, e in enumerate(entries):
-        if not isinstance(e, dict) or set(e) != {"path", "seconds"}:
-            raise InputError("each frame needs exactly 'path' and 'seconds'", path=str(path), field=f"frames[{k}]")
-        frames.append(path.parent / e["path"])
-        seconds.append(float(e["seconds"]))
-    manifest = path.parent / doc["manifest"] if doc.get("manifest") else None
-    try:
-        checked = _check_seconds(seconds, len(frames))
-    except InputError as exc:  # name the frame list: the times are its fields
-        raise InputError(exc.reason, path=str(path),
-                         field="frames[].seconds") from None
-    return frames, checked, manifest
-
-
-#: Largest relative difference of the pixel angle (IFOV) between the camera of a star sequence
-#: and the camera it calibrates (a LAB focal length is off by far less; another camera by more).
-IFOV_TOLERANCE = 0.02
-
-
-def _frame_shape(frame) -> tuple[int, int]:
-    """``(n_rows, n_cols)`` of a frame raster (FITS through astropy, anything else through GDAL)."""
-    if Path(frame).suffix.lower() in (".fits", ".fit", ".fts"):
-        return tuple(int(n) for n in load_frame(frame).shape)
-    import rasterio
-    from rasterio.errors import NotGeoreferencedWarning, RasterioError
-
-    with warnings.catch_warnings():  # star frames have no map geometry: no warning line
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        try:
-            with rasterio.open(frame) as ds:
-                return int(ds.height), int(ds.width)
-        except RasterioError as exc:
-            raise InputError(f"cannot read the star frame ({exc})", path=str(frame)) from None
-
-
-def check_frames_camera(frames, listed_model, model, *, frames_source, model_source) -> None:
-    """Refuse star frames taken by another camera than the one ``model`` describes.
-
-    The frames must have the model's image size (``n_rows x n_cols``, read from the first
-    frame's header), and the camera the frame list names (its manifest) must have the model's
-    image size and pixel angle (IFOV, within :data:`IFOV_TOLERANCE`).
-
-    Parameters
-    ----------
-    frames : list of Path
-        The frame rasters (:func:`read_frame_list`).
-    listed_model : SensorModel or None
-        Model of the manifest the frame list names (None when it names none).
-    model : SensorModel
-        The camera to calibrate (the scene's or ``--manifest``'s model).
-    frames_source, model_source : str or Path
-        The frame list and the model's file (named in the message).
-
-    Returns
-    -------
-    None
-
-    Raises
-    ------
-    InputError
-        Naming both files, both sizes or both pixel angles (microradians).
-    """
-    want = tuple(int(x) for x in model.image_shape)
-    shapes = [("frames", _frame_shape(frames[0]))]
-    if listed_model is not None:
-        shapes.append(("its manifest", tuple(int(x) for x in listed_model.image_shape)))
-    for what, shape in shapes:
-        if shape != want:
-            raise InputError(f"the star frames belong to another camera: {what} {shape[0]} x {shape[1]} px, "
-                             f"{model_source} {want[0]} x {want[1]} px", path=str(frames_source))
-    ifov_a, ifov_b = getattr(listed_model, "ifov_rad", None), getattr(model, "ifov_rad", None)
-    if ifov_a is not None and ifov_b is not None and abs(ifov_a / ifov_b - 1.0) > IFOV_TOLERANCE:
-        raise InputError(f"the star frames belong to another camera: pixel angle {1e6 * ifov_a:.3f} urad, "
-                         f"{model_source} {1e6 * ifov_b:.3f} urad", path=str(frames_source))
-
-
-def _check_seconds(seconds, n_frames: int) -> np.ndarray:
-    t = np.asarray(seconds, dtype=np.float64).reshape(-1)
-    if t.size != n_frames:
-        raise InputError(f"{t.size} times for {n_frames} frames", field="seconds")
-    if not np.all(np.isfinite(t)):
-        raise InputError("frame times must be finite", field="seconds")
-    bad = np.flatnonzero(np.diff(t) <= 0.0)
-    if bad.size:
-        k = int(bad[0]) + 1
-        raise InputError(f"frames out of time order: frame {k} at {t[k]:g} s does not follow {t[k - 1]:g} s",
-                         field="seconds")
-    return t
-
-
-def load_frame(frame) -> np.ndarray:
-    """A frame as a float32 array (H, W): an array, a FITS file or any raster rasterio reads.
-
-    Parameters
-    ----------
-    frame : ndarray (H, W) or path
-        An image already in memory, a FITS file or a raster file.
-
-    Returns
-    -------
-    ndarray of float32, shape (H, W)
-        Pixel values (counts).
-    """
-    if isinstance(frame, np.ndarray):
-        if frame.ndim != 2:
-            raise InputError(f"a frame must be 2-D, got shape {frame.shape}")
-        return frame.astype(np.float32, copy=False)
-    path = Path(frame)
-    if not path.is_file():
-        raise InputError("frame not found", path=str(path))
-    if path.suffix.lower() in (".fits", ".fit", ".fts"):
-        from gcpmatch.star_tracks import read_fits_image
-
-        return read_fits_image(path)[0].astype(np.float32)
-    import rasterio
-    from rasterio.errors import NotGeoreferencedWarning
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        try:
-            with rasterio.open(path) as src:
-                return src.read(1, out_dtype=np.float32)
-        except rasterio.errors.RasterioIOError as exc:
-            raise InputError(f"cannot read the frame: {exc}", path=str(path)) from None
-
-
-# --------------------------------------------------------------------------- detection
-def detect_frames(frames, *, threshold_sigma: float = 5.0, centroid: str = "iwc", border_px: float = 4.0,
-                  saturation: float | None = None, max_stars: int | None = 200):
-    """Detect and centroid stars in every frame.
-
-    Parameters
-    ----------
-    frames : sequence of ndarray (H, W) or path
-        Frames in time order (:func:`load_frame`).
-    threshold_sigma : float
-        Detection threshold above the local background, noise sigmas.
-    centroid : {"iwc", "gaussian", "windowed"}
-        Centroid estimator (:func:`gcpmatch.star_tracks.detect_stars`).
-    border_px : float
-        Detections closer than this to the frame edge are dropped, pixels.
-    saturation : float, optional
-        Saturation level in counts (:func:`gcpmatch.star_tracks.detect_stars`); detections it
-        flags as saturated are dropped.
-    max_stars : int, optional
-        Most detections per frame (:func:`gcpmatch.star_tracks.detect_stars`); None: all.
-
-    Returns
-    -------
-    list of StarTable
-        One per frame, detections closer than ``border_px`` to the edge removed (a cut PSF
-        biases the centroid), as are saturated ones when ``saturation`` is given.
-    shapes : list of (int, int)
-    """
-    from gcpmatch.star_tracks import FLAG_SATURATED, detect_stars
-
-    tables, shapes = [], []
-    for frame in frames:
-        img = load_frame(frame)
-        tab = detect_stars(img, threshold_sigma=threshold_sigma, centroid=centroid, saturation=saturation,
-                           max_stars=max_stars)
-        h, w = img.shape
-        keep = ((tab.row_px > border_px) & (tab.row_px < h - border_px) & (tab.col_px > border_px)
-                & (tab.col_px < w - border_px) & np.isfinite(tab.row_px) & np.isfinite(tab.col_px)
-                & ((tab.flags & FLAG_SATURATED) == 0))
-        tables.append(tab.select(keep))
-        shapes.append((h, w))
-    return tables, shapes
-
-
-@dataclass
-class _Predictions:
-    """Catalogue stars predicted by the approximate model, all frames stacked (M,)."""
-
-    frame: np.ndarray
-    star: np.ndarray  # catalogue row
-    vectors_gcrf: np.ndarray  # (M, 3) apparent directions at the frame instant
-    row: np.ndarray
-    col: np.ndarray
-
-
-def predict_catalog(models, catalog, *, margin_px: float = 60.0) -> _Predictions:
-    """Apparent catalogue stars inside (or within ``margin_px`` of) every frame's model.
-
-    Parameters
-    ----------
-    models : sequence of GeoStaringModel
-        The model of every frame (``lab_model.at_frame(t_k)``).
-    catalog : StarCatalog
-        Loaded catalogue.
-    margin_px : float
-        Stars projected up to this far outside a frame are kept, pixels.
-
-    Returns
-    -------
-    _Predictions
-        All frames stacked (M,): frame index, catalogue row, apparent GCRF direction (M, 3)
-        at the frame instant and the projected ``row, col`` in pixels.
-    """
-    from sensor_models.geometry.star_catalogue import catalog_stars_in_frame
-
-    unit = catalog.unit_vectors()
-    parts = []
-    for k, m in enumerate(models):
-        idx, vec, row, col = catalog_stars_in_frame(m, catalog, unit, margin_px)
-        parts.append((np.full(idx.size, k), idx, vec, row, col))
-    cat = [np.concatenate([p[i] for p in parts]) if parts else np.zeros(0) for i in range(5)]
-    return _Predictions(cat[0].astype(np.intp), cat[1].astype(np.intp), cat[2].reshape(-1, 3), cat[3], cat[4])
-
-
-def identify(detections, pred: _Predictions, *, search_px: float = 120.0, tolerance_px: float = 4.0,
-             bin_px: float = 2.0):
-    """Match detections to predicted catalogue stars (global offset vote, then nearest neighbours).
-
-    Parameters
-    ----------
-    detections : sequence of StarTable
-        Detections per frame (``row_px, col_px``).
-    pred : _Predictions
-        Of :func:`predict_catalog`.
-    search_px : float
-        Largest detection-minus-prediction distance voted on, pixels.
-    tolerance_px : float
-        Largest distance of a match after the voted offset, pixels.
-    bin_px : float
-        Bin of the offset vote, pixels.
-
-    Returns
-    -------
-    pairs : ndarray of int, shape (K, 3)
-        ``(frame, detection index, prediction index)``.
-    offset_px : ndarray, shape (2,)
-        The voted (row, col) offset, detection minus prediction.
-    """
-    diffs = []
-    for k, tab in enumerate(detections):
-        sel = np.flatnonzero(pred.frame == k)
-        if len(tab) == 0 or sel.size == 0:
-            continue
-        d = tab.rowcol[:, None, :] - np.stack([pred.row[sel], pred.col[sel]], -1)[None, :, :]
-        d = d.reshape(-1, 2)
-        diffs.append(d[np.all(np.abs(d) < search_px, axis=1)])
-    diffs = np.concatenate(diffs) if diffs else np.zeros((0, 2))
-    if diffs.shape[0] == 0:
-        return np.zeros((0, 3), dtype=np.intp), np.full(2, np.nan)
-    edges = np.arange(-search_px, search_px + bin_px, bin_px)
-    hist, _, _ = np.histogram2d(diffs[:, 0], diffs[:, 1], bins=(edges, edges))
-    # 2x2 box sum: a peak split across bin edges still wins
-    box = hist[:-1, :-1] + hist[1:, :-1] + hist[:-1, 1:] + hist[1:, 1:]
-    i, j = np.unravel_index(np.argmax(box), box.shape)
-    peak = np.array([edges[i + 1], edges[j + 1]])
-    near = np.all(np.abs(diffs - peak) < 2.0 * bin_px, axis=1)
-    offset = np.median(diffs[near], axis=0)
-    pairs = []
-    for k, tab in enumerate(detections):
-        sel = np.flatnonzero(pred.frame == k)
-        if len(tab) == 0 or sel.size == 0:
-            continue
-        p = np.stack([pred.row[sel], pred.col[sel]], -1) + offset
-        det_tree, pred_tree = cKDTree(tab.rowcol), cKDTree(p)
-        dist, di = det_tree.query(p, distance_upper_bound=tolerance_px)
-        _, back = pred_tree.query(tab.rowcol)
-        ok = np.flatnonzero(np.isfinite(dist))
-        ok = ok[back[di[ok]] == ok]  # mutual nearest neighbours
-        pairs.append(np.stack([np.full(ok.size, k), di[ok], sel[ok]], -1))
-    pairs = np.concatenate(pairs) if pairs else np.zeros((0, 3), dtype=np.intp)
-    return pairs.astype(np.intp), offset
-
-
-# --------------------------------------------------------------------------- tracks
-@dataclass
-class StarObservations:
-    """Identified track points, one row per point (all arrays shape (N,) unless said).
-
-    Attributes
-    ----------
-    hip : ndarray of int
-        Catalogue identifier of the track.
-    frame : ndarray of int
-    seconds : ndarray
-    row, col : ndarray
-        Measured centroids.
-    row_smooth, col_smooth : ndarray
-        Smoothing-spline values (seed 000 eq. 2; NaN for held-out and rejected points).
-    vectors_gcrf : ndarray, shape (N, 3)
-        Apparent star directions at the frame instants.
-    virtual_gcrf : ndarray, shape (N, 3)
-        The same carried to frame 0's attitude (seed 000 eq. 9).
-    check : ndarray of bool
-        Held out for the accuracy.
-    rejected : ndarray of bool
-        Rejected by the spline residual test.
-    """
-
-    hip: np.ndarray
-    frame: np.ndarray
-    seconds: np.ndarray
-    row: np.ndarray
-    col: np.ndarray
-    row_smooth: np.ndarray
-    col_smooth: np.ndarray
-    vectors_gcrf: np.ndarray
-    virtual_gcrf: np.ndarray
-    check: np.ndarray
-    rejected: np.ndarray
-    flux: np.ndarray
-
-    @property
-    def calibration(self) -> np.ndarray:
-        """Points used in the fit: not held out, not rejected, smoothed.
-
-        Returns
-        -------
-        ndarray of bool, shape (N,)
-            True for the points the calibration uses.
-        """
-        return ~self.check & ~self.rejected & np.isfinite(self.row_smooth)
-
-    def select(self, index) -> "StarObservations":
-        """The observations picked by index.
-
-        Parameters
-        ----------
-        index : array_like of int or bool
-            Points to keep.
-
-        Returns
-        -------
-        StarObservations
-            Those points, every array indexed alike.
-        """
-        return StarObservations(**{k: getattr(self, k)[index] for k in self.__dataclass_fields__})
-
-
-def _smooth_track(t, y, good, smooth: bool) -> np.ndarray:
-    """Smoothed ``y`` (n, 2) of one track at times ``t`` fitted on the ``good`` points.
-
-    A straight line in time is removed first (the drift at the sidereal rate), then each
-    coordinate's remainder is fitted by a cubic smoothing spline on normalized time with the
-    weight chosen by generalized cross-validation (seed 000 eq. 2); fewer than 5 points, or
-    ``smooth=False``, keep the straight line.
-    """
-    tg = t[good]
-    coef = np.polyfit(tg, y[good], 1)
-    line = t[:, None] * coef[0] + coef[1]
-    if not smooth or tg.size < 5:
-        return line
-    span = max(float(tg.max() - tg.min()), 1e-9)
-    x = (t - tg.min()) / span
-    out = line.copy()
-    for j in range(y.shape[1]):
-        spl = make_smoothing_spline(x[good], (y[:, j] - line[:, j])[good], lam=None)
-        out[:, j] += spl(x)
-    return out
-
-
-def _smooth_tracks(obs: StarObservations, rng, *, n_check: int, min_points: int, reject_px: float,
-                   reject_sigma: float, smooth: bool):
-    """Hold out ``n_check`` points per track, smooth the rest (eq. 2), reject outliers.
-
-    Returns the observations of the kept tracks and per-track records.
-    """
-    keep_rows, records = [], []
-    for hip in np.unique(obs.hip):
-        idx = np.flatnonzero(obs.hip == hip)
-        idx = idx[np.argsort(obs.seconds[idx])]
-        rec = {"hip": int(hip), "n_points": int(idx.size)}
-        if idx.size < min_points:
-            rec["skipped"] = f"{idx.size} points < {min_points}"
-            records.append(rec)
-            continue
-        check = rng.choice(idx.size, size=min(n_check, idx.size - 5), replace=False) if n_check else []
-        obs.check[idx[check]] = True
-        fit = idx[~obs.check[idx]]
-        t = obs.seconds[fit]
-        rejected = np.zeros(fit.size, bool)
-        for _ in range(2):
-            good = ~rejected
-            y = np.stack([obs.row[fit], obs.col[fit]], -1)
-            res = y - _smooth_track(t, y, good, smooth)
-            size = np.hypot(res[:, 0], res[:, 1])
-            mad = 1.4826 * np.median(size[good]) if good.any() else 0.0
-            new = size > max(reject_px, reject_sigma * mad)
-            if np.array_equal(new, rejected):
-                break
-            rejected = new
-        obs.rejected[fit] = rejected
-        obs.row_smooth[fit] = (y - res)[:, 0]
-        obs.col_smooth[fit] = (y - res)[:, 1]
-        obs.row_smooth[fit[rejected]] = np.nan
-        obs.col_smooth[fit[rejected]] = np.nan
-        good = ~rejected
-        rec.update(n_calibration=int(good.sum()), n_check=int(len(check)), n_rejected=int(rejected.sum()),
-                   spline_rms_px=float(np.sqrt(np.mean(size[good] ** 2))) if good.any() else None,
-                   row_mean_px=float(obs.row[idx].mean()),
-                   col_span_px=[float(obs.col[idx].min()), float(obs.col[idx].max())])
-        records.append(rec)
-        keep_rows.append(idx)
-    keep = np.concatenate(keep_rows) if keep_rows else np.zeros(0, dtype=np.intp)
-    return obs.select(keep), records
-
-
-# --------------------------------------------------------------------------- calibration
-def _gauge_prior(model: GeoStaringModel, free, sigma_px: float):
-    rows, scale = model.gauge_rows()
-    names = list(model.parameter_names())
-    idx = [names.index(n) for n in free]
-    matrix = np.asarray(rows)[:, idx]
-    keep = np.any(matrix != 0.0, axis=1)
-    x0 = model.parameters().values[idx]
-    return matrix[keep], matrix[keep] @ x0, sigma_px * np.asarray(scale)[keep]
-
-
-def _prior(model: GeoStaringModel, free, *, interior_prior_px: float | None, gauge_sigma_px: float | None):
-    """Weak interior prior towards ``model``'s values, plus the gauge for a joint solve."""
-    names = list(model.parameter_names())
-    values = model.parameters().values
-    mats, vals, sigs = [], [], []
-    interior = [k for k, n in enumerate(free) if n.startswith("interior.")]
-    if interior and interior_prior_px:
-        m = np.zeros((len(interior), len(free)))
-        m[np.arange(len(interior)), interior] = 1.0
-        mats.append(m)
-        vals.append(values[[names.index(free[k]) for k in interior]])
-        sigs.append(np.full(len(interior), interior_prior_px * model.ifov_rad))
-    if gauge_sigma_px and interior and any(n in _EXTERIOR for n in free):
-        m, v, s = _gauge_prior(model, free, gauge_sigma_px)
-        mats.append(m), vals.append(v), sigs.append(s)
-    if not mats:
-        return None
-    return Prior(np.vstack(mats), np.concatenate(vals), np.concatenate(sigs))
-
-
-def calibrate_tracks(model0: GeoStaringModel, virtual_gcrf, row, col, *, scheme: str = StarOptions.scheme,
-                     interior_degree: int = StarOptions.interior_degree, robust: str = StarOptions.robust,
-                     interior_prior_px: float | None = StarOptions.interior_prior_px,
-                     gauge_sigma_px: float = 1e-3, max_outer: int = 5, outer_tol: float = 0.05,
-                     max_iter: int = 20, tol: float = 0.01):
-    """Stepwise (or joint) least squares of the frame-0 model from virtual star vectors.
-
-    Parameters
-    ----------
-    model0 : GeoStaringModel
-        Initial model at frame 0 (LAB).
-    virtual_gcrf : array_like, shape (N, 3)
-        Directions that frame 0 images at ``(row, col)`` (seed 000 eq. 9).
-    row, col : array_like, shape (N,)
-        Observed (smoothed) track points, pixels.
-    scheme : {"exterior-interior", "exterior", "joint"}
-        Seed 000's stepwise exterior-then-interior (eq. 12-17), the exterior alone, or all
-        parameters at once with the gauge pseudo-observations.
-    interior_degree : int
-        Degree of the estimated interior polynomials (3: the 20 coefficients).
-    robust : {"huber", "cauchy", "none"}
-        Robust loss of :func:`calibrate.lsq.solve`.
-    interior_prior_px : float or None
-        Standard deviation (pixels at the frame edge) of a pseudo-observation holding every
-        interior coefficient at its initial value; None: no prior.
-    gauge_sigma_px : float
-        Joint scheme: standard deviation of the gauge pseudo-observations, pixels.
-    max_outer, outer_tol : int, float
-        Stepwise scheme: rounds, and the stop when an exterior step moves every angle by less
-        than ``outer_tol`` of its standard deviation.
-    max_iter, tol : int, float
-        Per step, passed to :func:`calibrate.lsq.solve`.
-
-    Returns
-    -------
-    theta : ndarray, shape (23,)
-        Parameters over ``model0.parameter_names()``.
-    runs : list of dict
-        One per least-squares step: ``step``, ``round``, ``success``, ``message``,
-        ``iterations``, ``sigma0``, ``condition_number``.
-    result : LsqResult
-        Of the last step.
-    """
-    if scheme not in STAR_SCHEMES:
-        raise InputError(f"must be one of {', '.join(STAR_SCHEMES)}, got {scheme!r}", field="scheme")
-    w = np.asarray(virtual_gcrf, dtype=np.float64).reshape(-1, 3)
-    obs = np.stack([np.asarray(row, dtype=np.float64), np.asarray(col, dtype=np.float64)], -1)
-    if obs.shape[0] != w.shape[0] or obs.shape[0] == 0:
-        raise InputError(f"{obs.shape[0]} points for {w.shape[0]} vectors", field="row")
-    interior = list(model0.interior_parameter_names(interior_degree))
-    stepper = _TrackStepper(model0, w, obs, robust=robust, max_iter=max_iter, tol=tol)
-    no_prior = dict(interior_prior_px=None, gauge_sigma_px=None)
-    if scheme == "exterior":
-        stepper.step(list(_EXTERIOR), "exterior", 0, no_prior)
-    elif scheme == "joint":
-        stepper.step(list(_EXTERIOR) + interior, "joint", 0,
-                     dict(interior_prior_px=interior_prior_px, gauge_sigma_px=gauge_sigma_px))
-    else:
-        for rnd in range(max(1, int(max_outer))):
-            res, moved = stepper.step(list(_EXTERIOR), "exterior", rnd, no_prior)
-            if not res.success or (rnd > 0 and moved < outer_tol):
-                break
-            res, _ = stepper.step(interior, "interior", rnd,
-                                  dict(interior_prior_px=interior_prior_px, gauge_sigma_px=None))
-            if not res.success:
-                break
-    return stepper.theta, stepper.runs, stepper.last
-
-
-class _TrackStepper:
-    """One least-squares step after another on the frame-0 model; keeps the values and log."""
-
-    def __init__(self, model0, virtual_gcrf, observed, *, robust, max_iter, tol):
-        self.model0 = model0
-        self.w = virtual_gcrf
-        self.obs = observed
-        self.solve_kw = dict(robust=robust, max_iter=max_iter, tol=tol)
-        self.names = list(model0.parameter_names())
-        self.theta = model0.parameters().values.copy()
-        self.runs, self.last = [], None
-
-    def step(self, free, label, rnd, prior_kw):
-        """Solve for ``free``; the result and how far it moved them, in standard deviations."""
-        idx = np.array([self.names.index(n) for n in free])
-        theta, model0, w, obs = self.theta, self.model0, self.w, self.obs
-
-        def chunks(x):
-            full = theta.copy()
-            full[idx] = x
-            r, c, jac = model0.with_parameters(full).star_jacobian(w, names=free)
-            return [Chunk(obs - np.stack([r, c], -1), jac)]
-
-        prior = _prior(model0.with_parameters(theta), free, **prior_kw)
-        res = solve(chunks, theta[idx], names=free, prior=prior, warm_start=bool(self.runs), **self.solve_kw)
-        self.runs.append({"step": label, "round": rnd, "success": bool(res.success), "message": res.message,
-                          "iterations": int(res.iterations), "sigma0": float(res.sigma0),
-                          "condition_number": float(res.condition_number)})
-        self.last = res
-        if not res.success:
-            return res, np.inf
-        moved = np.abs(res.x - theta[idx])
-        sig = res.sigma
-        self.theta = theta.copy()
-        self.theta[idx] = res.x
-        return res, (float(np.max(moved / sig)) if sig is not None and np.all(sig > 0) else np.inf)
-
-
-# --------------------------------------------------------------------------- accuracy
-def radec_errors_px(model0: GeoStaringModel, body_to_gcrf, row, col, vectors_gcrf, *, pixel_rad: float):
-    """RA and DE errors (seed 000 eq. 18-19) of points measured in frames with given attitude.
-
-    Parameters
-    ----------
-    model0 : GeoStaringModel
-        The model at frame 0 (its camera rotation is reused with each point's attitude).
-    body_to_gcrf : ndarray, shape (N, 3, 3)
-        Attitude of each point's frame.
-    row, col : array_like, shape (N,)
-        Measured image points.
-    vectors_gcrf : ndarray, shape (N, 3)
-        Catalogue apparent directions at the frame instants.
-    pixel_rad : float
-        Angle of one pixel, ``A / S`` of eq. 19.
-
-    Returns
-    -------
-    ra_px, de_px, ra_sky_px : ndarray, shape (N,)
-        ``(sigma' - sigma) / (A/S)``, ``(delta' - delta) / (A/S)``, and the RA error on the sky
-        (multiplied by ``cos delta``).
-    """
-    v0 = model0.object_vector_gcrf(row, col)  # B0 M l
-    cam = v0 @ model0.body_to_gcrf  # rows: (B0^T v0)^T = (M l)^T in the body frame
-    v = np.einsum("nij,nj->ni", body_to_gcrf, cam)
-    ra1, de1 = vectors_to_radec(v)
-    ra0, de0 = vectors_to_radec(vectors_gcrf)
-    pix_deg = np.degrees(pixel_rad)
-    dra = (ra1 - ra0 + 180.0) % 360.0 - 180.0
-    return dra / pix_deg, (de1 - de0) / pix_deg, dra * np.cos(np.radians(de0)) / pix_deg
-
-
-def radec_accuracy(ra_px, de_px) -> dict:
-    """Seed 000's accuracy figures of held-out RA/DE errors (tables 3-4).
-
-    Parameters
-    ----------
-    ra_px, de_px : ndarray, shape (N,)
-        RA and DE errors, pixels (non-finite values are left out).
-
-    Returns
-    -------
-    dict
-        ``n`` and, per ``ra``/``de``: ``mean_px``, ``mean_abs_px``, ``rms_px``, ``max_abs_px`` and,
-        with two points or more, the normal fit (``std_px``, ``two_sigma_px``, bounds and
-        confidence intervals, :func:`calibrate.accuracy.fit_normal`).
-    """
-    from calibrate.accuracy import fit_normal
-
-    out = {"n": int(ra_px.size)}
-    for name, e in (("ra", ra_px), ("de", de_px)):
-        e = e[np.isfinite(e)]
-        d = {"mean_px": float(e.mean()) if e.size else None,
-             "mean_abs_px": float(np.abs(e).mean()) if e.size else None,
-             "rms_px": float(np.sqrt(np.mean(e**2))) if e.size else None,
-             "max_abs_px": float(np.abs(e).max()) if e.size else None}
-        if e.size >= 2:
-            nf = fit_normal(e)
-            d.update(std_px=nf.std, two_sigma_px=2.0 * nf.std, two_sigma_bounds_px=list(nf.two_sigma),
-                     mean_ci_px=list(nf.mean_ci), std_ci_px=list(nf.std_ci),
-                     fraction_within_two_sigma=nf.fraction_within_two_sigma)
-        out[name] = d
-    return out
 
 
 # --------------------------------------------------------------------------- result
@@ -825,7 +170,25 @@ class StarCalibrationResult:
 
 
 # --------------------------------------------------------------------------- pipeline
-def _resolve_catalog(catalog, mag_limit):
+def resolve_catalog(catalog, mag_limit):
+    """A loaded star catalogue: ``catalog`` itself, or the one it names down to ``mag_limit``.
+
+    Parameters
+    ----------
+    catalog : StarCatalog or str
+        A loaded catalogue, or a catalogue name (:meth:`StarCatalog.load`'s ``source``).
+    mag_limit : float
+        Faintest magnitude loaded when ``catalog`` is a name.
+
+    Returns
+    -------
+    StarCatalog
+
+    Raises
+    ------
+    InputError
+        ``catalog`` is neither (field ``catalog``).
+    """
     from sensor_models.geometry.star_catalogue import StarCatalog
 
     if isinstance(catalog, StarCatalog):
@@ -851,13 +214,14 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, *, options: Star
     options : StarOptions
         Catalogue (``catalog``, ``mag_limit``), detection (``threshold_sigma``, ``centroid``:
         :func:`gcpmatch.star_tracks.detect_stars`), identification (``search_px``,
-        ``tolerance_px``: :func:`identify`), tracks (``min_track_points``, ``n_check`` points
-        held out per track, seed 000: five; ``smooth``, ``reject_px``, ``reject_sigma``: the
-        smoothing spline of eq. 2 and its outlier test, residual above
-        ``max(reject_px, reject_sigma * robust sigma)``), calibration (``scheme``,
-        ``interior_degree``, ``interior_prior_px``, ``robust``: :func:`calibrate_tracks`;
-        ``compare_joint``: also run the joint scheme and report its accuracy in
-        ``accuracy["joint_after"]``) and ``seed`` (of the held-out points).
+        ``tolerance_px``: :func:`calibrate.star_identification.identify`), tracks
+        (``min_track_points``, ``n_check`` points held out per track, seed 000: five;
+        ``smooth``, ``reject_px``, ``reject_sigma``: the smoothing spline of eq. 2 and its
+        outlier test, residual above ``max(reject_px, reject_sigma * robust sigma)``),
+        calibration (``scheme``, ``interior_degree``, ``interior_prior_px``, ``robust``:
+        :func:`calibrate.star_solution.calibrate_tracks`; ``compare_joint``: also run the joint
+        scheme and report its accuracy in ``accuracy["joint_after"]``) and ``seed`` (of the
+        held-out points).
     versus_points : sequence of int, optional
         Calibration points per track for the figure 8 study (e.g. ``(10, 15, 20, 25)``).
     detections : list of StarTable, optional
@@ -880,8 +244,8 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, *, options: Star
     if not isinstance(options, StarOptions):
         raise InputError(f"options must be a StarOptions, got {type(options).__name__}", field="options")
     frames = list(frames)
-    t = _check_seconds(seconds, len(frames))
-    cat = _resolve_catalog(options.catalog, options.mag_limit)
+    t = check_frame_seconds(seconds, len(frames))
+    cat = resolve_catalog(options.catalog, options.mag_limit)
     models = [lab_model.at_frame(float(s)) for s in t]
     timings["models_s"] = time.perf_counter() - t0
 
@@ -896,7 +260,7 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, *, options: Star
     t3 = time.perf_counter()
     n = obs.hip.size
     rng = np.random.default_rng(options.seed)
-    obs, tracks = _smooth_tracks(obs, rng, n_check=options.n_check, min_points=options.min_track_points,
+    obs, tracks = smooth_tracks(obs, rng, n_check=options.n_check, min_points=options.min_track_points,
                                  reject_px=options.reject_px, reject_sigma=options.reject_sigma,
                                  smooth=options.smooth)  # fmt: skip
     timings["tracks_s"] = time.perf_counter() - t3
@@ -996,55 +360,3 @@ def _calibrate_and_score(obs, models, base, options, versus_points, t0):
                                  versus_points=versus, **base)
 
 
-def error_versus_track_points(model0, obs: StarObservations, body_to_gcrf_frames, counts, *,
-                              scheme="exterior-interior", seed: int = 0, **kw):
-    """Seed 000 figure 8: held-out accuracy when each track gives only ``n`` calibration points.
-
-    For each ``n`` in ``counts``, ``n`` of each track's calibration points are drawn at random
-    (tracks with fewer keep all), the model is recalibrated and evaluated on the same held-out
-    points. Returns a list of ``{"points_per_track", "n_points", "ra_mean_abs_px",
-    "de_mean_abs_px", "ra_two_sigma_px", "de_two_sigma_px"}``.
-
-    Parameters
-    ----------
-    model0 : GeoStaringModel
-        Initial model at frame 0.
-    obs : StarObservations
-        Tracks after smoothing (held-out points marked in ``check``).
-    body_to_gcrf_frames : ndarray, shape (F, 3, 3)
-        Body-to-GCRF rotation of every frame.
-    counts : sequence of int
-        Calibration points per track.
-    scheme : {"exterior-interior", "exterior", "joint"}
-        Of :func:`calibrate_tracks`.
-    seed : int
-        Seeds the draws (``seed + 1``).
-    **kw
-        Further keywords of :func:`calibrate_tracks`.
-
-    Returns
-    -------
-    list of dict
-        One row per count (errors in pixels).
-    """
-    rng = np.random.default_rng(seed + 1)
-    cal = np.flatnonzero(obs.calibration)
-    chk = obs.check
-    b_chk = body_to_gcrf_frames[obs.frame[chk]]
-    out = []
-    for n in counts:
-        pick = []
-        for hip in np.unique(obs.hip[cal]):
-            idx = cal[obs.hip[cal] == hip]
-            pick.append(rng.choice(idx, size=min(int(n), idx.size), replace=False))
-        pick = np.sort(np.concatenate(pick))
-        theta, runs, _ = calibrate_tracks(model0, obs.virtual_gcrf[pick], obs.row_smooth[pick],
-                                          obs.col_smooth[pick], scheme=scheme, **kw)
-        ra, de, _ = radec_errors_px(model0.with_parameters(theta), b_chk, obs.row[chk], obs.col[chk],
-                                    obs.vectors_gcrf[chk], pixel_rad=model0.ifov_rad)
-        acc = radec_accuracy(ra, de)
-        out.append({"points_per_track": int(n), "n_points": int(pick.size),
-                    "success": all(r["success"] for r in runs),
-                    "ra_mean_abs_px": acc["ra"]["mean_abs_px"], "de_mean_abs_px": acc["de"]["mean_abs_px"],
-                    "ra_two_sigma_px": acc["ra"].get("two_sigma_px"), "de_two_sigma_px": acc["de"].get("two_sigma_px")})
-    return out

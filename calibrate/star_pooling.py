@@ -15,13 +15,13 @@ frame 0 of the first session,
     w'' = B0_1 B0_d^T w'_d = B0_1 M l(row, col),
 
 gives points that the first session's frame-0 model images at the same pixels, so
-:func:`calibrate.star_calibration.calibrate_tracks` solves one ``M`` and ``l`` from all of them. The GEO
+:func:`calibrate.star_solution.calibrate_tracks` solves one ``M`` and ``l`` from all of them. The GEO
 orbit does not enter: the apparent directions of the catalogue stars already hold the aberration
 of each frame's velocity.
 
 Scoring. A held-out point of session ``d`` (frame ``k``, attitude ``B_k``) is mapped by the
 pooled model to ``B_k M l(row, col)`` and compared with its catalogue direction
-(:func:`calibrate.star_calibration.radec_errors_px`, seed 000 eq. 18-19).
+(:func:`calibrate.star_accuracy.radec_errors_px`, seed 000 eq. 18-19).
 """
 
 from __future__ import annotations
@@ -31,8 +31,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibrate.config import StarOptions
-from calibrate.star_calibration import (StarCalibrationResult, StarObservations, calibrate_tracks, radec_accuracy,
-                             radec_errors_px)
+from calibrate.star_accuracy import radec_accuracy, radec_errors_px
+from calibrate.star_calibration import StarCalibrationResult
+from calibrate.star_observations import StarObservations
+from calibrate.star_solution import calibrate_tracks
 from sensor_models.errors import InputError
 from sensor_models.models.geo_staring import GeoStaringModel
 
@@ -112,7 +114,7 @@ def calibrate_pooled(sessions, *, options: StarOptions = StarOptions()) -> dict:
         Sessions of one camera (same LAB installation and interior), any dates.
     options : StarOptions
         ``scheme``, ``interior_degree``, ``interior_prior_px`` and ``robust`` of
-        :func:`calibrate.star_calibration.calibrate_tracks`.
+        :func:`calibrate.star_solution.calibrate_tracks`.
 
     Returns
     -------

@@ -10,15 +10,12 @@ import pytest
 from click.testing import CliRunner
 
 from calibrate.cli.compensate import command
-from calibrate.schemes.compensate import (
-    SCHEMES,
-    SEED002_TABLE3,
+from calibrate.schemes.compensate import SCHEMES, compensate
+from calibrate.schemes.compensation_study import SEED002_TABLE3, run_seed002, seed002_true_lab
+from calibrate.schemes.virtual_points import (
     check_grid,
-    compensate,
     pointing_difference_px,
     positioning_errors,
-    run_seed002,
-    seed002_true_lab,
     virtual_control_points,
 )
 from sensor_models.errors import InputError

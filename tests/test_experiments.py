@@ -62,7 +62,7 @@ def test_every_kind_has_ideal_realistic_and_its_paper_profile_with_sources():
 
 def test_ideal_profiles_record_todays_defaults():
     from calibrate.schemes.autocollimation import render_cross
-    from calibrate.schemes.thermal import ThermalDrift
+    from calibrate.schemes.thermal_simulation import ThermalDrift
     from sensor_models.simulate.star_sky import GeoStarsConfig
 
     stars, cfg = get_profile("ideal", "stars"), GeoStarsConfig()
@@ -119,7 +119,7 @@ def test_star_truth_pieces_have_their_magnitudes():
 
 def test_physical_staring_truth_lies_outside_the_cubic_and_schemes_stop_at_its_residual():
     from calibrate.experiments.simulate_seed002 import staring_models
-    from calibrate.schemes.compensate import run_seed002
+    from calibrate.schemes.compensation_study import run_seed002
 
     assert staring_models(get_profile("ideal", "staring")) is None
     lens, truth, lab = staring_models(get_profile("realistic", "staring"))
@@ -258,11 +258,11 @@ def test_seed000_sessions_in_worker_processes_equal_those_of_one_process(tmp_pat
     """The sessions of experiment 000 run in worker processes (its speed at the paper's scale):
     the same figures and track points as in this process, to the last bit; a session asked for
     twice runs once."""
-    from calibrate.experiments.simulate_seed000 import _Sessions, run_session
+    from calibrate.experiments.simulate_seed000 import SessionPool, run_session
 
     profile = get_profile("paper-000", "stars")
     inst = (1.0, -2.0, 3.0)
-    pool = _Sessions(tmp_path / "pool", workers=2)
+    pool = SessionPool(tmp_path / "pool", workers=2)
     try:
         future = pool.submit(profile, day=1, n_frames=30, installation_error_arcsec=inst)
         assert pool.submit(profile, day=1, n_frames=30, installation_error_arcsec=list(inst)) is future

@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 
 from calibrate.config import StarOptions
-from calibrate.star_calibration import _smooth_track, process_frames, radec_errors_px, read_frame_list
+from calibrate.star_accuracy import radec_errors_px
+from calibrate.star_calibration import process_frames
+from calibrate.star_frames import read_frame_list
+from calibrate.star_observations import smooth_track
 from sensor_models.errors import InputError
 from sensor_models.readers.geo_manifest import read_geo_manifest
 from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
@@ -37,9 +40,9 @@ def test_simulation_matches_seed000_initial_errors(sequence):
     assert 20.0 < np.abs(truth["installation_error_arcsec"]).max() < 150.0
     truth_model = read_geo_manifest(out / "truth_manifest.json")
     # the error formula (eq. 18-19) is zero for the true model at the rendered positions
-    from calibrate.star_calibration import _resolve_catalog
+    from calibrate.star_calibration import resolve_catalog
 
-    cat = _resolve_catalog("hipparcos", 10.0)
+    cat = resolve_catalog("hipparcos", 10.0)
     from sensor_models.geometry.star_catalogue import catalog_stars_in_frame
 
     m5 = truth_model.at_frame(truth["stars"][5]["seconds"])
@@ -106,7 +109,7 @@ def test_spline_smoothing_reduces_centroid_noise():
     t = np.arange(28) * 10.0
     true = np.stack([300.0 + 2e-6 * t**2, 10.0 + 3.58 * t + 1e-4 * t**2], -1)
     noisy = true + rng.normal(0.0, 0.1, true.shape)
-    smooth = _smooth_track(t, noisy, np.ones(t.size, bool), True)
+    smooth = smooth_track(t, noisy, np.ones(t.size, bool), True)
     raw = np.sqrt(np.mean((noisy - true) ** 2))
     fit = np.sqrt(np.mean((smooth - true) ** 2))
     assert 0.01 < fit < 0.6 * raw

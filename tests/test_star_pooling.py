@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from calibrate.config import StarOptions
+from calibrate.star_calibration import process_frames
+from calibrate.star_frames import load_frame, read_frame_list
 from calibrate.star_pooling import StarSession, calibrate_pooled
-from calibrate.star_calibration import load_frame, process_frames, read_frame_list
 from sensor_models.errors import InputError
 from sensor_models.readers.geo_manifest import read_geo_manifest
 from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars

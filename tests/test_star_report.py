@@ -18,7 +18,8 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """A short simulated sequence calibrated with the figure 8 study (about 3 s)."""
-    from calibrate.star_calibration import process_frames, read_frame_list
+    from calibrate.star_calibration import process_frames
+    from calibrate.star_frames import read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
     from sensor_models.simulate.star_sky import simulate_geo_stars
 
@@ -235,7 +236,8 @@ def test_starless_frames_say_so_instead_of_counting_detections(sim20, tmp_path):
 
 def test_starless_fits_frames_say_so(sim20, tmp_path):
     """The same with FITS frames written by astropy, through the library (process_frames)."""
-    from calibrate.star_calibration import process_frames, read_frame_list
+    from calibrate.star_calibration import process_frames
+    from calibrate.star_frames import read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
 
     sky = _sky_frames(sim20, tmp_path / "sky", fmt="fits", seed=1)

@@ -347,7 +347,7 @@ def test_run_refuses_star_frames_of_another_camera(star_sequences, tmp_path, cap
 
 def test_frames_of_the_same_size_but_another_pixel_angle_are_refused(star_sequences):
     from calibrate.actions.stars import read_star_inputs
-    from calibrate.star_calibration import check_frames_camera
+    from calibrate.star_frames import check_frames_camera
 
     frames, _, _, lab = read_star_inputs(star_sequences / "small")
     other = SimpleNamespace(image_shape=lab.image_shape, ifov_rad=lab.ifov_rad * 1.5)

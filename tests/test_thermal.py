@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from calibrate.schemes.thermal import (ARCSEC, DAY_S, ThermalDrift, ThermalModel, evaluate_positioning, fit_installation,
-                               plot_positioning, plot_thermal_angles, simulate_thermal_series, with_installation)
+from calibrate.schemes.thermal import ARCSEC, DAY_S, evaluate_positioning, fit_installation, with_installation
+from calibrate.schemes.thermal_figures import plot_positioning, plot_thermal_angles
+from calibrate.schemes.thermal_model import ThermalModel
+from calibrate.schemes.thermal_simulation import ThermalDrift, simulate_thermal_series
 from sensor_models.errors import InputError
 from sensor_models.models.geo_staring import example_geo_staring_model
 

@@ -221,12 +221,12 @@ def test_full_disk_names_the_file_and_keeps_the_previous_run(tmp_path, capsys, f
 
 
 def test_read_only_filesystem_during_a_folder_write_names_the_folder(tmp_path, capsys, monkeypatch):
-    import calibrate.schemes.compensate as comp
+    import calibrate.schemes.compensation_outputs as outputs
 
     def read_only(*args, **kwargs):
         raise OSError(30, "Read-only file system")
 
-    monkeypatch.setattr(comp, "write_study", read_only)
+    monkeypatch.setattr(outputs, "write_study", read_only)
     out = tmp_path / "o"
     assert main(["compensate", "--step", "1000", "--no-figures", "--out", str(out)]) == 1
     line = _one_error_line(capsys)

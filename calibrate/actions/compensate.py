@@ -1,8 +1,8 @@
 """Stage action of ``gcpcal compensate``: seed 002's virtual-control-point compensation schemes.
 
-Runs :func:`calibrate.schemes.compensate.run_seed002` (GF-4-like 10240 x 10240 camera, seed 002 table 1
+Runs :func:`calibrate.schemes.compensation_study.run_seed002` (GF-4-like 10240 x 10240 camera, seed 002 table 1
 distortion, table 2 installation errors) and writes ``OUT/table.json``, ``OUT/table.csv``,
-``OUT/summary.md`` and ``OUT/figures/*.png`` atomically (:func:`calibrate.schemes.compensate.write_study`).
+``OUT/summary.md`` and ``OUT/figures/*.png`` atomically (:func:`calibrate.schemes.compensation_outputs.write_study`).
 """
 
 from __future__ import annotations
@@ -36,7 +36,8 @@ def compensation_study(out_dir, *, step_px: float = 100.0, start_px: float = 0.0
     dict
         The document written to ``table.json`` (``settings``, ``best_scheme``, ``rows``, ...).
     """
-    from calibrate.schemes.compensate import run_seed002, write_study
+    from calibrate.schemes.compensation_outputs import write_study
+    from calibrate.schemes.compensation_study import run_seed002
 
     check_output_folder(out_dir)  # before any work
     study = run_seed002(step_px=step_px, start_px=start_px, stop_px=stop_px, noise_px=noise_px, seed=seed,

@@ -1,6 +1,6 @@
 """Stage action of ``gcpcal stars`` (and the star path of ``gcpcal run``): star-track calibration.
 
-``frames_path`` is a frame list (``frames.json``, format in :func:`calibrate.star_calibration.read_frame_list`)
+``frames_path`` is a frame list (``frames.json``, format in :func:`calibrate.star_frames.read_frame_list`)
 or the folder holding it; the frame times come from it and the model from the manifest it names
 (``manifest`` overrides). Writes ``OUT/stars.json`` (tracks, calibration, accuracy, track
 points), ``OUT/manifest.json`` (the calibrated model of frame 0, its ``calibration`` status
@@ -53,9 +53,9 @@ def read_star_inputs(frames_path, manifest=None, *, scene_model=None, scene_sour
     ------
     InputError
         A malformed list, no manifest, or frames whose image size or pixel angle differ from
-        the camera's (:func:`calibrate.star_calibration.check_frames_camera`).
+        the camera's (:func:`calibrate.star_frames.check_frames_camera`).
     """
-    from calibrate.star_calibration import check_frames_camera, read_frame_list
+    from calibrate.star_frames import check_frames_camera, read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
 
     frames, seconds, listed = read_frame_list(frames_path)

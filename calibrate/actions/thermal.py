@@ -1,7 +1,7 @@
 """Stage action of ``gcpcal thermal``: daily thermal drift of a staring camera's installation.
 
 Seed 002 section 3.3: simulates a series of epochs with an injected drift
-(:class:`calibrate.schemes.thermal.ThermalDrift`), solves the exterior at each epoch from virtual control
+(:class:`calibrate.schemes.thermal_simulation.ThermalDrift`), solves the exterior at each epoch from virtual control
 points, fits the angles against the time of day on all days but the last ``holdout_days``,
 predicts the held-out epochs and compares the positioning error of a constant installation with
 the predicted one. Writes ``OUT/thermal.json``, ``OUT/thermal_angles.png`` (seed 002 figure 11)
@@ -54,8 +54,10 @@ def thermal_experiment(out_dir, *, days: float = 5.0, interval_min: float = 30.0
         The document written to ``thermal.json``.
     """
     from calibrate._json import json_safe
-    from calibrate.schemes.thermal import (ARCSEC, DAY_S, ThermalDrift, ThermalModel, evaluate_positioning,
-                                   plot_positioning, plot_thermal_angles, simulate_thermal_series)
+    from calibrate.schemes.thermal import ARCSEC, DAY_S, evaluate_positioning
+    from calibrate.schemes.thermal_figures import plot_positioning, plot_thermal_angles
+    from calibrate.schemes.thermal_model import ThermalModel
+    from calibrate.schemes.thermal_simulation import ThermalDrift, simulate_thermal_series
     from sensor_models.models.geo_staring import example_geo_staring_model
 
     if not (days > holdout_days > 0 and interval_min > 0):

@@ -18,7 +18,7 @@ Sensitivity: accuracy against the attitude noise (the observation-noise analogue
 against the unmeasured wobble amplitude (jitter). DEM and DOM errors do not apply to stars.
 
 Speed: the sessions are independent (each its own seed), so they run in worker processes
-(:class:`_Sessions`, one per core this process may use); day 0 goes first, as the other days
+(:class:`SessionPool`, one per core this process may use); day 0 goes first, as the other days
 take its installation. Each session's figures are those of a run in one process.
 """
 
@@ -37,7 +37,7 @@ from calibrate.config import StarOptions
 from calibrate.experiments.results import ExperimentResult, PaperTable, SensitivityCurve
 from sensor_models.simulate.profiles import Sourced, get_profile, profile_table
 
-__all__ = ["FULL_SESSIONS", "PAPER", "default_workers", "run", "run_session"]
+__all__ = ["FULL_SESSIONS", "PAPER", "SessionPool", "default_workers", "run", "run_session"]
 
 #: sessions of a full ``paper-000`` run: the paper's 20 days (a session of 120 frames: ~6 CPU-s)
 FULL_SESSIONS = 20
@@ -77,8 +77,9 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
         ``ra/de_two_sigma_px``, ``installation_error_arcsec`` (the TRUE one) and ``session``
         (a :class:`calibrate.star_pooling.StarSession`, for pooling; not JSON).
     """
+    from calibrate.star_calibration import process_frames
+    from calibrate.star_frames import load_frame, read_frame_list
     from calibrate.star_pooling import StarSession
-    from calibrate.star_calibration import load_frame, process_frames, read_frame_list
     from sensor_models.readers.geo_manifest import read_geo_manifest
     from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
 
@@ -167,12 +168,19 @@ def _init_worker() -> None:
     cv2.setNumThreads(1)
 
 
-class _Sessions:
+class SessionPool:
     """Sessions run once each, in worker processes (``workers`` > 1) or in this one.
 
     ``submit`` returns a future of :func:`run_session`'s dict; a session already asked for
     (same magnitudes, day, frames and installation) returns the first one's future.
     ``cpu_s`` sums the CPU seconds of the sessions finished so far (wherever they ran).
+
+    Parameters
+    ----------
+    work : Path
+        Scratch folder of the simulated sessions.
+    workers : int
+        Worker processes; 1 runs every session in this process.
     """
 
     def __init__(self, work: Path, workers: int):
@@ -193,6 +201,19 @@ class _Sessions:
             self.pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker)
 
     def submit(self, profile, *, day: int, n_frames: int, installation_error_arcsec=()) -> Future:
+        """Run one session (:func:`run_session`), or return the future of the same one asked before.
+
+        Parameters
+        ----------
+        profile : StarsProfile
+        day, n_frames, installation_error_arcsec
+            Of :func:`run_session`.
+
+        Returns
+        -------
+        Future
+            Of :func:`run_session`'s dict.
+        """
         inst = tuple(float(x) for x in installation_error_arcsec)
         key = (_magnitudes(profile), int(day), int(n_frames), inst)
         if key not in self.futures:
@@ -224,11 +245,12 @@ class _Sessions:
         return out
 
     def close(self) -> None:
+        """Stop the worker processes (waiting for the sessions running, cancelling the others)."""
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _following_days(sessions: _Sessions, profile, first: dict, n_sessions: int, n_frames: int) -> list:
+def _following_days(sessions: SessionPool, profile, first: dict, n_sessions: int, n_frames: int) -> list:
     """Futures of days 1..n-1: day 0's installation plus the profile's daily offset."""
     base = np.asarray(first["installation_error_arcsec"], dtype=np.float64)
     offsets = _day_offsets_arcsec(profile, n_sessions)
@@ -317,7 +339,7 @@ def _all_sessions(work, profile, n_sessions: int, n_frames: int, quick: bool, wo
     """Every session of the experiment: the profile's days, the curves' day-0 variants and the
     day-to-day curve's days (day 0 first; the other days once its installation is known); and
     ``{"simulated": sessions run, "cpu_s": their CPU seconds}``."""
-    runner = _Sessions(work, workers)
+    runner = SessionPool(work, workers)
     try:
         first = runner.submit(profile, day=0, n_frames=n_frames)
         plan = _curve_plan(profile, quick)

@@ -1,6 +1,6 @@
 """Seed 002 experiment: the four compensation schemes (table 3) and the thermal series (figure 11).
 
-Compensation (:func:`calibrate.schemes.compensate.run_seed002`): GF-4-like 10240 x 10240
+Compensation (:func:`calibrate.schemes.compensation_study.run_seed002`): GF-4-like 10240 x 10240
 staring camera, seed 002 table 1 lens and table 2 installation errors, VCPs every 100 px (the
 paper's grid; ``quick``: every 500 px). Under ``ideal`` the TRUE interior is the cubic fitted to
 the lens (the default path); otherwise it is the physical lens itself (:mod:`sensor_models.simulate.staring_truth`)
@@ -46,7 +46,7 @@ def staring_models(profile, image_shape=(10240, 10240)):
     """
     if not profile.value("physical_truth"):
         return None
-    from calibrate.schemes.compensate import ARCSEC, SEED002_INSTALLATION_ARCSEC, seed002_true_lab
+    from calibrate.schemes.compensation_study import ARCSEC, SEED002_INSTALLATION_ARCSEC, seed002_true_lab
     from sensor_models.models.geo_staring import GF4_LIKE_CAMERA, example_geo_staring_model
     from sensor_models.models.pushbroom_types import Installation
     from sensor_models.simulate.staring_truth import physical_truth, radial_from_corner_px
@@ -63,7 +63,7 @@ def staring_models(profile, image_shape=(10240, 10240)):
 
 
 def _study(profile, step_px, noise_px=None, schemes=None):
-    from calibrate.schemes.compensate import run_seed002
+    from calibrate.schemes.compensation_study import run_seed002
 
     noise = profile.value("vcp_noise_px") if noise_px is None else noise_px
     return run_seed002(step_px=step_px, noise_px=float(noise), schemes=schemes, models=staring_models(profile))
@@ -86,8 +86,9 @@ def thermal_series_errors(profile, *, days: float, interval_min: float, day_to_d
     dict
         ``constant_rms_px``, ``predicted_rms_px``, ``epoch_fit_rms_px``, ``orders``.
     """
-    from calibrate.schemes.thermal import (DAY_S, ThermalDrift, ThermalModel, evaluate_positioning,
-                                           simulate_thermal_series)
+    from calibrate.schemes.thermal import DAY_S, evaluate_positioning
+    from calibrate.schemes.thermal_model import ThermalModel
+    from calibrate.schemes.thermal_simulation import ThermalDrift, simulate_thermal_series
     from sensor_models.models.geo_staring import example_geo_staring_model
     from sensor_models.simulate.thermal_truth import day_to_day_offsets
 

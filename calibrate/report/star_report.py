@@ -80,7 +80,7 @@ def held_out_errors(result) -> dict:
     Recomputes what :func:`calibrate.star_calibration.process_frames` summarizes in ``accuracy``: the LAB
     model (``result.initial``) and the calibrated one (``result.model``) map the measured
     centroid, with the attitude of the point's frame, to ``(sigma', delta')``, compared with
-    the catalogue's apparent direction (:func:`calibrate.star_calibration.radec_errors_px`).
+    the catalogue's apparent direction (:func:`calibrate.star_accuracy.radec_errors_px`).
 
     Parameters
     ----------
@@ -93,7 +93,7 @@ def held_out_errors(result) -> dict:
         ``ra_before_px, de_before_px, ra_after_px, de_after_px``: NaN where the point is not
         held out (pixels, one pixel = the LAB IFOV).
     """
-    from calibrate.star_calibration import radec_errors_px
+    from calibrate.star_accuracy import radec_errors_px
 
     obs, model = getattr(result, "observations", None), getattr(result, "model", None)
     if obs is None or model is None:
