@@ -16,7 +16,9 @@ import click
 import numpy as np
 import pytest
 
-from calibrate.cli import cli, main
+from calibrate.cli import cli, load_all_commands, main
+
+load_all_commands()  # the group imports a command's module on demand: walk them all
 
 ROOT = Path(__file__).resolve().parents[1]
 HY1C = ROOT / "fixtures" / "hy1c_czi"

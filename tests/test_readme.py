@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from calibrate.cli import cli
+from calibrate.cli import cli, load_all_commands
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
@@ -24,6 +24,7 @@ def _leaves(group: click.Group, prefix=()):
             yield " ".join(prefix + (name,)), cmd
 
 
+load_all_commands()  # the group imports a command's module on demand
 LEAVES = dict(_leaves(cli))
 
 
