@@ -1,34 +1,48 @@
-"""Rigorous sensor models: frames, orbit and attitude, push-broom and RPC models, terrain.
+"""Rigorous sensor models: frames, orbit and attitude, push-broom, staring and RPC models, terrain.
 
 The lowest layer of gcpcal: it knows nothing of matching or calibration and exposes model
 parameters with their analytic Jacobians. Conventions (see ``docs/conventions.md``):
 image coordinates are ``(row, col)`` with the first pixel's centre at ``(0.5, 0.5)``; ground
 points are WGS84 ``lon, lat`` in degrees and ``h`` in metres above the ellipsoid; angles are
 radians; times are seconds (SI) since a UTC scene epoch.
+
+The public API (``docs/api.md``) is what :data:`__all__` lists; everything else lives in the rooms
+``geometry/``, ``models/``, ``terrain/``, ``maps/``, ``imaging/``, ``readers/``, ``simulate/``.
 """
 
-from sensor_models.errors import GcpcalError
+from sensor_models.errors import GcpcalError, InputError
 
 __version__ = "0.1.0"
 
-__all__ = ["GcpcalError", "__version__", "open_model"]
+#: Public name -> the module that defines it; imported on first use (PEP 562), so that importing
+#: the package stays cheap (``gcpcal --help`` imports it).
+_EXPORTS = {
+    "open_model": "sensor_models.readers.model_file",
+    "open_scene": "sensor_models.readers.scene_input",
+    "SensorModel": "sensor_models.base",
+    "PushbroomModel": "sensor_models.models.pushbroom",
+    "GeoStaringModel": "sensor_models.models.geo_staring",
+    "RpcModel": "sensor_models.models.rpc",
+    "fit_rpc": "sensor_models.models.rpc_fit",
+    "Dem": "sensor_models.terrain.dem",
+    "Geoid": "sensor_models.terrain.geoid",
+    "MapImage": "sensor_models.maps.raster",
+}
+
+__all__ = sorted([*_EXPORTS, "GcpcalError", "InputError", "__version__"])
 
 
-def open_model(path, **kwargs):
-    """Open any supported model file (:func:`sensor_models.readers.open_model`).
+def __getattr__(name: str):
+    """The public name ``name``, imported from its module on first use."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
 
-    Parameters
-    ----------
-    path : str or os.PathLike
-        A gcpcal scene manifest (``*.json``), a SPOT 1-5 DIMAP (``*.DIM``), an OSSIM keyword
-        list (``*.geom``), an ``*.RPB`` / ``*_RPC.TXT`` file, or a raster carrying RPC tags.
-    **kwargs
-        Passed on to the reader (e.g. ``attitude=`` of the DIMAP reader).
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
 
-    Returns
-    -------
-    SensorModel
-    """
-    from sensor_models.readers import open_model as _open_model
 
-    return _open_model(path, **kwargs)
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
