@@ -66,7 +66,8 @@ from calibrate.config import STAR_SCHEMES, StarOptions
 from calibrate.lsq import Chunk, Prior, solve
 from sensor_models.errors import InputError
 from sensor_models.files.documents import load_json
-from sensor_models.models.geo_staring import GeoStaringModel, vectors_to_radec
+from sensor_models.models.geo_staring import GeoStaringModel
+from sensor_models.models.star_directions import vectors_to_radec
 
 __all__ = [
     "StarCalibrationResult",

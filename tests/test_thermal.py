@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from calibrate.schemes.thermal import (ARCSEC, DAY_S, ThermalDrift, ThermalModel, evaluate_positioning, fit_installation,
                                plot_positioning, plot_thermal_angles, simulate_thermal_series, with_installation)
 from sensor_models.errors import InputError
-from sensor_models.models.geo_staring import example_geo_staring_model
+from sensor_models.models.synthetic import example_geo_staring_model
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

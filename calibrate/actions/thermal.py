@@ -55,7 +55,7 @@ def thermal_experiment(out_dir, *, days: float = 5.0, interval_min: float = 30.0
     from calibrate._json import json_safe
     from calibrate.schemes.thermal import (ARCSEC, DAY_S, ThermalDrift, ThermalModel, evaluate_positioning,
                                    plot_positioning, plot_thermal_angles, simulate_thermal_series)
-    from sensor_models.models.geo_staring import example_geo_staring_model
+    from sensor_models.models.synthetic import example_geo_staring_model
 
     if not (days > holdout_days > 0 and interval_min > 0):
         raise InputError("needs days > holdout_days > 0 and interval_min > 0", field="days")

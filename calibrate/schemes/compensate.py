@@ -47,7 +47,7 @@ of the VCPs. In every scheme the recovered installation equals the truth's plus 
 the distortion that are a rotation of the frame (the -8 arcsec array rotation of table 1 appears
 in the yaw, the mean decentering shift in roll and pitch): no ground point can tell them apart.
 
-Seed 002 table 1 mapped onto :class:`~sensor_models.models.geo_staring.StaringLab`
+Seed 002 table 1 mapped onto :class:`~sensor_models.models.staring_camera.StaringLab`
 --------------------------------------------------------------------------
 ======================================  =====================================================
 seed 002 table 1                        ``StaringLab`` field (GF-4-like 10240 x 10240 array)
@@ -444,7 +444,8 @@ def seed002_true_lab(base=None, image_shape=(10240, 10240)):
     StaringLab
         The TRUE laboratory parameters.
     """
-    from sensor_models.models.geo_staring import GF4_LIKE_CAMERA, StaringLab
+    from sensor_models.models.synthetic import GF4_LIKE_CAMERA
+    from sensor_models.models.staring_camera import StaringLab
 
     base = GF4_LIKE_CAMERA if base is None else base
     n_rows, n_cols = (int(x) for x in image_shape)
@@ -604,7 +605,7 @@ def run_seed002(*, step_px: float = 100.0, start_px: float = 0.0, stop_px: float
 
 def _seed002_models(image_shape):
     """Seed 002's TRUE lab camera, the TRUE model (table 1 distortion, table 2 installation) and the LAB model."""
-    from sensor_models.models.geo_staring import GF4_LIKE_CAMERA, example_geo_staring_model
+    from sensor_models.models.synthetic import GF4_LIKE_CAMERA, example_geo_staring_model
     from sensor_models.models.pushbroom_types import Installation
 
     true_lab = seed002_true_lab(GF4_LIKE_CAMERA, image_shape)
