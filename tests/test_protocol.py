@@ -15,7 +15,7 @@ import pytest
 from sensor_models.base import DetectorArray, SensorModel
 from sensor_models.errors import InputError
 from sensor_models.models.synthetic import example_geo_staring_model
-from sensor_models.models.pushbroom import CcdView
+from sensor_models.models.ccd_view import CcdView
 from sensor_models.models.pushbroom_types import CcdLook
 from sensor_models.readers import open_model
 from sensor_models.models.rpc import RpcModel
