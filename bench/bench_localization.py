@@ -35,6 +35,7 @@ from sensor_models.models.pushbroom_types import Installation  # noqa: E402
 from sensor_models.models.rpc_fit import fit_rpc  # noqa: E402
 from sensor_models.models.synthetic import example_pushbroom_model  # noqa: E402
 from sensor_models.terrain.dem import Dem  # noqa: E402
+from sensor_models.readers.rpc_files import rpc_to_rasterio, write_rpc  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_DEM = ROOT.parent / "shared" / "data" / "dem"
@@ -74,7 +75,7 @@ def _rpc_scene(model, dem, n: int):
     from baseline import BASE_REV, load_baseline
 
     rpc, _ = fit_rpc(model.ccd_view(0), height_range_m=dem.height_range_m)
-    base_rpc = load_baseline("sensor_models/models/rpc.py").RpcModel(**rpc._init_kwargs())
+    base_rpc = load_baseline("sensor_models/models/rpc.py").RpcModel(**rpc.init_kwargs())
     rng = np.random.default_rng(7)
     rows = rng.uniform(300.0, 1700.0, n)
     cols = rng.uniform(50.0, rpc.image_shape[1] - 50.0, n)
@@ -91,7 +92,7 @@ def _write_inputs(folder: Path, rpc, dem, rows, cols) -> Path:
     with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1, dtype="float32",
                        crs=dem.crs.to_wkt(), transform=dem.transform, nodata=np.nan) as ds:
         ds.write(z, 1)
-    rpc.write(folder / "rpc.tif")
+    write_rpc(rpc, folder / "rpc.tif")
     np.save(folder / "rows.npy", rows)
     np.save(folder / "cols.npy", cols)
     return path
@@ -192,7 +193,7 @@ def bench_rpc_dem(model, dem, n: int, repeat: int = 3, shareloc_python=None) -> 
     best, out = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         dem_path = _write_inputs(Path(tmp), rpc, dem, rows, cols)
-        with RPCTransformer(rpc.to_rasterio(), RPC_DEM=str(dem_path), RPC_DEMINTERPOLATION="bilinear",
+        with RPCTransformer(rpc_to_rasterio(rpc), RPC_DEM=str(dem_path), RPC_DEMINTERPOLATION="bilinear",
                             RPC_PIXEL_ERROR_THRESHOLD=1e-4) as gdal:
             funcs = {"before": lambda: base_rpc.image_to_ground(rows, cols, dem=dem),
                      "after": lambda: rpc.image_to_ground(rows, cols, dem=dem),

@@ -5,7 +5,7 @@ Runs in a separate Python environment that has shareloc (CNES, Apache-2.0) insta
 imports only numpy and shareloc, never gcpcal, so gcpcal does not depend on shareloc. Reads from
 ``FOLDER`` (written by the parent):
 
-* ``rpc.tif``: a GeoTIFF whose RPC tags gcpcal's ``RpcModel.write`` wrote; shareloc reads it with
+* ``rpc.tif``: a GeoTIFF whose RPC tags gcpcal's ``write_rpc`` wrote; shareloc reads it with
   its own reader (``RPCoptim.load``: rasterio, ``topleftconvention=True``, which adds 0.5 to the
   line and sample offsets, so its ``(row, col)`` are GDAL's: the first pixel's centre at
   ``(0.5, 0.5)``, as gcpcal's);

@@ -18,8 +18,8 @@ bias:
 
 ``a1, a2, b1, b2`` multiply full-scene pixel coordinates (tens of thousands); the solver
 equilibrates the normal equations. The corrected model folds ``a0, a1, b0, b2`` into its
-offsets and scales when written (:meth:`RpcModel.write`); the cross terms ``a2, b1`` cannot
-be written to an RPC file (``writable=False`` in the result; refit with
+offsets and scales when written (:func:`~sensor_models.readers.rpc_files.write_rpc`); the cross
+terms ``a2, b1`` cannot be written to an RPC file (``writable=False`` in the result; refit with
 :func:`sensor_models.models.rpc_fit.fit_rpc` instead).
 
 References
@@ -67,7 +67,7 @@ class RpcBiasResult:
     sigma : dict of str to float
         Standard deviations of the estimated ones.
     writable : bool
-        Whether :meth:`RpcModel.write` can store the correction (no ``a2``/``b1`` terms).
+        Whether :func:`~sensor_models.readers.rpc_files.write_rpc` can store the correction (no ``a2``/``b1`` terms).
     rms_before_px, rms_after_px : float
         Planar RMS of the inlier residuals before and after.
     calibration : CalibrationResult

@@ -10,7 +10,7 @@ The public API (``docs/api.md``) is what :data:`__all__` lists; everything else 
 ``geometry/``, ``models/``, ``terrain/``, ``maps/``, ``imaging/``, ``readers/``, ``simulate/``.
 """
 
-from sensor_models.errors import GcpcalError, InputError
+from sensor_models.errors import GcpcalError, InputError  # noqa: F401  (exported: __all__)
 
 __version__ = "0.1.0"
 

@@ -86,13 +86,13 @@ def test_windows_refuse_what_the_whole_dem_refuses(tmp_path):
 
 @pytest.mark.shared_data
 def test_windowed_dem_ortho_is_byte_identical_on_pleiades(shared_data, tmp_path):
-    from sensor_models.models.rpc import RpcModel
+    from sensor_models.readers.rpc_files import read_rpc
     from sensor_models.terrain.geoid import Geoid
 
     folder = shared_data / "pleiades_ventoux"
     with rasterio.open(folder / "left_image.tif") as ds:
         t, shape = ds.transform, (ds.height, ds.width)
-    left = RpcModel.read(folder / "left_image.geom").cropped(t.f, t.c, shape)
+    left = read_rpc(folder / "left_image.geom").cropped(t.f, t.c, shape)
     hgt, geoid = shared_data / "dem" / "N44E005.hgt", Geoid.open(shared_data / "dem" / "egm96_15.gtx")
     whole = Dem.open(hgt, vertical_datum="egm96", geoid=geoid)
     a, b = tmp_path / "whole.tif", tmp_path / "windows.tif"

@@ -182,7 +182,7 @@ def test_rpc_accuracy(rpc_run):
 
 def test_rpc_read_back(rpc_run):
     from sensor_models.readers.scene import read_manifest
-    from sensor_models.models.rpc import RpcModel
+    from sensor_models.readers.rpc_files import read_rpc
     from sensor_models.models.rpc_fit import fit_rpc
 
     out, summary = rpc_run
@@ -190,7 +190,7 @@ def test_rpc_read_back(rpc_run):
     first = summary["rpcs"][0]
     view = model.ccd_view(first["ccd"])
     fitted, _ = fit_rpc(view, height_range_m=(0.0, 3000.0))
-    back = RpcModel.read(first["output"])
+    back = read_rpc(first["output"])
     rng = np.random.default_rng(1)
     r = rng.uniform(0.5, view.image_shape[0] - 0.5, 50)
     c = rng.uniform(0.5, view.image_shape[1] - 0.5, 50)

@@ -19,7 +19,7 @@ from calibrate.schemes.virtual_points import (
     virtual_control_points,
 )
 from sensor_models.errors import InputError
-from sensor_models.models.geo_staring import GF4_LIKE_CAMERA, example_geo_staring_model
+from sensor_models.models.synthetic import GF4_LIKE_CAMERA, example_geo_staring_model
 
 ARCSEC = np.pi / 180.0 / 3600.0
 

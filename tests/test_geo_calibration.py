@@ -9,7 +9,8 @@ from calibrate.absolute import calibrate_model
 from calibrate.config import CalibrationOptions
 from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError
-from sensor_models.models.geo_staring import StaringLab, example_geo_staring_model
+from sensor_models.models.synthetic import example_geo_staring_model
+from sensor_models.models.staring_camera import StaringLab
 from sensor_models.models.pushbroom_types import Installation
 
 ARCSEC = np.pi / 180.0 / 3600.0

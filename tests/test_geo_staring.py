@@ -10,18 +10,10 @@ import pytest
 from affine import Affine
 
 from sensor_models.errors import InputError, ManifestError
-from sensor_models.models.geo_staring import (
-    GF4_LIKE_CAMERA,
-    GF4_LIKE_SHAPE,
-    SEED000_CAMERA,
-    GeoStaringModel,
-    PointingMirror,
-    StaringInterior,
-    StaringLab,
-    example_geo_staring_model,
-    fit_interior,
-    radec_to_vectors,
-)
+from sensor_models.models.geo_staring import GeoStaringModel
+from sensor_models.models.synthetic import GF4_LIKE_CAMERA, GF4_LIKE_SHAPE, SEED000_CAMERA, example_geo_staring_model
+from sensor_models.models.star_directions import radec_to_vectors
+from sensor_models.models.staring_camera import PointingMirror, StaringInterior, StaringLab, fit_interior
 from sensor_models.geometry.geodesy import geodetic_to_ecef
 from sensor_models.models.pushbroom_types import Installation
 from sensor_models.readers.geo_manifest import geo_manifest_to_dict, read_geo_manifest, write_geo_manifest

@@ -70,7 +70,8 @@ def test_random_batches_round_trip(k, seed, n, height):
 @given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 5000), height=st.floats(-400.0, 4000.0))
 def test_staring_camera_random_batches_round_trip(seed, n, height):
     """The geostationary staring camera (seed 000 geometry with seed 002 lens terms) too."""
-    from sensor_models.models.geo_staring import StaringLab, example_geo_staring_model
+    from sensor_models.models.synthetic import example_geo_staring_model
+    from sensor_models.models.staring_camera import StaringLab
     from sensor_models.models.pushbroom_types import Installation
 
     arcsec = np.radians(1.0 / 3600.0)

@@ -20,7 +20,7 @@ from calibrate.rpc_bias import compensate_rpc_bias
 from gcpmatch.extract import extract_gcps
 from gcpmatch.options import MatchOptions
 from sensor_models.imaging.ortho import orthorectify
-from sensor_models.models.rpc import RpcModel
+from sensor_models.readers.rpc_files import read_rpc
 from sensor_models.maps.raster import MapImage
 from sensor_models.terrain.dem import Dem
 
@@ -30,7 +30,7 @@ pytestmark = pytest.mark.shared_data
 def _crop(folder, geom, tif):
     with rasterio.open(folder / tif) as ds:
         t, img, shape = ds.transform, ds.read(1).astype(np.float32), (ds.height, ds.width)
-    return RpcModel.read(folder / geom).cropped(t.f, t.c, shape), img
+    return read_rpc(folder / geom).cropped(t.f, t.c, shape), img
 
 
 @pytest.fixture(scope="module")

@@ -14,11 +14,12 @@ import pytest
 
 from sensor_models.base import DetectorArray, SensorModel
 from sensor_models.errors import InputError
-from sensor_models.models.geo_staring import example_geo_staring_model
-from sensor_models.models.pushbroom import CcdView
+from sensor_models.models.synthetic import example_geo_staring_model
+from sensor_models.models.ccd_view import CcdView
 from sensor_models.models.pushbroom_types import CcdLook
 from sensor_models.readers import open_model
 from sensor_models.models.rpc import RpcModel
+from sensor_models.readers.rpc_files import read_rpc
 from sensor_models.models.rpc_fit import fit_rpc
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
@@ -53,7 +54,7 @@ def model(request, hy1c, fitted_rpc) -> SensorModel:
         return fitted_rpc
     if not PLEIADES_GEOM.is_file():
         pytest.skip(f"real test data not found at {PLEIADES_GEOM}")
-    return RpcModel.read(PLEIADES_GEOM)
+    return read_rpc(PLEIADES_GEOM)
 
 
 def _sample_points(model, band, array_index, n=5):

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from sensor_models.errors import ManifestError
-from sensor_models.models.geo_staring import GeoStaringModel, example_geo_staring_model
+from sensor_models.models.geo_staring import GeoStaringModel
+from sensor_models.models.synthetic import example_geo_staring_model
 from sensor_models.models.pushbroom import PushbroomModel
 from sensor_models.readers import open_model
 from sensor_models.readers.geo_manifest import read_geo_manifest, write_geo_manifest

@@ -103,7 +103,7 @@ def test_common_ground_shift_moves_roll_and_pitch_as_predicted(true_model, schem
 
 def test_staring_camera_gets_the_term_too():
     """A geostationary staring camera: 100 m east moves the installation by what G predicts (~0.58 arcsec)."""
-    from sensor_models.models.geo_staring import example_geo_staring_model
+    from sensor_models.models.synthetic import example_geo_staring_model
     from sensor_models.models.pushbroom_types import Installation
 
     arcsec = np.pi / 180.0 / 3600.0

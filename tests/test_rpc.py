@@ -18,7 +18,8 @@ from rasterio.transform import RPCTransformer
 from sensor_models.base import SensorModel
 from sensor_models.errors import InputError, RpcError
 from sensor_models.geometry.geodesy import ecef_to_geodetic, enu_basis, geodetic_to_ecef
-from sensor_models.models.rpc import BIAS_NAMES, RpcModel
+from sensor_models.models.rpc import BIAS_NAMES
+from sensor_models.readers.rpc_files import read_rpc, rpc_from_rasterio, write_rpc
 from sensor_models.models.rpc_fit import fit_rpc
 
 HEIGHTS_M = (0.0, 450.0, 1075.0, 1900.0)
@@ -34,7 +35,7 @@ def ventoux(shared_data):
 
 @pytest.fixture(scope="module")
 def left(ventoux):
-    return RpcModel.read(ventoux / "left_image.geom")
+    return read_rpc(ventoux / "left_image.geom")
 
 
 def image_grid(model, n=15, margin=0.5):
@@ -172,7 +173,7 @@ def frame_fit():
 # ---------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name", ["left_image", "right_image", "right_image_bias"])
 def test_geom_reads_and_round_trips(ventoux, name):
-    model = RpcModel.read(ventoux / f"{name}.geom")
+    model = read_rpc(ventoux / f"{name}.geom")
     assert model.kind == "rpc"
     assert model.image_shape[0] > 40_000 and model.image_shape[1] > 38_000  # full scene
     r, c = image_grid(model, 21)
@@ -216,15 +217,15 @@ def test_written_rpc_agrees_through_gdal(left, tmp_path):
     r_ref, c_ref = left.ground_to_image(lon, lat, h)
 
     # GeoTIFF RPC tag, written by GDAL (through rasterio)
-    tif = left.write(tmp_path / "left_rpc.tif")
+    tif = write_rpc(left, tmp_path / "left_rpc.tif")
     with rasterio.open(tif) as src:
         assert (src.height, src.width) == left.image_shape
         gdal_rpcs = src.rpcs
     # side-cars beside rasters that have no RPC of their own: GDAL must find and use them
     write_sparse_raster(tmp_path / "a.tif", left.image_shape)
-    txt = left.write(tmp_path / "a_RPC.TXT")
+    txt = write_rpc(left, tmp_path / "a_RPC.TXT")
     write_sparse_raster(tmp_path / "b.tif", left.image_shape)
-    rpb = left.write(tmp_path / "b.RPB")
+    rpb = write_rpc(left, tmp_path / "b.RPB")
     with rasterio.open(tmp_path / "a.tif") as src:
         txt_rpcs = src.rpcs
     with rasterio.open(tmp_path / "b.tif") as src:
@@ -232,11 +233,11 @@ def test_written_rpc_agrees_through_gdal(left, tmp_path):
     assert txt_rpcs is not None and rpb_rpcs is not None
 
     candidates = {
-        "geotiff, our reader": RpcModel.read(tif),
-        "_RPC.TXT, our reader": RpcModel.read(txt),
-        ".RPB, our reader": RpcModel.read(rpb),
-        "_RPC.TXT side-car via GDAL": RpcModel.read(tmp_path / "a.tif"),
-        ".RPB side-car via GDAL": RpcModel.from_rasterio(rpb_rpcs),
+        "geotiff, our reader": read_rpc(tif),
+        "_RPC.TXT, our reader": read_rpc(txt),
+        ".RPB, our reader": read_rpc(rpb),
+        "_RPC.TXT side-car via GDAL": read_rpc(tmp_path / "a.tif"),
+        ".RPB side-car via GDAL": rpc_from_rasterio(rpb_rpcs),
     }
     for label, model in candidates.items():
         r, c = model.ground_to_image(lon, lat, h)
@@ -255,15 +256,15 @@ def test_written_rpc_agrees_through_gdal(left, tmp_path):
 def test_write_refuses_cross_terms_and_leaves_nothing(left, tmp_path):
     biased = left.with_parameters([1.0, 0.0, 1e-6, 0.0, 0.0, 0.0])
     with pytest.raises(RpcError, match="fit_rpc"):
-        biased.write(tmp_path / "x_RPC.TXT")
+        write_rpc(biased, tmp_path / "x_RPC.TXT")
     with pytest.raises(RpcError, match="format"):
-        left.write(tmp_path / "x.dat")
+        write_rpc(left, tmp_path / "x.dat")
     assert list(tmp_path.iterdir()) == []
 
 
 def test_raster_without_rpc_is_an_error(ventoux):
     with pytest.raises(RpcError, match="no RPC"):
-        RpcModel.read(ventoux / "left_image.tif")
+        read_rpc(ventoux / "left_image.tif")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -278,11 +279,11 @@ def test_pixel_convention_against_gdal(ventoux, left, tmp_path):
     assert (row0, col0) == (5000.0, 5000.0)
 
     crop = left.cropped(int(row0), int(col0), crop_shape)
-    out = crop.write(tmp_path / "left_crop.tif", template=ventoux / "left_image.tif")
+    out = write_rpc(crop, tmp_path / "left_crop.tif", template=ventoux / "left_image.tif")
     with rasterio.open(out) as src:
         assert src.transform == gt  # the pixels and geotransform came through
         rpcs = src.rpcs
-    from_gdal = RpcModel.read(out)
+    from_gdal = read_rpc(out)
     assert from_gdal.image_shape == crop_shape
 
     # ground points under the crop, at several heights
@@ -321,8 +322,8 @@ def test_pixel_convention_against_gdal(ventoux, left, tmp_path):
 # (d) the 60-line bias of right_image_bias.geom
 # ---------------------------------------------------------------------------------------------
 def test_bias_geom_is_sixty_lines(ventoux, tmp_path):
-    right = RpcModel.read(ventoux / "right_image.geom")
-    biased = RpcModel.read(ventoux / "right_image_bias.geom")
+    right = read_rpc(ventoux / "right_image.geom")
+    biased = read_rpc(ventoux / "right_image_bias.geom")
     lon, lat, h = ground_grid(right)
     r0, c0 = right.ground_to_image(lon, lat, h)
     r1, c1 = biased.ground_to_image(lon, lat, h)
@@ -339,7 +340,7 @@ def test_bias_geom_is_sixty_lines(ventoux, tmp_path):
     assert np.max(np.abs(lon2 - lon3)) < 1e-10 and np.max(np.abs(lat2 - lat3)) < 1e-10
 
     # writing folds a0 into line_off: the biased .geom comes back
-    folded = RpcModel.read(corrected.write(tmp_path / "right_RPC.TXT"))
+    folded = read_rpc(write_rpc(corrected, tmp_path / "right_RPC.TXT"))
     assert folded.line_off == pytest.approx(biased.line_off, abs=1e-9)
 
 
@@ -490,33 +491,33 @@ def _edit_geom(src, dst, key, value=None):
 def test_malformed_geom_names_the_field(ventoux, tmp_path, key, value, message):
     bad = _edit_geom(ventoux / "left_image.geom", tmp_path / "bad.geom", key, value)
     with pytest.raises(RpcError, match=message) as info:
-        RpcModel.read(bad)
+        read_rpc(bad)
     assert info.value.field == key
     assert str(bad) in str(info.value) and key in str(info.value)
 
 
 def test_malformed_rpb_and_txt_name_the_field(left, tmp_path):
-    txt = left.write(tmp_path / "x_RPC.TXT")
+    txt = write_rpc(left, tmp_path / "x_RPC.TXT")
     text = txt.read_text().replace("LINE_DEN_COEFF_5:", "LINE_DEN_COEFF_X:")
     txt.write_text(text)
     with pytest.raises(RpcError, match="LINE_DEN_COEFF_5"):
-        RpcModel.read(txt)
-    rpb = left.write(tmp_path / "x.RPB")
+        read_rpc(txt)
+    rpb = write_rpc(left, tmp_path / "x.RPB")
     rpb.write_text(rpb.read_text().replace("sampScale = ", "sampScale = x"))
     with pytest.raises(RpcError, match="sampScale"):
-        RpcModel.read(rpb)
+        read_rpc(rpb)
     with pytest.raises(RpcError, match="cannot read"):
-        RpcModel.read(tmp_path / "absent.geom")
+        read_rpc(tmp_path / "absent.geom")
 
 
 def test_image_shape_of_standalone_files(left, tmp_path):
-    rpb = left.write(tmp_path / "x.RPB")
-    derived = RpcModel.read(rpb)  # an .RPB holds no image size: centred on the offsets
+    rpb = write_rpc(left, tmp_path / "x.RPB")
+    derived = read_rpc(rpb)  # an .RPB holds no image size: centred on the offsets
     assert derived.image_shape == (2 * 21109 + 2, 2 * 19207 + 2)
-    assert RpcModel.read(rpb, image_shape=left.image_shape).image_shape == left.image_shape
-    tif = left.write(tmp_path / "x.tif")
+    assert read_rpc(rpb, image_shape=left.image_shape).image_shape == left.image_shape
+    tif = write_rpc(left, tmp_path / "x.tif")
     with pytest.raises(RpcError, match="contradicts"):
-        RpcModel.read(tif, image_shape=(10, 10))
+        read_rpc(tif, image_shape=(10, 10))
 
 
 @pytest.mark.shared_data

@@ -27,6 +27,7 @@ from scipy.ndimage import gaussian_filter
 from calibrate.cli import main
 from sensor_models.readers import open_model, open_scene
 from sensor_models.models.rpc import RpcModel
+from sensor_models.readers.rpc_files import read_rpc, rpc_to_gdal_metadata, rpc_to_rasterio, write_rpc
 
 pytestmark = pytest.mark.filterwarnings("ignore", category=NotGeoreferencedWarning)
 
@@ -67,7 +68,7 @@ def _write_raster(path, pixels, *, transform=None, rpcs=None) -> None:
 
 def _write_geom(model: RpcModel, path) -> None:
     """An OSSIM keyword list (``polynomial_format: B``) from the GDAL metadata of ``model``."""
-    md = model.to_gdal_metadata()
+    md = rpc_to_gdal_metadata(model)
     lines = ["type: ossimRpcModel", "polynomial_format: B",
              f"number_lines: {model.image_shape[0]}", f"number_samples: {model.image_shape[1]}"]
     for key in ("LINE_OFF", "SAMP_OFF", "LAT_OFF", "LONG_OFF", "HEIGHT_OFF", "LINE_SCALE", "SAMP_SCALE", "LAT_SCALE",
@@ -91,12 +92,12 @@ def gen(tmp_path_factory):
     d = tmp_path_factory.mktemp("forms")
     model, pixels = _rpc(), _texture(FULL, 7)
     (d / "ref").mkdir()
-    model.write(d / "ref" / "scene_RPC.TXT")  # no raster beside it: the reference is this + --image
-    _write_raster(d / "tags.tif", pixels, rpcs=model.to_rasterio())
+    write_rpc(model, d / "ref" / "scene_RPC.TXT")  # no raster beside it: the reference is this + --image
+    _write_raster(d / "tags.tif", pixels, rpcs=rpc_to_rasterio(model))
     for stem in ("rpb", "txt", "geom"):
         _write_raster(d / f"{stem}.tif", pixels)
-    model.write(d / "rpb.RPB")
-    model.write(d / "txt_RPC.TXT")
+    write_rpc(model, d / "rpb.RPB")
+    write_rpc(model, d / "txt_RPC.TXT")
     _write_geom(model, d / "geom.geom")
     (r0, c0), (nr, nc) = CROP_OFF, CROP
     _write_raster(d / "crop.tif", pixels[r0:r0 + nr, c0:c0 + nc], transform=Affine(1, 0, c0, 0, 1, r0))
@@ -104,9 +105,9 @@ def gen(tmp_path_factory):
     _write_dem(d / "dem.tif")
     dem = ["--dem", str(d / "dem.tif"), "--dem-datum", "ellipsoid"]
     # the DOM: the scene orthorectified through its RPC moved by SHIFT_PX (what calibrate must find)
-    kw = model._init_kwargs()
+    kw = model.init_kwargs()
     kw.update(line_off=model.line_off + SHIFT_PX[0], samp_off=model.samp_off + SHIFT_PX[1])
-    RpcModel(**kw).write(d / "ref" / "shifted_RPC.TXT")
+    write_rpc(RpcModel(**kw), d / "ref" / "shifted_RPC.TXT")
     assert main(["-q", "ortho", str(d / "ref" / "shifted_RPC.TXT"), "--image", str(d / "tags.tif"), *dem,
                  "--out", str(d / "dom.tif")]) == 0
     return types.SimpleNamespace(dir=d, dem=dem, dom=str(d / "dom.tif"), ref=str(d / "ref" / "scene_RPC.TXT"))
@@ -195,7 +196,7 @@ def test_every_command_without_image_equals_with_image(gen, form, tmp_path, caps
     np.testing.assert_allclose(got["lat"], ref["lat"], rtol=0, atol=1e-11)
     # rpc: the fitted RPC describes the raster's pixels
     assert main(["-q", "rpc", scene, "--height-range", "0", "600", "--out", str(tmp_path / "fit_RPC.TXT")]) == 0
-    fitted, full = RpcModel.read(tmp_path / "fit_RPC.TXT"), open_model(gen.ref)
+    fitted, full = read_rpc(tmp_path / "fit_RPC.TXT"), open_model(gen.ref)
     lon, lat, h = full.image_to_ground(np.array([r0 + 5.5, r0 + 140.5]), np.array([c0 + 7.5, c0 + 150.5]),
                                        height=250.0)
     row, col = fitted.ground_to_image(lon, lat, h)
@@ -394,6 +395,6 @@ def test_pleiades_match_calibrate_localize_rpc_without_image(ventoux, tmp_path, 
     np.testing.assert_allclose(got["lat"], lat, rtol=0, atol=1e-10)
     assert main(["-q", "rpc", str(f / "right_image.tif"), "--height-range", "300", "800",
                  "--out", str(tmp_path / "crop_RPC.TXT")]) == 0
-    fitted = RpcModel.read(tmp_path / "crop_RPC.TXT")
+    fitted = read_rpc(tmp_path / "crop_RPC.TXT")
     row, col = fitted.ground_to_image(lon, lat, np.full(2, HEIGHT_M))
     np.testing.assert_allclose(np.r_[row, col], [0.5, 250.0, 0.5, 400.0], atol=1e-3)

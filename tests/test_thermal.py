@@ -13,7 +13,7 @@ from calibrate.schemes.thermal_figures import plot_positioning, plot_thermal_ang
 from calibrate.schemes.thermal_model import ThermalModel
 from calibrate.schemes.thermal_simulation import ThermalDrift, simulate_thermal_series
 from sensor_models.errors import InputError
-from sensor_models.models.geo_staring import example_geo_staring_model
+from sensor_models.models.synthetic import example_geo_staring_model
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from sensor_models.files.atomic import temporary_beside
 from sensor_models.errors import InputError
+from sensor_models.readers.rpc_files import rpc_to_rasterio
 
 __all__ = ["FIT_TAGS", "scene_raster", "write_l1a_with_rpc"]
 
@@ -147,7 +148,7 @@ def _copy_with_rpc(src, index: int, tmp: Path, rpc, first_row: int, first_col: i
     n_rows, n_cols = rpc.image_shape
     dtype = src.dtypes[index - 1]
     profile = dict(driver="GTiff", width=n_cols, height=n_rows, count=1, dtype=dtype, nodata=src.nodata,
-                   tiled=True, compress="deflate", BIGTIFF="IF_SAFER", rpcs=rpc.to_rasterio())
+                   tiled=True, compress="deflate", BIGTIFF="IF_SAFER", rpcs=rpc_to_rasterio(rpc))
     step = max(1, 2**24 // (n_cols * np.dtype(dtype).itemsize))
     with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(tmp, "w", **profile) as dst:
         for r0 in range(0, n_rows, step):

@@ -41,6 +41,7 @@ from calibrate.plausibility import check_gcps_on_scene
 from calibrate.config import CalibrationOptions
 from calibrate.from_gcps import apply_calibration, points_of
 from calibrate.residual_layer import LAYER_NAMES, concatenate_layers, residual_layer, write_residual_layer
+from sensor_models.readers.rpc_files import write_rpc
 
 __all__ = ["calibrate_scene", "match_summary_path", "options_from_match_summary"]
 
@@ -344,5 +345,5 @@ def _write_model(calibrated, original, tmp: Path, out_dir: Path, *, failed=False
         row0, col0, full_shape = crop
         calibrated = calibrated.cropped(-row0, -col0, full_shape)
     name = f"{Path(getattr(original, 'source', 'model') or 'model').stem}_RPC.TXT"
-    calibrated.write(tmp / name)
+    write_rpc(calibrated, tmp / name)
     return name

@@ -37,6 +37,7 @@ from calibrate.actions._status import require_usable, status_fields
 from calibrate.actions._provenance import geotiff_tags
 from sensor_models.errors import InputError
 from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
+from sensor_models.readers.rpc_files import write_rpc
 
 __all__ = ["DEFAULT_HEIGHT_RANGE_M", "DEFAULT_MAX_ERROR_PX", "RpcOutputUsageError", "fit_rpcs", "out_is_folder"]
 
@@ -258,7 +259,7 @@ def _write(fitted, report, ccd_name, first_row, first_col, outputs, context) -> 
             entry["raster"] = str(final)
             entry["source_raster"] = path
         else:
-            fitted.write(staged)
+            write_rpc(fitted, staged)
         entry["output"] = entry["output"] or str(final)
     return entry
 

@@ -58,7 +58,7 @@ def thermal_experiment(out_dir, *, days: float = 5.0, interval_min: float = 30.0
     from calibrate.schemes.thermal_figures import plot_positioning, plot_thermal_angles
     from calibrate.schemes.thermal_model import ThermalModel
     from calibrate.schemes.thermal_simulation import ThermalDrift, simulate_thermal_series
-    from sensor_models.models.geo_staring import example_geo_staring_model
+    from sensor_models.models.synthetic import example_geo_staring_model
 
     if not (days > holdout_days > 0 and interval_min > 0):
         raise InputError("needs days > holdout_days > 0 and interval_min > 0", field="days")

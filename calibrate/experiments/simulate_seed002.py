@@ -47,7 +47,7 @@ def staring_models(profile, image_shape=(10240, 10240)):
     if not profile.value("physical_truth"):
         return None
     from calibrate.schemes.compensation_study import ARCSEC, SEED002_INSTALLATION_ARCSEC, seed002_true_lab
-    from sensor_models.models.geo_staring import GF4_LIKE_CAMERA, example_geo_staring_model
+    from sensor_models.models.synthetic import GF4_LIKE_CAMERA, example_geo_staring_model
     from sensor_models.models.pushbroom_types import Installation
     from sensor_models.simulate.staring_truth import physical_truth, radial_from_corner_px
 
@@ -89,7 +89,7 @@ def thermal_series_errors(profile, *, days: float, interval_min: float, day_to_d
     from calibrate.schemes.thermal import DAY_S, evaluate_positioning
     from calibrate.schemes.thermal_model import ThermalModel
     from calibrate.schemes.thermal_simulation import ThermalDrift, simulate_thermal_series
-    from sensor_models.models.geo_staring import example_geo_staring_model
+    from sensor_models.models.synthetic import example_geo_staring_model
     from sensor_models.simulate.thermal_truth import day_to_day_offsets
 
     lab = example_geo_staring_model()

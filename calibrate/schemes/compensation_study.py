@@ -129,7 +129,8 @@ def seed002_true_lab(base=None, image_shape=(10240, 10240)):
     StaringLab
         The TRUE laboratory parameters.
     """
-    from sensor_models.models.geo_staring import GF4_LIKE_CAMERA, StaringLab
+    from sensor_models.models.staring_camera import StaringLab
+    from sensor_models.models.synthetic import GF4_LIKE_CAMERA
 
     base = GF4_LIKE_CAMERA if base is None else base
     n_rows, n_cols = (int(x) for x in image_shape)
@@ -289,7 +290,7 @@ def run_seed002(*, step_px: float = 100.0, start_px: float = 0.0, stop_px: float
 
 def _seed002_models(image_shape):
     """Seed 002's TRUE lab camera, the TRUE model (table 1 distortion, table 2 installation) and the LAB model."""
-    from sensor_models.models.geo_staring import GF4_LIKE_CAMERA, example_geo_staring_model
+    from sensor_models.models.synthetic import GF4_LIKE_CAMERA, example_geo_staring_model
     from sensor_models.models.pushbroom_types import Installation
 
     true_lab = seed002_true_lab(GF4_LIKE_CAMERA, image_shape)

@@ -35,7 +35,7 @@ from affine import Affine
 
 from sensor_models.terrain.intersect import dem_planes, intersect_dem_adaptive, intersect_dem_fixed
 from sensor_models.errors import InputError
-from sensor_models.models.pushbroom import _catmull_rom_weights
+from sensor_models.models.line_table import catmull_rom_weights
 from sensor_models.terrain.dem import Dem
 from sensor_models.maps.grid import MapGrid, MapProjector
 
@@ -88,7 +88,7 @@ def catmull_rom_matrix(positions, n_nodes: int) -> np.ndarray:
     """
     p = np.asarray(positions, dtype=np.float64)
     k = np.clip(np.floor(p).astype(np.intp), 1, n_nodes - 3)
-    w, _ = _catmull_rom_weights(p - k)
+    w, _ = catmull_rom_weights(p - k)
     out = np.zeros((p.size, n_nodes))
     rows = np.arange(p.size)
     for j in range(4):
@@ -100,7 +100,7 @@ def _catmull_rom_taps(positions, n_nodes: int):
     """First node index and the four Catmull-Rom weights (float32) of each position."""
     p = np.asarray(positions, dtype=np.float64)
     k = np.clip(np.floor(p).astype(np.intp), 1, n_nodes - 3)
-    w, _ = _catmull_rom_weights(p - k)
+    w, _ = catmull_rom_weights(p - k)
     return k - 1, w.astype(np.float32)
 
 

@@ -33,6 +33,10 @@ Inverse localization solves, for each ground point ``G``, the two collinearity c
 by Newton's method (quadratic convergence, vectorized over points). The implicit-function
 theorem gives the analytic image-space Jacobian with respect to the installation angles and the
 directional-angle coefficients: ``d(row, s)/dp = -J_{(row,s)}^{-1} \\partial F / \\partial p``.
+
+The line table is :class:`~sensor_models.models.line_table.LineTable`; the inverse localization
+and the Jacobians are in :mod:`sensor_models.models.pushbroom_inverse`; one CCD seen as a model of
+its own image is :class:`~sensor_models.models.ccd_view.CcdView` (:meth:`PushbroomModel.ccd_view`).
 """
 
 from __future__ import annotations
@@ -44,45 +48,27 @@ from types import MappingProxyType
 import numpy as np
 
 from sensor_models.models.attitude_correction import AttitudeCorrection, rotation_matrices
-from sensor_models.base import DetectorArray, ParameterVector, SensorModel, _array_positions, as_float_arrays
+from sensor_models.base import ParameterVector, SensorModel, _array_positions, as_float_arrays
 from sensor_models.geometry.ephemeris import Attitude, Orbit
 from sensor_models.errors import InputError, OutOfRangeError
 from sensor_models.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef
+from sensor_models.models.ccd_view import CcdView
+from sensor_models.models.line_table import LineTable
+from sensor_models.models.pushbroom_inverse import (
+    CHUNK,
+    body_angle_jacobian,
+    ccd_chunk,
+    ground_to_image_chunk,
+    parameter_jacobian,
+)
 from sensor_models.models.pushbroom_types import CcdLook, Installation, LineTiming
 
-__all__ = ["CcdView", "PushbroomModel"]
+__all__ = ["PushbroomModel"]
 
-#: points processed at once; bounds temporary memory to a few tens of MB
-CHUNK = 1 << 16
 #: lines tabulated beyond each end of the image (clipped to the orbit/attitude span)
 MIN_ROW_MARGIN = 64
 #: at most this many knots in the line table (the knot spacing grows beyond)
 MAX_KNOTS = 400_000
-
-
-def _catmull_rom_weights(t):
-    """Weights of the uniform Catmull-Rom cubic and of its derivative, shape (N, 4) each."""
-    t2 = t * t
-    t3 = t2 * t
-    w = np.stack(
-        [
-            0.5 * (-t3 + 2.0 * t2 - t),
-            0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
-            0.5 * (-3.0 * t3 + 4.0 * t2 + t),
-            0.5 * (t3 - t2),
-        ],
-        axis=-1,
-    )
-    dw = np.stack(
-        [
-            0.5 * (-3.0 * t2 + 4.0 * t - 1.0),
-            0.5 * (9.0 * t2 - 10.0 * t),
-            0.5 * (-9.0 * t2 + 8.0 * t + 1.0),
-            0.5 * (3.0 * t2 - 2.0 * t),
-        ],
-        axis=-1,
-    )
-    return w, dw
 
 
 def _merge_array(ccd, array):
@@ -92,46 +78,6 @@ def _merge_array(ccd, array):
     if ccd is not None:
         raise InputError("give ccd= or array= (the same thing), not both", field="array")
     return array
-
-
-def _chunk_of(ccd, a, b):
-    """The slice ``a:b`` of a per-point CCD selection (names and scalars pass through)."""
-    if ccd is None or isinstance(ccd, str) or np.ndim(ccd) == 0:
-        return ccd
-    return np.asarray(ccd).reshape(-1)[a:b]
-
-
-class _LineTable:
-    """``P_itrf`` (m) and ``R_body_to_itrf`` tabulated at uniformly spaced rows."""
-
-    def __init__(self, row_start: float, row_step: float, values: np.ndarray):
-        self.row_start = float(row_start)
-        self.row_step = float(row_step)
-        self.values = np.ascontiguousarray(values)  # (K, 12): P (3) then R row-major (9)
-        k = values.shape[0]
-        # Catmull-Rom needs one knot on each side of the interval
-        self.row_min = self.row_start + self.row_step
-        self.row_max = self.row_start + (k - 2) * self.row_step
-
-    def evaluate(self, row, *, derivative: bool = False):
-        """Interpolated ``P (N,3)``, ``R (N,3,3)`` and, optionally, their row derivatives."""
-        u = (np.asarray(row, dtype=np.float64) - self.row_start) / self.row_step
-        k = np.clip(np.floor(u).astype(np.intp), 1, self.values.shape[0] - 3)
-        w, dw = _catmull_rom_weights(u - k)
-        v = self.values
-        out = w[:, 0:1] * v[k - 1]
-        out += w[:, 1:2] * v[k]
-        out += w[:, 2:3] * v[k + 1]
-        out += w[:, 3:4] * v[k + 2]
-        p, r = out[:, :3], out[:, 3:].reshape(-1, 3, 3)
-        if not derivative:
-            return p, r
-        d = dw[:, 0:1] * v[k - 1]
-        d += dw[:, 1:2] * v[k]
-        d += dw[:, 2:3] * v[k + 1]
-        d += dw[:, 3:4] * v[k + 2]
-        d /= self.row_step
-        return p, r, d[:, :3], d[:, 3:].reshape(-1, 3, 3)
 
 
 class PushbroomModel(SensorModel):
@@ -237,7 +183,7 @@ class PushbroomModel(SensorModel):
             out[str(band)] = tuple(ordered)
         return out
 
-    def _build_table(self) -> _LineTable:
+    def _build_table(self) -> LineTable:
         lt = self.line_timing
         t_lo = max(self.orbit.span[0], self.attitude.span[0])
         t_hi = min(self.orbit.span[1], self.attitude.span[1])
@@ -259,7 +205,7 @@ class PushbroomModel(SensorModel):
         seconds = lt.seconds(rows)
         pos_itrf, rot_body_to_itrf = self._exterior_at(seconds)
         values = np.concatenate([pos_itrf, rot_body_to_itrf.reshape(-1, 9)], axis=1)
-        return _LineTable(lo, step, values)
+        return LineTable(lo, step, values)
 
     def _exterior_at(self, seconds):
         """Exact ``P_itrf`` (N,3) and ``R_body_to_itrf`` (N,3,3) at ``seconds``."""
@@ -407,9 +353,22 @@ class PushbroomModel(SensorModel):
         return np.argmin(np.maximum(dist, 0.0) + 1e-9 * np.arange(len(ccds)), axis=1).reshape(col.shape)
 
     # ------------------------------------------------------------------ attitude correction
-    def _correction_at(self, row, *, derivative: bool = True):
-        """``C(delta(t))`` (N,3,3) and, with ``derivative``, ``dC/ddelta`` (3,N,3,3) and
-        ``ddelta/drow`` (N,3); None without a correction."""
+    def correction_at_rows(self, row, *, derivative: bool = True):
+        """The attitude correction's rotation at image rows.
+
+        Parameters
+        ----------
+        row : ndarray, shape (N,)
+            Continuous image rows.
+        derivative : bool
+            Also return the derivatives.
+
+        Returns
+        -------
+        tuple or ndarray or None
+            ``C(delta(t))`` (N,3,3) and, with ``derivative``, ``dC/ddelta`` (3,N,3,3) and
+            ``ddelta/drow`` (N,3); None without a correction.
+        """
         corr = self.attitude_correction
         if corr is None:
             return None
@@ -420,11 +379,30 @@ class PushbroomModel(SensorModel):
         c, dc = rotation_matrices(angles)
         return c, dc, rates * self.line_timing.line_period_s
 
-    def _frame(self, row, *, derivative: bool = False):
-        """``P_itrf`` and the corrected ``R_body_to_itrf`` (and row derivatives) at ``row``."""
+    def exterior_at_rows(self, row, *, derivative: bool = False):
+        """``P_itrf`` and the corrected ``R_body_to_itrf`` (and row derivatives) at ``row``.
+
+        Interpolated in the line table, then multiplied by the attitude correction if any.
+
+        Parameters
+        ----------
+        row : array_like, shape (N,)
+            Continuous image rows within :attr:`row_range`.
+        derivative : bool
+            Also return the derivatives in the row.
+
+        Returns
+        -------
+        p : ndarray, shape (N, 3)
+            Satellite positions, metres.
+        r : ndarray, shape (N, 3, 3)
+            Body -> ITRF rotations.
+        dp, dr : ndarray, shapes (N, 3) and (N, 3, 3)
+            With ``derivative``: their derivatives per row.
+        """
         row = np.asarray(row, dtype=np.float64).reshape(-1)
         out = self._table.evaluate(row, derivative=derivative)
-        corr = self._correction_at(row, derivative=derivative)
+        corr = self.correction_at_rows(row, derivative=derivative)
         if corr is None:
             return out
         if not derivative:
@@ -507,7 +485,7 @@ class PushbroomModel(SensorModel):
         direction = np.empty((row.size, 3))
         for a in range(0, row.size, CHUNK):
             b = a + CHUNK
-            p, r = self._frame(row[a:b])
+            p, r = self.exterior_at_rows(row[a:b])
             origin[a:b] = p
             direction[a:b] = np.einsum("nij,nj->ni", r, los_body[a:b])
         return origin, direction
@@ -549,67 +527,6 @@ class PushbroomModel(SensorModel):
         return lon.reshape(shape), lat.reshape(shape), h.reshape(shape)
 
     # ------------------------------------------------------------------ inverse
-    def _collinearity(self, row, s, ground, ccd: CcdLook, r_inst):
-        """``F(row, s)`` and its 2x2 Jacobian in ``(row, s)``; also the camera vector."""
-        p, r, dp, dr = self._frame(row, derivative=True)
-        w = ground - p
-        cam = r_inst.T @ np.einsum("nji,nj->ni", r, w)[..., None]  # R_inst^T R^T w
-        cam = cam[..., 0]
-        dcam = np.einsum("nji,nj->ni", dr, w) - np.einsum("nji,nj->ni", r, dp)
-        dcam = dcam @ r_inst
-        x, y, z = cam[:, 0], cam[:, 1], cam[:, 2]
-        tx, ty, dtx, dty = ccd.look(s)
-        f = np.stack([x / z - tx, y / z - ty], axis=-1)
-        jac = np.empty((row.size, 2, 2))
-        jac[:, 0, 0] = (dcam[:, 0] * z - x * dcam[:, 2]) / (z * z)
-        jac[:, 1, 0] = (dcam[:, 1] * z - y * dcam[:, 2]) / (z * z)
-        jac[:, 0, 1] = -dtx
-        jac[:, 1, 1] = -dty
-        return f, jac, cam
-
-    def _solve_ccd(self, ground, ccd: CcdLook, row0, s0, *, max_iter=30, tol=1e-10, noise_px=1e-7):
-        """Newton solution of the collinearity equations for one CCD (vectorized).
-
-        A point converges when its Newton step falls below ``tol`` pixels. Near the solution
-        the step can settle into a limit cycle at the floating-point noise floor of the
-        collinearity equations (about 1e-10 px on a 12 000-line SPOT 5 scene), never going
-        below ``tol``; a point whose last step is below ``noise_px`` after ``max_iter``
-        iterations is therefore converged too (its error is below that step). Only points
-        whose steps stay larger than ``noise_px``, or whose ray misses, get NaN.
-        """
-        lo, hi = self.row_range
-        r_inst = self.installation.matrix()
-        row = row0.copy()
-        s = s0.copy()
-        ok = np.zeros(row.size, dtype=bool)
-        active = np.arange(row.size)
-        last_step = np.full(row.size, np.inf)
-        for _ in range(max_iter):
-            if active.size == 0:
-                break
-            f, jac, cam = self._collinearity(row[active], s[active], ground[active], ccd, r_inst)
-            det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
-            d_row = -(jac[:, 1, 1] * f[:, 0] - jac[:, 0, 1] * f[:, 1]) / det
-            d_s = -(-jac[:, 1, 0] * f[:, 0] + jac[:, 0, 0] * f[:, 1]) / det
-            behind = ~(cam[:, 2] > 0.0) | ~np.isfinite(d_row) | ~np.isfinite(d_s)
-            new_row = np.clip(row[active] + d_row, lo, hi)
-            # the detector index is bounded to a generous range for robustness
-            new_s = np.clip(s[active] + d_s, -10.0 * ccd.n_detectors, 11.0 * ccd.n_detectors)
-            row[active] = new_row
-            s[active] = new_s
-            last_step[active] = np.where(behind, np.inf, np.maximum(np.abs(d_row), np.abs(d_s)))
-            done = (np.abs(d_row) < tol) & (np.abs(d_s) < tol * max(1.0, ccd.n_detectors))
-            ok[active[done & ~behind]] = True
-            active = active[~done & ~behind]
-        ok[active[last_step[active] < noise_px]] = True  # settled at the noise floor
-        row[~ok] = np.nan
-        s[~ok] = np.nan
-        # a solution pinned at the table edge is outside the data: not imaged
-        edge = (row <= lo + 1e-9) | (row >= hi - 1e-9)
-        row[edge] = np.nan
-        s[edge] = np.nan
-        return row, s
-
     def ground_to_image(self, lon, lat, h, *, band=None, ccd=None, array=None):
         """Inverse localization (see :meth:`SensorModel.ground_to_image`).
 
@@ -641,62 +558,8 @@ class PushbroomModel(SensorModel):
         col = np.empty(ground.shape[0])
         for a in range(0, ground.shape[0], CHUNK):
             b = a + CHUNK
-            row[a:b], col[a:b], _ = self._ground_to_image_chunk(ground[a:b], band, _chunk_of(ccd, a, b))
+            row[a:b], col[a:b], _ = ground_to_image_chunk(self, ground[a:b], band, ccd_chunk(ccd, a, b))
         return row.reshape(shape), col.reshape(shape)
-
-    def _ground_to_image_chunk(self, ground, band, ccd):
-        ccds = self.band_ccds(band)
-        n = ground.shape[0]
-        row0 = np.full(n, 0.5 * self.n_rows)
-        mid = -1
-        if ccd is not None:
-            idx = self.ccd_index(np.zeros(n), band=band, ccd=ccd)
-        else:
-            # solve on the middle CCD, then move each point to the CCD that sees it
-            mid = len(ccds) // 2
-            c = ccds[mid]
-            row_m, s_m = self._solve_ccd(ground, c, row0, np.full(n, 0.5 * (c.n_detectors - 1)))
-            idx = np.full(n, mid, dtype=np.intp)
-            if len(ccds) > 1:
-                idx = self._assign_ccd_by_look(ground, row_m, ccds, fallback=mid)
-            row0 = np.where(np.isfinite(row_m), row_m, row0)
-        row = np.full(n, np.nan)
-        col = np.full(n, np.nan)
-        for i, c in enumerate(ccds):
-            sel = np.nonzero(idx == i)[0]
-            if sel.size == 0:
-                continue
-            if ccd is None and i == mid:  # already solved on this CCD
-                row[sel] = row_m[sel]
-                col[sel] = s_m[sel] + c.first_col + 0.5
-                continue
-            r, s = self._solve_ccd(ground[sel], c, row0[sel], np.full(sel.size, 0.5 * (c.n_detectors - 1)))
-            row[sel] = r
-            col[sel] = s + c.first_col + 0.5
-        return row, col, idx
-
-    def _assign_ccd_by_look(self, ground, row, ccds, *, fallback):
-        """Pick, per point, the CCD whose across-track look range contains the point's look."""
-        n = ground.shape[0]
-        good = np.isfinite(row)
-        idx = np.full(n, fallback, dtype=np.intp)
-        if not np.any(good):
-            return idx
-        p, r = self._frame(row[good])
-        cam = np.einsum("nji,nj->ni", r, ground[good] - p) @ self.installation.matrix()
-        ty = cam[:, 1] / cam[:, 2]
-        best = np.full(ty.size, np.inf)
-        choice = np.full(ty.size, fallback, dtype=np.intp)
-        for i, c in enumerate(ccds):
-            _, lo_y, _, _ = c.look(np.array([-0.5]))
-            _, hi_y, _, _ = c.look(np.array([c.n_detectors - 0.5]))
-            lo_y, hi_y = sorted((float(lo_y[0]), float(hi_y[0])))
-            dist = np.maximum(np.maximum(lo_y - ty, ty - hi_y), 0.0)
-            better = dist < best  # strict: the first CCD wins on overlaps
-            choice[better] = i
-            best[better] = dist[better]
-        idx[good] = choice
-        return idx
 
     # ------------------------------------------------------------------ parameters
     def parameter_groups(self) -> dict[str, tuple[str, ...]]:
@@ -846,79 +709,7 @@ class PushbroomModel(SensorModel):
         """
         ccd = _merge_array(ccd, array)
         band = self._band(band)
-        all_names = self.parameter_names()
-        names = all_names if names is None else tuple(names)
-        lookup = {n: i for i, n in enumerate(all_names)}
-        unknown = [n for n in names if n not in lookup]
-        if unknown:
-            raise InputError(f"unknown parameters: {', '.join(unknown)}")
-        lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
-        lon, lat, h = lon.reshape(-1), lat.reshape(-1), h.reshape(-1)
-        ground = geodetic_to_ecef(lon, lat, h)
-        n = ground.shape[0]
-        row = np.full(n, np.nan)
-        col = np.full(n, np.nan)
-        jac = np.zeros((n, 2, len(names)))
-        col_of = {name: j for j, name in enumerate(names)}
-        ccds = self.band_ccds(band)
-        for a in range(0, n, CHUNK):
-            g = ground[a : a + CHUNK]
-            r_c, c_c, idx = self._ground_to_image_chunk(g, band, _chunk_of(ccd, a, a + CHUNK))
-            row[a : a + CHUNK], col[a : a + CHUNK] = r_c, c_c
-            for i, c in enumerate(ccds):
-                sel = np.nonzero((idx == i) & np.isfinite(r_c))[0]
-                if sel.size == 0:
-                    continue
-                s = c_c[sel] - c.first_col - 0.5
-                inv, dfdp = self._collinearity_partials(r_c[sel], s, g[sel], band, c, col_of, len(names))
-                # d(row, s)/dp = -J^-1 dF/dp ; col = s + const
-                jac[a + sel] = -np.einsum("nij,njp->nip", inv, dfdp)
-        return row, col, jac
-
-    @staticmethod
-    def _ratio_derivative(cam, dcam):
-        """``d(x/z, y/z)`` (N, 2) for camera vectors ``cam`` and their derivatives ``dcam``."""
-        x, y, z = cam[:, 0], cam[:, 1], cam[:, 2]
-        return np.stack([(dcam[:, 0] * z - x * dcam[:, 2]) / (z * z), (dcam[:, 1] * z - y * dcam[:, 2]) / (z * z)], axis=-1)
-
-    def _collinearity_partials(self, row, s, ground, band, c, col_of, n_names):
-        """``J_(row,s)^-1`` (N,2,2) and ``dF/dp`` (N,2,P) at solved points of one CCD."""
-        r_inst = self.installation.matrix()
-        _, jrs, cam = self._collinearity(row, s, ground, c, r_inst)
-        inv = np.linalg.inv(jrs)
-        body = cam @ r_inst.T  # R^T (G - P) = R_inst cam, already evaluated above
-        dfdp = np.zeros((row.size, 2, n_names))
-        d_inst = self.installation.matrix_derivatives()
-        for k, ax in enumerate(Installation.NAMES):
-            j = col_of.get(f"installation.{ax}")
-            if j is not None:
-                dfdp[:, :, j] = self._ratio_derivative(cam, body @ d_inst[k])  # (dR_inst/da)^T body
-        for axis, comp in (("tan_psi_x", 0), ("tan_psi_y", 1)):
-            for k in range(getattr(c, axis).size):
-                j = col_of.get(f"{band}.{c.name}.{axis}.c{k}")
-                if j is not None:
-                    dfdp[:, comp, j] = -(s**k)
-        corr = self.attitude_correction
-        if corr is not None:
-            cols = np.array([col_of.get(nm, -1) for nm in corr.names()]).reshape(3, -1)
-            if np.any(cols >= 0):
-                dfdd, basis = self._angle_partials(row, cam, body)
-                for ax in range(3):
-                    for k in np.nonzero(cols[ax] >= 0)[0]:
-                        dfdp[:, :, cols[ax, k]] = dfdd[:, :, ax] * basis[:, k : k + 1]
-        return inv, dfdp
-
-    def _angle_partials(self, row, cam, body):
-        """``dF/ddelta`` (N,2,3) of the correction angles and the basis (N,K) at ``row``."""
-        c, dc, _ = self._correction_at(row)
-        basis, _ = self.attitude_correction.basis(self.line_timing.seconds(row))
-        body0 = np.einsum("nij,nj->ni", c, body)  # R^T (G - P) without the correction
-        r_inst = self.installation.matrix()
-        dfdd = np.empty((row.size, 2, 3))
-        for ax in range(3):
-            dcam = np.einsum("nji,nj->ni", dc[ax], body0) @ r_inst  # R_inst^T dC^T body0
-            dfdd[:, :, ax] = self._ratio_derivative(cam, dcam)
-        return dfdd, basis
+        return parameter_jacobian(self, lon, lat, h, band=band, names=names, ccd=ccd)
 
     def attitude_angle_jacobian(self, lon, lat, h, *, band=None, ccd=None, array=None):
         """``d(row, col)/d(delta)`` of body-frame attitude angles at the projections of ground points.
@@ -948,25 +739,7 @@ class PushbroomModel(SensorModel):
             model = self.with_attitude_correction(AttitudeCorrection("drift", min(lo, hi), max(lo, hi), 1))
         ccd = _merge_array(ccd, array)
         band = model._band(band)
-        lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
-        ground = geodetic_to_ecef(lon.reshape(-1), lat.reshape(-1), h.reshape(-1))
-        n = ground.shape[0]
-        row, col = np.full(n, np.nan), np.full(n, np.nan)
-        jac = np.full((n, 2, 3), np.nan)
-        r_inst = model.installation.matrix()
-        for a in range(0, n, CHUNK):
-            g = ground[a : a + CHUNK]
-            r_c, c_c, idx = model._ground_to_image_chunk(g, band, _chunk_of(ccd, a, a + CHUNK))
-            row[a : a + CHUNK], col[a : a + CHUNK] = r_c, c_c
-            for i, c in enumerate(model.band_ccds(band)):
-                sel = np.nonzero((idx == i) & np.isfinite(r_c))[0]
-                if sel.size:
-                    s = c_c[sel] - c.first_col - 0.5
-                    _, jrs, cam = model._collinearity(r_c[sel], s, g[sel], c, r_inst)
-                    dfdd, _ = model._angle_partials(r_c[sel], cam, cam @ r_inst.T)
-                    jac[a + sel] = -np.einsum("nij,njp->nip", np.linalg.inv(jrs), dfdd)
-        return row, col, jac
-        return row, col, jac
+        return body_angle_jacobian(model, lon, lat, h, band=band, ccd=ccd)
 
     def ccd_view(self, ccd, *, band=None) -> "CcdView":
         """One CCD of one band as a model of its own image (columns ``0 .. n_detectors``).
@@ -992,178 +765,3 @@ class PushbroomModel(SensorModel):
         return f"PushbroomModel({self.name!r}, {self.n_rows}x{self.n_cols}, {bands})"
 
 
-class CcdView(SensorModel):
-    """A single CCD of a :class:`PushbroomModel` seen as an image of its own.
-
-    ``col_view = col_scene - ccd.first_col``; rows are unchanged. Parameters (and parameter
-    groups) are those of the parent model. Its one band is the CCD's band and its one detector
-    array is the CCD, starting at column 0; ``band=`` arguments of the localization methods
-    are ignored (the view's band is fixed).
-
-    Parameters
-    ----------
-    model : PushbroomModel
-        The parent model.
-    band : str
-        The band.
-    ccd : str or int
-        CCD name or index in ``model.band_ccds(band)``.
-    """
-
-    kind = "pushbroom_ccd"
-    is_rigorous = True
-
-    def __init__(self, model: PushbroomModel, *, band: str, ccd):
-        self.model = model
-        self.band = band
-        self.index = int(model.ccd_index(np.zeros(1), band=band, ccd=ccd)[0])
-        self.ccd = model.band_ccds(band)[self.index]
-
-    @property
-    def image_shape(self) -> tuple[int, int]:
-        """``(n_rows, n_detectors)`` of the CCD."""
-        return (self.model.n_rows, self.ccd.n_detectors)
-
-    @property
-    def reference_band(self) -> str:
-        """The CCD's band."""
-        return self.band
-
-    def detector_arrays(self, band=None) -> tuple[DetectorArray, ...]:
-        """The CCD, as one array starting at the view's column 0.
-
-        Parameters
-        ----------
-        band : str, optional
-            None or the view's band.
-
-        Returns
-        -------
-        tuple of DetectorArray
-            ``(DetectorArray(ccd.name, 0, ccd.n_detectors),)``.
-        """
-        self._protocol_band(band)
-        return (DetectorArray(self.ccd.name, 0, self.ccd.n_detectors),)
-
-    def parameter_groups(self) -> dict[str, tuple[str, ...]]:
-        """The parent model's groups (:meth:`PushbroomModel.parameter_groups`).
-
-        Returns
-        -------
-        dict of str to tuple of str
-        """
-        return self.model.parameter_groups()
-
-    def interior_group(self, band=None, array=None) -> str:
-        """The group of this CCD's directional-angle coefficients.
-
-        Parameters
-        ----------
-        band : str, optional
-            None or the view's band.
-        array : str or int, optional
-            None, 0 or the CCD's name.
-
-        Returns
-        -------
-        str
-            ``"interior.<band>.<ccd>"``.
-        """
-        self._one_array(band, array)
-        return self.model.interior_group(self.band, self.index)
-
-    def _parent_ccd(self, array):
-        self._check_array(None, array)
-        return self.index
-
-    def image_to_ground(self, row, col, *, height=None, dem=None, band=None, array=None):
-        """Direct localization in view coordinates (:meth:`PushbroomModel.image_to_ground`).
-
-        Parameters
-        ----------
-        row, col : array_like
-            View coordinates (``col = 0.5`` is the CCD's first detector centre).
-        height : float or array_like, optional
-            Ellipsoidal heights, metres (exactly one of ``height`` and ``dem``).
-        dem : sensor_models.terrain.dem.Dem, optional
-            Terrain to intersect.
-        band : str, optional
-            Ignored: the view's band is fixed.
-        array : str or int, optional
-            None, 0 or the CCD's name.
-
-        Returns
-        -------
-        lon_deg, lat_deg, h_m : ndarray, shape of the broadcast ``row, col``
-        """
-        ccd = self._parent_ccd(array)
-        col = np.asarray(col, dtype=np.float64) + self.ccd.first_col
-        return self.model.image_to_ground(row, col, height=height, dem=dem, band=self.band, ccd=ccd)
-
-    def ground_to_image(self, lon, lat, h, *, band=None, array=None):
-        """Inverse localization into view coordinates (:meth:`PushbroomModel.ground_to_image`).
-
-        Parameters
-        ----------
-        lon, lat : array_like
-            WGS84 longitude and latitude, degrees.
-        h : array_like
-            Height above the ellipsoid, metres.
-        band : str, optional
-            Ignored: the view's band is fixed.
-        array : str or int, optional
-            None, 0 or the CCD's name.
-
-        Returns
-        -------
-        row, col : ndarray, shape of the broadcast inputs
-        """
-        row, col = self.model.ground_to_image(lon, lat, h, band=self.band, ccd=self._parent_ccd(array))
-        return row, col - self.ccd.first_col
-
-    def parameters(self) -> ParameterVector:
-        """The parent model's parameters.
-
-        Returns
-        -------
-        ParameterVector
-        """
-        return self.model.parameters()
-
-    def with_parameters(self, values) -> "CcdView":
-        """The same CCD of the parent model with new parameter values.
-
-        Parameters
-        ----------
-        values : array_like, shape (P,)
-            In the order of the parent's :meth:`PushbroomModel.parameter_names`.
-
-        Returns
-        -------
-        CcdView
-        """
-        return CcdView(self.model.with_parameters(values), band=self.band, ccd=self.index)
-
-    def image_jacobian(self, lon, lat, h, *, band=None, names=None, array=None):
-        """``d(row, col)/d(parameters)`` in view coordinates (:meth:`PushbroomModel.image_jacobian`).
-
-        Parameters
-        ----------
-        lon, lat, h : array_like, shape (N,)
-            Ground points: degrees, degrees, metres above the ellipsoid.
-        band : str, optional
-            Ignored: the view's band is fixed.
-        names : sequence of str, optional
-            Parameters (default: all of the parent's).
-        array : str or int, optional
-            None, 0 or the CCD's name.
-
-        Returns
-        -------
-        row, col : ndarray, shape (N,)
-        jac : ndarray, shape (N, 2, P)
-        """
-        row, col, jac = self.model.image_jacobian(
-            lon, lat, h, band=self.band, names=names, ccd=self._parent_ccd(array)
-        )
-        return row, col - self.ccd.first_col, jac

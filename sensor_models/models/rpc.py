@@ -1,4 +1,4 @@
-"""Rational polynomial camera model (RPC00B): evaluate, invert, bias-correct, read, write, fit.
+"""Rational polynomial camera model (RPC00B): evaluate, invert, bias-correct.
 
 The model
 ---------
@@ -46,6 +46,11 @@ bias.col.b1, bias.col.b2``; all default to zero. The correction is applied by
 :meth:`~RpcModel.image_to_ground`. Note that ``a1, a2`` multiply full-scene pixel coordinates
 (up to ~4e4 for a Pleiades scene): scale the Jacobian columns when you estimate them.
 
+Files
+-----
+The RPC files (OSSIM ``.geom``, ``.RPB``, ``_RPC.TXT``, GeoTIFF RPC tags, GDAL's ``RPC``
+metadata) are read and written by :mod:`sensor_models.readers.rpc_files`.
+
 Fitting
 -------
 :func:`sensor_models.models.rpc_fit.fit_rpc` fits a terrain-independent RPC
@@ -68,13 +73,9 @@ References
 from __future__ import annotations
 
 import math
-import os
-import re
-from pathlib import Path
 
 import numpy as np
 
-from sensor_models.files.atomic import temporary_beside
 from sensor_models.base import ParameterVector, SensorModel, as_float_arrays
 from sensor_models.errors import InputError, RpcError
 
@@ -93,30 +94,11 @@ BIAS_NAMES = (
     "bias.col.b0", "bias.col.b1", "bias.col.b2",
 )  # fmt: skip
 
-# Offsets and scales: our attribute name -> (GDAL metadata key, OSSIM .geom key, .RPB key).
-_NORM_FIELDS = {
-    "line_off": ("LINE_OFF", "line_off", "lineOffset"),
-    "samp_off": ("SAMP_OFF", "samp_off", "sampOffset"),
-    "lat_off": ("LAT_OFF", "lat_off", "latOffset"),
-    "lon_off": ("LONG_OFF", "long_off", "longOffset"),
-    "height_off": ("HEIGHT_OFF", "height_off", "heightOffset"),
-    "line_scale": ("LINE_SCALE", "line_scale", "lineScale"),
-    "samp_scale": ("SAMP_SCALE", "samp_scale", "sampScale"),
-    "lat_scale": ("LAT_SCALE", "lat_scale", "latScale"),
-    "lon_scale": ("LONG_SCALE", "long_scale", "longScale"),
-    "height_scale": ("HEIGHT_SCALE", "height_scale", "heightScale"),
-}
-_COEF_FIELDS = {
-    "line_num": ("LINE_NUM_COEFF", "line_num_coeff", "lineNumCoef"),
-    "line_den": ("LINE_DEN_COEFF", "line_den_coeff", "lineDenCoef"),
-    "samp_num": ("SAMP_NUM_COEFF", "samp_num_coeff", "sampNumCoef"),
-    "samp_den": ("SAMP_DEN_COEFF", "samp_den_coeff", "sampDenCoef"),
-}
-_UNITS_TXT = {
-    "line_off": "pixels", "samp_off": "pixels", "lat_off": "degrees", "lon_off": "degrees",
-    "height_off": "meters", "line_scale": "pixels", "samp_scale": "pixels",
-    "lat_scale": "degrees", "lon_scale": "degrees", "height_scale": "meters",
-}  # fmt: skip
+#: The ten offsets and scales, in the order of the constructor's keywords.
+_NORM_NAMES = (
+    "line_off", "samp_off", "lat_off", "lon_off", "height_off",
+    "line_scale", "samp_scale", "lat_scale", "lon_scale", "height_scale",
+)  # fmt: skip
 
 _CHUNK = 1 << 12  # points per block in vectorized evaluation (bounds temporary memory)
 _NEWTON_TOL_PX = 1e-9
@@ -173,11 +155,6 @@ def _terms_dP(L, P, H):
     )  # fmt: skip
 
 
-def _atomic_output(path: Path, suffix: str):
-    """A temporary file beside ``path`` (same filesystem, so ``os.replace`` is atomic)."""
-    return temporary_beside(path, suffix)
-
-
 # ---------------------------------------------------------------------------------------------
 # The model
 # ---------------------------------------------------------------------------------------------
@@ -202,7 +179,8 @@ class RpcModel(SensorModel):
     bias : array_like, shape (6,), optional
         ``(a0, a1, a2, b0, b1, b2)`` of the affine correction (module docstring); default 0.
     err_bias, err_rand : float, optional
-        Vendor error estimates (metres), carried through to the writers.
+        Vendor error estimates (metres), carried through to the writers
+        (:mod:`sensor_models.readers.rpc_files`).
     source : str, optional
         Where the model was read from (for messages).
 
@@ -324,8 +302,16 @@ class RpcModel(SensorModel):
         """``(a0, a1, a2, b0, b1, b2)``, read-only."""
         return self._bias
 
-    def _init_kwargs(self) -> dict:
-        kw = {name: getattr(self, name) for name in _NORM_FIELDS}
+    def init_kwargs(self) -> dict:
+        """The constructor's keywords that rebuild this model (``RpcModel(**model.init_kwargs())``).
+
+        Returns
+        -------
+        dict
+            Offsets, scales, coefficients, ``image_shape``, ``bias``, ``err_bias``,
+            ``err_rand`` and ``source``.
+        """
+        kw = {name: getattr(self, name) for name in _NORM_NAMES}
         kw.update(
             line_num=self.line_num, line_den=self.line_den, samp_num=self.samp_num,
             samp_den=self.samp_den, image_shape=self._image_shape, bias=self._bias,
@@ -376,7 +362,7 @@ class RpcModel(SensorModel):
         values = np.asarray(values, dtype=np.float64).reshape(-1)
         if values.shape != (6,):
             raise InputError(f"expected 6 parameter values {BIAS_NAMES}, got {values.size}")
-        kw = self._init_kwargs()
+        kw = self.init_kwargs()
         kw["bias"] = values
         return RpcModel(**kw)
 
@@ -406,7 +392,7 @@ class RpcModel(SensorModel):
                 max(1, self._image_shape[1] - int(col_off)),
             )
         a0, a1, a2, b0, b1, b2 = self._bias
-        kw = self._init_kwargs()
+        kw = self.init_kwargs()
         kw.update(
             line_off=self.line_off - row_off,
             samp_off=self.samp_off - col_off,
@@ -740,412 +726,3 @@ class RpcModel(SensorModel):
     def _check_band(band):
         if band is not None:
             raise InputError(f"an RPC model has a single band; band must be None, got {band!r}")
-
-    # -- conversions --------------------------------------------------------------------------
-    def _folded(self) -> dict:
-        """Offsets/scales with the bias folded in (exact for a0, a1, b0, b2 only)."""
-        a0, a1, a2, b0, b1, b2 = self._bias
-        if a2 != 0.0 or b1 != 0.0:
-            raise RpcError(
-                "the bias has cross terms (a2, b1) that an RPC cannot hold exactly; "
-                "refit with fit_rpc(model, ...) and write the fitted model",
-                path=self.source,
-            )
-        # row = (1 + a1) * (line_n * ls + lo + 0.5) + a0  =>  ls' = (1+a1) ls,
-        # lo' = (1 + a1) * (lo + 0.5) + a0 - 0.5 (RPC space keeps the centre-at-0 convention)
-        out = {name: getattr(self, name) for name in _NORM_FIELDS}
-        out["line_scale"] = (1.0 + a1) * self.line_scale
-        out["line_off"] = (1.0 + a1) * (self.line_off + 0.5) + a0 - 0.5
-        out["samp_scale"] = (1.0 + b2) * self.samp_scale
-        out["samp_off"] = (1.0 + b2) * (self.samp_off + 0.5) + b0 - 0.5
-        for name in _COEF_FIELDS:
-            out[name] = np.array(getattr(self, name))
-        return out
-
-    def to_gdal_metadata(self) -> dict[str, str]:
-        """GDAL ``RPC`` metadata domain (keys ``LINE_OFF`` ... ``SAMP_DEN_COEFF``), bias folded.
-
-        Returns
-        -------
-        dict of str to str
-            Numbers as text (coefficients space-separated), RPC pixel convention.
-
-        Raises
-        ------
-        RpcError
-            The bias has cross terms (``a2`` or ``b1`` non-zero).
-        """
-        f = self._folded()
-        md = {keys[0]: repr(float(f[name])) for name, keys in _NORM_FIELDS.items()}
-        for name, keys in _COEF_FIELDS.items():
-            md[keys[0]] = " ".join(repr(float(x)) for x in f[name])
-        if self.err_bias is not None:
-            md["ERR_BIAS"] = repr(self.err_bias)
-        if self.err_rand is not None:
-            md["ERR_RAND"] = repr(self.err_rand)
-        return md
-
-    def to_rasterio(self):
-        """This RPC (bias folded, see :meth:`to_gdal_metadata`) as a rasterio object.
-
-        Returns
-        -------
-        rasterio.rpc.RPC
-        """
-        from rasterio.rpc import RPC
-
-        return RPC.from_gdal(self.to_gdal_metadata())
-
-    @classmethod
-    def from_gdal_metadata(cls, metadata, *, image_shape=None, source=None) -> "RpcModel":
-        """Build a model from GDAL ``RPC``-domain metadata (``src.tags(ns="RPC")``), strictly.
-
-        Parameters
-        ----------
-        metadata : mapping of str to str
-            The RPC domain's keys (any case) and values.
-        image_shape : (int, int), optional
-            ``(n_rows, n_cols)``; default: from the offsets.
-        source : str, optional
-            Where the metadata come from (for messages).
-
-        Returns
-        -------
-        RpcModel
-
-        Raises
-        ------
-        RpcError
-            A field is missing or not numeric (the message names it).
-        """
-        md = {str(k).upper(): v for k, v in dict(metadata).items()}
-        kw = {}
-        for name, keys in _NORM_FIELDS.items():
-            kw[name] = _number(md, keys[0], source, first_token=True)
-        for name, keys in _COEF_FIELDS.items():
-            if keys[0] not in md:
-                raise RpcError("missing", path=source, field=keys[0])
-            tokens = str(md[keys[0]]).split()
-            if len(tokens) != 20:
-                raise RpcError(f"needs 20 coefficients, got {len(tokens)}", path=source,
-                               field=keys[0])  # fmt: skip
-            kw[name] = [_to_float(t, source, f"{keys[0]}[{i}]") for i, t in enumerate(tokens)]
-        for key in ("ERR_BIAS", "ERR_RAND"):
-            if key in md:
-                kw[key.lower()] = _number(md, key, source, first_token=True)
-        return cls(**kw, image_shape=image_shape, source=source)
-
-    @classmethod
-    def from_rasterio(cls, rpcs, *, image_shape=None, source=None) -> "RpcModel":
-        """Build a model from a ``rasterio.rpc.RPC`` (e.g. ``src.rpcs``).
-
-        Parameters
-        ----------
-        rpcs : rasterio.rpc.RPC
-        image_shape : (int, int), optional
-            ``(n_rows, n_cols)``; default: from the offsets.
-        source : str, optional
-            Where the RPC comes from (for messages).
-
-        Returns
-        -------
-        RpcModel
-        """
-        return cls.from_gdal_metadata(rpcs.to_gdal(), image_shape=image_shape, source=source)
-
-    # -- readers ------------------------------------------------------------------------------
-    @classmethod
-    def read(cls, path, *, image_shape=None) -> "RpcModel":
-        """Read an RPC from a file.
-
-        Accepts an OSSIM keyword list (``*.geom``, ``polynomial_format: B``), a standalone
-        ``*.RPB`` or ``*_RPC.TXT`` file, or any raster GDAL opens whose RPC metadata it finds
-        (GeoTIFF RPC tags, or a side-car ``.RPB`` / ``_RPC.TXT`` beside the raster). For a
-        raster, ``image_shape`` is the raster's; for a ``.geom`` it is ``number_lines``,
-        ``number_samples`` when present; otherwise it is derived from the offsets. Pass
-        ``image_shape=(n_rows, n_cols)`` to set it (for a raster it must match the raster).
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-        image_shape : (int, int), optional
-            ``(n_rows, n_cols)``.
-
-        Returns
-        -------
-        RpcModel
-
-        Raises
-        ------
-        RpcError
-            The file is unreadable, holds no RPC, a field is missing or not numeric (the
-            message names the file and the field), a ``.geom`` holds non-zero OSSIM
-            adjustments, or ``image_shape`` contradicts the raster.
-        """
-        path = Path(path)
-        name = path.name.lower()
-        if name.endswith(".geom"):
-            model = _read_ossim_geom(path)
-        elif name.endswith(".rpb"):
-            model = _read_rpb(path)
-        elif name.endswith("_rpc.txt"):
-            model = _read_rpc_txt(path)
-        else:
-            model = _read_raster(path)
-            if image_shape is not None and tuple(image_shape) != model.image_shape:
-                raise RpcError(f"image_shape {tuple(image_shape)} contradicts the raster's "
-                               f"{model.image_shape}", path=str(path))  # fmt: skip
-        if image_shape is None:
-            return model
-        kw = model._init_kwargs()
-        kw["image_shape"] = image_shape
-        return cls(**kw)
-
-    # -- writers ------------------------------------------------------------------------------
-    def write(self, path, *, fmt=None, template=None) -> Path:
-        """Write this RPC (bias folded in, see :meth:`to_gdal_metadata`) atomically.
-
-        Parameters
-        ----------
-        path : str or Path
-            Output file. It is first written to a temporary file in the same folder and then
-            renamed, so a failure leaves no partial output.
-        fmt : {"rpc_txt", "rpb", "geotiff"}, optional
-            Default: from the name (``*_RPC.TXT``, ``*.RPB``, ``*.tif``/``*.tiff``).
-        template : str or Path, optional
-            GeoTIFF only: a raster whose pixels and profile are copied into the output. Without
-            it an empty, sparse single-band uint8 GeoTIFF of :attr:`image_shape` is written.
-
-        Returns
-        -------
-        Path
-            ``path``.
-        """
-        path = Path(path)
-        if fmt is None:
-            name = path.name.lower()
-            if name.endswith("_rpc.txt"):
-                fmt = "rpc_txt"
-            elif name.endswith(".rpb"):
-                fmt = "rpb"
-            elif name.endswith((".tif", ".tiff")):
-                fmt = "geotiff"
-            else:
-                raise RpcError(
-                    "cannot tell the RPC format from the name; use fmt='rpc_txt', 'rpb' or "
-                    "'geotiff' (or name it *_RPC.TXT, *.RPB, *.tif)", path=str(path),
-                )  # fmt: skip
-        if fmt not in ("rpc_txt", "rpb", "geotiff"):
-            raise InputError(f"fmt must be 'rpc_txt', 'rpb' or 'geotiff', got {fmt!r}")
-        if template is not None and fmt != "geotiff":
-            raise InputError("template= applies to fmt='geotiff' only")
-        if fmt == "geotiff":
-            _write_geotiff(self, path, template)
-        else:
-            text = self._rpc_txt_text() if fmt == "rpc_txt" else self._rpb_text()
-            tmp = _atomic_output(path, ".tmp")
-            try:
-                tmp.write_text(text, encoding="ascii")
-                os.replace(tmp, path)
-            except BaseException:
-                tmp.unlink(missing_ok=True)
-                raise
-        return path
-
-    def _rpc_txt_text(self) -> str:
-        f = self._folded()
-        lines = [
-            f"{keys[0]}: {float(f[name])!r} {_UNITS_TXT[name]}"
-            for name, keys in _NORM_FIELDS.items()
-        ]
-        for name, keys in _COEF_FIELDS.items():
-            lines += [f"{keys[0]}_{i + 1}: {float(x)!r}" for i, x in enumerate(f[name])]
-        errors = [
-            f"{key}: {value!r} meters"
-            for key, value in (("ERR_BIAS", self.err_bias), ("ERR_RAND", self.err_rand))
-            if value is not None
-        ]
-        return "\n".join(errors + lines) + "\n"
-
-    def _rpb_text(self) -> str:
-        f = self._folded()
-        out = ['satId = "UNKNOWN";', 'bandId = "P";', 'SpecId = "RPC00B";', "BEGIN_GROUP = IMAGE"]
-        eb = -1.0 if self.err_bias is None else self.err_bias
-        er = -1.0 if self.err_rand is None else self.err_rand
-        out += [f"\terrBias = {eb!r};", f"\terrRand = {er!r};"]
-        out += [f"\t{keys[2]} = {float(f[name])!r};" for name, keys in _NORM_FIELDS.items()]
-        for name, keys in _COEF_FIELDS.items():
-            vals = ",\n".join(f"\t\t\t{float(x)!r}" for x in f[name])
-            out.append(f"\t{keys[2]} = (\n{vals});")
-        out += ["END_GROUP = IMAGE", "END;"]
-        return "\n".join(out) + "\n"
-
-
-# ---------------------------------------------------------------------------------------------
-# Strict field parsing
-# ---------------------------------------------------------------------------------------------
-def _to_float(text, source, field) -> float:
-    try:
-        v = float(text)
-    except (TypeError, ValueError):
-        raise RpcError(f"not a number: {text!r}", path=source, field=field) from None
-    if not math.isfinite(v):
-        raise RpcError(f"not a finite number: {text!r}", path=source, field=field)
-    return v
-
-
-def _number(table, key, source, *, first_token=False) -> float:
-    if key not in table:
-        raise RpcError("missing", path=source, field=key)
-    text = str(table[key]).strip()
-    if first_token:
-        parts = text.split()
-        text = parts[0] if parts else ""
-    return _to_float(text, source, key)
-
-
-def _read_text(path: Path) -> str:
-    from sensor_models.files.documents import MAX_DOCUMENT_BYTES, read_text
-
-    # bytes that are not UTF-8 become U+FFFD: every value used is then checked as a number
-    return read_text(path, error=RpcError, max_bytes=MAX_DOCUMENT_BYTES, kind="RPC", errors="replace")
-
-
-def _read_ossim_geom(path: Path) -> RpcModel:
-    """OSSIM keyword list: ``key: value`` per line (projection-less RPC, polynomial_format B)."""
-    source = str(path)
-    table = {}
-    for line in _read_text(path).splitlines():
-        key, sep, value = line.partition(":")
-        if sep:
-            table[key.strip()] = value.strip()
-    fmt = table.get("polynomial_format")
-    if fmt is None:
-        raise RpcError("missing (expected 'B', RPC00B term order)", path=source,
-                       field="polynomial_format")  # fmt: skip
-    if fmt.strip().upper() != "B":
-        raise RpcError(
-            f"unsupported polynomial format {fmt!r}: only 'B' (RPC00B term order) is read",
-            path=source, field="polynomial_format",
-        )  # fmt: skip
-    # OSSIM adjustments (in-track/cross-track offsets and scales, rotation) would modify the
-    # model; they are zero in vendor files. Refuse non-zero ones rather than ignore them.
-    for key, value in table.items():
-        if re.fullmatch(r"adjustment_\d+\.adj_param_\d+\.parameter", key):
-            if _to_float(value, source, key) != 0.0:
-                raise RpcError("non-zero OSSIM adjustment parameters are not supported; "
-                               "remove the adjustment or apply it as a bias", path=source,
-                               field=key)  # fmt: skip
-    kw = {name: _number(table, keys[1], source) for name, keys in _NORM_FIELDS.items()}
-    for name, keys in _COEF_FIELDS.items():
-        kw[name] = [_number(table, f"{keys[1]}_{i:02d}", source) for i in range(20)]
-    shape = None
-    if "number_lines" in table or "number_samples" in table:
-        n_lines = _number(table, "number_lines", source)
-        n_samps = _number(table, "number_samples", source)
-        if n_lines < 1 or n_samps < 1 or n_lines != int(n_lines) or n_samps != int(n_samps):
-            raise RpcError(f"image size must be positive integers, got {n_lines} x {n_samps}",
-                           path=source, field="number_lines")  # fmt: skip
-        shape = (int(n_lines), int(n_samps))
-    return RpcModel(**kw, image_shape=shape, source=source)
-
-
-def _read_rpc_txt(path: Path) -> RpcModel:
-    """``*_RPC.TXT``: ``KEY: value [units]`` per line, coefficients ``LINE_NUM_COEFF_1..20``."""
-    source = str(path)
-    table = {}
-    for line in _read_text(path).splitlines():
-        key, sep, value = line.partition(":")
-        if sep:
-            table[key.strip().upper()] = value.strip()
-    md = {keys[0]: table.get(keys[0]) for keys in _NORM_FIELDS.values()}
-    md = {k: v for k, v in md.items() if v is not None}
-    for keys in _COEF_FIELDS.values():
-        vals = []
-        for i in range(1, 21):
-            key = f"{keys[0]}_{i}"
-            vals.append(repr(_number(table, key, source, first_token=True)))
-        md[keys[0]] = " ".join(vals)
-    for key in ("ERR_BIAS", "ERR_RAND"):
-        if key in table:
-            md[key] = table[key]
-    return RpcModel.from_gdal_metadata(md, source=source)
-
-
-_RPB_ASSIGN = re.compile(r"(\w+)\s*=\s*(\([^)]*\)|[^;\n]*);")
-
-
-def _read_rpb(path: Path) -> RpcModel:
-    """DigitalGlobe-style ``*.RPB``: ``name = value;`` and ``name = (v, ..., v);`` in a group."""
-    source = str(path)
-    text = "\n".join(
-        line for line in _read_text(path).splitlines()
-        if not line.strip().upper().startswith(("BEGIN_GROUP", "END_GROUP", "END;"))
-    )  # fmt: skip
-    table = {m.group(1): m.group(2).strip() for m in _RPB_ASSIGN.finditer(text)}
-    kw = {name: _number(table, keys[2], source) for name, keys in _NORM_FIELDS.items()}
-    for name, keys in _COEF_FIELDS.items():
-        if keys[2] not in table:
-            raise RpcError("missing", path=source, field=keys[2])
-        body = table[keys[2]].strip()
-        if not (body.startswith("(") and body.endswith(")")):
-            raise RpcError("expected '(c1, ..., c20)'", path=source, field=keys[2])
-        tokens = [t.strip() for t in body[1:-1].split(",")]
-        if len(tokens) != 20:
-            raise RpcError(f"needs 20 coefficients, got {len(tokens)}", path=source,
-                           field=keys[2])  # fmt: skip
-        kw[name] = [_to_float(t, source, f"{keys[2]}[{i}]") for i, t in enumerate(tokens)]
-    err = {}
-    for key, arg in (("errBias", "err_bias"), ("errRand", "err_rand")):
-        if key in table:
-            err[arg] = _number(table, key, source)
-    return RpcModel(**kw, **err, source=source)
-
-
-def _read_raster(path: Path) -> RpcModel:
-    import rasterio
-    from rasterio.errors import RasterioError
-
-    source = str(path)
-    try:
-        with rasterio.open(path) as src:
-            md = src.tags(ns="RPC")
-            shape = (src.height, src.width)
-    except (RasterioError, OSError) as err:
-        raise RpcError(f"cannot open as a raster: {err}", path=source) from None
-    if not md:
-        raise RpcError(
-            "no RPC found (no GeoTIFF RPC tag and no side-car .RPB or _RPC.TXT); pass the "
-            "RPC file itself (.geom, .RPB, _RPC.TXT)", path=source,
-        )  # fmt: skip
-    return RpcModel.from_gdal_metadata(md, image_shape=shape, source=source)
-
-
-def _write_geotiff(model: RpcModel, path: Path, template) -> None:
-    import rasterio
-    import rasterio.shutil
-    from rasterio.errors import RasterioError
-
-    rpcs = model.to_rasterio()
-    tmp = _atomic_output(path, ".tif")
-    try:
-        with rasterio.Env(GDAL_PAM_ENABLED="NO"):
-            if template is None:
-                n_rows, n_cols = model.image_shape
-                with rasterio.open(
-                    tmp, "w", driver="GTiff", width=n_cols, height=n_rows, count=1,
-                    dtype="uint8", tiled=True, sparse_ok=True, compress="deflate", rpcs=rpcs,
-                ):  # fmt: skip
-                    pass
-            else:
-                rasterio.shutil.copy(str(template), str(tmp), driver="GTiff")
-                with rasterio.open(tmp, "r+") as dst:
-                    dst.rpcs = rpcs
-        os.replace(tmp, path)
-    except RasterioError as err:
-        tmp.unlink(missing_ok=True)
-        raise RpcError(f"GDAL could not write the GeoTIFF: {err}", path=str(path)) from None
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise

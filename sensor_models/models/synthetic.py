@@ -1,8 +1,10 @@
-"""Synthetic orbits, attitudes and push-broom cameras with known geometry.
+"""Synthetic orbits, attitudes, push-broom and staring cameras with known geometry.
 
 The building blocks of the scene simulator and of the tests: a circular Keplerian orbit in GCRF,
-Earth-pointing attitude in the orbital frame with bias, drift and jitter, and an HY-1C-like
-multi-CCD, multi-band directional-angle camera (seed 003 section 1, scaled by ``scale``).
+Earth-pointing attitude in the orbital frame with bias, drift and jitter, an HY-1C-like
+multi-CCD, multi-band directional-angle camera (seed 003 section 1, scaled by ``scale``), and a
+geostationary orbit with seed 000's (or a GF-4-like) staring camera
+(:func:`example_geo_staring_model`).
 """
 
 from __future__ import annotations
@@ -12,16 +14,26 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from sensor_models.errors import InputError
 from sensor_models.geometry.ephemeris import Attitude, Orbit
+from sensor_models.models.geo_staring import GeoStaringModel
 from sensor_models.models.pushbroom import PushbroomModel
 from sensor_models.models.pushbroom_types import CcdLook, Installation, LineTiming
+from sensor_models.models.staring_camera import PointingMirror, StaringLab
 
 __all__ = [
+    "GEO_RADIUS_M",
+    "GF4_LIKE_CAMERA",
+    "GF4_LIKE_SHAPE",
     "GM_EARTH_M3_S2",
+    "SEED000_CAMERA",
+    "SEED000_SHAPE",
     "CameraDesign",
     "circular_orbit",
     "earth_pointing_attitude",
+    "example_geo_staring_model",
     "example_pushbroom_model",
+    "geostationary_orbit",
     "hy1c_like_bands",
 ]
 
@@ -260,5 +272,123 @@ def _example(*, n_rows, design, epoch, installation, attitude_kwargs, argument_o
         installation=installation,
         n_rows=n_rows,
         reference_band=design.band_names[min(1, len(design.band_names) - 1)],
+        name=name,
+    )
+
+
+# --------------------------------------------------------------------------- geostationary staring
+#: mean equatorial radius of the geostationary orbit (GM / omega^2)^(1/3), metres
+GEO_RADIUS_M = 42_164_172.0
+#: seed 000 table 1: 1250 mm focal length, 1024 x 1024 HgCdTe array of 25 um pixels
+SEED000_CAMERA = StaringLab(focal_length_mm=1250.0, pixel_size_mm=0.025)
+SEED000_SHAPE = (1024, 1024)
+#: a GF-4-like panchromatic camera: 10240 x 10240 pixels of 50 m at nadir (9 um pixels; the
+#: focal length is chosen to give 50 m from 35 786 km, not taken from GF-4 documents)
+GF4_LIKE_CAMERA = StaringLab(focal_length_mm=0.009 * (GEO_RADIUS_M - 6_378_137.0) / 50.0, pixel_size_mm=0.009)
+GF4_LIKE_SHAPE = (10240, 10240)
+
+
+def geostationary_orbit(epoch, seconds, *, lon_deg: float = 105.0, radius_m: float = GEO_RADIUS_M) -> Orbit:
+    """State vectors in GCRF of a satellite fixed above the equator at ``lon_deg``.
+
+    The ITRF position ``radius_m (cos lon, sin lon, 0)`` with zero ITRF velocity is rotated
+    into GCRF at every sample (IAU 2006/2000A), so the satellite is exactly geostationary.
+
+    Parameters
+    ----------
+    epoch : str or numpy.datetime64
+        UTC epoch of ``seconds``.
+    seconds : array_like, shape (N,)
+        Sample times, SI seconds since ``epoch``.
+    lon_deg : float
+        Sub-satellite longitude, degrees.
+    radius_m : float
+        Orbit radius, metres.
+
+    Returns
+    -------
+    Orbit
+        GCRF state vectors at ``seconds``.
+    """
+    from sensor_models.geometry.frames import EarthRotation
+
+    t = np.asarray(seconds, dtype=np.float64).reshape(-1)
+    lon = np.radians(float(lon_deg))
+    pos_i = np.broadcast_to(np.array([np.cos(lon), np.sin(lon), 0.0]) * float(radius_m), (t.size, 3))
+    earth = EarthRotation(epoch, float(t.min()), float(t.max()))
+    pos_g, vel_g = earth.itrf_to_gcrf_state(t, np.ascontiguousarray(pos_i), np.zeros((t.size, 3)))
+    return Orbit(np.datetime64(epoch, "ns"), t, pos_g, vel_g, frame="gcrf")
+
+
+def example_geo_staring_model(
+    *,
+    camera: str | StaringLab = "seed000",
+    image_shape=None,
+    epoch: str = "2023-06-15T03:00:00",
+    lon_deg: float = 105.0,
+    frame_seconds: float = 0.0,
+    span_s: tuple[float, float] = (-600.0, 600.0),
+    installation: Installation = Installation(),
+    attitude_kwargs: dict | None = None,
+    mirror: PointingMirror | None = None,
+    name: str = "synthetic_geo",
+) -> GeoStaringModel:
+    """A geostationary staring camera with Earth-pointing attitude in the orbital frame.
+
+    Parameters
+    ----------
+    camera : {"seed000", "gf4"} or StaringLab
+        Seed 000 table 1 camera (1250 mm, 1024 x 1024 pixels of 25 um, about 716 m at nadir),
+        a GF-4-like camera (10240 x 10240 pixels, 50 m at nadir) or a laboratory model (then
+        ``image_shape`` is required). The interior is fitted to it (:meth:`GeoStaringModel.from_lab`).
+    image_shape : (int, int), optional
+        ``(n_rows, n_cols)``; default: the named camera's.
+    epoch : str
+        UTC epoch of the orbit and attitude samples.
+    lon_deg : float
+        Sub-satellite longitude (seed 000's satellite; 105 E by default).
+    frame_seconds : float
+        Exposure instant of the frame.
+    span_s : (float, float)
+        Span of the orbit (sampled every 60 s) and attitude (every 1 s) samples.
+    installation : Installation
+    attitude_kwargs : dict, optional
+        Passed to :func:`sensor_models.models.synthetic.earth_pointing_attitude` (bias, drift,
+        jitter...). With zero attitude and installation the array centre looks at the
+        geocentric nadir: the sub-satellite point ``(lon_deg, 0)``.
+    mirror : PointingMirror, optional
+    name : str
+        Free text.
+
+    Returns
+    -------
+    GeoStaringModel
+    """
+    if isinstance(camera, StaringLab):
+        if image_shape is None:
+            raise InputError("image_shape is required with a StaringLab camera", field="image_shape")
+        lab = camera
+    elif camera == "seed000":
+        lab, image_shape = SEED000_CAMERA, image_shape or SEED000_SHAPE
+    elif camera == "gf4":
+        lab, image_shape = GF4_LIKE_CAMERA, image_shape or GF4_LIKE_SHAPE
+    else:
+        raise InputError(f"must be 'seed000', 'gf4' or a StaringLab, got {camera!r}", field="camera")
+    t0, t1 = float(span_s[0]), float(span_s[1])
+    if not t0 <= frame_seconds <= t1:
+        raise InputError(f"frame_seconds {frame_seconds} lies outside span_s {span_s}", field="frame_seconds")
+    t_orbit = np.linspace(t0, t1, max(4, int(np.ceil((t1 - t0) / 60.0)) + 1))
+    t_att = np.linspace(t0, t1, max(4, int(np.ceil(t1 - t0)) + 1))
+    epoch64 = np.datetime64(epoch, "ns")
+    orbit = geostationary_orbit(epoch64, t_orbit, lon_deg=lon_deg)
+    attitude = earth_pointing_attitude(t_att, **(attitude_kwargs or {}))
+    return GeoStaringModel.from_lab(
+        lab,
+        image_shape=image_shape,
+        orbit=orbit,
+        attitude=attitude,
+        frame_seconds=frame_seconds,
+        installation=installation,
+        mirror=mirror,
         name=name,
     )

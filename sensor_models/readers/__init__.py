@@ -7,6 +7,7 @@ file                                      model
                                           :class:`~sensor_models.models.geo_staring.GeoStaringModel`
 ``*.DIM`` (SPOT 1-5 DIMAP level 1A)       :class:`~sensor_models.models.pushbroom.PushbroomModel`
 ``*.geom`` (OSSIM keyword list, RPC)      :class:`~sensor_models.models.rpc.RpcModel`
+                                          (:func:`~sensor_models.readers.rpc_files.read_rpc`)
 ``*.RPB``, ``*_RPC.TXT``                  :class:`~sensor_models.models.rpc.RpcModel`
 ``*.XML`` DIMAP v2 (``Dimap_Document``)   :func:`sensor_models.readers.dimap_v2.read_dimap_v2`
 ``*.XML`` WorldView (``isd``)             :func:`sensor_models.readers.worldview.read_worldview`

@@ -273,7 +273,7 @@ def read_dimap_v2(path, *, band: str | None = None, rpc=None, self_check: str = 
         its ``BAND_ID``; the first is the reference band).
     rpc : str or Path or RpcModel, optional
         The product's RPC, to compare the model with (any file
-        :meth:`RpcModel.read <sensor_models.models.rpc.RpcModel.read>` reads, in its pixel convention).
+        :func:`~sensor_models.readers.rpc_files.read_rpc` reads, in its pixel convention).
         Default: the file the product names (``Rational_Function_Model/.../COMPONENT_PATH``)
         when it lies beside the metadata in such a form; else only the ``Dataset_Extent``.
     self_check : {"refuse", "warn"}
@@ -358,12 +358,13 @@ def build_dimap_v2(meta: DimapV2Metadata, *, band: str | None = None, rpc=None, 
 def _product_rpc(meta: DimapV2Metadata, rpc):
     """The RPC to compare with: the one given, or the product's own when gcpcal reads its form."""
     from sensor_models.models.rpc import RpcModel
+    from sensor_models.readers.rpc_files import read_rpc
 
     if rpc is not None:
-        return rpc if isinstance(rpc, RpcModel) else RpcModel.read(rpc)
+        return rpc if isinstance(rpc, RpcModel) else read_rpc(rpc)
     if not meta.rpc_href:
         return None
     path = Path(meta.path).parent / meta.rpc_href
     if path.is_file() and path.name.lower().endswith((".geom", ".rpb", "_rpc.txt")):
-        return RpcModel.read(path)
+        return read_rpc(path)
     return None

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from sensor_models.errors import GcpcalError, InputError, ManifestError
-from sensor_models.models.geo_staring import GeoStaringModel, PointingMirror, StaringInterior, StaringLab, fit_interior
+from sensor_models.models.geo_staring import GeoStaringModel
+from sensor_models.models.staring_camera import PointingMirror, StaringInterior, StaringLab, fit_interior
 from sensor_models.readers._common import (calibration_from_fields, FORMAT_VERSION, attitude_from_fields, check_format_version, epoch_field,
                                            exterior_to_dict, installation_from_fields, iso_utc, load_json,
                                            orbit_from_fields, raster_from_fields, raster_to_dict, write_document)

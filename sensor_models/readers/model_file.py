@@ -38,8 +38,7 @@ def open_model(path, *, self_check: str = "refuse", **kwargs):
         themselves to check: their models get ``product_check = None``.
     **kwargs
         Passed to the reader of that kind (:func:`~sensor_models.readers.scene.read_manifest`,
-        :func:`~sensor_models.readers.dimap.read_dimap`, :meth:`RpcModel.read
-        <sensor_models.models.rpc.RpcModel.read>`).
+        :func:`~sensor_models.readers.dimap.read_dimap`, :func:`~sensor_models.readers.rpc_files.read_rpc`).
 
     Returns
     -------
@@ -70,9 +69,9 @@ def open_model(path, *, self_check: str = "refuse", **kwargs):
 
         model = read_manifest(path, **kwargs)
     else:
-        from sensor_models.models.rpc import RpcModel
+        from sensor_models.readers.rpc_files import read_rpc
 
-        model = RpcModel.read(path, **kwargs)
+        model = read_rpc(path, **kwargs)
     model.product_check = None
     return model
 

@@ -209,14 +209,14 @@ def _is_model_file(path: Path) -> bool:
 
 def _model_of_raster(path: Path, **kwargs):
     """The RPC of a raster: GDAL's (tags, ``.RPB``, ``_RPC.TXT``), else ``X.geom`` beside it."""
-    from sensor_models.models.rpc import RpcModel
+    from sensor_models.readers.rpc_files import read_rpc
 
     shape, has_rpc = _raster_rpc(path)
     if has_rpc:
-        return RpcModel.read(path, **kwargs)
+        return read_rpc(path, **kwargs)
     for geom in (path.with_suffix(".geom"), path.with_suffix(".GEOM")):
         if geom.is_file():
-            return RpcModel.read(geom, **kwargs)
+            return read_rpc(geom, **kwargs)
     looked = ", ".join(str(path.with_name(path.stem + s)) for s in (".RPB", "_RPC.TXT", ".geom"))
     raise InputError(f"no sensor model found for this {shape[0]} x {shape[1]} px raster: no GeoTIFF RPC tag "
                      f"and none of {looked}; give the model file (.geom, .RPB, _RPC.TXT, .DIM, .XML, .json) "

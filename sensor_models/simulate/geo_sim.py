@@ -133,7 +133,8 @@ def load_geo_config(path=None) -> GeoSimConfig:
 
 
 def _models(cfg: GeoSimConfig):
-    from sensor_models.models.geo_staring import StaringLab, example_geo_staring_model
+    from sensor_models.models.synthetic import example_geo_staring_model
+    from sensor_models.models.staring_camera import StaringLab
     from sensor_models.models.pushbroom_types import Installation
 
     altitude = 35_786_000.0

@@ -2,7 +2,7 @@
 
 Scenario
 --------
-A geostationary satellite (:func:`~sensor_models.models.geo_staring.geostationary_orbit`, exactly
+A geostationary satellite (:func:`~sensor_models.models.synthetic.geostationary_orbit`, exactly
 fixed above ``lon_deg``) holds an Earth-pointing attitude (orbital frame, seed 000 eq. 3:
 X along the velocity, Z to the Earth's centre) with a small bias, drift and jitter. The camera
 looks through a two-axis pointing mirror, the 45-degree fold of seed 000 figure 2: the mirror
@@ -75,14 +75,10 @@ from scipy.spatial.transform import Rotation
 from sensor_models.files.atomic import move_tree_into
 from sensor_models.errors import InputError
 from sensor_models.geometry.ephemeris import Attitude
-from sensor_models.models.geo_staring import (
-    SEED000_CAMERA,
-    GeoStaringModel,
-    PointingMirror,
-    StaringLab,
-    geostationary_orbit,
-    vectors_to_radec,
-)
+from sensor_models.models.geo_staring import GeoStaringModel
+from sensor_models.models.synthetic import SEED000_CAMERA, geostationary_orbit
+from sensor_models.models.star_directions import vectors_to_radec
+from sensor_models.models.staring_camera import PointingMirror, StaringLab
 from sensor_models.models.pushbroom_types import Installation
 
 __all__ = ["FOLD_NORMAL_CAM", "GeoStarsConfig", "frame_models", "simulate_geo_stars"]
@@ -123,7 +119,7 @@ class GeoStarsConfig:
         attitude. A series of sessions of one camera gives one value (plus its day-to-day
         change) so that the sessions share one installation.
     focal_length_mm, principal_point_offset_px, radial_k1, decentering_p, tilt_arcsec,
-    rotation_arcsec : interior truth (see :class:`~sensor_models.models.geo_staring.StaringLab`).
+    rotation_arcsec : interior truth (see :class:`~sensor_models.models.staring_camera.StaringLab`).
     attitude_bias_arcsec, attitude_drift_arcsec_s, attitude_jitter_arcsec,
     attitude_jitter_hz : true attitude (body -> orbital, roll/pitch/yaw).
     attitude_noise_arcsec : float

@@ -1,7 +1,7 @@
 """TRUE staring-camera interiors outside the estimator's family: the physical lens itself.
 
 The LAB and compensated models of a staring camera hold the 20-coefficient cubic of seed 000
-eq. 4-5 (:class:`~sensor_models.models.geo_staring.StaringInterior`). When the TRUE model is that
+eq. 4-5 (:class:`~sensor_models.models.staring_camera.StaringInterior`). When the TRUE model is that
 same cubic fitted to the physical lens (the ``ideal`` path, ``GeoStaringModel.from_lab``),
 every scheme that frees the interior reaches 1e-7 px: the estimator fits its own family.
 
@@ -33,7 +33,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sensor_models.models.geo_staring import GeoStaringModel, StaringInterior, StaringLab
+from sensor_models.models.geo_staring import GeoStaringModel
+from sensor_models.models.staring_camera import StaringInterior, StaringLab
 
 __all__ = ["PhysicalLensInterior", "PhysicalLensStaringModel", "physical_truth", "radial_from_corner_px"]
 
