@@ -7,8 +7,8 @@ installation errors of table 2, draws virtual control points and check points fr
 pointing-angle maps of figures 4-10 and the settings in a :class:`CompensationStudy`
 (written by :mod:`calibrate.schemes.compensation_outputs`).
 
-Seed 002 table 1 mapped onto :class:`~sensor_models.models.geo_staring.StaringLab`
---------------------------------------------------------------------------
+Seed 002 table 1 mapped onto :class:`~sensor_models.models.staring_camera.StaringLab`
+-------------------------------------------------------------------------------------
 ======================================  =====================================================
 seed 002 table 1                        ``StaringLab`` field (GF-4-like 10240 x 10240 array)
 ======================================  =====================================================
