@@ -1,10 +1,12 @@
-"""A crop of an RPC product, calibrated: the calibrated RPC is the full scene's, and it crops again.
+"""A crop of an RPC product, calibrated: each RPC file is named for the raster it describes.
 
 An RPC product delivered as a crop (a raster with a pixel geotransform ``(1, 0, c0, 0, 1, r0)``
 and the full scene's RPC beside it, as the real Pleiades crops of ``../shared/data``) is
-calibrated in the crop's pixels. ``calibrate`` writes the calibrated RPC in the full scene's
-pixels, as the product's own RPC file, so that ``ortho --calibration`` and ``rpc --image`` crop it
-through the raster's geotransform exactly once. Generated data (a 240 x 240 px RPC near Mont
+calibrated in the crop's pixels. ``calibrate`` writes ``<crop>_RPC.TXT`` in the crop's pixels,
+the sidecar GDAL pairs with the crop raster, and the full scene's RPC as
+``<product>_full_scene_RPC.TXT``, a name no raster of the product pairs with: the model the other
+commands open (``ortho --calibration`` and ``rpc --image`` crop it through the raster's
+geotransform exactly once). Generated data (a 240 x 240 px RPC near Mont
 Ventoux, flat terrain, GCPs localized through a known true model), a few seconds.
 """
 
@@ -89,13 +91,56 @@ def product(tmp_path_factory):
     return d, (rows, cols, lon, lat, h)
 
 
-def test_calibrated_rpc_is_written_in_the_full_scenes_pixels(product):
+def test_calibrated_rpcs_are_written_in_the_pixels_their_names_pair_with(product):
     d, (rows, cols, lon, lat, h) = product
-    calibrated = read_rpc(d / "cal" / "crop_RPC.TXT")
-    r, c = calibrated.ground_to_image(lon, lat, h)
-    np.testing.assert_allclose(r, rows + ORIGIN[0], atol=1e-4)  # full-scene rows, not the crop's
+    crop_rpc = read_rpc(d / "cal" / "crop_RPC.TXT")  # GDAL pairs it with crop.tif: the crop's pixels
+    r, c = crop_rpc.ground_to_image(lon, lat, h)
+    np.testing.assert_allclose(r, rows, atol=1e-4)
+    np.testing.assert_allclose(c, cols, atol=1e-4)
+    full = read_rpc(d / "cal" / "crop_full_scene_RPC.TXT")
+    r, c = full.ground_to_image(lon, lat, h)
+    np.testing.assert_allclose(r, rows + ORIGIN[0], atol=1e-4)  # full-scene rows
     np.testing.assert_allclose(c, cols + ORIGIN[1], atol=1e-4)
-    assert calibrated.line_off == pytest.approx(119.5 + BIAS_PX[0], abs=1e-4)  # the bias, not the crop offset
+    assert full.line_off == pytest.approx(119.5 + BIAS_PX[0], abs=1e-4)  # the bias, not the crop offset
+
+
+def test_the_sidecar_copied_beside_the_crop_is_what_gdal_uses_and_agrees_with_localize(product, tmp_path):
+    """As an analyst does: the crop raster alone in a folder with the calibrated sidecar copied
+    beside it. GDAL's RPC transformer (reading the sidecar) and ``gcpcal localize`` of the
+    calibration agree within 1e-3 px (the requirement is 1 px), and the full-scene file,
+    copied too, is not what GDAL pairs with the crop."""
+    import shutil
+
+    d, (rows, cols, lon, lat, h) = product
+    shutil.copy(d / "crop.tif", tmp_path / "crop.tif")
+    for name in ("crop_RPC.TXT", "crop_full_scene_RPC.TXT"):
+        shutil.copy(d / "cal" / name, tmp_path / name)
+    with rasterio.open(tmp_path / "crop.tif") as ds:
+        rpcs = ds.rpcs
+    assert rpcs is not None
+    with RPCTransformer(rpcs) as tr:
+        r, c = tr.rowcol(lon, lat, h, op=np.positive)
+    out = tmp_path / "ours.csv"
+    points = tmp_path / "points.csv"
+    points.write_text("lon,lat,h\n" + "".join(f"{x:.12f},{y:.12f},{z:.6f}\n" for x, y, z in zip(lon, lat, h)))
+    assert main(["-q", "localize", str(tmp_path / "crop.tif"), "--csv", str(points), "--inverse", "--out",
+                 str(out)]) == 0  # the crop raster with its copied sidecar, as GDAL sees it
+    ours = np.loadtxt(out, delimiter=",", skiprows=1)
+    np.testing.assert_allclose(np.asarray(r, float), ours[:, 0], atol=1e-3)
+    np.testing.assert_allclose(np.asarray(c, float), ours[:, 1], atol=1e-3)
+    np.testing.assert_allclose(ours[:, 0], rows, atol=1e-3)  # and both are the crop's true pixels
+    np.testing.assert_allclose(ours[:, 1], cols, atol=1e-3)
+
+
+def test_calibrated_rpc_states_its_errors_from_the_check_points(product):
+    """ERR_BIAS / ERR_RAND (GDAL RFC 22) are filled, not -1: the check points' scatter in metres
+    (GCPs from the true model: millimetres) and the reference's accuracy (none stated: 0)."""
+    d, _ = product
+    text = (d / "cal" / "crop_RPC.TXT").read_text()
+    fields = dict(line.split(":", 1) for line in text.splitlines() if line.startswith("ERR_"))
+    err_bias, err_rand = (float(fields[k].split()[0]) for k in ("ERR_BIAS", "ERR_RAND"))
+    assert 0.0 <= err_bias < 0.05 and 0.0 <= err_rand < 0.05, (err_bias, err_rand)
+    assert read_rpc(d / "cal" / "crop_RPC.TXT").err_rand == pytest.approx(err_rand)
 
 
 def test_ortho_with_the_calibration_crops_it_like_the_scene(product):
@@ -115,14 +160,26 @@ def test_ortho_with_the_calibration_crops_it_like_the_scene(product):
 
 def test_rpc_of_the_calibration_with_the_crop_raster_is_the_crops(product):
     d, (rows, cols, lon, lat, h) = product
-    assert main(["-q", "rpc", str(d / "cal" / "crop_RPC.TXT"), "--image", str(d / "crop.tif"),
+    assert main(["-q", "rpc", str(d / "cal" / "crop_full_scene_RPC.TXT"), "--image", str(d / "crop.tif"),
                  "--height-range", "0", "600", "--out", str(d / "l1a.tif")]) == 0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         with rasterio.open(d / "l1a.tif") as ds:
             assert (ds.height, ds.width) == CROP
             rpcs = ds.rpcs
+            tags = ds.tags()
     with RPCTransformer(rpcs) as tr:
         r, c = tr.rowcol(lon, lat, h, op=np.positive)
     np.testing.assert_allclose(np.asarray(r, float), rows, atol=1e-3)  # the crop's own pixels, cropped once
     np.testing.assert_allclose(np.asarray(c, float), cols, atol=1e-3)
+    # the height hint equals HEIGHT_OFF, and the warning's distance is GDAL's own at 0 m vs the hint
+    hint = float(tags["GCPCAL_RPC_HEIGHT_HINT_M"])
+    assert hint == pytest.approx(float(rpcs.height_off), abs=0.05) and hint == pytest.approx(300.0, abs=1.0)
+    with RPCTransformer(rpcs) as tr:
+        xs, ys = tr.xy([CROP[0] / 2] * 2, [CROP[1] / 2] * 2, zs=[hint, 0.0], offset="ul")
+    import pyproj
+
+    gdal_m = pyproj.Geod(ellps="WGS84").inv(xs[0], ys[0], xs[1], ys[1])[2]
+    stated_m = float(tags["GCPCAL_WARNING"].split(" lands ", 1)[1].split(" m ", 1)[0])
+    assert abs(stated_m - gdal_m) <= 1.0 and gdal_m > 10.0, (stated_m, gdal_m)
+    assert f"RPC_HEIGHT={hint:.0f}" in tags["GCPCAL_WARNING"]

@@ -315,7 +315,7 @@ def _measured(tutorial) -> dict[str, list[float]]:
         "check RMSE after calibration (px)": [summary["check_rmse_px"]["after"]],
         "check RMSE along / across track after (px)": [after["rmse_row_px"], after["rmse_col_px"]],
         "calibrated `LINE_OFF` minus the original product's (lines)":
-            [_line_off(tutorial.work / "cal" / "right_RPC.TXT") - _line_off(original)],
+            [_line_off(tutorial.work / "cal" / "right_full_scene_RPC.TXT") - _line_off(original)],
         "GDAL's RPC transformer on the level-1A, mean row offset (px)": [float(np.mean(_gdal_offsets(tutorial)[0]))],
         "bias `a0` with the DEM declared ellipsoidal (lines)": [a0_ellipsoid],
         "ellipsoid minus EGM96 `a0` (lines)": [a0_ellipsoid - a0],
@@ -358,7 +358,7 @@ def test_the_sixty_lines_come_back_down_to_the_srtm_floor(tutorial):
 def test_gis_products_are_georeferenced_and_agree(tutorial):
     work = tutorial.work
     # the calibrated RPC file is the full scene's, as the product's .geom (its offsets near the product's)
-    assert abs(_line_off(work / "cal" / "right_RPC.TXT") - _line_off(work / "work" / "right.geom") + 63.0) < 3.0
+    assert abs(_line_off(work / "cal" / "right_full_scene_RPC.TXT") - _line_off(work / "work" / "right.geom") + 63.0) < 3.0
     # the level-1A: the product's pixels, an RPC GDAL reads, which puts the matched points where they are
     with rasterio.open(work / "out" / "right_l1a.tif") as ds, rasterio.open(work / "work" / "right.tif") as src:
         assert ds.rpcs is not None and np.array_equal(ds.read(1), src.read(1))

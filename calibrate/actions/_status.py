@@ -124,14 +124,28 @@ def product_check_fields(model) -> dict:
     return {"product_check": check.to_dict(), "warning": warning}
 
 
+def _summary_model(folder: Path) -> Path | None:
+    """The model file ``calibrate.summary.json`` in ``folder`` names, when it names one that exists."""
+    import json
+
+    try:
+        name = json.loads((folder / "calibrate.summary.json").read_text(encoding="utf-8")).get("model")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(name, str) or Path(name).name != name or not (folder / name).is_file():
+        return None
+    return folder / name
+
+
 def resolve_calibration(path) -> Path:
     """The calibrated model file of a path the user gave.
 
     Parameters
     ----------
     path : str or Path
-        A model file, or a folder holding ``manifest.json`` or a single ``*_RPC.TXT`` (the outputs
-        of ``gcpcal calibrate``).
+        A model file, or a folder holding ``manifest.json``, or the ``*_RPC.TXT`` that its
+        ``calibrate.summary.json`` names as the model, or one ``*_full_scene_RPC.TXT`` (a crop's
+        calibration: beside it the crop's own sidecar), or a single ``*_RPC.TXT``.
 
     Returns
     -------
@@ -148,9 +162,13 @@ def resolve_calibration(path) -> Path:
         manifest = path / "manifest.json"
         if manifest.is_file():
             return manifest
+        named = _summary_model(path)
+        if named is not None:
+            return named
         rpcs = sorted(p for p in path.iterdir() if p.name.upper().endswith("_RPC.TXT"))
-        if len(rpcs) == 1:
-            return rpcs[0]
+        full = [p for p in rpcs if p.name.upper().endswith("_FULL_SCENE_RPC.TXT")]
+        if len(rpcs) == 1 or len(full) == 1:
+            return (full or rpcs)[0]
         raise InputError("the calibration folder holds no manifest.json (nor a single *_RPC.TXT)", path=str(path))
     if not path.is_file():
         raise InputError("calibration not found", path=str(path))

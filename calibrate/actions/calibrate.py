@@ -191,7 +191,8 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     with staged_folder(out_dir, ".calibrate-", inputs=[scene_path, gcps_path, image]) as tmp:
         doc = _calibration_doc(result, scene_path, gcps_path, acc_before, acc_after, coverage, status)
         (tmp / "calibration.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-        model_file = _write_model(result.model, model, tmp, out_dir, failed=status.status == "failed")
+        model_file = _write_model(result.model, model, tmp, out_dir, failed=status.status == "failed",
+                                  errors_m=rpc_error_estimates(acc_after, options.reference_sigma_m))
         write_residual_layer(_residual_layer(result, table, acc_after, band), tmp / "residuals.gpkg",
                              layer=LAYER_NAMES["calibrate"])
         if report and acc_before is not None:
@@ -317,8 +318,52 @@ def _calibration_doc(result, scene_path, gcps_path, acc_before, acc_after, cover
     return doc
 
 
-def _write_model(calibrated, original, tmp: Path, out_dir: Path, *, failed=False) -> str | None:
-    """Write the calibrated model; its file name (None: a failed RPC bias fit writes none)."""
+def rpc_error_estimates(accuracy, reference_sigma_m) -> tuple[float, float] | None:
+    """``(ERR_BIAS, ERR_RAND)`` of a calibrated RPC, metres per horizontal axis, from its check points.
+
+    RPC00B's error fields (GDAL RFC 22) are the RMS bias error per horizontal axis of all points
+    and the RMS random error per horizontal axis of each point. After a calibration against a
+    reference, what stays common to every point is the reference's own geolocation error plus the
+    check points' mean residual; what varies is their scatter:
+
+    ``ERR_BIAS = sqrt(sigma_ref^2 + (mean_along^2 + mean_across^2) / 2)``,
+    ``ERR_RAND = sqrt((var_along + var_across) / 2)``,
+
+    with ``sigma_ref`` the reference's per-axis accuracy (``reference_sigma_m``; 0 when unknown)
+    and the residuals the check points' along- and across-track metres.
+
+    Parameters
+    ----------
+    accuracy : AccuracyReport or None
+        Check-point accuracy of the calibrated model (``residuals_m``: along, across, planar).
+    reference_sigma_m : (float, float) or None
+        The reference's accuracy, east and north, metres (1 sigma).
+
+    Returns
+    -------
+    (float, float) or None
+        None without at least two check points with metres.
+    """
+    res = None if accuracy is None else accuracy.residuals_m
+    if res is None:
+        return None
+    res = np.asarray(res, dtype=np.float64)[:, :2]
+    res = res[np.isfinite(res).all(axis=1)]
+    if res.shape[0] < 2:
+        return None
+    mean, var = res.mean(axis=0), res.var(axis=0, ddof=1)
+    ref = 0.0 if reference_sigma_m is None else float(np.mean(np.square(reference_sigma_m)))
+    return float(np.sqrt(ref + 0.5 * np.sum(mean**2))), float(np.sqrt(0.5 * np.sum(var)))
+
+
+def _write_model(calibrated, original, tmp: Path, out_dir: Path, *, failed=False, errors_m=None) -> str | None:
+    """Write the calibrated model; its file name (None: a failed RPC bias fit writes none).
+
+    An RPC goes under the name GDAL pairs with the scene's raster (``<raster>_RPC.TXT``), in that
+    raster's pixels, with ``ERR_BIAS``/``ERR_RAND`` from ``errors_m``. A crop's calibration also
+    writes the full scene's RPC as ``<product>_full_scene_RPC.TXT`` and returns that name: it is
+    the model the other commands open (the crop's sidecar is for GIS tools).
+    """
     # the writer follows the model's kind: serialization, not geometry
     if calibrated.kind == "pushbroom":
         from sensor_models.readers.manifest import manifest_to_dict
@@ -340,10 +385,20 @@ def _write_model(calibrated, original, tmp: Path, out_dir: Path, *, failed=False
         return "manifest.json"
     if failed:
         return None
+    if errors_m is not None:
+        calibrated = type(calibrated)(**{**calibrated.init_kwargs(), "err_bias": errors_m[0], "err_rand": errors_m[1]})
+    raster = (getattr(original, "rasters", None) or {}).get(getattr(original, "reference_band", None) or "")
+    raster = raster or next(iter((getattr(original, "rasters", None) or {}).values()), None)
+    source_stem = Path(getattr(original, "source", "model") or "model").stem
+    # GDAL pairs X_RPC.TXT with X.tif: the RPC of the raster's own pixels goes under the raster's name
+    sidecar = f"{Path(raster['path']).stem if raster else source_stem}_RPC.TXT"
+    write_rpc(calibrated, tmp / sidecar)
     crop = getattr(original, "crop_of_full_scene", None)
-    if crop is not None:  # GCPs measured in a crop: the RPC file, like the product's, is the full scene's
-        row0, col0, full_shape = crop
-        calibrated = calibrated.cropped(-row0, -col0, full_shape)
-    name = f"{Path(getattr(original, 'source', 'model') or 'model').stem}_RPC.TXT"
-    write_rpc(calibrated, tmp / name)
-    return name
+    if crop is None:
+        return sidecar
+    # GCPs measured in a crop: the model is the full scene's, as the product's own RPC, under a name
+    # no raster pairs with; gcpcal crops it through the raster's geotransform when it opens the crop
+    row0, col0, full_shape = crop
+    full = f"{source_stem}_full_scene_RPC.TXT"
+    write_rpc(calibrated.cropped(-row0, -col0, full_shape), tmp / full)
+    return full

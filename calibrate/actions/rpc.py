@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pyproj
 
 from calibrate.actions._guard import InputSet
 from calibrate.actions._io import (check_output_files, check_output_folder, open_dem, staged_files, staged_folder,
@@ -39,7 +40,10 @@ from sensor_models.errors import InputError
 from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 from sensor_models.readers.rpc_files import write_rpc
 
-__all__ = ["DEFAULT_HEIGHT_RANGE_M", "DEFAULT_MAX_ERROR_PX", "RpcOutputUsageError", "fit_rpcs", "out_is_folder"]
+__all__ = ["DEFAULT_HEIGHT_RANGE_M", "DEFAULT_MAX_ERROR_PX", "RpcOutputUsageError", "fit_rpcs", "height_hint_tags",
+           "out_is_folder"]
+
+GEOD = pyproj.Geod(ellps="WGS84")
 
 #: Ellipsoidal heights (m) spanned by the fit when neither a DEM nor a range is given.
 DEFAULT_HEIGHT_RANGE_M = (-100.0, 3000.0)
@@ -242,6 +246,35 @@ def _fit_one(target, outputs, context) -> dict:
     return _write(fitted, report, ccd_name, 0, first_col, outputs, context)
 
 
+def height_hint_tags(rpc) -> dict[str, str]:
+    """Metadata items that tell a GIS the height to warp a level-1A at, and what height 0 costs.
+
+    GDAL's RPC transformer (and so QGIS dropping the file on a map) warps at height 0 unless it
+    is given ``RPC_HEIGHT`` or ``RPC_DEM``; there is no standard tag for a default height. The
+    file says it: ``GCPCAL_RPC_HEIGHT_HINT_M`` is the RPC's ``HEIGHT_OFF`` (the middle of the
+    terrain heights the fit spans), and ``GCPCAL_WARNING`` how far the image centre moves between
+    that height and 0, with the options that avoid it.
+
+    Parameters
+    ----------
+    rpc : RpcModel
+        The fitted RPC.
+
+    Returns
+    -------
+    dict of str to str
+    """
+    hint = float(rpc.height_off)
+    rows, cols = rpc.image_shape
+    lon, lat, _ = rpc.image_to_ground(np.array([0.5 * rows, 0.5 * rows]), np.array([0.5 * cols, 0.5 * cols]),
+                                       height=np.array([hint, 0.0]))
+    moved_m = float(GEOD.inv(lon[0], lat[0], lon[1], lat[1])[2])
+    return {"GCPCAL_RPC_HEIGHT_HINT_M": f"{hint:.1f}",
+            "GCPCAL_WARNING": (f"warped without terrain (GDAL, QGIS: height 0) this image lands {moved_m:.0f} m from "
+                               f"where it lies at its terrain height {hint:.0f} m: warp with -to RPC_DEM=<DEM> or "
+                               f"-to RPC_HEIGHT={hint:.0f}")}
+
+
 def _write(fitted, report, ccd_name, first_row, first_col, outputs, context) -> dict:
     """Write one RPC (text or level-1A GeoTIFF) to each ``(staged, final)`` path; its summary entry."""
     band = context["band"]
@@ -253,7 +286,7 @@ def _write(fitted, report, ccd_name, first_row, first_col, outputs, context) -> 
             extra = {"GCPCAL_RPC_HEIGHT_RANGE_M": " ".join(repr(float(h)) for h in context["height_range"]),
                      "GCPCAL_MODEL": str(context["model_path"]), "GCPCAL_BAND": str(band or ""),
                      "GCPCAL_CCD": ccd_name or "", "GCPCAL_FIRST_ROW": str(int(first_row)),
-                     "GCPCAL_FIRST_COL": str(int(first_col)), **geotiff_tags()}
+                     "GCPCAL_FIRST_COL": str(int(first_col)), **height_hint_tags(fitted), **geotiff_tags()}
             write_l1a_with_rpc(path, index, staged, fitted, image_shape=context["n_rows_cols"], first_col=first_col,
                                first_row=first_row, fit_report=report, extra_tags=extra)
             entry["raster"] = str(final)
