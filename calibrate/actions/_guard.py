@@ -36,6 +36,7 @@ import stat
 from contextlib import contextmanager
 from pathlib import Path
 
+from sensor_models.files.gdal_paths import is_gdal_virtual
 from sensor_models.errors import InputError
 
 __all__ = ["InputSet", "OutputRefusedError", "allow_overwrite", "check_file_target", "check_folder_target",
@@ -159,7 +160,8 @@ class InputSet:
     def __init__(self, items=()):
         self.files: dict[tuple[int, int], Path] = {}
         self.folders: dict[tuple[int, int], Path] = {}
-        for path in _expand(items):
+        self.virtual: set[str] = set()  # GDAL virtual paths (/vsizip/...): read, never written
+        for path in _expand(items, self.virtual):
             self._add(path, 0)
 
     def _add(self, path: Path, depth: int) -> None:
@@ -181,7 +183,7 @@ class InputSet:
 
     def add(self, *items) -> "InputSet":
         """Add more inputs (as the constructor takes them); returns self."""
-        for path in _expand(items):
+        for path in _expand(items, self.virtual):
             self._add(path, 0)
         return self
 
@@ -236,23 +238,28 @@ def input_set(inputs) -> InputSet:
     return inputs if isinstance(inputs, InputSet) else InputSet(inputs)
 
 
-def _expand(items):
-    """Paths of ``items``: flattened; comma lists and globs that name no file split or expanded."""
+def _expand(items, virtual: set | None = None):
+    """Paths of ``items``: flattened; comma lists and globs that name no file split or expanded;
+    GDAL virtual paths (``/vsizip/...``) go into ``virtual`` instead (no local file to guard)."""
     for item in items:
         if item is None:
             continue
         if hasattr(item, "paths"):
-            yield from _expand(item.paths)
+            yield from _expand(item.paths, virtual)
         elif isinstance(item, (list, tuple, set, frozenset)):
-            yield from _expand(item)
+            yield from _expand(item, virtual)
         else:
             text = os.fspath(item) if isinstance(item, os.PathLike) else str(item)
             if not text or text == "-":
                 continue
+            if is_gdal_virtual(text):
+                if virtual is not None:
+                    virtual.add(text)
+                continue
             if os.path.lexists(text):
                 yield Path(text)
             elif "," in text:
-                yield from _expand([part.strip() for part in text.split(",") if part.strip()])
+                yield from _expand([part.strip() for part in text.split(",") if part.strip()], virtual)
             elif glob.has_magic(text):
                 yield from (Path(p) for p in glob.glob(text))
             else:

@@ -12,7 +12,8 @@ a header built from it, and every GeoTIFF gcpcal writes a ``GCPCAL_PROVENANCE`` 
 ``inputs``
     Every input file the stage read (the files named, their sidecars and the files a manifest
     names): ``path``, ``bytes`` and ``sha256`` (None above :data:`HASH_LIMIT_BYTES`, with the
-    reason in ``sha256_note``); input folders by path.
+    reason in ``sha256_note``); input folders by path; GDAL virtual paths (``/vsizip/...``,
+    ``/vsicurl/...``) by path in ``virtual_inputs`` (not hashed: they may be remote).
 ``terrain``
     The DEM's files, its vertical datum as declared or given, and the geoid grid used
     (:func:`note_terrain`).
@@ -172,6 +173,7 @@ def provenance_record(inputs=None) -> dict:
         "platform": f"{platform.system()} {platform.machine()}",
         "inputs": [file_digest(p) for p in files],
         "input_folders": folders,
+        "virtual_inputs": sorted(getattr(inputs, "virtual", ())),
     }
     record.update(_NOTES.get() or {})
     return record

@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sensor_models.errors import InputError
+from sensor_models.files.gdal_paths import is_gdal_virtual
 from sensor_models.maps.mosaic import RASTER_SUFFIXES, raster_inputs
 
 __all__ = ["ACCURACY_TAG", "ACCURACY_TAG_X", "ACCURACY_TAG_Y", "ASSUMED_REFERENCE_SIGMA_M", "DomSource",
@@ -576,9 +577,10 @@ def stated_accuracy(files):
     """
     found = []
     for path in files:
-        if not os.path.isfile(path):
+        virtual = is_gdal_virtual(path)
+        if not (virtual or os.path.isfile(path)):
             continue
-        acc = _tag_accuracy(path) or _mtl_accuracy(path)
+        acc = _tag_accuracy(path) or (None if virtual else _mtl_accuracy(path))
         if acc is not None:
             found.append(acc)
     if not found:

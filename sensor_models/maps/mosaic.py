@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from xml.sax.saxutils import escape
 
 from sensor_models.errors import InputError
+from sensor_models.files.gdal_paths import is_gdal_virtual, virtual_exists
 
 __all__ = ["RASTER_SUFFIXES", "mosaic_path", "raster_inputs", "write_vrt"]
 
@@ -69,9 +70,9 @@ def raster_inputs(items, *, what: str = "raster") -> list[str]:
     Parameters
     ----------
     items : str, os.PathLike or sequence of them
-        Each item is a file (a ``.vrt`` included), a comma-separated list of files, a folder
-        (its files ending in :data:`RASTER_SUFFIXES`, sorted by name) or a glob pattern (its
-        matches, sorted).
+        Each item is a file (a ``.vrt`` included), a GDAL virtual path (``/vsizip/...``,
+        ``/vsicurl/...``), a comma-separated list of files, a folder (its files ending in
+        :data:`RASTER_SUFFIXES`, sorted by name) or a glob pattern (its matches, sorted).
     what : str
         What the files are ("DOM", "DEM"), for messages.
 
@@ -87,7 +88,11 @@ def raster_inputs(items, *, what: str = "raster") -> list[str]:
     """
     files: list[str] = []
     for text in _split_items(items):
-        if os.path.isdir(text):
+        if is_gdal_virtual(text):  # /vsizip/, /vsicurl/, ...: GDAL says whether it is there
+            if not virtual_exists(text):
+                raise InputError(f"{what} file not found (GDAL virtual path)", path=text)
+            found = [text]
+        elif os.path.isdir(text):
             found = _folder_rasters(text)
             if not found:
                 raise InputError(f"the {what} folder holds no raster ({', '.join(RASTER_SUFFIXES)})", path=text)

@@ -45,9 +45,11 @@ def _dem_source(path):
     messages then name the first tile and their count, not the private VRT.
     """
     from sensor_models.errors import GcpcalError
+    from sensor_models.files.gdal_paths import is_gdal_virtual, virtual_exists
     from sensor_models.maps.mosaic import mosaic_path, raster_inputs
 
-    if isinstance(path, (str, os.PathLike)) and Path(path).is_file():
+    if isinstance(path, (str, os.PathLike)) and (Path(path).is_file()
+                                                 or (is_gdal_virtual(path) and virtual_exists(path))):
         return os.fspath(path), os.fspath(path)
     try:
         files = raster_inputs(path, what="DEM")

@@ -14,6 +14,7 @@ import numpy as np
 import pyproj
 
 from sensor_models.errors import DemError
+from sensor_models.files.gdal_paths import is_gdal_virtual, virtual_exists
 
 __all__ = ["read_raster"]
 
@@ -44,7 +45,7 @@ def read_raster(path, *, what, window_from=None, missing_error=DemError):
     from rasterio.windows import Window
 
     path = os.fspath(path)
-    if not Path(path).is_file():
+    if not (Path(path).is_file() or (is_gdal_virtual(path) and virtual_exists(path))):
         raise missing_error(f"{path}: {what} file not found")
     try:
         with rasterio.open(path) as ds:
