@@ -37,7 +37,8 @@ import numpy as np
 
 from sensor_models.errors import InputError
 
-__all__ = ["CALIBRATION_STATUSES", "WHOLE_IMAGE", "CalibrationStatus", "DetectorArray", "ParameterVector", "SensorModel", "as_float_arrays"]
+__all__ = ["CALIBRATION_STATUSES", "WHOLE_IMAGE", "CalibrationStatus", "DetectorArray", "ParameterVector", "SensorModel",
+           "array_positions", "as_float_arrays"]
 
 #: name of the one detector array of a model whose image is not split into arrays
 WHOLE_IMAGE = ""
@@ -164,10 +165,28 @@ def as_float_arrays(*arrays, names=None):
     return [np.ascontiguousarray(a) for a in out]
 
 
-def _array_positions(arrays, array, shape, *, noun: str = "detector array", field: str = "array") -> np.ndarray:
+def array_positions(arrays, array, shape, *, noun: str = "detector array", field: str = "array") -> np.ndarray:
     """Indices in ``arrays`` of ``array`` (a name, an index, or one of those per point).
 
-    Errors name the array as ``noun`` (e.g. ``"CCD"``) and the keyword as ``field``.
+    Parameters
+    ----------
+    arrays : sequence of DetectorArray
+        The detector arrays of a band.
+    array : str, int or array_like of those
+        Which array: a name, an index, or one per point.
+    shape : tuple of int
+        Shape of the result (the points').
+    noun, field : str
+        How errors name the array (e.g. ``"CCD"``) and the keyword (e.g. ``"ccd"``).
+
+    Returns
+    -------
+    ndarray of intp, shape ``shape``
+
+    Raises
+    ------
+    InputError
+        An unknown name or an index out of range.
     """
     names = [a.name for a in arrays]
     listed = ", ".join(repr(n) for n in names)
@@ -429,7 +448,7 @@ class SensorModel(abc.ABC):
         arrays = self.detector_arrays(band)
         col = np.asarray(col, dtype=np.float64)
         if array is not None:
-            return _array_positions(arrays, array, col.shape)
+            return array_positions(arrays, array, col.shape)
         if len(arrays) == 1:
             return np.zeros(col.shape, dtype=np.intp)
         firsts = np.array([a.first_col for a in arrays], dtype=np.float64)
@@ -449,14 +468,14 @@ class SensorModel(abc.ABC):
             return 0
         if not (isinstance(array, str) or np.ndim(array) == 0):
             raise InputError("needs one detector array (a name or an index)", field="array")
-        return int(_array_positions(arrays, array, ())[()])
+        return int(array_positions(arrays, array, ())[()])
 
     def _check_array(self, band, array) -> None:
         """Validate ``array=`` of a single-array model's localization methods."""
         if array is None:
             return
         arrays = self.detector_arrays(band)
-        _array_positions(arrays, array, np.shape(array))
+        array_positions(arrays, array, np.shape(array))
 
     def detector_view(self, band=None, array=None) -> "SensorModel":
         """One detector array of one band as a model of its own image.

@@ -48,7 +48,7 @@ from types import MappingProxyType
 import numpy as np
 
 from sensor_models.models.attitude_correction import AttitudeCorrection, rotation_matrices
-from sensor_models.base import ParameterVector, SensorModel, _array_positions, as_float_arrays
+from sensor_models.base import ParameterVector, SensorModel, array_positions, as_float_arrays
 from sensor_models.geometry.ephemeris import Attitude, Orbit
 from sensor_models.errors import InputError, OutOfRangeError
 from sensor_models.geometry.geodesy import ecef_to_geodetic, geodetic_to_ecef
@@ -346,7 +346,7 @@ class PushbroomModel(SensorModel):
         ccds = self.band_ccds(band)
         col = np.asarray(col, dtype=np.float64)
         if ccd is not None:
-            return _array_positions(ccds, ccd, col.shape, noun="CCD", field="ccd")
+            return array_positions(ccds, ccd, col.shape, noun="CCD", field="ccd")
         firsts = np.array([c.first_col for c in ccds], dtype=np.float64)
         lasts = np.array([c.last_col for c in ccds], dtype=np.float64)
         dist = np.maximum(firsts[None, :] - col.reshape(-1, 1), col.reshape(-1, 1) - lasts[None, :])
