@@ -313,7 +313,7 @@ def _ortho(model=lambda b, w: SCENE, dem=lambda b, w: DEM, extra=()):
 
 
 def _truth(model=lambda b, w: SCENE, truth=lambda b, w: TRUTH, extra=()):
-    return lambda b, w: ["truth", "error", model(b, w), "--truth", truth(b, w), "--heights", "0", "--step", "64",
+    return lambda b, w: ["truth", "error", model(b, w), "--truth", truth(b, w), "--height", "0", "--step", "64",
                          "--out", w / "t.json", *extra]
 
 
@@ -497,7 +497,7 @@ CASES = [
     Case("truth error", "DEM without CRS", _truth(extra=("--dem", "{dem_nocrs}")), 1),
     Case("truth error", "DEM in centimetres", _truth(extra=("--dem", "{dem_cm}")), 1),
     Case("truth error", "output under a file", lambda b, w: ["truth", "error", SCENE, "--truth", TRUTH,
-                                                             "--heights", "0", "--out", w / "afile" / "t.json"], 1,
+                                                             "--height", "0", "--out", w / "afile" / "t.json"], 1,
          ("afile",), _file_prep),
     # simulate
     Case("simulate pushbroom", "empty config", lambda b, w: ["simulate", "pushbroom", "--config", b.empty_json,

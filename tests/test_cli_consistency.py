@@ -121,25 +121,20 @@ def test_v_after_the_command_shows_the_traceback(monkeypatch, tmp_path, capsys):
 
 
 # ----------------------------------------------------------------------------- the height family
-def test_truth_height_family_and_the_deprecated_spelling(tmp_path, capsys):
+def test_truth_height_family(tmp_path, capsys):
     code, out, _ = run(capsys, "truth", "error", SCENE, "--truth", TRUTH, "--height", "500", "--step", "64", "--json")
     assert code == 0
     at_500 = json.loads(out)
-    code, out, _ = run(capsys, "truth", "error", SCENE, "--truth", TRUTH, "--heights", "500", "--step", "64",
-                       "--json")
-    assert code == 0 and json.loads(out)["rms_px"] == pytest.approx(at_500["rms_px"], rel=1e-12)
     code, out, _ = run(capsys, "truth", "error", SCENE, "--truth", TRUTH, "--height-range", "0", "1000", "--step",
                        "64", "--json")
     assert code == 0
     spanned = json.loads(out)
     assert spanned["n_points"] == 3 * at_500["n_points"]  # planes at 0, 500 and 1000 m
     assert 1.0 < spanned["rms_px"] < 1e4 and 1.0 < at_500["rms_px"] < 1e4  # the LAB model is off by pixels
-    # the deprecated spelling keeps its old meaning beside --dem: the DEM decides
     code, out, _ = run(capsys, "truth", "error", SCENE, "--truth", TRUTH, "--dem", DEM, "--step", "64", "--json")
-    on_dem = json.loads(out)
-    code2, out, _ = run(capsys, "truth", "error", SCENE, "--truth", TRUTH, "--dem", DEM, "--heights", "0,5000",
-                        "--step", "64", "--json")
-    assert code == code2 == 0 and json.loads(out)["rms_px"] == on_dem["rms_px"] != at_500["rms_px"]
+    assert code == 0 and json.loads(out)["rms_px"] != at_500["rms_px"]
+    code, _, err = run(capsys, "truth", "error", SCENE, "--truth", TRUTH, "--heights", "0", "--json")
+    assert code == 2 and "No such option '--heights'" in err
 
 
 @pytest.mark.parametrize("argv", [

@@ -54,7 +54,7 @@ def _good(kind: str) -> bytes:
 #: reader -> (kind of file, suffix, argv builder(path, work))
 READERS = {
     "scene manifest": ("manifest", ".json", lambda p, w: ["localize", p, *_POINT]),
-    "truth manifest": ("manifest", ".json", lambda p, w: ["truth", "error", SCENE, "--truth", p, "--heights", "0"]),
+    "truth manifest": ("manifest", ".json", lambda p, w: ["truth", "error", SCENE, "--truth", p, "--height", "0"]),
     "calibrated manifest": ("manifest", ".json", lambda p, w: ["relative", SCENE, "--calibration", p, "--dem", DEM,
                                                                "--out", w / "rel"]),
     "GCP table": ("gcps", ".csv", lambda p, w: ["calibrate", SCENE, "--gcps", p, "--out", w / "cal", "--no-report"]),

@@ -98,7 +98,7 @@ def _failed_cases(failed: Path, out: Path):
         "rpc": ["rpc", failed, "--out", out / "x_RPC.TXT"],
         "validate": ["validate", sites, "--calibration", failed, "--out", out],
         "localize": ["localize", failed, "--rows", "10", "--cols", "10", "--height", "0", "--out", out / "p.csv"],
-        "truth error": ["truth", "error", failed, "--truth", TRUTH, "--heights", "0", "--out", out / "t.json"],
+        "truth error": ["truth", "error", failed, "--truth", TRUTH, "--height", "0", "--out", out / "t.json"],
     }
 
 

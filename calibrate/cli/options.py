@@ -18,7 +18,7 @@ from sensor_models.errors import InputError
 
 __all__ = ["accept_product_disagreement_option", "add_options", "allow_implausible_option", "apply_verbosity", "constant_height_option", "dem_options", "dom_options", "echo_json",
            "echo_warnings", "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source",
-           "out_dir_option", "progress_printer", "quiet_of", "verbosity_options"]
+           "out_dir_option", "quiet_of", "verbosity_options"]
 
 
 def _tiles(ctx, param, value):
@@ -456,26 +456,6 @@ def quiet_of(ctx: click.Context, as_json: bool = False) -> bool:
     bool
     """
     return bool((ctx.obj or {}).get("quiet", False)) or bool(as_json)
-
-
-def progress_printer(ctx: click.Context, as_json: bool = False):
-    """A progress callback printing each message on stderr, or None when quiet.
-
-    Kept for callers outside this package; commands use :func:`calibrate.cli._progress.stage_progress`,
-    which prints the same lines where stderr is not a terminal and a live display where it is.
-
-    Parameters
-    ----------
-    ctx : click.Context
-        The command's context.
-    as_json : bool
-        The command's ``--json`` flag.
-
-    Returns
-    -------
-    callable(str) or None
-    """
-    return None if quiet_of(ctx, as_json) else (lambda message: click.echo(message, err=True))
 
 
 def echo_json(doc: dict) -> None:

@@ -6,7 +6,7 @@ import click
 
 from calibrate.actions.simulate import truth_error_of
 from calibrate.cli.options import (add_options, allow_implausible_option, constant_height_option, dem_options, echo_json, echo_warnings,
-                                   float_list, height_range_option, json_option, one_height_source)
+                                   height_range_option, json_option, one_height_source)
 
 __all__ = ["command"]
 
@@ -23,20 +23,17 @@ def command():
 @add_options(dem_options)
 @constant_height_option
 @height_range_option
-@click.option("--heights", hidden=True, help="Deprecated: comma-separated ellipsoidal heights, m (use --height or "
-                                             "--height-range).")
 @click.option("--step", type=click.FloatRange(min=1.0), default=16.0, show_default=True, help="Grid spacing in pixels.")
 @click.option("--out", "out_path", type=click.Path(dir_okay=False), help="Write the result as JSON; - writes it on standard output.")
 @json_option
-def error_command(model_path, truth_path, dem_path, dem_datum, geoid, height, height_range, heights, step, out_path,
-                  as_json):
+def error_command(model_path, truth_path, dem_path, dem_datum, geoid, height, height_range, step, out_path, as_json):
     """Pixel error of MODEL against the TRUE model over a grid of every CCD and band.
 
     The ground is --dem, or the planes at --height, or at the lowest, middle and highest heights
     of --height-range; default: the planes at 0, 1000 and 2000 m above the ellipsoid.
     """
     result = truth_error_of(model_path, truth_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
-                            heights_m=_heights_m(height, height_range, heights, dem_path), step_px=step,
+                            heights_m=_heights_m(height, height_range, dem_path), step_px=step,
                             out_path=out_path)
     echo_warnings(result)
     if as_json or out_path == "-":
@@ -51,20 +48,12 @@ def error_command(model_path, truth_path, dem_path, dem_datum, geoid, height, he
     click.echo(f"all: rms {result['rms_px']:.4f} px, max {result['max_px']:.4f} px over {result['n_points']} points")
 
 
-def _heights_m(height, height_range, heights_text, dem_path):
-    """Heights (m) of the comparison planes from the height family; None for the DEM or the default.
-
-    The deprecated ``--heights`` keeps its old meaning: ignored when ``--dem`` is given.
-    """
+def _heights_m(height, height_range, dem_path):
+    """Heights (m) of the comparison planes from the height family; None for the DEM or the default."""
     source = one_height_source(height=height, height_range=height_range, dem=dem_path)
-    if heights_text is not None:
-        one_height_source(height=height, height_range=height_range, heights=heights_text)
-        source = source or "heights"
     if source == "height":
         return [height]
     if source == "height_range":
         low, high = sorted(height_range)
         return [low, 0.5 * (low + high), high] if high > low else [low]
-    if source == "heights":
-        return float_list(heights_text, "heights")
     return None
