@@ -226,6 +226,13 @@ def test_report_shows_the_correction_and_its_spectrum(jitter_case, tmp_path):
     assert "spline" in html and "attitude.png" in html and "frequency (Hz)" in html
     assert figure_attitude(static, tmp_path / "none") is None
     assert "Static attitude" in section_attitude(static, None)
+    # the injected jitter is on roll and pitch only: they are observed, yaw's correction is not
+    from calibrate.report.attitude import attitude_observability
+
+    verdicts = {o["axis"]: o for o in attitude_observability(auto)}
+    print({a: (round(o["rms_urad"], 3), round(o["sigma_urad"], 3), o["verdict"]) for a, o in verdicts.items()})
+    assert verdicts["roll"]["verdict"] == verdicts["pitch"]["verdict"] == "observed"
+    assert verdicts["yaw"]["verdict"] != "observed" and "not clearly above its own uncertainty" in html
     doc = auto.to_dict(points=False)
     assert doc["attitude"]["selected"]["kind"] == "spline"
     assert abs(doc["attitude"]["jitter"]["pitch"]["amplitude_urad"] - JITTER_RAD * 1e6) < 0.2 * JITTER_RAD * 1e6

@@ -16,7 +16,12 @@ from calibrate.report._html import escape as _e, figure_html as _figure_html, fm
 from calibrate.report._html import new_figure as _new_figure, save_figure as _save, table as _table
 from sensor_models.models.attitude_correction import AXES
 
-__all__ = ["figure_attitude", "figure_parallax", "section_attitude", "section_parallax"]
+__all__ = ["OBSERVED_SNR", "attitude_observability", "figure_attitude", "figure_parallax", "section_attitude",
+           "section_parallax"]
+
+#: A correction axis counts as observed when its rms over the image is at least this many times
+#: its mean a-posteriori standard deviation (a 3-sigma detection); below 1 it is within its own noise.
+OBSERVED_SNR = 3.0
 
 _COLORS = {"roll": "#c0392b", "pitch": "#1f5fa8", "yaw": "#2e7d32"}
 
@@ -80,6 +85,42 @@ def figure_attitude(result, fig_dir) -> dict | None:
     return {"src": _save(fig, fig_dir, "attitude.png"), "caption": caption}
 
 
+def attitude_observability(result, n_times: int = 600) -> list[dict] | None:
+    """Per axis: how large the correction is against what the data can observe of it.
+
+    ``rms_urad`` is the correction's rms about its mean over the image lines (the mean is the
+    installation's), ``sigma_urad`` the mean a-posteriori standard deviation of the correction
+    (from the coefficients' covariance), ``snr = rms / sigma``. An axis is ``observed`` when
+    ``snr >= OBSERVED_SNR``, ``weakly observed`` when ``1 <= snr < OBSERVED_SNR`` and ``not
+    observable`` below 1: a correction that large is within its own noise, and the report says so.
+
+    Parameters
+    ----------
+    result : calibrate.absolute.CalibrationResult
+    n_times : int
+        Times sampled over the image lines.
+
+    Returns
+    -------
+    list of dict or None
+        ``axis, rms_urad, sigma_urad, snr, verdict``; None without a correction or its covariance.
+    """
+    corr = getattr(result.model, "attitude_correction", None)
+    cov = (result.attitude or {}).get("coefficients_covariance_rad2")
+    if corr is None or cov is None:
+        return None
+    t_lo, t_hi = _image_seconds(result.model)
+    angles, sigma = correction_band(corr, np.asarray(cov, dtype=float), np.linspace(t_lo, t_hi, n_times))
+    rows = []
+    for a, name in enumerate(AXES):
+        rms = float(np.sqrt(np.mean((angles[:, a] - angles[:, a].mean()) ** 2)))
+        sig = float(np.mean(sigma[:, a]))
+        snr = rms / sig if sig > 0 else float("inf")
+        verdict = "observed" if snr >= OBSERVED_SNR else "weakly observed" if snr >= 1.0 else "not observable"
+        rows.append({"axis": name, "rms_urad": rms, "sigma_urad": sig, "snr": snr, "verdict": verdict})
+    return rows
+
+
 def section_attitude(result, figure) -> str:
     """HTML of the attitude section: selection table, recovered jitter, figure.
 
@@ -117,6 +158,19 @@ def section_attitude(result, figure) -> str:
                  for a, p in jitter.items()]
         table += "<p>Dominant sinusoid of the correction per axis:</p>" + _table(
             ["axis", "amplitude (µrad)", "frequency (Hz)"], jrows)
+    observability = attitude_observability(result)
+    if observability:
+        orows = [[_e(o["axis"]), _fmt(o["rms_urad"]), _fmt(o["sigma_urad"]), _fmt(o["snr"], 3),
+                  _e(o["verdict"]) if o["verdict"] == "observed" else f'<span class="fail">{_e(o["verdict"])}</span>']
+                 for o in observability]
+        table += ("<p>What the data observe of the correction (rms about its mean over the image against its mean "
+                  f"a-posteriori sigma; observed from {OBSERVED_SNR:g} sigma):</p>"
+                  + _table(["axis", "rms (µrad)", "sigma (µrad)", "rms / sigma", "verdict"], orows))
+        weak = [o["axis"] for o in observability if o["verdict"] != "observed"]
+        if weak:
+            table += (f"<p class=\"fail\">The {', '.join(weak)} correction is not clearly above its own uncertainty: "
+                      "its shape is what the smoothing and the GCPs' noise allow, not a measured attitude motion; "
+                      "read it as an upper bound.</p>")
     if info.get("failed"):
         table += f"<p>The time-varying solve failed, the static solution is kept: {_e(info['failed'])}</p>"
     return intro + table + (_figure_html(figure) if figure else "")
