@@ -120,8 +120,8 @@ def prepare_windows(scene: Path, options) -> dict:
     from numpy.lib.stride_tricks import sliding_window_view
 
     from gcpmatch.clouds import detect_clouds
-    from gcpmatch.extract import _coarse_stage, _grid_starts, read_band
     from gcpmatch.coarse import scene_height_m
+    from gcpmatch.extract import _coarse_stage, _grid_starts, read_band
     from gcpmatch.reference import reference_for_ccd, scene_gsd_m
     from gcpmatch.uncertainty import reference_sigma_px
     from sensor_models.maps.raster import MapImage
@@ -326,7 +326,9 @@ def _calibrate(scene: Path, gcps: Path, out: Path) -> dict:
 
 def _exact_gcps(scene: Path, gcps: Path, out: Path) -> None:
     """The same GCPs (ground points, sigma, kind) observed exactly: projected through the TRUE model."""
-    from gcpmatch.gcps import GcpTable, read_gcps, write_gcps_csv
+    from gcpmatch.gcp_csv import write_gcps_csv
+    from gcpmatch.gcp_files import read_gcps
+    from gcpmatch.gcps import GcpTable
     from sensor_models.readers import open_model
 
     table = read_gcps(gcps)

@@ -96,8 +96,8 @@ def _open_fixture(fixture_dir: Path) -> dict:
 def _match(fx: dict, out_dir: Path, spacing_px: int):
     """Phase 1: GCPs of the reference band against the DOM and DEM; writes ``gcps.csv``."""
     from gcpmatch.extract import extract_gcps, read_band
+    from gcpmatch.gcp_csv import write_gcps_csv
     from gcpmatch.options import MatchOptions
-    from gcpmatch.gcps import write_gcps_csv
 
     lab, band = fx["lab"], fx["reference_band"]
     merged, summary = extract_gcps(lab, read_band(lab, band), fx["dem"], fx["dom"], band=band,

@@ -113,7 +113,7 @@ def run_chain(work: Path, profile, *, config: dict, source=None) -> dict:
     from calibrate.actions.calibrate import calibrate_scene
     from calibrate.actions.match import match_scene
     from calibrate.actions.simulate import truth_error_of
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.readers import open_model
     from sensor_models.simulate.config import config_from_dict
     from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
@@ -214,7 +214,7 @@ def gcp_sensitivity(scene: Path, gcps_csv: Path, *, quick: bool, gsd_m: float, j
     list of SensitivityCurve
     """
     from calibrate.absolute import calibrate_model
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.readers import open_model
     from sensor_models.simulate.truth import truth_error
 
