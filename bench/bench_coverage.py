@@ -136,7 +136,7 @@ def demo_runs(fixture: Path) -> dict:
     from calibrate.config import CalibrationOptions
     from calibrate.pipelines.demo import TRUE_DEM, fixture_profile
     from calibrate.pipelines.scene import GCP_FILE, match_step
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from gcpmatch.options import MatchOptions
     from sensor_models.models.compare import model_difference
     from sensor_models.readers import open_model

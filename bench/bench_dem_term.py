@@ -103,7 +103,8 @@ def dem_term(scene: Path, pts: dict) -> dict:
 
 def write_table(pts: dict, heights: str, path: Path, check_every: int = 5) -> Path:
     """The GCP CSV with ``h_true`` or ``h_user`` heights; every ``check_every``-th point a check point."""
-    from gcpmatch.gcps import GcpTable, write_gcps_csv
+    from gcpmatch.gcp_csv import write_gcps_csv
+    from gcpmatch.gcps import GcpTable
 
     n = pts["row"].size
     kind = np.where(np.arange(n) % check_every == check_every - 1, "check", "gcp")

@@ -49,7 +49,7 @@ def coarse_dom(src: Path, dst: Path, factor: int) -> float:
 def run(fixture: str, work: Path) -> list[dict]:
     from calibrate.cli import main
     from calibrate.experiments.simulate_seed003 import gcp_truth_error
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.imaging.ortho_grid import scene_gsd_m
     from sensor_models.readers import open_scene
 

@@ -22,9 +22,11 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from gcpmatch.gcps import (  # noqa: E402
-    GEOTIFF_MAX_GCPS, GcpTable, read_gcps, write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg,
-)
+from gcpmatch.gcp_csv import write_gcps_csv  # noqa: E402
+from gcpmatch.gcp_files import read_gcps  # noqa: E402
+from gcpmatch.gcp_geotiff import GEOTIFF_MAX_GCPS, write_gcps_geotiff  # noqa: E402
+from gcpmatch.gcps import GcpTable  # noqa: E402
+from gcpmatch.geopackage import write_gcps_gpkg  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

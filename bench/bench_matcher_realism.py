@@ -120,8 +120,8 @@ def prepare_windows(scene: Path, options) -> dict:
     from numpy.lib.stride_tricks import sliding_window_view
 
     from gcpmatch.clouds import detect_clouds
-    from gcpmatch.extract import _coarse_stage, _grid_starts, read_band
     from gcpmatch.coarse import scene_height_m
+    from gcpmatch.extract import coarse_stage, grid_starts, read_band
     from gcpmatch.reference import reference_for_ccd, scene_gsd_m
     from gcpmatch.uncertainty import reference_sigma_px
     from sensor_models.maps.raster import MapImage
@@ -134,7 +134,7 @@ def prepare_windows(scene: Path, options) -> dict:
     img_all = read_band(model, band)
     dem = Dem.open(scene / "reference" / "dem.tif")
     dom = MapImage.open(scene / "reference" / "dom.tif")
-    model_pc = _coarse_stage(img_all, model, dem, dom, band, options).model
+    model_pc = coarse_stage(img_all, model, dem, dom, band, options).model
     w, half = options.window_px, options.window_px // 2
     out = {k: [] for k in ("ws", "wr", "status", "std_r", "true_shift", "rr", "cc", "ccd")}
     grids, first_cols, per_m = [], [], []
@@ -146,8 +146,8 @@ def prepare_windows(scene: Path, options) -> dict:
                                 interpolation=chip_interpolation())
         img = img_all[:, look.first_col:look.first_col + look.n_detectors]
         msk, _ = detect_clouds(img, ref)
-        rs = _grid_starts(img.shape[0], w, options.spacing_px)
-        cs = _grid_starts(img.shape[1], w, options.spacing_px)
+        rs = grid_starts(img.shape[0], w, options.spacing_px)
+        cs = grid_starts(img.shape[1], w, options.spacing_px)
         rr, cc = (a.ravel() for a in np.meshgrid(rs, cs, indexing="ij"))
         wr = sliding_window_view(ref, (w, w))[rr, cc]
         ws = sliding_window_view(img, (w, w))[rr, cc]
@@ -326,7 +326,9 @@ def _calibrate(scene: Path, gcps: Path, out: Path) -> dict:
 
 def _exact_gcps(scene: Path, gcps: Path, out: Path) -> None:
     """The same GCPs (ground points, sigma, kind) observed exactly: projected through the TRUE model."""
-    from gcpmatch.gcps import GcpTable, read_gcps, write_gcps_csv
+    from gcpmatch.gcp_csv import write_gcps_csv
+    from gcpmatch.gcp_files import read_gcps
+    from gcpmatch.gcps import GcpTable
     from sensor_models.readers import open_model
 
     table = read_gcps(gcps)

@@ -294,7 +294,8 @@ def kernel_parts(ref, mov, threads: int, repeat: int) -> dict:
     """CPU time per pair of each step of the current kernel on one batch, and the floor's FFTs."""
     import scipy.fft
 
-    from gcpmatch.phase import NumpyKernel, following_windows, make_plan
+    from gcpmatch.phase_numpy import NumpyKernel
+    from gcpmatch.phase_plan import following_windows, make_plan
 
     plan = make_plan(ref.shape[1:])
     kernel = NumpyKernel(plan, workers=threads)

@@ -46,7 +46,7 @@ def gcp_truth_error(scene: Path, gcps_csv: Path) -> dict:
     """RMS / max of (matched row, col) minus the TRUE model's projection of each GCP's ground point
     (:func:`calibrate.experiments.simulate_seed003.gcp_truth_error`)."""
     from calibrate.experiments.simulate_seed003 import gcp_truth_error as _gcp_truth_error
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.readers import open_model
 
     return _gcp_truth_error(open_model(scene / "truth_manifest.json"), read_gcps(gcps_csv))

@@ -74,7 +74,7 @@ def gcp_truth(fixture: Path, gcps_csv: Path, patches, window_px: int = 64) -> di
     """Truth error (n, 2) px, sigma_px (n,), score (n,) and patch share (n,) of the GCPs (kind gcp)."""
     import pyproj
 
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.readers import open_model
     from sensor_models.terrain.dem import Dem
 

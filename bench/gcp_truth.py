@@ -69,7 +69,7 @@ def gcp_truth_by_angle(truth_manifest: Path, gcps_csv: Path) -> dict:
         (``mean_drow_px``, ``mean_dcol_px``).
     """
     from calibrate.experiments.simulate_seed003 import gcp_truth_error
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.readers import open_model
 
     truth, table = open_model(truth_manifest), read_gcps(gcps_csv)

@@ -207,7 +207,7 @@ def write_residual_layer(columns: dict, path, *, layer: str) -> Path:
     """Write a residual layer as an OGC GeoPackage (EPSG:4326 POINT Z); atomically.
 
     Written by GDAL through :func:`pyogrio.raw.write`, as
-    :func:`gcpmatch.gcps.write_gcps_gpkg` writes GCPs: ``fid``, ``geom`` (lon, lat, h) and the
+    :func:`gcpmatch.geopackage.write_gcps_gpkg` writes GCPs: ``fid``, ``geom`` (lon, lat, h) and the
     :data:`RESIDUAL_FIELDS` in order. An empty layer (no point) is written with its schema.
 
     Parameters
@@ -230,7 +230,7 @@ def write_residual_layer(columns: dict, path, *, layer: str) -> Path:
     InputError
         A missing column or GDAL could not write the file.
     """
-    from gcpmatch.gcps import write_point_layer
+    from gcpmatch.geopackage import write_point_layer
 
     missing = [k for k in RESIDUAL_FIELDS if k not in columns]
     if missing:

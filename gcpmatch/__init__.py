@@ -10,7 +10,7 @@ _EXPORTS = {
     "extract_gcps": "gcpmatch.extract",
     "phase_correlate": "gcpmatch.phase",
     "GcpTable": "gcpmatch.gcps",
-    "read_gcps": "gcpmatch.gcps",
+    "read_gcps": "gcpmatch.gcp_files",
     "MatchOptions": "gcpmatch.options",
 }
 

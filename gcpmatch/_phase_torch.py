@@ -2,8 +2,8 @@
 
 Imported lazily by :func:`gcpmatch.phase.phase_correlate` when ``backend="torch"`` or ``"gpu"``
 is asked for; torch is an optional dependency (extra ``gpu``). Every constant (windows,
-spectral weights, DFT kernels) comes from the numpy :class:`gcpmatch.phase._Plan`, so both
-backends share one definition of the algorithm; this module only translates the batch
+spectral weights, DFT kernels) comes from the :class:`gcpmatch.phase_plan.PhasePlan`, so
+both backends share one definition of the algorithm; this module only translates the batch
 operations (see the numpy ``NumpyKernel`` for the equations). Results match the CPU path to
 well under 0.01 px (``tests/test_phase.py``).
 """
@@ -27,11 +27,11 @@ except ImportError as exc:  # pragma: no cover - depends on the environment
 
 
 class TorchKernel:
-    """Batch kernel on torch; same call and outputs as ``gcpmatch.phase.NumpyKernel``.
+    """Batch kernel on torch; same call and outputs as ``gcpmatch.phase_numpy.NumpyKernel``.
 
     Parameters
     ----------
-    plan : gcpmatch.phase._Plan
+    plan : gcpmatch.phase_plan.PhasePlan
     device : str
         Torch device ("cpu", "cuda", "cuda:1", ...).
     """
@@ -90,7 +90,7 @@ class TorchKernel:
     # ---------------------------------------------------------------- steps
 
     def half_resolution_estimate(self, spec_ref_conj, mov):
-        """First pass at half resolution, as :meth:`gcpmatch.phase.NumpyKernel.half_resolution_estimate`.
+        """First pass at half resolution, as :meth:`gcpmatch.phase_numpy.NumpyKernel.half_resolution_estimate`.
 
         The doubled estimate is the shift minus ``plan.coarse_offset_px`` per axis (the 2 x 2 bins'
         half-pixel offset).
@@ -146,7 +146,7 @@ class TorchKernel:
         return torch.fft.rfft2(prepared)
 
     def cross_power(self, spec_ref_conj, spec_mov):
-        """Weighted normalized cross-power, as :meth:`gcpmatch.phase.NumpyKernel.cross_power`.
+        """Weighted normalized cross-power, as :meth:`gcpmatch.phase_numpy.NumpyKernel.cross_power`.
 
         Parameters
         ----------
@@ -177,7 +177,7 @@ class TorchKernel:
         return cross, q_mean, q_var
 
     def coarse_peak(self, cross):
-        """Integer-grid peak and secondary maximum, as :meth:`gcpmatch.phase.NumpyKernel.coarse_peak`.
+        """Integer-grid peak and secondary maximum, as :meth:`gcpmatch.phase_numpy.NumpyKernel.coarse_peak`.
 
         Parameters
         ----------
@@ -213,7 +213,7 @@ class TorchKernel:
         return centre, second
 
     def refine(self, cross, centre, stages, *, max_iterations: int = NEWTON_MAX_ITERATIONS):
-        """Sub-pixel refinement around ``centre``, as :meth:`gcpmatch.phase.NumpyKernel.refine`:
+        """Sub-pixel refinement around ``centre``, as :meth:`gcpmatch.phase_numpy.NumpyKernel.refine`:
         Newton steps when ``stages`` is empty, else the DFT grids.
 
         Parameters
@@ -289,7 +289,7 @@ class TorchKernel:
         return centre, value / (height * width)
 
     def following_windows(self, shift_px):
-        """Torch version of :func:`gcpmatch.phase.following_windows`.
+        """Torch version of :func:`gcpmatch.phase_plan.following_windows`.
 
         Parameters
         ----------
@@ -351,7 +351,7 @@ def _parabola_vertex(left, centre, right):
 
 
 def _grid_peak(values, offsets_px: np.ndarray):
-    """Torch version of ``gcpmatch.phase._grid_peak``."""
+    """Torch version of :func:`gcpmatch.phase_peak.grid_peak`."""
     n, m, _ = values.shape
     device = values.device
     idx = torch.argmax(values.reshape(n, -1), dim=1)
@@ -370,7 +370,7 @@ def _grid_peak(values, offsets_px: np.ndarray):
 
 
 def _quadratic_vertex(patch):
-    """Torch version of ``gcpmatch.phase._quadratic_vertex``."""
+    """Torch version of :func:`gcpmatch.phase_peak.quadratic_vertex`."""
     x = torch.tensor([-1.0, 0.0, 1.0], dtype=torch.float64, device=patch.device)
     c1 = torch.einsum("bij,i->b", patch, x) / 6.0
     c2 = torch.einsum("bij,j->b", patch, x) / 6.0

@@ -41,13 +41,31 @@ from sensor_models.maps.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs
 from sensor_models.errors import InputError
 
-__all__ = ["MatchOptions", "correlate_pairs", "extract_gcps", "read_band", "reject_outliers", "window_count"]
+__all__ = ["MatchOptions", "coarse_stage", "correlate_pairs", "extract_gcps", "grid_starts", "read_band", "reject_outliers",
+           "window_count"]
 
 REASONS = ("no_reference", "no_data", "cloud", "no_texture", "flat", "not_finite", "out_of_range",
            "low_score", "low_peak_ratio", "inconsistent", "model_residual")
 
 
-def _grid_starts(n: int, window: int, spacing: int) -> np.ndarray:
+def grid_starts(n: int, window: int, spacing: int) -> np.ndarray:
+    """First pixels of the matching windows along one axis: every ``spacing`` px, plus the last
+    window flush with the end.
+
+    Parameters
+    ----------
+    n : int
+        Pixels along the axis.
+    window : int
+        Window side, px.
+    spacing : int
+        Step between window starts, px.
+
+    Returns
+    -------
+    ndarray of intp, shape (K,)
+        Start indices in ``[0, n - window]``; empty when ``n < window``.
+    """
     if n < window:
         return np.zeros(0, dtype=np.intp)
     last = n - window
@@ -73,8 +91,8 @@ def window_count(model, band: str, options: MatchOptions) -> int:
         Number of windows (each gives at most one GCP or check point).
     """
     n_rows = model.image_shape[0]
-    rows = _grid_starts(n_rows, options.window_px, options.spacing_px).size
-    return int(sum(rows * _grid_starts(look.n_detectors, options.window_px, options.spacing_px).size
+    rows = grid_starts(n_rows, options.window_px, options.spacing_px).size
+    return int(sum(rows * grid_starts(look.n_detectors, options.window_px, options.spacing_px).size
                    for look in model.detector_arrays(band)))
 
 
@@ -144,7 +162,7 @@ def _extract(model, scene, dem, dom, *, band, mask, opt: MatchOptions, accuracy,
     t0 = time.perf_counter()
     scene = _checked_scene(model, scene, mask)
     try:
-        coarse = _coarse_stage(scene, model, dem, dom, band, opt)
+        coarse = coarse_stage(scene, model, dem, dom, band, opt)
     except CoarseMatchError as exc:  # name the cloud figure: clouds are a common cause
         raise CoarseMatchError(f"{exc}; {_cloud_note(scene, mask)}") from exc
     timings = {"coarse_s": time.perf_counter() - t0}
@@ -224,8 +242,27 @@ def _cloud_note(scene: np.ndarray, mask) -> str:
             "clouds)")
 
 
-def _coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
-    """Coarse SIFT matching and model pre-correction, on the options' backend."""
+def coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
+    """Coarse SIFT matching and model pre-correction, on the options' backend.
+
+    Parameters
+    ----------
+    scene : ndarray, shape (H, W)
+        The band's image.
+    model : SensorModel
+        The model to pre-correct.
+    dem, dom
+        The reference DEM and orthoimage.
+    band : str
+        The band matched.
+    opt : MatchOptions
+        ``max_offset_px``, ``seed``, ``backend``, ``window_px`` and ``coarse_skip`` are used.
+
+    Returns
+    -------
+    gcpmatch.coarse.CoarseResult
+        What :func:`gcpmatch.coarse.coarse_match` returns (its ``model`` is pre-corrected).
+    """
     torch_backend = opt.backend in ("gpu", "torch")
     device = "cuda" if opt.backend == "gpu" else ("cpu" if torch_backend else None)
     return coarse_match(scene, model, dem, dom, band=band, max_offset_px=opt.max_offset_px, seed=opt.seed,
@@ -251,8 +288,8 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
         msk = mask[:, cols]
         cloud_px = float(msk.mean())
     cover = reference_coverage(model_pc, dem, dom, band=band, array=ccd, height_m=tally.height_m)
-    rs = _grid_starts(img.shape[0], opt.window_px, opt.spacing_px)
-    cs = _grid_starts(img.shape[1], opt.window_px, opt.spacing_px)
+    rs = grid_starts(img.shape[0], opt.window_px, opt.spacing_px)
+    cs = grid_starts(img.shape[1], opt.window_px, opt.spacing_px)
     if rs.size == 0 or cs.size == 0:
         tally.per_ccd.append(_ccd_report(look, 0, 0, cloud_px, cover, {}, float("nan"), (np.empty(0),) * 2,
                                          img.shape, dem, dom))

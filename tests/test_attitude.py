@@ -271,7 +271,7 @@ def test_manifest_round_trip(lab, tmp_path):
 # ------------------------------------------------------------------ command line
 def test_calibrate_command_writes_the_correction(jitter_case, lab, tmp_path, capsys):
     from calibrate.cli import main
-    from gcpmatch.gcps import write_gcps_csv
+    from gcpmatch.gcp_csv import write_gcps_csv
 
     truth, _, _ = jitter_case
     scene = write_manifest(lab, tmp_path / "lab.json")

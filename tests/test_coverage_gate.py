@@ -178,7 +178,9 @@ def test_full_dem_is_partial_until_relative_then_calibrated(full_gcps, tmp_path,
 
 
 def _without(table_path, out_path, drop):
-    from gcpmatch.gcps import GcpTable, read_gcps, write_gcps_csv
+    from gcpmatch.gcp_csv import write_gcps_csv
+    from gcpmatch.gcp_files import read_gcps
+    from gcpmatch.gcps import GcpTable
 
     table = read_gcps(table_path)
     keep = ~drop(table)
@@ -198,7 +200,7 @@ def test_ccd_without_check_points_is_unverified(full_gcps, tmp_path, capsys):
 
 
 def test_ccd_with_too_little_spread_is_uncalibrated(full_gcps, tmp_path, capsys):
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.readers import open_model
 
     model = open_model(FIXTURE / "manifest.json")
@@ -220,7 +222,8 @@ def test_ccd_with_narrow_spread_is_uncalibrated(full_gcps):
     """Enough GCPs, all on a narrow strip of the CCD's detectors: the span rule skips it."""
     from calibrate.absolute import calibrate_model
     from calibrate.from_gcps import points_of
-    from gcpmatch.gcps import GcpTable, read_gcps
+    from gcpmatch.gcp_files import read_gcps
+    from gcpmatch.gcps import GcpTable
     from sensor_models.readers import open_model
 
     model = open_model(FIXTURE / "manifest.json")

@@ -23,7 +23,8 @@ from rasterio.errors import NotGeoreferencedWarning
 from rasterio.transform import RPCTransformer
 
 from calibrate.cli import main
-from gcpmatch.gcps import GcpTable, write_gcps_csv
+from gcpmatch.gcp_csv import write_gcps_csv
+from gcpmatch.gcps import GcpTable
 from sensor_models.models.rpc import RpcModel
 from sensor_models.readers.rpc_files import read_rpc, rpc_to_gdal_metadata
 

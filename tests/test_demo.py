@@ -46,7 +46,8 @@ def test_calibrate_command_on_demo_gcps(demo_run, tmp_path):
 
     fixture = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi" / "manifest.json"
     # only the reference band's points: the others need their own interior
-    from gcpmatch.gcps import read_gcps, write_gcps_csv
+    from gcpmatch.gcp_csv import write_gcps_csv
+    from gcpmatch.gcp_files import read_gcps
 
     table = read_gcps(out / "gcps.csv")
     write_gcps_csv(table.select(table.band == "B2"), tmp_path / "b2.csv")
@@ -100,7 +101,8 @@ def test_forty_percent_gross_outliers_barely_move_the_calibration(demo_run):
     from calibrate.absolute import calibrate_model
     from calibrate.config import CalibrationOptions
     from calibrate.from_gcps import points_of
-    from gcpmatch.gcps import GcpTable, read_gcps
+    from gcpmatch.gcp_files import read_gcps
+    from gcpmatch.gcps import GcpTable
     from sensor_models.readers import open_model
     from sensor_models.simulate.truth import truth_error
     from sensor_models.terrain.dem import Dem

@@ -14,15 +14,13 @@ import struct
 import numpy as np
 import pytest
 
+from gcpmatch import gcp_csv as gcp_csv_module
 from gcpmatch import gcps as gcps_module
-from gcpmatch.gcps import (
-    COLUMNS,
-    GcpTable,
-    read_gcps,
-    write_gcps_csv,
-    write_gcps_geotiff,
-    write_gcps_gpkg,
-)
+from gcpmatch.gcp_csv import write_gcps_csv
+from gcpmatch.gcp_files import read_gcps
+from gcpmatch.gcp_geotiff import GEOTIFF_MAX_GCPS, write_gcps_geotiff
+from gcpmatch.gcps import COLUMNS, GcpTable
+from gcpmatch.geopackage import write_gcps_gpkg
 from sensor_models.errors import InputError
 
 HEADER = "id,row,col,lon,lat,h"
@@ -201,7 +199,7 @@ def test_csv_round_trip_is_bit_exact_with_awkward_text(tmp_path):
 
 
 def test_csv_round_trip_plain_path_several_chunks(tmp_path):
-    n = 2 * gcps_module._CHUNK_ROWS + 3
+    n = 2 * gcp_csv_module._CHUNK_ROWS + 3
     t = make_table(n, seed=5)
     p = write_gcps_csv(t, tmp_path / "big.csv")
     assert b'"' not in p.read_bytes()  # the vectorized (quote-free) reader
@@ -555,7 +553,7 @@ def test_geotiff_points_outside_image_write_nothing(tmp_path):
     raises_input(["point 1", "field 'row'", "outside the image [0, 100]"], write_gcps_geotiff,
                  t, tmp_path / "x.tif", image_shape=(100, 200))  # fmt: skip
     raises_input(["image_shape"], write_gcps_geotiff, t, tmp_path / "x.tif", image_shape=None)
-    big = make_table(gcps_module.GEOTIFF_MAX_GCPS + 1)
+    big = make_table(GEOTIFF_MAX_GCPS + 1)
     raises_input(["at most 10922 GCPs"], write_gcps_geotiff, big, tmp_path / "x.tif",
                  image_shape=(1000, 2000))  # fmt: skip
     assert list(tmp_path.iterdir()) == []
@@ -586,7 +584,7 @@ def test_failure_mid_write_leaves_destination_untouched(tmp_path, fmt):
     """A text value that cannot be encoded (a lone surrogate) in the last chunk fails the write
     after earlier chunks were written: the old file stays as it was and no temporary is left."""
     write, name, kw = WRITERS[fmt]
-    n = gcps_module._CHUNK_ROWS + 10
+    n = gcp_csv_module._CHUNK_ROWS + 10
     t = make_table(n, seed=4)
     dest = write(make_table(3), tmp_path / name, **kw)
     before = dest.read_bytes()

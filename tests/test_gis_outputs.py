@@ -22,7 +22,8 @@ from rasterio.transform import RPCTransformer
 from calibrate.accuracy import check_residuals
 from calibrate.cli import main
 from calibrate.residual_layer import RESIDUAL_FIELDS, read_residual_layer, residual_layer
-from gcpmatch.gcps import GcpTable, read_gcps
+from gcpmatch.gcp_files import read_gcps
+from gcpmatch.gcps import GcpTable
 from sensor_models.readers import open_model
 from sensor_models.models.rpc import RpcModel
 from sensor_models.readers.rpc_files import read_rpc
@@ -220,7 +221,7 @@ def test_gcp_geotiff_holds_the_scene_pixels_and_the_gcps(matched):
 
 
 def test_gcp_geotiff_copies_only_the_matched_band(tmp_path):
-    from gcpmatch.gcps import write_gcps_geotiff
+    from gcpmatch.gcp_geotiff import write_gcps_geotiff
     from sensor_models.errors import InputError
 
     rng = np.random.default_rng(6)

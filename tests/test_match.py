@@ -10,8 +10,8 @@ import pytest
 
 from gcpmatch.coarse import CoarseMatchError, coarse_match
 from gcpmatch.extract import extract_gcps, read_band
+from gcpmatch.gcp_files import read_gcps
 from gcpmatch.options import MatchOptions
-from gcpmatch.gcps import read_gcps
 from calibrate.cli import main
 from sensor_models.errors import GcpcalError, InputError
 from sensor_models.readers import open_model

@@ -200,7 +200,7 @@ def test_match_command_takes_the_sigma_model(tmp_path):
     import rasterio
 
     from calibrate.cli import main
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.maps.dom_inputs import ACCURACY_TAG, ASSUMED_REFERENCE_SIGMA_M
 
     fixture = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"

@@ -297,7 +297,8 @@ def test_calibrated_ortho_matches_dom(demo, tmp_path, capsys):
 
 @pytest.mark.slow  # shares the demo's calibration
 def test_gcp_geotiff_warps_with_gdal(demo, tmp_path):
-    from gcpmatch.gcps import read_gcps, write_gcps_geotiff
+    from gcpmatch.gcp_files import read_gcps
+    from gcpmatch.gcp_geotiff import write_gcps_geotiff
 
     table = read_gcps(demo / "gcps.csv")
     table = table.select(table.band == "B2")

@@ -188,7 +188,7 @@ def test_own_outputs_replaced_user_files_and_edited_outputs_need_overwrite(s, tm
 
 
 def test_match_writes_the_format_its_name_says(s, tmp_path, capsys):
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
 
     code, lines = _run(capsys, *_match(s, tmp_path / "gcps.gpkg"))
     assert code == 0, lines

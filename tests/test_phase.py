@@ -17,16 +17,9 @@ import pytest
 import scipy.ndimage as ndi
 from scipy.special import erf
 
-from gcpmatch.phase import (
-    HALF_PASS_OFFSET_PX,
-    MIN_PEAK_RATIO,
-    NULL_SIGMA_FACTOR,
-    NumpyKernel,
-    PhaseMatches,
-    Reject,
-    make_plan,
-    phase_correlate,
-)
+from gcpmatch.phase import MIN_PEAK_RATIO, NULL_SIGMA_FACTOR, PhaseMatches, Reject, phase_correlate
+from gcpmatch.phase_numpy import NumpyKernel
+from gcpmatch.phase_plan import HALF_PASS_OFFSET_PX, make_plan
 from gcpmatch.phase_newton import NEWTON_MAX_ITERATIONS, NEWTON_TOLERANCE_PX, newton_step, surface_grid
 from sensor_models.errors import InputError
 
@@ -369,7 +362,8 @@ def test_array_window_needs_follow_zero(realistic_set):
 def test_weighted_mean_is_removed_in_the_frequency_domain(window):
     """``NumpyKernel.spectrum`` transforms ``w x`` and subtracts ``m rfft2(w)`` on the window's
     spectral support; it must equal ``rfft2(w (x - m))`` computed directly."""
-    from gcpmatch.phase import NumpyKernel, make_plan
+    from gcpmatch.phase_numpy import NumpyKernel
+    from gcpmatch.phase_plan import make_plan
 
     rng = np.random.default_rng(9)
     x = 1000.0 + 30.0 * rng.normal(size=(5, 48, 40))  # a large mean: the term to remove
@@ -388,12 +382,12 @@ def test_weighted_mean_is_removed_in_the_frequency_domain(window):
 
 
 def test_quadratic_vertex_of_a_tilted_paraboloid():
-    from gcpmatch.phase import _quadratic_vertex
+    from gcpmatch.phase_peak import quadratic_vertex
 
     x = np.array([-1.0, 0.0, 1.0])
     rows, cols = np.meshgrid(x, x, indexing="ij")
     f = -(2.0 * (rows - 0.3) ** 2 + (cols + 0.2) ** 2 + 0.8 * (rows - 0.3) * (cols + 0.2))
-    d_row, d_col = _quadratic_vertex(np.stack([f, -f]))
+    d_row, d_col = quadratic_vertex(np.stack([f, -f]))
     np.testing.assert_allclose([d_row[0], d_col[0]], [0.3, -0.2], atol=1e-12)
     assert d_row[1] == 0.0 and d_col[1] == 0.0  # a minimum: no vertex offset
 
@@ -416,7 +410,8 @@ def _surface(cross, shape, points):
 
 def _cross_spectra(ref, mov, shape):
     """Normalized cross-power spectra (N, H, Wh) of the fixed-window pass, complex64."""
-    from gcpmatch.phase import NumpyKernel, make_plan
+    from gcpmatch.phase_numpy import NumpyKernel
+    from gcpmatch.phase_plan import make_plan
 
     kernel = NumpyKernel(make_plan(shape, follow=0), workers=1)
     cross, _, _ = kernel.cross_power(np.conjugate(kernel.spectrum(ref.astype(np.float32))),
@@ -511,9 +506,9 @@ def test_newton_result_does_not_depend_on_the_batch(realistic_set, monkeypatch):
     np.testing.assert_allclose(a.shift_px, b.shift_px, atol=BATCH_INDEPENDENCE_PX)
     np.testing.assert_allclose(a.score, b.score, atol=1e-6)
     # the tolerance can tell: a batch-wide stop changes some pairs by more than it
-    import gcpmatch.phase as phase_module
+    import gcpmatch.phase_numpy as phase_numpy_module
 
-    monkeypatch.setattr(phase_module, "newton_refine", _batch_wide_newton)
+    monkeypatch.setattr(phase_numpy_module, "newton_refine", _batch_wide_newton)
     wide = phase_correlate(ref[:30], mov[:30], batch=7)
     assert np.nanmax(np.abs(wide.shift_px - b.shift_px)) > 2 * BATCH_INDEPENDENCE_PX
 

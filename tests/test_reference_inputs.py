@@ -461,7 +461,7 @@ def _landsat_tiles(scene, folder, *, cloudy_tile: int):
 
 def test_match_against_landsat_tiles_with_qa_pixel(scene, tmp_path):
     from calibrate.cli import main
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
 
     cloudy, crs = _landsat_tiles(scene, tmp_path / "landsat", cloudy_tile=1)
     dem = str(scene / "reference" / "dem.tif")

@@ -213,7 +213,7 @@ def test_relative_command_writes_a_calibrated_manifest(scene, calibration_dir, t
 
 def test_relative_command_with_the_band_parallax(scene, calibration_dir, tmp_path, capsys):
     """--gcps turns the parallax path on: the summary names the ties and the knots; --no-parallax keeps it off."""
-    from gcpmatch.gcps import write_gcps_csv
+    from gcpmatch.gcp_csv import write_gcps_csv
 
     csv = tmp_path / "b2.csv"
     write_gcps_csv(scene["gcps"], csv)
@@ -310,7 +310,7 @@ def test_a_partial_reference_calibration_ends_relative_partial_and_names_the_arr
     """The bands are registered (ties) but the model the stage writes is not whole: one CCD of the
     reference band had no GCP (``gcpcal calibrate`` ended partial). ``gcpcal relative`` says so
     and ends with exit 4 (docs/cli.md), not 0; with a whole calibration it ends 0 (tests above)."""
-    from gcpmatch.gcps import write_gcps_csv
+    from gcpmatch.gcp_csv import write_gcps_csv
 
     gcps = scene["gcps"]
     names = np.array([look.name for look in scene["lab"].band_ccds("B2")])

@@ -31,7 +31,7 @@ from gcpmatch.star_tracks import (
     read_sextractor_catalog,
     rowcol_to_fits,
 )
-from gcpmatch.star_tracks import identify
+from gcpmatch.star_tracks import patterns
 from sensor_models.errors import InputError
 from sensor_models.imaging.psf import render_stars
 from sensor_models.geometry.star_catalogue import StarCatalog, apparent_directions, radec_to_unit
@@ -306,7 +306,7 @@ def test_triangle_enumeration_matches_brute_force():
     pts /= np.linalg.norm(pts, axis=1, keepdims=True)
     chord = 2 * np.sin(np.deg2rad(10.0) / 2)
     pairs = cKDTree(pts).query_pairs(chord, output_type="ndarray")
-    tri = identify._triangles_from_pairs(pairs, 60)
+    tri = patterns._triangles_from_pairs(pairs, 60)
     edges = {tuple(p) for p in pairs}
     brute = {t for t in combinations(range(60), 3)
              if (t[0], t[1]) in edges and (t[0], t[2]) in edges and (t[1], t[2]) in edges}

@@ -43,7 +43,7 @@ def _one_error_line(capsys) -> str:
 @pytest.fixture(scope="module")
 def gcp_table(tmp_path_factory):
     """A real GCP table of the fixture's reference band (coarse grid: a few seconds)."""
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
 
     out = tmp_path_factory.mktemp("match") / "gcps.csv"
     assert main(["-q", "match", str(SCENE), "--dom", str(DOM), "--dem", str(DEM), "--out", str(out),
@@ -92,7 +92,7 @@ def test_match_geotiff_failure_leaves_no_csv_nor_gpkg(tmp_path, capsys, fast_mat
     def too_many(table, path, **kwargs):
         raise InputError("12000 GCPs: a GeoTIFF holds at most 10922; use CSV or GeoPackage", path=str(path))
 
-    monkeypatch.setattr("gcpmatch.gcps.write_gcps_geotiff", too_many)
+    monkeypatch.setattr("gcpmatch.gcp_geotiff.write_gcps_geotiff", too_many)
     code = main(_match_args(tmp_path / "gcps.csv", "--gpkg", str(tmp_path / "g.gpkg"),
                             "--geotiff", str(tmp_path / "g.tif")))
     assert code == 1
@@ -187,7 +187,7 @@ def test_an_output_folder_holding_the_inputs_is_refused(tmp_path, capsys):
 
 
 def test_calibrated_manifest_names_rasters_relative_to_the_final_folder(tmp_path, capsys, gcp_table):
-    from gcpmatch.gcps import write_gcps_csv
+    from gcpmatch.gcp_csv import write_gcps_csv
     from sensor_models.readers import open_model
 
     write_gcps_csv(gcp_table, tmp_path / "gcps.csv")
@@ -213,7 +213,7 @@ def test_full_disk_names_the_file_and_keeps_the_previous_run(tmp_path, capsys, f
             fh.write("id,row")
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr("gcpmatch.gcps.write_gcps_csv", full)
+    monkeypatch.setattr("gcpmatch.gcp_csv.write_gcps_csv", full)
     assert main(_match_args(out)) == 1
     line = _one_error_line(capsys)
     assert str(out) in line and "No space left on device" in line
@@ -243,7 +243,7 @@ def test_rasterio_write_failure_is_one_line_naming_the_file(tmp_path, capsys, fa
         except RuntimeError as cause:
             raise RasterioIOError("Write failed. See previous exception for details.") from cause
 
-    monkeypatch.setattr("gcpmatch.gcps.write_gcps_geotiff", write_failed)
+    monkeypatch.setattr("gcpmatch.gcp_geotiff.write_gcps_geotiff", write_failed)
     code = main(_match_args(tmp_path / "gcps.csv", "--geotiff", str(tmp_path / "g.tif")))
     assert code == 1
     line = _one_error_line(capsys)
@@ -256,7 +256,7 @@ def test_interrupt_during_a_write_leaves_nothing(tmp_path, capsys, fast_match, m
         Path(path).write_text("half")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("gcpmatch.gcps.write_gcps_gpkg", interrupted)
+    monkeypatch.setattr("gcpmatch.geopackage.write_gcps_gpkg", interrupted)
     code = main(_match_args(tmp_path / "sub" / "gcps.csv", "--gpkg", str(tmp_path / "sub" / "g.gpkg")))
     assert code == 130
     assert _one_error_line(capsys) == "gcpcal: interrupted"

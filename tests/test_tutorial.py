@@ -273,7 +273,7 @@ def _gdal_offsets(tutorial):
     """Matched points minus GDAL's RPC transformer on the level-1A: (d_row, d_col), px."""
     from rasterio.transform import RPCTransformer
 
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
 
     points = read_gcps(tutorial.work / "work" / "gcps.csv")
     with rasterio.open(tutorial.work / "out" / "right_l1a.tif") as ds, RPCTransformer(ds.rpcs) as tr:

@@ -1,7 +1,7 @@
 """Stage action of ``gcpcal calibrate``: GCP file in, calibrated model and report out.
 
 :func:`calibrate_scene` reads any model :func:`sensor_models.readers.open_model` reads and a GCP
-table (:func:`gcpmatch.gcps.read_gcps`, strict), calibrates on the points of kind ``gcp`` and
+table (:func:`gcpmatch.gcp_files.read_gcps`, strict), calibrates on the points of kind ``gcp`` and
 scores before and after on the points of kind ``check`` (never used in the fit), then writes
 into ``out_dir``:
 
@@ -125,7 +125,7 @@ def _accuracy(model, pts):
 
 def _read_inputs(scene_path, gcps_path, band, image, self_check):
     """The model (cropped to ``image`` when that is a crop of the scene) and the GCP table."""
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.readers import open_scene
 
     model = open_scene(scene_path, image=image, band=band, self_check=self_check)

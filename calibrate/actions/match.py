@@ -168,7 +168,9 @@ def _write_outputs(table, summary, *, model, band, image, out_path, out_format, 
     layer and the summary; every file moves in together at the end, and with no GCP only the
     summary (an older table goes)."""
     from calibrate.residual_layer import LAYER_NAMES, model_residual_layer, write_residual_layer
-    from gcpmatch.gcps import write_gcps_csv, write_gcps_geotiff, write_gcps_gpkg
+    from gcpmatch.gcp_csv import write_gcps_csv
+    from gcpmatch.gcp_geotiff import write_gcps_geotiff
+    from gcpmatch.geopackage import write_gcps_gpkg
 
     staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
                           inputs=inputs)
@@ -196,7 +198,7 @@ def _dom_name(dom_found, dom_path) -> str:
 
 def _check_geotiff_capacity(model, band, options: MatchOptions, geotiff_path) -> None:
     """Refuse ``--geotiff`` when the windows could give more GCPs than a GeoTIFF holds."""
-    from gcpmatch.gcps import GEOTIFF_MAX_GCPS
+    from gcpmatch.gcp_geotiff import GEOTIFF_MAX_GCPS
 
     n_windows = window_count(model, band, options)
     if n_windows > GEOTIFF_MAX_GCPS:

@@ -180,7 +180,7 @@ def _parallax_summary(record) -> dict:
 
 def _reference_gcps(gcps_path, cal_path: Path, model):
     """The reference band's GCP table for the parallax path, and why there is none (or "")."""
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
 
     if gcps_path is None:
         doc_path = Path(cal_path).parent / "calibration.json"

@@ -186,7 +186,7 @@ def write_scene_points(points_dir, table, name: str, residuals: dict | None = No
         The CSV file written.
     """
     from calibrate.residual_layer import write_residual_layer
-    from gcpmatch.gcps import write_gcps_csv
+    from gcpmatch.gcp_csv import write_gcps_csv
 
     Path(points_dir).mkdir(parents=True, exist_ok=True)
     path = Path(points_dir) / f"{_safe_name(name)}.csv"

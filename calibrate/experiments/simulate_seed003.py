@@ -116,7 +116,7 @@ def run_chain(work: Path, profile, *, config: dict, pipeline, source=None) -> di
         ``match`` counts, ``check_rmse_px`` before/after, ``per_ccd`` check RMSE (row, col, planar)
         before/after, ``truth_error_px``, ``gcp_truth_error_px`` and the paths used.
     """
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.readers import open_model
     from sensor_models.simulate.config import config_from_dict
     from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
@@ -216,7 +216,7 @@ def gcp_sensitivity(scene: Path, gcps_csv: Path, *, quick: bool, gsd_m: float, j
     list of SensitivityCurve
     """
     from calibrate.absolute import calibrate_model
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from sensor_models.readers import open_model
     from sensor_models.simulate.truth import truth_error
 

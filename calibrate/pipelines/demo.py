@@ -102,7 +102,7 @@ def _user_path(fx: dict, out_dir: Path, spacing_px: int, step):
     """
     from calibrate.from_gcps import points_of
     from calibrate.pipelines.scene import GCP_FILE, scene_pipeline
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
     from gcpmatch.options import MatchOptions
 
     run = scene_pipeline(fx["scene"], dom_path=fx["dom"], dem_path=fx["dem"], out_dir=out_dir,

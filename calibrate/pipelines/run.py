@@ -93,7 +93,7 @@ def _decide(model, gcp_file, match, failure, min_gcps, min_coverage):
     """Whether the GCPs suffice, and why; returns ``(enough, reason, n_gcps, coverage)``."""
     n_gcps, coverage = 0, 0.0
     if failure is None:
-        from gcpmatch.gcps import read_gcps
+        from gcpmatch.gcp_files import read_gcps
 
         g = read_gcps(gcp_file).gcps()
         n_gcps, coverage = len(g), gcp_coverage(g.row, g.col, model.image_shape)

@@ -7,7 +7,8 @@ of star images and the catalogue stars they are. One module per job:
   catalogues, and the FITS 1-based pixel convention <-> project ``(row, col)``;
 * :mod:`~gcpmatch.star_tracks.background` -- background level and noise maps;
 * :mod:`~gcpmatch.star_tracks.detect` -- detection, segmentation and sub-pixel centroids;
-* :mod:`~gcpmatch.star_tracks.identify` -- star identification from a pointing or lost in space.
+* :mod:`~gcpmatch.star_tracks.identify` -- star identification from a pointing or lost in space;
+* :mod:`~gcpmatch.star_tracks.patterns` -- the catalogue triangle index lost in space looks up.
 
 Coordinates follow the project convention: ``(row, col)`` with the centre of the first pixel
 at ``(0.5, 0.5)``.
@@ -29,12 +30,8 @@ from gcpmatch.star_tracks.fits import (
     read_sextractor_catalog,
     rowcol_to_fits,
 )
-from gcpmatch.star_tracks.identify import (
-    CameraPointing,
-    StarIdentification,
-    StarPatternIndex,
-    identify_stars,
-)
+from gcpmatch.star_tracks.identify import CameraPointing, StarIdentification, identify_stars
+from gcpmatch.star_tracks.patterns import StarPatternIndex
 
 __all__ = [
     "CENTROID_METHODS",

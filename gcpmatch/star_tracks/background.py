@@ -28,7 +28,7 @@ import scipy.ndimage as ndi
 from gcpmatch.star_tracks._sep import background_maps
 from sensor_models.errors import InputError
 
-__all__ = ["Background", "estimate_background", "estimate_background_sep"]
+__all__ = ["Background", "as_image", "estimate_background", "estimate_background_sep"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,7 +150,7 @@ def estimate_background(
     coincide with the cell centres because all cells have the same (fractional) size; beyond
     the outer centres the values are extended as constants.
     """
-    img = _as_image(image)
+    img = as_image(image)
     h, w = img.shape
     if mesh_px < 4:
         raise InputError("must be at least 4", field="mesh_px")
@@ -193,7 +193,7 @@ def estimate_background_sep(image, *, mesh_px: int = 64, filter_size: int = 3) -
         at the cell centres ``((i + 0.5) mesh_px, (j + 0.5) mesh_px)`` clipped to the image,
         where SEP's interpolating spline passes through the filtered mesh.
     """
-    img = _as_image(image)
+    img = as_image(image)
     if mesh_px < 4:
         raise InputError("must be at least 4", field="mesh_px")
     if filter_size < 1:
@@ -207,7 +207,24 @@ def estimate_background_sep(image, *, mesh_px: int = 64, filter_size: int = 3) -
                       mesh_rms=rms[np.ix_(rows, cols)].astype(np.float64))
 
 
-def _as_image(image) -> np.ndarray:
+def as_image(image) -> np.ndarray:
+    """A frame checked and converted for the star pipeline.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+        A 2-D frame of at least 3 x 3 pixels, any numeric dtype.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+        The frame itself when it is already float32, else a float32 copy.
+
+    Raises
+    ------
+    sensor_models.errors.InputError
+        Not 2-D, or smaller than 3 x 3 pixels.
+    """
     img = np.asarray(image)
     if img.ndim != 2 or min(img.shape) < 3:
         raise InputError(f"expected a 2-D image of at least 3x3 pixels, got shape {img.shape}",

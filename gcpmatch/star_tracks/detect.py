@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from scipy.special import erf
 
-from gcpmatch.star_tracks.background import Background, _as_image, estimate_background_sep
+from gcpmatch.star_tracks.background import Background, as_image, estimate_background_sep
 from sensor_models.errors import InputError
 from sensor_models.imaging.psf import pixel_integrals
 
@@ -214,7 +214,7 @@ def detect_stars(
     StarTable
         Brightest first.
     """
-    img = _as_image(image)
+    img = as_image(image)
     _check_detect_options(centroid, threshold_sigma, min_area, window_px, detect_sigma_px)
     bkg = _resolve_background(img, background, mesh_px)
     sub = img - bkg.level
