@@ -37,7 +37,12 @@ from gcpmatch.gcps import (
 from sensor_models.errors import InputError
 from sensor_models.files.atomic import temporary_beside
 
-__all__ = ["csv_chunks", "parse_gcps_csv", "read_gcps_csv", "write_gcps_csv"]
+__all__ = ["CSVT_TYPES", "csv_chunks", "csv_sidecar_texts", "parse_gcps_csv", "read_gcps_csv", "write_gcps_csv"]
+
+#: GDAL CSV driver column types (``.csvt``) of the GCP columns: ``CoordX``/``CoordY`` make GDAL and
+#: QGIS read ``lon``/``lat`` as the point geometry (with the ``.prj`` beside: WGS84).
+CSVT_TYPES = {"id": "String", "row": "Real", "col": "Real", "lon": "CoordX", "lat": "CoordY", "h": "Real",
+              "sigma_px": "Real", "band": "String", "ccd": "String", "score": "Real", "kind": "String"}
 
 _CHUNK_ROWS = 65536  # rows formatted at a time by the CSV writer
 
@@ -291,6 +296,21 @@ def csv_chunks(table: GcpTable):
         for j, a in enumerate(cols):
             flat[j::ncol] = a[lo:lo + m].tolist()  # floats: repr() is shortest round-trip
         yield (row_fmt * m) % tuple(flat)
+
+
+def csv_sidecar_texts() -> dict[str, str]:
+    """The sidecars that make a GCP CSV open typed and as points in GDAL and QGIS.
+
+    Returns
+    -------
+    dict of str to str
+        ``".csvt"``: the column types in :data:`COLUMNS` order (:data:`CSVT_TYPES`, GDAL's CSV
+        driver); ``".prj"``: the CRS of ``lon``/``lat`` (EPSG:4326, ESRI WKT as GDAL reads it).
+    """
+    import pyproj
+
+    return {".csvt": ",".join(CSVT_TYPES[name] for name in COLUMNS) + "\n",
+            ".prj": pyproj.CRS.from_epsg(4326).to_wkt("WKT1_ESRI")}
 
 
 def write_gcps_csv(table: GcpTable, path) -> Path:

@@ -11,6 +11,10 @@ points cannot carry ids or the other fields, so the whole table is also stored, 
 by another tool (no such item) reads with ids from GDAL (``"1"``, ``"2"``, ...) and default
 optional fields. At most :data:`GEOTIFF_MAX_GCPS` (10922) points, GDAL's limit for the
 tie-point tag; use CSV or GeoPackage for more (or thin the table first).
+
+Only the points of kind ``gcp`` become GDAL GCPs: a warp (``gdalwarp``, QGIS's georeferencer)
+uses every GDAL GCP, and independent check points must stay out of the fit to stay independent.
+Check points (and outliers) are in the stored table only, where ``read_gcps`` finds them.
 """
 
 from __future__ import annotations
@@ -91,16 +95,17 @@ def read_gcps_geotiff(path: Path, image_shape) -> GcpTable:
         return GcpTable.from_validated_columns(cols)
     table = parse_gcps_csv(stored.encode("utf-8"), f"{source} [metadata {_TIFF_DOMAIN}:"
                            f"{_TIFF_ITEM}]", shape)  # fmt: skip
-    if len(table) != len(gcps):
-        raise InputError(f"holds {len(gcps)} GDAL GCPs but its gcpcal table has {len(table)} "
-                         "rows; the GCPs were edited by another tool", path=source)  # fmt: skip
+    fit = table.kind == "gcp"  # only these are GDAL GCPs (check points are in the table alone)
+    if int(np.count_nonzero(fit)) != len(gcps):
+        raise InputError(f"holds {len(gcps)} GDAL GCPs but its gcpcal table has {int(np.count_nonzero(fit))} "
+                         "points of kind gcp; the GCPs were edited by another tool", path=source)  # fmt: skip
     for name, values in gdal.items():
-        found = first_flagged(getattr(table, name) != values)
+        found = first_flagged(getattr(table, name)[fit] != values)
         if found is not None:
             i, count = found
             raise InputError(f"GCP {i + 1}: the GDAL GCP's {name} = {format_float(values[i])} "
                              f"differs from the gcpcal table's "
-                             f"{format_float(getattr(table, name)[i])} ({count} "
+                             f"{format_float(getattr(table, name)[fit][i])} ({count} "
                              "GCPs); the GCPs were edited by another tool", path=source,
                              field=name)  # fmt: skip
     return table
@@ -109,10 +114,10 @@ def read_gcps_geotiff(path: Path, image_shape) -> GcpTable:
 def write_gcps_geotiff(table: GcpTable, path, *, image_shape, source_raster=None, source_band=None) -> Path:
     """Write ``table`` as GDAL GCPs (EPSG:4326) inside a GeoTIFF; atomically.
 
-    GDAL GCP ``line = row`` and ``pixel = col`` (both corner based, see the module notes),
-    ``x = lon``, ``y = lat``, ``z = h``; the full table is also stored as CSV text in the
-    metadata item ``GCP_TABLE_CSV`` of domain ``gcpcal``, since GeoTIFF tie points keep neither
-    ids nor the other fields.
+    The points of kind ``gcp`` become GDAL GCPs: ``line = row`` and ``pixel = col`` (both corner
+    based, see the module notes), ``x = lon``, ``y = lat``, ``z = h``; the full table (check
+    points too) is stored as CSV text in the metadata item ``GCP_TABLE_CSV`` of domain
+    ``gcpcal``, since GeoTIFF tie points keep neither ids nor the other fields.
 
     Parameters
     ----------
@@ -168,6 +173,9 @@ def _check_geotiff_table(table: GcpTable, path: Path, image_shape) -> tuple[int,
                          "table", path=str(path))  # fmt: skip
     validate_columns(table.as_dict(), where=lambda i: f"point {i} (id {str(table.id[i])!r})",
                      path=str(path), image_shape=image_shape)  # fmt: skip
+    if not np.any(table.kind == "gcp"):
+        raise InputError("the table has no point of kind gcp: a GeoTIFF's GDAL GCPs hold only those (check "
+                         "points stay out of a warp); write CSV or GeoPackage", path=str(path))
     return image_shape
 
 
@@ -214,8 +222,9 @@ def _write_geotiff_atomically(table: GcpTable, path: Path, image_shape, src, ban
         _write_geotiff(table, tmp, image_shape, src, bands)
         with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(tmp) as check:
             n_written = len(check.gcps[0])
-        if n_written != len(table):  # never leave a file with GCPs silently dropped
-            raise InputError(f"GDAL kept {n_written} of {len(table)} GCPs in the GeoTIFF",
+        n_fit = int(np.count_nonzero(table.kind == "gcp"))
+        if n_written != n_fit:  # never leave a file with GCPs silently dropped
+            raise InputError(f"GDAL kept {n_written} of {n_fit} GCPs in the GeoTIFF",
                              path=str(path))  # fmt: skip
         os.replace(tmp, path)
     except RasterioError as exc:
@@ -234,11 +243,12 @@ def _write_geotiff(table: GcpTable, tmp: Path, image_shape, src, bands) -> None:
     from rasterio.errors import NotGeoreferencedWarning
 
     n_rows, n_cols = image_shape
+    fit = table.kind == "gcp"  # check points stay out of any warp's fit
     gcps = [GroundControlPoint(row=r, col=c, x=x, y=y, z=z, id=i, info=k)
-            for r, c, x, y, z, i, k in zip(table.row.tolist(), table.col.tolist(),
-                                           table.lon.tolist(), table.lat.tolist(),
-                                           table.h.tolist(), table.id.tolist(),
-                                           table.kind.tolist())]  # fmt: skip
+            for r, c, x, y, z, i, k in zip(table.row[fit].tolist(), table.col[fit].tolist(),
+                                           table.lon[fit].tolist(), table.lat[fit].tolist(),
+                                           table.h[fit].tolist(), table.id[fit].tolist(),
+                                           table.kind[fit].tolist())]  # fmt: skip
     profile = dict(driver="GTiff", width=n_cols, height=n_rows, tiled=True,
                    compress="deflate", BIGTIFF="IF_SAFER")  # fmt: skip
     if src is None:

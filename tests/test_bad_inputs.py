@@ -261,6 +261,8 @@ def bad(tmp_path_factory) -> SimpleNamespace:
 
 # --------------------------------------------------------------------------- the matrix
 SAME = "same as a fresh run"
+#: what a successful match writes beside --out gcps.csv
+MATCH_FILES = ("gcps.csv", "gcps.csvt", "gcps.prj", "gcps.summary.json", "gcps_qc.png", "gcps_residuals.gpkg")
 
 
 @dataclass(frozen=True)
@@ -372,7 +374,7 @@ CASES = [
     Case("match", "DEM without CRS", _match(dem=lambda b, w: b.dem_nocrs), 1),
     Case("match", "DEM not covering", _match(dem=lambda b, w: b.dem_far), 1),
     Case("match", "DEM with voids", _match(dem=lambda b, w: b.dem_voids), 0,
-         ("gcps.csv", "gcps.summary.json", "gcps_residuals.gpkg")),
+         MATCH_FILES),
     Case("match", "truncated image", _match(extra=("--image", "{truncated_image}")), 1),
     Case("match", "all-cloud scene", _match(extra=("--image", "{cloud_image}")), 1),
     Case("match", "DEM in centimetres", _match(dem=lambda b, w: b.dem_cm), 1),
@@ -380,7 +382,7 @@ CASES = [
     Case("match", "DOM 10x coarser", _match(dom=lambda b, w: b.dom_coarse), 1),
     Case("match", "DOM 10x coarser, --allow-implausible", _match(dom=lambda b, w: b.dom_coarse,
                                                                  extra=("--allow-implausible",)), 0,
-         ("gcps.csv", "gcps.summary.json", "gcps_residuals.gpkg")),
+         MATCH_FILES),
     Case("match", "image of band B4 for B2", _match(extra=("--image", "{b4_image}")), 1),
     Case("match", "image of band B4 given --band B2", _match(extra=("--image", "{b4_image}", "--band", "B2")), 1),
     Case("match", "image of another size", _match(extra=("--image", "{other_size_image}")), 1),

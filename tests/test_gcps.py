@@ -462,8 +462,12 @@ def test_geotiff_round_trip_and_gdal_gcps(tmp_path):
         assert crs.to_epsg() == 4326 and (src.height, src.width, src.count) == (1000, 2000, 1)
         assert src.dtypes == ("uint8",)
     got = np.array([(g.row, g.col, g.x, g.y, g.z) for g in gcps])
-    np.testing.assert_array_equal(got, np.stack([t.row, t.col, t.lon, t.lat, t.h], axis=1))
+    fit = t.kind == "gcp"  # GDAL GCPs are the fit's points only; check points live in the stored table
+    assert 0 < fit.sum() < len(t) and len(gcps) == fit.sum()
+    np.testing.assert_array_equal(got, np.stack([t.row, t.col, t.lon, t.lat, t.h], axis=1)[fit])
     assert p.stat().st_size < 100_000  # zero raster: sparse and compressed
+    checks_only = GcpTable.from_arrays([0.5], [1.5], [5.0], [44.0], [100.0], kind="check")
+    raises_input(["no point of kind gcp"], write_gcps_geotiff, checks_only, tmp_path / "c.tif", image_shape=(10, 20))
     raises_input(["contradicts"], read_gcps, p, image_shape=(10, 10))
 
 

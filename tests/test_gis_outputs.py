@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -210,14 +211,36 @@ def test_gcp_geotiff_holds_the_scene_pixels_and_the_gcps(matched):
         gcps, crs = ds.gcps
         pixels = ds.read(1)
         assert ds.count == 1 and crs.to_epsg() == 4326
-    assert len(gcps) == len(table)
-    np.testing.assert_array_equal([g.row for g in gcps], table.row)
-    np.testing.assert_array_equal([g.col for g in gcps], table.col)
-    np.testing.assert_array_equal([g.x for g in gcps], table.lon)
+    fit = table.kind == "gcp"  # a warp uses every GDAL GCP: the check points are not among them
+    assert len(gcps) == fit.sum() < len(table)
+    np.testing.assert_array_equal([g.row for g in gcps], table.row[fit])
+    np.testing.assert_array_equal([g.col for g in gcps], table.col[fit])
+    np.testing.assert_array_equal([g.x for g in gcps], table.lon[fit])
     scene = _read_band(FIXTURE / "B2.tif")
     assert pixels.dtype == scene.dtype and np.array_equal(pixels, scene)
     assert np.ptp(scene) > 0  # not a blank raster
-    assert len(read_gcps(matched / "gcps.tif")) == len(table)  # and our reader takes it back
+    back = read_gcps(matched / "gcps.tif")  # our reader takes the whole table back, checks included
+    assert len(back) == len(table) and list(back.kind) == list(table.kind)
+
+
+def test_gcp_csv_opens_typed_as_wgs84_points_and_the_qc_figure_is_written(matched):
+    """The .csvt and .prj beside the CSV: GDAL's CSV driver (QGIS's too) reads lon/lat as the
+    point geometry in WGS84 and the numbers as reals; the QC figure is a PNG."""
+    import pyogrio
+
+    info = pyogrio.read_info(matched / "gcps.csv")
+    assert info["geometry_type"] == "Point" and "WGS" in info["crs"] or "4326" in info["crs"]
+    dtypes = dict(zip(info["fields"], info["dtypes"]))
+    assert dtypes["row"] == dtypes["sigma_px"] == "float64" and dtypes["id"] == "object"
+    _, _, geometry, values = pyogrio.raw.read(matched / "gcps.csv")
+    table = read_gcps(matched / "gcps.csv")
+    xy = np.array([struct.unpack("<bIdd", bytes(g)[:21])[2:] for g in geometry])
+    np.testing.assert_allclose(xy[:, 0], table.lon, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(xy[:, 1], table.lat, rtol=0, atol=1e-12)
+    png = matched / "gcps_qc.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 50_000
+    summary = json.loads((matched / "gcps.summary.json").read_text())
+    assert summary["qc_figure"] == str(png)
 
 
 def test_gcp_geotiff_copies_only_the_matched_band(tmp_path):

@@ -83,7 +83,8 @@ def test_match_gpkg_under_a_file_fails_before_matching_and_leaves_nothing(tmp_pa
 def test_match_missing_gpkg_folder_is_created_and_all_files_arrive_together(tmp_path, capsys, fast_match):
     code = main(_match_args(tmp_path / "gcps.csv", "--gpkg", str(tmp_path / "nodir" / "x.gpkg")))
     assert code == 0, capsys.readouterr().err
-    assert _files(tmp_path) == ["gcps.csv", "gcps.summary.json", "gcps_residuals.gpkg", "nodir", "nodir/x.gpkg"]
+    assert _files(tmp_path) == ["gcps.csv", "gcps.csvt", "gcps.prj", "gcps.summary.json", "gcps_qc.png",
+                                "gcps_residuals.gpkg", "nodir", "nodir/x.gpkg"]
 
 
 def test_match_geotiff_failure_leaves_no_csv_nor_gpkg(tmp_path, capsys, fast_match, monkeypatch):

@@ -47,6 +47,28 @@ def gcp_table_format(out_path) -> str:
     return GCP_TABLE_SUFFIXES[suffix]
 
 
+def match_side_paths(gcps_path, out_format: str) -> dict[str, Path | None]:
+    """The files ``match`` writes beside its GCP table: the QC figure, and for a CSV table the
+    ``.csvt`` and ``.prj`` that make GDAL and QGIS read it typed and as WGS84 points.
+
+    Parameters
+    ----------
+    gcps_path : str or Path
+        The GCP table (``--out``).
+    out_format : {"csv", "gpkg"}
+
+    Returns
+    -------
+    dict
+        ``qc`` (``<stem>_qc.png``), ``.csvt`` and ``.prj`` (None for a GeoPackage table).
+    """
+    gcps_path = Path(gcps_path)
+    csv = out_format == "csv"
+    return {"qc": gcps_path.with_name(f"{gcps_path.stem}_qc.png"),
+            ".csvt": gcps_path.with_suffix(".csvt") if csv else None,
+            ".prj": gcps_path.with_suffix(".prj") if csv else None}
+
+
 def residual_layer_path(gcps_path) -> Path:
     """The residual layer ``match`` writes beside its GCP table: ``<stem>_residuals.gpkg``.
 
@@ -124,9 +146,10 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     options.validate()  # before any work: e.g. --backend gpu without CUDA
     residuals_path = residual_layer_path(out_path)
     inputs = InputSet([scene_path, image, mask_path, dom_path, dem_path, geoid])
-    check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
-                       inputs=inputs)
     out_format = gcp_table_format(out_path)
+    side = match_side_paths(out_path, out_format)
+    check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
+                       *side.values(), inputs=inputs)
     model = open_scene(scene_path, image=image, band=band, self_check=self_check)  # a crop's raster crops it
     band = band or getattr(model, "reference_band", None)
     implausible = check_scene_raster(model, band, image)  # before any work: names and headers only
@@ -149,12 +172,14 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     summary.update({"scene": str(scene_path), "dom": str(dom_path), "dem": str(dem_path), "gcp_file": str(out_path)})
     if table is not None and len(table) > 0:
         summary["residual_layer"] = str(residuals_path)
+        summary["qc_figure"] = str(side["qc"])
     summary.update(_dom_summary(dom, dom_found, model, band, dem))
     record_product_check(summary, model)
     if implausible:
         summary["implausible_accepted"] = implausible
     _write_outputs(table, summary, model=model, band=band, image=image, out_path=out_path, out_format=out_format,
-                   gpkg_path=gpkg_path, geotiff_path=geotiff_path, residuals_path=residuals_path, inputs=inputs)
+                   gpkg_path=gpkg_path, geotiff_path=geotiff_path, residuals_path=residuals_path, side=side,
+                   inputs=inputs)
     if table is None or len(table) == 0:
         raise InputError(f"no GCP could be extracted ({summary['message']}); see {out_path.with_suffix('.summary.json')}",
                          path=str(scene_path))
@@ -163,18 +188,19 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
 
 
 def _write_outputs(table, summary, *, model, band, image, out_path, out_format, gpkg_path, geotiff_path,
-                   residuals_path, inputs) -> None:
-    """Write the GCP table (CSV or GeoPackage), the optional GeoPackage and GeoTIFF, the residual
-    layer and the summary; every file moves in together at the end, and with no GCP only the
-    summary (an older table goes)."""
+                   residuals_path, side, inputs) -> None:
+    """Write the GCP table (CSV with its .csvt/.prj, or GeoPackage), the optional GeoPackage and
+    GeoTIFF, the residual layer, the QC figure and the summary; every file moves in together at
+    the end, and with no GCP only the summary (older outputs go)."""
+    from calibrate.match_qc import write_match_qc
     from calibrate.residual_layer import LAYER_NAMES, model_residual_layer, write_residual_layer
-    from gcpmatch.gcp_csv import write_gcps_csv
+    from gcpmatch.gcp_csv import csv_sidecar_texts, write_gcps_csv
     from gcpmatch.gcp_geotiff import write_gcps_geotiff
     from gcpmatch.geopackage import write_gcps_gpkg
 
     staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
-                          inputs=inputs)
-    with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp, residuals_tmp):
+                          side["qc"], side[".csvt"], side[".prj"], inputs=inputs)
+    with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp, residuals_tmp, qc_tmp, csvt_tmp, prj_tmp):
         if table is not None and len(table) > 0:
             if geotiff_tmp is not None:  # first: the one writer with a size limit
                 raster, index = scene_raster(model, band, image)
@@ -184,9 +210,14 @@ def _write_outputs(table, summary, *, model, band, image, out_path, out_format, 
                 write_gcps_gpkg(table, csv_tmp)
             else:
                 write_gcps_csv(table, csv_tmp)
+                texts = csv_sidecar_texts()
+                csvt_tmp.write_text(texts[".csvt"], encoding="ascii")
+                prj_tmp.write_text(texts[".prj"], encoding="ascii")
             if gpkg_tmp is not None:
                 write_gcps_gpkg(table, gpkg_tmp)
-            write_residual_layer(model_residual_layer(model, table), residuals_tmp, layer=LAYER_NAMES["match"])
+            layer = model_residual_layer(model, table)
+            write_residual_layer(layer, residuals_tmp, layer=LAYER_NAMES["match"])
+            write_match_qc(layer, model.image_shape, qc_tmp)
         summary_tmp.write_text(json.dumps(with_provenance(summary), indent=1) + "\n", encoding="utf-8")
 
 
