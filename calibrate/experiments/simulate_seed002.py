@@ -264,13 +264,12 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
 NOTES = [
     "Before compensation ours is ~354 px against the paper's 43.3 px: the paper does not give its camera; the "
     "72 arcsec installation errors of table 2 are ~250 px of the GF-4-like 0.288 arcsec pixels.",
-    "The paper's 'total' is computed from mean signed errors; ours lists mean X / Y (signed, comparable) and the "
-    "RMS and max over the check grid (what a user meets).",
-    "ICO: the paper's interior cannot move the camera frame (47.5 px); our free cubic absorbs the installation "
-    "(~0 px) and our ICO-g row (frame held) is the paper's reading.",
-    "ICBEC/ECBIC: the paper reports ~1-3 px with no stated noise; with the physical lens rendered exactly the "
-    "cubic leaves only the beyond-cubic part (tilt projection, k2, k3) plus the VCP noise, a few hundredths of a "
-    "pixel. We found no error source in the paper's stated setting large enough to reach 1 px.",
+    "The paper's 'total' is computed from mean signed errors; ours lists RMS X / Y / total over the check grid "
+    "(what a user meets) and the mean signed X / Y (comparable with the paper's).",
+    "Schemes on the VCPs alone (the all-schemes table): our free cubic absorbs the installation, ICO ~0 px; the "
+    "ICO-g row (frame held) is the nearest reading of the paper's ICO without a lab grid. With the physical lens "
+    "rendered exactly the cubic leaves only the beyond-cubic part (tilt projection, k2, k3) plus the VCP noise, a "
+    "few hundredths of a pixel.",
     "Thermal: the paper shows curves (figure 11), no table. Day-to-day variation (realistic, 4 arcsec/day) is not "
     "predictable from the time of day and dominates the predicted error.",
 ]
