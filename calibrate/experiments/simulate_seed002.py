@@ -6,13 +6,21 @@ paper's grid; ``quick``: every 500 px). Under ``ideal`` the TRUE interior is the
 the lens (the default path); otherwise it is the physical lens itself (:mod:`sensor_models.simulate.staring_truth`)
 with the profile's ``k2``, ``k3`` and VCP noise.
 
+Table 3 (source "seed 002 table 3"): the four schemes ICO, ECO, ECBIC, ICBEC with the paper's X /
+Y / total beside ours. Under ``interior_source = lab`` (``paper-002``) they follow seed 002's own
+data flow (:mod:`calibrate.schemes.paper_flow`: the interior from the lab's camera-frame grid with
+the profile's lab noise, the exterior from VCPs that carry the profile's attitude noise, one pass
+each); otherwise they are the schemes on the VCPs alone (:mod:`calibrate.schemes.compensate`,
+whose free cubic absorbs the installation: ICO = ECBIC = ICBEC, the degenerate ranking).
+
 Thermal (:mod:`calibrate.schemes.thermal`): the installation drifts with the time of day; under
 ``realistic`` the TRUE installation also walks from day to day
 (:func:`sensor_models.simulate.thermal_truth.day_to_day_offsets`), which no daily harmonic model
 can predict. Held-out positioning RMS of a constant installation and of the predicted one.
 
 Sensitivity: accuracy against the VCP noise (the GCP-noise analogue) and against the day-to-day
-thermal variability. Jitter, DEM and DOM errors do not apply: VCPs are computed from a model,
+thermal variability; under ``interior_source = lab`` also the four schemes and whether the
+paper's ranking holds against the lab noise and against the attitude noise. Jitter, DEM and DOM errors do not apply: VCPs are computed from a model,
 not matched on a reference, and a staring frame is one instant.
 """
 
@@ -24,6 +32,7 @@ from dataclasses import replace
 import numpy as np
 
 from calibrate.experiments.results import ExperimentResult, PaperTable, SensitivityCurve
+from calibrate.schemes.paper_flow import PAPER_RANKING, ranking
 from sensor_models.simulate.profiles import get_profile, profile_table
 
 __all__ = ["run", "staring_models", "thermal_series_errors"]
@@ -110,13 +119,70 @@ def thermal_series_errors(profile, *, days: float, interval_min: float, day_to_d
             "orders": model.to_dict().get("orders")}
 
 
+def _flow_errors(staring, study, step_px, *, lab_noise_px=None, attitude_arcsec=None) -> dict:
+    """Scheme -> positioning errors of seed 002's four schemes (``before`` first) under ``staring``."""
+    from calibrate.schemes.compensation_study import ARCSEC
+    from calibrate.schemes.paper_flow import attitude_noise, lab_pointing_interior, run_paper_flow
+
+    if staring.value("interior_source") != "lab":
+        by = {r["scheme"]: r for r in study.rows}
+        return {k: by[k] for k in ("before", *PAPER_RANKING[::-1])}
+    lab_noise = staring.value("lab_noise_px") if lab_noise_px is None else lab_noise_px
+    att = staring.value("attitude_noise_arcsec") if attitude_arcsec is None else attitude_arcsec
+    truth, stop = study.truth, study.settings["stop_px"]
+    interior = lab_pointing_interior(truth, step_px=step_px, stop_px=stop, noise_px=float(lab_noise), seed=1)
+    vcp = attitude_noise(study.vcp, float(att) * ARCSEC, truth.ifov_rad, truth.image_shape, seed=2)
+    runs = run_paper_flow(study.lab, vcp, study.check, interior)
+    return {k: v["errors"] for k, v in runs.items()}
+
+
+def _paper_table3(errors, flow) -> PaperTable:
+    from calibrate.schemes.compensation_study import SEED002_TABLE3
+
+    rows = []
+    for name, e in errors.items():
+        px, py, pt = SEED002_TABLE3[name]
+        rows.append([name, px, py, pt, e["rms_x_px"], e["rms_y_px"], e["total_px"], e["mean_x_px"], e["mean_y_px"]])
+    return PaperTable(f"The four compensation schemes ({flow}): positioning error on the check grid (X = column, "
+                      "Y = row)", "seed 002 table 3",
+                      ("scheme", "paper X", "paper Y", "paper total", "ours X RMS", "ours Y RMS", "ours total RMS",
+                       "ours mean X", "ours mean Y"), rows)
+
+
+def _ranking_curves(staring, study, step_px, quick) -> list:
+    """The four schemes and the paper's ranking against the lab noise and the attitude noise."""
+    out = []
+    grids = {"lab_noise_px": [0.0, 0.43, 50.0, 200.0] if quick else [0.0, 0.43, 2.0, 10.0, 50.0, 100.0, 200.0],
+             "attitude_arcsec": [0.0, 1.0, 10.0] if quick else [0.0, 1.0, 3.0, 10.0, 30.0]}
+    labels = {"lab_noise_px": ("lab_noise_ranking", "lab noise on the camera-frame pointing angles (px, 1 sigma)"),
+              "attitude_arcsec": ("attitude_noise_ranking", "attitude error per VCP (arcsec, 1 sigma per axis)")}
+    for key, xs in grids.items():
+        shown = PAPER_RANKING[:3]
+        series = {f"{k} total RMS px": [] for k in shown}
+        series["paper ranking held (1 yes, 0 no)"] = []
+        ico = []
+        for x in xs:
+            errors = _flow_errors(staring, study, step_px, **{key: x})
+            totals = {k: errors[k]["total_px"] for k in PAPER_RANKING}
+            for k in shown:
+                series[f"{k} total RMS px"].append(totals[k])
+            ico.append(totals["ICO"])
+            series["paper ranking held (1 yes, 0 no)"].append(1.0 if ranking(totals) == PAPER_RANKING else 0.0)
+        name, x_label = labels[key]
+        out.append(SensitivityCurve(name, x_label, "check-grid error (px)", xs, series,
+                                    f"seed 002's flow (lab interior, exterior from VCPs, one pass); the other "
+                                    f"magnitudes at profile {staring.name}'s; VCP grid every {step_px:g} px; ICO "
+                                    f"(not drawn) {min(ico):.0f} to {max(ico):.0f} px: the installation error"))
+    return out
+
+
 def _table3(study) -> PaperTable:
     rows = []
     for r in study.rows:
         rows.append([r["scheme"], r["seed_x_px"], r["seed_y_px"], r["seed_total_px"], r["mean_x_px"], r["mean_y_px"],
                      r["total_px"], r["max_px"]])
-    return PaperTable("Positioning error on the check grid, by scheme (X = column, Y = row)",
-                      "seed 002 table 3 (mean X, mean Y, total, pixels)",
+    return PaperTable("Every scheme on the VCPs alone (free cubic), positioning error on the check grid",
+                      "seed 002 table 3 beside the schemes on VCPs alone (mean X, mean Y, total, pixels)",
                       ("scheme", "paper X", "paper Y", "paper total", "ours mean X", "ours mean Y", "ours RMS total",
                        "ours max"), rows)
 
@@ -163,6 +229,10 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
     staring, thermal = get_profile(profile_name, "staring"), get_profile(profile_name, "thermal")
     step_px, days, interval_min = (500.0, 3.0, 60.0) if quick else (100.0, 5.0, 30.0)
     study = _study(staring, step_px)
+    flow = staring.value("interior_source")
+    errors = _flow_errors(staring, study, step_px)
+    totals = {k: errors[k]["total_px"] for k in PAPER_RANKING}
+    order = ranking(totals)
     therm = thermal_series_errors(thermal, days=days, interval_min=interval_min)
     by = {r["scheme"]: r for r in study.rows}
     thermal_table = PaperTable("Thermal installation drift: held-out positioning RMS (px)",
@@ -175,15 +245,18 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
         "002", profile_name, quick, "Seed 002: VCP compensation schemes of a staring camera and its thermal drift",
         scale={"image_shape": [10240, 10240], "vcp_step_px": step_px, "n_vcp": study.settings["n_vcp"],
                "paper_vcp_step_px": 100.0, "thermal_days": days, "thermal_interval_min": interval_min},
-        tables=[_table3(study), thermal_table],
-        curves=_curves(staring, thermal, step_px, days, interval_min, quick),
-        headline={"icbec_rms_px": by["ICBEC"]["total_px"], "icbec_max_px": by["ICBEC"]["max_px"],
+        tables=[_paper_table3(errors, "seed 002's flow: lab interior, exterior from VCPs" if flow == "lab"
+                              else "on the VCPs alone"), _table3(study), thermal_table],
+        curves=_curves(staring, thermal, step_px, days, interval_min, quick)
+        + (_ranking_curves(staring, study, step_px, quick) if flow == "lab" else []),
+        headline={"ranking": list(order), "paper_ranking_reproduced": order == PAPER_RANKING,
+                  **{f"table3_{k.lower()}_total_px": totals[k] for k in PAPER_RANKING},"icbec_rms_px": by["ICBEC"]["total_px"], "icbec_max_px": by["ICBEC"]["max_px"],
                   "eco_rms_px": by["ECO"]["total_px"], "before_rms_px": by["before"]["total_px"],
                   "truth_beyond_cubic_px": (study.truth.lab_fit_residual or {}).get("physical_fit_residual_px", 0.0),
                   "thermal_constant_rms_px": therm["constant_rms_px"],
                   "thermal_predicted_rms_px": therm["predicted_rms_px"]},
         profile_rows=[(p.name, *row) for p in (staring, thermal) for row in profile_table(p)],
-        notes=NOTES)
+        notes=NOTES + (LAB_FLOW_NOTES if flow == "lab" else VCP_FLOW_NOTES))
     result.seconds = time.perf_counter() - t0
     return result
 
@@ -191,13 +264,32 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None) -> ExperimentR
 NOTES = [
     "Before compensation ours is ~354 px against the paper's 43.3 px: the paper does not give its camera; the "
     "72 arcsec installation errors of table 2 are ~250 px of the GF-4-like 0.288 arcsec pixels.",
-    "The paper's 'total' is computed from mean signed errors; ours lists mean X / Y (signed, comparable) and the "
-    "RMS and max over the check grid (what a user meets).",
-    "ICO: the paper's interior cannot move the camera frame (47.5 px); our free cubic absorbs the installation "
-    "(~0 px) and our ICO-g row (frame held) is the paper's reading.",
-    "ICBEC/ECBIC: the paper reports ~1-3 px with no stated noise; with the physical lens rendered exactly the "
-    "cubic leaves only the beyond-cubic part (tilt projection, k2, k3) plus the VCP noise, a few hundredths of a "
-    "pixel. We found no error source in the paper's stated setting large enough to reach 1 px.",
+    "The paper's 'total' is computed from mean signed errors; ours lists RMS X / Y / total over the check grid "
+    "(what a user meets) and the mean signed X / Y (comparable with the paper's).",
+    "Schemes on the VCPs alone (the all-schemes table): our free cubic absorbs the installation, ICO ~0 px; the "
+    "ICO-g row (frame held) is the nearest reading of the paper's ICO without a lab grid. With the physical lens "
+    "rendered exactly the cubic leaves only the beyond-cubic part (tilt projection, k2, k3) plus the VCP noise, a "
+    "few hundredths of a pixel.",
     "Thermal: the paper shows curves (figure 11), no table. Day-to-day variation (realistic, 4 arcsec/day) is not "
     "predictable from the time of day and dominates the predicted error.",
+]
+
+VCP_FLOW_NOTES = [
+    "Table 3 (schemes on the VCPs alone): the free 20-coefficient cubic holds the boresight offset and rotation, so "
+    "ICO, ECBIC and ICBEC fit the same model space to the same data and land on the same positions whatever the "
+    "noise: the paper's ranking cannot appear; ECO keeps the distortion shape.",
+]
+
+LAB_FLOW_NOTES = [
+    "Table 3 (seed 002's flow): the interior comes from the lab's camera-frame grid, which cannot see the "
+    "installation, and the exterior from the VCPs, one pass each. ICO leaves the installation error (a little worse "
+    "than before, as the paper's 47.5 px against 43.3 px: the distortion had offset part of it); ECO leaves the "
+    "distortion shape; ECBIC's exterior absorbs the distortion's mean shift and rotation, which the lab interior "
+    "then removes a second time; ICBEC ends with the exterior, which takes what is left: the paper's order.",
+    "The ranking is decided by that data flow, not by a noise magnitude: the lab_noise_ranking and "
+    "attitude_noise_ranking curves keep it up to lab noise or attitude errors far above the profile's, and the "
+    "schemes on VCPs alone (previous table) never show it.",
+    "Our ICBEC stays far below the paper's 1.065 px: the profile's lab noise (0.43 px) and attitude errors (1 arcsec "
+    "per VCP) average out over the grid; the paper scores a target track whose own attitude and orbit errors we do "
+    "not add to the check grid.",
 ]

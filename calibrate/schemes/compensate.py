@@ -44,6 +44,10 @@ two groups are therefore interchangeable (the *gauge*):
   error remains and the higher-order terms bend to follow part of it: the error barely drops
   and grows at the corners (seed 002's ICO row: 47.5 px, no better than before, 43.3 px).
 
+Seed 002 itself solves the interior from a third data set, the grid's camera-frame pointing
+angles measured in the lab (section 3.1), and the exterior from the VCPs:
+:mod:`calibrate.schemes.paper_flow` runs its four schemes that way.
+
 ``ECO`` recovers the installation angles but cannot follow the radial and decentering
 distortion (a few pixels at the corners); ``ECBIC``, ``ICBEC`` and ``joint`` reach the noise
 of the VCPs. In every scheme the recovered installation equals the truth's plus the parts of

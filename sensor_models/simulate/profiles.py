@@ -306,6 +306,15 @@ class StaringProfile(_ProfileFields):
     radial_k2_corner_px: Sourced = _f("px at the frame corner", "k2 r^5 radial term of the TRUE lens (Brown-Conrady)")
     radial_k3_corner_px: Sourced = _f("px at the frame corner", "k3 r^7 radial term of the TRUE lens")
     vcp_noise_px: Sourced = _f("px (1 sigma, per axis)", "Gaussian noise on the virtual control points' image coordinates")
+    interior_source: Sourced = _f(
+        "vcp | lab", "data of the interior: 'vcp' the free cubic on the VCPs (calibrate/schemes/compensate.py); 'lab' "
+        "the camera-frame pointing angles of the grid measured in the lab, the exterior from the VCPs, one pass per "
+        "scheme (calibrate/schemes/paper_flow.py)")
+    lab_noise_px: Sourced = _f("px (1 sigma, per axis)", "Gaussian noise on the lab-measured camera-frame pointing angles "
+                               "of the grid (interior_source lab)")
+    attitude_noise_arcsec: Sourced = _f(
+        "arcsec (1 sigma, per axis, white per VCP)", "attitude error of each VCP's observation: its ground point "
+        "computed through the measured attitude (small-angle image equivalent; interior_source lab)")
     kind: str = "staring"
 
 
@@ -365,15 +374,27 @@ def _staring_profiles() -> dict:
     return {
         "ideal": StaringProfile("ideal", physical_truth=Sourced(False, "the default path: TRUE interior = 20-coefficient fit"),
                                 radial_k2_corner_px=none(0.0), radial_k3_corner_px=none(0.0),
-                                vcp_noise_px=Sourced(0.0, "`gcpcal compensate`'s default")),
+                                vcp_noise_px=Sourced(0.0, "`gcpcal compensate`'s default"),
+                                interior_source=Sourced("vcp", "`gcpcal compensate`'s schemes"),
+                                lab_noise_px=none(0.0), attitude_noise_arcsec=none(0.0)),
         "realistic": StaringProfile("realistic", physical_truth=Sourced(True, "project's realistic range: a TRUE lens outside the fitted family"),
                                     radial_k2_corner_px=Sourced(1.0, ASSUMPTION),
                                     radial_k3_corner_px=Sourced(-0.3, ASSUMPTION),
-                                    vcp_noise_px=Sourced(0.3, vcp_match)),
+                                    vcp_noise_px=Sourced(0.3, vcp_match),
+                                    interior_source=Sourced("vcp", "`gcpcal compensate`'s schemes"),
+                                    lab_noise_px=none(0.0), attitude_noise_arcsec=none(0.0)),
         "paper-002": StaringProfile("paper-002", physical_truth=Sourced(True, f"{SEED002}: table 1 lens"),
                                     radial_k2_corner_px=Sourced(0.0, f"{SEED002}: table 1 has k1 only"),
                                     radial_k3_corner_px=Sourced(0.0, f"{SEED002}: table 1 has k1 only"),
-                                    vcp_noise_px=Sourced(0.0, f"{SEED002}: no noise stated for the VCPs")),
+                                    vcp_noise_px=Sourced(0.0, f"{SEED002}: no noise stated for the VCPs"),
+                                    interior_source=Sourced("lab", f"{SEED002} section 2.3 bullets 4-6 and section 3.1: "
+                                                            "the interior from the grid's camera-frame pointing "
+                                                            "angles, the exterior from the VCPs"),
+                                    lab_noise_px=Sourced(0.43, f"{SEED002} states none; {SEED004}: the lab sigma_k, "
+                                                         "centroid noise of a space camera measured in the lab"),
+                                    attitude_noise_arcsec=Sourced(1.0, f"{SEED002} section 2.3 bullet 2 and section "
+                                                                  f"3.2 add attitude errors without a magnitude; "
+                                                                  f"{LIEBE}")),
     }
 
 
