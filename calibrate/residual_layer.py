@@ -25,6 +25,7 @@ GIS project stay apart.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -208,7 +209,9 @@ def write_residual_layer(columns: dict, path, *, layer: str) -> Path:
 
     Written by GDAL through :func:`pyogrio.raw.write`, as
     :func:`gcpmatch.geopackage.write_gcps_gpkg` writes GCPs: ``fid``, ``geom`` (lon, lat, h) and the
-    :data:`RESIDUAL_FIELDS` in order. An empty layer (no point) is written with its schema.
+    :data:`RESIDUAL_FIELDS` in order. An empty layer (no point) is written with its schema. The
+    layer's default QGIS style (arrows along the residuals) is stored in ``layer_styles``
+    (:mod:`calibrate.residual_style`).
 
     Parameters
     ----------
@@ -230,14 +233,24 @@ def write_residual_layer(columns: dict, path, *, layer: str) -> Path:
     InputError
         A missing column or GDAL could not write the file.
     """
+    from calibrate.residual_style import add_residual_style
     from gcpmatch.geopackage import write_point_layer
+    from sensor_models.files.atomic import temporary_beside
 
     missing = [k for k in RESIDUAL_FIELDS if k not in columns]
     if missing:
         raise InputError(f"residual layer lacks the columns {missing}", path=str(path))
     cols = {k: _column(k, columns[k]) for k in RESIDUAL_FIELDS}
-    return write_point_layer(path, cols["lon"], cols["lat"], cols["h"], cols, layer=layer, description=_DESCRIPTION,
-                             what="the residual layer")
+    path = Path(path)
+    tmp = temporary_beside(path, ".gpkg")
+    try:
+        write_point_layer(tmp, cols["lon"], cols["lat"], cols["h"], cols, layer=layer, description=_DESCRIPTION,
+                          what="the residual layer")
+        add_residual_style(tmp, layer)  # QGIS draws arrows by default (calibrate/residual_style.py)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
 
 
 def read_residual_layer(path, *, layer: str | None = None) -> dict[str, np.ndarray]:
@@ -248,7 +261,8 @@ def read_residual_layer(path, *, layer: str | None = None) -> dict[str, np.ndarr
     path : str or Path
         The GeoPackage.
     layer : str, optional
-        Layer name; default: the file's only layer.
+        Layer name; default: the file's only point layer (``layer_styles``, the stored QGIS
+        style, is a table without geometry).
 
     Returns
     -------
@@ -266,7 +280,7 @@ def read_residual_layer(path, *, layer: str | None = None) -> dict[str, np.ndarr
 
     try:
         if layer is None:
-            layers = [str(name) for name, _ in pyogrio.list_layers(path)]
+            layers = [str(name) for name, geometry in pyogrio.list_layers(path) if geometry is not None]
             if len(layers) != 1:
                 raise InputError(f"holds {len(layers)} layers ({', '.join(layers)}): name the residual layer",
                                  path=str(path))

@@ -431,8 +431,33 @@ def test_each_stage_names_its_residual_layer(matched, calibrated):
     """Loaded together in a GIS, the match and calibration layers keep distinct names."""
     import pyogrio
 
-    assert [name for name, _ in pyogrio.list_layers(matched / "gcps_residuals.gpkg")] == ["match_residuals"]
-    assert [name for name, _ in pyogrio.list_layers(calibrated / "residuals.gpkg")] == ["calibration_residuals"]
+    def point_layers(path):
+        return [name for name, geometry in pyogrio.list_layers(path) if geometry is not None]
+
+    assert point_layers(matched / "gcps_residuals.gpkg") == ["match_residuals"]
+    assert point_layers(calibrated / "residuals.gpkg") == ["calibration_residuals"]
+
+
+def test_residual_layer_carries_its_qgis_style(matched):
+    """QGIS's default-style table holds an arrow style for the layer: well-formed QML, rotation
+    from the azimuth field, size from the planar residual, one category per kind."""
+    import sqlite3
+    import xml.etree.ElementTree as ET
+
+    con = sqlite3.connect(matched / "gcps_residuals.gpkg")
+    try:
+        rows = con.execute("SELECT f_table_name, f_geometry_column, useAsDefault, styleQML FROM layer_styles").fetchall()
+    finally:
+        con.close()
+    assert len(rows) == 1 and rows[0][:3] == ("match_residuals", "geom", 1)
+    root = ET.fromstring(rows[0][3].split("\n", 1)[1])  # after the DOCTYPE line
+    renderer = root.find("renderer-v2")
+    assert renderer.get("attr") == "kind"
+    assert {c.get("value") for c in renderer.iter("category")} == {"gcp", "check", "outlier"}
+    fields = {o.get("value") for o in renderer.iter("Option") if o.get("name") == "field"}
+    expressions = " ".join(o.get("value") for o in renderer.iter("Option") if o.get("name") == "expression")
+    assert fields == {"resid_azimuth_deg"} and "resid_planar_px" in expressions
+    assert len(read_residual_layer(matched / "gcps_residuals.gpkg")["id"]) > 0  # the style table is no layer
 
 
 def test_layer_names_each_point_s_ccd_when_the_table_names_none(tmp_path):
