@@ -124,4 +124,9 @@ def test_match_and_calibrate_commands_on_the_biased_crop(shared_data, tmp_path):
     a0 = doc["bias"]["bias.row.a0"]
     print(f"CLI: RPC bias a0 {a0:.2f} lines (60 + the SRTM parallax floor)")
     assert -66.0 < a0 < -60.0  # 60 lines plus the few-line floor against the left image's RPC and SRTM
-    assert (tmp_path / "cal" / "right_image_bias_RPC.TXT").exists()
+    # the crop's sidecar under the raster's name (what GDAL pairs with right_image.tif), and the full
+    # scene's RPC under the product's name with a suffix no raster pairs with
+    assert (tmp_path / "cal" / "right_image_RPC.TXT").exists()
+    assert (tmp_path / "cal" / "right_image_bias_full_scene_RPC.TXT").exists()
+    summary = json.loads((tmp_path / "cal" / "calibrate.summary.json").read_text())
+    assert summary["model"] == "right_image_bias_full_scene_RPC.TXT"
