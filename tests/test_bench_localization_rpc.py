@@ -67,7 +67,8 @@ def test_shareloc_cpp_agrees_with_ours(bench, shared_data):
     s = r["shareloc"]
     assert "skipped" not in s, s
     # the same convention: offsets far below a pixel, yet not identical (shareloc follows a
-    # straight line of sight between the DTM's lowest and highest heights)
-    assert 1e-7 < s["distance_to_after_px_max"] < 1e-2
-    assert s["reprojection_px_max"] < 1e-2 and s["dem_misfit_m_max"] < 0.01
+    # straight line of sight between the DTM's lowest and highest heights, 2.7 km apart: on the
+    # Pleiades RPC that chord lies up to 0.03 px off the RPC's line of sight)
+    assert 1e-7 < s["distance_to_after_px_max"] < 0.05
+    assert s["reprojection_px_max"] < 0.05 and s["dem_misfit_m_max"] < 0.01
     assert abs(s["found"] - r["after"]["found"]) < 0.01 and r["ratio_vs_shareloc_cpp"] > 0

@@ -118,3 +118,27 @@ def test_one_matrix_product_gives_the_derivatives(rpc):
         numeric = coef.T @ (rpc00b_monomials(*hi) - rpc00b_monomials(*lo)) / (2 * eps)
         np.testing.assert_allclose(V[4 * (axis + 1):4 * (axis + 2)], numeric, rtol=1e-6, atol=1e-8)
     np.testing.assert_allclose(V[:4], coef.T @ rpc00b_monomials(L, P, H))
+
+
+@pytest.mark.parametrize("crs", ["EPSG:4326", "EPSG:32631"])
+def test_dem_slopes_are_the_derivatives_of_its_heights(crs):
+    from rasterio.transform import from_origin
+
+    rng = np.random.default_rng(1)
+    z = 300.0 + np.cumsum(np.cumsum(rng.normal(size=(60, 50)), axis=0), axis=1)
+    origin = (5.0, 45.0, 1e-3) if crs == "EPSG:4326" else (650_000.0, 4_985_000.0, 30.0)
+    dem = Dem.from_array(z, from_origin(origin[0], origin[1], origin[2], origin[2]), crs)
+    lon0, lat0, lon1, lat1 = dem.bounds_lonlat
+    lon = rng.uniform(lon0, lon1, 400)
+    lat = rng.uniform(lat0, lat1, 400)
+    h, d_lon, d_lat = dem.height_and_slope_m(lon, lat)
+    np.testing.assert_array_equal(np.isfinite(h), np.isfinite(dem.height_m(lon, lat)))
+    ok = np.isfinite(h)
+    assert ok.mean() > 0.5
+    np.testing.assert_allclose(h[ok], dem.height_m(lon, lat)[ok], rtol=0, atol=1e-9)
+    eps = 1e-8
+    num_lon = (dem.height_m(lon + eps, lat) - dem.height_m(lon - eps, lat)) / (2 * eps)
+    num_lat = (dem.height_m(lon, lat + eps) - dem.height_m(lon, lat - eps)) / (2 * eps)
+    scale = np.abs(num_lon[ok]).max()
+    np.testing.assert_allclose(d_lon[ok], num_lon[ok], rtol=0, atol=1e-3 * scale)
+    np.testing.assert_allclose(d_lat[ok], num_lat[ok], rtol=0, atol=1e-3 * scale)

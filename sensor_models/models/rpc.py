@@ -577,14 +577,20 @@ class RpcModel(SensorModel):
         """Localize image points at given heights or on a DEM.
 
         At a given height, the RPC is inverted by Newton's method on normalized (lon, lat),
-        to 1e-9 px. On a DEM, the height along each image point's line of sight is found by a
-        bracketed secant search (Illinois false position) on ``f(h) = dem(lon(h), lat(h)) - h``
-        between the DEM's minimum and maximum heights, to 1e-3 m, with inversions to 1e-4 px
-        (every returned point reprojects within 1e-4 px, max norm; each height step starts
-        from the previous solution moved along the line of sight); the bracket keeps it stable on
-        slopes where the plain fixed point ``h <- dem(lon(h), lat(h))`` would oscillate. When
-        several intersections lie in that bracket, one of them is returned (not necessarily the
-        one nearest the sensor).
+        to 1e-9 px. On a DEM that gives its slopes (``height_and_slope_m``, as
+        :class:`~sensor_models.terrain.dem.Dem`), Newton's method solves the two image equations
+        and ``dem(lon, lat) = h`` together in (lon, lat, h), with the DEM's bilinear slope in its
+        Jacobian, from a quadratic approximate inverse of the RPC
+        (:mod:`sensor_models.models.rpc_dem`); a point stops when it reprojects within 1e-4 px
+        (max norm) and lies within 1 mm of the DEM at the same evaluation. Points it leaves
+        (Newton cycling between DEM cells on a slope seen at a grazing angle, an iterate over a
+        void or off the DEM), and every point on a DEM without slopes, go through a bracketed
+        secant search (Illinois false position) on ``f(h) = dem(lon(h), lat(h)) - h`` between
+        the DEM's minimum and maximum heights, to 1e-3 m, with inversions to 1e-4 px (each
+        height step starts from the previous solution moved along the line of sight); the
+        bracket keeps it stable on slopes where the plain fixed point
+        ``h <- dem(lon(h), lat(h))`` would oscillate. When several intersections lie within the
+        DEM's height range, one of them is returned (not necessarily the one nearest the sensor).
 
         Parameters
         ----------
@@ -594,7 +600,10 @@ class RpcModel(SensorModel):
             Ellipsoidal heights in metres (exclusive with ``dem``).
         dem : object, optional
             Terrain with ``height_m(lon_deg, lat_deg)`` returning ellipsoidal heights (NaN
-            outside) and ``height_range_m`` (``(min, max)``, attribute or method).
+            outside) and ``height_range_m`` (``(min, max)``, attribute or method); with
+            ``height_and_slope_m(lon_deg, lat_deg)`` (heights and their derivatives in lon and
+            lat, as :meth:`Dem.height_and_slope_m <sensor_models.terrain.dem.Dem.height_and_slope_m>`)
+            it is intersected by Newton's method.
         band : None
             Must be None.
         array : str or int, optional
