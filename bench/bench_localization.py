@@ -1,17 +1,19 @@
 """Benchmark: push-broom localization over a DEM, inverse localization, grid mode and RPC fit.
 
 Prints figures and writes JSON (default ``bench/results/localization.json``). Runs on one core
-(BLAS threads pinned to 1). Uses the real SRTM tile from ``../shared/data/dem`` when present,
-else a synthetic DEM of the same size and relief.
+(BLAS threads pinned to 1). Uses the real SRTM tile from ``../shared/data/dem`` when present
+(``GCPCAL_SHARED_DATA`` names another place), else a synthetic DEM of the same size and relief.
 
-Also RPC localization over the DEM, side by side: the base revision, the current code, GDAL's
-RPC transformer and, with ``--shareloc-python PATH`` (an interpreter whose environment has
-shareloc installed; gcpcal itself does not depend on it), shareloc's C++ in a child process
-(``bench/shareloc_child.py``). ``bench_rpc_dem``; ``--rpc-only`` runs just that and writes
-``bench/results/localization_rpc.json``.
+Also RPC localization over a DEM on real data, side by side in one run: the real Pleiades RPC
+(``pleiades_ventoux/left_image.geom``, pixels over its full scene) over SRTM N44E005, localized
+by ours, ours' bracketed search, the base revision, GDAL's RPC transformer and, with
+``--shareloc-python PATH`` (an interpreter whose environment has shareloc installed; gcpcal
+itself does not depend on it), shareloc's C++ in a child process (``bench/shareloc_child.py``):
+points per CPU-second, ratios, machine load and the reprojection error of each.
+``bench_rpc_dem``; ``--rpc-only`` runs just that and writes JSON only with ``--json PATH``.
 
-Usage: ``python bench/bench_localization.py [--points 1000000] [--out FILE] [--rpc-only]
-[--shareloc-python PATH] [--repeat 3]``
+Usage: ``python bench/bench_localization.py [--points 1000000] [--out FILE] [--rpc-only
+[--json FILE]] [--shareloc-python PATH] [--repeat 3]``
 """
 
 from __future__ import annotations
@@ -35,10 +37,12 @@ from sensor_models.models.pushbroom_types import Installation  # noqa: E402
 from sensor_models.models.rpc_fit import fit_rpc  # noqa: E402
 from sensor_models.models.synthetic import example_pushbroom_model  # noqa: E402
 from sensor_models.terrain.dem import Dem  # noqa: E402
-from sensor_models.readers.rpc_files import rpc_to_rasterio, write_rpc  # noqa: E402
+from sensor_models.readers.rpc_files import read_rpc, rpc_to_rasterio, write_rpc  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED_DEM = ROOT.parent / "shared" / "data" / "dem"
+#: ``../shared/data`` beside the project (``GCPCAL_SHARED_DATA`` names another place)
+SHARED_DATA = Path(os.environ.get("GCPCAL_SHARED_DATA") or ROOT.parent / "shared" / "data")
+SHARED_DEM = SHARED_DATA / "dem"
 
 
 def load_dem():
@@ -66,20 +70,42 @@ def timed(func, *args, repeat=1, **kwargs):
     return best, out
 
 
-def _rpc_scene(model, dem, n: int):
-    """The RPC fitted to CCD 0 of ``model``, the base revision's twin, ``n`` pixels over the DEM
-    and the base revision's name."""
-    import sys
+class HeightsOnly:
+    """A DEM seen through ``height_m`` and ``height_range_m`` alone: without its slopes
+    (``height_and_slope_m``), ``RpcModel.image_to_ground(..., dem=)`` takes its bracketed search."""
 
-    sys.path.insert(0, str(ROOT / "bench"))
-    from baseline import BASE_REV, load_baseline
+    def __init__(self, dem):
+        self._dem = dem
+        self.height_range_m = dem.height_range_m
 
-    rpc, _ = fit_rpc(model.ccd_view(0), height_range_m=dem.height_range_m)
-    base_rpc = load_baseline("sensor_models/models/rpc.py").RpcModel(**rpc.init_kwargs())
+    def height_m(self, lon, lat):
+        return self._dem.height_m(lon, lat)
+
+
+def real_rpc_scene(data: Path, n: int):
+    """The real Pleiades RPC and ``n`` pixels over its full scene.
+
+    Parameters
+    ----------
+    data : Path
+        ``../shared/data`` (``pleiades_ventoux/left_image.geom``: the RPC of the full
+        41801 x 39182 scene; ``dem/N44E005.hgt`` + ``egm96_15.gtx``: SRTM under it).
+    n : int
+        Pixels, uniform over the full scene (seed 7).
+
+    Returns
+    -------
+    rpc : RpcModel
+    dem : Dem
+        SRTM N44E005 in ellipsoidal heights (EGM96 undulations added).
+    rows, cols : ndarray, shape (n,)
+    """
+    rpc = read_rpc(data / "pleiades_ventoux" / "left_image.geom")
+    dem = Dem.open(data / "dem" / "N44E005.hgt", vertical_datum="egm96", geoid=data / "dem" / "egm96_15.gtx")
     rng = np.random.default_rng(7)
-    rows = rng.uniform(300.0, 1700.0, n)
-    cols = rng.uniform(50.0, rpc.image_shape[1] - 50.0, n)
-    return rpc, base_rpc, rows, cols, BASE_REV
+    rows = rng.uniform(0.0, rpc.image_shape[0], n)
+    cols = rng.uniform(0.0, rpc.image_shape[1], n)
+    return rpc, dem, rows, cols
 
 
 def _write_inputs(folder: Path, rpc, dem, rows, cols) -> Path:
@@ -99,12 +125,12 @@ def _write_inputs(folder: Path, rpc, dem, rows, cols) -> Path:
 
 
 def _time_round(funcs: dict, repeat: int, best: dict, out: dict) -> None:
-    """``repeat`` passes over ``funcs`` in turn; keeps each one's best time and last output."""
+    """``repeat`` passes over ``funcs`` in turn; keeps each one's best CPU time and last output."""
     for _ in range(repeat):
         for k, f in funcs.items():
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             out[k] = f()
-            best[k] = min(best.get(k, np.inf), time.perf_counter() - t0)
+            best[k] = min(best.get(k, np.inf), time.process_time() - t0)
 
 
 def run_shareloc(python, folder: Path, repeat: int) -> tuple[dict | None, str]:
@@ -148,19 +174,20 @@ def run_shareloc(python, folder: Path, repeat: int) -> tuple[dict | None, str]:
 def _accuracy(rpc, dem, rows, cols, lonlath, ref: dict, *, has_height: bool = True) -> dict:
     """Accuracy of one method's ground points (``lonlath``: lon, lat, h arrays).
 
-    ``ref`` maps a name (``before``: the base revision, 1e-9 px inversions; ``after``: ours) to
-    its ``(lon, lat, h)``. Reports the fraction found; the reprojection residual through the RPC
-    at the method's own height (max norm, px; at the reference's height when the method gives
-    none, GDAL); the DEM misfit ``|DEM(lon, lat) - h|`` (m); and, for each reference, the ground
-    distance to its solution (m) and the image offset of that distance at its height (px).
+    ``ref`` maps a name (``before``: the base revision, 1e-9 px inversions; ``bracketed``: the
+    bracketed search; ``after``: ours) to its ``(lon, lat, h)``. Reports the fraction found; the
+    reprojection residual through the RPC at the method's own height (max norm, px; for a method
+    that gives no height, GDAL, at the DEM's height under its point, the surface it intersects);
+    the DEM misfit ``|DEM(lon, lat) - h|`` (m); and, for each reference, the ground distance to
+    its solution (m) and the image offset of that distance at its height (px).
     """
     lon, lat, h = lonlath
-    base_lon, base_lat, base_h = ref["before"]
+    base_lon = ref["before"][0]
     ok = np.isfinite(lon) & np.isfinite(base_lon)
-    hh = h[ok] if has_height else base_h[ok]
+    hh = h[ok] if has_height else dem.height_m(lon[ok], lat[ok])
     r2, c2 = rpc.ground_to_image(lon[ok], lat[ok], hh)
     res = {"found": float(np.isfinite(lon).mean()), "compared": int(ok.sum()),
-           "reprojection_px_max": float(np.max(np.maximum(abs(r2 - rows[ok]), abs(c2 - cols[ok]))))}
+           "reprojection_px_max": float(np.nanmax(np.maximum(abs(r2 - rows[ok]), abs(c2 - cols[ok]))))}
     if has_height:
         res["dem_misfit_m_max"] = float(np.nanmax(np.abs(dem.height_m(lon[ok], lat[ok]) - h[ok])))
     for name, (rlon, rlat, rh) in ref.items():
@@ -175,50 +202,67 @@ def _accuracy(rpc, dem, rows, cols, lonlath, ref: dict, *, has_height: bool = Tr
     return res
 
 
-def bench_rpc_dem(model, dem, n: int, repeat: int = 3, shareloc_python=None) -> dict:
-    """RPC localization over the DEM: base revision, current code, GDAL and shareloc, side by side.
+def bench_rpc_dem(data: Path, n: int, repeat: int = 3, shareloc_python=None) -> dict:
+    """RPC localization over SRTM on the real Pleiades RPC: ours, its bracketed search, the base
+    revision, GDAL and shareloc, side by side.
 
-    The RPC is fitted to CCD 0 of ``model``; GDAL's RPC transformer (rasterio
-    ``RPCTransformer``, ``RPC_DEM`` = the same ellipsoidal heights as a GeoTIFF, bilinear,
-    ``RPC_PIXEL_ERROR_THRESHOLD`` 1e-4 px) localizes the same pixels. Timings alternate, best of
-    ``repeat``, in two rounds with shareloc's C++ (child process in ``shareloc_python``'s
-    environment, one thread, see ``bench/shareloc_child.py``) between them: ours, shareloc,
-    ours. Accuracy: see :func:`_accuracy` (distances to the base revision's solution and to ours).
+    The scene is :func:`real_rpc_scene`. Every method reads the same heights: SRTM in
+    ellipsoidal heights written as a float32 GeoTIFF, which ours opens as a :class:`Dem` and GDAL's
+    RPC transformer (rasterio ``RPCTransformer``, ``RPC_DEM``, bilinear,
+    ``RPC_PIXEL_ERROR_THRESHOLD`` 1e-4 px) reads. ``bracketed`` is ours on a DEM that does not
+    give its slopes (:class:`HeightsOnly`): the bracketed (Illinois) search alone. CPU times
+    (``time.process_time``) alternate, best of ``repeat``, in two rounds with shareloc's C++
+    (child process in ``shareloc_python``'s environment, one thread, see
+    ``bench/shareloc_child.py``) between them. Accuracy: see :func:`_accuracy`.
     """
+    import sys
     import tempfile
 
     from rasterio.transform import RPCTransformer
 
-    rpc, base_rpc, rows, cols, base_rev = _rpc_scene(model, dem, n)
+    sys.path.insert(0, str(ROOT / "bench"))
+    from baseline import BASE_REV, load_baseline
+
+    rpc, srtm, rows, cols = real_rpc_scene(data, n)
+    base_rpc = load_baseline("sensor_models/models/rpc.py").RpcModel(**rpc.init_kwargs())
     best, out = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
-        dem_path = _write_inputs(Path(tmp), rpc, dem, rows, cols)
+        dem_path = _write_inputs(Path(tmp), rpc, srtm, rows, cols)
+        dem = Dem.open(dem_path, vertical_datum="ellipsoid")
+        heights_only = HeightsOnly(dem)
         with RPCTransformer(rpc_to_rasterio(rpc), RPC_DEM=str(dem_path), RPC_DEMINTERPOLATION="bilinear",
                             RPC_PIXEL_ERROR_THRESHOLD=1e-4) as gdal:
             funcs = {"before": lambda: base_rpc.image_to_ground(rows, cols, dem=dem),
+                     "bracketed": lambda: rpc.image_to_ground(rows, cols, dem=heights_only),
                      "after": lambda: rpc.image_to_ground(rows, cols, dem=dem),
                      "gdal": lambda: gdal.xy(rows, cols, offset="ul")}
-            _time_round(funcs, repeat, best, out)
-            after_rounds = [best["after"]]
             load = [os.getloadavg()[0]]
+            _time_round(funcs, repeat, best, out)
+            rounds = {k: [v] for k, v in best.items()}
+            load.append(os.getloadavg()[0])
             shareloc, reason = run_shareloc(shareloc_python, Path(tmp), repeat)
             second = {}
             _time_round(funcs, repeat, second, out)
-            after_rounds.append(second["after"])
             load.append(os.getloadavg()[0])
+            for k, v in second.items():
+                rounds[k].append(v)
             best = {k: min(best[k], second[k]) for k in best}
-    return _rpc_result(rpc, dem, rows, cols, best, out, shareloc, reason, after_rounds, load, base_rev)
+        result = _rpc_result(rpc, dem, rows, cols, best, out, shareloc, reason, rounds, load, BASE_REV)
+    return result
 
 
-def _rpc_result(rpc, dem, rows, cols, best, out, shareloc, reason, after_rounds, load, base_rev) -> dict:
+def _rpc_result(rpc, dem, rows, cols, best, out, shareloc, reason, rounds, load, base_rev) -> dict:
     """The JSON record of :func:`bench_rpc_dem`: speeds, ratios, accuracy of each method."""
     n = rows.size
-    ref = {"before": out["before"], "after": out["after"]}
-    result = {"points": n, "base_rev": base_rev, "points_per_s": {k: n / v for k, v in best.items()},
-              "after_best_s_per_round": after_rounds, "load_average_1min": load,
-              "speedup_vs_before": best["before"] / best["after"], "ratio_vs_gdal": best["gdal"] / best["after"],
-              "before": {"found": float(np.isfinite(out["before"][0]).mean())},
-              "after": _accuracy(rpc, dem, rows, cols, out["after"], ref)}
+    ref = {"before": out["before"], "bracketed": out["bracketed"], "after": out["after"]}
+    result = {"rpc": "Pleiades-1B left_image.geom (full scene 41801 x 39182), pixels uniform over it",
+              "dem": "SRTM N44E005 + EGM96, ellipsoidal heights as float32 GeoTIFF (the same file for all)",
+              "points": n, "base_rev": base_rev, "points_per_cpu_s": {k: n / v for k, v in best.items()},
+              "cpu_s_per_round": rounds, "load_average_1min": load,
+              "speedup_vs_before": best["before"] / best["after"],
+              "speedup_vs_bracketed": best["bracketed"] / best["after"], "ratio_vs_gdal": best["gdal"] / best["after"]}
+    for name in ("before", "bracketed", "after"):
+        result[name] = _accuracy(rpc, dem, rows, cols, out[name], ref)
     gdal_lonlath = tuple(np.asarray(v, dtype=np.float64) for v in out["gdal"]) + (None,)
     result["gdal"] = _accuracy(rpc, dem, rows, cols, gdal_lonlath, ref, has_height=False)
     if shareloc is None:
@@ -226,36 +270,58 @@ def _rpc_result(rpc, dem, rows, cols, best, out, shareloc, reason, after_rounds,
         result["shareloc"] = {"skipped": reason}
         return result
     sec = shareloc["seconds"]
-    result["points_per_s"]["shareloc_cpp"] = n / sec["cpp"]
-    result["points_per_s"]["shareloc_wrapper"] = n / sec["wrapper"]
+    result["points_per_cpu_s"]["shareloc_cpp"] = n / sec["cpp"]
+    result["points_per_cpu_s"]["shareloc_wrapper"] = n / sec["wrapper"]
     result["ratio_vs_shareloc_cpp"] = sec["cpp"] / best["after"]
     result["shareloc"] = _accuracy(rpc, dem, rows, cols, shareloc["lonlath"], ref)
     result["shareloc"].update({k: shareloc[k] for k in ("shareloc_version", "python", "dem_nodes_filled", "threads")})
     return result
 
 
-def rpc_only(n: int, shareloc_python=None, repeat: int = 3, out: Path | None = None) -> None:
-    """``--rpc-only``: the RPC-over-DEM comparison alone, written to ``out`` (default ``localization_rpc.json``)."""
-    dem, dem_name = load_dem()
-    model = example_pushbroom_model(n_rows=2000, installation=Installation(0.0, 0.0, np.radians(3.55)))
-    r = bench_rpc_dem(model, dem, n, repeat=repeat, shareloc_python=shareloc_python)
+def print_rpc_result(r: dict) -> None:
+    """The RPC-over-DEM comparison as a table: points per CPU-second, ratio to ours, accuracy."""
+    pps = r["points_per_cpu_s"]
+    load = ", ".join(f"{v:.2f}" for v in r["load_average_1min"])
+    print(f"RPC localization over a DEM: {r['points']:,} points, {r['rpc']}; {r['dem']}; "
+          f"1 thread, load average (1 min) {load} on {os.cpu_count()} cores")
+    rows = [("ours (Newton on lon, lat, h)", "after"), ("ours, bracketed search", "bracketed"),
+            (f"base revision {r['base_rev']}", "before"), ("GDAL RPCTransformer (1e-4 px)", "gdal")]
+    if "shareloc_cpp" in pps:
+        rows.append(("shareloc C++ direct_loc_dtm", "shareloc_cpp"))
+    print(f"  {'method':32s} {'points/CPU-s':>13s} {'ours / it':>10s} {'reproj. max px':>15s} {'found':>7s}")
+    for label, key in rows:
+        acc = r.get("shareloc" if key.startswith("shareloc") else key, {})
+        print(f"  {label:32s} {pps[key]:13,.0f} {pps['after'] / pps[key]:10.2f} "
+              f"{acc.get('reprojection_px_max', float('nan')):15.2e} {acc.get('found', float('nan')):7.4f}")
+    print(f"  ours against GDAL: x{r['ratio_vs_gdal']:.2f}; ours within {r['after']['distance_to_bracketed_m_max']:.1e} m "
+          f"({r['after']['distance_to_bracketed_px_max']:.1e} px) of the bracketed search, GDAL within "
+          f"{r['gdal']['distance_to_after_m_max']:.1e} m ({r['gdal']['distance_to_after_px_max']:.1e} px) of ours")
+
+
+def rpc_only(data: Path, n: int, shareloc_python=None, repeat: int = 3, out: Path | None = None) -> None:
+    """``--rpc-only``: the RPC-over-DEM comparison alone, printed; JSON written to ``out`` when given."""
+    r = bench_rpc_dem(data, n, repeat=repeat, shareloc_python=shareloc_python)
     command = f"python bench/bench_localization.py --rpc-only --points {n} --repeat {repeat}"
     if shareloc_python:
         command += f" --shareloc-python {shareloc_python}"
-    r.update(dem=dem_name, command=command, machine=platform.machine(), python=platform.python_version())
-    print(json.dumps(r, indent=1))
-    out = out or ROOT / "bench" / "results" / "localization_rpc.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(r, indent=1) + "\n")
+    r.update(command=command, machine=platform.machine(), python=platform.python_version(), cpus=os.cpu_count())
+    print_rpc_result(r)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(r, indent=1) + "\n")
+        print(f"wrote {out}")
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=1_000_000)
     parser.add_argument("--out", type=Path, default=None,
-                        help="JSON written (default bench/results/localization.json, or localization_rpc.json with --rpc-only)")
+                        help="JSON of the full run (default bench/results/localization.json)")
     parser.add_argument("--rpc-only", action="store_true",
-                        help="only the RPC-over-DEM comparison (base revision, current, GDAL), written to --out")
+                        help="only the RPC-over-DEM comparison on the real Pleiades RPC and SRTM (ours, base "
+                        "revision, GDAL), printed; JSON written with --json")
+    parser.add_argument("--json", type=Path, default=None, metavar="PATH",
+                        help="with --rpc-only: write the comparison's JSON here")
     parser.add_argument("--shareloc-python", default=None, metavar="PATH",
                         help="Python of an environment with shareloc installed: adds shareloc's C++ to the RPC "
                         "comparison (skipped with a printed reason when not given or not importable)")
@@ -263,7 +329,9 @@ def main():
     args = parser.parse_args()
     n = args.points
     if args.rpc_only:
-        rpc_only(n, args.shareloc_python, args.repeat, args.out)
+        if not (SHARED_DATA / "pleiades_ventoux").is_dir():
+            parser.error(f"the real Pleiades RPC is not at {SHARED_DATA} (set GCPCAL_SHARED_DATA)")
+        rpc_only(SHARED_DATA, n, args.shareloc_python, args.repeat, args.json)
         return
     rng = np.random.default_rng(42)
 
@@ -327,14 +395,12 @@ def main():
         results[key] = {"seconds": t, "check_max_px": report["check_max_px"], "check_rms_px": report["check_rms_px"]}
         print(f"RPC fit ({label}) {t:.2f} s   check max {report['check_max_px']:.1e} px, rms {report['check_rms_px']:.1e} px")
 
-    results["rpc_dem"] = r = bench_rpc_dem(model, dem, min(n, 200_000), repeat=args.repeat,
-                                             shareloc_python=args.shareloc_python)
-    print(f"RPC over DEM       {r['points_per_s']['after']:12,.0f} points/s   x{r['speedup_vs_before']:.2f} vs before, "
-          f"x{r['ratio_vs_gdal']:.2f} vs GDAL; reprojection max {r['after']['reprojection_px_max']:.1e} px "
-          f"(GDAL {r['gdal']['reprojection_px_max']:.1e} px)")
-    if "ratio_vs_shareloc_cpp" in r:
-        print(f"                   x{r['ratio_vs_shareloc_cpp']:.2f} vs shareloc C++; its reprojection max "
-              f"{r['shareloc']['reprojection_px_max']:.1e} px, {r['shareloc']['distance_to_after_px_max']:.1e} px from ours")
+    if (SHARED_DATA / "pleiades_ventoux").is_dir():
+        results["rpc_dem"] = r = bench_rpc_dem(SHARED_DATA, min(n, 200_000), repeat=args.repeat,
+                                               shareloc_python=args.shareloc_python)
+        print_rpc_result(r)
+    else:
+        print(f"RPC over DEM skipped: the real Pleiades RPC is not at {SHARED_DATA}")
 
     results["max_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"peak memory {results['max_rss_mb']:.0f} MB")

@@ -1,4 +1,5 @@
-"""The RPC-over-DEM comparison of ``bench/bench_localization.py`` at a tiny size.
+"""The RPC-over-DEM comparison of ``bench/bench_localization.py`` at a tiny size, on the real
+Pleiades RPC and SRTM of ``../shared/data`` (skipped when absent).
 
 Checks that the shareloc column is skipped with a reason when no shareloc environment is given
 or it cannot import shareloc, that the accuracy measures catch a half-pixel convention error
@@ -28,33 +29,26 @@ def bench():
     return module
 
 
-@pytest.fixture(scope="module")
-def scene(bench):
-    from sensor_models.models.pushbroom_types import Installation
-    from sensor_models.models.synthetic import example_pushbroom_model
-
-    dem, _ = bench.load_dem()
-    model = example_pushbroom_model(n_rows=2000, installation=Installation(0.0, 0.0, np.radians(3.55)))
-    return model, dem
-
-
-def test_shareloc_column_is_skipped_with_a_reason(bench, scene, capsys):
-    model, dem = scene
-    r = bench.bench_rpc_dem(model, dem, 500, repeat=1)
+def test_shareloc_column_is_skipped_with_a_reason(bench, shared_data, capsys):
+    r = bench.bench_rpc_dem(shared_data, 500, repeat=1)
     assert r["shareloc"] == {"skipped": "--shareloc-python not given"}
     assert "shareloc column skipped: --shareloc-python not given" in capsys.readouterr().out
     # this environment has no shareloc: the child fails to import it and the run goes on
-    r = bench.bench_rpc_dem(model, dem, 500, repeat=1, shareloc_python=sys.executable)
+    r = bench.bench_rpc_dem(shared_data, 500, repeat=1, shareloc_python=sys.executable)
     assert "could not run shareloc" in r["shareloc"]["skipped"]
     assert "ratio_vs_shareloc_cpp" not in r and r["ratio_vs_gdal"] > 0
-    # ours and GDAL still compared: both within a few 1e-4 px of the base revision
-    assert r["after"]["reprojection_px_max"] <= 1.0001e-4
-    assert r["gdal"]["distance_to_after_px_max"] < 1e-3
+    # ours, its bracketed search and GDAL compared: all within 1e-4 px, a few 1e-4 px apart
+    assert r["after"]["reprojection_px_max"] <= 1.0001e-4 and r["after"]["found"] == 1.0
+    assert r["bracketed"]["reprojection_px_max"] <= 1.0001e-4
+    assert r["after"]["distance_to_bracketed_px_max"] < 2e-3
+    assert r["gdal"]["distance_to_after_px_max"] < 2e-3
+    assert r["gdal"]["reprojection_px_max"] < 2e-4
+    bench.print_rpc_result(r)
+    assert "GDAL RPCTransformer" in capsys.readouterr().out
 
 
-def test_accuracy_measures_catch_a_half_pixel_convention_error(bench, scene):
-    model, dem = scene
-    rpc, _, rows, cols, _ = bench._rpc_scene(model, dem, 400)
+def test_accuracy_measures_catch_a_half_pixel_convention_error(bench, shared_data):
+    rpc, dem, rows, cols = bench.real_rpc_scene(shared_data, 400)
     ours = rpc.image_to_ground(rows, cols, dem=dem)
     ref = {"before": ours, "after": ours}
     shifted = rpc.image_to_ground(rows + 0.5, cols + 0.5, dem=dem)  # a corner/centre mix-up
@@ -65,16 +59,16 @@ def test_accuracy_measures_catch_a_half_pixel_convention_error(bench, scene):
     assert good["distance_to_after_px_max"] < 1e-9 and good["reprojection_px_max"] <= 1.0001e-4
 
 
-def test_shareloc_cpp_agrees_with_ours(bench, scene):
+def test_shareloc_cpp_agrees_with_ours(bench, shared_data):
     python = os.environ.get("GCPCAL_SHARELOC_PYTHON")
     if not python:
         pytest.skip("GCPCAL_SHARELOC_PYTHON (a Python with shareloc installed) not set")
-    model, dem = scene
-    r = bench.bench_rpc_dem(model, dem, 2000, repeat=1, shareloc_python=python)
+    r = bench.bench_rpc_dem(shared_data, 2000, repeat=1, shareloc_python=python)
     s = r["shareloc"]
     assert "skipped" not in s, s
     # the same convention: offsets far below a pixel, yet not identical (shareloc follows a
-    # straight line of sight between the DTM's lowest and highest heights)
-    assert 1e-7 < s["distance_to_after_px_max"] < 1e-3
-    assert s["reprojection_px_max"] < 1e-3 and s["dem_misfit_m_max"] < 0.01
+    # straight line of sight between the DTM's lowest and highest heights, 2.7 km apart: on the
+    # Pleiades RPC that chord lies up to 0.03 px off the RPC's line of sight)
+    assert 1e-7 < s["distance_to_after_px_max"] < 0.05
+    assert s["reprojection_px_max"] < 0.05 and s["dem_misfit_m_max"] < 0.01
     assert abs(s["found"] - r["after"]["found"]) < 0.01 and r["ratio_vs_shareloc_cpp"] > 0

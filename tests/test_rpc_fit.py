@@ -17,7 +17,7 @@ from sensor_models.geometry.ephemeris import Attitude
 from sensor_models.errors import InputError
 from sensor_models.models.pushbroom import PushbroomModel
 from sensor_models.readers import open_model
-from sensor_models.models.rpc import _terms
+from sensor_models.models.rpc_dem import rpc00b_monomials
 from sensor_models.models.rpc_fit import denominator_lower_bound, fit_rpc, fit_rpc_tiles
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -31,7 +31,7 @@ def _cube_min(den, n=41):
     """Min of the cubic over a dense sample of [-1, 1]^3 (an upper bound of the true minimum)."""
     a = np.linspace(-1.0, 1.0, n)
     L, P, H = (x.reshape(-1) for x in np.meshgrid(a, a, a, indexing="ij"))
-    return float(np.min(np.asarray(den) @ _terms(L, P, H)))
+    return float(np.min(np.asarray(den) @ rpc00b_monomials(L, P, H)))
 
 
 def _max_error_px(model, rpc, n, *, rows=None, seed=0):

@@ -78,6 +78,9 @@ import numpy as np
 
 from sensor_models.base import ParameterVector, SensorModel, as_float_arrays
 from sensor_models.errors import InputError, RpcError
+from sensor_models.models.rpc_dem import (
+    derivative_coefficients, fit_approximate_inverse, intersect_dem_newton, rpc00b_monomials,
+)
 
 __all__ = ["RPC00B_TERMS", "RpcModel"]
 
@@ -113,30 +116,6 @@ _DEM_MAX_ITER = 100
 # ---------------------------------------------------------------------------------------------
 # Polynomial kernel
 # ---------------------------------------------------------------------------------------------
-def _terms(L, P, H):
-    """RPC00B monomials, shape (20, N), for normalized coordinates of shape (N,)."""
-    T = np.empty((20, L.shape[0]))
-    T[0] = 1.0
-    T[1], T[2], T[3] = L, P, H
-    np.multiply(L, P, out=T[4])
-    np.multiply(L, H, out=T[5])
-    np.multiply(P, H, out=T[6])
-    np.multiply(L, L, out=T[7])
-    np.multiply(P, P, out=T[8])
-    np.multiply(H, H, out=T[9])
-    np.multiply(T[4], H, out=T[10])  # P*L*H
-    np.multiply(T[7], L, out=T[11])  # L^3
-    np.multiply(T[8], L, out=T[12])  # L*P^2
-    np.multiply(T[9], L, out=T[13])  # L*H^2
-    np.multiply(T[7], P, out=T[14])  # L^2*P
-    np.multiply(T[8], P, out=T[15])  # P^3
-    np.multiply(T[9], P, out=T[16])  # P*H^2
-    np.multiply(T[7], H, out=T[17])  # L^2*H
-    np.multiply(T[8], H, out=T[18])  # P^2*H
-    np.multiply(T[9], H, out=T[19])  # H^3
-    return T
-
-
 def _terms_dL(L, P, H):
     z, o = np.zeros_like(L), np.ones_like(L)
     return np.stack(
@@ -418,7 +397,7 @@ class RpcModel(SensorModel):
         for s in range(0, n, _CHUNK):
             sl = slice(s, s + _CHUNK)
             L, P, H = self._normalize(lon[sl], lat[sl], h[sl])
-            v = self._coef.T @ _terms(L, P, H)  # (4, n)
+            v = self._coef.T @ rpc00b_monomials(L, P, H)  # (4, n)
             row[sl] = v[0] / v[1] * self.line_scale + (self.line_off + 0.5)
             col[sl] = v[2] / v[3] * self.samp_scale + (self.samp_off + 0.5)
         return row, col
@@ -429,7 +408,7 @@ class RpcModel(SensorModel):
         Returns ``row, col`` (gcpcal convention) and, if asked, ``d(row, col)/d(L, P)`` as an
         array of shape (N, 2, 2) in pixels per normalized unit.
         """
-        v = self._coef.T @ _terms(L, P, H)  # (4, N)
+        v = self._coef.T @ rpc00b_monomials(L, P, H)  # (4, N)
         row = v[0] / v[1] * self.line_scale + (self.line_off + 0.5)
         col = v[2] / v[3] * self.samp_scale + (self.samp_off + 0.5)
         if not derivatives:
@@ -598,14 +577,20 @@ class RpcModel(SensorModel):
         """Localize image points at given heights or on a DEM.
 
         At a given height, the RPC is inverted by Newton's method on normalized (lon, lat),
-        to 1e-9 px. On a DEM, the height along each image point's line of sight is found by a
-        bracketed secant search (Illinois false position) on ``f(h) = dem(lon(h), lat(h)) - h``
-        between the DEM's minimum and maximum heights, to 1e-3 m, with inversions to 1e-4 px
-        (every returned point reprojects within 1e-4 px, max norm; each height step starts
-        from the previous solution moved along the line of sight); the bracket keeps it stable on
-        slopes where the plain fixed point ``h <- dem(lon(h), lat(h))`` would oscillate. When
-        several intersections lie in that bracket, one of them is returned (not necessarily the
-        one nearest the sensor).
+        to 1e-9 px. On a DEM that gives its slopes (``height_and_slope_m``, as
+        :class:`~sensor_models.terrain.dem.Dem`), Newton's method solves the two image equations
+        and ``dem(lon, lat) = h`` together in (lon, lat, h), with the DEM's bilinear slope in its
+        Jacobian, from a quadratic approximate inverse of the RPC
+        (:mod:`sensor_models.models.rpc_dem`); a point stops when it reprojects within 1e-4 px
+        (max norm) and lies within 1 mm of the DEM at the same evaluation. Points it leaves
+        (Newton cycling between DEM cells on a slope seen at a grazing angle, an iterate over a
+        void or off the DEM), and every point on a DEM without slopes, go through a bracketed
+        secant search (Illinois false position) on ``f(h) = dem(lon(h), lat(h)) - h`` between
+        the DEM's minimum and maximum heights, to 1e-3 m, with inversions to 1e-4 px (each
+        height step starts from the previous solution moved along the line of sight); the
+        bracket keeps it stable on slopes where the plain fixed point
+        ``h <- dem(lon(h), lat(h))`` would oscillate. When several intersections lie within the
+        DEM's height range, one of them is returned (not necessarily the one nearest the sensor).
 
         Parameters
         ----------
@@ -615,7 +600,10 @@ class RpcModel(SensorModel):
             Ellipsoidal heights in metres (exclusive with ``dem``).
         dem : object, optional
             Terrain with ``height_m(lon_deg, lat_deg)`` returning ellipsoidal heights (NaN
-            outside) and ``height_range_m`` (``(min, max)``, attribute or method).
+            outside) and ``height_range_m`` (``(min, max)``, attribute or method); with
+            ``height_and_slope_m(lon_deg, lat_deg)`` (heights and their derivatives in lon and
+            lat, as :meth:`Dem.height_and_slope_m <sensor_models.terrain.dem.Dem.height_and_slope_m>`)
+            it is intersected by Newton's method.
         band : None
             Must be None.
         array : str or int, optional
@@ -649,8 +637,45 @@ class RpcModel(SensorModel):
         h = np.where(np.isfinite(lon), h, np.nan)
         return lon.reshape(shape), lat.reshape(shape), h.reshape(shape)
 
+    def rpc_kernel(self):
+        """Matrices of the fast kernels, computed once per model.
+
+        Returns
+        -------
+        coef16 : ndarray, shape (20, 16)
+            The four cubics and their L, P, H derivatives on the RPC00B monomials
+            (:func:`~sensor_models.models.rpc_dem.derivative_coefficients`).
+        inverse : ndarray, shape (10, 2)
+            A quadratic approximate inverse (:func:`~sensor_models.models.rpc_dem.fit_approximate_inverse`),
+            a starting point for Newton.
+        """
+        kernel = getattr(self, "_kernel", None)
+        if kernel is None:
+            def project(L, P, H):
+                v = self._coef.T @ rpc00b_monomials(L, P, H)
+                return v[0] / v[1], v[2] / v[3]
+
+            kernel = self._kernel = (derivative_coefficients(self._coef), fit_approximate_inverse(project))
+        return kernel
+
     def _intersect_dem(self, row, col, dem):
-        """Illinois (modified false position) search of the line-of-sight height on a DEM."""
+        """Newton's method on the line of sight and the DEM (when the DEM gives its slopes), the
+        bracketed search for the points it leaves."""
+        h_lo, h_hi = self._dem_bracket(dem)
+        row_rpc, col_rpc = self._remove_bias(row, col)
+        if not hasattr(dem, "height_and_slope_m"):
+            return self._intersect_dem_bracketed(row_rpc, col_rpc, dem, h_lo, h_hi)
+        lon, lat, h, done = intersect_dem_newton(self, row_rpc, col_rpc, dem, (h_lo, h_hi),
+                                                 tol_px=_DEM_NEWTON_TOL_PX, tol_m=_DEM_TOL_M)
+        rest = np.flatnonzero(~done)
+        if rest.size:
+            lon[rest], lat[rest], h[rest] = self._intersect_dem_bracketed(row_rpc[rest], col_rpc[rest], dem,
+                                                                          h_lo, h_hi)
+        return lon, lat, h
+
+    @staticmethod
+    def _dem_bracket(dem):
+        """The DEM's height range, widened by 1 m on both sides."""
         hr = dem.height_range_m
         if callable(hr):
             hr = hr()
@@ -660,10 +685,12 @@ class RpcModel(SensorModel):
             raise InputError(f"dem.height_range_m must be (min, max) metres, got {hr!r}") from None
         if not (math.isfinite(h_lo) and math.isfinite(h_hi) and h_lo <= h_hi):
             raise InputError(f"dem.height_range_m must be finite (min <= max), got {hr!r}")
-        h_lo -= 1.0  # strict bracket even where the DEM touches its extremes
-        h_hi += 1.0
-        row_rpc, col_rpc = self._remove_bias(row, col)
-        n = row.shape[0]
+        # strict bracket even where the DEM touches its extremes
+        return h_lo - 1.0, h_hi + 1.0
+
+    def _intersect_dem_bracketed(self, row_rpc, col_rpc, dem, h_lo, h_hi):
+        """Illinois (modified false position) search of the line-of-sight height on a DEM."""
+        n = row_rpc.shape[0]
 
         def to_norm(h):
             return (h - self.height_off) / self.height_scale

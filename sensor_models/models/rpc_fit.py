@@ -57,7 +57,8 @@ from math import comb
 import numpy as np
 
 from sensor_models.errors import InputError, RpcError
-from sensor_models.models.rpc import RpcModel, _terms
+from sensor_models.models.rpc import RpcModel
+from sensor_models.models.rpc_dem import rpc00b_monomials
 
 __all__ = ["FORMS", "RpcTile", "denominator_lower_bound", "fit_rpc", "fit_rpc_tiles", "normalization"]
 
@@ -222,7 +223,7 @@ class _Samples:
     def __init__(self, pts, norm):
         R, C, lon, lat, h = pts
         self.points = pts
-        self.T = _terms((lon - norm["lon_off"]) / norm["lon_scale"], (lat - norm["lat_off"]) / norm["lat_scale"],
+        self.T = rpc00b_monomials((lon - norm["lon_off"]) / norm["lon_scale"], (lat - norm["lat_off"]) / norm["lat_scale"],
                         (h - norm["height_off"]) / norm["height_scale"]).T  # fmt: skip
         self.y = np.stack([(R - 0.5 - norm["line_off"]) / norm["line_scale"],
                            (C - 0.5 - norm["samp_off"]) / norm["samp_scale"]], axis=1)  # fmt: skip

@@ -376,6 +376,50 @@ class Dem:
         col, row = self._lonlat_to_index(lon.reshape(-1), lat.reshape(-1))
         return self._bilinear(col, row).reshape(lon.shape)
 
+    def height_and_slope_m(self, lon_deg, lat_deg):
+        """Ellipsoidal height of the DEM surface (bilinear) and its derivatives in lon and lat.
+
+        Parameters
+        ----------
+        lon_deg, lat_deg : ndarray, shape (N,)
+            WGS84 longitude and latitude in degrees.
+
+        Returns
+        -------
+        h_m, dh_dlon, dh_dlat : ndarray, shape (N,)
+            Metres and metres per degree: the height of :meth:`height_m` and the slope of the
+            bilinear patch of the cell holding each point (one-sided on a cell edge). NaN where
+            :meth:`height_m` is NaN.
+        """
+        geo = self._geometry
+        col, row = geo.lonlat_to_index(lon_deg, lat_deg)
+        if geo.plain_lonlat:
+            c_lon, c_lat, _, r_lon, r_lat, _ = geo.index_coeffs
+        else:  # through PROJ: the index mapping's derivatives by finite differences
+            eps = 1e-6
+            c1, r1 = geo.lonlat_to_index(lon_deg + eps, lat_deg)
+            c2, r2 = geo.lonlat_to_index(lon_deg, lat_deg + eps)
+            c_lon, r_lon, c_lat, r_lat = (c1 - col) / eps, (r1 - row) / eps, (c2 - col) / eps, (r2 - row) / eps
+        n_rows, n_cols = self.shape
+        inside = (col >= 0.0) & (col <= n_cols - 1) & (row >= 0.0) & (row <= n_rows - 1)
+        col = np.where(inside, col, 0.0)
+        row = np.where(inside, row, 0.0)
+        i = np.minimum(col.astype(np.intp), n_cols - 2)
+        j = np.minimum(row.astype(np.intp), n_rows - 2)
+        fc, fr = col - i, row - j
+        k = j * n_cols + i
+        zf = self._z_flat
+        z00 = zf.take(k)
+        z01 = zf.take(k + 1)
+        z10 = zf.take(k + n_cols)
+        z11 = zf.take(k + n_cols + 1)
+        d_top = z01 - z00
+        top = z00 + fc * d_top
+        d_rows = (z10 + fc * (z11 - z10)) - top
+        h = np.where(inside, top + fr * d_rows, np.nan)
+        dz_dc = d_top + fr * ((z11 - z10) - d_top)
+        return h, dz_dc * c_lon + d_rows * r_lon, dz_dc * c_lat + d_rows * r_lat
+
     def coverage_fraction(self, lon_deg, lat_deg) -> float:
         """Share of the points that lie inside the DEM's grid (voids count as covered).
 
