@@ -231,6 +231,27 @@ def test_calibrate_tiers_import_downward_only():
     assert not _report(failures), "\n".join(_report(failures))
 
 
+def test_no_module_imports_another_modules_private_name():
+    """``from m import _name`` across modules couples them through what ``m`` keeps private; a
+    helper shared by modules gets a public name in its home. Private modules (``_phase_torch``)
+    may be imported by their own package, and dunder names (``__version__``) are public."""
+    failures = {}
+    for module, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if not isinstance(node, ast.ImportFrom) or node.level or not node.module:
+                continue
+            if node.module.split(".")[0] not in LAYERS or node.module == module:
+                continue
+            for alias in node.names:
+                name = alias.name
+                if not name.startswith("_") or name.startswith("__"):
+                    continue
+                if f"{node.module}.{name}" in MODULES:  # a private module of that package
+                    continue
+                failures[("private", module, name)] = f"{module} (line {node.lineno}) imports {node.module}.{name}"
+    assert not _report(failures), "\n".join(_report(failures))
+
+
 def test_production_never_imports_the_simulator():
     """Only sensor_models/simulate/ itself and ``*simulate*`` command modules may import it."""
     failures = {}
