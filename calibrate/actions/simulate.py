@@ -10,6 +10,7 @@ from dataclasses import replace
 from calibrate.actions._guard import InputSet, is_stdout
 from calibrate.actions._io import check_output_files, final_paths, open_dem, staged_files, staged_folder, write_summary
 from calibrate.actions._status import require_usable, status_fields
+from sensor_models.errors import InputError
 from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
 __all__ = ["PROFILE_NAMES", "pushbroom_config", "simulate_geo_earth_scene", "simulate_geo_star_frames",
@@ -42,7 +43,8 @@ def pushbroom_config(config_path=None, seed=None):
 
 
 def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, geoid=None, workers: int = 2,
-                             progress=None, profile: str = "ideal", config_path=None) -> dict:
+                             progress=None, profile: str = "ideal", config_path=None, model_path=None,
+                             window=None) -> dict:
     """Render a level-1A push-broom scene through a TRUE model; write the LAB manifest and truth.
 
     Parameters
@@ -63,6 +65,15 @@ def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, g
         Error profile name (:data:`PROFILE_NAMES`; ``ideal``: the simulator without added errors).
     config_path : str or Path, optional
         The file ``config`` was read from (an input: never written over).
+    model_path : str or Path, optional
+        A push-broom model file (a gcpcal manifest, SPOT 1-5 ``.DIM``, DIMAP v2 ``.XML``) to render
+        through instead of the simulator's own camera: the TRUE model is it with the
+        configuration's errors, ``manifest.json`` the model as delivered
+        (:func:`sensor_models.simulate.pushbroom_sim.simulate_through_model`); needs ``dom_path``
+        and ``dem_path``, ``profile`` ideal.
+    window : (int, int, int, int), optional
+        With ``model_path``: ``(row0, col0, rows, cols)`` of the model's pixels to render (default:
+        the whole image).
 
     Returns
     -------
@@ -71,9 +82,43 @@ def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, g
     """
     from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
 
+    if model_path is not None:
+        return _simulate_through_model_file(out_dir, config, model_path, window, dom_path=dom_path,
+                                            dem_path=dem_path, geoid=geoid, workers=workers, progress=progress,
+                                            profile=profile, config_path=config_path)
+    if window is not None:
+        raise InputError("--window selects pixels of --model: give --model", field="window")
     with staged_folder(out_dir, ".simulate-", inputs=[dom_path, dem_path, geoid, config_path]) as stage:
         summary = simulate_pushbroom(stage, config=config, dom=dom_path, dem=dem_path, geoid=geoid, workers=workers,
                                      progress=progress, profile=profile)
+    return final_paths(summary, stage, out_dir)
+
+
+def _simulate_through_model_file(out_dir, config, model_path, window, *, dom_path, dem_path, geoid, workers,
+                                 progress, profile, config_path) -> dict:
+    """:func:`simulate_pushbroom_scene` through the model of ``model_path`` (a window of it)."""
+    import os
+
+    from sensor_models.models.pushbroom_window import window_model
+    from sensor_models.readers.model_file import open_model
+    from sensor_models.simulate.pushbroom_sim import simulate_through_model
+
+    if profile != "ideal":
+        raise InputError("--model renders with the ideal profile only", field="profile")
+    if dom_path is None or dem_path is None:
+        raise InputError("--model needs both --dom and --dem (the reference to render from)")
+    model = open_model(model_path)
+    if not hasattr(model, "line_timing"):
+        raise InputError(f"not a push-broom model ({type(model).__name__}); --model needs a push-broom model "
+                         "(a gcpcal manifest, SPOT 1-5 .DIM or DIMAP v2 .XML)", path=str(model_path))
+    n_rows, n_cols = model.image_shape
+    row0, col0, rows, cols = window if window is not None else (0, 0, n_rows, n_cols)
+    windowed = window_model(model, row0, col0, rows, cols)
+    source = {"model": os.path.abspath(model_path), "window": [int(row0), int(col0), int(rows), int(cols)],
+              "model_shape": [int(n_rows), int(n_cols)]}
+    with staged_folder(out_dir, ".simulate-", inputs=[model_path, dom_path, dem_path, geoid, config_path]) as stage:
+        summary = simulate_through_model(stage, windowed, dom=dom_path, dem=dem_path, config=config, geoid=geoid,
+                                         workers=workers, progress=progress, source=source)
     return final_paths(summary, stage, out_dir)
 
 

@@ -32,27 +32,40 @@ def command():
 @click.option("--print-config", is_flag=True, help="Print the effective configuration as JSON and exit.")
 @click.option("--profile", type=click.Choice(PROFILE_NAMES), default="ideal", show_default=True,
               help="Error profile (docs/error_budget.md); realistic: --dom is the source radiance, no --dem.")
+@click.option("--model", "model_path", type=click.Path(dir_okay=False),
+              help="Render through this push-broom model (manifest, SPOT 1-5 .DIM, DIMAP v2 .XML) with the "
+                   "configuration's known errors; manifest.json is the model as delivered (needs --dom, --dem).")
+@click.option("--window", help="With --model: ROW0,COL0,ROWS,COLS of the model's pixels to render (default: all).")
 @json_option
 @click.pass_context
 def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid, workers, print_config, profile,
-                      as_json):
-    """Render a level-1A push-broom scene through a TRUE model; write the LAB manifest and truth."""
+                      model_path, window, as_json):
+    """Render a level-1A push-broom scene through a TRUE model; write the LAB manifest and truth.
+
+    With --model the TRUE model is that model (or a --window of it) plus the configuration's
+    errors.installation_deg, errors.focal_length_ratio and errors.attitude_drift_arcsec_s, and
+    manifest.json is the model as delivered (docs/simulator.md).
+    """
     cfg = pushbroom_config(config_path, seed)
     if print_config:
         click.echo(json.dumps(cfg.to_dict(), indent=1))
         return
+    window = _window(window)
     with stage_progress(ctx, "gcpcal simulate pushbroom: rendering", as_json) as progress:
         summary = simulate_pushbroom_scene(out_dir, cfg, dom_path=dom_path, dem_path=dem_path, geoid=geoid,
                                            workers=workers, profile=profile, progress=progress.count,
-                                           config_path=config_path)
+                                           config_path=config_path, model_path=model_path, window=window)
     echo_warnings(summary)
     if as_json:
         echo_json(summary)
         return
     img = summary["image"]
+    error = _lab_error_text(summary)
+    if "source" in summary:  # --model: manifest.json is the given model as delivered
+        error = error.replace("LAB model", "delivered model (manifest.json)")
     click.echo(
         f"{out_dir}: {img['n_rows']} x {img['n_cols']} px, {len(img['bands'])} bands, {img['ccds']} CCDs; "
-        f"{_lab_error_text(summary)}; rendered in {summary['render_seconds']:.1f} s"
+        f"{error}; rendered in {summary['render_seconds']:.1f} s"
     )
 
 
@@ -121,6 +134,19 @@ def geo_stars_command(ctx, out_dir, seed, n_frames, frame_interval_s, mag_limit,
                f"({s['stars_per_frame']['mean']:.1f} per frame), initial error RA/DE "
                f"{s['initial_error_centre_px']['ra']:.2f}/{s['initial_error_centre_px']['de']:.2f} px "
                f"at the centre")
+
+
+def _window(text):
+    """``ROW0,COL0,ROWS,COLS`` as four integers (None when not given)."""
+    if text is None:
+        return None
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4 or min(values) < 0 or min(values[2:]) < 1:
+        raise click.BadParameter(f"{text!r}: give ROW0,COL0,ROWS,COLS (integers, sizes >= 1)", param_hint="'--window'")
+    return values
 
 
 def _lab_error_text(summary) -> str:

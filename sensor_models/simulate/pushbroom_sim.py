@@ -10,6 +10,10 @@
 * ``reference/dom.tif``, ``reference/dem.tif`` (and ``water_mask.tif``) when the reference was
   generated procedurally (no ``dom``/``dem`` given).
 
+``simulate_through_model(out_dir, model, dom=..., dem=...)`` renders through a given push-broom
+model instead (a vendor product's, or a window of it) with known errors added, and writes the
+same files with ``manifest.json`` = the given model as delivered.
+
 A given DEM must cover the whole footprint (the message says which share it covers); voids
 under the footprint are reported (``summary.json``: ``dem_coverage``, ``dem_void_fraction``,
 ``warnings``) and more than :data:`sensor_models.terrain.footprint.MAX_FOOTPRINT_VOID_FRACTION` (5 %) of the
@@ -49,7 +53,7 @@ from sensor_models.simulate.scene import SceneModels, build_models
 from sensor_models.terrain.dem import Dem
 from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 
-__all__ = ["footprint_lonlat", "simulate_pushbroom"]
+__all__ = ["MODEL_CONFIG_KEYS", "footprint_lonlat", "perturbed_model", "simulate_pushbroom", "simulate_through_model"]
 
 #: coarse grid factor (DOM pixels per node) of the seasonal and cloud fields
 FIELD_FACTOR = 8
@@ -287,3 +291,157 @@ def _reference(cfg, models: SceneModels, tmp: Path, dom_path, dem_path, geoid):
     dem_figures = check_dem_footprint(dem, grid_lon, grid_lat, min_coverage=1.0)
     check_covers(MapGrid.of_dem(dem), lon, lat, what="DEM", path=dem.source)
     return dom, dem, reference_files, dem_figures
+
+
+# ----------------------------------------------------------------------------- through a given model
+#: the sections and keys of the configuration that rendering through a given model uses
+MODEL_CONFIG_KEYS = ("seed", "errors.installation_deg", "errors.focal_length_ratio",
+                     "errors.attitude_drift_arcsec_s", "radiometry")
+
+
+def perturbed_model(model, cfg: SimConfig):
+    """``model`` with the configuration's known errors: the TRUE model of a scene rendered through it.
+
+    Parameters
+    ----------
+    model : PushbroomModel
+        The delivered geometry (e.g. a vendor product's model, or a window of it).
+    cfg : SimConfig
+        ``errors.installation_deg`` is added to the installation (roll, pitch, yaw);
+        ``errors.focal_length_ratio`` divides every directional-angle tangent (a focal length
+        that many times the delivered one); ``errors.attitude_drift_arcsec_s`` is a linear
+        attitude drift (body frame, rate about the middle of the image's time span).
+
+    Returns
+    -------
+    (PushbroomModel, dict)
+        The TRUE model and the JSON record of the errors put into it.
+    """
+    from sensor_models.models.attitude_correction import AttitudeCorrection
+    from sensor_models.models.pushbroom import PushbroomModel
+    from sensor_models.models.pushbroom_types import CcdLook, Installation
+
+    e = cfg.errors
+    ratio = float(e.focal_length_ratio)
+    d_roll, d_pitch, d_yaw = np.radians(np.asarray(e.installation_deg, dtype=np.float64))
+    inst = model.installation
+    installation = Installation(roll=inst.roll + d_roll, pitch=inst.pitch + d_pitch, yaw=inst.yaw + d_yaw)
+    bands = {b: [CcdLook(name=c.name, first_col=c.first_col, n_detectors=c.n_detectors,
+                         tan_psi_x=c.tan_psi_x / ratio, tan_psi_y=c.tan_psi_y / ratio)
+                 for c in model.band_ccds(b)] for b in model.bands}
+    t0, t1 = (float(t) for t in model.line_timing.seconds(np.array([0.0, float(model.n_rows)])))
+    rate = np.asarray(e.attitude_drift_arcsec_s, dtype=np.float64) * np.pi / 180.0 / 3600.0
+    correction = model.attitude_correction
+    if np.any(rate != 0.0):
+        if correction is not None:
+            raise InputError("the model already carries an attitude correction; an attitude drift cannot be added",
+                             field="errors.attitude_drift_arcsec_s")
+        # delta(t) = c (2 tau - 1), tau = (t - t0) / (t1 - t0): a rate of 2 c / (t1 - t0)
+        correction = AttitudeCorrection(kind="drift", t0_s=min(t0, t1), t1_s=max(t0, t1), n_terms=1,
+                                        coefficients_rad=(rate * 0.5 * abs(t1 - t0))[:, None])
+    true_model = PushbroomModel(orbit=model.orbit, attitude=model.attitude, line_timing=model.line_timing,
+                                bands=bands, installation=installation, n_rows=model.n_rows,
+                                reference_band=model.reference_band, name=f"{model.name} (TRUE)".strip(),
+                                attitude_correction=correction)
+    record = {"installation_rad": [float(d_roll), float(d_pitch), float(d_yaw)], "focal_length_ratio": ratio,
+              "attitude_drift_rad_s": rate.tolist()}
+    return true_model, record
+
+
+def _model_config(cfg: SimConfig, model) -> SimConfig:
+    """``cfg`` fitted to a given model's bands and ground sampling (what the renderer reads)."""
+    from dataclasses import replace
+
+    n = len(model.bands)
+    r = cfg.radiometry
+    cycle = lambda values: tuple(values[i % len(values)] for i in range(n))  # noqa: E731
+    n_rows, n_cols = model.image_shape
+    rows = np.array([0.5 * n_rows, 0.5 * n_rows + 1.0, 0.5 * n_rows])
+    cols = np.array([0.5 * n_cols, 0.5 * n_cols, 0.5 * n_cols + 1.0])
+    lon, lat, _ = model.image_to_ground(rows, cols, height=0.0)
+    geod = pyproj.Geod(ellps="WGS84")
+    _, _, along = geod.inv(lon[0], lat[0], lon[1], lat[1])
+    _, _, across = geod.inv(lon[0], lat[0], lon[2], lat[2])
+    return replace(
+        cfg,
+        scene=replace(cfg.scene, n_rows=n_rows, gsd_m=float(np.sqrt(along * across))),
+        camera=replace(cfg.camera, bands=tuple(model.bands), reference_band=model.reference_band,
+                       band_offsets_px=(0.0,) * n),
+        radiometry=replace(r, band_gain=cycle(r.band_gain), band_offset_dn=cycle(r.band_offset_dn),
+                           band_gamma=cycle(r.band_gamma)),
+    )
+
+
+def simulate_through_model(out_dir, model, *, dom, dem, config: SimConfig | None = None, geoid=None,
+                           workers: int = 2, block_lines: int = 256, progress=None, record_timings: bool = True,
+                           source: dict | None = None) -> dict:
+    """Render a scene through a given push-broom model with known errors; write it as a delivered product.
+
+    The TRUE model is ``model`` with the configuration's errors (:func:`perturbed_model`); the
+    scene is rendered through it from ``dom`` on ``dem`` as :func:`simulate_pushbroom` renders;
+    ``manifest.json`` is ``model`` itself (the geometry as delivered, what a calibration starts
+    from) and ``truth_manifest.json`` the TRUE model. The configuration's keys used are
+    :data:`MODEL_CONFIG_KEYS`; the others describe the simulator's own camera and are ignored.
+
+    Parameters
+    ----------
+    out_dir : str or os.PathLike
+    model : PushbroomModel
+        The delivered geometry (e.g. a window of a vendor product's model).
+    dom, dem : path
+        Reference orthoimage and DEM covering the footprint.
+    config : SimConfig, optional
+        Default: :class:`SimConfig` ().
+    geoid : path, optional
+        EGM96 grid for an orthometric DEM.
+    workers, block_lines, progress, record_timings
+        As :func:`simulate_pushbroom`.
+    source : dict, optional
+        Where ``model`` comes from (e.g. ``{"model": path, "window": [...]}``), recorded in
+        ``truth.json`` and ``summary.json``.
+
+    Returns
+    -------
+    dict
+        The summary also written to ``summary.json``.
+    """
+    from types import SimpleNamespace
+
+    from sensor_models.models.pushbroom import PushbroomModel
+    from sensor_models.simulate.truth import truth_error
+
+    if not isinstance(model, PushbroomModel):
+        raise InputError(f"rendering through a model needs a push-broom model, not {type(model).__name__}")
+    if dom is None or dem is None:
+        raise InputError("rendering through a given model needs both --dom and --dem")
+    t_start = time.perf_counter()
+    cfg = _model_config(config or SimConfig(), model)
+    true_model, injected = perturbed_model(model, cfg)
+    models = SimpleNamespace(true_model=true_model, lab_model=model,
+                             truth={"injected": injected, "source": source or {}})
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
+    try:
+        with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
+            clock = PhaseClock(t_start)
+            setup_done, block_progress = step_progress(progress, model.n_rows, block_lines)
+            setup_done(1)
+            dom_image, dem_model, reference_files, dem_figures = _reference(cfg, models, tmp, dom, dem, geoid)
+            renderer = _Renderer(cfg, models, dem_model, dom_image)
+            dem_planes(dem_model)
+            clock.mark("reference")
+            setup_done(2)
+            cloud_pixels, has_mask = render_scene(renderer, true_model, tmp, list(cfg.camera.bands),
+                                                  cfg.camera.reference_band, len(true_model.band_ccds()),
+                                                  block_lines, workers, block_progress)
+            render_seconds = clock.mark("blocks")
+            initial = truth_error(true_model, model, dem=dem_model, step_px=32)
+            clock.mark("truth_error")
+            summary = write_outputs(cfg, models, tmp, initial, reference_files, dem_figures,
+                                    (cloud_pixels, has_mask), render_seconds, workers, t_start, record_timings,
+                                    extra_summary={"source": source or {}, "injected": injected}, phases=clock)
+        move_tree_into(tmp, out_dir)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return summary
