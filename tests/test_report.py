@@ -152,7 +152,8 @@ def test_text_is_escaped(written):
     assert "<script>" not in text
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in text
     assert "<title>HY-1C-like test &lt;scene&gt; &amp; co</title>" in text
-    assert "&quot;a&quot;" in text  # a nested value printed as JSON
+    # a nested value is a nested table of its keys and values (no raw JSON dump)
+    assert '<td class="l">a</td><td class="l">1, 2</td>' in text and '{"a"' not in text and "&quot;a&quot;" not in text
 
 
 def test_look_difference_curves_measure_a_known_shift(lab):

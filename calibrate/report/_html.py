@@ -233,7 +233,7 @@ def value_html(value, depth: int = 0) -> str:
     if isinstance(value, dict):
         if depth >= 2:
             return escape(", ".join(f"{k}: {v}" for k, v in value.items()))
-        return table(["", ""], [[escape(k), value_html(v, depth + 1)] for k, v in value.items()], left=2)
+        return table(None, [[escape(k), value_html(v, depth + 1)] for k, v in value.items()], left=2)
     if isinstance(value, (list, tuple)):
         if all(isinstance(v, dict) for v in value) and value and depth < 2:
             keys = list(dict.fromkeys(k for v in value for k in v))
@@ -285,7 +285,7 @@ def section_provenance(record: dict) -> str:
         rows += [[escape(i.get("path")) + " (matching)", "–" if i.get("bytes") is None else f"{i['bytes']:,}",
                   f"<code>{escape(i.get('sha256') or i.get('sha256_note') or '–')}</code>"]
                  for i in upstream.get("inputs") or []]
-    out = table(["", ""], head, left=2)
+    out = table(None, head, left=2)
     if rows:
         out += table(["input file", "bytes", "SHA-256"], rows, left=1)
     return out
