@@ -54,7 +54,10 @@ from calibrate import attitude as _attitude
 from calibrate.pspline import recovered_spectrum
 from calibrate._json import json_safe
 from calibrate.config import CalibrationOptions
-from calibrate.lsq import PROBE_POINTS, Chunk, LsqResult, Prior, robust_weights, solve
+from calibrate.lsq import LsqResult, solve
+from calibrate.normal_equations import PROBE_POINTS
+from calibrate.lsq_inputs import Chunk, Prior
+from calibrate.robust_loss import robust_weights
 from calibrate.reference_covariance import floor_factor, with_honest_covariance
 from gcpmatch.gcps import GcpTable
 from sensor_models.base import SensorModel

@@ -63,7 +63,8 @@ from scipy.interpolate import make_smoothing_spline
 from scipy.spatial import cKDTree
 
 from calibrate.config import STAR_SCHEMES, StarOptions
-from calibrate.lsq import Chunk, Prior, solve
+from calibrate.lsq import solve
+from calibrate.lsq_inputs import Chunk, Prior
 from sensor_models.errors import InputError
 from sensor_models.files.documents import load_json
 from sensor_models.models.geo_staring import GeoStaringModel, vectors_to_radec
