@@ -55,7 +55,8 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from calibrate._json import json_safe
-from calibrate.absolute import CalibrationResult, calibrate_model, residual_statistics
+from calibrate.absolute import calibrate_model
+from calibrate.calibration_result import CalibrationResult, residual_statistics
 from calibrate.config import CalibrationOptions
 from gcpmatch.gcps import GcpTable
 from gcpmatch.outliers import local_consistency, smooth_residuals
@@ -153,7 +154,7 @@ class BandResult:
     calibration : CalibrationResult or None
         The interior solve (None without tie points).
     before, after : dict
-        :func:`calibrate.absolute.residual_statistics` of the tie residuals (measured minus
+        :func:`calibrate.calibration_result.residual_statistics` of the tie residuals (measured minus
         modelled band position, px) under the model before and after, over the inliers of the
         solve.
     per_ccd : list of dict
