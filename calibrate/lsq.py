@@ -48,8 +48,9 @@ follows a chi distribution with ``k`` degrees of freedom, so
 ``s = median(||r~||) / sqrt(chi2_k.ppf(0.5))``, i.e. ``1.4826 median |r~|`` for ``k = 1``.
 While the iterations are far from the solution the scale follows the residuals: the weights
 of an evaluation use the scale of the previous one, or, after a step predicted to change the
-residuals by more than half the scale, the scale of the first :data:`~calibrate.normal_equations.PROBE_POINTS` points of the
-evaluation itself (held back until then: put a representative sample first). This keeps one
+residuals by more than half the scale, the scale of the first
+:data:`~calibrate.normal_equations.PROBE_POINTS` points of the evaluation itself (held back
+until then: put a representative sample first). This keeps one
 pass over the data per iteration. Once the scale changes by less than 2 % between
 evaluations and a step is below one standard deviation, or would change the residuals by
 less than a tenth of the scale, the scale is frozen at the current residuals' and the loss
