@@ -220,7 +220,7 @@ def _jittered_truth(lab, lines, seed=5, installation=(2e-4, -1e-4, 3e-4), band_e
 
 def _synthetic_ties(truth, model, band, *, row_step, col_step, height_m, noise_px, seed):
     """Ties of ``band`` on a reference-band grid: the truth's transfer map plus noise; ground from ``model``."""
-    from calibrate.relative import TiePoints
+    from calibrate.tie_points import TiePoints
 
     rng = np.random.default_rng(seed)
     ref = truth.reference_band

@@ -64,7 +64,7 @@ def _table(g) -> GcpTable:
 
 def _ties(draw, truth, model, band):
     """TiePoints of ``band`` (TRUE transfer map), their ground through the calibrated ``model``."""
-    from calibrate.relative import TiePoints
+    from calibrate.tie_points import TiePoints
 
     t = fam.synthetic_ties(draw, truth, band)
     lon, lat, h = model.image_to_ground(t["row_ref"], t["col_ref"], height=300.0, band=model.reference_band,

@@ -10,7 +10,7 @@ The public API (``docs/api.md``) is what :data:`__all__` lists; the command line
 #: the package stays cheap (``gcpcal --help`` imports it).
 _EXPORTS = {
     "calibrate_model": "calibrate.absolute",
-    "CalibrationResult": "calibrate.absolute",
+    "CalibrationResult": "calibrate.calibration_result",
     "CalibrationOptions": "calibrate.config",
     "check_point_accuracy": "calibrate.accuracy",
 }

@@ -18,7 +18,7 @@ point is the RMS of its normalized components in units of the scale ``s``::
     u_i = ||r~_i|| / (sqrt(k) s)
 
 and the estimate minimizes ``F(x) = sum_i k s^2 rho(u_i)`` plus optional linear
-pseudo-observations ``G x = v +- sigma`` (:class:`Prior`, e.g. gauge constraints). Each
+pseudo-observations ``G x = v +- sigma`` (:class:`~calibrate.lsq_inputs.Prior`, e.g. gauge constraints). Each
 iteration solves the reweighted (IRLS) normal equations of seed 000 eq. 12-13
 (``dX = (A^T P A)^-1 A^T P L``), accumulated chunk by chunk so that memory does not grow with
 the number of points::
@@ -48,8 +48,9 @@ follows a chi distribution with ``k`` degrees of freedom, so
 ``s = median(||r~||) / sqrt(chi2_k.ppf(0.5))``, i.e. ``1.4826 median |r~|`` for ``k = 1``.
 While the iterations are far from the solution the scale follows the residuals: the weights
 of an evaluation use the scale of the previous one, or, after a step predicted to change the
-residuals by more than half the scale, the scale of the first ``PROBE_POINTS`` points of the
-evaluation itself (held back until then: put a representative sample first). This keeps one
+residuals by more than half the scale, the scale of the first
+:data:`~calibrate.normal_equations.PROBE_POINTS` points of the evaluation itself (held back
+until then: put a representative sample first). This keeps one
 pass over the data per iteration. Once the scale changes by less than 2 % between
 evaluations and a step is below one standard deviation, or would change the residuals by
 less than a tenth of the scale, the scale is frozen at the current residuals' and the loss
@@ -75,6 +76,13 @@ over the ``m`` valid points at the solution. Without robust weights it is the cl
 it accounts for the down-weighted points, unlike ``sigma0^2 N_w^-1`` computed with the IRLS
 weights, which is optimistic by about 10 % in standard deviation for Huber at the normal.
 
+This module holds :func:`solve`, its iterations (loss and scale switching, damping,
+convergence) and its :class:`LsqResult` with the robust covariance. The caller's inputs are
+:class:`~calibrate.lsq_inputs.Chunk` and :class:`~calibrate.lsq_inputs.Prior`; the robust
+functions and scale live in :mod:`calibrate.robust_loss`, the accumulation of the normal
+equations in :mod:`calibrate.normal_equations` and their decomposition and rank diagnostics in
+:mod:`calibrate.normal_decomposition`.
+
 References
 ----------
 P. J. Huber, *Robust Statistics*, Wiley (1981), ch. 7 (regression), section 7.6.
@@ -88,117 +96,16 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import numpy as np
-from scipy.stats import chi2
 
+from calibrate.lsq_inputs import Prior
+from calibrate.normal_decomposition import Decomposition, damped_step, decompose, inverse_diagonal, summarize_names
+from calibrate.normal_equations import Evaluation, evaluate, prior_cost, robust_cost, with_prior
+from calibrate.robust_loss import HUBER_C, TUNING, check_robust_rule, robust_scale, robust_u_dw, robust_weights
 from sensor_models.errors import InputError
 
-__all__ = [
-    "CAUCHY_C",
-    "HUBER_C",
-    "Chunk",
-    "LsqResult",
-    "Prior",
-    "robust_scale",
-    "robust_weights",
-    "solve",
-    "summarize_names",
-]
-
-#: Huber's tuning constant: 95 % asymptotic efficiency at the normal distribution.
-HUBER_C = 1.345
-#: Cauchy tuning constant: 95 % asymptotic efficiency at the normal distribution.
-CAUCHY_C = 2.3849
-_TUNING = {"huber": HUBER_C, "cauchy": CAUCHY_C, "none": np.inf}
-#: eigenvector components at least this fraction of the largest name a near-null direction
-_PARTICIPATION = 0.3
-#: directions whose eigenvalue is this many times below the largest are listed as warnings
-WARN_CONDITION = 1e7
-#: points from which a provisional robust scale is taken when none is known
-PROBE_POINTS = 5000
-
-
-class Chunk(NamedTuple):
-    """One block of points handed to :func:`solve`.
-
-    Attributes
-    ----------
-    residual : ndarray, shape (n, k) or (n,)
-        Observed minus modelled values.
-    jacobian : ndarray, shape (n, k, p) or (n, p)
-        Derivatives of the modelled values with respect to the parameters ``columns``.
-    weight : ndarray, shape (n,), optional
-        Prior weights (``1 / sigma^2``); default 1. Zero removes a point from the fit.
-    columns : array_like of int, shape (p,), optional
-        Positions in ``x`` of the Jacobian's columns; default: all ``P`` parameters.
-    """
-
-    residual: np.ndarray
-    jacobian: np.ndarray
-    weight: np.ndarray | None = None
-    columns: Sequence[int] | None = None
-
-
-@dataclass(frozen=True)
-class Prior:
-    """Linear pseudo-observations ``matrix @ x = value +- sigma`` (e.g. gauge constraints).
-
-    Attributes
-    ----------
-    matrix : ndarray, shape (m, P)
-    value, sigma : ndarray, shape (m,)
-
-    Their weights ``1 / sigma^2`` are in the units of the prior point weights; they are not
-    robustly reweighted. :meth:`fixed` builds ``x[index] = value +- sigma``.
-    """
-
-    matrix: np.ndarray
-    value: np.ndarray
-    sigma: np.ndarray
-
-    def __post_init__(self):
-        matrix = np.atleast_2d(np.asarray(self.matrix, dtype=np.float64))
-        value = np.asarray(self.value, dtype=np.float64).reshape(-1)
-        sigma = np.asarray(self.sigma, dtype=np.float64).reshape(-1)
-        if not (matrix.shape[0] == value.size == sigma.size):
-            raise InputError("prior matrix rows, values and sigmas must have one length")
-        if not np.all(np.isfinite(matrix)) or not np.all(np.isfinite(value)):
-            raise InputError("prior matrix and values must be finite")
-        if np.any(~(sigma > 0.0)) or np.any(~np.isfinite(sigma)):
-            raise InputError("prior sigmas must be positive and finite")
-        object.__setattr__(self, "matrix", matrix)
-        object.__setattr__(self, "value", value)
-        object.__setattr__(self, "sigma", sigma)
-
-    @classmethod
-    def fixed(cls, index, value, sigma, n_par: int) -> "Prior":
-        """Pseudo-observations of single parameters: ``x[index] = value +- sigma``.
-
-        Parameters
-        ----------
-        index : int or array_like of int, shape (M,)
-            Positions of the held parameters in the parameter vector.
-        value, sigma : float or array_like, shape (M,)
-            Held values and their standard deviations (parameter units).
-        n_par : int
-            Number of parameters P.
-
-        Returns
-        -------
-        Prior
-            ``M`` pseudo-observations with a (M, P) selection matrix.
-        """
-        index = np.asarray(index, dtype=np.intp).reshape(-1)
-        if np.any((index < 0) | (index >= n_par)):
-            raise InputError("prior index outside the parameter vector")
-        matrix = np.zeros((index.size, n_par))
-        matrix[np.arange(index.size), index] = 1.0
-        return cls(matrix, value, sigma)
-
-    def __len__(self) -> int:
-        return self.value.size
+__all__ = ["LsqResult", "solve"]
 
 
 @dataclass
@@ -286,345 +193,6 @@ class LsqResult:
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
 
-# --------------------------------------------------------------------------- robust functions
-def _check_rule(robust):
-    if robust not in _TUNING:
-        raise InputError(f"robust must be one of {', '.join(_TUNING)}, got {robust!r}", field="robust")
-
-
-def robust_weights(u, robust: str, c: float | None = None) -> np.ndarray:
-    """IRLS weights ``w(u) = psi(u) / u`` (table in the module docstring), shape of ``u``.
-
-    Parameters
-    ----------
-    u : ndarray
-        Normalized residual norms (residual / scale), >= 0.
-    robust : {"huber", "cauchy", "none"}
-        Loss.
-    c : float, optional
-        Tuning constant (default: the loss's, module docstring).
-
-    Returns
-    -------
-    ndarray
-        Weights in [0, 1], shape of ``u``.
-    """
-    _check_rule(robust)
-    u = np.asarray(u, dtype=np.float64)
-    c = _TUNING[robust] if c is None else float(c)
-    if robust == "none":
-        return np.ones_like(u)
-    if robust == "huber":
-        return np.where(u > c, c / np.maximum(u, 1e-300), 1.0)
-    return 1.0 / (1.0 + (u / c) ** 2)
-
-
-def _rho(u, robust, c):
-    if robust == "none":
-        return 0.5 * u * u
-    if robust == "huber":
-        return np.where(u <= c, 0.5 * u * u, c * u - 0.5 * c * c)
-    return 0.5 * c * c * np.log1p((u / c) ** 2)
-
-
-def _u_dw(u, robust, c):
-    """``u * w'(u)``."""
-    if robust == "none":
-        return np.zeros_like(u)
-    if robust == "huber":
-        return np.where(u > c, -c / np.maximum(u, 1e-300), 0.0)
-    w = 1.0 / (1.0 + (u / c) ** 2)
-    return -2.0 * (u / c) ** 2 * w * w
-
-
-def robust_scale(norms, k: int) -> float:
-    """MAD-type scale of normalized residuals from the norms ``||r~_i||`` of k-vectors.
-
-    ``s = median(||r~||) / sqrt(chi2_k.ppf(0.5))`` (``1.4826 median |r~|`` for ``k = 1``);
-    falls back to the RMS when more than half the residuals are exactly zero, and to 1 when
-    all are.
-
-    Parameters
-    ----------
-    norms : array_like, shape (N,)
-        Norms of the weighted residual k-vectors (non-finite values are ignored).
-    k : int
-        Components per residual vector (2 for an image point).
-
-    Returns
-    -------
-    float
-        The scale ``s`` (> 0), in the residuals' unit.
-    """
-    norms = np.asarray(norms, dtype=np.float64)
-    norms = norms[np.isfinite(norms)]
-    if norms.size == 0:
-        return 1.0
-    s = float(np.median(norms)) / np.sqrt(chi2.ppf(0.5, k))
-    if s > 0.0:
-        return s
-    rms = float(np.sqrt(np.mean(norms**2) / k))
-    return rms if rms > 0.0 else 1.0
-
-
-# --------------------------------------------------------------------------- names
-def summarize_names(names: Sequence[str], universe: Sequence[str] | None = None, *, limit: int = 12) -> str:
-    """Compact, readable list of parameter names.
-
-    Names sharing a dotted prefix are written ``prefix.*`` when every name of ``universe``
-    (default: ``names``) with that prefix is in ``names``, e.g. ``B3.ccd2.*``.
-
-    Parameters
-    ----------
-    names : sequence of str
-        Names to list.
-    universe : sequence of str, optional
-        Every name that could appear (decides when ``prefix.*`` is exact); default ``names``.
-    limit : int
-        Most items written; the rest are counted (``and 3 more``).
-
-    Returns
-    -------
-    str
-        Comma-separated list.
-    """
-    names = list(dict.fromkeys(names))
-    universe = list(universe) if universe is not None else names
-    chosen = set(names)
-    out, covered = [], set()
-    for name in names:
-        if name in covered:
-            continue
-        parts = name.split(".")
-        label = name
-        # the shortest complete prefix, keeping two components of long names (B3.ccd2.*)
-        for cut in range(1 if len(parts) < 3 else 2, len(parts)):
-            prefix = ".".join(parts[:cut]) + "."
-            members = [n for n in universe if n.startswith(prefix)]
-            if len(members) > 1 and all(n in chosen for n in members):
-                label = prefix + "*"
-                covered.update(members)
-                break
-        covered.add(name)
-        out.append(label)
-    if len(out) > limit:
-        return ", ".join(out[:limit]) + f" and {len(out) - limit} more"
-    return ", ".join(out)
-
-
-# --------------------------------------------------------------------------- evaluation
-@dataclass
-class _Evaluation:
-    x: np.ndarray
-    normal: np.ndarray  # IRLS-weighted N
-    rhs: np.ndarray  # IRLS-weighted b
-    normal0: np.ndarray  # prior-weighted N0
-    residuals: np.ndarray  # (n, k) raw
-    norms: np.ndarray  # (n,) ||r~||, NaN where invalid
-    k: int
-    weight_scale: float  # the scale s the IRLS weights of ``normal``/``rhs`` used
-    rule: str  # and their robust function
-    c: float
-
-
-def _as_chunk(chunk, n_par):
-    if not isinstance(chunk, Chunk):
-        chunk = Chunk(*chunk)
-    r = np.asarray(chunk.residual, dtype=np.float64)
-    if r.ndim == 1:
-        r = r[:, None]
-    n, k = r.shape
-    jac = np.asarray(chunk.jacobian, dtype=np.float64)
-    if jac.ndim == 2:
-        jac = jac[:, None, :]
-    cols = np.arange(n_par) if chunk.columns is None else np.asarray(chunk.columns, dtype=np.intp).reshape(-1)
-    if jac.shape != (n, k, cols.size):
-        raise InputError(f"chunk jacobian has shape {jac.shape}, expected {(n, k, cols.size)}")
-    if cols.size and (cols.min() < 0 or cols.max() >= n_par):
-        raise InputError(f"chunk columns outside 0..{n_par - 1}")
-    w0 = np.ones(n) if chunk.weight is None else np.asarray(chunk.weight, dtype=np.float64).reshape(-1)
-    if w0.shape != (n,):
-        raise InputError(f"chunk weight has shape {w0.shape}, expected ({n},)")
-    return r, jac, w0, cols
-
-
-def _evaluate(chunks, x, rule, c, scale):
-    """One pass over the chunks at ``x``: normal equations and residuals.
-
-    ``scale`` is the robust scale of the weights; without one, chunks are held back until
-    :data:`PROBE_POINTS` points give a provisional scale.
-    """
-    n_par = x.size
-    normal = np.zeros((n_par, n_par))
-    normal0 = np.zeros((n_par, n_par))
-    rhs = np.zeros(n_par)
-    res_parts, norm_parts = [], []
-    k_seen = None
-    pending, n_pending = [], 0
-    with np.errstate(over="ignore", invalid="ignore"):
-        for chunk in chunks(x.copy()):
-            chunk = _as_chunk(chunk, n_par)
-            k = chunk[0].shape[1]
-            if k_seen is None:
-                k_seen = k
-            elif k != k_seen:
-                raise InputError(f"chunks mix {k_seen} and {k} residual components per point")
-            if scale is None:
-                pending.append(chunk)
-                n_pending += chunk[0].shape[0]
-                if n_pending < PROBE_POINTS:
-                    continue
-                scale = _probe_scale(pending)
-                ready, pending = pending, []
-            else:
-                ready = [chunk]
-            for item in ready:
-                _accumulate(item, rule, c, scale, normal, normal0, rhs, res_parts, norm_parts)
-        if pending:
-            scale = _probe_scale(pending)
-            for item in pending:
-                _accumulate(item, rule, c, scale, normal, normal0, rhs, res_parts, norm_parts)
-    if k_seen is None:
-        raise InputError("the residual function yielded no chunks")
-    return _Evaluation(
-        x=x.copy(),
-        normal=normal,
-        rhs=rhs,
-        normal0=normal0,
-        residuals=np.concatenate(res_parts, axis=0),
-        norms=np.concatenate(norm_parts),
-        k=k_seen,
-        weight_scale=float(scale),
-        rule=rule,
-        c=float(c),
-    )
-
-
-def _normalized(r, jac, w0):
-    """Validity mask, ``sqrt(w0)``, normalized residuals and their norms (NaN if invalid)."""
-    valid = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(jac), axis=(1, 2)) & (w0 > 0.0)
-    valid &= np.isfinite(w0)
-    sw = np.sqrt(np.where(valid, w0, 0.0))
-    rt = np.where(valid[:, None], r, 0.0) * sw[:, None]
-    norms = np.sqrt(np.sum(rt * rt, axis=1))
-    valid &= np.isfinite(norms)  # overflow
-    rt[~valid] = 0.0
-    norms[~valid] = np.nan
-    return valid, sw, rt, norms
-
-
-def _probe_scale(chunks):
-    """Robust scale of the points of the held-back chunks."""
-    norms = [_normalized(r, jac, w0)[3] for r, jac, w0, _cols in chunks]
-    return robust_scale(np.concatenate(norms), chunks[0][0].shape[1])
-
-
-def _accumulate(chunk, rule, c, scale, normal, normal0, rhs, res_parts, norm_parts):
-    """Add one validated chunk to the normal equations and the residual lists (in place)."""
-    r, jac, w0, cols = chunk
-    k = r.shape[1]
-    valid, sw, rt, norms = _normalized(r, jac, w0)
-    res_parts.append(np.where(np.all(np.isfinite(r), axis=1)[:, None], r, np.nan))
-    norm_parts.append(norms)
-    if cols.size == 0 or not np.any(valid):
-        return
-    jt = np.where(valid[:, None, None], jac, 0.0) * sw[:, None, None]
-    u = np.where(valid, norms, 0.0) / (np.sqrt(k) * scale)
-    w = np.where(valid, robust_weights(u, rule, c), 0.0)
-    a0 = jt.reshape(-1, cols.size)
-    a = (jt * np.sqrt(w)[:, None, None]).reshape(-1, cols.size)
-    block = np.ix_(cols, cols)
-    normal[block] += a.T @ a
-    rhs[cols] += a.T @ (rt * np.sqrt(w)[:, None]).reshape(-1)
-    normal0[block] += a0.T @ a0
-
-
-def _robust_cost(norms, k, scale, rule, c, mask=None):
-    good = np.isfinite(norms) if mask is None else mask
-    u = norms[good] / (np.sqrt(k) * scale)
-    return float(k * scale * scale * np.sum(_rho(u, rule, c)))
-
-
-def _prior_cost(x, prior):
-    if prior is None:
-        return 0.0
-    return float(0.5 * np.sum(((prior.matrix @ x - prior.value) / prior.sigma) ** 2))
-
-
-def _with_prior(normal, rhs, x, prior):
-    """Add ``G^T S^-2 G`` and ``G^T S^-2 (v - G x)`` of the pseudo-observations."""
-    if prior is None:
-        return normal, rhs
-    g = prior.matrix / prior.sigma[:, None]
-    return normal + g.T @ g, rhs + g.T @ ((prior.value - prior.matrix @ x) / prior.sigma)
-
-
-# --------------------------------------------------------------------------- linear algebra
-@dataclass
-class _Decomposition:
-    ok: bool
-    message: str
-    d: np.ndarray  # sqrt(diag N)
-    eigval: np.ndarray
-    eigvec: np.ndarray
-    condition: float
-    unconstrained: tuple
-    near_dependent: list
-
-
-def _decompose(normal, names, max_condition):
-    """Equilibrated eigen-decomposition with rank diagnostics."""
-    diag = np.diag(normal).copy()
-    if not np.all(np.isfinite(normal)):
-        msg = "the normal equations hold NaN or infinite values"
-        return _Decomposition(False, msg, diag, None, None, np.inf, (), [])
-    zero = ~(diag > 0.0)
-    if np.any(zero):
-        bad = tuple(n for n, z in zip(names, zero) if z)
-        msg = f"no observations constrain {summarize_names(bad, names)}"
-        return _Decomposition(False, msg, np.sqrt(np.abs(diag)), None, None, np.inf, bad, [])
-    d = np.sqrt(diag)
-    ns = normal / np.outer(d, d)
-    ns = 0.5 * (ns + ns.T)
-    try:
-        lam, vec = np.linalg.eigh(ns)
-    except np.linalg.LinAlgError as exc:  # pragma: no cover - LAPACK failure
-        return _Decomposition(False, f"eigen-decomposition failed: {exc}", d, None, None, np.inf, (), [])
-    lam_max = float(lam[-1])
-    condition = lam_max / float(lam[0]) if lam[0] > 0.0 else np.inf
-
-    def groups(threshold):
-        out = []
-        for i in np.nonzero(~(lam * threshold > lam_max))[0]:
-            v = np.abs(vec[:, i])
-            order = np.argsort(-v)
-            keep = order[v[order] >= _PARTICIPATION * v[order[0]]]
-            out.append(tuple(names[j] for j in keep))
-        return out
-
-    near = groups(WARN_CONDITION)
-    if not condition <= max_condition:
-        bad = "; ".join(summarize_names(g, names) for g in groups(max_condition))
-        msg = (
-            f"ill-conditioned normal equations (condition number {condition:.3g} > {max_condition:.3g}): "
-            f"parameters {bad} are nearly dependent"
-        )
-        return _Decomposition(False, msg, d, lam, vec, condition, (), near)
-    return _Decomposition(True, "", d, lam, vec, condition, (), near)
-
-
-def _step(dec, rhs, damping):
-    """``dx = D^-1 V (V^T D^-1 b) / (lambda + mu)``."""
-    bs = rhs / dec.d
-    coef = (dec.eigvec.T @ bs) / (dec.eigval + damping)
-    return (dec.eigvec @ coef) / dec.d
-
-
-def _inverse_diag(dec):
-    """``diag(N^-1)`` from the decomposition."""
-    return np.sum(dec.eigvec**2 / dec.eigval[None, :], axis=1) / dec.d**2
-
-
 # --------------------------------------------------------------------------- solver
 def solve(
     residual_and_jacobian_chunks: Callable[[np.ndarray], Iterable],
@@ -647,7 +215,7 @@ def solve(
     ----------
     residual_and_jacobian_chunks : callable
         ``f(x) -> iterable of Chunk`` (or tuples ``(residual, jacobian[, weight[, columns]])``,
-        see :class:`Chunk`). Every call must yield the same points in the same order;
+        see :class:`~calibrate.lsq_inputs.Chunk`). Every call must yield the same points in the same order;
         points whose residual or Jacobian is not finite are left out of that iteration.
     x0 : array_like, shape (P,)
         Starting values.
@@ -701,11 +269,11 @@ def solve(
 def _start_state(residual_and_jacobian_chunks, x, names, *, robust, scale, tuning, warm_start, prior, damping):
     """The IRLS state at ``x`` (first evaluation, loss, scale, log entry 0) and the initial residuals."""
     c_huber = HUBER_C if (tuning is None or robust != "huber") else float(tuning)
-    c_final = _TUNING[robust] if tuning is None else float(tuning)
+    c_final = TUNING[robust] if tuning is None else float(tuning)
     rule = "huber" if (robust == "cauchy" and not warm_start) else robust
     c = c_huber if rule == "huber" else c_final
 
-    ev = _evaluate(residual_and_jacobian_chunks, x, rule, c, scale)
+    ev = evaluate(residual_and_jacobian_chunks, x, rule, c, scale)
     initial_residuals = ev.residuals.copy()
     # the scale follows the residuals until the iterations are near the solution, then it is
     # frozen (and the loss becomes the final one): the last iterations minimize a fixed function
@@ -715,14 +283,14 @@ def _start_state(residual_and_jacobian_chunks, x, names, *, robust, scale, tunin
     state = _Irls(chunks=residual_and_jacobian_chunks, names=names, robust=robust, fixed_scale=scale, prior=prior,
                   c_final=c_final, k=ev.k, ev=ev, rule=rule, c=c, s=s, frozen=scale is not None,
                   mu=float(damping))  # fmt: skip
-    cost = _robust_cost(ev.norms, ev.k, ev.weight_scale, rule, c) + _prior_cost(x, prior)
+    cost = robust_cost(ev.norms, ev.k, ev.weight_scale, rule, c) + prior_cost(x, prior)
     state.log.append(_log_entry(0, cost, ev.weight_scale, np.nan, np.nan, damping, True, ev, rule))
     return state, initial_residuals
 
 
 def _checked_start(x0, names, robust, scale, max_iter, prior):
     """Validated starting values and parameter names of :func:`solve`."""
-    _check_rule(robust)
+    check_robust_rule(robust)
     x = np.asarray(x0, dtype=np.float64).reshape(-1).copy()
     n_par = x.size
     if n_par == 0:
@@ -752,14 +320,14 @@ class _Irls:
     prior: Prior | None
     c_final: float
     k: int
-    ev: _Evaluation
+    ev: Evaluation
     rule: str
     c: float
     s: float
     frozen: bool
     mu: float
     s_previous: float = np.inf
-    dec: _Decomposition | None = None
+    dec: Decomposition | None = None
     iterations: int = 0
     rejections: int = 0
     last_step: float = np.inf
@@ -773,8 +341,8 @@ def _iterate(st: _Irls, n_par, n_prior, max_iter, tol, max_condition):
         n_valid = int(np.sum(np.isfinite(ev.norms)))
         if n_valid * st.k + n_prior <= n_par:
             return False, f"too few observations: {n_valid} valid points x {st.k} components for {n_par} parameters"
-        normal, rhs = _with_prior(ev.normal, ev.rhs, ev.x, st.prior)
-        st.dec = _decompose(normal, st.names, max_condition)
+        normal, rhs = with_prior(ev.normal, ev.rhs, ev.x, st.prior)
+        st.dec = decompose(normal, st.names, max_condition)
         if not st.dec.ok:
             return False, st.dec.message
         if st.iterations >= max_iter:
@@ -796,10 +364,10 @@ def _iterate(st: _Irls, n_par, n_prior, max_iter, tol, max_condition):
 
 def _gauss_newton_step(st: _Irls, rhs):
     """The damped step and the undamped one's largest size in standard deviations."""
-    dx = _step(st.dec, rhs, st.mu)
+    dx = damped_step(st.dec, rhs, st.mu)
     # convergence is judged on the undamped Gauss-Newton step
-    sd = np.sqrt(_inverse_diag(st.dec)) * st.s
-    step_sigma = float(np.max(np.abs(_step(st.dec, rhs, 0.0) if st.mu > 0.0 else dx) / sd))
+    sd = np.sqrt(inverse_diagonal(st.dec)) * st.s
+    step_sigma = float(np.max(np.abs(damped_step(st.dec, rhs, 0.0) if st.mu > 0.0 else dx) / sd))
     return dx, step_sigma
 
 
@@ -833,12 +401,12 @@ def _try_step(st: _Irls, dx, step_sigma, predicted):
     # far from the solution, when the step changes the residuals by more than half their
     # scale, the previous scale is stale: take it from the first points instead
     s_next = None if (not st.frozen and predicted > 0.5 * st.s) else st.s
-    ev_new = _evaluate(st.chunks, x_new, st.rule, st.c, s_next)
+    ev_new = evaluate(st.chunks, x_new, st.rule, st.c, s_next)
     # the IRLS step minimizes a majorizer of F(.; s_w) at ev.x: compare with that scale
     s_w, rule_w, c_w = ev.weight_scale, ev.rule, ev.c
     both = np.isfinite(ev_new.norms) & np.isfinite(ev.norms)
-    old = _robust_cost(ev.norms, st.k, s_w, rule_w, c_w, both) + _prior_cost(ev.x, st.prior)
-    new = _robust_cost(ev_new.norms, st.k, s_w, rule_w, c_w, both) + _prior_cost(x_new, st.prior)
+    old = robust_cost(ev.norms, st.k, s_w, rule_w, c_w, both) + prior_cost(ev.x, st.prior)
+    new = robust_cost(ev_new.norms, st.k, s_w, rule_w, c_w, both) + prior_cost(x_new, st.prior)
     accepted = bool(np.any(both) and np.isfinite(new) and new <= old * (1.0 + 1e-12) + 1e-300)
     if accepted:
         st.ev = ev_new
@@ -885,12 +453,12 @@ def _finish(ev, dec, success, message, names, scale, prior, iterations, log, ini
     result_msg = message
     if success and redundancy > 0:
         uv, wv = u[valid], weights[valid]
-        denom = np.mean(wv + _u_dw(uv, rule, c) / k)
+        denom = np.mean(wv + robust_u_dw(uv, rule, c) / k)
         numer = np.sum(wv * wv * uv * uv) / (redundancy / k)
         if denom > 0.0:
             sigma0 = float(s_final * np.sqrt(numer) / denom)
-            normal0, _ = _with_prior(ev.normal0, np.zeros(n_par), ev.x, prior)
-            dec0 = _decompose(normal0, names, np.inf)
+            normal0, _ = with_prior(ev.normal0, np.zeros(n_par), ev.x, prior)
+            dec0 = decompose(normal0, names, np.inf)
             if dec0.ok and np.all(dec0.eigval > 0.0):
                 inv = (dec0.eigvec / dec0.eigval[None, :]) @ dec0.eigvec.T
                 covariance = sigma0**2 * inv / np.outer(dec0.d, dec0.d)
@@ -906,7 +474,7 @@ def _finish(ev, dec, success, message, names, scale, prior, iterations, log, ini
     if success and dec is not None and dec.near_dependent:
         groups = "; ".join(summarize_names(g, names) for g in dec.near_dependent)
         result_msg += f"; warning: condition number {condition:.3g}, nearly dependent: {groups}"
-    cost = _robust_cost(ev.norms, k, s_final, rule, c) + _prior_cost(ev.x, prior)
+    cost = robust_cost(ev.norms, k, s_final, rule, c) + prior_cost(ev.x, prior)
     return LsqResult(
         success=bool(success),
         message=result_msg,

@@ -3,7 +3,7 @@
 The bands of a push-broom focal plane sit at different along-track places, so band ``b`` sees
 the ground that the reference band sees at line time ``t_ref`` a little later or earlier, at
 ``t_b = t_ref + dt`` (``dt`` = along-track offset / ground speed). A band-to-band tie point
-(:func:`calibrate.relative.match_band`: window centre ``p`` in the reference band, measured
+(:func:`calibrate.tie_points.match_band`: window centre ``p`` in the reference band, measured
 position ``q`` in band ``b``) is the observation
 
 .. math::  q = T_b(p) = F_b(F_{ref}^{-1}(p; c); c)
@@ -174,7 +174,7 @@ def tie_transfer(model, ties, *, dem=None, height=None):
     Parameters
     ----------
     model : PushbroomModel
-    ties : calibrate.relative.TiePoints
+    ties : calibrate.tie_points.TiePoints
         Reference-band window centres ``row_ref, col_ref`` (CCD ``ccd_ref``) and the band's
         CCD ``ccd``.
     dem : Dem, optional
@@ -231,7 +231,7 @@ def tie_observations(model, ties, *, dem=None, height=None, group_offset: int = 
     ----------
     model : PushbroomModel
         Every band's interior as calibrated so far.
-    ties : calibrate.relative.TiePoints
+    ties : calibrate.tie_points.TiePoints
     dem : Dem, optional
     height : float or ndarray, optional
         As in :func:`tie_transfer`.
@@ -592,7 +592,7 @@ def calibrate_with_parallax(model, ties, gcps, *, dem=None, height=None, options
     ----------
     model : PushbroomModel
         Reference band calibrated, other bands' interiors calibrated from their ties.
-    ties : dict of str to calibrate.relative.TiePoints
+    ties : dict of str to calibrate.tie_points.TiePoints
         Per band (not the reference band).
     gcps : GcpTable
         The reference band's GCPs (points of kind ``"gcp"``).

@@ -79,7 +79,7 @@ def covariance_floor(steps: list, enabled: bool = True) -> dict:
     Parameters
     ----------
     steps : list of dict
-        :attr:`calibrate.absolute.CalibrationResult.steps` (``step``, ``sigma0``).
+        :attr:`calibrate.calibration_result.CalibrationResult.steps` (``step``, ``sigma0``).
     enabled : bool
         Whether the floor was applied (else the factor applied is the variance factor).
 
@@ -199,9 +199,9 @@ def with_honest_covariance(result, points, weight, groups, options):
 
     Parameters
     ----------
-    result : calibrate.absolute.CalibrationResult
+    result : calibrate.calibration_result.CalibrationResult
         A finished calibration (its covariance already floored per step by
-        ``calibrate.absolute._block_covariance``).
+        ``calibrate.result_assembly._block_covariance``).
     points : dict of ndarray
         ``lon, lat, h`` (degrees, metres) of the fitted GCPs, shape (N,) each, result order.
     weight : ndarray, shape (N,)

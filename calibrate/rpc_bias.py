@@ -35,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibrate.absolute import CalibrationResult, calibrate_model
+from calibrate.absolute import calibrate_model
+from calibrate.calibration_result import CalibrationResult
 from calibrate.config import CalibrationOptions
 from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError

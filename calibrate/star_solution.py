@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from calibrate.config import STAR_SCHEMES, StarOptions
-from calibrate.lsq import Chunk, Prior, solve
+from calibrate.lsq import solve
+from calibrate.lsq_inputs import Chunk, Prior
 from sensor_models.errors import InputError
 from sensor_models.models.geo_staring import GeoStaringModel
 

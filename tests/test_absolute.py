@@ -12,7 +12,8 @@ import json
 import numpy as np
 import pytest
 
-from calibrate.absolute import calibrate_model, parameter_unit
+from calibrate.absolute import calibrate_model
+from calibrate.calibration_result import parameter_unit
 from calibrate.config import CalibrationOptions
 from gcpmatch.gcps import GcpTable
 from sensor_models.errors import InputError

@@ -14,7 +14,7 @@ from calibrate.absolute import calibrate_model
 from calibrate.config import CalibrationOptions
 from calibrate.parallax import (AngleObservations, calibrate_with_parallax, joint_candidates, joint_select,
                                 tie_observations, tie_transfer)
-from calibrate.relative import TiePoints
+from calibrate.tie_points import TiePoints
 from gcpmatch.gcps import GcpTable
 from sensor_models.models.attitude_correction import AttitudeCorrection
 from sensor_models.geometry.ephemeris import Attitude

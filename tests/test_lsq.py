@@ -6,7 +6,10 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from calibrate.lsq import CAUCHY_C, HUBER_C, Chunk, Prior, robust_scale, robust_weights, solve, summarize_names
+from calibrate.lsq import solve
+from calibrate.lsq_inputs import Chunk, Prior
+from calibrate.normal_decomposition import summarize_names
+from calibrate.robust_loss import CAUCHY_C, HUBER_C, robust_scale, robust_weights
 from sensor_models.errors import InputError
 
 

@@ -15,7 +15,7 @@ import numpy as np
 import rasterio
 
 from calibrate.parallax import _with_ground
-from calibrate.relative import TiePoints
+from calibrate.tie_points import TiePoints
 from sensor_models.readers import open_scene
 from sensor_models.terrain.dem import Dem
 

@@ -19,7 +19,9 @@ import pytest
 from calibrate.absolute import calibrate_model
 from gcpmatch.gcps import GcpTable
 from calibrate.cli import main
-from calibrate.relative import match_band, registration_error, relative_calibration
+from calibrate.band_registration import registration_error
+from calibrate.relative import relative_calibration
+from calibrate.tie_points import match_band
 from gcpmatch.extract import read_band
 from sensor_models.errors import InputError
 from sensor_models.readers import open_model

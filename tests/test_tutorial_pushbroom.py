@@ -204,7 +204,7 @@ def _gdal_offsets(tutorial):
     import rasterio
     from rasterio.transform import RPCTransformer
 
-    from gcpmatch.gcps import read_gcps
+    from gcpmatch.gcp_files import read_gcps
 
     points = read_gcps(tutorial.work / "work" / "gcps.csv")
     with rasterio.open(tutorial.work / "out" / "spot2_l1a.tif") as ds, RPCTransformer(ds.rpcs) as tr:

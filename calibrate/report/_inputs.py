@@ -7,7 +7,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from calibrate.absolute import CalibrationResult
+from calibrate.calibration_result import CalibrationResult
 from sensor_models.errors import InputError
 
 __all__ = ["ReportContext", "check_result", "point_columns", "unwrap_result"]

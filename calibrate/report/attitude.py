@@ -37,7 +37,7 @@ def figure_attitude(result, fig_dir) -> dict | None:
 
     Parameters
     ----------
-    result : calibrate.absolute.CalibrationResult
+    result : calibrate.calibration_result.CalibrationResult
         A result whose model carries an attitude correction.
     fig_dir : Path
         Folder of the PNG.
@@ -126,7 +126,7 @@ def section_attitude(result, figure) -> str:
 
     Parameters
     ----------
-    result : calibrate.absolute.CalibrationResult
+    result : calibrate.calibration_result.CalibrationResult
         With ``result.attitude`` (None: the section says the attitude was held static).
     figure : dict or None
         Of :func:`figure_attitude`.

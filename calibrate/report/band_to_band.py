@@ -10,7 +10,7 @@ The tie residual of a band is its measured image position (phase correlation of 
 against the reference band's) minus the position its model predicts for the ground point the
 reference band sees there, in pixels of the band (:class:`calibrate.relative.BandResult`):
 "before" under the model given to the relative stage, "after" under the calibrated one. The
-statistics are :func:`calibrate.absolute.residual_statistics` over the inliers of the solve, the
+statistics are :func:`calibrate.calibration_result.residual_statistics` over the inliers of the solve, the
 same numbers ``gcpcal demo`` writes to ``summary.json`` (``calibration.<band>.tie_rms_*_px``).
 """
 

@@ -1,6 +1,6 @@
 """HTML calibration report with PNG figures.
 
-:func:`write_report` turns a :class:`~calibrate.absolute.CalibrationResult` and the check-point
+:func:`write_report` turns a :class:`~calibrate.calibration_result.CalibrationResult` and the check-point
 accuracy before and after calibration (:class:`~calibrate.accuracy.AccuracyReport`) into
 ``out_dir/report.html``, one self-contained HTML file (inline CSS, no script) that references
 PNG figures in ``out_dir/figures/`` by relative paths.
@@ -56,7 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.absolute import CalibrationResult, parameter_unit
+from calibrate.calibration_result import CalibrationResult, parameter_unit
 from calibrate.accuracy import AccuracyReport
 from calibrate.report._html import CSS as _CSS, escape as _e, figure_html as _figure_html, fmt as _fmt
 from calibrate.report._html import move_into_place as _move_into_place, section_provenance, table as _table, value_html
