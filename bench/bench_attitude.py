@@ -227,13 +227,13 @@ def _synthetic_ties(truth, model, band, *, row_step, col_step, height_m, noise_p
     rows, cols = (a.ravel() for a in np.meshgrid(np.arange(16.0, truth.n_rows - 16, row_step),
                                                  np.arange(8.0, truth.n_cols - 8, col_step), indexing="ij"))
     ccd_ref = truth.ccd_index(cols, band=ref).reshape(-1)
-    lon, lat, h = truth.image_to_ground(rows, cols, height=height_m, band=ref, ccd=ccd_ref)
+    lon, lat, h = truth.image_to_ground(rows, cols, height=height_m, band=ref, array=ccd_ref)
     qr, qc = truth.ground_to_image(lon, lat, h, band=band)
     ok = np.isfinite(qr) & np.isfinite(qc)
     rows, cols, ccd_ref, qr, qc = rows[ok], cols[ok], ccd_ref[ok], qr[ok], qc[ok]
     qr, qc = qr + rng.normal(0, noise_px, qr.size), qc + rng.normal(0, noise_px, qc.size)
     ccd = truth.ccd_index(qc, band=band).reshape(-1)
-    glon, glat, gh = model.image_to_ground(rows, cols, height=height_m, band=ref, ccd=ccd_ref)
+    glon, glat, gh = model.image_to_ground(rows, cols, height=height_m, band=ref, array=ccd_ref)
     n = rows.size
     return TiePoints(band, rows, cols, ccd_ref, glon, glat, gh, qr, qc, ccd, qr, qc, np.ones(n), np.full(n, noise_px))
 

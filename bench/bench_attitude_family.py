@@ -68,7 +68,7 @@ def _ties(draw, truth, model, band):
 
     t = fam.synthetic_ties(draw, truth, band)
     lon, lat, h = model.image_to_ground(t["row_ref"], t["col_ref"], height=300.0, band=model.reference_band,
-                                        ccd=t["ccd_ref"])
+                                        array=t["ccd_ref"])
     n = t["row"].size
     return TiePoints(band, t["row_ref"], t["col_ref"], t["ccd_ref"], np.asarray(lon), np.asarray(lat), np.asarray(h),
                      t["row"], t["col"], t["ccd"], t["row"], t["col"], np.ones(n), np.full(n, 0.02))

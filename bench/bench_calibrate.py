@@ -75,7 +75,7 @@ def simulate_gcps(true, n_points: int, *, noise_px: float = 0.3, seed: int = 1):
     for b in BANDS:
         sel = band == b
         ccd = true.ccd_index(col[sel], band=b)
-        lon[sel], lat[sel], _ = true.image_to_ground(row[sel], col[sel], height=h[sel], band=b, ccd=ccd)
+        lon[sel], lat[sel], _ = true.image_to_ground(row[sel], col[sel], height=h[sel], band=b, array=ccd)
     row_obs = row + rng.normal(0.0, noise_px, n_points)
     col_obs = col + rng.normal(0.0, noise_px, n_points)
     return row_obs, col_obs, lon, lat, h, band
@@ -90,8 +90,8 @@ def grid_rms(true, model, n: int = 25) -> float:
                 np.linspace(5.0, true.n_rows - 5.0, n), np.linspace(c.first_col + 0.5, c.last_col - 0.5, n), indexing="ij"
             )
             r, cc = r.ravel(), cc.ravel()
-            lon, lat, h = true.image_to_ground(r, cc, height=height(r, cc), band=b, ccd=k)
-            rr, ccc = model.ground_to_image(lon, lat, h, band=b, ccd=k)
+            lon, lat, h = true.image_to_ground(r, cc, height=height(r, cc), band=b, array=k)
+            rr, ccc = model.ground_to_image(lon, lat, h, band=b, array=k)
             errors.append(np.hypot(rr - r, ccc - cc))
     e = np.concatenate(errors)
     return float(np.sqrt(np.mean(e * e)))
@@ -111,7 +111,7 @@ def one_pass_seconds(lab, gcps) -> float:
             ]
             for a in range(0, s.size, 50_000):
                 i = np.nonzero(sel)[0][s[a : a + 50_000]]
-                lab.image_jacobian(lon[i], lat[i], h[i], band=b, names=names, ccd=k)
+                lab.image_jacobian(lon[i], lat[i], h[i], band=b, names=names, array=k)
     return time.perf_counter() - t0
 
 

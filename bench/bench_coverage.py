@@ -122,7 +122,7 @@ def _exact_table(truth, table, band):
     """``table``'s GCPs observed exactly through the TRUE model (same ground points, sigma, score)."""
     from gcpmatch.gcps import GcpTable
 
-    row, col = truth.ground_to_image(table.lon, table.lat, table.h, band=band, ccd=table.ccd)
+    row, col = truth.ground_to_image(table.lon, table.lat, table.h, band=band, array=table.ccd)
     ok = np.isfinite(row) & np.isfinite(col)
     cols = {k: np.asarray(getattr(table, k))[ok] for k in ("lon", "lat", "h", "sigma_px", "band", "ccd", "score",
                                                          "kind", "id")}

@@ -87,7 +87,7 @@ def dem_term(scene: Path, pts: dict) -> dict:
     from sensor_models.readers import open_model
 
     truth = open_model(scene / "truth_manifest.json")
-    r, c = truth.ground_to_image(pts["lon"], pts["lat"], pts["h_user"], band=pts["band"], ccd=pts["ccd"])
+    r, c = truth.ground_to_image(pts["lon"], pts["lat"], pts["h_user"], band=pts["band"], array=pts["ccd"])
     err = np.hypot(r - pts["row"], c - pts["col"])
     dh = pts["h_user"] - pts["h_true"]
     out = {"all": _stats(err), "dh_rms_m": round(float(np.sqrt(np.mean(dh**2))), 3), "by_off_nadir_deg": {}}

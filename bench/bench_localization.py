@@ -375,7 +375,7 @@ def main():
     t_build, grid = timed(InverseLocalizationGrid, model, lon_rng, lat_rng, (h_lo - 10.0, h_hi + 10.0), spacing_px=16.0)
     t, (rg, cg) = timed(grid.ground_to_image, lon[ok], lat[ok], h[ok], repeat=3)
     # interpolation error with the CCD known (the automatic choice differs only on CCD overlaps)
-    rk, ck = grid.ground_to_image(lon[ok], lat[ok], h[ok], ccd=ccd[ok])
+    rk, ck = grid.ground_to_image(lon[ok], lat[ok], h[ok], array=ccd[ok])
     gerr = np.hypot(rk - r2, ck - c2)
     results["grid_ccd_choice_differs"] = int(np.count_nonzero(np.hypot(rg - r3, cg - c3) > 0.01))
     results["grid_build_s"] = t_build
@@ -390,7 +390,7 @@ def main():
     )
 
     for label, m in (("with 0.03 px attitude jitter", model), ("without jitter", example_pushbroom_model(n_rows=2000, installation=Installation(0.0, 0.0, np.radians(3.55))))):
-        t, (rpc, report) = timed(fit_rpc, m.ccd_view(0), height_range_m=(h_lo, h_hi))
+        t, (rpc, report) = timed(fit_rpc, m.detector_view(array=0), height_range_m=(h_lo, h_hi))
         key = "rpc_fit" if m is model else "rpc_fit_no_jitter"
         results[key] = {"seconds": t, "check_max_px": report["check_max_px"], "check_rms_px": report["check_rms_px"]}
         print(f"RPC fit ({label}) {t:.2f} s   check max {report['check_max_px']:.1e} px, rms {report['check_rms_px']:.1e} px")

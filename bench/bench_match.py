@@ -71,7 +71,7 @@ def main():
     r, c = np.empty(len(table)), np.empty(len(table))
     for i in range(len(names)):
         s = idx == i
-        r[s], c[s] = truth.ground_to_image(table.lon[s], table.lat[s], table.h[s], band="B2", ccd=i)
+        r[s], c[s] = truth.ground_to_image(table.lon[s], table.lat[s], table.h[s], band="B2", array=i)
     err = np.hypot(table.row - r, table.col - c)
     result = {
         "scene": [int(v) for v in lab.image_shape], "gcps_and_checks": len(table), "seconds": seconds,

@@ -161,7 +161,7 @@ def prepare_windows(scene: Path, options) -> dict:
         fin = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(h)
         r_t, c_t = np.full(lon.size, np.nan), np.full(lon.size, np.nan)
         r_t[fin], c_t[fin] = truth.ground_to_image(lon[fin], lat[fin], h[fin], band=band,
-                                                   ccd=np.full(fin.sum(), look.name, dtype=object))
+                                                   array=np.full(fin.sum(), look.name, dtype=object))
         with np.errstate(invalid="ignore"):
             out["std_r"].append(wr.std(axis=(1, 2)))
         out["ws"].append(np.nan_to_num(ws).astype(np.float32))
@@ -333,7 +333,7 @@ def _exact_gcps(scene: Path, gcps: Path, out: Path) -> None:
 
     table = read_gcps(gcps)
     truth = open_model(scene / "truth_manifest.json")
-    row, col = truth.ground_to_image(table.lon, table.lat, table.h, band=str(table.band[0]), ccd=table.ccd)
+    row, col = truth.ground_to_image(table.lon, table.lat, table.h, band=str(table.band[0]), array=table.ccd)
     ok = np.isfinite(row) & np.isfinite(col)
     cols = {k: np.asarray(getattr(table, k))[ok] for k in ("lon", "lat", "h", "sigma_px", "band", "ccd", "score",
                                                          "kind", "id")}

@@ -184,7 +184,7 @@ def bench_exact(model, dem, dom, band: str = "B2") -> dict:
         for a in range(0, rows, 512):
             b = min(rows, a + 512)
             rr, cc = np.meshgrid(np.arange(a, b) + 0.5, look.first_col + np.arange(look.n_detectors) + 0.5, indexing="ij")
-            lon, lat, _ = model.image_to_ground(rr.ravel(), cc.ravel(), dem=dem, band=band, ccd=c)
+            lon, lat, _ = model.image_to_ground(rr.ravel(), cc.ravel(), dem=dem, band=band, array=c)
             u, v = project(lon, lat)
             exact = locate.PixelGround(None, [(u.reshape(rr.shape), v.reshape(rr.shape))])
             for k, kw in (("chips", chip_settings(dom)), ("per_pixel", {"tolerance_m": locate.HEIGHT_TOLERANCE_M})):

@@ -85,7 +85,7 @@ def gcp_truth(fixture: Path, gcps_csv: Path, patches, window_px: int = 64) -> di
     ccd = np.asarray(table.ccd)[use]
     row, col = np.asarray(table.row)[use], np.asarray(table.col)[use]
     r_t, c_t = truth.ground_to_image(np.asarray(table.lon)[use], np.asarray(table.lat)[use],
-                                     np.asarray(table.h)[use], band=band, ccd=ccd)
+                                     np.asarray(table.h)[use], band=band, array=ccd)
     share = np.zeros(row.size)
     if patches is not None:
         mask, transform, crs = patches
@@ -93,7 +93,7 @@ def gcp_truth(fixture: Path, gcps_csv: Path, patches, window_px: int = 64) -> di
         off = np.linspace(-0.5 * window_px, 0.5 * window_px, 9)
         dr, dc = (a.ravel() for a in np.meshgrid(off, off, indexing="ij"))
         rr, cc = (row[:, None] + dr).ravel(), (col[:, None] + dc).ravel()
-        lon, lat, _ = truth.image_to_ground(rr, cc, dem=dem, band=band, ccd=np.repeat(ccd, dr.size))
+        lon, lat, _ = truth.image_to_ground(rr, cc, dem=dem, band=band, array=np.repeat(ccd, dr.size))
         x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
         inv = ~transform
         px, py = inv * (np.asarray(x), np.asarray(y))

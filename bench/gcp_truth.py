@@ -35,7 +35,7 @@ def off_nadir_deg(truth, table) -> np.ndarray:
     """
     band = str(table.band[0]) or None
     ccd = table.ccd if all(str(c) for c in table.ccd) else None
-    origin, direction = truth.rays_itrf(table.row, table.col, band=band, ccd=ccd)
+    origin, direction = truth.rays_itrf(table.row, table.col, band=band, array=ccd)
     nadir = -origin / np.linalg.norm(origin, axis=1, keepdims=True)
     cos = np.clip(np.sum(nadir * direction, axis=1), -1.0, 1.0)
     return np.degrees(np.arccos(cos))
@@ -76,7 +76,7 @@ def gcp_truth_by_angle(truth_manifest: Path, gcps_csv: Path) -> dict:
     pooled = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in gcp_truth_error(truth, table).items()}
     band = str(table.band[0]) or None
     ccd = table.ccd if all(str(c) for c in table.ccd) else None
-    r_t, c_t = truth.ground_to_image(table.lon, table.lat, table.h, band=band, ccd=ccd)
+    r_t, c_t = truth.ground_to_image(table.lon, table.lat, table.h, band=band, array=ccd)
     d_row, d_col = table.row - r_t, table.col - c_t
     err = np.hypot(d_row, d_col)
     angle = off_nadir_deg(truth, table)

@@ -65,11 +65,11 @@ def registration_error(true_model: PushbroomModel, model: PushbroomModel, *, dem
             j = target_ccd(model, band, reference_band, i)
             q = []
             for m in (true_model, model):
-                lon, lat, h = m.image_to_ground(rr, cc, dem=dem, band=reference_band, ccd=i)
+                lon, lat, h = m.image_to_ground(rr, cc, dem=dem, band=reference_band, array=i)
                 r, c = np.full(rr.size, np.nan), np.full(rr.size, np.nan)
                 ok = np.isfinite(lon)
                 if ok.any():
-                    r[ok], c[ok] = m.ground_to_image(lon[ok], lat[ok], h[ok], band=band, ccd=j)
+                    r[ok], c[ok] = m.ground_to_image(lon[ok], lat[ok], h[ok], band=band, array=j)
                 q.append(np.stack([r, c], axis=-1))
             d = q[1] - q[0]
             d = d[np.all(np.isfinite(d), axis=1)]

@@ -139,7 +139,7 @@ def gcp_observations(model, gcps, *, band=None) -> AngleObservations:
     table = gcps.gcps()
     keep = (table.band == "") | (table.band == band)
     lon, lat, h = table.lon[keep], table.lat[keep], table.h[keep]
-    row, col, jac = model.attitude_angle_jacobian(lon, lat, h, band=band, ccd=_ccd_column(model, band, table.ccd[keep]))
+    row, col, jac = model.attitude_angle_jacobian(lon, lat, h, band=band, array=_ccd_column(model, band, table.ccd[keep]))
     residual = np.stack([table.row[keep] - row, table.col[keep] - col], axis=-1)
     weight = table.score[keep] / table.sigma_px[keep] ** 2
     ok = np.isfinite(residual).all(axis=1) & np.isfinite(jac).all(axis=(1, 2)) & (weight > 0)
@@ -194,16 +194,16 @@ def tie_transfer(model, ties, *, dem=None, height=None):
     """
     ref = model.reference_band
     lon, lat, h = model.image_to_ground(ties.row_ref, ties.col_ref, dem=dem, height=height, band=ref,
-                                        ccd=ties.ccd_ref)
+                                        array=ties.ccd_ref)
     lon, lat, h = (np.asarray(v, dtype=float).reshape(-1) for v in (lon, lat, h))
     ok = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(h)
     n = lon.size
     predicted = np.full((n, 2), np.nan)
     jac_b, jac_r = np.full((n, 2, 3), np.nan), np.full((n, 2, 3), np.nan)
     if ok.any():
-        r, c, jac_b[ok] = model.attitude_angle_jacobian(lon[ok], lat[ok], h[ok], band=ties.band, ccd=ties.ccd[ok])
+        r, c, jac_b[ok] = model.attitude_angle_jacobian(lon[ok], lat[ok], h[ok], band=ties.band, array=ties.ccd[ok])
         predicted[ok] = np.stack([r, c], axis=-1)
-        _, _, j_ref = model.attitude_angle_jacobian(lon[ok], lat[ok], h[ok], band=ref, ccd=ties.ccd_ref[ok])
+        _, _, j_ref = model.attitude_angle_jacobian(lon[ok], lat[ok], h[ok], band=ref, array=ties.ccd_ref[ok])
         jac_r[ok] = np.einsum("nij,nja->nia", _transfer_jacobian(model, ties, h, ok), j_ref)
     t_band = model.line_timing.seconds(np.where(np.isfinite(predicted[:, 0]), predicted[:, 0], ties.row_ref))
     return predicted, jac_b, jac_r, t_band, model.line_timing.seconds(ties.row_ref)
@@ -218,8 +218,8 @@ def _transfer_jacobian(model, ties, h, ok):
         for sign in (1.0, -1.0):
             dr, dc = (sign * step, 0.0) if k == 0 else (0.0, sign * step)
             lon, lat, hh = model.image_to_ground(ties.row_ref[ok] + dr, ties.col_ref[ok] + dc, height=h[ok],
-                                                 band=model.reference_band, ccd=ties.ccd_ref[ok])
-            q.append(np.stack(model.ground_to_image(lon, lat, hh, band=ties.band, ccd=ties.ccd[ok]), axis=-1))
+                                                 band=model.reference_band, array=ties.ccd_ref[ok])
+            q.append(np.stack(model.ground_to_image(lon, lat, hh, band=ties.band, array=ties.ccd[ok]), axis=-1))
         out[:, :, k] = (q[0] - q[1]) / (2.0 * step)
     return out
 
@@ -531,7 +531,7 @@ def _with_ground(model, ties, dem, height):
     on as a NaN ground point.
     """
     lon, lat, h = (np.asarray(a, float).reshape(-1) for a in model.image_to_ground(
-        ties.row_ref, ties.col_ref, dem=dem, height=height, band=model.reference_band, ccd=ties.ccd_ref))
+        ties.row_ref, ties.col_ref, dem=dem, height=height, band=model.reference_band, array=ties.ccd_ref))
     keep = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(h)
     ties = replace(ties, lon=lon, lat=lat, h=h)
     if keep.all():

@@ -206,7 +206,7 @@ def _place_windows(setup: _MatchSetup, g, offset) -> dict:
     lon, lat, h = g.lon.copy(), g.lat.copy(), g.h.copy()
     j = target_ccd(model, band, reference_band, g.ccd)
     pr, pc = _predict(model, lon, lat, h, band, j)
-    ccd_b = model.ccd_index(np.where(np.isfinite(pc), pc, 0.0), band=band, ccd=j).reshape(-1)
+    ccd_b = model.ccd_index(np.where(np.isfinite(pc), pc, 0.0), band=band, array=j).reshape(-1)
     with np.errstate(invalid="ignore"):
         rb = np.where(np.isfinite(pr), np.rint(pr + offset[0] - hr), -1).astype(np.intp)
         cb = np.where(np.isfinite(pc), np.rint(pc + offset[1] - hc), -1).astype(np.intp)
@@ -225,7 +225,7 @@ def _place_windows(setup: _MatchSetup, g, offset) -> dict:
         cb[moved] += k_c[moved]
         row_c[moved], col_c[moved] = r0[moved] + wh / 2.0, c0[moved] + ww / 2.0
         lon[moved], lat[moved], h[moved] = model.image_to_ground(row_c[moved], col_c[moved], dem=setup.dem,
-                                                                 band=reference_band, ccd=g.ccd)
+                                                                 band=reference_band, array=g.ccd)
         pr[moved], pc[moved] = _predict(model, lon[moved], lat[moved], h[moved], band, j)
     status[~np.isfinite(lon)] = "no_ground"
     inside = (fits | ((k_r == 0) & (k_c == 0) & (last - first >= ww))) & np.isfinite(pr) & np.isfinite(pc)
@@ -295,7 +295,7 @@ def _predict(model, lon, lat, h, band, ccd):
     pr, pc = np.full(lon.shape, np.nan), np.full(lon.shape, np.nan)
     ok = np.isfinite(lon)
     if ok.any():
-        pr[ok], pc[ok] = model.ground_to_image(lon[ok], lat[ok], h[ok], band=band, ccd=ccd)
+        pr[ok], pc[ok] = model.ground_to_image(lon[ok], lat[ok], h[ok], band=band, array=ccd)
     return pr, pc
 
 
@@ -317,11 +317,11 @@ def _coarse_offset(model, dem, ref_img, img, band, reference_band, i, j, rows, w
     r0 = rows[0] + grid_starts(rows[1] - rows[0], side, side)
     c0 = np.full(r0.size, look.first_col + (look.n_detectors - side) // 2, dtype=np.intp)
     half = side / 2.0
-    lon, lat, h = model.image_to_ground(r0 + half, c0 + half, dem=dem, band=reference_band, ccd=i)
+    lon, lat, h = model.image_to_ground(r0 + half, c0 + half, dem=dem, band=reference_band, array=i)
     ok = np.isfinite(lon)
     if not ok.any():
         return np.zeros(2)
-    pr, pc = model.ground_to_image(lon[ok], lat[ok], h[ok], band=band, ccd=j)
+    pr, pc = model.ground_to_image(lon[ok], lat[ok], h[ok], band=band, array=j)
     with np.errstate(invalid="ignore"):
         rb = np.where(np.isfinite(pr), np.rint(pr - half), -1).astype(np.intp)
         cb = np.where(np.isfinite(pc), np.rint(pc - half), -1).astype(np.intp)

@@ -94,7 +94,7 @@ def reference_grid(model: PushbroomModel, dem, reference_band: str, rows, window
         rr, cc = (a.ravel() for a in np.meshgrid(rs, cs, indexing="ij"))
         row_c, col_c = rr + wh / 2.0, cc + ww / 2.0
         if rr.size:
-            lon, lat, h = model.image_to_ground(row_c, col_c, dem=dem, band=reference_band, ccd=i)
+            lon, lat, h = model.image_to_ground(row_c, col_c, dem=dem, band=reference_band, array=i)
         else:
             lon = lat = h = np.zeros(0)
         grids.append(_CcdGrid(i, look.name, rs.size, cs.size, rr, cc, row_c, col_c,

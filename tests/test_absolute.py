@@ -77,7 +77,7 @@ def simulate(true, n, *, band="B2", noise=0.3, seed=1, row=None, col=None):
     row = rng.uniform(1.0, true.n_rows - 1.0, n) if row is None else np.broadcast_to(row, (n,)).astype(float)
     col = rng.uniform(0.5, true.n_cols - 0.5, n) if col is None else np.broadcast_to(col, (n,)).astype(float)
     ccd = true.ccd_index(col, band=band)
-    lon, lat, h = true.image_to_ground(row, col, height=height(row, col), band=band, ccd=ccd)
+    lon, lat, h = true.image_to_ground(row, col, height=height(row, col), band=band, array=ccd)
     return row + rng.normal(0.0, noise, n), col + rng.normal(0.0, noise, n), lon, lat, h
 
 
@@ -91,8 +91,8 @@ def grid_rms(true, model, band="B2", n=30, ccds=None):
             np.linspace(5.0, true.n_rows - 5.0, n), np.linspace(c.first_col + 0.5, c.last_col - 0.5, n), indexing="ij"
         )
         r, cc = r.ravel(), cc.ravel()
-        lon, lat, h = true.image_to_ground(r, cc, height=height(r, cc), band=band, ccd=k)
-        rr, ccc = model.ground_to_image(lon, lat, h, band=band, ccd=k)
+        lon, lat, h = true.image_to_ground(r, cc, height=height(r, cc), band=band, array=k)
+        rr, ccc = model.ground_to_image(lon, lat, h, band=band, array=k)
         errors.append(np.hypot(rr - r, ccc - cc))
     e = np.concatenate(errors)
     return float(np.sqrt(np.mean(e * e)))

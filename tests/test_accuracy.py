@@ -40,7 +40,7 @@ def points(model, n, *, band="B2", seed=0):
     col = rng.uniform(1.0, model.n_cols - 41.0, n)
     col = np.where(col > 492.0, col + 40.0, col)
     h = 300.0 + 200.0 * np.sin(row / 500.0)
-    lon, lat, h = model.image_to_ground(row, col, height=h, band=band, ccd=model.ccd_index(col, band=band))
+    lon, lat, h = model.image_to_ground(row, col, height=h, band=band, array=model.ccd_index(col, band=band))
     return row, col, lon, lat, h
 
 

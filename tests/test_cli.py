@@ -188,7 +188,7 @@ def test_rpc_read_back(rpc_run):
     out, summary = rpc_run
     model = read_manifest(EXAMPLE)
     first = summary["rpcs"][0]
-    view = model.ccd_view(first["ccd"])
+    view = model.detector_view(array=first["ccd"])
     fitted, _ = fit_rpc(view, height_range_m=(0.0, 3000.0))
     back = read_rpc(first["output"])
     rng = np.random.default_rng(1)

@@ -25,9 +25,9 @@ def test_inverse_grid_within_a_hundredth_of_a_pixel(model):
     ccds = model.band_ccds()
     rows = rng.uniform(5, model.n_rows - 5, ccd_index.size)
     cols = np.array([ccds[i].first_col for i in ccd_index]) + rng.uniform(0.5, 1023.5, ccd_index.size)
-    lon, lat, h = model.image_to_ground(rows, cols, height=rng.uniform(0, 2000, rows.size), ccd=ccd_index)
+    lon, lat, h = model.image_to_ground(rows, cols, height=rng.uniform(0, 2000, rows.size), array=ccd_index)
     grid = InverseLocalizationGrid(model, (lon.min() - 0.01, lon.max() + 0.01), (lat.min() - 0.01, lat.max() + 0.01), (0.0, 2000.0))
-    r, c = grid.ground_to_image(lon, lat, h, ccd=ccd_index)
+    r, c = grid.ground_to_image(lon, lat, h, array=ccd_index)
     err = np.hypot(r - rows, c - cols)
     assert err.max() <= 0.01
     assert err.max() > 1e-5  # it is an interpolation, not the exact model
@@ -40,7 +40,7 @@ def test_rpc_fitted_to_pushbroom_ccd():
     """Acceptance: <= 0.01 px max over the scene and its height range (smooth attitude)."""
     smooth = example_pushbroom_model(n_rows=1200, installation=Installation(0.0, 0.0, np.radians(3.55)), attitude_kwargs=dict(bias_rad=(2e-4, -3e-4, 1e-3), drift_rad_s=(1e-6, 0.0, 2e-6)))
     for i in range(2):
-        rpc, report = fit_rpc(smooth.ccd_view(i), height_range_m=(-100.0, 3000.0))
+        rpc, report = fit_rpc(smooth.detector_view(array=i), height_range_m=(-100.0, 3000.0))
         assert report["check_max_px"] <= 0.01
         lon, lat, h = smooth.image_to_ground([600.5], [smooth.band_ccds()[i].first_col + 500.5], height=1000.0)
         r, c = rpc.ground_to_image(lon, lat, h)
@@ -49,7 +49,7 @@ def test_rpc_fitted_to_pushbroom_ccd():
 
 def test_rpc_cannot_follow_attitude_jitter(model):
     """A 1.3 Hz, 0.03 px jitter is beyond any RPC: the check grid shows it, the fit grid does not."""
-    _, report = fit_rpc(model.ccd_view(0), height_range_m=(0.0, 3000.0))
+    _, report = fit_rpc(model.detector_view(array=0), height_range_m=(0.0, 3000.0))
     assert 0.02 < report["check_max_px"] < 0.1
 
 

@@ -64,7 +64,7 @@ def _errors(model, dem, grids, blocks, *, row_shift_px: float = 0.0, **kw):
     for ccd, r0, r1, c0, c1 in blocks:
         pg = locate_block(model, dem, grids, band=BAND, ccd=ccd, row0=r0, row1=r1, col0=c0, col1=c1, **kw)
         rr, cc = np.meshgrid(np.arange(r0, r1) + 0.5 + row_shift_px, np.arange(c0, c1) + 0.5, indexing="ij")
-        lon, lat, h = model.image_to_ground(rr.ravel(), cc.ravel(), dem=dem, band=BAND, ccd=ccd)
+        lon, lat, h = model.image_to_ground(rr.ravel(), cc.ravel(), dem=dem, band=BAND, array=ccd)
         d_h.append(pg.h_m.ravel() - h)
         for k, project in enumerate(projectors):
             u, v = project(lon, lat)

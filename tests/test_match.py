@@ -42,7 +42,7 @@ def _errors_vs_truth(table, truth):
     r, c = np.empty(len(table)), np.empty(len(table))
     for i in range(len(names)):
         s = idx == i
-        r[s], c[s] = truth.ground_to_image(table.lon[s], table.lat[s], table.h[s], band="B2", ccd=i)
+        r[s], c[s] = truth.ground_to_image(table.lon[s], table.lat[s], table.h[s], band="B2", array=i)
     return np.hypot(table.row - r, table.col - c), idx
 
 

@@ -54,7 +54,7 @@ def _gcp_truth_errors(scene, table):
     from sensor_models.readers import open_model
 
     truth = open_model(scene / "truth_manifest.json")
-    r_t, c_t = truth.ground_to_image(table.lon, table.lat, table.h, band=str(table.band[0]), ccd=table.ccd)
+    r_t, c_t = truth.ground_to_image(table.lon, table.lat, table.h, band=str(table.band[0]), array=table.ccd)
     err = np.stack([table.row - r_t, table.col - c_t], axis=1)
     ok = np.isfinite(err).all(axis=1)
     return err[ok], np.asarray(table.sigma_px, dtype=float)[ok]

@@ -75,7 +75,7 @@ def test_node_grid_matches_exact_inverse_localization(which, request, dem):
     lon, lat, h, ccd, row, col = _sample(geometry, 3000, seed=1)
     # the per-pixel height is the DEM's bilinear height
     np.testing.assert_allclose(h, dem.height_m(lon, lat), atol=1e-6)
-    r, c = model.ground_to_image(lon, lat, h, band="B2", ccd=ccd)
+    r, c = model.ground_to_image(lon, lat, h, band="B2", array=ccd)
     err = np.hypot(r - row, c - col)
     # interpolation, not a copy of the exact values; and far below a hundredth of a pixel
     assert 1e-7 < np.max(err) <= 0.01
@@ -95,13 +95,13 @@ def test_coarser_nodes_larger_error(truth, dem):
     for step in (8, 32):
         geometry = OrthoGeometry(truth, dem, grid, band="B2", node_step_px=step)
         lon, lat, h, ccd, row, col = _sample(geometry, 1500, seed=2)
-        r, c = truth.ground_to_image(lon, lat, h, band="B2", ccd=ccd)
+        r, c = truth.ground_to_image(lon, lat, h, band="B2", array=ccd)
         errors.append(np.max(np.hypot(r - row, c - col)))
     assert 3.0 * errors[0] < errors[1] < 0.05
 
 
 def test_model_without_ccds_uses_one_field(truth, dem):
-    view = truth.ccd_view(1, band="B2")  # a generic SensorModel: columns 0..192 of one CCD
+    view = truth.detector_view("B2", 1)  # a generic SensorModel: columns 0..192 of one CCD
     grid = ortho_grid(view, dem)
     geometry = OrthoGeometry(view, dem, grid)
     assert len(geometry.solvers) == 1
@@ -145,7 +145,7 @@ def test_pixel_convention_on_a_ramp(resampling, tmp_path, truth, dem):
     geometry = OrthoGeometry(truth, dem, grid, band="B2")
     assert transform.almost_equals(grid.transform)
     lon, lat, h, ccd, row, col, j, i = _sample(geometry, 2000, seed=4, indices=True)
-    r, c = truth.ground_to_image(lon, lat, h, band="B2", ccd=ccd)
+    r, c = truth.ground_to_image(lon, lat, h, band="B2", array=ccd)
     inside = (r > 2) & (r < n_rows - 2) & (c > 2) & (c < n_cols - 2)
     got = values[j, i]
     expected = 1000.0 + 3.0 * (r - 0.5) + 2.0 * (c - 0.5)

@@ -37,7 +37,7 @@ def hy1c():
 @pytest.fixture(scope="module")
 def fitted_rpc():
     example = open_model(FIXTURES / "example_pushbroom" / "manifest.json")
-    rpc, _ = fit_rpc(example.ccd_view(0), height_range_m=(0.0, 1000.0), grid_shape=(11, 11, 5))
+    rpc, _ = fit_rpc(example.detector_view(array=0), height_range_m=(0.0, 1000.0), grid_shape=(11, 11, 5))
     return rpc
 
 
@@ -174,13 +174,17 @@ def test_array_keyword_forces_the_array(model):
     np.testing.assert_allclose(j2, j1, rtol=1e-6, atol=1e-12)
 
 
-def test_pushbroom_array_is_ccd(hy1c):
+def test_pushbroom_speaks_the_protocols_array_only(hy1c):
+    """One vocabulary: the push-broom model's methods name a CCD with ``array=``, as the protocol
+    does; the old ``ccd=`` spelling is refused by Python, not silently taken."""
     rows, cols = _sample_points(hy1c, "B1", 1, n=4)
     g = hy1c.image_to_ground(rows, cols, height=HEIGHT_M, band="B1")
-    assert np.array_equal(hy1c.ground_to_image(*g, band="B1", array="cam2_ccd1")[1],
-                          hy1c.ground_to_image(*g, band="B1", ccd="cam2_ccd1")[1], equal_nan=True)
-    with pytest.raises(InputError, match="not both"):
-        hy1c.ground_to_image(*g, band="B1", array=0, ccd=0)
+    by_name = hy1c.ground_to_image(*g, band="B1", array="cam2_ccd1")[1]
+    index = [a.name for a in hy1c.detector_arrays("B1")].index("cam2_ccd1")
+    assert np.array_equal(by_name, hy1c.ground_to_image(*g, band="B1", array=index)[1], equal_nan=True)
+    for method, args in ((hy1c.ground_to_image, g), (hy1c.image_to_ground, (rows, cols))):
+        with pytest.raises(TypeError, match="ccd"):
+            method(*args, band="B1", ccd=0)
 
 
 # ------------------------------------------------------------------ parameters

@@ -43,7 +43,7 @@ def test_round_trip_every_ccd_and_band(model, height):
             r, c = _grid(model, ccd)
             lon, lat, h = model.image_to_ground(r, c, height=height, band=band)
             np.testing.assert_allclose(h, height, atol=1e-6)
-            r2, c2 = model.ground_to_image(lon, lat, h, band=band, ccd=i)
+            r2, c2 = model.ground_to_image(lon, lat, h, band=band, array=i)
             err = np.hypot(r2 - r, c2 - c)
             assert np.sqrt(np.mean(err**2)) <= 1e-4, (band, ccd.name)
             assert err.max() <= 1e-3, (band, ccd.name)
@@ -164,6 +164,6 @@ def test_round_trip_over_real_srtm(shared_data):
         inside = np.isfinite(lon)
         assert inside.mean() > 0.6  # the 100 km scene overhangs the 1x1 degree tile
         np.testing.assert_allclose(h[inside], dem.height_m(lon[inside], lat[inside]), atol=1e-3)
-        r2, c2 = model.ground_to_image(lon[inside], lat[inside], h[inside], ccd=i)
+        r2, c2 = model.ground_to_image(lon[inside], lat[inside], h[inside], array=i)
         err = np.hypot(r2 - r[inside], c2 - c[inside])
         assert np.sqrt(np.mean(err**2)) <= 1e-4 and err.max() <= 1e-3

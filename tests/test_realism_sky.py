@@ -217,7 +217,7 @@ def test_ray_slope_points_to_the_satellite():
         look = m.band_ccds(band)[k]
         du, dv = ray_slope(m, grid, band=band, ccd=k, row=64.0)
         for s in (0, look.n_detectors - 1):
-            lon, lat, _ = m.image_to_ground([64.0], [look.first_col + s + 0.5], height=0.0, band=band, ccd=k)
+            lon, lat, _ = m.image_to_ground([64.0], [look.first_col + s + 0.5], height=0.0, band=band, array=k)
             g = np.array(to_ecef.transform(lon[0], lat[0], 0.0))
             t = np.atleast_1d(m.line_timing.seconds(64.0))
             sat = gcrf_to_itrf_mat(m.orbit.epoch, t)[0] @ m.orbit.position(t)[0]

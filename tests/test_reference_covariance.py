@@ -45,7 +45,7 @@ def _gcps(true, n=800, noise=0.05, seed=3):
     rng = np.random.default_rng(seed)
     row, col = rng.uniform(1.0, true.n_rows - 1.0, n), rng.uniform(0.5, true.n_cols - 0.5, n)
     ccd = true.ccd_index(col, band="B2")
-    lon, lat, h = true.image_to_ground(row, col, height=np.full(n, 300.0), band="B2", ccd=ccd)
+    lon, lat, h = true.image_to_ground(row, col, height=np.full(n, 300.0), band="B2", array=ccd)
     return row + rng.normal(0, noise, n), col + rng.normal(0, noise, n), lon, lat, h
 
 

@@ -49,7 +49,7 @@ def scene():
         cols.append(c.ravel())
         ccds.append(np.full(r.size, i))
     row, col, ccd = (np.concatenate(a) for a in (rows, cols, ccds))
-    lon, lat, h = truth.image_to_ground(row, col, dem=dem, band="B2", ccd=ccd)
+    lon, lat, h = truth.image_to_ground(row, col, dem=dem, band="B2", array=ccd)
     noisy_row, noisy_col = row + rng.normal(0, 0.05, row.size), col + rng.normal(0, 0.05, col.size)
     gcps = GcpTable.from_arrays(noisy_row, noisy_col, lon, lat, h, band="B2", ccd=ccd, sigma_px=0.05)
     ref = calibrate_model(lab, gcps)
@@ -106,8 +106,8 @@ def test_tie_points_measure_the_true_band_positions(scene):
     truth, dem = scene["truth"], scene["dem"]
     ties, windows, rejected, _ = match_band(scene["calibrated"], scene["images"]["B2"], scene["images"]["B4"], dem,
                                             band="B4")
-    lon, lat, h = truth.image_to_ground(ties.row_ref, ties.col_ref, dem=dem, band="B2", ccd=ties.ccd_ref)
-    r, c = truth.ground_to_image(lon, lat, h, band="B4", ccd=ties.ccd)
+    lon, lat, h = truth.image_to_ground(ties.row_ref, ties.col_ref, dem=dem, band="B2", array=ties.ccd_ref)
+    r, c = truth.ground_to_image(lon, lat, h, band="B4", array=ties.ccd)
     d = np.hypot(ties.row - r, ties.col - c)
     assert len(ties) > 300 and windows == sum(rejected.values()) + len(ties)
     assert 0.002 < float(np.sqrt(np.mean(d**2))) < 0.05

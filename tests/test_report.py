@@ -62,7 +62,7 @@ def case(lab, truth):
     col = rng.uniform(0.5, lab.n_cols - 0.5, n)
     ccd = truth.ccd_index(col, band="B2")
     h = 400.0 + 300.0 * np.sin(row / 700.0) * np.cos(col / 500.0)
-    lon, lat, h = truth.image_to_ground(row, col, height=h, band="B2", ccd=ccd)
+    lon, lat, h = truth.image_to_ground(row, col, height=h, band="B2", array=ccd)
     row = row + rng.normal(0.0, 0.3, n)
     col = col + rng.normal(0.0, 0.3, n)
     names = np.array([c.name for c in lab.band_ccds("B2")])[ccd]
@@ -247,7 +247,7 @@ def test_rpc_bias_result_is_unwrapped(tmp_path):
 
     design = CameraDesign(n_ccds=1, detectors_per_ccd=600, band_names=("B1",), band_offsets_px=(0.0,))
     model = example_pushbroom_model(n_rows=600, design=design)
-    rpc, _ = fit_rpc(model.ccd_view(0), height_range_m=(0.0, 1000.0), grid_shape=(11, 11, 5))
+    rpc, _ = fit_rpc(model.detector_view(array=0), height_range_m=(0.0, 1000.0), grid_shape=(11, 11, 5))
     rng = np.random.default_rng(2)
     row, col = rng.uniform(1.0, 599.0, 300), rng.uniform(1.0, 599.0, 300)
     lon, lat, h = model.image_to_ground(row, col, height=200.0)

@@ -93,7 +93,7 @@ def test_point_features_land_where_the_true_model_says(tmp_path):
         with rasterio.open(out / f"{band}.tif") as ds:
             img = ds.read(1)
         for i, ccd in enumerate(truth.band_ccds(band)):
-            row, col = truth.ground_to_image(lon, lat, h, band=band, ccd=i)
+            row, col = truth.ground_to_image(lon, lat, h, band=band, array=i)
             inside = ((row > 8) & (row < truth.n_rows - 8) & (col > ccd.first_col + 8)
                       & (col < ccd.first_col + ccd.n_detectors - 8))
             for r, c in zip(row[inside], col[inside]):
@@ -216,8 +216,8 @@ def test_thermal_drift_of_the_installation_grows_with_time():
     ifov_arcsec = cfg.scene.gsd_m / cfg.scene.altitude_m * 206264.8
     rows = np.array([0.5, a.n_rows - 0.5])
     col = np.full(2, 96 + 48.5)  # middle of the second CCD (away from the overlaps)
-    lon, lat, h = a.image_to_ground(rows, col, height=500.0, band="B2", ccd=1)
-    r, c = b.ground_to_image(lon, lat, h, band="B2", ccd=1)
+    lon, lat, h = a.image_to_ground(rows, col, height=500.0, band="B2", array=1)
+    r, c = b.ground_to_image(lon, lat, h, band="B2", array=1)
     shift = np.hypot(r - rows, c - col)
     seconds = (a.n_rows - 1) * a.line_timing.line_period_s
     expected = 2.0 * seconds / ifov_arcsec  # pitch drift in pixels at the last line

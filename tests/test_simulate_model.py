@@ -37,9 +37,9 @@ def test_a_window_localizes_as_the_whole_model_at_shifted_pixels():
         for k, ccd in enumerate(win.band_ccds(band)):
             r = np.array([0.5, 50.2, 99.5])
             c = ccd.first_col + np.array([0.5, 0.5 * ccd.n_detectors, ccd.n_detectors - 0.5])
-            a = np.array(win.image_to_ground(r, c, height=500.0, band=band, ccd=k))
+            a = np.array(win.image_to_ground(r, c, height=500.0, band=band, array=k))
             full_ccd = [i for i, f in enumerate(model.band_ccds(band)) if f.name == ccd.name][0]
-            b = np.array(model.image_to_ground(r + row0, c + col0, height=500.0, band=band, ccd=full_ccd))
+            b = np.array(model.image_to_ground(r + row0, c + col0, height=500.0, band=band, array=full_ccd))
             assert np.abs(a[:2] - b[:2]).max() < 1e-10 and np.abs(a[2] - b[2]).max() < 1e-6
     with pytest.raises(InputError, match="does not lie inside"):
         window_model(model, 0, 0, n_rows + 1, 10)

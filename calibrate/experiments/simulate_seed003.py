@@ -86,7 +86,7 @@ def gcp_truth_error(truth, table) -> dict:
     """
     band = str(table.band[0]) or None
     ccd = table.ccd if all(str(c) for c in table.ccd) else None
-    r_t, c_t = truth.ground_to_image(table.lon, table.lat, table.h, band=band, ccd=ccd)
+    r_t, c_t = truth.ground_to_image(table.lon, table.lat, table.h, band=band, array=ccd)
     err = np.hypot(table.row - r_t, table.col - c_t)
     err = err[np.isfinite(err)]
     return {"n": int(err.size), "rms_px": float(np.sqrt(np.mean(err**2))), "median_px": float(np.median(err)),

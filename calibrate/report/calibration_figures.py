@@ -160,9 +160,9 @@ def image_difference_px(model, truth, band, height_m: float = 0.0) -> dict:
     if not rows:
         return {}
     row, col = np.concatenate(rows), np.concatenate(cols)
-    lon, lat, h = truth.image_to_ground(row, col, height=height_m, band=band, ccd=np.concatenate(t_idx))
+    lon, lat, h = truth.image_to_ground(row, col, height=height_m, band=band, array=np.concatenate(t_idx))
     owner, det = np.concatenate(m_idx), np.concatenate(det)
-    r_mod, c_mod = model.ground_to_image(lon, lat, h, band=band, ccd=owner)
+    r_mod, c_mod = model.ground_to_image(lon, lat, h, band=band, array=owner)
     d_row, d_col = r_mod - row, c_mod - col
     n_r = rows_eval.size
     out = {}

@@ -2,7 +2,7 @@
 
 A stitched multi-CCD raster maps the ground discontinuously where CCDs overlap, so an RPC (or any
 smooth approximation) describes one CCD at a time: :class:`CcdView` (made by
-:meth:`PushbroomModel.ccd_view <sensor_models.models.pushbroom.PushbroomModel.ccd_view>`) is
+:meth:`PushbroomModel.detector_view <sensor_models.models.pushbroom.PushbroomModel.detector_view>`) is
 that CCD with its columns counted from 0, delegating everything to the parent model
 (``PushbroomModel`` below is :class:`sensor_models.models.pushbroom.PushbroomModel`).
 """
@@ -40,7 +40,7 @@ class CcdView(SensorModel):
     def __init__(self, model, *, band: str, ccd):
         self.model = model
         self.band = band
-        self.index = int(model.ccd_index(np.zeros(1), band=band, ccd=ccd)[0])
+        self.index = int(model.ccd_index(np.zeros(1), band=band, array=ccd)[0])
         self.ccd = model.band_ccds(band)[self.index]
 
     @property
@@ -122,7 +122,7 @@ class CcdView(SensorModel):
         """
         ccd = self._parent_ccd(array)
         col = np.asarray(col, dtype=np.float64) + self.ccd.first_col
-        return self.model.image_to_ground(row, col, height=height, dem=dem, band=self.band, ccd=ccd)
+        return self.model.image_to_ground(row, col, height=height, dem=dem, band=self.band, array=ccd)
 
     def ground_to_image(self, lon, lat, h, *, band=None, array=None):
         """Inverse localization into view coordinates (:meth:`PushbroomModel.ground_to_image`).
@@ -142,7 +142,7 @@ class CcdView(SensorModel):
         -------
         row, col : ndarray, shape of the broadcast inputs
         """
-        row, col = self.model.ground_to_image(lon, lat, h, band=self.band, ccd=self._parent_ccd(array))
+        row, col = self.model.ground_to_image(lon, lat, h, band=self.band, array=self._parent_ccd(array))
         return row, col - self.ccd.first_col
 
     def parameters(self) -> ParameterVector:
@@ -188,6 +188,6 @@ class CcdView(SensorModel):
         jac : ndarray, shape (N, 2, P)
         """
         row, col, jac = self.model.image_jacobian(
-            lon, lat, h, band=self.band, names=names, ccd=self._parent_ccd(array)
+            lon, lat, h, band=self.band, names=names, array=self._parent_ccd(array)
         )
         return row, col - self.ccd.first_col, jac

@@ -27,7 +27,7 @@ class InverseLocalizationGrid:
     Parameters
     ----------
     model : PushbroomModel
-        Any model with ``ground_to_image(lon, lat, h, band=, ccd=)`` and ``band_ccds(band)``.
+        Any model with ``ground_to_image(lon, lat, h, band=, array=)`` and ``band_ccds(band)``.
     lon_range, lat_range : (float, float)
         Extent of the grid in degrees.
     height_range_m : (float, float)
@@ -58,7 +58,7 @@ class InverseLocalizationGrid:
         shape = hh.shape
         self.nodes = []  # per CCD: (row grid, col grid), shape (n_h, n_lat, n_lon)
         for i in range(len(self.ccds)):
-            r, c = model.ground_to_image(lo.ravel(), la.ravel(), hh.ravel(), band=band, ccd=i)
+            r, c = model.ground_to_image(lo.ravel(), la.ravel(), hh.ravel(), band=band, array=i)
             self.nodes.append((r.reshape(shape), c.reshape(shape)))
 
     @staticmethod
@@ -77,7 +77,7 @@ class InverseLocalizationGrid:
     def _index(self, values, axis):
         return (values - axis[0]) / (axis[1] - axis[0])
 
-    def ground_to_image(self, lon, lat, h, *, ccd=None):
+    def ground_to_image(self, lon, lat, h, *, array=None):
         """Interpolated ``(row, col)``; NaN outside the grid or where nodes were not imaged.
 
         Parameters
@@ -86,7 +86,7 @@ class InverseLocalizationGrid:
             WGS84 longitude and latitude, degrees (broadcast together with ``h``).
         h : array_like
             Ellipsoidal heights, metres.
-        ccd : int or array_like of int, optional
+        array : int or array_like of int, optional
             Forces the CCD (index into the band's CCDs), as in
             :meth:`PushbroomModel.ground_to_image`; default: the CCD whose columns contain the
             point, else the nearest.
@@ -105,7 +105,7 @@ class InverseLocalizationGrid:
         row = np.full(coords.shape[1], np.nan)
         col = np.full(coords.shape[1], np.nan)
         best = np.full(coords.shape[1], np.inf)
-        forced = None if ccd is None else np.broadcast_to(np.asarray(ccd), shape).reshape(-1)
+        forced = None if array is None else np.broadcast_to(np.asarray(array), shape).reshape(-1)
         for i, (look, (rg, cg)) in enumerate(zip(self.ccds, self.nodes)):
             sel = slice(None) if forced is None else forced == i
             c = np.full(coords.shape[1], np.nan)

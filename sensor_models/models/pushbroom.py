@@ -36,7 +36,7 @@ directional-angle coefficients: ``d(row, s)/dp = -J_{(row,s)}^{-1} \\partial F /
 
 The line table is :class:`~sensor_models.models.line_table.LineTable`; the inverse localization
 and the Jacobians are in :mod:`sensor_models.models.pushbroom_inverse`; one CCD seen as a model of
-its own image is :class:`~sensor_models.models.ccd_view.CcdView` (:meth:`PushbroomModel.ccd_view`).
+its own image is :class:`~sensor_models.models.ccd_view.CcdView` (:meth:`PushbroomModel.detector_view`).
 """
 
 from __future__ import annotations
@@ -69,15 +69,6 @@ __all__ = ["PushbroomModel"]
 MIN_ROW_MARGIN = 64
 #: at most this many knots in the line table (the knot spacing grows beyond)
 MAX_KNOTS = 400_000
-
-
-def _merge_array(ccd, array):
-    """The CCD forced by ``ccd=`` or by the protocol's ``array=`` (at most one of them)."""
-    if array is None:
-        return ccd
-    if ccd is not None:
-        raise InputError("give ccd= or array= (the same thing), not both", field="array")
-    return array
 
 
 class PushbroomModel(SensorModel):
@@ -115,7 +106,7 @@ class PushbroomModel(SensorModel):
     not imaged within it.
 
     In the :class:`~sensor_models.base.SensorModel` protocol the detector arrays are the CCDs
-    (:class:`CcdLook`), ``array=`` is the same as ``ccd=``, and the parameter groups are
+    (:class:`CcdLook`; every method names one with ``array=``), and the parameter groups are
     ``"exterior"`` (``installation.roll|pitch|yaw``) then one ``"interior.<band>.<ccd>"`` per
     CCD of each band (``<band>.<ccd>.tan_psi_x.c0`` ... ``<band>.<ccd>.tan_psi_y.c3``).
     """
@@ -299,10 +290,13 @@ class PushbroomModel(SensorModel):
         -------
         ndarray of intp, shape of ``col``
         """
-        return self.ccd_index(col, band=band, ccd=array)
+        return self.ccd_index(col, band=band, array=array)
 
     def detector_view(self, band=None, array=None) -> "CcdView":
-        """One CCD of one band as a model of its own image (:meth:`ccd_view`).
+        """One CCD of one band as a model of its own image (columns ``0 .. n_detectors``).
+
+        A stitched multi-CCD raster maps the ground discontinuously where CCDs overlap, so an
+        RPC (or any smooth approximation) describes one CCD at a time.
 
         Parameters
         ----------
@@ -324,7 +318,7 @@ class PushbroomModel(SensorModel):
             raise InputError(f"unknown band {band!r}; the model has {', '.join(self.bands)}", field="band")
         return band
 
-    def ccd_index(self, col, *, band=None, ccd=None) -> np.ndarray:
+    def ccd_index(self, col, *, band=None, array=None) -> np.ndarray:
         """Index (in ``band_ccds(band)``) of the CCD that images each column.
 
         A column inside a CCD's range belongs to it; a column outside every CCD belongs to the
@@ -336,7 +330,7 @@ class PushbroomModel(SensorModel):
             Continuous image columns.
         band : str, optional
             Default: :attr:`reference_band`.
-        ccd : str or int or array_like, optional
+        array : str or int or array_like, optional
             Forces the choice: a name, an index, or an array of names or indices.
 
         Returns
@@ -345,8 +339,8 @@ class PushbroomModel(SensorModel):
         """
         ccds = self.band_ccds(band)
         col = np.asarray(col, dtype=np.float64)
-        if ccd is not None:
-            return array_positions(ccds, ccd, col.shape, noun="CCD", field="ccd")
+        if array is not None:
+            return array_positions(ccds, array, col.shape, noun="CCD", field="array")
         firsts = np.array([c.first_col for c in ccds], dtype=np.float64)
         lasts = np.array([c.last_col for c in ccds], dtype=np.float64)
         dist = np.maximum(firsts[None, :] - col.reshape(-1, 1), col.reshape(-1, 1) - lasts[None, :])
@@ -423,7 +417,7 @@ class PushbroomModel(SensorModel):
                 f"[{lo:.3f}, {hi:.3f}]"
             )
 
-    def look_cam(self, col, *, band=None, ccd=None) -> np.ndarray:
+    def look_cam(self, col, *, band=None, array=None) -> np.ndarray:
         """Unit lines of sight in the camera frame for image columns.
 
         Parameters
@@ -432,7 +426,7 @@ class PushbroomModel(SensorModel):
             Continuous image columns.
         band : str, optional
             Default: :attr:`reference_band`.
-        ccd : str or int or array_like, optional
+        array : str or int or array_like, optional
             Forces the CCD (see :meth:`ccd_index`).
 
         Returns
@@ -442,7 +436,7 @@ class PushbroomModel(SensorModel):
         """
         ccds = self.band_ccds(band)
         col = np.asarray(col, dtype=np.float64).reshape(-1)
-        idx = self.ccd_index(col, band=band, ccd=ccd).reshape(-1)
+        idx = self.ccd_index(col, band=band, array=array).reshape(-1)
         los = np.empty((col.size, 3))
         los[:, 2] = 1.0
         for i, c in enumerate(ccds):
@@ -453,7 +447,7 @@ class PushbroomModel(SensorModel):
                 los[sel, 1] = ty
         return los / np.linalg.norm(los, axis=1, keepdims=True)
 
-    def rays_itrf(self, row, col, *, band=None, ccd=None):
+    def rays_itrf(self, row, col, *, band=None, array=None):
         """Lines of sight of image points in ITRF.
 
         Parameters
@@ -462,7 +456,7 @@ class PushbroomModel(SensorModel):
             Continuous image coordinates.
         band : str, optional
             Default: :attr:`reference_band`.
-        ccd : str or int or array_like, optional
+        array : str or int or array_like, optional
             Forces the CCD (see :meth:`ccd_index`).
 
         Returns
@@ -480,7 +474,7 @@ class PushbroomModel(SensorModel):
         row, col = as_float_arrays(row, col, names=("row", "col"))
         row, col = row.reshape(-1), col.reshape(-1)
         self._check_rows(row)
-        los_body = self.look_cam(col, band=band, ccd=ccd) @ self.installation.matrix().T
+        los_body = self.look_cam(col, band=band, array=array) @ self.installation.matrix().T
         origin = np.empty((row.size, 3))
         direction = np.empty((row.size, 3))
         for a in range(0, row.size, CHUNK):
@@ -490,7 +484,7 @@ class PushbroomModel(SensorModel):
             direction[a:b] = np.einsum("nij,nj->ni", r, los_body[a:b])
         return origin, direction
 
-    def image_to_ground(self, row, col, *, height=None, dem=None, band=None, ccd=None, array=None):
+    def image_to_ground(self, row, col, *, height=None, dem=None, band=None, array=None):
         """Direct localization (see :meth:`SensorModel.image_to_ground`).
 
         Parameters
@@ -503,8 +497,8 @@ class PushbroomModel(SensorModel):
             Terrain to intersect.
         band : str, optional
             Default: :attr:`reference_band`.
-        ccd, array : str or int or array_like, optional
-            Force the CCD (see :meth:`ccd_index`); ``array`` is the protocol's name for ``ccd``.
+        array : str or int or array_like, optional
+            Force the CCD (see :meth:`ccd_index`).
 
         Returns
         -------
@@ -512,11 +506,11 @@ class PushbroomModel(SensorModel):
         """
         from sensor_models.terrain.ellipsoid import intersect_ellipsoid
 
-        ccd = _merge_array(ccd, array)
+        ccd = array
         if (height is None) == (dem is None):
             raise InputError("give exactly one of height= and dem=")
         shape = np.broadcast(np.asarray(row), np.asarray(col)).shape
-        origin, direction = self.rays_itrf(row, col, band=band, ccd=ccd)
+        origin, direction = self.rays_itrf(row, col, band=band, array=ccd)
         if dem is not None:
             lon, lat, h, _ = dem.intersect(origin, direction)
         else:
@@ -527,11 +521,11 @@ class PushbroomModel(SensorModel):
         return lon.reshape(shape), lat.reshape(shape), h.reshape(shape)
 
     # ------------------------------------------------------------------ inverse
-    def ground_to_image(self, lon, lat, h, *, band=None, ccd=None, array=None):
+    def ground_to_image(self, lon, lat, h, *, band=None, array=None):
         """Inverse localization (see :meth:`SensorModel.ground_to_image`).
 
-        With ``ccd=None`` each point goes to the CCD whose detectors see it (the first one on an
-        overlap, the nearest one when none does); ``ccd`` (name or index) forces a CCD.
+        With ``array=None`` each point goes to the CCD whose detectors see it (the first one on an
+        overlap, the nearest one when none does); ``array`` (name or index) forces a CCD.
         Points not imaged within the rows the data cover get NaN.
 
         Parameters
@@ -542,15 +536,14 @@ class PushbroomModel(SensorModel):
             Height above the ellipsoid, metres.
         band : str, optional
             Default: :attr:`reference_band`.
-        ccd, array : str or int or array_like, optional
-            Force the CCD (a name or index, or one per point); ``array`` is the protocol's name
-            for ``ccd``.
+        array : str or int or array_like, optional
+            Force the CCD (a name or index, or one per point).
 
         Returns
         -------
         row, col : ndarray, shape of the broadcast inputs
         """
-        ccd = _merge_array(ccd, array)
+        ccd = array
         lon, lat, h = as_float_arrays(lon, lat, h, names=("lon", "lat", "h"))
         shape = lon.shape
         ground = geodetic_to_ecef(lon.reshape(-1), lat.reshape(-1), h.reshape(-1))
@@ -686,7 +679,7 @@ class PushbroomModel(SensorModel):
         new.attitude_correction = correction
         return new
 
-    def image_jacobian(self, lon, lat, h, *, band=None, names=None, ccd=None, array=None):
+    def image_jacobian(self, lon, lat, h, *, band=None, names=None, array=None):
         """Analytic ``d(row, col)/d(parameters)`` at the projections of ground points.
 
         Parameters
@@ -697,7 +690,7 @@ class PushbroomModel(SensorModel):
             Default: :attr:`reference_band`.
         names : sequence of str, optional
             Parameters (default: all, in :meth:`parameter_names` order).
-        ccd, array : str or int or array_like, optional
+        array : str or int or array_like, optional
             Force the CCD as in :meth:`ground_to_image`.
 
         Returns
@@ -707,11 +700,11 @@ class PushbroomModel(SensorModel):
             For the parameters ``names`` (default: all, in :meth:`parameter_names` order).
             Interior coefficients of other bands or CCDs have zero derivatives.
         """
-        ccd = _merge_array(ccd, array)
+        ccd = array
         band = self._band(band)
         return parameter_jacobian(self, lon, lat, h, band=band, names=names, ccd=ccd)
 
-    def attitude_angle_jacobian(self, lon, lat, h, *, band=None, ccd=None, array=None):
+    def attitude_angle_jacobian(self, lon, lat, h, *, band=None, array=None):
         """``d(row, col)/d(delta)`` of body-frame attitude angles at the projections of ground points.
 
         The derivative of a correction coefficient ``attitude.<axis>.k<j>`` is this column
@@ -724,7 +717,7 @@ class PushbroomModel(SensorModel):
             Ground points: degrees, degrees, metres above the ellipsoid.
         band : str, optional
             Default: :attr:`reference_band`.
-        ccd, array : str or int or array_like, optional
+        array : str or int or array_like, optional
             Force the CCD as in :meth:`ground_to_image`.
 
         Returns
@@ -737,28 +730,9 @@ class PushbroomModel(SensorModel):
         if self.attitude_correction is None:
             lo, hi = self.line_timing.seconds(np.array(self.row_range))
             model = self.with_attitude_correction(AttitudeCorrection("drift", min(lo, hi), max(lo, hi), 1))
-        ccd = _merge_array(ccd, array)
+        ccd = array
         band = model._band(band)
         return body_angle_jacobian(model, lon, lat, h, band=band, ccd=ccd)
-
-    def ccd_view(self, ccd, *, band=None) -> "CcdView":
-        """One CCD of one band as a model of its own image (columns ``0 .. n_detectors``).
-
-        A stitched multi-CCD raster maps the ground discontinuously where CCDs overlap, so an
-        RPC (or any smooth approximation) describes one CCD at a time.
-
-        Parameters
-        ----------
-        ccd : str or int
-            CCD name or index in :meth:`band_ccds`.
-        band : str, optional
-            Default: :attr:`reference_band`.
-
-        Returns
-        -------
-        CcdView
-        """
-        return CcdView(self, band=self._band(band), ccd=ccd)
 
     def __repr__(self):
         bands = ", ".join(f"{b}: {len(c)} CCD" for b, c in self.bands.items())

@@ -188,7 +188,7 @@ def ground_to_image_chunk(model, ground, band, ccd):
     row0 = np.full(n, 0.5 * model.n_rows)
     mid = -1
     if ccd is not None:
-        idx = model.ccd_index(np.zeros(n), band=band, ccd=ccd)
+        idx = model.ccd_index(np.zeros(n), band=band, array=ccd)
     else:
         # solve on the middle CCD, then move each point to the CCD that sees it
         mid = len(ccds) // 2

@@ -291,7 +291,7 @@ def synthetic_ties(draw: SceneDraw, truth: PushbroomModel, band: str, *, row_ste
     rows, cols = (a.ravel() for a in np.meshgrid(np.arange(16.0, truth.n_rows - 16, row_step),
                                                  np.arange(8.0, truth.n_cols - 8, col_step), indexing="ij"))
     ccd_ref = np.asarray(truth.ccd_index(cols, band=ref)).reshape(-1)
-    lon, lat, h = truth.image_to_ground(rows, cols, height=height_m, band=ref, ccd=ccd_ref)
+    lon, lat, h = truth.image_to_ground(rows, cols, height=height_m, band=ref, array=ccd_ref)
     qr, qc = truth.ground_to_image(lon, lat, h, band=band)
     qr = np.asarray(qr) + rng.normal(0.0, noise_px, rows.size)
     qc = np.asarray(qc) + rng.normal(0.0, noise_px, rows.size)

@@ -172,7 +172,7 @@ def ray_slope(model, grid, *, band: str, ccd: int, row: float, n_nodes: int = 9,
     to_map = pyproj.Transformer.from_crs("EPSG:4326", grid.crs, always_xy=True)
     uv = []
     for h in (h0_m, h0_m + 1000.0):
-        lon, lat, _ = model.image_to_ground(np.full_like(cols, row), cols, height=h, band=band, ccd=ccd)
+        lon, lat, _ = model.image_to_ground(np.full_like(cols, row), cols, height=h, band=band, array=ccd)
         x, y = to_map.transform(lon, lat)
         uv.append(((np.asarray(x) - grid.transform.c) / grid.transform.a, (np.asarray(y) - grid.transform.f) / grid.transform.e))
     du = (uv[1][0] - uv[0][0]) / 1000.0
