@@ -102,8 +102,10 @@ def _print_summary(out_dir, summary) -> None:
             text += f", {sel['edf']:.1f} effective parameters"
         if sel.get("lambda") is not None:
             text += f", smoothing {sel['lambda']:.3g} ({sel['criterion']})"
+        # a drift (or a static choice) has no oscillation: its "dominant sinusoid" is numerical noise
         peaks = [f"{a} {p['amplitude_urad']:.2g} urad at {p['frequency_hz']:.2g} Hz"
-                 for a, p in (att.get("jitter") or {}).items() if p]
+                 for a, p in (att.get("jitter") or {}).items()
+                 if p and sel["kind"] == "spline" and p.get("amplitude_urad", 0.0) >= 1e-3]
         click.echo(text + (f"; dominant: {', '.join(peaks)}" if peaks else ""))
     rows = summary.get("coverage") or []
     if not rows:

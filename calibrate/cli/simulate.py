@@ -64,7 +64,8 @@ def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid
     if "source" in summary:  # --model: manifest.json is the given model as delivered
         error = error.replace("LAB model", "delivered model (manifest.json)")
     click.echo(
-        f"{out_dir}: {img['n_rows']} x {img['n_cols']} px, {len(img['bands'])} bands, {img['ccds']} CCDs; "
+        f"{out_dir}: {img['n_rows']} x {img['n_cols']} px, {_count(len(img['bands']), 'band')}, "
+        f"{_count(img['ccds'], 'CCD')}; "
         f"{error}; rendered in {summary['render_seconds']:.1f} s"
     )
 
@@ -155,3 +156,8 @@ def _lab_error_text(summary) -> str:
     if err.get("rms") is None:
         return "LAB model error not measurable (it puts every compared point outside the image)"
     return f"LAB model off by {err['rms']:.1f} px RMS (max {err['max']:.1f})"
+
+
+def _count(n: int, noun: str) -> str:
+    """``"1 band"``, ``"4 bands"``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
