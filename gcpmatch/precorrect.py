@@ -65,7 +65,7 @@ def exterior_names(model) -> tuple[str, ...]:
 def _ground_residual(model, row, col, xyz, h, basis, band, ccd):
     kw = {"band": band}
     if ccd is not None:
-        kw["ccd"] = ccd
+        kw["array"] = ccd
     lon, lat, hh = model.image_to_ground(row, col, height=h, **kw)
     d = geodetic_to_ecef(lon, lat, hh) - xyz
     return np.stack([d @ basis[0], d @ basis[1]], axis=-1)  # (N, 2) east, north metres

@@ -179,7 +179,7 @@ class OrthoGeometry:
     def _solve(self, solver: _Solver, lon, lat, h):
         kw = band_kwargs(self.band)
         if solver.index is not None:
-            kw["ccd"] = solver.index
+            kw["array"] = solver.index
         return self.model.ground_to_image(lon, lat, h, **kw)
 
     # -- the block -----------------------------------------------------------------------
