@@ -315,7 +315,8 @@ def _ortho(model=lambda b, w: SCENE, dem=lambda b, w: DEM, extra=()):
 
 
 def _truth(model=lambda b, w: SCENE, truth=lambda b, w: TRUTH, extra=()):
-    return lambda b, w: ["truth", "error", model(b, w), "--truth", truth(b, w), "--height", "0", "--step", "64",
+    ground = [] if "--dem" in extra else ["--height", "0"]  # one height source: a plane, or the DEM given
+    return lambda b, w: ["truth", "error", model(b, w), "--truth", truth(b, w), *ground, "--step", "64",
                          "--out", w / "t.json", *extra]
 
 
