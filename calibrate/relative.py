@@ -98,6 +98,10 @@ class BandResult:
     coarse_offsets : list of dict
         First pass: per reference CCD, the model's mean band-to-band error measured by the
         coarse windows (``ccd, row_px, col_px``; see :func:`calibrate.tie_points.match_band`).
+    residuals_before_px : ndarray, shape (N, 2), or None
+        Per tie point, the residual (row, col, px) under the model given to the stage, when the
+        band's ``calibration`` is a later joint solve whose own start was already calibrated
+        (band parallax); None when ``calibration.residuals_before`` is that already.
     """
 
     band: str
@@ -111,6 +115,7 @@ class BandResult:
     after: dict = field(default_factory=dict)
     per_ccd: list = field(default_factory=list)
     coarse_offsets: list = field(default_factory=list)
+    residuals_before_px: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """JSON-safe summary (tie statistics, rejections and the solve without per-point data).
@@ -317,6 +322,8 @@ def _parallax(model, results, dem, gcps, options, say):
         new = _band_result(band, model, ties[band], r.windows, r.rejected, cal, r.coarse_offsets, None, True)
         # "before" stays what the input model gave (as without parallax); "after" is the final model's
         new.before = r.before
+        if r.calibration is not None and len(r.calibration.residuals_before) == len(ties[band]):
+            new.residuals_before_px = np.asarray(r.calibration.residuals_before)  # per tie, under the input model
         for row, old in zip(new.per_ccd, r.per_ccd):
             row["before"] = old["before"]
         results[band] = new

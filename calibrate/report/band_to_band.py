@@ -33,7 +33,11 @@ def _tie_residuals(band_result):
     if cal is None:
         return None
     col = np.asarray(band_result.ties.col, dtype=np.float64)
-    before, after = np.asarray(cal.residuals_before), np.asarray(cal.residuals_after)
+    # "before" is under the model given to the relative stage: the band's own first solve keeps it
+    # when a joint (band parallax) solve followed, whose own start is already calibrated
+    given = getattr(band_result, "residuals_before_px", None)
+    before = np.asarray(cal.residuals_before if given is None else given)
+    after = np.asarray(cal.residuals_after)
     inlier = np.asarray(cal.inlier, dtype=bool)
     if not (col.size == before.shape[0] == after.shape[0] == inlier.size) or col.size == 0:
         return None
