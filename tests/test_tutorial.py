@@ -109,38 +109,40 @@ COUNT_WORDS = re.compile(r"\s*(GCPs|check points|inliers|points|SIFT matches)\b"
 COUNT_RTOL = 0.02
 FIGURE_ATOL = 0.05
 FIGURE_RTOL = 0.001
-_NUMBER = re.compile(r"-?\d+(?:\.\d+)?")
+_NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
 
 
-def _close(doc: str, printed: str, *, count: bool, percent: bool) -> bool:
+def number_agrees(doc: str, printed: str, *, count: bool, percent: bool) -> bool:
     """Whether a printed number agrees with the document's to the tolerance of its kind."""
     a, b = float(doc), float(printed)
     if count:
         return abs(a - b) <= max(1.0, COUNT_RTOL * abs(a))
     if percent:
         return abs(a - b) <= 1.0
-    unit = 10.0 ** -len(doc.split(".")[1]) if "." in doc else 1.0
+    mantissa = doc.lower().split("e")[0]
+    unit = 10.0 ** -len(mantissa.split(".")[1]) if "." in mantissa else 1.0
     relative = FIGURE_RTOL * abs(a) if abs(a) < 1000.0 else 0.0
     return abs(a - b) <= FIGURE_ATOL + unit + relative + 1e-12
 
 
-def line_agrees(doc_line: str, printed_line: str) -> bool:
-    """``printed_line`` is ``doc_line``, up to the tolerances of GCP-derived lines (``GCP_LINE``)."""
+def line_agrees(doc_line: str, printed_line: str, *, fitted=GCP_LINE, counts=COUNT_WORDS) -> bool:
+    """``printed_line`` is ``doc_line``, up to the tolerances of lines whose figures come from a
+    matched GCP set or a fit on it (those ``fitted`` finds; ``counts`` names the count words)."""
     if doc_line == printed_line:
         return True
-    if not GCP_LINE.search(doc_line) or _NUMBER.sub("#", doc_line) != _NUMBER.sub("#", printed_line):
+    if not fitted.search(doc_line) or _NUMBER.sub("#", doc_line) != _NUMBER.sub("#", printed_line):
         return False
     for m_doc, m_out in zip(_NUMBER.finditer(doc_line), _NUMBER.finditer(printed_line)):
         rest = doc_line[m_doc.end():]
-        if not _close(m_doc.group(), m_out.group(), count=bool(COUNT_WORDS.match(rest)),
+        if not number_agrees(m_doc.group(), m_out.group(), count=bool(counts.match(rest)),
                       percent=rest.lstrip().startswith("%")):
             return False
     return True
 
 
-def figures_table(markdown: str) -> dict[str, str]:
-    """``figure -> value`` of the table under "Figures measured on this pair"."""
-    section = markdown.split("## Figures measured on this pair", 1)[1]
+def figures_table(markdown: str, heading: str = "## Figures measured on this pair") -> dict[str, str]:
+    """``figure -> value`` of the table under ``heading``."""
+    section = markdown.split(heading, 1)[1]
     rows = [line for line in section.splitlines() if line.startswith("|")][2:]  # header, rule
     return {cells[0]: cells[1] for cells in ([c.strip() for c in r.strip("|").split("|")] for r in rows)}
 
@@ -337,7 +339,7 @@ def test_figures_table_equals_the_outputs(tutorial):
             if "51 m lower" in name:  # geometry of the RPCs alone, no GCP involved: exact
                 assert part == printed, (name, part, value)
             else:  # counts and figures of the matched set (GCP_LINE's tolerances)
-                assert _close(part, printed, count="GCPs" in name, percent=False), (name, part, value)
+                assert number_agrees(part, printed, count="GCPs" in name, percent=False), (name, part, value)
 
 
 @pytest.mark.shared_data

@@ -35,6 +35,8 @@ import numpy as np
 import pytest
 
 from tests.test_tutorial import fenced_blocks, normalized, split_commands
+from tests.test_tutorial import number_agrees as figure_close
+from tests.test_tutorial import figures_table as tutorial_figures_table, line_agrees as tutorial_line_agrees
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "tutorial_pushbroom_product.md"
@@ -47,40 +49,17 @@ FIGURES_HEADING = "## Figures measured on this run"
 #: GCP_LINE), so their counts may differ by 2 % (at least 1), percentages by 1 point, other figures
 #: by 0.05 plus one unit of the last digit plus 0.1 %; every other line is printed exactly
 FITTED_LINE = re.compile(r"GCPs|inliers|points|rms|calibrated|SIFT|urad")
-_COUNT_WORDS = re.compile(r"\s*(GCPs|check points|inliers|points|windows|SIFT matches)\b")
-_NUMBER = re.compile(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
-
-
-def _close(doc: str, printed: str, *, count: bool, percent: bool) -> bool:
-    a, b = float(doc), float(printed)
-    if count:
-        return abs(a - b) <= max(1.0, 0.02 * abs(a))
-    if percent:
-        return abs(a - b) <= 1.0
-    mantissa = doc.split("e")[0]
-    unit = 10.0 ** -len(mantissa.split(".")[1]) if "." in mantissa else 1.0
-    return abs(a - b) <= 0.05 + unit + 0.001 * abs(a) + 1e-12
+COUNT_WORDS = re.compile(r"\s*(GCPs|check points|inliers|points|windows|SIFT matches)\b")
 
 
 def line_agrees(doc_line: str, printed_line: str) -> bool:
     """``printed_line`` is ``doc_line``, up to the tolerances of fitted figures (``FITTED_LINE``)."""
-    if doc_line == printed_line:
-        return True
-    if not FITTED_LINE.search(doc_line) or _NUMBER.sub("#", doc_line) != _NUMBER.sub("#", printed_line):
-        return False
-    for m_doc, m_out in zip(_NUMBER.finditer(doc_line), _NUMBER.finditer(printed_line)):
-        rest = doc_line[m_doc.end():]
-        if not _close(m_doc.group(), m_out.group(), count=bool(_COUNT_WORDS.match(rest)),
-                      percent=rest.lstrip().startswith("%")):
-            return False
-    return True
+    return tutorial_line_agrees(doc_line, printed_line, fitted=FITTED_LINE, counts=COUNT_WORDS)
 
 
 def figures_table(markdown: str) -> dict[str, str]:
     """``figure -> value`` of the table under "Figures measured on this run"."""
-    section = markdown.split(FIGURES_HEADING, 1)[1]
-    rows = [line for line in section.splitlines() if line.startswith("|")][2:]  # header, rule
-    return {cells[0]: cells[1] for cells in ([c.strip() for c in r.strip("|").split("|")] for r in rows)}
+    return tutorial_figures_table(markdown, FIGURES_HEADING)
 
 
 def run_document(markdown: str, data: Path, root: Path):
@@ -254,7 +233,7 @@ def test_figures_table_equals_the_outputs(tutorial):
             if name.startswith("product check"):  # the product's geometry alone: exact
                 assert part == printed, (name, part, value)
             else:
-                assert _close(part, printed, count="GCPs" in name, percent=False), (name, part, value)
+                assert figure_close(part, printed, count="GCPs" in name, percent=False), (name, part, value)
 
 
 @pytest.mark.shared_data
