@@ -252,6 +252,27 @@ def test_no_module_imports_another_modules_private_name():
     assert not _report(failures), "\n".join(_report(failures))
 
 
+#: the modules that may create temporary files and folders: the one transactional-output helper,
+#: the stage actions' staging (its journal and ledger sit on that helper's rules), and the
+#: scratch folder of GDAL VRT mosaics (not an output)
+STAGING_MODULES = ("sensor_models.files.atomic", "calibrate.actions._staging", "sensor_models.maps.mosaic")
+_TEMP_CALLS = ("mkdtemp", "mkstemp", "TemporaryDirectory", "NamedTemporaryFile")
+
+
+def test_every_writer_stages_through_the_one_helper():
+    """No module makes its own temporary file or folder to write outputs through: every writer
+    uses :mod:`sensor_models.files.atomic` (atomic_file, atomic_folder, atomic_write_text,
+    temporary_beside) so that outputs are whole or absent by one set of rules."""
+    failures = {}
+    for module, path in MODULES.items():
+        if module in STAGING_MODULES:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", None)) in _TEMP_CALLS:
+                failures[("temp", module, node.lineno)] = f"{module} (line {node.lineno}) makes its own temporary output"
+    assert not _report(failures), "\n".join(_report(failures))
+
+
 def test_production_never_imports_the_simulator():
     """Only sensor_models/simulate/ itself and ``*simulate*`` command modules may import it."""
     failures = {}

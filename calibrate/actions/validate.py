@@ -17,9 +17,6 @@ import html
 import io
 import json
 import math
-import os
-import shutil
-import tempfile
 from functools import partial
 from pathlib import Path
 
@@ -29,6 +26,7 @@ from calibrate._json import json_safe
 from calibrate.batch import COLUMNS
 from calibrate.actions._io import final_paths, staged_folder
 from calibrate.actions._provenance import with_provenance
+from sensor_models.files.atomic import atomic_folder
 from sensor_models.errors import InputError
 
 __all__ = ["check_scheduler_address", "merge_residual_layers", "run_validation", "validate_calibration",
@@ -258,8 +256,7 @@ def write_outputs(out_dir, rows, summary, *, title: str | None = None) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {"csv": "validation.csv", "json": "validation.json", "html": "validation.html",
              "plot": "validation_planar.png"}
-    tmp = Path(tempfile.mkdtemp(prefix=".validate-", dir=out_dir))
-    try:
+    with atomic_folder(out_dir, mode="merge", inside=True) as tmp:
         buf = io.StringIO()
         writer = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n")
         writer.writeheader()
@@ -270,10 +267,6 @@ def write_outputs(out_dir, rows, summary, *, title: str | None = None) -> dict:
         (tmp / files["json"]).write_text(json.dumps(with_provenance(doc), indent=1, allow_nan=False) + "\n", encoding="utf-8")
         _bar_plot(rows, summary, tmp / files["plot"])
         (tmp / files["html"]).write_text(_html_page(rows, summary, files, title), encoding="utf-8")
-        for name in files.values():
-            os.replace(tmp / name, out_dir / name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return files
 
 

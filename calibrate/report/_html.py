@@ -1,13 +1,12 @@
 """HTML and figure helpers shared by the calibration reports (:mod:`calibrate.report`,
 :mod:`calibrate.report.star_report`): page style, escaping, number formatting, tables, Agg figures
-embedded as PNG files, and the atomic move of a finished report into place.
+embedded as PNG files (a report is written through :func:`sensor_models.files.atomic.atomic_folder`).
 """
 
 from __future__ import annotations
 
 import html
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -27,33 +26,6 @@ figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}figcaption{f
 .meta{color:#666;font-size:.85em}details{margin:.6em 0}summary{cursor:pointer}pre{margin:0;white-space:pre-wrap}
 nav a{margin-right:1em}
 """
-
-
-def move_into_place(tmp: Path, out_dir: Path) -> None:
-    """Replace ``out_dir/figures`` then ``out_dir/report.html`` by the ones built in ``tmp``.
-
-    The old figures folder is moved into ``tmp`` (deleted with it); if installing the new one
-    fails, it is put back.
-
-    Parameters
-    ----------
-    tmp : Path
-        Folder holding the new ``report.html`` and ``figures/``.
-    out_dir : Path
-        Destination folder.
-    """
-    target = out_dir / "figures"
-    old = None
-    if target.exists():
-        old = tmp / "previous-figures"
-        os.replace(target, old)
-    try:
-        os.replace(tmp / "figures", target)
-    except BaseException:
-        if old is not None:
-            os.replace(old, target)
-        raise
-    os.replace(tmp / "report.html", out_dir / "report.html")
 
 
 def new_figure(width_in, height_in, *, left=0.8, right=0.25, bottom=0.6, top=0.45, wspace=0.8, hspace=0.75):

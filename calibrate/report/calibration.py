@@ -48,8 +48,6 @@ through ``pyplot``, so the caller's backend and global figure state are untouche
 from __future__ import annotations
 
 import math
-import shutil
-import tempfile
 from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
@@ -59,7 +57,7 @@ import numpy as np
 from calibrate.calibration_result import CalibrationResult, parameter_unit
 from calibrate.accuracy import AccuracyReport
 from calibrate.report._html import CSS as _CSS, escape as _e, figure_html as _figure_html, fmt as _fmt
-from calibrate.report._html import move_into_place as _move_into_place, section_provenance, table as _table, value_html
+from calibrate.report._html import section_provenance, table as _table, value_html
 from calibrate.report._inputs import ReportContext, check_result, point_columns, unwrap_result
 from calibrate.report.attitude import figure_attitude, figure_parallax, section_attitude, section_parallax
 from calibrate.report.band_to_band import figure_band_to_band, section_band_to_band
@@ -67,6 +65,7 @@ from calibrate.report.truth import figure_truth_error, section_truth
 from calibrate.report.calibration_figures import (figure_distortion, figure_error_vs_count, figure_histograms,
                                                   figure_vectors)
 from sensor_models.errors import InputError
+from sensor_models.files.atomic import atomic_folder, replace_tree
 
 __all__ = ["write_report"]
 
@@ -157,17 +156,14 @@ def write_report(
     _check_relative_truth(relative, truth_error)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".report-", dir=out_dir))
-    try:
+    with atomic_folder(out_dir, mode="merge", inside=True) as tmp:
         ctx = ReportContext(result, accuracy_before, accuracy_after, initial_model, g, c, truth_model)
         ctx.coverage, ctx.status = list(coverage or []), status
         ctx.relative, ctx.truth_error = relative, truth_error
         figures = _figures(ctx, error_vs_count, tmp / "figures")
         text = _html(ctx, figures, error_vs_count, str(title), extra, provenance)
         (tmp / "report.html").write_text(text, encoding="utf-8")
-        _move_into_place(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        replace_tree(tmp / "figures", out_dir / "figures")  # no figure of an earlier report survives
     return out_dir / "report.html"
 
 

@@ -42,8 +42,6 @@ stars (eq. 2, 18-19; tables 3-4; figures 7-8).
 from __future__ import annotations
 
 import math
-import shutil
-import tempfile
 from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
@@ -51,8 +49,9 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.report._html import CSS as _CSS, escape as _e, figure_html as _figure_html, fmt as _fmt
-from calibrate.report._html import move_into_place as _move_into_place, new_figure as _new_figure, save_figure as _save, table as _table
+from calibrate.report._html import new_figure as _new_figure, save_figure as _save, table as _table
 from sensor_models.errors import InputError
+from sensor_models.files.atomic import atomic_folder, replace_tree
 
 __all__ = ["SEED_000", "held_out_errors", "star_census", "write_star_report"]
 
@@ -158,8 +157,7 @@ def write_star_report(out_dir, result_doc: Mapping, *, result=None,
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".star-report-", dir=out_dir))
-    try:
+    with atomic_folder(out_dir, mode="merge", inside=True) as tmp:
         fig_dir = tmp / "figures"
         fig_dir.mkdir()
         figures = {
@@ -169,9 +167,7 @@ def write_star_report(out_dir, result_doc: Mapping, *, result=None,
             "versus": _figure_versus(doc.get("versus_points") or [], fig_dir),
         }
         (tmp / "report.html").write_text(_html(doc, points, figures, str(title)), encoding="utf-8")
-        _move_into_place(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        replace_tree(tmp / "figures", out_dir / "figures")  # no figure of an earlier report survives
     return out_dir / "report.html"
 
 

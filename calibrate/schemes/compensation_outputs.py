@@ -150,18 +150,14 @@ def write_study(study: CompensationStudy, out_dir, *, figures: bool = True) -> d
         The ``table.json`` document.
     """
     import json
-    import os
-    import shutil
-    import tempfile
     from pathlib import Path
+
+    from sensor_models.files.atomic import atomic_folder
 
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError("exists and is not a folder", path=str(out_dir))
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    old = None
-    try:
+    with atomic_folder(out_dir, mode="replace") as tmp:  # the study's folder is replaced whole
         t0 = time.perf_counter()
         doc = study.to_dict()
         names = {}
@@ -176,17 +172,4 @@ def write_study(study: CompensationStudy, out_dir, *, figures: bool = True) -> d
         (tmp / "table.json").write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")
         (tmp / "table.csv").write_text(_csv_rows(study.rows), encoding="utf-8")
         (tmp / "summary.md").write_text(summary_markdown(study), encoding="utf-8")
-        os.chmod(tmp, 0o755)
-        if out_dir.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.old.", dir=out_dir.parent))
-            os.replace(out_dir, old / "previous")
-        os.replace(tmp, out_dir)
-    except BaseException:
-        if old is not None and (old / "previous").exists() and not out_dir.exists():
-            os.replace(old / "previous", out_dir)
-        raise
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
     return doc

@@ -17,15 +17,13 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from sensor_models.files.atomic import move_tree_into
+from sensor_models.files.atomic import atomic_folder
 from sensor_models.errors import InputError
 
 __all__ = ["GeoSimConfig", "load_geo_config", "simulate_geo_earth"]
@@ -192,8 +190,8 @@ def simulate_geo_earth(out_dir, *, config: GeoSimConfig | None = None, dom=None,
     truth, lab = _models(cfg)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
-    try:
+    with atomic_folder(out_dir, mode="merge", inside=True) as tmp:
+        tmp = tmp.resolve()
         dom_img, dem_obj, reference = _geo_reference(cfg, truth, tmp, dom, dem, geoid)
         dem_figures = reference.pop("dem_figures")
         t_render = time.perf_counter()
@@ -208,9 +206,6 @@ def simulate_geo_earth(out_dir, *, config: GeoSimConfig | None = None, dom=None,
             summary.update(render_seconds=render_s, seconds=time.perf_counter() - t0)
         (tmp / "truth.json").write_text(json.dumps(truth_doc, indent=1) + "\n", encoding="utf-8")
         (tmp / "summary.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
-        move_tree_into(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return summary
 
 

@@ -29,8 +29,6 @@ number of workers.
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -39,7 +37,7 @@ import numpy as np
 import pyproj
 import rasterio
 
-from sensor_models.files.atomic import move_tree_into
+from sensor_models.files.atomic import atomic_folder
 from sensor_models.errors import InputError
 from sensor_models.imaging.locate import dem_planes, locate_block
 from sensor_models.maps.grid import MapGrid
@@ -214,16 +212,13 @@ def simulate_pushbroom(
         raise InputError("give both --dom and --dem, or neither (procedural reference)")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
-    try:
+    with atomic_folder(out_dir, mode="merge", inside=True) as tmp:
+        tmp = tmp.resolve()
         # a decimated read of a large DOM (its scale) goes through GDAL's block cache (5 % of the
         # RAM by default): capped, the pixels are the same and the memory stays bounded
         with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
             summary = _simulate(cfg, out_dir, tmp, dom, dem, geoid, workers, block_lines, progress, t_start,
                                 record_timings)
-        move_tree_into(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return summary
 
 
@@ -233,14 +228,11 @@ def _simulate_with_profile(out_dir, cfg, profile, dom, dem, geoid, workers, bloc
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
-    try:
+    with atomic_folder(out_dir, mode="merge", inside=True) as tmp:
+        tmp = tmp.resolve()
         summary = simulate_realistic(tmp, cfg, profile, dom_path=dom, dem_path=dem, geoid=geoid, workers=workers,
                                      block_lines=block_lines, progress=progress, t_start=t_start,
                                      record_timings=record_timings)
-        move_tree_into(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return summary
 
 
@@ -421,8 +413,8 @@ def simulate_through_model(out_dir, model, *, dom, dem, config: SimConfig | None
                              truth={"injected": injected, "source": source or {}})
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".simulate-", dir=out_dir)).resolve()
-    try:
+    with atomic_folder(out_dir, mode="merge", inside=True) as tmp:
+        tmp = tmp.resolve()
         with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
             clock = PhaseClock(t_start)
             setup_done, block_progress = step_progress(progress, model.n_rows, block_lines)
@@ -441,7 +433,4 @@ def simulate_through_model(out_dir, model, *, dom, dem, config: SimConfig | None
             summary = write_outputs(cfg, models, tmp, initial, reference_files, dem_figures,
                                     (cloud_pixels, has_mask), render_seconds, workers, t_start, record_timings,
                                     extra_summary={"source": source or {}, "injected": injected}, phases=clock)
-        move_tree_into(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return summary

@@ -61,9 +61,6 @@ Everything is written into a temporary folder beside ``out_dir`` and moved in wi
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
 import time
 import warnings
 from dataclasses import asdict, dataclass, field
@@ -72,7 +69,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sensor_models.files.atomic import move_tree_into
+from sensor_models.files.atomic import atomic_folder
 from sensor_models.errors import InputError
 from sensor_models.geometry.ephemeris import Attitude
 from sensor_models.models.geo_staring import GeoStaringModel
@@ -354,9 +351,8 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
     shape = truth.image_shape
 
     out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}-", dir=out_dir.parent)).resolve()
-    try:
+    with atomic_folder(out_dir, mode="merge") as tmp:
+        tmp = tmp.resolve()
         frames, rendered, n_per_frame = _render_frames(tmp, cfg, truth, catalog, unit_icrs, mags, rng, errors)
         write_geo_manifest(lab, tmp / "manifest.json")
         write_geo_manifest(truth, tmp / "truth_manifest.json")
@@ -380,12 +376,6 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
             summary["profile"] = profile.name
         for name, doc in (("frames.json", frames_doc), ("truth.json", truth_doc), ("summary.json", summary)):
             (tmp / name).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-        if not out_dir.exists():
-            os.replace(tmp, out_dir)
-        else:
-            move_tree_into(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return summary
 
 
