@@ -296,7 +296,6 @@ def _with_image(model, rasters: dict, image, band, *, check_shape: bool, source:
             full_shape = tuple(model.image_shape)
             model, (row0, col0) = crop_to_raster(model, ref["path"], shape)
             crop = (row0, col0, full_shape)
-    model.rasters = rasters
     return Scene(model=model, rasters=rasters, source=Path(source), raster_candidates=raster_candidates,
                  raster_tiles=raster_tiles, crop=crop, product_check=product_check)
 
