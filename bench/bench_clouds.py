@@ -45,12 +45,12 @@ def _ccd_pairs(folder: Path):
     from gcpmatch.extract import read_band
     from gcpmatch.reference import reference_for_ccd
     from sensor_models.maps.raster import MapImage
-    from sensor_models.readers import open_model
+    from sensor_models.readers import open_model, open_scene
     from sensor_models.terrain.dem import Dem
 
     model = open_model(folder / "truth_manifest.json")
     dem, dom = Dem.open(folder / "reference" / "dem.tif"), MapImage.open(folder / "reference" / "dom.tif")
-    img = read_band(open_model(folder / "manifest.json"), "B2")
+    img = read_band(open_scene(folder / "manifest.json"), "B2")
     pairs = []
     for c, look in enumerate(model.detector_arrays("B2")):
         ref = reference_for_ccd(model, dem, dom, band="B2", ccd=c)

@@ -54,8 +54,8 @@ def run(fixture: str, work: Path) -> list[dict]:
     from sensor_models.readers import open_scene
 
     fx = ROOT / "fixtures" / fixture
-    truth = open_scene(fx / "truth_manifest.json")
-    gsd = scene_gsd_m(open_scene(fx / "manifest.json"))
+    truth = open_scene(fx / "truth_manifest.json").model
+    gsd = scene_gsd_m(open_scene(fx / "manifest.json").model)
     rows = []
     for f in FACTORS[fixture]:
         dom = work / f"{fixture}_dom_{f}.tif"

@@ -42,7 +42,7 @@ def main():
 
     from gcpmatch.extract import extract_gcps, read_band
     from gcpmatch.options import MatchOptions
-    from sensor_models.readers import open_model
+    from sensor_models.readers import open_model, open_scene
     from sensor_models.simulate.config import SimConfig
     from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
     from sensor_models.maps.raster import MapImage
@@ -62,7 +62,7 @@ def main():
     dem = Dem.open(scene / "reference" / "dem.tif")
     dom = MapImage.open(scene / "reference" / "dom.tif")
     t0 = time.perf_counter()
-    img = read_band(lab, "B2")
+    img = read_band(open_scene(scene / "manifest.json"), "B2")
     table, summary = extract_gcps(lab, img, dem, dom, band="B2",
                                   options=MatchOptions(spacing_px=args.spacing, backend=args.backend))
     seconds = time.perf_counter() - t0

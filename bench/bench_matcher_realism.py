@@ -128,10 +128,11 @@ def prepare_windows(scene: Path, options) -> dict:
     from sensor_models.readers import open_model, open_scene
     from sensor_models.terrain.dem import Dem
 
-    model = open_scene(scene / "manifest.json")
+    opened = open_scene(scene / "manifest.json")
+    model = opened.model
     truth = open_model(scene / "truth_manifest.json")
     band = model.reference_band
-    img_all = read_band(model, band)
+    img_all = read_band(opened, band)
     dem = Dem.open(scene / "reference" / "dem.tif")
     dom = MapImage.open(scene / "reference" / "dom.tif")
     model_pc = coarse_stage(img_all, model, dem, dom, band, options).model

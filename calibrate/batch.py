@@ -338,7 +338,8 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     from sensor_models.readers import open_model, open_scene
     from sensor_models.terrain.dem import Dem
 
-    lab = open_scene(site.scene)
+    scene = open_scene(site.scene)
+    lab = scene.model
     out["date"] = str(np.datetime_as_string(np.datetime64(lab.epoch, "s")))[:10] if hasattr(lab, "epoch") else None
     calibrated = open_model(calibration)
     model = _calibrated_scene_model(lab, calibrated)
@@ -348,7 +349,7 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     for what, p in (("DOM", site.dom), ("DEM", site.dem)):
         if not (Path(p).exists() or set("*?[") & set(str(p))):  # a file, a folder of tiles or a glob
             raise InputError(f"no such {what} file", path=str(p))
-    image = read_band(model, band)
+    image = read_band(scene, band)
     dem = Dem.open(site.dem, vertical_datum=site.dem_datum, geoid=site.geoid)
     check_dem_heights(dem, model, band=band)
     dom, _ = open_dom(DomSource(items=(str(site.dom),), band=site.dom_band,

@@ -220,7 +220,7 @@ def _raster_header(path, index: int) -> tuple[tuple[int, int] | None, list[str]]
     return shape, [label for label in labels if label]
 
 
-def check_scene_raster(model, band, image, *, allow: bool | None = None) -> list[str]:
+def check_scene_raster(scene, band, image, *, allow: bool | None = None) -> list[str]:
     """Refuse a raster given for ``band`` that is, or says it is, the raster of another band.
 
     Cheap checks on names and headers only: the file is the manifest's raster of another band;
@@ -231,8 +231,9 @@ def check_scene_raster(model, band, image, *, allow: bool | None = None) -> list
 
     Parameters
     ----------
-    model : SensorModel
-        The scene's model (``bands``, ``rasters``: band -> ``{"path", "index"}``).
+    scene : Scene
+        The scene opened (:func:`sensor_models.readers.open_scene`): its model's ``bands`` and
+        its ``rasters`` (band -> ``{"path", "index"}``).
     band : str
         The band the raster is for.
     image : str or Path or None
@@ -247,6 +248,7 @@ def check_scene_raster(model, band, image, *, allow: bool | None = None) -> list
     """
     from sensor_models.errors import InputError
 
+    model = scene.model
     if image is not None:
         shape = _raster_header(image, 1)[0]
         if shape is not None and tuple(shape) != tuple(model.image_shape):
@@ -255,7 +257,7 @@ def check_scene_raster(model, band, image, *, allow: bool | None = None) -> list
     bands = [str(b) for b in (getattr(model, "bands", None) or ())]
     if band is None or len(bands) < 2:
         return []
-    rasters = getattr(model, "rasters", None) or {}
+    rasters = scene.rasters
     if image is None:
         ref = rasters.get(band)
         if ref is None:

@@ -575,13 +575,14 @@ def _coverage(row, col, shape, cells: int = 8) -> float:
     return float(np.unique(i * cells + j).size / cells**2)
 
 
-def read_band(model, band: str, image=None) -> np.ndarray:
+def read_band(scene, band: str, image=None) -> np.ndarray:
     """The pixels of ``band`` (float32): ``image`` if given, else the manifest's raster.
 
     Parameters
     ----------
-    model : SensorModel
-        Model opened from a manifest; its ``rasters`` map band -> ``{"path", "index"}``.
+    scene : Scene
+        The scene opened (:func:`sensor_models.readers.open_scene`); its ``rasters`` map band ->
+        ``{"path", "index"}``.
     band : str
         Band to read.
     image : str or Path, optional
@@ -602,11 +603,11 @@ def read_band(model, band: str, image=None) -> np.ndarray:
     import warnings
 
     if image is None:
-        rasters = getattr(model, "rasters", None) or {}
+        rasters = scene.rasters
         if band not in rasters:
             from sensor_models.readers.scene_input import missing_raster_message
 
-            raise InputError(missing_raster_message(model, band))
+            raise InputError(missing_raster_message(scene, band))
         path, index = rasters[band]["path"], int(rasters[band].get("index", 1))
     else:
         path, index = str(image), 1

@@ -41,9 +41,10 @@ def demo_inputs():
     from sensor_models.readers import open_scene
     from sensor_models.terrain.dem import Dem
 
-    model = open_scene(FIXTURE / "manifest.json")
+    scene = open_scene(FIXTURE / "manifest.json")
+    model = scene.model
     band = model.reference_band
-    return (read_band(model, band), model, Dem.open(FIXTURE / "reference" / "dem.tif"),
+    return (read_band(scene, band), model, Dem.open(FIXTURE / "reference" / "dem.tif"),
             MapImage.open(FIXTURE / "reference" / "dom.tif"), band)
 
 

@@ -68,7 +68,6 @@ def test_example_reads_like_the_built_model(example, built):
     assert example.image_shape == built.image_shape
     assert example.reference_band == built.reference_band
     assert example.name == "example_pushbroom"
-    assert example.manifest_path == str(EXAMPLE)
     for height in (0.0, 2500.0):
         a = example.image_to_ground(ROWS, COLS, height=height)
         b = built.image_to_ground(ROWS, COLS, height=height)

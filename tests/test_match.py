@@ -14,7 +14,7 @@ from gcpmatch.gcp_files import read_gcps
 from gcpmatch.options import MatchOptions
 from calibrate.cli import main
 from sensor_models.errors import GcpcalError, InputError
-from sensor_models.readers import open_model
+from sensor_models.readers import open_model, open_scene
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.pushbroom_sim import simulate_pushbroom
 from sensor_models.maps.raster import MapImage
@@ -33,7 +33,7 @@ def _config(**errors) -> SimConfig:
 def _open(d):
     lab = open_model(d / "manifest.json")
     return (lab, open_model(d / "truth_manifest.json"), Dem.open(d / "reference" / "dem.tif"),
-            MapImage.open(d / "reference" / "dom.tif"), read_band(lab, "B2"))
+            MapImage.open(d / "reference" / "dom.tif"), read_band(open_scene(d / "manifest.json"), "B2"))
 
 
 def _errors_vs_truth(table, truth):

@@ -83,11 +83,12 @@ def _match(scene, options):
     from sensor_models.readers import open_scene
     from sensor_models.terrain.dem import Dem
 
-    model = open_scene(scene / "manifest.json")
+    opened = open_scene(scene / "manifest.json")
+    model = opened.model
     band = model.reference_band
     dem = Dem.open(scene / "reference" / "dem.tif")
     dom = MapImage.open(scene / "reference" / "dom.tif")
-    return extract_gcps(model, read_band(model, band), dem, dom, band=band, options=options)
+    return extract_gcps(model, read_band(opened, band), dem, dom, band=band, options=options)
 
 
 def _z_rms(scene, table):

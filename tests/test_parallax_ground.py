@@ -38,7 +38,7 @@ def _ties(model, n_per_ccd=30):
 
 
 def test_ties_off_the_dem_are_dropped_the_others_kept():
-    model = open_scene(FIXTURE / "manifest.json")
+    model = open_scene(FIXTURE / "manifest.json").model
     with rasterio.open(FIXTURE / "reference" / "dem.tif") as src:
         heights = src.read(1).astype(float)
         transform, crs = src.transform, src.crs

@@ -68,21 +68,22 @@ def _coarse(src: Path, dst: Path, factor: int) -> Path:
 
 @pytest.mark.parametrize("fixture", FIXTURES, ids=lambda p: p.name)
 def test_demo_fixtures_are_plausible(fixture):
-    model = open_scene(fixture / "manifest.json")
+    scene = open_scene(fixture / "manifest.json")
+    model = scene.model
     dem = Dem.open(fixture / "reference" / "dem.tif")
     dom = MapImage.open(fixture / "reference" / "dom.tif")
     assert check_dem_heights(dem, model) == []
     assert check_dom_resolution(dom, model) == []
     for band in model.bands:
-        assert check_scene_raster(model, band, None) == []
-        assert check_scene_raster(model, band, model.rasters[band]["path"]) == []  # its own raster as --image
+        assert check_scene_raster(scene, band, None) == []
+        assert check_scene_raster(scene, band, scene.rasters[band]["path"]) == []  # its own raster as --image
     lon, lat, h = _grid_gcps(model, dem)
     assert check_gcps_on_scene(model, lon, lat, h, source="grid.csv") == []
 
 
 def test_dem_heights_bracketed(tmp_path):
     fixture = FIXTURES[0]
-    model = open_scene(fixture / "manifest.json")
+    model = open_scene(fixture / "manifest.json").model
     # the file spans 0..1500 m, the footprint 0..1250 m: x6 reaches 7500 m there, x8 10 000 m
     inside = _scaled_dem(fixture / "reference" / "dem.tif", tmp_path / "x6.tif", 6.0)
     assert check_dem_heights(Dem.open(inside), model) == []
@@ -95,7 +96,7 @@ def test_dem_heights_bracketed(tmp_path):
 
 def test_dom_resolution_bracketed(tmp_path):
     fixture = FIXTURES[0]
-    model = open_scene(fixture / "manifest.json")
+    model = open_scene(fixture / "manifest.json").model
     gsd = scene_gsd_m(model)
     native = MapImage.open(fixture / "reference" / "dom.tif").grid.resolution_m
     ok_factor = int(MAX_DOM_GSD_RATIO * gsd // native)  # just under the limit
@@ -110,7 +111,7 @@ def test_dom_resolution_bracketed(tmp_path):
 
 def test_gcps_of_another_scene_bracketed():
     fixture = FIXTURES[0]
-    model = open_scene(fixture / "manifest.json")
+    model = open_scene(fixture / "manifest.json").model
     lon, lat, h = _grid_gcps(model, Dem.open(fixture / "reference" / "dem.tif"))
     per_km = 1.0 / (111.32 * np.cos(np.radians(np.mean(lat))))
     assert check_gcps_on_scene(model, lon + 8.0 * per_km, lat, h, source="g.csv") == []  # a model 8 km off
@@ -122,22 +123,22 @@ def test_gcps_of_another_scene_bracketed():
 
 def test_raster_named_for_another_band_is_refused(tmp_path):
     fixture = FIXTURES[0]
-    model = open_scene(fixture / "manifest.json", image=fixture / "B4.tif", band="B2")
+    scene = open_scene(fixture / "manifest.json", image=fixture / "B4.tif", band="B2")
     with pytest.raises(ImplausibleInputError, match=r"manifest lists this file as band B4's raster"):
-        check_scene_raster(model, "B2", fixture / "B4.tif")
+        check_scene_raster(scene, "B2", fixture / "B4.tif")
     renamed = tmp_path / "scene_B4.tif"
     renamed.write_bytes((fixture / "B4.tif").read_bytes())
     with pytest.raises(ImplausibleInputError, match=r"its name says band B4"):
-        check_scene_raster(model, "B2", renamed)
+        check_scene_raster(scene, "B2", renamed)
     described = tmp_path / "pan.tif"
     described.write_bytes((fixture / "B4.tif").read_bytes())
     with rasterio.open(described, "r+") as ds:
         ds.set_band_description(1, "B4")
     with pytest.raises(ImplausibleInputError, match=r"its band 1 says 'B4'"):
-        check_scene_raster(model, "B2", described)
+        check_scene_raster(scene, "B2", described)
     with rasterio.open(described, "r+") as ds:
         ds.set_band_description(1, "B2")
-    assert check_scene_raster(model, "B2", described) == []
+    assert check_scene_raster(scene, "B2", described) == []
 
 
 @needs_data
@@ -147,7 +148,7 @@ def test_pleiades_tutorial_inputs_are_plausible_and_landsat_is_not(tmp_path, cap
             str(DATA / "dem" / "egm96_15.gtx")]
     ref = tmp_path / "left_ortho.tif"
     assert main(["-q", "ortho", str(pair / "left_image.tif"), *srtm, "--resolution", "0.5", "--out", str(ref)]) == 0
-    right = open_scene(pair / "right_image.tif")
+    right = open_scene(pair / "right_image.tif").model
     dem = Dem.open(DATA / "dem" / "N44E005.hgt", vertical_datum="egm96", geoid=DATA / "dem" / "egm96_15.gtx")
     assert check_dem_heights(dem, right) == []
     assert check_dom_resolution(MapImage.open(ref), right) == []

@@ -47,7 +47,9 @@ def test_read_manifest_dispatches_geo_staring(tmp_path):
         got = read(path)
         assert isinstance(got, GeoStaringModel)
         np.testing.assert_array_equal(got.parameters().values, read_geo_manifest(path).parameters().values)
-        assert got.manifest_path == str(path)
+    from sensor_models.readers import open_scene
+
+    assert open_scene(path).source == path
 
 
 def test_read_manifest_reads_pushbroom():
@@ -59,3 +61,77 @@ def test_read_manifest_reads_pushbroom():
 def test_pushbroom_builder_rejects_geo_document(tmp_path):
     with pytest.raises(ManifestError, match="sensor"):
         pushbroom_model_from_document({"format_version": 1, "sensor": "geo_staring"}, tmp_path / "x.json")
+
+
+# ----------------------------------------------------------------- the Scene value of open_scene
+
+
+def test_open_scene_of_a_manifest_is_a_scene_with_its_rasters():
+    from sensor_models.readers import open_scene
+    from sensor_models.readers.scene_value import Scene
+
+    scene = open_scene(EXAMPLE)
+    assert isinstance(scene, Scene) and isinstance(scene.model, PushbroomModel)
+    assert scene.source == EXAMPLE and scene.crop is None and scene.product_check is None
+    assert scene.raster_candidates == () and scene.raster_tiles == 0
+    for band, ref in scene.rasters.items():
+        assert scene.raster_of(band) == (ref["path"], int(ref.get("index", 1)))
+    assert scene.raster_of("no such band") is None
+    with pytest.raises(AttributeError):
+        scene.model = None  # frozen
+
+
+def test_open_scene_of_an_rpc_crop_says_where_the_crop_lies(shared_data):
+    import rasterio
+
+    from sensor_models.readers import open_scene
+
+    raster = shared_data / "pleiades_ventoux" / "right_image.tif"
+    scene = open_scene(raster)
+    full = open_model(shared_data / "pleiades_ventoux" / "right_image.geom")
+    with rasterio.open(raster) as ds:
+        shape, transform = (ds.height, ds.width), ds.transform
+    assert scene.source == raster and scene.product_check is None
+    assert tuple(scene.model.image_shape) == shape != tuple(full.image_shape)
+    assert scene.crop == (float(transform.f), float(transform.c), tuple(full.image_shape))
+    assert scene.raster_of() == (str(raster.resolve()), 1)
+
+
+def test_open_scene_of_a_dimap_product_carries_its_self_check(shared_data, tmp_path):
+    from sensor_models.readers import open_scene
+
+    dim = tmp_path / "METADATA.DIM"
+    dim.symlink_to(shared_data / "spot_dimap" / "SPOT1.DIM")
+    scene = open_scene(dim)
+    assert scene.source == dim and scene.crop is None and scene.rasters == {}
+    assert scene.raster_candidates == (str(tmp_path / "IMAGERY.TIF"),)
+    assert scene.product_check is not None and scene.product_check.passed
+    assert scene.raster_of() is None
+
+
+#: Provenance attributes once hung on models after construction; a Scene carries them now.
+PROVENANCE = {"rasters", "raster_candidates", "raster_tiles", "crop_of_full_scene", "manifest_path", "product_check"}
+#: Where a model still gets one: the manifest readers (their model's own rasters, which
+#: ``open_model`` of a manifest hands out) and the vendor readers' self-check.
+STILL_HUNG = {
+    ("sensor_models/readers/manifest.py", "rasters"), ("sensor_models/readers/geo_manifest.py", "rasters"),
+    ("sensor_models/readers/model_file.py", "product_check"), ("sensor_models/readers/dimap.py", "product_check"),
+    ("sensor_models/readers/dimap_v2.py", "product_check"), ("sensor_models/readers/worldview.py", "product_check"),
+}
+
+
+def test_no_new_code_hangs_provenance_on_a_model():
+    """``X.rasters = ...`` and the like appear only where :data:`STILL_HUNG` says (never in open_scene)."""
+    root = READERS.parents[1]
+    found = set()
+    for package in ("sensor_models", "gcpmatch", "calibrate"):
+        for path in sorted((root / package).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                targets = node.targets if isinstance(node, ast.Assign) else \
+                    [node.target] if isinstance(node, (ast.AnnAssign, ast.AugAssign)) else []
+                for target in targets:
+                    for t in (target.elts if isinstance(target, ast.Tuple) else [target]):
+                        if isinstance(t, ast.Attribute) and t.attr in PROVENANCE:
+                            found.add((path.relative_to(root).as_posix(), t.attr))
+    assert found <= STILL_HUNG, sorted(found - STILL_HUNG)
+    assert not any(p.endswith("scene_input.py") for p, _ in found)

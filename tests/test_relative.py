@@ -24,7 +24,7 @@ from calibrate.relative import relative_calibration
 from calibrate.tie_points import match_band
 from gcpmatch.extract import read_band
 from sensor_models.errors import InputError
-from sensor_models.readers import open_model
+from sensor_models.readers import open_model, open_scene
 from sensor_models.readers.manifest import write_manifest
 from sensor_models.simulate.truth import truth_error
 from sensor_models.terrain.dem import Dem
@@ -35,10 +35,11 @@ OTHERS = ("B1", "B3", "B4")
 
 @pytest.fixture(scope="module")
 def scene():
-    lab = open_model(FIXTURE / "manifest.json")
+    opened = open_scene(FIXTURE / "manifest.json")
+    lab = opened.model
     truth = open_model(FIXTURE / "truth_manifest.json")
     dem = Dem.open(FIXTURE / "reference" / "dem.tif")
-    images = {b: read_band(lab, b) for b in lab.bands}
+    images = {b: read_band(opened, b) for b in lab.bands}
     # GCPs of B2 from the truth: a grid of pixels localized by the TRUE model, observed with noise
     rng = np.random.default_rng(3)
     rows, cols, ccds = [], [], []

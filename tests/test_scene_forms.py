@@ -152,9 +152,10 @@ def _localize_json(capsys, model, rows, cols) -> dict:
 @pytest.mark.parametrize("form", list(FORMS))
 def test_open_scene_finds_the_raster_and_crops(gen, form):
     scene, raster, (r0, c0) = FORMS[form]
-    model = open_scene(gen.dir / scene)
-    assert model.rasters == {None: {"path": str((gen.dir / raster).resolve()), "index": 1}}
-    assert model.raster_candidates == ()
+    opened = open_scene(gen.dir / scene)
+    model = opened.model
+    assert opened.rasters == {None: {"path": str((gen.dir / raster).resolve()), "index": 1}}
+    assert opened.raster_candidates == ()
     with rasterio.open(gen.dir / raster) as ds:
         assert model.image_shape == (ds.height, ds.width)
     full = open_model(gen.ref)
@@ -231,9 +232,9 @@ def test_run_on_a_crop_raster(gen, tmp_path):
 
 def test_image_overrides_the_raster_found(gen, tmp_path):
     """--image wins over the raster beside the model file; its crop crops the model."""
-    model = open_scene(gen.dir / "geom.geom", image=gen.dir / "crop.tif")
-    assert model.image_shape == CROP
-    assert model.rasters[None]["path"] == str((gen.dir / "crop.tif").resolve())
+    scene = open_scene(gen.dir / "geom.geom", image=gen.dir / "crop.tif")
+    assert scene.model.image_shape == CROP
+    assert scene.rasters[None]["path"] == str((gen.dir / "crop.tif").resolve())
 
 
 # ----------------------------------------------------------------- what is refused, in one line
@@ -254,8 +255,8 @@ def test_model_file_without_raster_names_what_it_looked_for(gen, tmp_path, capsy
     err = _one_line_error(capsys, ["match", gen.ref, "--dom", gen.dom, *gen.dem, "--out", str(tmp_path / "g.csv")])
     assert "looked for scene.tif" in err
     assert not list(tmp_path.iterdir())
-    model = open_scene(gen.ref)  # commands that need no pixels still work
-    assert model.rasters == {} and len(model.raster_candidates) == 8
+    scene = open_scene(gen.ref)  # commands that need no pixels still work
+    assert scene.rasters == {} and len(scene.raster_candidates) == 8
 
 
 def test_raster_without_any_model_says_where_it_looked(gen, tmp_path, capsys):
@@ -279,7 +280,7 @@ def test_manifest_rasters_unchanged():
     manifest = FIXTURE_DIR / "manifest.json"
     scene, model = open_scene(manifest), open_model(manifest)
     assert scene.rasters == dict(model.rasters) and len(scene.rasters) == 4
-    assert scene.image_shape == model.image_shape
+    assert scene.model.image_shape == model.image_shape
 
 
 # ----------------------------------------------------------------- vendor XML: the dispatch
@@ -304,12 +305,12 @@ def test_xml_dispatch_by_root_element(shared_data, tmp_path, monkeypatch, capsys
     fake.read_dimap_v2 = lambda path, **kw: _rpc()
     monkeypatch.setitem(sys.modules, "sensor_models.readers.dimap_v2", fake)
     os.symlink(products / "SPOT6.XML", tmp_path / "DIM_SPOT6.XML")
-    model = open_scene(tmp_path / "DIM_SPOT6.XML")
+    scene = open_scene(tmp_path / "DIM_SPOT6.XML")
     tile = "IMG_SPOT6_P_201809151819247_SEN_4555226101_R1C1.TIF"
-    assert model.rasters == {} and model.raster_candidates == (str(tmp_path / tile),)
+    assert scene.rasters == {} and scene.raster_candidates == (str(tmp_path / tile),)
     _write_raster(tmp_path / tile, _texture(FULL, 3))
-    model = open_scene(tmp_path / "DIM_SPOT6.XML")
-    assert model.rasters == {None: {"path": str((tmp_path / tile).resolve()), "index": 1}}
+    scene = open_scene(tmp_path / "DIM_SPOT6.XML")
+    assert scene.rasters == {None: {"path": str((tmp_path / tile).resolve()), "index": 1}}
     tiled = tmp_path / "DIM_TILED.XML"
     tiled.write_text("<?xml version='1.0'?><Dimap_Document><Raster_Data><Data_Access><Data_Files>"
                      + "".join(f"<Data_File><DATA_FILE_PATH href='R1C{i}.TIF'/></Data_File>" for i in (1, 2))
@@ -330,15 +331,15 @@ def test_spot_dimap_finds_its_raster_by_href(shared_data, tmp_path, capsys):
     """SPOT 1-5 METADATA.DIM names IMAGERY.TIF: found beside it; localize needs no raster."""
     os.symlink(shared_data / "spot_dimap" / "SPOT1.DIM", tmp_path / "METADATA.DIM")
     dim = str(tmp_path / "METADATA.DIM")
-    model = open_scene(dim)
-    assert model.rasters == {} and model.raster_candidates == (str(tmp_path / "IMAGERY.TIF"),)
+    scene = open_scene(dim)
+    assert scene.rasters == {} and scene.raster_candidates == (str(tmp_path / "IMAGERY.TIF"),)
     err = _one_line_error(capsys, ["ortho", dim, "--dem", "x.tif", "--out", str(tmp_path / "o.tif")])
     assert "looked for IMAGERY.TIF" in err
     with rasterio.open(tmp_path / "IMAGERY.TIF", "w", driver="GTiff", width=6000, height=6000, count=1,
                        dtype="uint8", tiled=True, compress="deflate") as ds:
         pass  # sparse: the header is what open_scene reads
-    model = open_scene(dim)
-    assert model.rasters == {"B1": {"path": str((tmp_path / "IMAGERY.TIF").resolve()), "index": 1}}
+    scene = open_scene(dim)
+    assert scene.rasters == {"B1": {"path": str((tmp_path / "IMAGERY.TIF").resolve()), "index": 1}}
     got = _localize_json(capsys, dim, [0.5, 3000.5], [0.5, 5999.5])
     lon, lat, _ = open_model(shared_data / "spot_dimap" / "SPOT1.DIM").image_to_ground(
         np.array([0.5, 3000.5]), np.array([0.5, 5999.5]), height=HEIGHT_M)

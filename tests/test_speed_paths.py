@@ -17,7 +17,7 @@ from sensor_models.imaging.locate import HEIGHT_TOLERANCE_M, _pixel_layers, dem_
 from sensor_models.maps.grid import MapGrid, MapProjector
 from sensor_models.terrain.intersect import intersect_dem_adaptive
 from sensor_models.maps.raster import MapImage
-from sensor_models.readers import open_model
+from sensor_models.readers import open_model, open_scene
 from sensor_models.terrain.dem import Dem
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
@@ -238,7 +238,7 @@ def ccd_pairs(scene):
     from gcpmatch.reference import reference_for_ccd
 
     truth, dem, dom = scene
-    img = read_band(open_model(FIXTURE / "manifest.json"), BAND)
+    img = read_band(open_scene(FIXTURE / "manifest.json"), BAND)
     pairs = []
     for c, look in enumerate(truth.detector_arrays(BAND)):
         ref = reference_for_ccd(truth, dem, dom, band=BAND, ccd=c)
@@ -305,8 +305,8 @@ def fixture_scene(scene):
     from gcpmatch.extract import read_band
 
     truth, dem, dom = scene
-    lab = open_model(FIXTURE / "manifest.json")
-    return truth, lab, dem, dom, read_band(lab, BAND)
+    opened = open_scene(FIXTURE / "manifest.json")
+    return truth, opened.model, dem, dom, read_band(opened, BAND)
 
 
 @pytest.mark.parametrize("shift_rows, skipped", [(0, True), (3, True), (10, False)])

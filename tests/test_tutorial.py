@@ -289,8 +289,8 @@ def _rows_moved_by_51_m(tutorial) -> list[float]:
 
     moved = []
     for scene in (tutorial.data / "pleiades_ventoux" / "left_image.tif", tutorial.work / "work" / "right.tif"):
-        rows, _ = open_scene(scene).ground_to_image(np.array([5.195, 5.195]), np.array([44.2063, 44.2063]),
-                                                    np.array([520.0, 469.0]))
+        rows, _ = open_scene(scene).model.ground_to_image(np.array([5.195, 5.195]), np.array([44.2063, 44.2063]),
+                                                          np.array([520.0, 469.0]))
         moved.append(float(rows[1] - rows[0]))
     return moved
 

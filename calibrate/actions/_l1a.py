@@ -30,13 +30,14 @@ FIT_TAGS = {
 }
 
 
-def scene_raster(model, band, image=None) -> tuple[str, int]:
+def scene_raster(scene, band, image=None) -> tuple[str, int]:
     """The raster file and 1-based band index holding ``band`` of the scene.
 
     Parameters
     ----------
-    model : SensorModel
-        Model opened from a manifest (``rasters``: band -> ``{"path", "index"}``) or any model.
+    scene : Scene
+        The scene opened (:func:`sensor_models.readers.open_scene`; ``rasters``: band ->
+        ``{"path", "index"}``).
     band : str or None
         The band.
     image : str or Path, optional
@@ -54,7 +55,7 @@ def scene_raster(model, band, image=None) -> tuple[str, int]:
     """
     if image is not None:
         return str(image), 1
-    rasters = getattr(model, "rasters", None) or {}
+    rasters = scene.rasters
     if band not in rasters:
         raise InputError(f"the scene lists no raster for band {band!r}; give --image")
     return str(rasters[band]["path"]), int(rasters[band].get("index", 1))

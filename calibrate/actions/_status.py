@@ -72,7 +72,7 @@ def require_usable(model, source, *, command: str) -> str | None:
     return f"{source}: the calibration is partial ({detail}); gcpcal {command} uses it as it is"
 
 
-def status_fields(model, *warnings: str | None, product=None) -> dict:
+def status_fields(model, *warnings: str | None, product_check=None) -> dict:
     """The summary fields that record the status of the model a command used.
 
     Parameters
@@ -81,9 +81,10 @@ def status_fields(model, *warnings: str | None, product=None) -> dict:
         The model used (its status is recorded).
     *warnings : str or None
         What :func:`require_usable` returned for each model the command read (None skipped).
-    product : SensorModel, optional
-        The model opened from the user's scene, whose :func:`product_check_fields` are recorded
-        (default: ``model``).
+    product_check : ProductCheck, optional
+        The self-check of the vendor product opened from the user's scene
+        (:attr:`Scene.product_check <sensor_models.readers.scene_value.Scene.product_check>`),
+        recorded through :func:`product_check_fields`; None: not a vendor product.
 
     Returns
     -------
@@ -93,18 +94,19 @@ def status_fields(model, *warnings: str | None, product=None) -> dict:
         accepted disagreement is one) and ``product_check``.
     """
     status = getattr(model, "calibration", None)
-    checked = product_check_fields(model if product is None else product)
+    checked = product_check_fields(product_check)
     return {"calibration_status": None if status is None else status.status,
             "warnings": [w for w in (*warnings, checked.pop("warning")) if w], **checked}
 
 
-def product_check_fields(model) -> dict:
+def product_check_fields(check) -> dict:
     """What a summary records of the self-check of the vendor product a command opened.
 
     Parameters
     ----------
-    model : SensorModel
-        A model from :func:`sensor_models.readers.open_scene` (or any model).
+    check : ProductCheck or None
+        The ``product_check`` of a :func:`sensor_models.readers.open_scene` Scene (None: not a
+        vendor product).
 
     Returns
     -------
@@ -115,7 +117,6 @@ def product_check_fields(model) -> dict:
         vendor product; ``warning``: the one-line disagreement the user accepted with
         ``--accept-product-disagreement``, or None.
     """
-    check = getattr(model, "product_check", None)
     if check is None:
         return {"product_check": None, "warning": None}
     warning = None
@@ -229,22 +230,22 @@ def open_usable_calibration(path, *, command: str):
     return model, model_file, require_usable(model, model_file, command=command)
 
 
-def record_product_check(summary: dict, model) -> dict:
+def record_product_check(summary: dict, check) -> dict:
     """Add :func:`product_check_fields` to a summary: ``product_check``, and the warning to ``warnings``.
 
     Parameters
     ----------
     summary : dict
         A stage's summary (changed in place).
-    model : SensorModel
-        The model opened from the user's scene.
+    check : ProductCheck or None
+        The self-check of the product opened from the user's scene (``Scene.product_check``).
 
     Returns
     -------
     dict
         ``summary``.
     """
-    checked = product_check_fields(model)
+    checked = product_check_fields(check)
     summary["product_check"] = checked["product_check"]
     if checked["warning"]:
         summary["warnings"] = [*(summary.get("warnings") or []), checked["warning"]]

@@ -124,12 +124,12 @@ def _accuracy(model, pts):
 
 
 def _read_inputs(scene_path, gcps_path, band, image, self_check):
-    """The model (cropped to ``image`` when that is a crop of the scene) and the GCP table."""
+    """The scene (its model cropped to ``image`` when that is a crop of the scene) and the GCP table."""
     from gcpmatch.gcp_files import read_gcps
     from sensor_models.readers import open_scene
 
-    model = open_scene(scene_path, image=image, band=band, self_check=self_check)
-    return model, read_gcps(gcps_path, image_shape=model.image_shape)
+    scene = open_scene(scene_path, image=image, band=band, self_check=self_check)
+    return scene, read_gcps(gcps_path, image_shape=scene.model.image_shape)
 
 
 def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptions = CalibrationOptions(), band=None,
@@ -175,7 +175,8 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     """
     t0 = time.perf_counter()
     check_output_folder(out_dir, inputs=[scene_path, gcps_path, image])  # before any work
-    model, table = _read_inputs(scene_path, gcps_path, band, image, self_check)
+    scene, table = _read_inputs(scene_path, gcps_path, band, image, self_check)
+    model = scene.model
     implausible = check_gcps_on_scene(model, table.lon, table.lat, table.h, source=gcps_path, band=band)
     options = options_from_match_summary(options, gcps_path)
     note_gcp_origin(gcps_path)
@@ -191,7 +192,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     with staged_folder(out_dir, ".calibrate-", inputs=[scene_path, gcps_path, image]) as tmp:
         doc = _calibration_doc(result, scene_path, gcps_path, acc_before, acc_after, coverage, status)
         (tmp / "calibration.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-        model_file = _write_model(result.model, model, tmp, out_dir, failed=status.status == "failed",
+        model_file = _write_model(result.model, scene, tmp, out_dir, failed=status.status == "failed",
                                   errors_m=rpc_error_estimates(acc_after, options.reference_sigma_m))
         write_residual_layer(_residual_layer(result, table, acc_after, band), tmp / "residuals.gpkg",
                              layer=LAYER_NAMES["calibrate"])
@@ -225,7 +226,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
             "warnings": [],
             "seconds": time.perf_counter() - t0,
         }
-        record_product_check(summary, model)
+        record_product_check(summary, scene.product_check)
         if implausible:
             summary["implausible_accepted"] = implausible
         (tmp / "calibrate.summary.json").write_text(json.dumps(with_provenance(summary), indent=1) + "\n", encoding="utf-8")
@@ -356,7 +357,7 @@ def rpc_error_estimates(accuracy, reference_sigma_m) -> tuple[float, float] | No
     return float(np.sqrt(ref + 0.5 * np.sum(mean**2))), float(np.sqrt(0.5 * np.sum(var)))
 
 
-def _write_model(calibrated, original, tmp: Path, out_dir: Path, *, failed=False, errors_m=None) -> str | None:
+def _write_model(calibrated, scene, tmp: Path, out_dir: Path, *, failed=False, errors_m=None) -> str | None:
     """Write the calibrated model; its file name (None: a failed RPC bias fit writes none).
 
     An RPC goes under the name GDAL pairs with the scene's raster (``<raster>_RPC.TXT``), in that
@@ -369,15 +370,15 @@ def _write_model(calibrated, original, tmp: Path, out_dir: Path, *, failed=False
         from sensor_models.readers.manifest import manifest_to_dict
 
         rasters = {b: {"path": os.path.relpath(r["path"], out_dir.resolve()), "index": r.get("index", 1)}
-                   for b, r in (getattr(original, "rasters", None) or {}).items()}
+                   for b, r in scene.rasters.items()}
         doc = manifest_to_dict(calibrated, rasters=rasters)
-        doc["name"] = (getattr(original, "name", "") or "scene") + " (calibrated)"
+        doc["name"] = (getattr(scene.model, "name", "") or "scene") + " (calibrated)"
         (tmp / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
         return "manifest.json"
     if calibrated.kind == "geo_staring":
         from sensor_models.readers.geo_manifest import geo_manifest_to_dict
 
-        ref = (getattr(original, "rasters", None) or {}).get(original.band)
+        ref = scene.rasters.get(scene.model.band)
         raster = None if ref is None else {"path": os.path.relpath(ref["path"], out_dir.resolve()),
                                             "index": ref.get("index", 1)}
         doc = geo_manifest_to_dict(calibrated, raster=raster)
@@ -387,13 +388,13 @@ def _write_model(calibrated, original, tmp: Path, out_dir: Path, *, failed=False
         return None
     if errors_m is not None:
         calibrated = type(calibrated)(**{**calibrated.init_kwargs(), "err_bias": errors_m[0], "err_rand": errors_m[1]})
-    raster = (getattr(original, "rasters", None) or {}).get(getattr(original, "reference_band", None) or "")
-    raster = raster or next(iter((getattr(original, "rasters", None) or {}).values()), None)
-    source_stem = Path(getattr(original, "source", "model") or "model").stem
+    raster = scene.rasters.get(getattr(scene.model, "reference_band", None) or "")
+    raster = raster or next(iter(scene.rasters.values()), None)
+    source_stem = Path(getattr(scene.model, "source", "model") or "model").stem
     # GDAL pairs X_RPC.TXT with X.tif: the RPC of the raster's own pixels goes under the raster's name
     sidecar = f"{Path(raster['path']).stem if raster else source_stem}_RPC.TXT"
     write_rpc(calibrated, tmp / sidecar)
-    crop = getattr(original, "crop_of_full_scene", None)
+    crop = scene.crop
     if crop is None:
         return sidecar
     # GCPs measured in a crop: the model is the full scene's, as the product's own RPC, under a name

@@ -334,7 +334,8 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
     elif "jsonl" in points:
         source = STDIN_NAME if str(points["jsonl"]) == "-" else str(points["jsonl"])
         points, records = read_points_json_lines(points["jsonl"], columns)
-    model = open_scene(model_path, self_check=self_check)  # a raster with its RPC, or a crop, or a model file
+    scene = open_scene(model_path, self_check=self_check)  # a raster with its RPC, or a crop, or a model file
+    model = scene.model
     warning = require_usable(model, model_path, command="localize")
     kwargs = {} if band is None else {"band": band}
     if direction == "direct":
@@ -364,7 +365,7 @@ def localize_points(model_path, points: dict, *, direction: str, height=None, de
         "direction": direction,
         "points": int(table["row"].size),
         "not_localized": int(np.count_nonzero(~np.isfinite(table["row"] + table["lon"]))),
-        **status_fields(model, warning),
+        **status_fields(model, warning, product_check=scene.product_check),
         "seconds": round(time.perf_counter() - t0, 4),
     }
     if out_path and not to_stdout:

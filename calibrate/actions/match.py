@@ -150,10 +150,11 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     side = match_side_paths(out_path, out_format)
     check_output_files(out_path, Path(out_path).with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
                        *side.values(), inputs=inputs)
-    model = open_scene(scene_path, image=image, band=band, self_check=self_check)  # a crop's raster crops it
+    opened = open_scene(scene_path, image=image, band=band, self_check=self_check)  # a crop's raster crops it
+    model = opened.model
     band = band or getattr(model, "reference_band", None)
-    implausible = check_scene_raster(model, band, image)  # before any work: names and headers only
-    scene = read_band(model, band, image)
+    implausible = check_scene_raster(opened, band, image)  # before any work: names and headers only
+    scene = read_band(opened, band, image)
     if geotiff_path is not None:  # before any work: the GeoTIFF's size limit, from the window count
         _check_geotiff_capacity(model, band, options, geotiff_path)
     dem = open_dem(dem_path, dem_datum, geoid, model=model, band=band)
@@ -161,7 +162,7 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
     implausible += check_dom_resolution(dom, model, band=band, source=_dom_name(dom_found, dom_path))
     mask = None
     if mask_path is not None:
-        mask = read_band(model, band, mask_path)
+        mask = read_band(opened, band, mask_path)
         mask = np.nan_to_num(mask) != 0
     accuracy = reference_accuracy(dom_found.files, given_m=options.reference_sigma_m)  # option, DOM's tags/MTL, assumed
     note("reference_accuracy", {"east_m": accuracy.east_m, "north_m": accuracy.north_m, "source": accuracy.source,
@@ -174,10 +175,10 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
         summary["residual_layer"] = str(residuals_path)
         summary["qc_figure"] = str(side["qc"])
     summary.update(_dom_summary(dom, dom_found, model, band, dem))
-    record_product_check(summary, model)
+    record_product_check(summary, opened.product_check)
     if implausible:
         summary["implausible_accepted"] = implausible
-    _write_outputs(table, summary, model=model, band=band, image=image, out_path=out_path, out_format=out_format,
+    _write_outputs(table, summary, scene=opened, band=band, image=image, out_path=out_path, out_format=out_format,
                    gpkg_path=gpkg_path, geotiff_path=geotiff_path, residuals_path=residuals_path, side=side,
                    inputs=inputs)
     if table is None or len(table) == 0:
@@ -187,7 +188,7 @@ def match_scene(scene_path, *, dom_path, dem_path, out_path, geoid=None, dem_dat
 
 
 
-def _write_outputs(table, summary, *, model, band, image, out_path, out_format, gpkg_path, geotiff_path,
+def _write_outputs(table, summary, *, scene, band, image, out_path, out_format, gpkg_path, geotiff_path,
                    residuals_path, side, inputs) -> None:
     """Write the GCP table (CSV with its .csvt/.prj, or GeoPackage), the optional GeoPackage and
     GeoTIFF, the residual layer, the QC figure and the summary; every file moves in together at
@@ -198,12 +199,13 @@ def _write_outputs(table, summary, *, model, band, image, out_path, out_format, 
     from gcpmatch.gcp_geotiff import write_gcps_geotiff
     from gcpmatch.geopackage import write_gcps_gpkg
 
+    model = scene.model
     staged = staged_files(out_path, out_path.with_suffix(".summary.json"), gpkg_path, geotiff_path, residuals_path,
                           side["qc"], side[".csvt"], side[".prj"], inputs=inputs)
     with staged as (csv_tmp, summary_tmp, gpkg_tmp, geotiff_tmp, residuals_tmp, qc_tmp, csvt_tmp, prj_tmp):
         if table is not None and len(table) > 0:
             if geotiff_tmp is not None:  # first: the one writer with a size limit
-                raster, index = scene_raster(model, band, image)
+                raster, index = scene_raster(scene, band, image)
                 write_gcps_geotiff(table, geotiff_tmp, image_shape=model.image_shape, source_raster=raster,
                                    source_band=index)
             if out_format == "gpkg":

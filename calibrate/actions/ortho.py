@@ -67,14 +67,14 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
     inputs = InputSet([scene_path, calibration_input(calibration), image, dem_path, geoid])
     check_output_files(out_path, summary_path, inputs=inputs)  # before any work
     scene = open_scene(scene_path, image=image, band=band, self_check=self_check)  # a crop's raster crops it
-    scene_warning = require_usable(scene, scene_path, command="ortho")
-    geometry, calib_file, calib_warning = scene, None, None
+    scene_warning = require_usable(scene.model, scene_path, command="ortho")
+    geometry, calib_file, calib_warning = scene.model, None, None
     if calibration is not None:
         geometry, calib_file, calib_warning = open_usable_calibration(calibration, command="ortho")
         geometry = _crop_like_scene(geometry, scene)
-        if tuple(geometry.image_shape) != tuple(scene.image_shape):
+        if tuple(geometry.image_shape) != tuple(scene.model.image_shape):
             raise InputError(f"the calibrated model describes a {geometry.image_shape[0]} x {geometry.image_shape[1]} "
-                             f"px image, the scene {scene.image_shape[0]} x {scene.image_shape[1]}",
+                             f"px image, the scene {scene.model.image_shape[0]} x {scene.model.image_shape[1]}",
                              path=str(calib_file))
     band, image = _band_and_image(scene, geometry, band, image, scene_path)
     check_scene_raster(scene, band, image if isinstance(image, (str, Path)) else None)
@@ -88,7 +88,8 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
                                           resampling=options.resampling, block=options.block, progress=say,
                                           dem_windows=dem_windows, tags=geotiff_tags())
             summary = _summary(result, out_path, summary_path, scene_path, calib_file, geometry, image, dem_path,
-                               status_fields(geometry, scene_warning, calib_warning, product=scene), dem_figures, t0)
+                               status_fields(geometry, scene_warning, calib_warning,
+                                             product_check=scene.product_check), dem_figures, t0)
             write_summary(summary_tmp, summary)
     finally:
         if dem_windows is not None:
@@ -119,11 +120,12 @@ def _summary(result, out_path, summary_path, scene_path, calib_file, geometry, i
 
 def _crop_like_scene(geometry, scene):
     """The calibrated full-scene model cropped as the scene's raster is (a crop with a pixel geotransform)."""
-    crop = getattr(scene, "crop_of_full_scene", None)
-    if crop is None or not hasattr(geometry, "cropped") or tuple(geometry.image_shape) == tuple(scene.image_shape):
+    crop = scene.crop
+    shape = tuple(scene.model.image_shape)
+    if crop is None or not hasattr(geometry, "cropped") or tuple(geometry.image_shape) == shape:
         return geometry
     status = getattr(geometry, "calibration", None)
-    geometry = geometry.cropped(crop[0], crop[1], tuple(scene.image_shape))
+    geometry = geometry.cropped(crop[0], crop[1], shape)
     geometry.calibration = status
     return geometry
 
@@ -137,8 +139,8 @@ def _band_and_image(scene, geometry, band, image, scene_path):
         raise InputError(f"unknown band {band!r}; the model has {', '.join(named) if named else 'no named band'}",
                          field="band")
     if image is None:
-        rasters = getattr(scene, "rasters", None) or {}
-        key = band if band is not None else scene.reference_band
+        rasters = scene.rasters
+        key = band if band is not None else scene.model.reference_band
         if key not in rasters:
             raise InputError(missing_raster_message(scene, key), path=str(scene_path))
         image = (rasters[key]["path"], int(rasters[key].get("index", 1)))

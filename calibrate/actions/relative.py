@@ -126,12 +126,12 @@ def _open_scene(scene_path, calibrated, cal_path, reference_band, self_check):
     from sensor_models.readers import open_scene
 
     scene = open_scene(scene_path, self_check=self_check)
-    if scene.interior_layout != "per_array":
+    if scene.model.interior_layout != "per_array":
         raise InputError("relative calibration needs a push-broom scene manifest", path=str(scene_path))
-    _same_scene(scene, calibrated, str(cal_path))
+    _same_scene(scene.model, calibrated, str(cal_path))
     reference_band = reference_band or calibrated.reference_band
-    if reference_band not in scene.bands:
-        raise InputError(f"unknown band {reference_band!r}; the scene has {', '.join(scene.bands)}",
+    if reference_band not in scene.model.bands:
+        raise InputError(f"unknown band {reference_band!r}; the scene has {', '.join(scene.model.bands)}",
                          field="reference_band")
     return scene, reference_band
 
@@ -141,12 +141,12 @@ def _write_outputs(stage: Path, out_dir: Path, scene, result, report: dict, refe
     from sensor_models.readers.manifest import manifest_to_dict
 
     rasters = {b: {"path": os.path.relpath(r["path"], out_dir.absolute()), "index": r.get("index", 1)}
-               for b, r in (getattr(scene, "rasters", None) or {}).items()}
+               for b, r in scene.rasters.items()}
     doc = manifest_to_dict(result.model, rasters=rasters)
-    doc["name"] = (scene.name or "scene") + " (calibrated, band-to-band)"
+    doc["name"] = (scene.model.name or "scene") + " (calibrated, band-to-band)"
     (stage / "manifest.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     (stage / "relative.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
-    summary = record_product_check(_summary(result, reference_band, time.perf_counter() - t0), scene)
+    summary = record_product_check(_summary(result, reference_band, time.perf_counter() - t0), scene.product_check)
     (stage / "relative.summary.json").write_text(json.dumps(with_provenance(summary), indent=1) + "\n", encoding="utf-8")
     return summary
 
@@ -234,18 +234,18 @@ class _LazyBands(Mapping):
     def __getitem__(self, band):
         from gcpmatch.extract import read_band
 
-        if band not in self._scene.bands:
+        if band not in self._scene.model.bands:
             raise KeyError(band)
         return read_band(self._scene, band)
 
     def __contains__(self, band) -> bool:  # without reading the raster
-        return band in self._scene.bands and band in (getattr(self._scene, "rasters", None) or {})
+        return band in self._scene.model.bands and band in self._scene.rasters
 
     def __iter__(self):
-        return iter(self._scene.bands)
+        return iter(self._scene.model.bands)
 
     def __len__(self) -> int:
-        return len(self._scene.bands)
+        return len(self._scene.model.bands)
 
 
 def _output_status(result, input_status):

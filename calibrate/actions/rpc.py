@@ -116,16 +116,16 @@ def _targets(model, band, ccd):
 
 
 def _open_inputs(model_path, band, image, self_check):
-    """The model (cropped to its raster when that is a crop of the scene), its band and raster."""
+    """The scene (its model cropped to its raster when that is a crop of the scene), its band and raster."""
     from sensor_models.readers import open_scene
 
-    model = open_scene(model_path, image=image, band=band, self_check=self_check)  # a raster with its RPC, too
-    band = band or model.reference_band
+    scene = open_scene(model_path, image=image, band=band, self_check=self_check)  # a raster with its RPC, too
+    band = band or scene.model.reference_band
     try:
-        raster = scene_raster(model, band)
+        raster = scene_raster(scene, band)
     except InputError:
         raster = None
-    return model, band, raster
+    return scene, band, raster
 
 
 def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None, height_range=None, band=None,
@@ -183,7 +183,8 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
         check_output_folder(out, inputs=inputs)
     else:
         check_output_files(out, summary_path, inputs=inputs)
-    model, band, raster = _open_inputs(model_path, band, image, self_check)
+    scene, band, raster = _open_inputs(model_path, band, image, self_check)
+    model = scene.model
     warning = require_usable(model, model_path, command="rpc")
     height_range, coverage = _height_range(model, dem_path, dem_datum, geoid, height_range)
     targets = _targets(model, band, ccd)
@@ -199,7 +200,7 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
     if folder:
         with staged_folder(out, ".rpc-", inputs=inputs) as tmp:
             fits = [entry for t in targets for entry in _fit_tiles(t, tmp, out, model, context)]
-            summary = _summary(model, model_path, height_range, warning, coverage, fits, t0, max_error_px)
+            summary = _summary(scene, model_path, height_range, warning, coverage, fits, t0, max_error_px)
             if raster is None:
                 summary["warnings"].append(f"the scene lists no raster for band {band!r}: wrote the RPCs only "
                                            "(give --image for georeferenced level-1A copies)")
@@ -207,7 +208,7 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
         return summary
     with staged_files(out, summary_path, inputs=inputs) as (staged, staged_summary):
         fits = [_fit_one(targets[0], [(staged, out)], context)]
-        summary = _summary(model, model_path, height_range, warning, coverage, fits, t0, max_error_px)
+        summary = _summary(scene, model_path, height_range, warning, coverage, fits, t0, max_error_px)
         write_summary(staged_summary, summary)
     return summary
 
@@ -297,7 +298,7 @@ def _write(fitted, report, ccd_name, first_row, first_col, outputs, context) -> 
     return entry
 
 
-def _summary(model, model_path, height_range, warning, coverage, fits, t0, max_error_px) -> dict:
+def _summary(scene, model_path, height_range, warning, coverage, fits, t0, max_error_px) -> dict:
     misses = [f for f in fits if f["fit"]["check_max_px"] > max_error_px]
     extra = []
     if misses:
@@ -309,7 +310,7 @@ def _summary(model, model_path, height_range, warning, coverage, fits, t0, max_e
         "command": "rpc",
         "model": str(model_path),
         "height_range_m": list(height_range),
-        **status_fields(model, warning, *coverage.pop("warnings"), *extra),
+        **status_fields(scene.model, warning, *coverage.pop("warnings"), *extra, product_check=scene.product_check),
         **coverage,
         "max_error_px": float(max_error_px),
         "rpcs": fits,

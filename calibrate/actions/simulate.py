@@ -261,7 +261,8 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
         lon, lat = footprint_sample_lonlat(true_model, 0.5 * sum(dem.height_range_m))
         coverage = check_dem_footprint(dem, lon, lat)
     result = truth_error(true_model, model, dem=dem, step_px=step_px, heights_m=heights_m)
-    result = {**result, **status_fields(model, warning, *coverage.pop("warnings")), **coverage}
+    status = status_fields(model, warning, *coverage.pop("warnings"), product_check=model.product_check)
+    result = {**result, **status, **coverage}
     if out_path and not to_stdout:
         with staged_files(out_path, inputs=inputs) as (json_tmp,):
             write_summary(json_tmp, result)

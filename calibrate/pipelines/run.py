@@ -193,7 +193,8 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
     t0 = time.perf_counter()
     step = progress or (lambda m: None)
     out_dir = Path(out_dir)  # the staging folder (staged_output)
-    model = open_scene(scene_path, self_check=self_check)
+    scene = open_scene(scene_path, self_check=self_check)
+    model = scene.model
     if star_frames is not None:  # frames of another camera are refused before any work
         read_star_inputs(star_frames, scene_model=model, scene_source=scene_path)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -219,7 +220,7 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
         summary.update(path=None, success=False,
                        message=f"cannot calibrate: {reason}, and no star frames were given (--star-frames)")
     summary.update(_own_status(out_dir, summary))
-    record_product_check(summary, model)
+    record_product_check(summary, scene.product_check)
     summary["seconds"] = time.perf_counter() - t0
     atomic_write_text(out_dir / "run.summary.json", json.dumps(with_provenance(summary), indent=1, default=str) + "\n")
     return summary

@@ -141,7 +141,6 @@ def geo_model_from_document(doc, path) -> GeoStaringModel:
     model.lab = lab
     model.lab_fit_residual = residual
     model.rasters = rasters
-    model.manifest_path = str(path)
     if calibration is not None:
         model.calibration = calibration
     return model
@@ -159,7 +158,7 @@ def read_geo_manifest(path) -> GeoStaringModel:
     -------
     GeoStaringModel
         With ``model.rasters`` (band -> :class:`RasterRef`, absolute path; empty without
-        ``image.raster``), ``model.manifest_path``, and for a ``"lab"`` interior ``model.lab``
+        ``image.raster``), and for a ``"lab"`` interior ``model.lab``
         and ``model.lab_fit_residual``.
 
     Raises

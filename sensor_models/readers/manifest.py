@@ -146,8 +146,8 @@ def pushbroom_model_from_document(doc, path) -> PushbroomModel:
     Returns
     -------
     PushbroomModel
-        With ``model.rasters`` (band -> :class:`RasterRef` with an absolute path) and
-        ``model.manifest_path`` set.
+        With ``model.rasters`` (band -> :class:`RasterRef` with an absolute path) set; the file
+        opened is the ``source`` of :func:`~sensor_models.readers.scene_input.open_scene`'s Scene.
 
     Raises
     ------
@@ -194,7 +194,6 @@ def pushbroom_model_from_document(doc, path) -> PushbroomModel:
     except GcpcalError as exc:  # OutOfRangeError: the data spans do not cover the lines
         raise ManifestError(str(exc), path=str(path), field="orbit/attitude") from None
     model.rasters = rasters
-    model.manifest_path = str(path)
     if calibration is not None:
         model.calibration = calibration
     return model

@@ -32,8 +32,7 @@ def read_manifest(path):
         A :class:`~sensor_models.models.pushbroom.PushbroomModel` for ``sensor: "pushbroom"`` (and for
         a document whose ``sensor`` is missing or wrong, which then fails with the field named),
         a :class:`~sensor_models.models.geo_staring.GeoStaringModel` for ``sensor: "geo_staring"``;
-        ``model.rasters`` (band -> ``RasterRef`` with an absolute path) and
-        ``model.manifest_path`` are set.
+        ``model.rasters`` (band -> ``RasterRef`` with an absolute path) is set.
 
     Raises
     ------

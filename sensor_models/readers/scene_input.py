@@ -1,7 +1,8 @@
 """A SCENE as the user has it: the sensor model with the raster that holds its pixels.
 
-:func:`open_scene` accepts every form a user brings and returns the model with ``rasters``
-(band -> ``{"path", "index"}``) filled, cropped to the raster when the raster is a crop:
+:func:`open_scene` accepts every form a user brings and returns a
+:class:`~sensor_models.readers.scene_value.Scene`: the model, cropped to the raster when the
+raster is a crop, with ``rasters`` (band -> ``{"path", "index"}``):
 
 ==========================================  ==================================================
 given                                       model / raster
@@ -22,9 +23,10 @@ WorldView ``*.XML`` (``isd``)               ``X.TIF`` / ``X.NTF`` beside it
 A raster whose size differs from the model's is a crop: it must carry a pixel geotransform
 ``(1, 0, col0, 0, 1, row0)`` and no CRS (the convention of the CNES shareloc / OTB test data:
 ``(col0, row0)`` is the full-scene column and row of the crop's first pixel corner), and the
-model becomes ``model.cropped(row0, col0, shape)`` (only models that offer ``cropped``: RPCs).
+model becomes ``model.cropped(row0, col0, shape)`` (only models that offer ``cropped``: RPCs)
+and ``Scene.crop`` says where the crop lies.
 
-When no raster is found the model comes back with empty ``rasters`` and
+When no raster is found the Scene comes back with empty ``rasters`` and
 ``raster_candidates`` (the files looked for); :func:`missing_raster_message` turns that into
 the one-line error of a command that needs pixels.
 """
@@ -35,6 +37,7 @@ import re
 from pathlib import Path
 
 from sensor_models.errors import InputError
+from sensor_models.readers.scene_value import Scene
 
 __all__ = ["RASTER_SUFFIXES", "crop_to_raster", "missing_raster_message", "open_scene", "raster_beside"]
 
@@ -60,16 +63,17 @@ def open_scene(path, *, image=None, band=None, self_check: str = "refuse", **kwa
     self_check : {"refuse", "warn"}
         For a vendor product, what to do when its model disagrees with the product's own
         statements (:func:`~sensor_models.readers.open_model`); the result is
-        ``model.product_check`` (None for manifests and RPCs).
+        ``Scene.product_check`` (None for manifests and RPCs).
     **kwargs
         Passed to the model reader (:func:`~sensor_models.readers.open_model`).
 
     Returns
     -------
-    SensorModel
-        The model, with ``rasters`` (band -> ``{"path": str, "index": int}``, absolute path,
-        1-based raster band) and ``raster_candidates`` (tuple of str: the files looked for when
-        none was found, else empty). A crop's model describes the crop's pixels.
+    Scene
+        The :class:`~sensor_models.readers.scene_value.Scene`: ``model`` (a crop's model
+        describes the crop's pixels), ``rasters`` (band -> ``{"path": str, "index": int}``,
+        absolute path, 1-based raster band), ``raster_candidates`` (the files looked for when
+        none was found, else empty), ``source``, ``crop`` and ``product_check``.
 
     Raises
     ------
@@ -86,35 +90,32 @@ def open_scene(path, *, image=None, band=None, self_check: str = "refuse", **kwa
         raise InputError("no such file", path=str(path))
     if _is_model_file(path):
         model = open_model(path, self_check=self_check, **kwargs)
+        check = getattr(model, "product_check", None)
         if path.name.lower().endswith(".json"):  # a manifest lists its own rasters
-            model.raster_candidates = ()
             rasters = dict(getattr(model, "rasters", None) or {})
-            return _keep_check(_with_image(model, rasters, image, band, check_shape=image is not None), model)
+            return _with_image(model, rasters, image, band, check_shape=image is not None,
+                               source=path, product_check=check)
         rasters, candidates = _rasters_of_model_file(path, model)
     else:
         from sensor_models.readers.self_check import check_policy
 
         check_policy(self_check)
         model = _model_of_raster(path, **kwargs)
+        check = None
         rasters, candidates = _single_raster(model, path), ()
-    model.raster_candidates = () if rasters else tuple(str(c) for c in candidates)
-    model.raster_tiles = len(candidates) if _names_tiles(path) else 0
-    return _keep_check(_with_image(model, rasters, image, band, check_shape=True), model)
+    return _with_image(model, rasters, image, band, check_shape=True, source=path, product_check=check,
+                       raster_candidates=() if rasters else tuple(str(c) for c in candidates),
+                       raster_tiles=len(candidates) if _names_tiles(path) else 0)
 
 
-def _keep_check(scene, opened):
-    """The scene (perhaps a crop of the opened model) with the opened model's ``product_check``."""
-    scene.product_check = getattr(opened, "product_check", None)
-    return scene
-
-
-def missing_raster_message(model, band) -> str:
+def missing_raster_message(scene, band) -> str:
     """The one-line reason a command needing the pixels of ``band`` cannot find them.
 
     Parameters
     ----------
-    model : SensorModel
-        A model from :func:`open_scene` (or any model; then the generic message).
+    scene : Scene or None
+        A :class:`~sensor_models.readers.scene_value.Scene` from :func:`open_scene` (None: the
+        generic message).
     band : str or None
         The band whose pixels were asked for.
 
@@ -123,8 +124,8 @@ def missing_raster_message(model, band) -> str:
     str
         E.g. ``"no raster found for the scene (looked for a.tif, a.TIF in /data); give --image"``.
     """
-    candidates = [Path(c) for c in getattr(model, "raster_candidates", ()) or ()]
-    tiles = getattr(model, "raster_tiles", 0) or 0
+    candidates = [Path(c) for c in (scene.raster_candidates if scene is not None else ())]
+    tiles = scene.raster_tiles if scene is not None else 0
     if tiles > 1:
         return (f"the product's raster is split into {tiles} tiles ({candidates[0].name}, ...); give one raster "
                 "(e.g. a VRT of the tiles) as --image")
@@ -178,10 +179,12 @@ def crop_to_raster(model, image, shape):
 
     Returns
     -------
-    SensorModel
-        The model of the crop, with ``crop_of_full_scene = (row0, col0, full_shape)``: where the
-        crop lies in the full scene and the full model's ``image_shape`` (so that a model
-        calibrated in crop pixels can be written back in the full scene's pixels).
+    model : SensorModel
+        The model of the crop.
+    corner : tuple of float
+        ``(row0, col0)``: where the crop lies in the full scene (with the full model's
+        ``image_shape`` this is :attr:`Scene.crop <sensor_models.readers.scene_value.Scene.crop>`,
+        so that a model calibrated in crop pixels can be written back in the full scene's pixels).
 
     Raises
     ------
@@ -191,9 +194,7 @@ def crop_to_raster(model, image, shape):
     t, crs = _raster_info(image)[1:]
     pixel = crs is None and abs(t.a - 1) < 1e-12 and abs(t.e - 1) < 1e-12 and t.b == 0 and t.d == 0
     if pixel and hasattr(model, "cropped"):
-        cropped = model.cropped(t.f, t.c, shape)
-        cropped.crop_of_full_scene = (float(t.f), float(t.c), tuple(model.image_shape))
-        return cropped
+        return model.cropped(t.f, t.c, shape), (float(t.f), float(t.c))
     described = tuple(model.image_shape)
     why = ("a crop must carry a pixel geotransform (1, 0, col0, 0, 1, row0)" if hasattr(model, "cropped")
            else f"a {model.kind} model cannot be cropped; give the full scene raster")
@@ -280,21 +281,23 @@ def _single_raster(model, raster: Path) -> dict:
     return {getattr(model, "reference_band", None): {"path": str(raster.resolve()), "index": 1}}
 
 
-def _with_image(model, rasters: dict, image, band, *, check_shape: bool):
-    """``image`` replaces the raster of ``band``; a raster of another size crops the model."""
+def _with_image(model, rasters: dict, image, band, *, check_shape: bool, source: Path, product_check,
+                raster_candidates: tuple = (), raster_tiles: int = 0) -> Scene:
+    """The Scene: ``image`` replaces the raster of ``band``; a raster of another size crops the model."""
     key = band if band is not None else getattr(model, "reference_band", None)
     if image is not None:
         rasters[key] = {"path": str(Path(image).resolve()), "index": 1}
     ref = rasters.get(key)
+    crop = None
     # a manifest's model with --image of another size is left to the command (as before)
     if check_shape and ref is not None and (image is None or hasattr(model, "cropped")):
         shape = _raster_info(ref["path"])[0]
         if shape != tuple(model.image_shape):
-            candidates, tiles = model.raster_candidates, getattr(model, "raster_tiles", 0)
-            model = crop_to_raster(model, ref["path"], shape)
-            model.raster_candidates, model.raster_tiles = candidates, tiles
-    model.rasters = rasters
-    return model
+            full_shape = tuple(model.image_shape)
+            model, (row0, col0) = crop_to_raster(model, ref["path"], shape)
+            crop = (row0, col0, full_shape)
+    return Scene(model=model, rasters=rasters, source=Path(source), raster_candidates=raster_candidates,
+                 raster_tiles=raster_tiles, crop=crop, product_check=product_check)
 
 
 def _raster_rpc(path) -> tuple[tuple[int, int], bool]:
