@@ -19,6 +19,7 @@ __version__ = "0.1.0"
 _EXPORTS = {
     "open_model": "sensor_models.readers.model_file",
     "open_scene": "sensor_models.readers.scene_input",
+    "Scene": "sensor_models.readers.scene_value",
     "SensorModel": "sensor_models.base",
     "PushbroomModel": "sensor_models.models.pushbroom",
     "GeoStaringModel": "sensor_models.models.geo_staring",
