@@ -431,3 +431,10 @@ def test_report_counts_that_differ_say_why(written, demo):
                 for label in ("LAB model", "calibrated model, every band"))
     phrase = f"{lab} grid points for the LAB model against {cal} for the calibrated model: "
     assert (phrase in truth) == (lab != cal)
+
+
+def test_calibrate_line_says_over_how_many_check_points_an_rmse_is():
+    from calibrate.cli.calibrate import _over
+
+    assert _over(158, 158, "input") == "" and _over(None, 158, "input") == ""
+    assert _over(143, 158, "input") == " (over the 143 the input model projects into the image)"
