@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import math
 import time
 from dataclasses import replace
@@ -171,18 +172,23 @@ def test_validation_with_and_without_the_coarse_skip_agrees(series):
     assert abs(sift["points"] - skip["points"]) <= 0.1 * sift["points"]
 
 
-def test_cli_validate_reports_failures(series, tmp_path, capsys):
+def test_cli_validate_reports_failures(series, tmp_path, capsys, monkeypatch):
+    """Every scene failed: exit 3, the rows say why; off a terminal the scenes are counted in tenths."""
+    import calibrate.cli._progress as progress_module
+
+    monkeypatch.setattr(progress_module, "PLAIN_AFTER_S", 0.0)
     sites = tmp_path / "sites.csv"
-    sites.write_text("name,scene,dom,dem,site\n"
-                     f"foreign,{FOREIGN / 'manifest.json'},{FOREIGN / 'reference/dom.tif'},"
-                     f"{FOREIGN / 'reference/dem.tif'},nowhere\n")
+    row = f"{FOREIGN / 'manifest.json'},{FOREIGN / 'reference/dom.tif'},{FOREIGN / 'reference/dem.tif'}"
+    sites.write_text(f"name,scene,dom,dem,site\nforeign,{row},nowhere\nforeign2,{row},elsewhere\n")
     code = main(["validate", str(sites), "--calibration", str(series["calibration"]), "--out", str(tmp_path / "o"),
-                 "--workers", "1", "--json"])
+                 "--workers", "1"])
     out, err = capsys.readouterr()
     assert code == 3, err
-    doc = json.loads(out)
-    assert doc["failed"] == 1 and doc["rows"][0]["site"] == "nowhere"
-    assert "does not fit this sensor" in doc["rows"][0]["reason"]
+    counted = re.findall(r"^gcpcal validate (\d+) % \((\d+)/2\)", err, flags=re.M)
+    assert counted == [("50", "1"), ("100", "2")], err
+    doc = json.loads((tmp_path / "o" / "validation.json").read_text())
+    assert doc["failed"] == 2 and [r["site"] for r in doc["rows"]] == ["nowhere", "elsewhere"]
+    assert all("does not fit this sensor" in r["reason"] for r in doc["rows"])
     assert (tmp_path / "o" / "validation.html").is_file()
 
 

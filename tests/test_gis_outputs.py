@@ -477,3 +477,65 @@ def test_layer_names_each_point_s_ccd_when_the_table_names_none(tmp_path):
     assert sorted(set(layer["ccd"])) == sorted(names)
     order = np.argsort([int(i[1:]) for i in layer["id"]])
     assert list(np.asarray(layer["ccd"])[order]) == list(want)
+
+
+def test_rpc_of_a_calibrated_manifest_carries_its_check_point_accuracy(calibrated, tmp_path, capsys):
+    """ERR_BIAS / ERR_RAND of ``gcpcal rpc`` on ``gcpcal calibrate``'s manifest: the check points'
+    accuracy after calibration (as ``gcpcal calibrate`` writes for an RPC product), the RPC's own
+    check-grid RMS added to ERR_RAND; in the text RPC and the GeoTIFF tags alike. Without a
+    calibration beside the model they stay -1 (unknown), and the summary says why."""
+    import shutil
+    from types import SimpleNamespace
+
+    from calibrate.actions.calibrate import rpc_error_estimates
+    from calibrate.actions.rpc import calibration_errors
+
+    layer = read_residual_layer(calibrated / "residuals.gpkg")
+    check = np.asarray(layer["kind"]).astype(str) == "check"
+    res = np.stack([layer["resid_along_m"][check], layer["resid_across_m"][check], layer["resid_planar_m"][check]], 1)
+    doc = json.loads((calibrated / "calibration.json").read_text())
+    sigma = (doc["reference_accuracy"]["east_m"], doc["reference_accuracy"]["north_m"])
+    bias, rand = rpc_error_estimates(SimpleNamespace(residuals_m=res), sigma)
+    for name in ("cal_RPC.TXT", "cal.tif"):
+        code, out, err = _run(capsys, "rpc", calibrated / "manifest.json", "--ccd", "cam2_ccd1", "--out",
+                              tmp_path / name, "--height-range", "0", "500")
+        assert code == 0, err
+        assert f"ERR_BIAS {bias:.3f} m" in out and f"from {int(check.sum())} check points" in out
+    summary = json.loads((tmp_path / "cal_RPC.TXT.summary.json").read_text())
+    errors, entry = summary["rpc_errors"], summary["rpcs"][0]
+    assert errors["err_bias_m"] == pytest.approx(bias, rel=1e-12) and errors["err_rand_m"] == pytest.approx(rand)
+    assert "residuals.gpkg" in errors["source"] and errors["check_points"] == int(check.sum()) == 56
+    text = read_rpc(tmp_path / "cal_RPC.TXT")
+    gsd = 30.0  # the fixture's ~30 m pixels: the fit's RMS adds a few tenths of a metre at most
+    assert text.err_bias == pytest.approx(bias, rel=1e-12)
+    assert rand < text.err_rand <= np.hypot(rand, entry["fit"]["check_rms_px"] * 1.2 * gsd)
+    with rasterio.open(tmp_path / "cal.tif") as ds:
+        assert float(ds.rpcs.err_bias) == pytest.approx(bias, rel=1e-9)
+        assert float(ds.rpcs.err_rand) == pytest.approx(text.err_rand, rel=1e-6)
+    print(f"\nrpc of the calibrated fixture: ERR_BIAS {text.err_bias:.3f} m, ERR_RAND {text.err_rand:.3f} m "
+          f"(check points {rand:.3f} m, fit rms {entry['fit']['check_rms_px']:.3g} px)")
+    # without the residual layer: the same formula on calibration.json's mean and RMS per axis
+    copy = tmp_path / "copy"
+    shutil.copytree(calibrated, copy, ignore=shutil.ignore_patterns("residuals.gpkg"))
+    summed = calibration_errors(copy / "manifest.json")
+    assert "check_accuracy.after" in summed["source"]
+    assert summed["err_bias_m"] == pytest.approx(bias, rel=0.02)
+    assert summed["err_rand_m"] == pytest.approx(rand, rel=0.02)
+    # the input scene has no calibration beside it: -1, and why
+    code, out, err = _run(capsys, "rpc", SCENE, "--ccd", "cam2_ccd1", "--out", tmp_path / "lab_RPC.TXT",
+                          "--height-range", "0", "500")
+    assert code == 0, err
+    assert read_rpc(tmp_path / "lab_RPC.TXT").err_bias in (None, -1.0) and "no calibration.json beside" in out
+    lab = json.loads((tmp_path / "lab_RPC.TXT.summary.json").read_text())
+    assert lab["rpc_errors"]["err_bias_m"] is None and "-1 (unknown)" in lab["rpc_errors"]["source"]
+    assert lab["rpcs"][0]["err_bias_m"] is None
+
+
+def test_rpc_errors_of_a_relative_manifest_are_its_calibrations(demo_folder):
+    """``gcpcal relative``'s folder has no calibration.json: the one its relative.json names gives the figures."""
+    from calibrate.actions.rpc import calibration_errors
+
+    rel = calibration_errors(demo_folder / "relative" / "manifest.json")
+    cal = calibration_errors(demo_folder / "calibration" / "manifest.json")
+    assert rel["source"].startswith("gcpcal relative") and cal["source"].startswith("gcpcal calibrate")
+    assert rel["err_bias_m"] == cal["err_bias_m"] and rel["err_rand_m"] == cal["err_rand_m"] is not None

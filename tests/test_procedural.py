@@ -39,7 +39,12 @@ def mountains() -> ReferenceData:
 
 
 def test_same_seed_same_arrays_other_seed_differs(small):
-    again = generate_reference(LON, LAT, 12_000.0, 9_000.0, **SMALL)
+    calls = []
+    again = generate_reference(LON, LAT, 12_000.0, 9_000.0, **SMALL, progress=lambda d, t: calls.append((d, t)))
+    # counted progress (phases, then every strip of DOM rows) does not touch the result
+    total = calls[0][1]
+    assert [d for d, _ in calls] == list(range(total + 1)) and {t for _, t in calls} == {total}
+    assert total == 6 + -(-small.dom.shape[0] // 256) + 1
     for name in ("dom", "dem_m", "water_mask", "land_cover"):
         a, b = getattr(small, name), getattr(again, name)
         assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name

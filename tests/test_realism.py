@@ -212,11 +212,25 @@ def test_dom_geolocation_error_is_1_to_3_m():
     assert -1.9 < east < -0.6 and 0.3 < north < 1.6
 
 
-def test_cli_realistic_scene_carries_its_profile(tmp_path):
+def test_cli_realistic_scene_carries_its_profile(tmp_path, monkeypatch, capsys):
+    """Off a terminal the rendering prints counted tenths, the procedural source's parts included."""
+    import re
+
+    import calibrate.cli._progress as progress_module
+
+    monkeypatch.setattr(progress_module, "PLAIN_AFTER_S", 0.0)
     cfg = tmp_path / "cfg.json"
     cfg.write_text(json.dumps(MEDIUM))
     out = tmp_path / "scene"
-    assert cli(["-q", "simulate", "pushbroom", "--out", str(out), "--config", str(cfg), "--profile", "realistic"]) == 0
+    assert cli(["simulate", "pushbroom", "--out", str(out), "--config", str(cfg), "--profile", "realistic"]) == 0
+    counts = [tuple(int(v) for v in m) for m in
+              re.findall(r"gcpcal simulate pushbroom: rendering (\d+) % \((\d+)/(\d+)\)", capsys.readouterr().err)]
+    assert len(counts) >= 5 and len({t for _, _, t in counts}) == 1  # one total from the first line on
+    percent, done, total = zip(*counts)
+    assert list(done) == sorted(done) and counts[-1] == (100, total[0], total[0])
+    blocks = -(-MEDIUM["scene"]["n_rows"] // 256)
+    assert total[0] > 2 + blocks  # the set-up's first step counted in parts (source radiance and DEM)
+    assert counts[0][1] < total[0] - 2 - blocks  # a line came while the source was being built
     summary = json.loads((out / "summary.json").read_text())
     assert summary["profile"] == "realistic"
     inj = summary["injected"]

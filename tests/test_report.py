@@ -378,3 +378,63 @@ def test_demo_report_coverage_rows_hold_each_ccds_check_rmse(demo):
         row = re.search(rf'<tr><td class="l">{band}</td><td>{ccd}</td>(.*?)</tr>', section).group(1)
         cells = re.findall(r"<td>(.*?)</td>", row)
         assert cells[-2] == _fmt4(s["per_ccd_after"][key]) and float(cells[-3]) > 100.0  # after; before
+
+
+# --------------------------------------------------------------------------- counts that differ say why
+def _notes(section):
+    return re.findall(r'<p class="count-note">(.*?)</p>', section)
+
+
+def _check_count_notes(html):
+    """Each pair of counts of the same points that differs has its phrase, and no other phrase is written."""
+    summary = _section(html, "summary")
+    cell = {label: int(n) for label, n in re.findall(r'<tr><td class="l">([^<]+)</td><td(?: class="l")?>(\d+)', summary)}
+    n_checks = cell["Check points"]
+    n_gcps = int(re.search(r'<td class="l">GCPs</td><td class="l">(\d+)', summary).group(1))
+    pairs = [(cell["check points, before"], n_checks, "check points before calibration"),
+             (cell["check points, after"], n_checks, "check points after calibration"),
+             (cell["GCPs (inliers), after"], n_gcps, "GCPs after calibration"),
+             (cell["GCPs (inliers), before"], cell["GCPs (inliers), after"], "inliers before calibration")]
+    expected = [f"{n} of {total} {what}: " for n, total, what in pairs if n != total]
+    notes = _notes(summary)
+    assert len(notes) == len(expected) and all(n.startswith(e) for n, e in zip(notes, expected)), (notes, expected)
+    per_ccd = _notes(_section(html, "per-ccd"))
+    differ = cell["check points, before"] != cell["check points, after"]
+    assert len(per_ccd) == differ and all("initial model projects" in n for n in per_ccd)
+    shown = 0
+    if (section := _section(html, "band-to-band")) is not None:
+        for band, ties, inliers in re.findall(r'<tr><td class="l">([^<]+)</td><td><span[^>]*>\w+</span></td>'
+                                              r'<td>(\d+)</td><td>(\d+)</td>', section):
+            phrase = f"{inliers} of {ties} tie points of {band}: the inliers of the robust solve"
+            assert (phrase in section) == (ties != inliers)
+            shown += ties != inliers
+        assert len(_notes(section)) == shown
+    if (section := _section(html, "parallax")) is not None:
+        used = int(re.search(r"<p>(\d+) GCPs of the reference band", section).group(1))
+        assert (f"{used} of {n_gcps} GCPs: the joint solve weights only" in section) == (used != n_gcps)
+    return len(expected) + len(per_ccd) + shown
+
+
+def test_count_note_is_written_only_for_counts_that_differ():
+    from calibrate.report._html import count_note
+
+    assert count_note(5, 5, "GCPs", "x") == "" and count_note(None, 5, "GCPs", "x") == ""
+    assert count_note(3, 5, "GCPs", "a <b>") == '<p class="count-note">3 of 5 GCPs: a &lt;b&gt;.</p>'
+
+
+def test_report_counts_that_differ_say_why(written, demo):
+    _check_count_notes(written[2])
+    _, s, html = demo
+    assert _check_count_notes(html) > 0  # the demo's LAB model projects fewer points than the calibrated one
+    truth = _section(html, "truth")
+    lab, cal = (re.search(rf'<td class="l">{label}[^<]*</td><td>(\d+)</td>', truth).group(1)
+                for label in ("LAB model", "calibrated model, every band"))
+    phrase = f"{lab} grid points for the LAB model against {cal} for the calibrated model: "
+    assert (phrase in truth) == (lab != cal)
+
+
+def test_calibrate_line_says_over_how_many_check_points_an_rmse_is():
+    from calibrate.cli.calibrate import _over
+
+    assert _over(158, 158, "input") == "" and _over(None, 158, "input") == ""
+    assert _over(143, 158, "input") == " (over the 143 the input model projects into the image)"

@@ -170,8 +170,9 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     -------
     dict
         The summary written to ``calibrate.summary.json`` (``success``, ``message``, ``gcps``,
-        ``check_points``, ``check_rmse_px {before, after}``, ``model``, ``product_check``,
-        ``warnings``, ``seconds``).
+        ``check_points``, ``check_rmse_px {before, after}``, ``check_points_used {before, after}``
+        (the check points each model projects into the image, over which those RMSE are taken),
+        ``model``, ``product_check``, ``warnings``, ``seconds``).
     """
     t0 = time.perf_counter()
     check_output_folder(out_dir, inputs=[scene_path, gcps_path, image])  # before any work
@@ -215,6 +216,11 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
             "check_rmse_px": {
                 "before": None if acc_before is None else acc_before.absolute.rmse_px,
                 "after": None if acc_after is None else acc_after.absolute.rmse_px,
+            },
+            # the check points each model projects into the image: the RMSE above is over these
+            "check_points_used": {
+                "before": None if acc_before is None else acc_before.absolute.n,
+                "after": None if acc_after is None else acc_after.absolute.n,
             },
             "variance_factor": doc["variance_factor"],
             "covariance_factor": doc.get("covariance_factor"),

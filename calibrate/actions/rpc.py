@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pyproj
@@ -36,12 +37,15 @@ from calibrate.actions._io import (check_output_files, check_output_folder, open
 from calibrate.actions._l1a import scene_raster, write_l1a_with_rpc
 from calibrate.actions._status import require_usable, status_fields
 from calibrate.actions._provenance import geotiff_tags
+from calibrate.actions.calibrate import rpc_error_estimates
 from sensor_models.errors import InputError
+from sensor_models.files.documents import load_json
+from sensor_models.models.rpc import RpcModel
 from sensor_models.terrain.footprint import check_dem_footprint, footprint_sample_lonlat
 from sensor_models.readers.rpc_files import write_rpc
 
-__all__ = ["DEFAULT_HEIGHT_RANGE_M", "DEFAULT_MAX_ERROR_PX", "RpcOutputUsageError", "fit_rpcs", "height_hint_tags",
-           "out_is_folder"]
+__all__ = ["DEFAULT_HEIGHT_RANGE_M", "DEFAULT_MAX_ERROR_PX", "RpcOutputUsageError", "calibration_errors", "fit_rpcs",
+           "height_hint_tags", "out_is_folder"]
 
 GEOD = pyproj.Geod(ellps="WGS84")
 
@@ -195,12 +199,14 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
     if not folder and out.suffix.lower() in (".tif", ".tiff") and raster is None:
         raise InputError(f"a *.tif output is a copy of the scene raster, and the scene lists no raster for band "
                          f"{band!r}: give --image, or write *_RPC.TXT / *.RPB", path=str(out))
+    errors = calibration_errors(model_path)
     context = dict(band=band, raster=raster, height_range=height_range, model_path=model_path,
-                   n_rows_cols=tuple(model.image_shape), form=form, max_error_px=float(max_error_px))
+                   n_rows_cols=tuple(model.image_shape), form=form, max_error_px=float(max_error_px),
+                   errors=errors)
     if folder:
         with staged_folder(out, ".rpc-", inputs=inputs) as tmp:
             fits = [entry for t in targets for entry in _fit_tiles(t, tmp, out, model, context)]
-            summary = _summary(scene, model_path, height_range, warning, coverage, fits, t0, max_error_px)
+            summary = _summary(scene, model_path, height_range, warning, coverage, fits, t0, max_error_px, errors)
             if raster is None:
                 summary["warnings"].append(f"the scene lists no raster for band {band!r}: wrote the RPCs only "
                                            "(give --image for georeferenced level-1A copies)")
@@ -208,7 +214,7 @@ def fit_rpcs(model_path, out_path, *, dem_path=None, dem_datum=None, geoid=None,
         return summary
     with staged_files(out, summary_path, inputs=inputs) as (staged, staged_summary):
         fits = [_fit_one(targets[0], [(staged, out)], context)]
-        summary = _summary(scene, model_path, height_range, warning, coverage, fits, t0, max_error_px)
+        summary = _summary(scene, model_path, height_range, warning, coverage, fits, t0, max_error_px, errors)
         write_summary(staged_summary, summary)
     return summary
 
@@ -279,8 +285,10 @@ def height_hint_tags(rpc) -> dict[str, str]:
 def _write(fitted, report, ccd_name, first_row, first_col, outputs, context) -> dict:
     """Write one RPC (text or level-1A GeoTIFF) to each ``(staged, final)`` path; its summary entry."""
     band = context["band"]
+    fitted = _with_errors(fitted, report, context["errors"])
     entry = {"ccd": ccd_name, "first_row": int(first_row), "first_col": int(first_col),
-             "shape": list(fitted.image_shape), "output": None, "raster": None, "fit": report}
+             "shape": list(fitted.image_shape), "output": None, "raster": None, "fit": report,
+             "err_bias_m": fitted.err_bias, "err_rand_m": fitted.err_rand}
     for staged, final in outputs:
         if final.suffix.lower() in (".tif", ".tiff"):
             path, index = context["raster"]
@@ -298,7 +306,7 @@ def _write(fitted, report, ccd_name, first_row, first_col, outputs, context) -> 
     return entry
 
 
-def _summary(scene, model_path, height_range, warning, coverage, fits, t0, max_error_px) -> dict:
+def _summary(scene, model_path, height_range, warning, coverage, fits, t0, max_error_px, errors) -> dict:
     misses = [f for f in fits if f["fit"]["check_max_px"] > max_error_px]
     extra = []
     if misses:
@@ -315,5 +323,121 @@ def _summary(scene, model_path, height_range, warning, coverage, fits, t0, max_e
         "max_error_px": float(max_error_px),
         "rpcs": fits,
         "check_max_px": max(f["fit"]["check_max_px"] for f in fits),
+        "rpc_errors": errors,
         "seconds": round(time.perf_counter() - t0, 3),
     }
+
+
+def _calibration_doc(model_path):
+    """``(calibration.json path, how it was found)`` of a calibrated manifest, or ``(None, why not)``.
+
+    Beside the manifest for ``gcpcal calibrate``'s folder; for ``gcpcal relative``'s, beside the
+    calibrated manifest its ``relative.json`` names (the reference band's absolute calibration).
+    """
+    given = Path(model_path)
+    folder = given if given.is_dir() else given.parent
+    if (folder / "calibration.json").is_file():
+        return folder / "calibration.json", "gcpcal calibrate"
+    if (folder / "relative.json").is_file():
+        try:
+            named = load_json(folder / "relative.json").get("calibration")
+        except (InputError, AttributeError):
+            named = None
+        if named:
+            cal = Path(named) if Path(named).is_absolute() else folder / named
+            doc = (cal if cal.is_dir() else cal.parent) / "calibration.json"
+            if doc.is_file():
+                return doc, f"gcpcal relative (its calibration {cal})"
+    return None, f"no calibration.json beside {given} (nor named by a relative.json there)"
+
+
+def calibration_errors(model_path) -> dict:
+    """The check-point accuracy after calibration of a calibrated manifest, as RPC error figures.
+
+    Read from the ``calibration.json`` written by ``gcpcal calibrate`` beside ``model_path`` (or,
+    for ``gcpcal relative``'s folder, beside the calibration its ``relative.json`` names): with its
+    ``residuals.gpkg``, the check points' along- and across-track metres after calibration, else
+    their mean and RMS per axis (:func:`_check_figures`); combined by :func:`calibrate.actions.calibrate.rpc_error_estimates` with the reference's
+    stated accuracy (``reference_accuracy``), as ``gcpcal calibrate`` does for an RPC product.
+
+    Parameters
+    ----------
+    model_path : str or Path
+        The model given to ``gcpcal rpc``.
+
+    Returns
+    -------
+    dict
+        ``err_bias_m``, ``err_rand_m`` (None: unknown, the RPCs get -1), ``check_points``,
+        ``reference_sigma_m`` and ``source`` (what the figures came from, or why there are none).
+    """
+    doc_path, how = _calibration_doc(model_path)
+    unknown = {"err_bias_m": None, "err_rand_m": None, "check_points": 0, "reference_sigma_m": None}
+    if doc_path is None:
+        return {**unknown, "source": f"{how}: ERR_BIAS and ERR_RAND are -1 (unknown)"}
+    try:
+        doc = load_json(doc_path)
+        ref = doc.get("reference_accuracy") or {}
+        sigma = None if ref.get("east_m") is None else (float(ref["east_m"]), float(ref.get("north_m") or 0.0))
+        figures = _check_figures(doc_path, doc, sigma)
+    except (InputError, AttributeError, TypeError, ValueError) as exc:
+        return {**unknown, "source": f"{doc_path} unreadable ({exc}): ERR_BIAS and ERR_RAND are -1 (unknown)"}
+    if figures is None:
+        return {**unknown, "source": f"{doc_path} holds fewer than 2 check points after calibration: "
+                                     "ERR_BIAS and ERR_RAND are -1 (unknown)"}
+    bias, rand, n, what = figures
+    return {"err_bias_m": bias, "err_rand_m": rand, "check_points": n, "reference_sigma_m": sigma,
+            "source": f"{how}: {what}, with the reference accuracy of {doc_path.name}, each RPC's check-grid "
+                      "RMS (px x its GSD) added to ERR_RAND in quadrature"}
+
+
+def _check_figures(doc_path: Path, doc: dict, sigma):
+    """``(ERR_BIAS, ERR_RAND, check points, what they came from)`` of a calibration, or None.
+
+    With the calibration's ``residuals.gpkg``: :func:`rpc_error_estimates` of its check points'
+    along- and across-track metres, exactly what ``gcpcal calibrate`` writes for an RPC product.
+    Else the same formula on ``check_accuracy.after.absolute`` of ``calibration.json``: the mean
+    per axis (px, at the metres per pixel of that axis's RMS) and the variance ``RMS^2 - mean^2``
+    (sample-corrected).
+    """
+    layer = doc_path.parent / "residuals.gpkg"
+    if layer.is_file():
+        from calibrate.residual_layer import read_residual_layer
+
+        pts = read_residual_layer(layer)
+        check = np.asarray(pts["kind"]).astype(str) == "check"
+        res = np.stack([np.asarray(pts[k], dtype=np.float64)[check]
+                        for k in ("resid_along_m", "resid_across_m", "resid_planar_m")], axis=1)
+        est = rpc_error_estimates(SimpleNamespace(residuals_m=res), sigma)
+        if est is not None:
+            return est[0], est[1], int(check.sum()), f"the check points' metres of {layer.name}"
+    a = ((doc.get("check_accuracy") or {}).get("after") or {}).get("absolute") or {}
+    n = int(a.get("n") or 0)
+    values = [a.get(k) for k in ("mean_row_px", "mean_col_px", "rmse_row_px", "rmse_col_px", "rmse_row_m", "rmse_col_m")]
+    if n < 2 or any(v is None or not np.isfinite(v) for v in values) or not (values[2] > 0 and values[3] > 0):
+        return None
+    mean_px, rms_px, rms_m = np.array(values[:2]), np.array(values[2:4]), np.array(values[4:])
+    mean_m = mean_px * rms_m / rms_px
+    var = np.maximum(rms_m**2 - mean_m**2, 0.0) * n / (n - 1)
+    ref = 0.0 if sigma is None else float(np.mean(np.square(sigma)))
+    return (float(np.sqrt(ref + 0.5 * np.sum(mean_m**2))), float(np.sqrt(0.5 * np.sum(var))), n,
+            f"the check points' mean and RMS per axis of {doc_path.name} (check_accuracy.after)")
+
+
+def _gsd_m(rpc) -> float:
+    """Mean ground distance (m) of a one-pixel step along rows and columns at the RPC's centre and HEIGHT_OFF."""
+    rows, cols = rpc.image_shape
+    r, c = 0.5 * rows, 0.5 * cols
+    lon, lat, _ = rpc.image_to_ground(np.array([r, r + 1.0, r]), np.array([c, c, c + 1.0]),
+                                      height=np.full(3, float(rpc.height_off)))
+    steps = [GEOD.inv(lon[0], lat[0], lon[k], lat[k])[2] for k in (1, 2)]
+    return float(np.mean(steps))
+
+
+def _with_errors(fitted, report, errors):
+    """The RPC with ``ERR_BIAS``/``ERR_RAND`` from the calibration's accuracy and its own fit (unknown: as fitted)."""
+    if errors is None or errors.get("err_bias_m") is None:
+        return fitted
+    fit_m = float(report["check_rms_px"]) * _gsd_m(fitted) / np.sqrt(2.0)  # per horizontal axis
+    rand = float(np.hypot(errors["err_rand_m"], fit_m))
+    return RpcModel(**{**fitted.init_kwargs(), "err_bias": float(errors["err_bias_m"]), "err_rand": rand})

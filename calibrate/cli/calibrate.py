@@ -78,10 +78,17 @@ def _pair(text, hint):
     return value
 
 
+def _over(used, n, which: str) -> str:
+    """`` (over the 143 the input model projects)`` where an RMSE is over fewer check points than there are."""
+    return "" if used is None or used == n else f" (over the {used} the {which} model projects into the image)"
+
+
 def _print_summary(out_dir, summary) -> None:
     """The one-line outcome, the per-CCD coverage table and the CCDs that are not calibrated/verified."""
     before, after = summary["check_rmse_px"]["before"], summary["check_rmse_px"]["after"]
-    checks = (f"check RMSE {before:.3f} -> {after:.3f} px on {summary['check_points']} check points"
+    n, used = summary["check_points"], summary.get("check_points_used") or {}
+    checks = (f"check RMSE {before:.3f}{_over(used.get('before'), n, 'input')} -> "
+              f"{after:.3f}{_over(used.get('after'), n, 'calibrated')} px on {n} check points"
               if before is not None else "no check points")
     state = {"calibrated": "calibrated", "partial": "PARTIAL", "failed": "FAILED"}[summary["status"]]
     vf = summary.get("variance_factor")

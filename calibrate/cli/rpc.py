@@ -56,6 +56,11 @@ def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_rang
     cube); its errors on an independent check grid are reported in the summary (OUT.summary.json,
     or rpc.summary.json in the folder).
 
+    When MODEL is a manifest written by gcpcal calibrate (or gcpcal relative), each RPC gets
+    ERR_BIAS and ERR_RAND (metres per horizontal axis) from the check points after calibration
+    (calibration.json and residuals.gpkg beside it) and the reference's stated accuracy, with the
+    RPC's own check-grid RMS added to ERR_RAND; otherwise they stay -1 (unknown).
+
     MODEL is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
     beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
     .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
@@ -80,3 +85,11 @@ def command(model_path, out_path, image, dem_path, dem_datum, geoid, height_rang
         also = f" and {f['raster']}" if f["raster"] and f["raster"] != f["output"] else ""
         click.echo(f"wrote {f['output']}{also}{label}: {rep['form']} RPC, check-grid max {rep['check_max_px']:.2e} px, "
                    f"rms {rep['check_rms_px']:.2e} px")
+    errors = summary["rpc_errors"]
+    if errors["err_bias_m"] is None:
+        click.echo(f"ERR_BIAS, ERR_RAND: {errors['source']}")
+    else:
+        rand = sorted({round(f["err_rand_m"], 3) for f in summary["rpcs"]})
+        rand_text = f"{rand[0]:.3f}" if len(rand) == 1 else f"{rand[0]:.3f} to {rand[-1]:.3f}"
+        click.echo(f"ERR_BIAS {errors['err_bias_m']:.3f} m, ERR_RAND {rand_text} m per axis, from "
+                   f"{errors['check_points']} check points after calibration ({errors['source']})")

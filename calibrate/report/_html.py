@@ -24,7 +24,7 @@ td.l,th.l{text-align:left}tr.total td{font-weight:600;background:#fafafa}
 .ok{color:#17733a;font-weight:600}.fail{color:#b3261e;font-weight:600}
 figure{margin:1em 0}figure img{max-width:100%;border:1px solid #ddd}figcaption{font-size:.88em;color:#444}
 .meta{color:#666;font-size:.85em}details{margin:.6em 0}summary{cursor:pointer}pre{margin:0;white-space:pre-wrap}
-nav a{margin-right:1em}
+nav a{margin-right:1em}.count-note{font-size:.88em;color:#444;margin:.2em 0}
 """
 
 
@@ -93,6 +93,31 @@ def escape(text) -> str:
         Escaped text.
     """
     return html.escape(str(text), quote=True)
+
+
+def count_note(n, total, what: str, why: str) -> str:
+    """One short paragraph saying why a count is smaller than another, or nothing when they agree.
+
+    Every place a report shows two counts of the same points that differ says why beside them
+    (``<p class="count-note">``), so that a reader never meets a bare discrepancy.
+
+    Parameters
+    ----------
+    n, total : int or None
+        The count shown and the one it differs from; None gives nothing.
+    what : str
+        The points counted (``"check points"``).
+    why : str
+        Short phrase: which ones the count holds or why the others are left out.
+
+    Returns
+    -------
+    str
+        ``<p class="count-note">n of total what: why.</p>``, or ``""`` when ``n == total``.
+    """
+    if n is None or total is None or int(n) == int(total):
+        return ""
+    return f'<p class="count-note">{int(n)} of {int(total)} {escape(what)}: {escape(why)}.</p>'
 
 
 def fmt(value, digits: int = 4) -> str:

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from calibrate.attitude import correction_band, jitter_spectrum
-from calibrate.report._html import escape as _e, figure_html as _figure_html, fmt as _fmt
+from calibrate.parallax import GCP_REJECT_SIGMAS
+from calibrate.report._html import count_note, escape as _e, figure_html as _figure_html, fmt as _fmt
 from calibrate.report._html import new_figure as _new_figure, save_figure as _save, table as _table
 from sensor_models.models.attitude_correction import AXES
 
@@ -236,7 +237,7 @@ def figure_parallax(relative, fig_dir) -> dict | None:
     return {"src": _save(fig, fig_dir, "attitude_parallax.png"), "caption": caption}
 
 
-def section_parallax(relative, figure) -> str:
+def section_parallax(relative, figure, n_gcps=None) -> str:
     """HTML of the band-parallax attitude section: observations, bases, recovered jitter, figure.
 
     Parameters
@@ -244,6 +245,9 @@ def section_parallax(relative, figure) -> str:
     relative : calibrate.relative.RelativeResult
     figure : dict or None
         Of :func:`figure_parallax`.
+    n_gcps : int, optional
+        GCPs of the report; when the joint solve weighted fewer, a phrase says why (as for the
+        tie points, against those of the band-to-band section).
 
     Returns
     -------
@@ -263,6 +267,13 @@ def section_parallax(relative, figure) -> str:
              f"weighted least squares for the attitude correction ({joint.rounds} round(s) alternated with the "
              f"interiors): <b>{_e(describe(joint.correction))}</b>, against <b>{_e(describe(joint.gcp_only))}</b> "
              "from the GCPs alone (docs/attitude.md).</p>")
+    n_ties = sum(len(b.ties) for b in relative.bands.values())
+    intro += (count_note(joint.n_gcps, n_gcps, "GCPs",
+                         "the joint solve weights only the reference band's GCPs that the model projects, "
+                         f"within {GCP_REJECT_SIGMAS:g} robust standard deviations of their median residual")
+              + count_note(joint.n_ties, n_ties, "tie points of the band-to-band section",
+                           "the joint solve weights only those whose centre still reaches the DEM and "
+                           "transfers to their band through the model"))
     rows = []
     for label, corr in (("joint", joint.correction), ("GCP only", joint.gcp_only)):
         peaks = jitter_spectrum(corr, t_lo, t_hi)["axes"] if corr is not None else {}

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.report._html import escape as _e, figure_html as _figure_html, fmt as _fmt
+from calibrate.report._html import count_note, escape as _e, figure_html as _figure_html, fmt as _fmt
 from calibrate.report._html import new_figure as _new_figure, save_figure as _save, table as _table
 
 __all__ = ["figure_band_to_band", "section_band_to_band"]
@@ -133,6 +133,8 @@ def section_band_to_band(relative, figures) -> str:
     header = ["band", "calibrated", "tie points", "inliers", "windows", "along before", "along after",
               "across before", "across after", "planar before", "planar after"]
     table = _table(header, [_band_row(b) for b in bands])
+    table += "".join(count_note((b.after or {}).get("n_inliers"), len(b.ties), f"tie points of {b.band}",
+                                "the inliers of the robust solve, over which its RMS is taken") for b in bands)
     table += "<ul>" + "".join(f"<li>{_e(b.band)}: {_e(b.message)}</li>" for b in bands) + "</ul>"
     ccd_rows = [row for b in bands for row in _ccd_rows(b)]
     details = ""

@@ -56,7 +56,7 @@ import numpy as np
 
 from calibrate.calibration_result import CalibrationResult, parameter_unit
 from calibrate.accuracy import AccuracyReport
-from calibrate.report._html import CSS as _CSS, escape as _e, figure_html as _figure_html, fmt as _fmt
+from calibrate.report._html import CSS as _CSS, count_note, escape as _e, figure_html as _figure_html, fmt as _fmt
 from calibrate.report._html import section_provenance, table as _table, value_html
 from calibrate.report._inputs import ReportContext, check_result, point_columns, unwrap_result
 from calibrate.report.attitude import figure_attitude, figure_parallax, section_attitude, section_parallax
@@ -250,7 +250,7 @@ def _html(ctx: ReportContext, figures, error_vs_count, title, extra, provenance=
         sections.append(("band-to-band", "Band-to-band calibration",
                          section_band_to_band(ctx.relative, figures.get("band_to_band") or [])))
         if getattr(ctx.relative, "parallax", None):
-            sections.append(("parallax", "Attitude from band parallax", section_parallax(ctx.relative, figures.get("parallax"))))
+            sections.append(("parallax", "Attitude from band parallax", section_parallax(ctx.relative, figures.get("parallax"), ctx.gcps["row"].size)))
     if ctx.truth_error is not None:
         sections.append(("truth", "Error against the TRUE model", section_truth(ctx.truth_error, figures.get("truth"))))
     sections.append(("distribution", "Residual distribution", _figure_html(figures["histograms"]) + _section_normal(ctx)))
@@ -312,12 +312,25 @@ def _section_summary(ctx: ReportContext) -> str:
         a, rel = acc.absolute, acc.relative
         rows.append([_e(label), str(a.n), _fmt(a.rmse_row_px), _fmt(a.rmse_col_px), _fmt(a.rmse_px),
                      _fmt(rel.rmse_px), _fmt(a.max_px), _fmt(a.rmse_row_m), _fmt(a.rmse_col_m), _fmt(a.rmse_m)])
-    for which in ("before", "after"):
-        s = r.statistics(which)
+    stats = {which: r.statistics(which) for which in ("before", "after")}
+    for which, s in stats.items():
         rows.append([_e(f"GCPs (inliers), {which}"), str(s["n_inliers"]), _fmt(s["rms_row_px"]), _fmt(s["rms_col_px"]),
                      _fmt(s["rms_px"]), "–", _fmt(s["max_px"]), "–", "–", "–"])
     rmse = "<p>Root mean square errors (relative: seed 003 eq. 4-6, about the check point nearest the centroid).</p>"
-    return summary + rmse + _table(header, rows)
+    return summary + rmse + _table(header, rows) + _summary_count_notes(ctx, stats)
+
+
+def _summary_count_notes(ctx: ReportContext, stats: dict) -> str:
+    """Why the summary's counts of check points and GCPs differ, one phrase per difference."""
+    n_checks, n_gcps = int(ctx.checks["row"].size), int(ctx.gcps["row"].size)
+    return (count_note(ctx.before.absolute.n, n_checks, "check points before calibration",
+                       "those the initial model projects into the image, over which the RMSE before is taken")
+            + count_note(ctx.after.absolute.n, n_checks, "check points after calibration",
+                         "those the calibrated model projects into the image")
+            + count_note(stats["after"]["n_inliers"], n_gcps, "GCPs after calibration",
+                         "the inliers of the robust fit (the statistics leave out its outliers)")
+            + count_note(stats["before"]["n_inliers"], stats["after"]["n_inliers"], "inliers before calibration",
+                         "those the initial model projects into the image"))
 
 
 def _section_coverage(ctx) -> str:
@@ -425,7 +438,10 @@ def _section_per_ccd(ctx: ReportContext) -> str:
         classes.append("total")
     intro = ("<p>Check-point RMSE in pixels along track (row), across track (column) and planar, "
              "before and after calibration (layout of seed 003 table 4).</p>")
-    return intro + _table(header, rows, row_classes=classes)
+    note = count_note(ctx.before.absolute.n, ctx.after.absolute.n, "check points before calibration",
+                      "the \"before\" columns are over those the initial model projects into the image; "
+                      "\"checks\" counts those after")
+    return intro + _table(header, rows, row_classes=classes) + note
 
 
 def _section_normal(ctx: ReportContext) -> str:

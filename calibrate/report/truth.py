@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from calibrate.report._html import escape as _e, figure_html as _figure_html, fmt as _fmt
+from calibrate.report._html import count_note, escape as _e, figure_html as _figure_html, fmt as _fmt
 from calibrate.report._html import new_figure as _new_figure, save_figure as _save, table as _table
 from calibrate.report.calibration_figures import image_difference_px
 from sensor_models.errors import GcpcalError
@@ -143,13 +143,32 @@ def section_truth(truth_error, figure) -> str:
         totals.append(["LAB model (before calibration)", str(before.get("n_points", "–")),
                        _fmt(before.get("rms_px")), _fmt(before.get("max_px"))])
     header = ["model", "grid points", "RMS (px)", "max (px)"]
+    notes = _grid_notes(after, before)
     per_band = band_totals(after.get("per_ccd") or [])
     band_rows = [[_e(b), str(t["n_points"]), _fmt(t["rms_px"]), _fmt(t["max_px"])] for b, t in per_band.items()]
     ccd_rows = [[_e(r["band"]), _e(r["ccd"]), str(r.get("n_points", "–")), _fmt(r.get("rms_px")),
                  _fmt(r.get("max_px")), _fmt(r.get("mean_row_px")), _fmt(r.get("mean_col_px"))]
                 for r in after.get("per_ccd") or []]
     ccd_header = ["band", "CCD", "grid points", "RMS (px)", "max (px)", "mean along (px)", "mean across (px)"]
-    return (intro + _table(header, totals)
+    return (intro + _table(header, totals) + notes
             + "<h3>Calibrated model per band</h3>" + _table(["band", "grid points", "RMS (px)", "max (px)"], band_rows)
             + "<h3>Calibrated model per band and CCD</h3>" + _table(ccd_header, ccd_rows, left=2)
             + _figure_html(figure))
+
+
+def _grid_notes(after: dict, before) -> str:
+    """Why the grid-point counts of the calibrated and the LAB model differ (spacing, points left out)."""
+    notes = []
+    for label, t in (("calibrated model", after), ("LAB model", before or {})):
+        missing = int(t.get("n_missing") or 0)
+        if missing:
+            n = int(t.get("n_points") or 0)
+            notes.append(count_note(n, n + missing, f"grid points of the {label}",
+                                    "the others it does not see (off the DEM or outside its CCD) are left out"))
+    if before and before.get("n_points") != after.get("n_points"):
+        a_step, b_step = after.get("step_px"), before.get("step_px")
+        why = (f"the LAB model is graded on a grid every {b_step:g} px, the calibrated model every {a_step:g} px"
+               if a_step and b_step and a_step != b_step else "the grid points each leaves out are counted above")
+        notes.append(f'<p class="count-note">{before.get("n_points")} grid points for the LAB model against '
+                     f'{after.get("n_points")} for the calibrated model: {_e(why)}.</p>')
+    return "".join(notes)

@@ -54,9 +54,9 @@ def model_difference(
     dict
         ``{"rms_px", "max_px", "mean_row_px", "mean_col_px", "n_points", "per_ccd": [{"band",
         "ccd", "rms_px", "max_px", "mean_row_px", "mean_col_px", "rms_row_px", "rms_col_px",
-        "n_points"}, ...]}``; errors are ``model - reference``, in pixels. Grid points that
-        either model cannot see (off the DEM, behind the other model's CCD) are left out and
-        counted in ``"n_missing"``.
+        "n_points"}, ...], "n_missing", "step_px"}``; errors are ``model - reference``, in pixels.
+        Grid points that either model cannot see (off the DEM, behind the other model's CCD) are
+        left out and counted in ``"n_missing"``; ``"step_px"`` is the grid spacing.
 
     Raises
     ------
@@ -83,6 +83,7 @@ def model_difference(
     dr, dc = np.concatenate(all_dr), np.concatenate(all_dc)
     out = _stats(dr, dc)
     out["n_missing"] = missing
+    out["step_px"] = float(step_px)
     out["per_ccd"] = per_ccd
     return out
 

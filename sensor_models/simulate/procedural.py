@@ -124,7 +124,7 @@ from sensor_models.errors import InputError
 from sensor_models.files.atomic import temporary_beside
 from sensor_models.maps.dom_inputs import ACCURACY_TAG
 from sensor_models.simulate.procedural_cover import cover_fields, draw_roads
-from sensor_models.simulate.procedural_dom import render_dom
+from sensor_models.simulate.procedural_dom import dom_strips, render_dom
 from sensor_models.simulate.procedural_noise import hash32
 from sensor_models.simulate.procedural_rivers import draw_rivers, draw_segments
 from sensor_models.simulate.procedural_terrain import MARGIN_NODES, draw_terrain, fill_lakes
@@ -255,6 +255,7 @@ def generate_reference(
     n_lakes: int | None = None,
     n_rivers: int | None = None,
     n_roads: int | None = None,
+    progress=None,
 ) -> ReferenceData:
     """Generate a procedural reference orthoimage (DOM), DEM and water mask.
 
@@ -288,6 +289,9 @@ def generate_reference(
         downstream) and of major roads; by default about one lake per 200 km^2, one river
         source per 250 km^2 and one road per 150 km^2 (plus one). Lakes and rivers may be
         fewer where the terrain offers no room for them.
+    progress : callable(done, total), optional
+        Called as the phases end: the terrain, lakes, rivers, heights, land cover and roads
+        (one part each), then every strip of ``256`` DOM rows rendered, then the blur and noise.
 
     Returns
     -------
@@ -298,8 +302,10 @@ def generate_reference(
     InputError
         On a bad argument (the message names it).
     """
-    args = _validated(locals())
-    crs, dom_grid, dem_grid, dom, dem_m, water, land_cover = _synthesize(args)
+    given = dict(locals())
+    del given["progress"]
+    args = _validated(given)
+    crs, dom_grid, dem_grid, dom, dem_m, water, land_cover = _synthesize(args, progress)
     for a in (dom, dem_m, water, land_cover):
         a.setflags(write=False)
     return ReferenceData(
@@ -315,10 +321,15 @@ def generate_reference(
     )
 
 
-def _synthesize(args):
+#: phases of the terrain, water, cover and roads counted before the DOM's strips (progress)
+_PHASES = 6
+
+
+def _synthesize(args, progress=None):
     """Every phase of :func:`generate_reference` in order, on one random stream.
 
-    Returns ``(crs, dom_grid, dem_grid, dom, dem_m, water, land_cover)``.
+    ``progress(done, total)`` (optional) counts the phases and the DOM's strips. Returns
+    ``(crs, dom_grid, dem_grid, dom, dem_m, water, land_cover)``.
     """
     rng = np.random.default_rng(args["seed"])
     base_key = int(rng.integers(0, 2**32, dtype=np.uint64))
@@ -327,18 +338,35 @@ def _synthesize(args):
     ext = dem_grid.grown(MARGIN_NODES)
     area_km2 = args["width_m"] * args["height_m"] / 1e6
 
+    total = _PHASES + dom_strips(dom_grid.n_rows) + 1
+    done = [0]
+
+    def step(n=1):
+        done[0] += n
+        if progress is not None:
+            progress(done[0], total)
+
+    if progress is not None:
+        progress(0, total)
     terrain = draw_terrain(args, ext, centre, rng, keys)
+    step()
     lakes = fill_lakes(args, ext, terrain, rng, area_km2)
+    step()
     rivers = draw_rivers(args, ext, terrain, lakes, rng, area_km2)
+    step()
     heights_ext = _heights(args, ext, terrain, lakes, rivers)
+    step()
 
     inner = ext.inner(MARGIN_NODES)
     dem_m = np.ascontiguousarray(heights_ext[inner])
     cover = cover_fields(args, ext, terrain, heights_ext, keys)
+    step()
     roads = draw_roads(args, dom_grid, rng, area_km2)
+    step()
     dom, water, land_cover = render_dom(
-        args, dom_grid, ext, centre, terrain, lakes, rivers, roads, cover, rng, keys
+        args, dom_grid, ext, centre, terrain, lakes, rivers, roads, cover, rng, keys, strip_done=step
     )
+    step()
     return crs, dom_grid, dem_grid, dom, dem_m, water, land_cover
 
 

@@ -32,9 +32,15 @@ _PSF_SIGMA_PX = 0.6
 _STRIP_ROWS = 256
 
 
-def render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, rng, keys):
+def dom_strips(n_rows: int) -> int:
+    """Strips of rows :func:`render_dom` renders for a DOM of ``n_rows`` rows (its progress count)."""
+    return -(-int(n_rows) // _STRIP_ROWS)
+
+
+def render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, rng, keys, strip_done=None):
     """Reflectance per land-cover class, shaded, blurred, noised and quantised (notes of
-    :mod:`sensor_models.simulate.procedural`).
+    :mod:`sensor_models.simulate.procedural`); ``strip_done()`` (optional) is called after each
+    strip of rows (:func:`dom_strips` in all).
 
     Returns
     -------
@@ -49,6 +55,8 @@ def render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, rn
     for r0 in range(0, grid.n_rows, _STRIP_ROWS):
         rows = slice(r0, min(r0 + _STRIP_ROWS, grid.n_rows))
         radiance[rows], water[rows], cover_map[rows] = _render_strip(ctx, rows, rng)
+        if strip_done is not None:
+            strip_done()
 
     radiance = ndimage.gaussian_filter(radiance, _PSF_SIGMA_PX, mode="nearest", truncate=3.0)
     dom = np.empty(grid.shape, dtype=np.uint16)

@@ -184,7 +184,9 @@ def simulate_pushbroom(
         Lines rendered per block (memory ~ block_lines x columns x 40 bytes per worker).
     progress : callable, optional
         ``progress(done, total)``: two set-up steps (models; reference and sampling planes),
-        then one step per block of lines written.
+        then one step per block of lines written; under a non-ideal profile the first step is
+        counted in parts too (the procedural source radiance and DEM: its phases and every
+        strip of 256 rows), the total growing by those parts when they start.
     record_timings : bool
         Write render times into ``summary.json`` (False: every output file is a function of
         the configuration and inputs only, e.g. for committed fixtures).

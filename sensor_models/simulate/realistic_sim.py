@@ -115,13 +115,16 @@ def _centred_models(cfg: SimConfig, lens, orbit_bias_m: float, centre_lonlat, ji
     return cfg, build_models(cfg, lens=lens, orbit_bias_m=orbit_bias_m, jitter=jitter)
 
 
-def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0, texture_poor=(0.0, 1.0)):
+def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0, texture_poor=(0.0, 1.0),
+                    progress=None):
     """Source radiance (array, transform, crs: ``given_source`` or procedural) and the TRUE DEM.
 
     The procedural radiance gets the RMS contrast ``contrast`` of real imagery (0: its own;
     :func:`sensor_models.simulate.texture_stats.scale_contrast`), then texture-poor patches
     ``texture_poor = (fraction of the land, attenuation)``
-    (:func:`sensor_models.simulate.texture_poor.texture_poor_cover`; fraction 0: none)."""
+    (:func:`sensor_models.simulate.texture_poor.texture_poor_cover`; fraction 0: none).
+    ``progress(done, total)`` counts the generator's phases and DOM strips
+    (:func:`sensor_models.simulate.procedural.generate_reference`)."""
     from sensor_models.simulate.procedural import generate_reference
 
     ref = cfg.reference
@@ -137,7 +140,8 @@ def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0,
     data = generate_reference(float(clon), float(clat), width, height, seed=cfg.seed,
                               dom_resolution_m=ref.dom_resolution_m if procedural else 2 * ref.dem_resolution_m,
                               dem_resolution_m=ref.dem_resolution_m, relief_m=ref.relief_m,
-                              mean_height_m=ref.mean_height_m, sea_fraction=ref.sea_fraction if procedural else 0.0)
+                              mean_height_m=ref.mean_height_m, sea_fraction=ref.sea_fraction if procedural else 0.0,
+                              progress=progress)
     if procedural:
         dom = data.dom.astype(np.float32)
         if contrast > 0.0:
@@ -425,7 +429,7 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     tmp = Path(tmp)
     clock = PhaseClock(t_start)
     setup_done, block_progress = step_progress(progress, cfg.scene.n_rows, block_lines)
-    cfg, models, lens, source, true_dem, data = realistic_setup(cfg, profile, dom_path)
+    cfg, models, lens, source, true_dem, data = realistic_setup(cfg, profile, dom_path, progress=setup_done.part)
     clock.mark("models")
     setup_done(1)
     scene_source, dom_source, sky = _lit_sources(cfg, profile, source, data)
@@ -454,8 +458,12 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
                          extra_summary={"profile": profile.name, "injected": injected}, phases=clock)
 
 
-def realistic_setup(cfg: SimConfig, profile, dom_path):
-    """Effective configuration, models (centred on a given source), lens, source radiance, TRUE DEM."""
+def realistic_setup(cfg: SimConfig, profile, dom_path, progress=None):
+    """Effective configuration, models (centred on a given source), lens, source radiance, TRUE DEM.
+
+    ``progress(done, total)`` (optional) counts the building of the source radiance and DEM,
+    the longest part of the set-up at large sizes (:func:`_source_and_dem`).
+    """
     cfg = apply_profile(cfg, profile)
     lens = lens_extras(profile, cfg.seed)
     centre, given = None, None
@@ -466,7 +474,8 @@ def realistic_setup(cfg: SimConfig, profile, dom_path):
         centre = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(cx, cy)
     cfg, models = _centred_models(cfg, lens, float(profile.value("orbit_bias_m")), centre, jitter_spectrum(profile))
     texture_poor = (float(profile.value("texture_poor_fraction")), float(profile.value("texture_poor_attenuation")))
-    source, data = _source_and_dem(cfg, models, given, float(profile.value("procedural_rms_contrast")), texture_poor)
+    source, data = _source_and_dem(cfg, models, given, float(profile.value("procedural_rms_contrast")), texture_poor,
+                                   progress=progress)
     true_dem = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
     lon, lat = footprint_lonlat(models.true_model, true_dem.height_range_m)
     check_covers(MapGrid(source[1], source[2], source[0].shape), lon, lat, what="source radiance",

@@ -18,7 +18,7 @@ import pyproj
 from sensor_models.errors import InputError
 from sensor_models.maps.grid import MapGrid
 
-__all__ = ["PhaseClock", "check_covers", "footprint_lonlat", "render_scene", "step_progress", "utm_crs",
+__all__ = ["PhaseClock", "SetupProgress", "check_covers", "footprint_lonlat", "render_scene", "step_progress", "utm_crs",
            "write_outputs"]
 
 #: set-up steps counted by the progress callback before the blocks (models, reference)
@@ -65,14 +65,42 @@ class PhaseClock:
         return now - self.t_start
 
 
+class SetupProgress:
+    """The set-up steps' progress: ``setup(k)`` reports step ``k`` (1-based) done.
+
+    :meth:`part` counts parts of the first step (e.g. strips of a procedural source radiance)
+    before it ends: the total grows by the parts announced, so a long first step shows a count
+    rather than nothing (``progress(done, parts + SETUP_STEPS + blocks)``).
+    """
+
+    def __init__(self, progress, n_blocks: int):
+        self._progress, self._n_blocks, self._parts = progress, int(n_blocks), 0
+
+    def _total(self) -> int:
+        return self._parts + SETUP_STEPS + self._n_blocks
+
+    def __call__(self, k: int) -> None:
+        self._progress(self._parts + int(k), self._total())
+
+    def part(self, done: int, parts: int) -> None:
+        """``done`` of the first step's ``parts`` done (``parts`` the same at every call)."""
+        self._parts = int(parts)
+        self._progress(int(done), self._total())
+
+    def blocks(self, done: int, _total=None) -> None:
+        """``done`` blocks of lines rendered (the callback :func:`render_scene` takes)."""
+        self._progress(self._parts + SETUP_STEPS + int(done), self._total())
+
+
 def step_progress(progress, n_rows: int, block_lines: int):
-    """Progress over the set-up steps and the blocks: ``(setup(k), blocks)`` callbacks.
+    """Progress over the set-up steps and the blocks: ``(setup, blocks)`` callbacks.
 
     Parameters
     ----------
     progress : callable(done, total) or None
-        The caller's callback; it sees ``total = SETUP_STEPS + blocks`` and ``done`` advancing
-        once per set-up step (models, reference) and once per block of lines.
+        The caller's callback; it sees ``total = SETUP_STEPS + blocks`` (plus the parts of the
+        first set-up step announced through ``setup.part``) and ``done`` advancing once per
+        part, per set-up step (models, reference) and per block of lines.
     n_rows : int
         Image lines.
     block_lines : int
@@ -80,16 +108,17 @@ def step_progress(progress, n_rows: int, block_lines: int):
 
     Returns
     -------
-    setup : callable(int)
-        ``setup(k)`` reports set-up step ``k`` (1-based) done.
+    setup : SetupProgress
+        ``setup(k)`` reports set-up step ``k`` (1-based) done; ``setup.part(done, parts)`` the
+        parts of the first one.
     blocks : callable(done_blocks, total_blocks) or None
         The callback :func:`render_scene` takes.
     """
     if progress is None:
-        return (lambda k: None), None
+        return SetupProgress(lambda done, total: None, 0), None
     n_blocks = -(-int(n_rows) // max(1, int(block_lines)))
-    total = SETUP_STEPS + n_blocks
-    return (lambda k: progress(k, total)), (lambda done, _: progress(SETUP_STEPS + done, total))
+    setup = SetupProgress(progress, n_blocks)
+    return setup, setup.blocks
 
 
 def footprint_lonlat(model, heights_m, *, step_px: int = 32):
