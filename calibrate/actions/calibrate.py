@@ -204,34 +204,7 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
             write_report(tmp, result=getattr(result, "calibration", result), accuracy_before=acc_before,
                          accuracy_after=acc_after, initial_model=model, gcps=g, checks=checks,
                          coverage=coverage, status=status, provenance=provenance_record())
-        summary = {
-            "kind": "gcpcal.calibrate",
-            "success": bool(result.success),
-            "status": status.status,
-            "status_message": status.message,
-            "message": result.message,
-            "scheme": options.scheme,
-            "gcps": int(g["row"].size),
-            "check_points": int(checks["row"].size),
-            "check_rmse_px": {
-                "before": None if acc_before is None else acc_before.absolute.rmse_px,
-                "after": None if acc_after is None else acc_after.absolute.rmse_px,
-            },
-            # the check points each model projects into the image: the RMSE above is over these
-            "check_points_used": {
-                "before": None if acc_before is None else acc_before.absolute.n,
-                "after": None if acc_after is None else acc_after.absolute.n,
-            },
-            "variance_factor": doc["variance_factor"],
-            "covariance_factor": doc.get("covariance_factor"),
-            "reference_accuracy": doc.get("reference_accuracy"),
-            "coverage": coverage,
-            "attitude": _attitude_summary(getattr(result, "calibration", result)),
-            "model": model_file,
-            "residual_layer": "residuals.gpkg",
-            "warnings": [],
-            "seconds": time.perf_counter() - t0,
-        }
+        summary = _summary(result, status, options, g, checks, acc_before, acc_after, doc, coverage, model_file, t0)
         record_product_check(summary, scene.product_check)
         if implausible:
             summary["implausible_accepted"] = implausible
@@ -239,6 +212,38 @@ def calibrate_scene(scene_path, gcps_path, out_dir, *, options: CalibrationOptio
     if on_result is not None:
         on_result(result)
     return summary
+
+
+def _summary(result, status, options, g, checks, acc_before, acc_after, doc, coverage, model_file, t0) -> dict:
+    """The ``calibrate.summary.json`` document (without the product check and provenance)."""
+    return {
+        "kind": "gcpcal.calibrate",
+        "success": bool(result.success),
+        "status": status.status,
+        "status_message": status.message,
+        "message": result.message,
+        "scheme": options.scheme,
+        "gcps": int(g["row"].size),
+        "check_points": int(checks["row"].size),
+        "check_rmse_px": {
+            "before": None if acc_before is None else acc_before.absolute.rmse_px,
+            "after": None if acc_after is None else acc_after.absolute.rmse_px,
+        },
+        # the check points each model projects into the image: the RMSE above is over these
+        "check_points_used": {
+            "before": None if acc_before is None else acc_before.absolute.n,
+            "after": None if acc_after is None else acc_after.absolute.n,
+        },
+        "variance_factor": doc["variance_factor"],
+        "covariance_factor": doc.get("covariance_factor"),
+        "reference_accuracy": doc.get("reference_accuracy"),
+        "coverage": coverage,
+        "attitude": _attitude_summary(getattr(result, "calibration", result)),
+        "model": model_file,
+        "residual_layer": "residuals.gpkg",
+        "warnings": [],
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def _gate(model, table, result, band, acc_before, acc_after):
