@@ -397,7 +397,7 @@ def _band_result(band, model, ties, n_windows, rejected, cal, offsets, window, c
             "before": residual_statistics(before[s], cal.inlier[s]),
             "after": residual_statistics(after[s], cal.inlier[s]),
         })
-    message = cal.message + ("" if cal.success else f"; the interior of {band} is kept") + hint
+    message = cal.message.replace(" GCPs", " tie points") + ("" if cal.success else f"; the interior of {band} is kept") + hint
     return BandResult(band, bool(cal.success), message, n_windows, rejected, ties, cal,
                       residual_statistics(before, cal.inlier), residual_statistics(after, cal.inlier), per_ccd,
                       offsets)
