@@ -245,20 +245,47 @@ def test_every_command_exits_as_announced(tutorial):
             assert "Traceback" not in s.err
 
 
+def text_blocks_against_output(blocks, steps, printed_of, agrees):
+    """Per ``text`` block of a tutorial, its lines no command of the bash block before it printed.
+
+    Parameters
+    ----------
+    blocks : list of (str, str)
+        The document's fenced blocks (:func:`fenced_blocks`).
+    steps : list
+        The commands run, each with ``block``, ``out`` and ``err``.
+    printed_of : callable(str) -> list of str
+        What a command printed, as the document shows it (folders as placeholders).
+    agrees : callable(str, str) -> bool
+        Whether a printed line is the document's line, up to its tolerance.
+
+    Returns
+    -------
+    list of (list of str, list of str)
+        Per text block: the document's lines not printed, and what was printed.
+    """
+    out = []
+    for b, (lang, body) in enumerate(blocks):
+        if lang != "text":
+            continue
+        source = max(i for i, (lang_i, _) in enumerate(blocks[:b]) if lang_i == "bash")
+        printed = set()
+        for s in steps:
+            if s.block == source:
+                printed |= set(printed_of(s.out + "\n" + s.err))
+        missing = [line for line in normalized(body)
+                   if line not in printed and not any(agrees(line, p) for p in printed)]
+        out.append((missing, sorted(printed)))
+    return out
+
+
 @pytest.mark.shared_data
 def test_text_blocks_are_what_the_commands_printed(tutorial):
     checked = 0
-    for b, (lang, body) in enumerate(tutorial.blocks):
-        if lang != "text":
-            continue
-        source = max(i for i, (lang_i, _) in enumerate(tutorial.blocks[:b]) if lang_i == "bash")
-        printed = set()
-        for s in tutorial.steps:
-            if s.block == source:
-                printed |= set(normalized(s.out + "\n" + s.err, data=tutorial.data, work=tutorial.work))
-        missing = [line for line in normalized(body)
-                   if line not in printed and not any(line_agrees(line, p) for p in printed)]
-        assert not missing, (missing, sorted(printed))
+    for missing, printed in text_blocks_against_output(
+            tutorial.blocks, tutorial.steps,
+            lambda text: normalized(text, data=tutorial.data, work=tutorial.work), line_agrees):
+        assert not missing, (missing, printed)
         checked += 1
     assert checked >= 8
 

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.test_tutorial import fenced_blocks, normalized, split_commands
+from tests.test_tutorial import fenced_blocks, normalized, split_commands, text_blocks_against_output
 from tests.test_tutorial import number_agrees as figure_close
 from tests.test_tutorial import figures_table as tutorial_figures_table, line_agrees as tutorial_line_agrees
 
@@ -149,17 +149,10 @@ def test_every_command_exits_as_announced(tutorial):
 @pytest.mark.shared_data
 def test_text_blocks_are_what_the_commands_printed(tutorial):
     checked = 0
-    for b, (lang, body) in enumerate(tutorial.blocks):
-        if lang != "text":
-            continue
-        source = max(i for i, (lang_i, _) in enumerate(tutorial.blocks[:b]) if lang_i == "bash")
-        printed = set()
-        for s in tutorial.steps:
-            if s.block == source:
-                printed |= set(printed_lines(s.out + "\n" + s.err, tutorial.data, tutorial.work))
-        missing = [line for line in normalized(body)
-                   if line not in printed and not any(line_agrees(line, p) for p in printed)]
-        assert not missing, (missing, sorted(printed))
+    for missing, printed in text_blocks_against_output(
+            tutorial.blocks, tutorial.steps, lambda text: printed_lines(text, tutorial.data, tutorial.work),
+            line_agrees):
+        assert not missing, (missing, printed)
         checked += 1
     assert checked >= 10
 
