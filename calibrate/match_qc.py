@@ -63,7 +63,7 @@ def write_match_qc(layer: dict, image_shape, path) -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from sensor_models.files.atomic import temporary_beside
+    from sensor_models.files.atomic import atomic_file
 
     path = Path(path)
     row, col = np.asarray(layer["row"], float), np.asarray(layer["col"], float)
@@ -102,10 +102,6 @@ def write_match_qc(layer: dict, image_shape, path) -> Path:
         hx.set_xlabel("px")
         hx.legend(fontsize=7, loc="upper right", title="robust sigma", title_fontsize=7)
         hx.grid(True, lw=0.3, alpha=0.5)
-    tmp = temporary_beside(path, ".png")
-    try:
+    with atomic_file(path, ".png") as tmp:
         fig.savefig(tmp, format="png")
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path

@@ -25,7 +25,6 @@ GIS project stay apart.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -235,21 +234,17 @@ def write_residual_layer(columns: dict, path, *, layer: str) -> Path:
     """
     from calibrate.residual_style import add_residual_style
     from gcpmatch.geopackage import write_point_layer
-    from sensor_models.files.atomic import temporary_beside
+    from sensor_models.files.atomic import atomic_file
 
     missing = [k for k in RESIDUAL_FIELDS if k not in columns]
     if missing:
         raise InputError(f"residual layer lacks the columns {missing}", path=str(path))
     cols = {k: _column(k, columns[k]) for k in RESIDUAL_FIELDS}
     path = Path(path)
-    tmp = temporary_beside(path, ".gpkg")
-    try:
+    with atomic_file(path, ".gpkg") as tmp:
         write_point_layer(tmp, cols["lon"], cols["lat"], cols["h"], cols, layer=layer, description=_DESCRIPTION,
                           what="the residual layer")
         add_residual_style(tmp, layer)  # QGIS draws arrows by default (calibrate/residual_style.py)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
 
 

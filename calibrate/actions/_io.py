@@ -31,7 +31,7 @@ from calibrate._json import json_default
 from calibrate.actions._guard import (check_file_target, check_folder_target, current_command, input_set,
                                       is_stdout)
 from calibrate.actions._ledger import LEDGER_NAME
-from calibrate.actions._provenance import note_terrain, provenance_record, stage_inputs
+from calibrate.actions._provenance import note_terrain, stage_inputs, with_provenance
 from calibrate.actions._staging import clean_stale, fault_point, make_stage_dir, make_temp_file
 from sensor_models.files.atomic import atomic_write_text
 from sensor_models.errors import InputError
@@ -62,8 +62,7 @@ def write_summary(path, summary: dict) -> Path:
     Path
         ``path``.
     """
-    if "provenance" not in summary:
-        summary = {**summary, "provenance": provenance_record()}
+    summary = with_provenance(summary)
     atomic_write_text(Path(path), json.dumps(summary, indent=2, default=json_default) + "\n")
     return Path(path)
 
