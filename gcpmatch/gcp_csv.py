@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +34,7 @@ from gcpmatch.gcps import (
     validate_columns,
 )
 from sensor_models.errors import InputError
-from sensor_models.files.atomic import temporary_beside
+from sensor_models.files.atomic import atomic_file
 
 __all__ = ["CSVT_TYPES", "csv_chunks", "csv_sidecar_texts", "parse_gcps_csv", "read_gcps_csv", "write_gcps_csv"]
 
@@ -330,13 +329,7 @@ def write_gcps_csv(table: GcpTable, path) -> Path:
         ``path``.
     """
     path = check_output(table, path)
-    tmp = temporary_beside(path, ".csv")
-    try:
-        with open(tmp, "w", encoding="utf-8", newline="") as fh:
-            for piece in csv_chunks(table):
-                fh.write(piece)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with atomic_file(path, ".csv") as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
+        for piece in csv_chunks(table):
+            fh.write(piece)
     return path

@@ -13,14 +13,13 @@ raises :class:`~sensor_models.errors.RpcError` naming the file and the field. Wr
 from __future__ import annotations
 
 import math
-import os
 import re
 from pathlib import Path
 
 import numpy as np
 
 from sensor_models.errors import InputError, RpcError
-from sensor_models.files.atomic import temporary_beside
+from sensor_models.files.atomic import atomic_file
 from sensor_models.models.rpc import RpcModel
 
 __all__ = [
@@ -56,11 +55,6 @@ _UNITS_TXT = {
     "height_off": "meters", "line_scale": "pixels", "samp_scale": "pixels",
     "lat_scale": "degrees", "lon_scale": "degrees", "height_scale": "meters",
 }  # fmt: skip
-
-
-def _atomic_output(path: Path, suffix: str):
-    """A temporary file beside ``path`` (same filesystem, so ``os.replace`` is atomic)."""
-    return temporary_beside(path, suffix)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -217,13 +211,8 @@ def write_rpc(model: RpcModel, path, *, fmt=None, template=None) -> Path:
         _write_geotiff(model, path, template)
     else:
         text = _rpc_txt_text(model) if fmt == "rpc_txt" else _rpb_text(model)
-        tmp = _atomic_output(path, ".tmp")
-        try:
+        with atomic_file(path) as tmp:
             tmp.write_text(text, encoding="ascii")
-            os.replace(tmp, path)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
     return path
 
 
@@ -468,9 +457,8 @@ def _write_geotiff(model: RpcModel, path: Path, template) -> None:
     from rasterio.errors import RasterioError
 
     rpcs = rpc_to_rasterio(model)
-    tmp = _atomic_output(path, ".tif")
     try:
-        with rasterio.Env(GDAL_PAM_ENABLED="NO"):
+        with atomic_file(path, ".tif") as tmp, rasterio.Env(GDAL_PAM_ENABLED="NO"):
             if template is None:
                 n_rows, n_cols = model.image_shape
                 with rasterio.open(
@@ -482,10 +470,5 @@ def _write_geotiff(model: RpcModel, path: Path, template) -> None:
                 rasterio.shutil.copy(str(template), str(tmp), driver="GTiff")
                 with rasterio.open(tmp, "r+") as dst:
                     dst.rpcs = rpcs
-        os.replace(tmp, path)
     except RasterioError as err:
-        tmp.unlink(missing_ok=True)
         raise RpcError(f"GDAL could not write the GeoTIFF: {err}", path=str(path)) from None
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
