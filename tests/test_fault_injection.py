@@ -336,3 +336,69 @@ def test_fault_then_rerun(name, fault, data, tmp_path, capsys, clean_seconds):
     assert checks["complete or absent"], (sorted(faulted), sorted(clean))
     assert rerun_code == cmd.code, rerun_lines
     assert not _residue(tmp_path), _residue(tmp_path)
+
+
+def _handlers_restored(test):
+    """Run ``test`` with gcpcal's signal handler on SIGTERM, the previous handlers restored after."""
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        from calibrate import cli as cli_package
+
+        signal.signal(signal.SIGTERM, cli_package._on_signal)
+        return test()
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def test_signal_inside_an_import_lock_callback_stops_the_command_after_it():
+    """A signal landing in code whose exceptions Python swallows is raised once that code returns.
+
+    The import system drops a module lock through a weakref callback; an exception raised there
+    is printed as "Exception ignored in ..." with a traceback, and the command runs on. Here the
+    signal is delivered inside a function compiled as importlib's frozen bootstrap.
+    """
+    from calibrate.cli._errors import Interrupted
+
+    from calibrate import cli as cli_package
+
+    bootstrap = {}
+    source = ("def cb(handler, signum, busy_s):\n"
+              "    import sys, time\n"
+              "    handler(signum, sys._getframe())\n"  # as Python calls it when the signal lands here
+              "    end = time.perf_counter() + busy_s\n"
+              "    while time.perf_counter() < end:\n"
+              "        pass\n"
+              "    return 'returned'\n")
+    exec(compile(source, "<frozen importlib._bootstrap>", "exec"), bootstrap)
+
+    def deliver():
+        with pytest.raises(Interrupted) as raised:
+            bootstrap["cb"](cli_package._on_signal, signal.SIGTERM, 0.05)
+            for _ in range(10_000_000):  # ordinary code after the callback: the stop lands here
+                pass
+        return raised
+
+    raised = _handlers_restored(deliver)
+    files = []
+    tb = raised.tb
+    while tb is not None:
+        files.append(tb.tb_frame.f_code.co_filename)
+        tb = tb.tb_next
+    # raised where ordinary code resumed, not inside the callback (where it would be swallowed)
+    assert not any(name.startswith("<frozen") for name in files), files
+    assert signal.getsignal(signal.SIGALRM) == signal.SIG_DFL
+
+
+def test_signal_in_ordinary_code_stops_at_once():
+    """The negative control: in ordinary code the handler raises where the signal lands."""
+    from calibrate.cli._errors import Interrupted
+
+    def deliver():
+        with pytest.raises(Interrupted):
+            signal.raise_signal(signal.SIGTERM)
+            for _ in range(1000):
+                pass
+        return True
+
+    assert _handlers_restored(deliver)

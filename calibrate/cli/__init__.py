@@ -198,8 +198,58 @@ def _after_first(signum, frame):
     note_signal(signum)
 
 
+#: Code whose exceptions Python prints as "Exception ignored in ..." and then carries on: weakref
+#: callbacks (the import system drops its module locks through one), finalizers, ``__del__``.
+_SWALLOWING_FILES = ("weakref.py", "_weakrefset.py")
+
+
+def raising_is_swallowed(frame) -> bool:
+    """True when an exception raised in ``frame`` would be printed and dropped, not propagated.
+
+    A signal handler runs in whatever Python frame was executing when the signal arrived. In a
+    weakref callback or a ``__del__`` the interpreter reports an exception on stderr with a
+    traceback and continues, so the command would neither stop nor stay quiet.
+    """
+    if frame is None:
+        return False
+    code = frame.f_code
+    filename = code.co_filename.replace("\\", "/")
+    return (filename.startswith("<frozen importlib") or code.co_name == "__del__"
+            or filename.rsplit("/", 1)[-1] in _SWALLOWING_FILES)
+
+
+#: Seconds between looks at whether a deferred signal can be raised (:func:`_defer`).
+_DEFER_S = 0.002
+
+
+def _defer(signum):
+    """Raise ``signum``'s stop a moment later, from a timer signal that lands in other code.
+
+    ``signal.raise_signal`` or ``os.kill`` would run the handler before they return, still inside
+    the swallowing frame; SIGALRM arrives asynchronously, at a later bytecode boundary.
+    """
+    previous = signal.getsignal(signal.SIGALRM)
+
+    def retry(_alarm, frame):
+        if raising_is_swallowed(frame):
+            signal.setitimer(signal.ITIMER_REAL, _DEFER_S)
+            return
+        signal.signal(signal.SIGALRM, previous)
+        _on_signal(signum, frame)
+
+    signal.signal(signal.SIGALRM, retry)
+    signal.setitimer(signal.ITIMER_REAL, _DEFER_S)
+
+
 def _on_signal(signum, frame):
-    """SIGINT, SIGTERM, SIGHUP: quiet the Dask cluster's loggers, then stop as Ctrl-C does."""
+    """SIGINT, SIGTERM, SIGHUP: quiet the Dask cluster's loggers, then stop as Ctrl-C does.
+
+    A signal that lands in code whose exceptions are swallowed (:func:`raising_is_swallowed`) is
+    deferred (:func:`_defer`): the command stops as soon as it is back in ordinary code.
+    """
+    if raising_is_swallowed(frame) and hasattr(signal, "setitimer"):
+        _defer(signum)
+        return
     note_signal(signum)
     for handled in _HANDLED:
         signal.signal(handled, _after_first)
