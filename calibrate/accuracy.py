@@ -90,7 +90,7 @@ class AccuracySummary:
         dict
             JSON-ready mapping of the fields (NaN becomes None).
         """
-        return _json_safe(asdict(self))
+        return json_safe(asdict(self))
 
 
 @dataclass
@@ -135,7 +135,7 @@ class NormalFit:
         dict
             JSON-ready mapping of the fields (NaN becomes None).
         """
-        return _json_safe(asdict(self))
+        return json_safe(asdict(self))
 
 
 @dataclass
@@ -187,12 +187,11 @@ class AccuracyReport:
             "histograms": {k: v.to_dict() for k, v in self.histograms.items()},
         }
         if points:
-            out["residuals_px"] = _json_safe(self.residuals_px)
-            out["residuals_m"] = _json_safe(self.residuals_m)
+            out["residuals_px"] = json_safe(self.residuals_px)
+            out["residuals_m"] = json_safe(self.residuals_m)
         return out
 
 
-_json_safe = json_safe
 
 
 # --------------------------------------------------------------------------- core statistics

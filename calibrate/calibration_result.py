@@ -21,7 +21,6 @@ from sensor_models.base import SensorModel
 __all__ = ["CalibrationResult", "parameter_unit", "residual_statistics"]
 
 _ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
-_json_safe = json_safe
 
 
 @dataclass
@@ -219,7 +218,7 @@ class CalibrationResult:
                 "weight": self.weights,
                 "inlier": self.inlier,
             }
-        return _json_safe(out)
+        return json_safe(out)
 
 
 def residual_statistics(residuals, inlier=None) -> dict:

@@ -363,7 +363,7 @@ def _calibrate_band(current, ref_img, img, dem, band, reference_band, window, ro
         say(f"band {band}: matching against {reference_band} (pass {p + 1}/{passes})")
         ties, n_win, rejected, offsets = match_band(band_model, ref_img, img, dem, band=band,
                                                     reference_band=reference_band, window_px=window,
-                                                    rows=rows, coarse=coarse, _grids=grids)
+                                                    rows=rows, coarse=coarse, grids=grids)
         first_offsets = offsets if first_offsets is None else first_offsets
         if len(ties) == 0:
             cal = None

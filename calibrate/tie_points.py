@@ -99,7 +99,7 @@ class TiePoints:
 # --------------------------------------------------------------------------- matching
 def match_band(model: PushbroomModel, reference_image, image, dem, *, band: str, reference_band=None,
                window_px=64, spacing_px: int = 24, rows=None, coarse: bool = True, batch: int = 1024,
-               _grids=None):
+               grids=None):
     """Tie points between the reference band and ``band`` (steps 1 and 2 of :mod:`calibrate.relative`).
 
     Parameters
@@ -128,6 +128,10 @@ def match_band(model: PushbroomModel, reference_image, image, dem, *, band: str,
         quarter of ``window_px``.
     batch : int
         Window pairs per phase-correlation call (bounds the memory: ~20 bytes per pixel).
+    grids : list, optional
+        The reference band's window grid from :func:`reference_grid` for these ``rows``,
+        ``window_px`` and ``spacing_px``, when the caller already built it (e.g. for several
+        bands against one reference); built here when absent.
 
     Returns
     -------
@@ -145,7 +149,7 @@ def match_band(model: PushbroomModel, reference_image, image, dem, *, band: str,
     rows = check_rows(rows, model.n_rows)
     ref_img = check_image(reference_image, model, reference_band)
     img = check_image(image, model, band)
-    grids = _grids if _grids is not None else reference_grid(model, dem, reference_band, rows, window, int(spacing_px))
+    grids = grids if grids is not None else reference_grid(model, dem, reference_band, rows, window, int(spacing_px))
     setup = _MatchSetup(model, dem, band, reference_band, window, rows, ref_img, img,
                         sliding_window_view(ref_img, window), sliding_window_view(img, window), int(batch))
     rejected = {r: 0 for r in REASONS}
