@@ -234,3 +234,23 @@ def test_acquisition_seed_changes_the_pass_not_the_camera():
     qa = a.lab_model.attitude.quaternions_xyzw
     qb = b.lab_model.attitude.quaternions_xyzw
     assert not np.allclose(qa, qb)  # different measured-attitude noise
+
+
+def test_procedural_reference_is_counted_in_parts(tmp_path):
+    """Without a DOM, the procedural reference's phases and strips show in the progress count.
+
+    ``done`` never goes back, the total grows once by the parts announced and ends reached.
+    """
+    from sensor_models.simulate.render_io import SETUP_STEPS
+
+    calls = []
+    cfg = small_config()
+    simulate_pushbroom(tmp_path / "out", config=cfg, block_lines=64,
+                       progress=lambda done, total: calls.append((done, total)))
+    done = [d for d, _ in calls]
+    totals = sorted({t for _, t in calls})
+    n_blocks = -(-cfg.scene.n_rows // 64)
+    assert done == sorted(done), calls
+    assert calls[-1][0] == calls[-1][1], calls
+    assert totals[-1] > SETUP_STEPS + n_blocks + 4, totals  # phases and DOM strips counted
+    assert len(calls) >= totals[-1] - SETUP_STEPS - n_blocks, calls

@@ -57,8 +57,11 @@ __all__ = ["MODEL_CONFIG_KEYS", "footprint_lonlat", "perturbed_model", "simulate
 FIELD_FACTOR = 8
 
 
-def _procedural_reference(cfg: SimConfig, models: SceneModels, out_dir: Path):
-    """Generate DOM, DEM and water mask around the TRUE footprint; write them to ``out_dir``."""
+def _procedural_reference(cfg: SimConfig, models: SceneModels, out_dir: Path, progress=None):
+    """Generate DOM, DEM and water mask around the TRUE footprint; write them to ``out_dir``.
+
+    ``progress(done, parts)`` (optional) counts the generator's phases and DOM strips.
+    """
     from sensor_models.simulate.procedural import generate_reference
 
     ref = cfg.reference
@@ -76,6 +79,7 @@ def _procedural_reference(cfg: SimConfig, models: SceneModels, out_dir: Path):
         float(clon), float(clat), width, height, seed=cfg.seed,
         dom_resolution_m=ref.dom_resolution_m, dem_resolution_m=ref.dem_resolution_m,
         relief_m=ref.relief_m, mean_height_m=ref.mean_height_m, sea_fraction=ref.sea_fraction,
+        progress=progress,
     )
     dom_path, dem_path = data.write(out_dir)
     return data, Path(dom_path), Path(dem_path)
@@ -247,7 +251,8 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
     model = models.true_model
     clock.mark("models")
     setup_done(1)
-    dom, dem, reference_files, dem_figures = _reference(cfg, models, tmp, dom_path, dem_path, geoid)
+    dom, dem, reference_files, dem_figures = _reference(cfg, models, tmp, dom_path, dem_path, geoid,
+                                                        progress=setup_done.part)
     renderer = _Renderer(cfg, models, dem, dom)
     dem_planes(dem)  # build the shared sampling planes once, before the threads
     clock.mark("reference")
@@ -263,13 +268,15 @@ def _simulate(cfg, out_dir, tmp, dom_path, dem_path, geoid, workers, block_lines
                          render_seconds, workers, t_start, record_timings, phases=clock)
 
 
-def _reference(cfg, models: SceneModels, tmp: Path, dom_path, dem_path, geoid):
+def _reference(cfg, models: SceneModels, tmp: Path, dom_path, dem_path, geoid, progress=None):
     """``(dom MapImage, Dem, reference file names)``: given, or procedural under ``tmp/reference``.
+
+    ``progress(done, parts)`` (optional) counts the procedural reference's phases and strips.
 
     Checks that both cover the scene's footprint between the DEM's lowest and highest heights.
     """
     if dom_path is None:
-        data, p_dom, p_dem = _procedural_reference(cfg, models, tmp / "reference")
+        data, p_dom, p_dem = _procedural_reference(cfg, models, tmp / "reference", progress=progress)
         dom = MapImage.from_array(data.dom, data.dom_transform, data.crs)
         dem = Dem.from_array(data.dem_m, data.dem_transform, data.crs, vertical_datum="ellipsoid")
         reference_files = {"dom": f"reference/{p_dom.name}", "dem": f"reference/{p_dem.name}"}

@@ -68,24 +68,26 @@ class PhaseClock:
 class SetupProgress:
     """The set-up steps' progress: ``setup(k)`` reports step ``k`` (1-based) done.
 
-    :meth:`part` counts parts of the first step (e.g. strips of a procedural source radiance)
-    before it ends: the total grows by the parts announced, so a long first step shows a count
-    rather than nothing (``progress(done, parts + SETUP_STEPS + blocks)``).
+    :meth:`part` counts parts of the step under way (e.g. strips of a procedural source radiance
+    or of a procedural reference) before it ends: the total grows by the parts announced, so a
+    long step shows a count rather than nothing (``progress(done, parts + SETUP_STEPS + blocks)``).
     """
 
     def __init__(self, progress, n_blocks: int):
         self._progress, self._n_blocks, self._parts = progress, int(n_blocks), 0
+        self._steps_done = 0
 
     def _total(self) -> int:
         return self._parts + SETUP_STEPS + self._n_blocks
 
     def __call__(self, k: int) -> None:
+        self._steps_done = int(k)
         self._progress(self._parts + int(k), self._total())
 
     def part(self, done: int, parts: int) -> None:
-        """``done`` of the first step's ``parts`` done (``parts`` the same at every call)."""
+        """``done`` of the step under way's ``parts`` done (``parts`` the same at every call)."""
         self._parts = int(parts)
-        self._progress(int(done), self._total())
+        self._progress(self._steps_done + int(done), self._total())
 
     def blocks(self, done: int, _total=None) -> None:
         """``done`` blocks of lines rendered (the callback :func:`render_scene` takes)."""
@@ -98,8 +100,8 @@ def step_progress(progress, n_rows: int, block_lines: int):
     Parameters
     ----------
     progress : callable(done, total) or None
-        The caller's callback; it sees ``total = SETUP_STEPS + blocks`` (plus the parts of the
-        first set-up step announced through ``setup.part``) and ``done`` advancing once per
+        The caller's callback; it sees ``total = SETUP_STEPS + blocks`` (plus the parts of a
+        set-up step announced through ``setup.part``) and ``done`` advancing once per
         part, per set-up step (models, reference) and per block of lines.
     n_rows : int
         Image lines.
@@ -110,7 +112,7 @@ def step_progress(progress, n_rows: int, block_lines: int):
     -------
     setup : SetupProgress
         ``setup(k)`` reports set-up step ``k`` (1-based) done; ``setup.part(done, parts)`` the
-        parts of the first one.
+        parts of the step under way.
     blocks : callable(done_blocks, total_blocks) or None
         The callback :func:`render_scene` takes.
     """
