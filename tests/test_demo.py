@@ -33,11 +33,11 @@ def test_demo_calibrates_the_fixture_from_hundreds_of_pixels_to_a_tenth(demo_run
     assert s["gcps"] > 500 and s["check_points"] > 100
     assert all(v["success"] for v in s["calibration"].values())
     # the calibrated manifest opens and names the fixture's rasters
-    from sensor_models.readers import open_model
+    from sensor_models.readers import open_scene
 
-    model = open_model(out / "relative" / "manifest.json")
-    assert set(model.rasters) == {"B1", "B2", "B3", "B4"}
-    assert all(__import__("os").path.exists(r["path"]) for r in model.rasters.values())
+    rasters = open_scene(out / "relative" / "manifest.json").rasters
+    assert set(rasters) == {"B1", "B2", "B3", "B4"}
+    assert all(__import__("os").path.exists(r["path"]) for r in rasters.values())
 
 
 def test_calibrate_command_on_demo_gcps(demo_run, tmp_path):

@@ -16,7 +16,8 @@ from sensor_models.models.star_directions import radec_to_vectors
 from sensor_models.models.staring_camera import PointingMirror, StaringInterior, StaringLab, fit_interior
 from sensor_models.geometry.geodesy import geodetic_to_ecef
 from sensor_models.models.pushbroom_types import Installation
-from sensor_models.readers.geo_manifest import geo_manifest_to_dict, read_geo_manifest, write_geo_manifest
+from sensor_models.readers.geo_manifest import (geo_manifest_to_dict, read_geo_manifest, read_geo_manifest_and_rasters,
+                                                write_geo_manifest)
 from sensor_models.terrain.dem import Dem
 
 ARCSEC = np.radians(1.0 / 3600.0)
@@ -337,15 +338,15 @@ def _expect_error(path, field, *words):
 def test_manifest_round_trip(mirrored, tmp_path):
     path = write_geo_manifest(mirrored, tmp_path / "sub" / "frame.json", raster=tmp_path / "frame.tif")
     assert not list(path.parent.glob(".*tmp"))  # atomic: nothing left beside it
-    again = read_geo_manifest(path)
-    assert again.rasters["B1"]["path"] == str((tmp_path / "frame.tif").resolve())
+    again, rasters = read_geo_manifest_and_rasters(path)
+    assert rasters["B1"]["path"] == str((tmp_path / "frame.tif").resolve())
     np.testing.assert_array_equal(again.parameters().values, mirrored.parameters().values)
     r, c = _grid(mirrored, 20)
     for x, y in zip(again.image_to_ground(r, c, height=250.0), mirrored.image_to_ground(r, c, height=250.0)):
         np.testing.assert_array_equal(x, y)
     np.testing.assert_array_equal(again.object_vector_gcrf(r, c), mirrored.object_vector_gcrf(r, c))
     d1 = json.loads(path.read_text())
-    d2 = geo_manifest_to_dict(again, base_dir=path.parent.resolve())
+    d2 = geo_manifest_to_dict(again, raster=rasters["B1"], base_dir=path.parent.resolve())
     # quaternions are normalized again on reading: equal to the last bits
     q1, q2 = (np.array(d.pop("attitude").pop("quaternions_xyzw")) for d in (d1, d2))
     np.testing.assert_allclose(q1, q2, rtol=0, atol=1e-15)

@@ -13,7 +13,8 @@ import pytest
 from sensor_models.errors import ManifestError
 from sensor_models.models.lab import LabBand, LabCamera, LabCcd, detector_angles
 from sensor_models.readers.manifest import write_manifest
-from sensor_models.readers.scene import read_manifest
+from sensor_models.readers import open_scene
+from sensor_models.readers.scene import read_manifest, read_manifest_and_rasters
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "fixtures" / "example_pushbroom" / "manifest.json"
@@ -93,18 +94,19 @@ def test_round_trip(example, tmp_path):
     assert [p.name for p in out.parent.iterdir()] == ["scene.json"]  # no temporary left behind
     d = json.loads(out.read_text())
     assert d["image"]["rasters"]["B1"] == {"path": "../img/b1.tif", "index": 1}  # relative to the manifest
-    again = read_manifest(out)
-    assert again.rasters["B1"]["path"] == str((tmp_path / "img" / "b1.tif").resolve())
-    assert again.rasters["B2"]["index"] == 2
+    again, listed = read_manifest_and_rasters(out)
+    assert listed["B1"]["path"] == str((tmp_path / "img" / "b1.tif").resolve())
+    assert listed["B2"]["index"] == 2
+    assert open_scene(out).rasters == listed
     a = example.image_to_ground(ROWS, COLS, height=300.0)
     b = again.image_to_ground(ROWS, COLS, height=300.0)
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x, y)
-    # writing the read-back model gives the same document (rasters aside)
-    out2 = write_manifest(again, tmp_path / "sub" / "scene2.json")
-    d2 = json.loads(out2.read_text())
-    d.pop("image"), d2.pop("image")
-    assert d == d2
+    # writing the read-back model with its rasters gives the same document; without, no rasters
+    out2 = write_manifest(again, tmp_path / "sub" / "scene2.json", rasters=listed)
+    assert json.loads(out2.read_text()) == d
+    bare = json.loads(write_manifest(again, tmp_path / "sub" / "scene3.json").read_text())
+    assert "rasters" not in bare["image"] and {**bare, "image": d["image"]} == d
 
 
 # --------------------------------------------------------------------------- bad input

@@ -212,6 +212,24 @@ def test_bad_inputs(tmp_path, truth, dem):
     assert not list(tmp_path.iterdir())
 
 
+def test_a_band_name_is_looked_up_in_the_rasters_given():
+    """``image`` as a band name or None: the raster comes from the ``rasters`` passed (a Scene's), not the model."""
+    from sensor_models.imaging.ortho_resample import resolve_source
+    from sensor_models.readers import open_scene
+
+    scene = open_scene(LAB)
+    for image, band, want in (("B3", None, "B3"), (None, "B3", "B3"), (None, None, scene.model.reference_band)):
+        source, got = resolve_source(scene.model, image, band, scene.rasters)
+        try:
+            assert got == want and (source.path, source.index) == scene.raster_of(want)
+        finally:
+            source.close()
+    with pytest.raises(InputError, match="no raster listed for band 'B2'"):
+        resolve_source(scene.model, None, "B2")
+    with pytest.raises(InputError, match="names band 'B3' but band='B2'"):
+        resolve_source(scene.model, "B3", "B2", scene.rasters)
+
+
 def test_in_memory_orthorectify_agrees_with_file(tmp_path, truth, dem):
     out = tmp_path / "o.tif"
     orthorectify_to_file(truth, B2, dem, out, dtype="float32", nodata=-1.0)

@@ -23,10 +23,11 @@ import numpy as np
 import pytest
 
 from sensor_models.errors import InputError, ManifestError, ProductDisagreementError
-from sensor_models.readers import open_model
-from sensor_models.readers.dimap import read_dimap
-from sensor_models.readers.dimap_v2 import build_dimap_v2, parse_dimap_v2, read_dimap_v2
-from sensor_models.readers.worldview import read_worldview
+from sensor_models.readers import open_model, open_scene
+from sensor_models.readers.dimap import read_dimap, read_dimap_checked
+from sensor_models.readers.dimap_v2 import (build_dimap_v2, build_dimap_v2_checked, parse_dimap_v2, read_dimap_v2,
+                                            read_dimap_v2_checked)
+from sensor_models.readers.worldview import read_worldview, read_worldview_checked
 from sensor_models.readers.rpc_files import write_rpc
 
 #: the measured figures on every shared product: (comparison, statistic) -> (low, high) metres;
@@ -85,8 +86,7 @@ def test_every_shared_product_passes_its_self_check(shared_data, name):
     path = product_path(shared_data, name)
     if not path.is_file():
         pytest.skip(f"{path} not found")
-    model = open_model(path)
-    check = model.product_check
+    check = open_scene(path).product_check
     assert check.passed and check.policy == "refuse"
     assert check.satellite == {"WV2": "WV02", "WV3": "WV03"}.get(name, name)
     got = {c.name: c for c in check.comparisons}
@@ -101,8 +101,8 @@ def test_every_shared_product_passes_its_self_check(shared_data, name):
 
 def test_spot1_4_frames_are_checked_with_the_nominal_attitude(shared_data):
     path = product_path(shared_data, "SPOT3")
-    measured = read_dimap(path).product_check
-    nominal = read_dimap(path, attitude="nominal").product_check
+    measured = read_dimap_checked(path)[1]
+    nominal = read_dimap_checked(path, attitude="nominal")[1]
     assert measured.comparisons[0].max_m == pytest.approx(nominal.comparisons[0].max_m, abs=1e-9)
     # the model as opened (measured AOCS attitude) lies 24 m from the frame: noted, not hidden
     note = [n for n in measured.notes if "as opened" in n]
@@ -168,8 +168,7 @@ def test_worldview_corner_moved_100_m_is_refused_and_warn_records_it(shared_data
     with pytest.raises(ProductDisagreementError, match=r"IMD corners at their HAE \(P\): (9\d|10\d)(\.\d+)? m max") as info:
         open_model(bad)
     assert "vendor RPC" not in str(info.value)  # the RPB still agrees: only the corners are named
-    model = open_model(bad, self_check="warn")
-    check = model.product_check
+    check = open_scene(bad, self_check="warn").product_check
     assert not check.passed and check.policy == "warn"
     doc = check.to_dict()
     corners = doc["comparisons"][0]
@@ -187,8 +186,9 @@ def test_worldview_satellites_named_when_refused(shared_data, tmp_path):
     with pytest.raises(ManifestError, match="'XX07'"):
         read_worldview(unknown, self_check="warn")
     # a DigitalGlobe satellite never seen on a real product: its own statements decide
-    confirmed = read_worldview(edited(src, tmp_path / "QB.XML", ("<SATID>WV02</SATID>", "<SATID>QB02</SATID>")))
-    assert confirmed.product_check.passed and any("QB02" in n for n in confirmed.product_check.notes)
+    qb = edited(src, tmp_path / "QB.XML", ("<SATID>WV02</SATID>", "<SATID>QB02</SATID>"))
+    _, confirmed = read_worldview_checked(qb)
+    assert confirmed.passed and any("QB02" in n for n in confirmed.notes)
     ge = _corner_moved(edited(src, tmp_path / "GE.XML", ("<SATID>WV02</SATID>", "<SATID>GE01</SATID>")),
                        tmp_path / "GE_moved.XML")
     with pytest.raises(ProductDisagreementError, match="GE01.*does not confirm them for GE01 \\(GeoEye-1\\)"):
@@ -241,7 +241,7 @@ def test_dimap_vertex_moved_100_m_is_refused_and_warn_records_it(shared_data, tm
     bad = edited(src, tmp_path / "SPOT5.DIM", (f"<FRAME_LON>{lon}</FRAME_LON>", f"<FRAME_LON>{moved:.10e}</FRAME_LON>"))
     with pytest.raises(ProductDisagreementError, match=r"frame vertices.*: (9\d|10\d)(\.\d+)? m max"):
         open_model(bad)
-    check = open_model(bad, self_check="warn").product_check
+    check = open_scene(bad, self_check="warn").product_check
     assert not check.passed and 95.0 < check.comparisons[0].max_m < 105.0
     assert "frame vertices" in check.to_dict()["disagreement"]
 
@@ -257,7 +257,7 @@ def test_dimap_v2_one_line_late_is_refused(shared_data):
                                attitude_seconds=meta.attitude_seconds - lp)
     with pytest.raises(ProductDisagreementError, match=r"DIMAP v2 product of SPOT6.*Dataset_Extent.*: 1\.\d+ m max"):
         build_dimap_v2(late)
-    assert build_dimap_v2(meta).product_check.passed
+    assert build_dimap_v2_checked(meta)[1].passed
 
 
 def test_dimap_v2_quaternion_order_swapped_is_refused(shared_data, tmp_path):
@@ -280,7 +280,7 @@ def test_dimap_v2_vertex_moved_100_m_is_refused_and_warn_records_it(shared_data,
     # one vertex 100 m off: the best common height cannot absorb it (the misses stay tens of metres)
     with pytest.raises(ProductDisagreementError, match=r"Dataset_Extent.*: \d{2,3}(\.\d+)? m max"):
         read_dimap_v2(bad)
-    check = read_dimap_v2(bad, self_check="warn").product_check
+    check = read_dimap_v2_checked(bad, self_check="warn")[1]
     assert not check.passed and 30.0 < check.comparisons[0].max_m < 100.0
 
 
@@ -338,7 +338,7 @@ def test_dimap_v2_compares_an_rpc_given_with_the_product(shared_data, tmp_path):
     model = build_dimap_v2(meta)
     rpc, _ = fit_rpc(model, height_range_m=(500.0, 1200.0), grid_shape=(11, 11, 4))
     path = write_rpc(rpc, tmp_path / "SPOT6_RPC.TXT")
-    check = read_dimap_v2(meta.path, rpc=path).product_check
+    check = read_dimap_v2_checked(meta.path, rpc=path)[1]
     rpc_cmp = {c.name: c for c in check.comparisons}["rpc_grid"]
     assert check.passed and rpc_cmp.n_points == 605 and 0.0 < rpc_cmp.rms_m < 0.05
     assert 0.78 < rpc_cmp.tolerance.metres < 0.84  # no ERR_RAND stated: half a ground pixel

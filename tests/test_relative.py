@@ -55,7 +55,8 @@ def scene():
     gcps = GcpTable.from_arrays(noisy_row, noisy_col, lon, lat, h, band="B2", ccd=ccd, sigma_px=0.05)
     ref = calibrate_model(lab, gcps)
     assert ref.success, ref.message
-    return {"lab": lab, "truth": truth, "dem": dem, "images": images, "calibrated": ref.model, "gcps": gcps}
+    return {"lab": lab, "rasters": opened.rasters, "truth": truth, "dem": dem, "images": images,
+            "calibrated": ref.model, "gcps": gcps}
 
 
 @pytest.fixture(scope="module")
@@ -189,8 +190,7 @@ def test_missing_or_missized_rasters_are_input_errors(scene):
 def calibration_dir(scene, tmp_path_factory):
     """A calibrated manifest as ``gcpcal calibrate`` writes it (B2 calibrated, relative rasters)."""
     out = tmp_path_factory.mktemp("cal")
-    lab = scene["lab"]
-    write_manifest(scene["calibrated"], out / "manifest.json", rasters={b: r["path"] for b, r in lab.rasters.items()})
+    write_manifest(scene["calibrated"], out / "manifest.json", rasters={b: r["path"] for b, r in scene["rasters"].items()})
     return out
 
 
@@ -203,8 +203,9 @@ def test_relative_command_writes_a_calibrated_manifest(scene, calibration_dir, t
     summary = json.loads(capsys.readouterr().out)
     assert summary["success"] and summary["reference_band"] == "B2"
     assert sorted(p.name for p in out.iterdir() if p.name != ".gcpcal-outputs.json") == ["manifest.json", "relative.json", "relative.summary.json"]
-    model = open_model(out / "manifest.json")
-    assert all(Path(r["path"]).exists() for r in model.rasters.values())
+    opened = open_scene(out / "manifest.json")
+    model = opened.model
+    assert opened.rasters and all(Path(r["path"]).exists() for r in opened.rasters.values())
     reg = registration_error(scene["truth"], model, dem=scene["dem"])
     assert all(0.002 < reg[b]["rms_px"] < 0.05 for b in OTHERS)
     doc = json.loads((out / "relative.json").read_text())

@@ -274,12 +274,13 @@ def test_crop_without_pixel_geotransform_is_refused(gen, tmp_path, capsys):
 
 
 def test_manifest_rasters_unchanged():
-    """A gcpcal manifest: open_scene gives the manifest's own rasters (what open_model gives)."""
+    """A gcpcal manifest: open_scene gives the manifest's own rasters (the manifest reader's)."""
     from calibrate.pipelines.demo import FIXTURE_DIR
+    from sensor_models.readers.scene import read_manifest_and_rasters
 
     manifest = FIXTURE_DIR / "manifest.json"
     scene, model = open_scene(manifest), open_model(manifest)
-    assert scene.rasters == dict(model.rasters) and len(scene.rasters) == 4
+    assert scene.rasters == read_manifest_and_rasters(manifest)[1] and len(scene.rasters) == 4
     assert scene.model.image_shape == model.image_shape
 
 
@@ -302,7 +303,7 @@ def test_xml_dispatch_by_root_element(shared_data, tmp_path, monkeypatch, capsys
                                            "--cols", "1"])
             assert "reader not available" in err
     fake = types.ModuleType("sensor_models.readers.dimap_v2")
-    fake.read_dimap_v2 = lambda path, **kw: _rpc()
+    fake.read_dimap_v2_checked = lambda path, **kw: (_rpc(), None)
     monkeypatch.setitem(sys.modules, "sensor_models.readers.dimap_v2", fake)
     os.symlink(products / "SPOT6.XML", tmp_path / "DIM_SPOT6.XML")
     scene = open_scene(tmp_path / "DIM_SPOT6.XML")

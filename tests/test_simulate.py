@@ -12,7 +12,7 @@ import rasterio
 from affine import Affine
 
 from sensor_models.errors import InputError
-from sensor_models.readers.scene import read_manifest
+from sensor_models.readers.scene import read_manifest, read_manifest_and_rasters
 from sensor_models.simulate.config import SimConfig, config_from_dict, load_config
 from sensor_models.simulate.pushbroom_sim import footprint_lonlat, simulate_pushbroom
 from sensor_models.simulate.scene import build_models
@@ -132,9 +132,9 @@ def test_scene_content_radiometry_and_manifest(tmp_path):
     p_dom, p_dem, _, _ = write_reference(tmp_path, cfg)
     out = tmp_path / "s"
     summary = simulate_pushbroom(out, config=cfg, dom=p_dom, dem=p_dem)
-    lab = read_manifest(out / "manifest.json")
+    lab, rasters = read_manifest_and_rasters(out / "manifest.json")
     assert lab.image_shape == (192, 4 * 96)
-    assert set(lab.rasters) == {"B1", "B2"}
+    assert set(rasters) == {"B1", "B2"}
     with rasterio.open(out / "B2.tif") as ds:
         img = ds.read(1)
         assert ds.dtypes[0] == "uint16" and ds.crs is None

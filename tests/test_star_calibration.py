@@ -161,6 +161,22 @@ def test_cli_round_trip_and_one_line_errors(sequence, tmp_path, capsys):
     assert not (tmp_path / "y").exists() and not (tmp_path / "z").exists()
 
 
+def test_calibrated_manifest_names_the_raster_of_the_lab_manifest(sequence, tmp_path):
+    """A LAB manifest naming a frame raster: the calibrated manifest names the same file (relative to it)."""
+    from calibrate.cli import main
+
+    out, _, _ = sequence
+    doc = json.loads((out / "manifest.json").read_text())
+    assert "raster" not in doc["image"]
+    doc["image"]["raster"] = {"path": str(out / "frames" / "frame_0000.tif"), "index": 1}
+    (tmp_path / "lab.json").write_text(json.dumps(doc))
+    assert main(["-q", "stars", str(out), "--manifest", str(tmp_path / "lab.json"), "--out", str(tmp_path / "cal")]) == 0
+    written = json.loads((tmp_path / "cal" / "manifest.json").read_text())["image"]["raster"]
+    assert (tmp_path / "cal" / written["path"]).resolve() == (out / "frames" / "frame_0000.tif").resolve() and written["index"] == 1
+    assert main(["-q", "stars", str(out), "--out", str(tmp_path / "plain")]) == 0
+    assert "raster" not in json.loads((tmp_path / "plain" / "manifest.json").read_text())["image"]
+
+
 def test_simulation_is_deterministic(tmp_path):
     a = simulate_geo_stars(tmp_path / "a", n_frames=3, seed=7)
     b = simulate_geo_stars(tmp_path / "b", n_frames=3, seed=7)

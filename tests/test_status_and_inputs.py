@@ -349,7 +349,7 @@ def test_frames_of_the_same_size_but_another_pixel_angle_are_refused(star_sequen
     from calibrate.actions.stars import read_star_inputs
     from calibrate.star_frames import check_frames_camera
 
-    frames, _, _, lab = read_star_inputs(star_sequences / "small")
+    frames, _, _, lab, _ = read_star_inputs(star_sequences / "small")
     other = SimpleNamespace(image_shape=lab.image_shape, ifov_rad=lab.ifov_rad * 1.5)
     with pytest.raises(InputError, match="pixel angle"):
         check_frames_camera(frames, lab, other, frames_source="frames.json", model_source="scene.json")

@@ -189,15 +189,15 @@ def test_an_output_folder_holding_the_inputs_is_refused(tmp_path, capsys):
 
 def test_calibrated_manifest_names_rasters_relative_to_the_final_folder(tmp_path, capsys, gcp_table):
     from gcpmatch.gcp_csv import write_gcps_csv
-    from sensor_models.readers import open_model
+    from sensor_models.readers import open_scene
 
     write_gcps_csv(gcp_table, tmp_path / "gcps.csv")
     out = tmp_path / "deep" / "cal"
     # exit 4: the reference band is calibrated, the other bands wait for `gcpcal relative`
     assert main(["-q", "calibrate", str(SCENE), "--gcps", str(tmp_path / "gcps.csv"), "--out", str(out),
                  "--no-report"]) == 4
-    model = open_model(out / "manifest.json")
-    assert all(Path(r["path"]).is_file() for r in model.rasters.values())
+    rasters = open_scene(out / "manifest.json").rasters
+    assert rasters and all(Path(r["path"]).is_file() for r in rasters.values())
     assert ".stage-" not in (out / "manifest.json").read_text() + (out / "calibration.json").read_text()
     assert not [p for p in (tmp_path / "deep").iterdir() if p.name != "cal"]
 

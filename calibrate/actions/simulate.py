@@ -246,6 +246,7 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
         ``rms_px``, ``max_px``, ``n_points`` and ``per_ccd`` rows.
     """
     from sensor_models.readers import open_model
+    from sensor_models.readers.model_file import open_model_with_provenance
     from sensor_models.simulate.truth import truth_error
 
     inputs = InputSet([model_path, truth_path, dem_path, geoid])
@@ -253,7 +254,7 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
     if out_path and not to_stdout:  # before any work
         check_output_files(out_path, inputs=inputs)
     true_model = open_model(truth_path)
-    model = open_model(model_path)
+    model, _, product_check = open_model_with_provenance(model_path)
     warning = require_usable(model, model_path, command="truth error")
     dem, coverage = None, {"warnings": []}
     if dem_path:
@@ -261,7 +262,7 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
         lon, lat = footprint_sample_lonlat(true_model, 0.5 * sum(dem.height_range_m))
         coverage = check_dem_footprint(dem, lon, lat)
     result = truth_error(true_model, model, dem=dem, step_px=step_px, heights_m=heights_m)
-    status = status_fields(model, warning, *coverage.pop("warnings"), product_check=model.product_check)
+    status = status_fields(model, warning, *coverage.pop("warnings"), product_check=product_check)
     result = {**result, **status, **coverage}
     if out_path and not to_stdout:
         with staged_files(out_path, inputs=inputs) as (json_tmp,):

@@ -48,6 +48,9 @@ def read_star_inputs(frames_path, manifest=None, *, scene_model=None, scene_sour
         The LAB manifest used.
     lab : GeoStaringModel
         Its model.
+    lab_rasters : dict
+        The raster the LAB manifest names (``{band: RasterRef}``, empty without one); the
+        calibrated manifest names it too.
 
     Raises
     ------
@@ -56,18 +59,18 @@ def read_star_inputs(frames_path, manifest=None, *, scene_model=None, scene_sour
         the camera's (:func:`calibrate.star_frames.check_frames_camera`).
     """
     from calibrate.star_frames import check_frames_camera, read_frame_list
-    from sensor_models.readers.geo_manifest import read_geo_manifest
+    from sensor_models.readers.geo_manifest import read_geo_manifest, read_geo_manifest_and_rasters
 
     frames, seconds, listed = read_frame_list(frames_path)
     manifest = Path(manifest) if manifest else listed
     if manifest is None:
         raise InputError("the frame list names no manifest; give --manifest", path=str(frames_path))
-    lab = read_geo_manifest(manifest)
+    lab, lab_rasters = read_geo_manifest_and_rasters(manifest)
     listed_model = lab if listed is None or Path(listed) == manifest else read_geo_manifest(listed)
     check_frames_camera(frames, listed_model, lab, frames_source=frames_path, model_source=manifest)
     if scene_model is not None:
         check_frames_camera(frames, lab, scene_model, frames_source=frames_path, model_source=scene_source)
-    return frames, seconds, manifest, lab
+    return frames, seconds, manifest, lab, lab_rasters
 
 
 @staged_output("out_dir", inputs=("frames_path", "manifest"), prefix=".stars-")
@@ -99,7 +102,7 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, options: StarOptions 
     from sensor_models.readers.geo_manifest import write_geo_manifest
 
     t0 = time.perf_counter()
-    frames, seconds, manifest, lab = read_star_inputs(frames_path, manifest)
+    frames, seconds, manifest, lab, lab_rasters = read_star_inputs(frames_path, manifest)
     catalog, mag_limit = options.catalog, options.mag_limit
     result = process_frames(frames, seconds, lab, options=options, versus_points=versus_points)
     out_dir = Path(out_dir)  # the staging folder (staged_output)
@@ -108,11 +111,11 @@ def stars_sequence(frames_path, out_dir, *, manifest=None, options: StarOptions 
                      "mag_limit": mag_limit}
     if result.success:
         result.model.calibration = CalibrationStatus("calibrated")
-        write_geo_manifest(result.model, out_dir / "manifest.json")
+        write_geo_manifest(result.model, out_dir / "manifest.json", raster=lab_rasters.get(result.model.band))
         doc["calibrated_manifest"] = "manifest.json"
     elif getattr(result, "model", None) is not None:  # kept for diagnosis, marked unusable
         result.model.calibration = CalibrationStatus("failed", result.message)
-        write_geo_manifest(result.model, out_dir / "manifest.json")
+        write_geo_manifest(result.model, out_dir / "manifest.json", raster=lab_rasters.get(result.model.band))
     doc["calibration_status"] = "calibrated" if result.success else "failed"
     doc["timings"]["command_s"] = time.perf_counter() - t0
     atomic_write_text(out_dir / "stars.json", json.dumps(with_provenance(doc), indent=1, allow_nan=False) + "\n")

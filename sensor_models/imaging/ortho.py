@@ -132,7 +132,7 @@ def _block_size(block: int, scale: float) -> int:
 def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=None, band=None,
                          resampling: str = "bilinear", block: int = 1024, nodata=0, dtype=None,
                          node_step_px: float = 16.0, check_points: int = 256, seed: int = 0,
-                         progress=None, dem_windows=None, tags: dict | None = None) -> dict:
+                         progress=None, dem_windows=None, tags: dict | None = None, rasters=None) -> dict:
     """Orthorectify one band into a Cloud-Optimized GeoTIFF, block by block, atomically.
 
     Parameters
@@ -141,8 +141,8 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         Geometry of the image (e.g. a calibrated push-broom model).
     image : str, os.PathLike, (path, band_index), ndarray or None
         The image in scene geometry: a raster path (band 1), a path and a 1-based band index,
-        a band name listed in the model's ``rasters`` (a scene manifest), None for the model's
-        raster of ``band``, or an array.
+        a band name listed in ``rasters``, None for the raster ``rasters`` lists for ``band``,
+        or an array.
     dem : sensor_models.terrain.dem.Dem
         Ellipsoidal heights of the ground.
     out_path : str or os.PathLike
@@ -174,6 +174,9 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         footprint, the default resolution and the mean height.
     tags : dict of str to str, optional
         More GDAL metadata items of the output (e.g. the caller's provenance).
+    rasters : dict, optional
+        Band -> ``{"path": str, "index": int}`` where a band name or None as ``image`` is looked
+        up (``Scene.rasters`` of :func:`sensor_models.readers.open_scene`).
 
     Returns
     -------
@@ -196,7 +199,7 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         raise InputError(f"must be >= 64 pixels, got {block}", field="block")
     out_path = Path(out_path)
     band = _default_band(model, band)
-    source, band = resolve_source(model, image, band)
+    source, band = resolve_source(model, image, band, rasters)
     try:
         if tuple(source.shape) != tuple(model.image_shape):
             raise InputError(f"the image is {source.shape[0]} x {source.shape[1]} px, the model describes "

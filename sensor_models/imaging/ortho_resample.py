@@ -97,9 +97,13 @@ class SourceBand:
             self.dataset.close()
 
 
-def resolve_source(model, image, band):
-    """``(source, band)`` from an image argument: array, raster path, band name, or None."""
-    rasters = getattr(model, "rasters", None) or {}
+def resolve_source(model, image, band, rasters=None):
+    """``(source, band)`` from an image argument: array, raster path, band name, or None.
+
+    A band name or None is looked up in ``rasters`` (band -> ``{"path", "index"}``, e.g. a
+    Scene's ``rasters``; None: no raster listed).
+    """
+    rasters = rasters or {}
     if isinstance(image, np.ndarray):
         return SourceBand(image), band
     if isinstance(image, tuple):
@@ -112,7 +116,7 @@ def resolve_source(model, image, band):
             band = image
         key = band if band is not None else getattr(model, "reference_band", None)
         if key not in rasters:
-            raise InputError(f"the model lists no raster for band {key!r}; give the image raster")
+            raise InputError(f"no raster listed for band {key!r}; give the image raster")
         entry = rasters[key]
         return SourceBand(entry["path"], int(entry.get("index", 1))), key
     return SourceBand(image), band

@@ -16,8 +16,8 @@ a raster with RPC metadata (GeoTIFF...)   :class:`~sensor_models.models.rpc.RpcM
 
 The vendor readers (``.DIM``, DIMAP v2 and WorldView ``.XML``) compare the model they build with
 the product's own corners and RPC and refuse a disagreement beyond their tolerance
-(:mod:`sensor_models.readers.self_check`, ``open_model(..., self_check="warn")`` to proceed and
-record it in ``model.product_check``).
+(:mod:`sensor_models.readers.self_check`, ``self_check="warn"`` to proceed and record it in
+``open_scene(...).product_check``).
 
 :func:`open_scene` (:mod:`sensor_models.readers.scene_input`) opens a SCENE as the user has it:
 any of these files, or a raster with an RPC, with the raster of its pixels found and the model

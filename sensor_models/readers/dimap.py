@@ -52,11 +52,29 @@ from sensor_models.readers.dimap_exterior import (
 from sensor_models.readers.dimap_interior import fit_look_polynomials
 from sensor_models.readers.dimap_parse import DimapMetadata, parse_dimap
 
-__all__ = ["read_dimap"]
+__all__ = ["read_dimap", "read_dimap_checked"]
 
 
 def read_dimap(path, *, band: int | None = None, attitude: str = "measured", self_check: str = "refuse"):
     """Build a :class:`~sensor_models.models.pushbroom.PushbroomModel` from a SPOT 1-5 DIMAP file.
+
+    The model of :func:`read_dimap_checked`, without its self-check.
+
+    Parameters
+    ----------
+    path, band, attitude, self_check
+        As :func:`read_dimap_checked`.
+
+    Returns
+    -------
+    PushbroomModel
+        As :func:`read_dimap_checked`.
+    """
+    return read_dimap_checked(path, band=band, attitude=attitude, self_check=self_check)[0]
+
+
+def read_dimap_checked(path, *, band: int | None = None, attitude: str = "measured", self_check: str = "refuse"):
+    """A SPOT 1-5 DIMAP file's push-broom model and its check against the file's frame.
 
     Parameters
     ----------
@@ -71,17 +89,19 @@ def read_dimap(path, *, band: int | None = None, attitude: str = "measured", sel
     self_check : {"refuse", "warn"}
         What to do when the model misses the file's frame vertices and scene centre beyond the
         tolerance (:func:`~sensor_models.readers.product_checks.check_dimap`): raise, or return
-        the model with the disagreement recorded in ``model.product_check``.
+        the model with the disagreement recorded in the check.
 
     Returns
     -------
-    PushbroomModel
+    model : PushbroomModel
         ITRF orbit, body -> ITRF attitude samples every ``ATTITUDE_STEP_S`` over the scene
         plus a margin, identity installation, one CCD per band spanning all columns, with
         ``tan psi`` polynomials fitted to the detector directions (see
         :func:`~sensor_models.readers.dimap_interior.fit_look_polynomials`). ``model.dimap_fits``
-        holds the fits per band, ``model.product_check`` the
-        :class:`~sensor_models.readers.self_check.ProductCheck`.
+        holds the fits per band.
+    check : ProductCheck
+        The :class:`~sensor_models.readers.self_check.ProductCheck` (``Scene.product_check`` of
+        :func:`~sensor_models.readers.scene_input.open_scene`).
 
     Raises
     ------
@@ -106,9 +126,8 @@ def read_dimap(path, *, band: int | None = None, attitude: str = "measured", sel
                                 field=f"{DIMAP_ROOT}/Data_Strip/Sensor_Configuration/Instrument_Look_Angles_List")
     fits = {f"B{lk.band_index}": fit_look_polynomials(lk, meta.n_cols) for lk in looks}
     model = _build_model(meta, fits, attitude)
-    model.product_check = enforce(check_dimap(model, meta, attitude, self_check,
-                                              lambda other: _build_model(meta, fits, other)))
-    return model
+    check = enforce(check_dimap(model, meta, attitude, self_check, lambda other: _build_model(meta, fits, other)))
+    return model, check
 
 
 def _build_model(meta: DimapMetadata, fits: dict, attitude: str):

@@ -43,12 +43,14 @@ __all__ = [
     "DimapV2Metadata",
     "band_look",
     "build_dimap_v2",
+    "build_dimap_v2_checked",
     "extend_attitude",
     "extend_orbit",
     "is_dimap_v2",
     "parse_dimap_v2",
     "raster_paths",
     "read_dimap_v2",
+    "read_dimap_v2_checked",
 ]
 
 #: lines of ephemeris and attitude added beyond each end of the image (the model's margin)
@@ -264,6 +266,24 @@ def band_look(band: DimapV2Band):
 def read_dimap_v2(path, *, band: str | None = None, rpc=None, self_check: str = "refuse"):
     """Build a :class:`~sensor_models.models.pushbroom.PushbroomModel` from a DIMAP v2 sensor product.
 
+    The model of :func:`read_dimap_v2_checked`, without its self-check.
+
+    Parameters
+    ----------
+    path, band, rpc, self_check
+        As :func:`read_dimap_v2_checked`.
+
+    Returns
+    -------
+    PushbroomModel
+        As :func:`read_dimap_v2_checked`.
+    """
+    return read_dimap_v2_checked(path, band=band, rpc=rpc, self_check=self_check)[0]
+
+
+def read_dimap_v2_checked(path, *, band: str | None = None, rpc=None, self_check: str = "refuse"):
+    """A DIMAP v2 sensor product's push-broom model and its check against the product.
+
     Parameters
     ----------
     path : str or Path
@@ -279,17 +299,19 @@ def read_dimap_v2(path, *, band: str | None = None, rpc=None, self_check: str = 
     self_check : {"refuse", "warn"}
         What to do when the model misses the product's ``Dataset_Extent`` (or its RPC) beyond
         the tolerance (:func:`~sensor_models.readers.product_checks.check_dimap_v2`): raise, or
-        return the model with the disagreement recorded in ``model.product_check``.
+        return the model with the disagreement recorded in the check.
 
     Returns
     -------
-    PushbroomModel
+    model : PushbroomModel
         ITRF orbit and satellite -> ITRF attitude (each extended by ``EXTENSION_LINES`` lines
         beyond the image), identity installation, line ``r`` at ``(r - 0.5) * LINE_PERIOD``
         from ``Time_Range/START``, one array per band (:func:`band_look`).
         ``model.dimap_v2_metadata`` holds the parsed file and ``model.dimap_v2_extension_s``
-        the orbit extension (before, after) in seconds, ``model.product_check`` the
-        :class:`~sensor_models.readers.self_check.ProductCheck`.
+        the orbit extension (before, after) in seconds.
+    check : ProductCheck
+        The :class:`~sensor_models.readers.self_check.ProductCheck` (``Scene.product_check`` of
+        :func:`~sensor_models.readers.scene_input.open_scene`).
 
     Raises
     ------
@@ -301,7 +323,7 @@ def read_dimap_v2(path, *, band: str | None = None, rpc=None, self_check: str = 
     from sensor_models.readers.self_check import check_policy
 
     check_policy(self_check)
-    return build_dimap_v2(parse_dimap_v2(path), band=band, rpc=rpc, self_check=self_check)
+    return build_dimap_v2_checked(parse_dimap_v2(path), band=band, rpc=rpc, self_check=self_check)
 
 
 def build_dimap_v2(meta: DimapV2Metadata, *, band: str | None = None, rpc=None, self_check: str = "refuse"):
@@ -318,6 +340,25 @@ def build_dimap_v2(meta: DimapV2Metadata, *, band: str | None = None, rpc=None, 
     -------
     PushbroomModel
         As :func:`read_dimap_v2`.
+    """
+    return build_dimap_v2_checked(meta, band=band, rpc=rpc, self_check=self_check)[0]
+
+
+def build_dimap_v2_checked(meta: DimapV2Metadata, *, band: str | None = None, rpc=None, self_check: str = "refuse"):
+    """The model of parsed DIMAP v2 metadata and its check against the product.
+
+    Parameters
+    ----------
+    meta : DimapV2Metadata
+        From :func:`parse_dimap_v2`.
+    band, rpc, self_check
+        As :func:`read_dimap_v2_checked`.
+
+    Returns
+    -------
+    model : PushbroomModel
+    check : ProductCheck
+        As :func:`read_dimap_v2_checked`.
     """
     from sensor_models.models.pushbroom import PushbroomModel
     from sensor_models.models.pushbroom_types import LineTiming
@@ -351,8 +392,7 @@ def build_dimap_v2(meta: DimapV2Metadata, *, band: str | None = None, rpc=None, 
         raise ManifestError(exc.reason, path=meta.path, field=exc.field) from None
     model.dimap_v2_metadata = meta
     model.dimap_v2_extension_s = extension
-    model.product_check = enforce(check_dimap_v2(model, meta, self_check, rpc=_product_rpc(meta, rpc)))
-    return model
+    return model, enforce(check_dimap_v2(model, meta, self_check, rpc=_product_rpc(meta, rpc)))
 
 
 def _product_rpc(meta: DimapV2Metadata, rpc):

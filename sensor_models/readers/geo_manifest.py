@@ -21,7 +21,8 @@ from sensor_models.readers._common import (calibration_from_fields, FORMAT_VERSI
                                            orbit_from_fields, raster_from_fields, raster_to_dict, write_document)
 from sensor_models.readers._strict import Fields
 
-__all__ = ["SENSOR", "geo_manifest_to_dict", "geo_model_from_document", "read_geo_manifest", "write_geo_manifest"]
+__all__ = ["SENSOR", "geo_manifest_to_dict", "geo_model_and_rasters", "geo_model_from_document", "read_geo_manifest",
+           "read_geo_manifest_and_rasters", "write_geo_manifest"]
 
 SENSOR = "geo_staring"
 
@@ -87,10 +88,28 @@ def _mirror(root: Fields):
 
 
 def geo_model_from_document(doc, path) -> GeoStaringModel:
-    """Build a model from an already decoded manifest document.
+    """Build a model from an already decoded manifest document (the model alone).
+
+    Parameters
+    ----------
+    doc : object
+        The decoded JSON document (``sensor: "geo_staring"``).
+    path : str or Path
+        The manifest file: errors name it.
+
+    Returns
+    -------
+    GeoStaringModel
+        As :func:`read_geo_manifest`.
+    """
+    return geo_model_and_rasters(doc, path)[0]
+
+
+def geo_model_and_rasters(doc, path) -> tuple[GeoStaringModel, dict]:
+    """Build a model and its raster from an already decoded manifest document.
 
     For a dispatcher that has read the JSON and looked at ``sensor``
-    (:func:`sensor_models.readers.scene.read_manifest`).
+    (:func:`sensor_models.readers.scene.read_manifest_and_rasters`).
 
     Parameters
     ----------
@@ -102,8 +121,10 @@ def geo_model_from_document(doc, path) -> GeoStaringModel:
 
     Returns
     -------
-    GeoStaringModel
+    model : GeoStaringModel
         As :func:`read_geo_manifest`.
+    rasters : dict
+        ``{band: RasterRef}`` of ``image.raster`` (absolute path), empty without one.
     """
     path = Path(path)
     root = Fields(doc, "", str(path))
@@ -140,10 +161,9 @@ def geo_model_from_document(doc, path) -> GeoStaringModel:
         raise ManifestError(str(exc), path=str(path), field="frame.seconds") from None
     model.lab = lab
     model.lab_fit_residual = residual
-    model.rasters = rasters
     if calibration is not None:
         model.calibration = calibration
-    return model
+    return model, rasters
 
 
 def read_geo_manifest(path) -> GeoStaringModel:
@@ -157,17 +177,39 @@ def read_geo_manifest(path) -> GeoStaringModel:
     Returns
     -------
     GeoStaringModel
-        With ``model.rasters`` (band -> :class:`RasterRef`, absolute path; empty without
-        ``image.raster``), and for a ``"lab"`` interior ``model.lab``
-        and ``model.lab_fit_residual``.
+        For a ``"lab"`` interior with ``model.lab`` and ``model.lab_fit_residual``; the frame's
+        raster: :func:`read_geo_manifest_and_rasters`.
 
     Raises
     ------
     ManifestError
         One line: ``<file>: field '<dotted.path>': <what is wrong>``.
     """
+    return read_geo_manifest_and_rasters(path)[0]
+
+
+def read_geo_manifest_and_rasters(path) -> tuple[GeoStaringModel, dict]:
+    """Read a ``geo_staring`` manifest into a model and the raster it names.
+
+    Parameters
+    ----------
+    path : str or Path
+        The manifest JSON file.
+
+    Returns
+    -------
+    model : GeoStaringModel
+        As :func:`read_geo_manifest`.
+    rasters : dict
+        ``{band: RasterRef}`` (absolute path) of ``image.raster``; empty without one.
+
+    Raises
+    ------
+    ManifestError
+        As :func:`read_geo_manifest`.
+    """
     path = Path(path)
-    return geo_model_from_document(load_json(path), path)
+    return geo_model_and_rasters(load_json(path), path)
 
 
 def geo_manifest_to_dict(model: GeoStaringModel, *, raster=None, base_dir=None) -> dict:
@@ -178,7 +220,7 @@ def geo_manifest_to_dict(model: GeoStaringModel, *, raster=None, base_dir=None) 
     model : GeoStaringModel
         The model to write.
     raster : str, Path or RasterRef, optional
-        The frame's pixels (default: the model's own ``rasters`` entry, if any).
+        The frame's pixels (e.g. ``Scene.rasters[model.band]``); default: none written.
     base_dir : Path, optional
         When given, an absolute raster path is written relative to this folder.
 
@@ -189,8 +231,6 @@ def geo_manifest_to_dict(model: GeoStaringModel, *, raster=None, base_dir=None) 
     """
     if not isinstance(model, GeoStaringModel):
         raise InputError(f"expected a GeoStaringModel, got {type(model).__name__}")
-    if raster is None:
-        raster = (getattr(model, "rasters", None) or {}).get(model.band)
     image = {"n_rows": model.n_rows, "n_cols": model.n_cols, "band": model.band}
     if raster is not None:
         image["raster"] = raster_to_dict(raster, base_dir)
@@ -228,7 +268,7 @@ def write_geo_manifest(model: GeoStaringModel, path, *, raster=None) -> Path:
     path : str or Path
         Destination ``.json``; the raster path is written relative to its folder.
     raster : str, Path or RasterRef, optional
-        The frame's pixels (default: the model's own ``rasters`` entry).
+        The frame's pixels; default: none written.
 
     Returns
     -------

@@ -23,7 +23,8 @@ from sensor_models.readers._common import (calibration_from_fields, FORMAT_VERSI
 from sensor_models.readers._strict import Fields
 from sensor_models.models.lab import LabBand, LabCamera, LabCcd, lab_to_directional_angles
 
-__all__ = ["SENSOR", "manifest_to_dict", "pushbroom_model_from_document", "read_pushbroom_manifest", "write_manifest"]
+__all__ = ["SENSOR", "manifest_to_dict", "pushbroom_model_and_rasters", "pushbroom_model_from_document",
+           "read_pushbroom_manifest", "write_manifest"]
 
 SENSOR = "pushbroom"
 
@@ -140,14 +141,40 @@ def pushbroom_model_from_document(doc, path) -> PushbroomModel:
     doc : object
         The decoded JSON document (``sensor: "pushbroom"``).
     path : str or Path
+        The manifest file: errors name it.
+
+    Returns
+    -------
+    PushbroomModel
+        The model alone; :func:`pushbroom_model_and_rasters` also gives the manifest's rasters.
+
+    Raises
+    ------
+    ManifestError
+        As :func:`pushbroom_model_and_rasters`.
+    """
+    return pushbroom_model_and_rasters(doc, path)[0]
+
+
+def pushbroom_model_and_rasters(doc, path) -> tuple[PushbroomModel, dict]:
+    """Build a push-broom model and its rasters from an already decoded manifest document.
+
+    Parameters
+    ----------
+    doc : object
+        The decoded JSON document (``sensor: "pushbroom"``).
+    path : str or Path
         The manifest file: relative raster paths are resolved against its folder and errors
         name it.
 
     Returns
     -------
-    PushbroomModel
-        With ``model.rasters`` (band -> :class:`RasterRef` with an absolute path) set; the file
-        opened is the ``source`` of :func:`~sensor_models.readers.scene_input.open_scene`'s Scene.
+    model : PushbroomModel
+        The model the manifest describes.
+    rasters : dict
+        ``image.rasters``: band -> :class:`RasterRef` with an absolute path (empty when the
+        manifest lists none); :func:`~sensor_models.readers.scene_input.open_scene` hands them
+        out as ``Scene.rasters``.
 
     Raises
     ------
@@ -193,10 +220,9 @@ def pushbroom_model_from_document(doc, path) -> PushbroomModel:
         raise ManifestError(exc.reason, path=str(path), field=exc.field) from None
     except GcpcalError as exc:  # OutOfRangeError: the data spans do not cover the lines
         raise ManifestError(str(exc), path=str(path), field="orbit/attitude") from None
-    model.rasters = rasters
     if calibration is not None:
         model.calibration = calibration
-    return model
+    return model, rasters
 
 
 def _attitude_correction(root: Fields, path: Path):
@@ -220,7 +246,8 @@ def read_pushbroom_manifest(path) -> PushbroomModel:
     Returns
     -------
     PushbroomModel
-        As :func:`pushbroom_model_from_document`.
+        As :func:`pushbroom_model_from_document` (the rasters:
+        :func:`~sensor_models.readers.scene_input.open_scene`).
     """
     path = Path(path)
     return pushbroom_model_from_document(load_json(path), path)
@@ -234,7 +261,7 @@ def manifest_to_dict(model: PushbroomModel, *, rasters=None, base_dir=None) -> d
     model : PushbroomModel
         The model to write (directional-angle interior).
     rasters : dict, optional
-        Band -> path or :class:`RasterRef`; default the model's own ``rasters``.
+        Band -> path or :class:`RasterRef` (e.g. ``Scene.rasters``); default: none written.
     base_dir : Path, optional
         When given, absolute raster paths are written relative to this folder.
 
@@ -243,8 +270,7 @@ def manifest_to_dict(model: PushbroomModel, *, rasters=None, base_dir=None) -> d
     dict
         The JSON-ready document (``format_version`` 1, ``sensor: "pushbroom"``).
     """
-    out_rasters = {band: raster_to_dict(ref, base_dir)
-                   for band, ref in (rasters or getattr(model, "rasters", {}) or {}).items()}
+    out_rasters = {band: raster_to_dict(ref, base_dir) for band, ref in (rasters or {}).items()}
     image = {"n_rows": model.n_rows, "reference_band": model.reference_band}
     if out_rasters:
         image["rasters"] = out_rasters
@@ -294,7 +320,7 @@ def write_manifest(model: PushbroomModel, path, *, rasters=None) -> Path:
     path : str or Path
         Destination ``.json``; raster paths are written relative to its folder.
     rasters : dict, optional
-        Band -> path or :class:`RasterRef`; default the model's own ``rasters``.
+        Band -> path or :class:`RasterRef` (e.g. ``Scene.rasters``); default: none written.
 
     Returns
     -------

@@ -6,19 +6,40 @@ See the table in :mod:`sensor_models.readers`.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, NamedTuple
 
 from sensor_models.errors import InputError
 
-__all__ = ["open_model", "xml_root"]
+__all__ = ["OpenedModel", "open_model", "open_model_with_provenance", "xml_root"]
 
 #: Bytes of an XML file read to find its root element (prolog and comments come before it).
 _XML_HEAD_BYTES = 1 << 20
 
-#: Root element of a vendor XML file -> (module, reader function) of its geometric reader.
+#: Root element of a vendor XML file -> (module, reader function) of its geometric reader, which
+#: returns ``(model, product check)``.
 _XML_READERS = {
-    "Dimap_Document": ("sensor_models.readers.dimap_v2", "read_dimap_v2"),
-    "isd": ("sensor_models.readers.worldview", "read_worldview"),
+    "Dimap_Document": ("sensor_models.readers.dimap_v2", "read_dimap_v2_checked"),
+    "isd": ("sensor_models.readers.worldview", "read_worldview_checked"),
 }
+
+
+class OpenedModel(NamedTuple):
+    """What :func:`open_model_with_provenance` read: the model and what the file said about it.
+
+    Attributes
+    ----------
+    model : SensorModel
+        The model the file describes.
+    rasters : dict
+        A manifest's ``image.rasters`` (band -> ``RasterRef``, absolute path); empty for every
+        other kind (:func:`~sensor_models.readers.scene_input.open_scene` finds their rasters).
+    product_check : ProductCheck or None
+        A vendor product's self-check; None for manifests and RPC files.
+    """
+
+    model: Any
+    rasters: dict
+    product_check: Any
 
 
 def open_model(path, *, self_check: str = "refuse", **kwargs):
@@ -33,9 +54,8 @@ def open_model(path, *, self_check: str = "refuse", **kwargs):
         For a vendor product (``.DIM``, DIMAP v2 or DigitalGlobe ``.XML``): what its reader does
         when the model disagrees with the product's own corners or RPC beyond the tolerance
         (:mod:`sensor_models.readers.self_check`): raise
-        :class:`~sensor_models.errors.ProductDisagreementError`, or return the model with the
-        disagreement in ``model.product_check``. Manifests and RPC files state nothing about
-        themselves to check: their models get ``product_check = None``.
+        :class:`~sensor_models.errors.ProductDisagreementError`, or return the model (the
+        disagreement is ``open_scene(...).product_check``).
     **kwargs
         Passed to the reader of that kind (:func:`~sensor_models.readers.scene.read_manifest`,
         :func:`~sensor_models.readers.dimap.read_dimap`, :func:`~sensor_models.readers.rpc_files.read_rpc`).
@@ -43,13 +63,37 @@ def open_model(path, *, self_check: str = "refuse", **kwargs):
     Returns
     -------
     SensorModel
-        The model the file describes.
+        The model the file describes, alone: a manifest's rasters and a product's self-check
+        come with :func:`~sensor_models.readers.scene_input.open_scene` (or
+        :func:`open_model_with_provenance`).
 
     Raises
     ------
     InputError
         If the file does not exist or its kind is not recognized (naming the file); for an
         ``.xml`` product whose reader is not installed, "reader not available".
+    """
+    return open_model_with_provenance(path, self_check=self_check, **kwargs).model
+
+
+def open_model_with_provenance(path, *, self_check: str = "refuse", **kwargs) -> OpenedModel:
+    """Open a sensor model with the rasters a manifest lists and a vendor product's self-check.
+
+    Parameters
+    ----------
+    path, self_check, **kwargs
+        As :func:`open_model`. Manifests and RPC files state nothing about themselves to check:
+        their ``product_check`` is None.
+
+    Returns
+    -------
+    OpenedModel
+        ``(model, rasters, product_check)``.
+
+    Raises
+    ------
+    InputError
+        As :func:`open_model`.
     """
     from sensor_models.readers.self_check import check_policy
 
@@ -59,21 +103,21 @@ def open_model(path, *, self_check: str = "refuse", **kwargs):
         raise InputError("no such file", path=str(path))
     name = path.name.lower()
     if name.endswith(".dim"):
-        from sensor_models.readers.dimap import read_dimap
+        from sensor_models.readers.dimap import read_dimap_checked
 
-        return read_dimap(path, self_check=self_check, **kwargs)
+        model, check = read_dimap_checked(path, self_check=self_check, **kwargs)
+        return OpenedModel(model, {}, check)
     if name.endswith(".xml"):
-        return _read_vendor_xml(path, self_check=self_check, **kwargs)
+        model, check = _read_vendor_xml(path, self_check=self_check, **kwargs)
+        return OpenedModel(model, {}, check)
     if name.endswith(".json"):
-        from sensor_models.readers.scene import read_manifest
+        from sensor_models.readers.scene import read_manifest_and_rasters
 
-        model = read_manifest(path, **kwargs)
-    else:
-        from sensor_models.readers.rpc_files import read_rpc
+        model, rasters = read_manifest_and_rasters(path, **kwargs)
+        return OpenedModel(model, rasters, None)
+    from sensor_models.readers.rpc_files import read_rpc
 
-        model = read_rpc(path, **kwargs)
-    model.product_check = None
-    return model
+    return OpenedModel(read_rpc(path, **kwargs), {}, None)
 
 
 def xml_root(path) -> str:
@@ -116,7 +160,7 @@ def xml_root(path) -> str:
 
 
 def _read_vendor_xml(path: Path, **kwargs):
-    """A DIMAP v2 or WorldView XML file, told by its root element, through its reader."""
+    """``(model, product check)`` of a DIMAP v2 or WorldView XML file, told by its root element."""
     import importlib
 
     root = xml_root(path)

@@ -83,17 +83,15 @@ def open_scene(path, *, image=None, band=None, self_check: str = "refuse", **kwa
         pixel geotransform. A tiled DIMAP product gives no raster (``raster_tiles`` > 1) and
         :func:`missing_raster_message` says so.
     """
-    from sensor_models.readers.model_file import open_model
+    from sensor_models.readers.model_file import open_model_with_provenance
 
     path = Path(path)
     if not path.exists():
         raise InputError("no such file", path=str(path))
     if _is_model_file(path):
-        model = open_model(path, self_check=self_check, **kwargs)
-        check = getattr(model, "product_check", None)
+        model, listed, check = open_model_with_provenance(path, self_check=self_check, **kwargs)
         if path.name.lower().endswith(".json"):  # a manifest lists its own rasters
-            rasters = dict(getattr(model, "rasters", None) or {})
-            return _with_image(model, rasters, image, band, check_shape=image is not None,
+            return _with_image(model, dict(listed), image, band, check_shape=image is not None,
                                source=path, product_check=check)
         rasters, candidates = _rasters_of_model_file(path, model)
     else:

@@ -28,8 +28,9 @@ the metadata and the producer's corners share, not the corners' agreement with t
 
 Beyond the tolerance the reader refuses (:class:`~sensor_models.errors.ProductDisagreementError`,
 one line naming the product, the satellite and the disagreement) unless the user asked
-``self_check="warn"``: then the model is returned, the check (``model.product_check``) records the
-disagreement (also logged at INFO level). Summaries of the commands that open a product write
+``self_check="warn"``: then the model is returned with the check, which records the disagreement
+(``Scene.product_check`` of :func:`~sensor_models.readers.scene_input.open_scene`; also logged at
+INFO level). Summaries of the commands that open a product write
 :meth:`ProductCheck.to_dict`.
 """
 

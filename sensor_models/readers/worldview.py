@@ -41,6 +41,7 @@ __all__ = [
     "pixel_to_dg",
     "raster_paths",
     "read_worldview",
+    "read_worldview_checked",
 ]
 
 _ROOT = "isd"
@@ -607,6 +608,26 @@ def read_worldview(path, *, band: str | None = None, aberration: bool = True, re
                    refraction_height_m: float | None = None, self_check: str = "refuse"):
     """Build a rigorous :class:`~sensor_models.models.pushbroom.PushbroomModel` from a level-1B XML.
 
+    The model of :func:`read_worldview_checked`, without its self-check.
+
+    Parameters
+    ----------
+    path, band, aberration, refraction, refraction_height_m, self_check
+        As :func:`read_worldview_checked`.
+
+    Returns
+    -------
+    PushbroomModel
+        As :func:`read_worldview_checked`.
+    """
+    return read_worldview_checked(path, band=band, aberration=aberration, refraction=refraction,
+                                  refraction_height_m=refraction_height_m, self_check=self_check)[0]
+
+
+def read_worldview_checked(path, *, band: str | None = None, aberration: bool = True, refraction: bool = True,
+                           refraction_height_m: float | None = None, self_check: str = "refuse"):
+    """A level-1B XML's rigorous push-broom model and its check against the product's corners and RPB.
+
     Parameters
     ----------
     path : str or Path
@@ -623,16 +644,22 @@ def read_worldview(path, *, band: str | None = None, aberration: bool = True, re
         Ellipsoidal height at which the refraction (and the small ``omega x (P - X)`` part of
         the aberration) is evaluated and folded into straight rays (default: the mean of the
         band's corner ``HAE`` values).
+    self_check : {"refuse", "warn"}
+        What to do when the model misses the product's corners or RPB beyond the tolerance
+        (:func:`~sensor_models.readers.product_checks.check_worldview`): raise, or return the
+        model with the disagreement recorded in the check.
 
     Returns
     -------
-    PushbroomModel
+    model : PushbroomModel
         ITRF orbit (cubic Hermite through positions and velocities), body -> ITRF attitude
         samples (rotation spline) with the corrections folded in, identity installation,
         one CCD per band spanning ``NUMCOLUMNS``, cubic ``tan psi`` polynomials.
         ``model.worldview_metadata`` holds the parsed file and ``model.worldview_fold`` the
-        fold residuals (see :func:`~sensor_models.readers.worldview_los.build_model`);
-        ``model.product_check`` the :class:`~sensor_models.readers.self_check.ProductCheck`.
+        fold residuals (see :func:`~sensor_models.readers.worldview_los.build_model`).
+    check : ProductCheck
+        The :class:`~sensor_models.readers.self_check.ProductCheck` (``Scene.product_check`` of
+        :func:`~sensor_models.readers.scene_input.open_scene`).
 
     Raises
     ------
@@ -663,5 +690,4 @@ def read_worldview(path, *, band: str | None = None, aberration: bool = True, re
         if isinstance(exc, ManifestError) or exc.path is not None:
             raise
         raise ManifestError(exc.reason, path=meta.path, field=exc.field) from None
-    model.product_check = enforce(check_worldview(model, meta, self_check))
-    return model
+    return model, enforce(check_worldview(model, meta, self_check))
