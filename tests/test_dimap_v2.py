@@ -51,8 +51,22 @@ def spot6(shared_data):
 
 
 @pytest.fixture(scope="module")
-def model(spot6):
-    return read_dimap_v2(spot6)
+def scene(spot6):
+    """The product as ``open_scene`` gives it: the model and the reader's metadata."""
+    from sensor_models.readers import open_scene
+
+    return open_scene(spot6)
+
+
+@pytest.fixture(scope="module")
+def model(scene):
+    return scene.model
+
+
+@pytest.fixture(scope="module")
+def meta(scene):
+    """The parsed file the model was built from (``Scene.metadata.parsed``)."""
+    return scene.metadata.parsed
 
 
 def frame_points(meta):
@@ -128,8 +142,7 @@ def test_rpc_is_named_but_absent(spot6):
 # the producer's frame
 
 
-def test_frame_vertices_and_centre_at_one_common_height(model):
-    meta = model.dimap_v2_metadata
+def test_frame_vertices_and_centre_at_one_common_height(model, meta):
     rows, cols, lon, lat = frame_points(meta)
     h, miss = fit_common_height(model, rows, cols, lon, lat)
     assert HEIGHT_RANGE_M[0] < h < HEIGHT_RANGE_M[1]
@@ -152,15 +165,15 @@ def test_frame_vertices_and_centre_at_one_common_height(model):
         (0.0, -0.5, 0.08),  # ... in COL - 1.5
     ],
 )
-def test_other_pixel_conventions_miss_the_frame(model, d_row, d_col, at_least_m):
+def test_other_pixel_conventions_miss_the_frame(model, meta, d_row, d_col, at_least_m):
     """A convention off by a fraction of a pixel leaves misses no common height can absorb."""
-    rows, cols, lon, lat = frame_points(model.dimap_v2_metadata)
+    rows, cols, lon, lat = frame_points(meta)
     _, miss = fit_common_height(model, rows + d_row, cols + d_col, lon, lat)
     assert miss.max() > at_least_m
 
 
 @pytest.mark.parametrize("reading", ["scalar-last", "itrf-to-satellite"])
-def test_other_quaternion_readings_miss_the_earth(model, reading):
+def test_other_quaternion_readings_miss_the_earth(model, meta, reading):
     """Q3 read as the scalar, or the rotation read the other way round: no ray lands near the
     frame (they miss the Earth altogether)."""
     from sensor_models.geometry.ephemeris import Attitude
@@ -170,7 +183,7 @@ def test_other_quaternion_readings_miss_the_earth(model, reading):
     q = q[:, [3, 0, 1, 2]] if reading == "scalar-last" else q * [-1.0, -1.0, -1.0, 1.0]
     wrong = PushbroomModel(orbit=model.orbit, attitude=Attitude(model.attitude.seconds, q, frame="itrf"),
                            line_timing=model.line_timing, bands=dict(model.bands), n_rows=model.n_rows)
-    rows, cols, lon, lat = frame_points(model.dimap_v2_metadata)
+    rows, cols, lon, lat = frame_points(meta)
     with np.errstate(invalid="ignore"):
         miss = misses_m(wrong, rows, cols, lon, lat, 836.0)
     assert np.all(~np.isfinite(miss) | (miss > 1000.0))
@@ -212,9 +225,8 @@ def test_round_trip_on_a_dense_random_scan(model):
     assert np.all(np.isfinite(err)) and err.max() < ROUND_TRIP_TOLERANCE_PX
 
 
-def test_extension_covers_the_image_edges_only(model):
-    meta = model.dimap_v2_metadata
-    before, after = model.dimap_v2_extension_s
+def test_extension_covers_the_image_edges_only(scene, model, meta):
+    before, after = scene.metadata.extension_s
     assert before == pytest.approx(EXTENSION_LINES * meta.line_period_s)
     assert after == pytest.approx(EXTENSION_LINES * meta.line_period_s, abs=1e-6)
     lon, lat, _ = model.image_to_ground([0.0, model.n_rows], [0.0, model.n_cols], height=0.0)
@@ -225,9 +237,8 @@ def test_extension_covers_the_image_edges_only(model):
     assert model.n_rows + EXTENSION_LINES / 2 < hi < model.n_rows + EXTENSION_LINES
 
 
-def test_extend_orbit_reproduces_a_dropped_end_sample(model):
+def test_extend_orbit_reproduces_a_dropped_end_sample(meta):
     """Drop the last 3 state vectors, extend from the rest, compare with the dropped one."""
-    meta = model.dimap_v2_metadata
     t, p, v = meta.ephemeris_seconds, meta.position_m, meta.velocity_m_s
     k = t.size - 3
     gap = t[k] - t[k - 1]
@@ -238,10 +249,9 @@ def test_extend_orbit_reproduces_a_dropped_end_sample(model):
     assert np.linalg.norm(pe[-1] - (p[k - 1] + v[k - 1] * gap)) > 0.01  # a straight line is worse
 
 
-def test_extend_attitude_holds_the_end_rate(model):
+def test_extend_attitude_holds_the_end_rate(meta):
     from scipy.spatial.transform import Rotation
 
-    meta = model.dimap_v2_metadata
     t = meta.attitude_seconds
     rot = Rotation.from_quat(meta.quaternions_wxyz[:, [1, 2, 3, 0]])
     k = t.size - 10
@@ -251,14 +261,14 @@ def test_extend_attitude_holds_the_end_rate(model):
     assert err_urad < 0.5 and still_urad > 5.0 * err_urad
 
 
-def test_rpc_fitted_to_the_model_lands_on_the_frame(model):
+def test_rpc_fitted_to_the_model_lands_on_the_frame(model, meta):
     """The product's own RPC is absent; an RPC fitted to the rigorous model over 0-2000 m
     reproduces it to a few thousandths of a pixel and lands on the producer's frame too."""
     from sensor_models.models.rpc_fit import fit_rpc
 
     rpc, report = fit_rpc(model, height_range_m=(0.0, 2000.0))
     assert report["check_max_px"] < 0.01
-    rows, cols, lon, lat = frame_points(model.dimap_v2_metadata)
+    rows, cols, lon, lat = frame_points(meta)
     h, _ = fit_common_height(model, rows, cols, lon, lat)
     r, c = rpc.ground_to_image(lon, lat, np.full(lon.shape, h))
     assert np.max(np.abs(r - rows)) < 0.01 and np.max(np.abs(c - cols)) < 0.01
@@ -267,9 +277,9 @@ def test_rpc_fitted_to_the_model_lands_on_the_frame(model):
     assert np.min(np.abs(c_high - cols)) > 5.0
 
 
-def test_look_polynomials_are_the_file_s_padded_to_a_cubic(model):
+def test_look_polynomials_are_the_file_s_padded_to_a_cubic(model, meta):
     (ccd,) = model.bands["P"]
-    xlos = model.dimap_v2_metadata.bands[0].xlos
+    xlos = meta.bands[0].xlos
     assert (ccd.first_col, ccd.n_detectors) == (0, 25669)
     assert np.array_equal(ccd.tan_psi_y, np.r_[-xlos, 0.0, 0.0])
     assert np.array_equal(ccd.tan_psi_x, np.zeros(4))

@@ -187,7 +187,7 @@ def test_worldview_satellites_named_when_refused(shared_data, tmp_path):
         read_worldview(unknown, self_check="warn")
     # a DigitalGlobe satellite never seen on a real product: its own statements decide
     qb = edited(src, tmp_path / "QB.XML", ("<SATID>WV02</SATID>", "<SATID>QB02</SATID>"))
-    _, confirmed = read_worldview_checked(qb)
+    confirmed = read_worldview_checked(qb).check
     assert confirmed.passed and any("QB02" in n for n in confirmed.notes)
     ge = _corner_moved(edited(src, tmp_path / "GE.XML", ("<SATID>WV02</SATID>", "<SATID>GE01</SATID>")),
                        tmp_path / "GE_moved.XML")

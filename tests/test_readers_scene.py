@@ -72,7 +72,7 @@ def test_open_scene_of_a_manifest_is_a_scene_with_its_rasters():
 
     scene = open_scene(EXAMPLE)
     assert isinstance(scene, Scene) and isinstance(scene.model, PushbroomModel)
-    assert scene.source == EXAMPLE and scene.crop is None and scene.product_check is None
+    assert scene.source == EXAMPLE and scene.crop is None and scene.product_check is None and scene.metadata is None
     assert scene.raster_candidates == () and scene.raster_tiles == 0
     for band, ref in scene.rasters.items():
         assert scene.raster_of(band) == (ref["path"], int(ref.get("index", 1)))
@@ -107,10 +107,24 @@ def test_open_scene_of_a_dimap_product_carries_its_self_check(shared_data, tmp_p
     assert scene.raster_candidates == (str(tmp_path / "IMAGERY.TIF"),)
     assert scene.product_check is not None and scene.product_check.passed
     assert scene.raster_of() is None
+    # what the reader parsed and fitted comes with the Scene, not on the model
+    from sensor_models.readers.dimap import read_dimap_checked
+    from sensor_models.readers.dimap_parse import parse_dimap
+
+    parsed = parse_dimap(dim)
+    assert scene.metadata.parsed.n_rows == parsed.n_rows == scene.model.n_rows
+    assert list(scene.metadata.look_fits) == list(scene.model.bands) == ["B1"]
+    assert scene.metadata.extension_s is None and scene.metadata.fold is None
+    assert read_dimap_checked(dim).metadata.look_fits["B1"].max_residual_px == \
+        scene.metadata.look_fits["B1"].max_residual_px
+    assert not {"dimap_metadata", "dimap_fits"} & set(vars(scene.model))
 
 
-#: Provenance attributes once hung on models after construction; a Scene carries them now.
-PROVENANCE = {"rasters", "raster_candidates", "raster_tiles", "crop_of_full_scene", "manifest_path", "product_check"}
+#: Provenance attributes once hung on models after construction; a Scene carries them now (the
+#: vendor readers' parsed files and fits: ``Scene.metadata``, a ``ProductMetadata``).
+PROVENANCE = {"rasters", "raster_candidates", "raster_tiles", "crop_of_full_scene", "manifest_path", "product_check",
+              "dimap_metadata", "dimap_fits", "dimap_v2_metadata", "dimap_v2_extension_s", "worldview_metadata",
+              "worldview_fold"}
 #: Where a model still gets one: nowhere (the readers return their rasters and self-checks).
 STILL_HUNG: set = set()
 

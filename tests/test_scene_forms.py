@@ -303,7 +303,7 @@ def test_xml_dispatch_by_root_element(shared_data, tmp_path, monkeypatch, capsys
                                            "--cols", "1"])
             assert "reader not available" in err
     fake = types.ModuleType("sensor_models.readers.dimap_v2")
-    fake.read_dimap_v2_checked = lambda path, **kw: (_rpc(), None)
+    fake.read_dimap_v2_checked = lambda path, **kw: (_rpc(), None, None)
     monkeypatch.setitem(sys.modules, "sensor_models.readers.dimap_v2", fake)
     os.symlink(products / "SPOT6.XML", tmp_path / "DIM_SPOT6.XML")
     scene = open_scene(tmp_path / "DIM_SPOT6.XML")

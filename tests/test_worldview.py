@@ -34,6 +34,7 @@ from sensor_models.readers.worldview import (
     pixel_to_dg,
     raster_paths,
     read_worldview,
+    read_worldview_checked,
 )
 from sensor_models.readers.worldview_los import (
     aberration_correct,
@@ -53,14 +54,26 @@ ROUND_TRIP_TOL_PX = 1e-3
 
 
 @pytest.fixture(scope="module")
-def models(shared_data):
+def readings(shared_data):
+    """Name -> ``(model, check, metadata)`` of :func:`read_worldview_checked`."""
     out = {}
     for name in PRODUCTS:
         path = shared_data / "products" / f"{name}.XML"
         if not path.is_file():
             pytest.skip(f"{path} not found")
-        out[name] = read_worldview(path)
+        out[name] = read_worldview_checked(path)
     return out
+
+
+@pytest.fixture(scope="module")
+def models(readings):
+    return {name: reading.model for name, reading in readings.items()}
+
+
+@pytest.fixture(scope="module")
+def metas(readings):
+    """Name -> the parsed file, as the reader returns it (``metadata.parsed``)."""
+    return {name: reading.metadata.parsed for name, reading in readings.items()}
 
 
 def xml_path(shared_data, name):
@@ -79,9 +92,8 @@ def corner_pixels(meta):
     return row, col
 
 
-def corner_errors(model):
+def corner_errors(model, meta):
     """Image (px) and ground (m) distances between the IMD corners and the model."""
-    meta = model.worldview_metadata
     band = meta.bands[0]
     row, col = corner_pixels(meta)
     r, c = model.ground_to_image(band.corner_lon, band.corner_lat, band.corner_hae_m)
@@ -91,10 +103,10 @@ def corner_errors(model):
     return np.stack([r - row, c - col], axis=-1), np.linalg.norm(a - b, axis=-1)
 
 
-def rpb_differences(model, n=21):
+def rpb_differences(model, meta, n=21):
     """Our model minus the RPB: (N, 2) row/col differences (px) on a grid x 5 heights."""
-    rpc = model.worldview_metadata.rpc_model()
-    n_rows, n_cols = collected_extent(model.worldview_metadata)
+    rpc = meta.rpc_model()
+    n_rows, n_cols = collected_extent(meta)
     row, col = np.meshgrid(np.linspace(0.5, n_rows - 0.5, n), np.linspace(0.5, n_cols - 0.5, n), indexing="ij")
     row, col = row.ravel(), col.ravel()
     out = []
@@ -105,13 +117,12 @@ def rpb_differences(model, n=21):
     return np.concatenate(out)
 
 
-def perturbed(model, *, lines=0.0, attitude_rad=0.0):
-    """The same product rebuilt with its time tags shifted or its attitude turned."""
-    meta = model.worldview_metadata
+def perturbed(meta, *, lines=0.0, attitude_rad=0.0):
+    """The model of the same product rebuilt with its time tags shifted or its attitude turned."""
     q = (Rotation.from_quat(meta.quaternions_xyzw) * Rotation.from_rotvec([attitude_rad, 0.0, 0.0])).as_quat()
     meta = dataclasses.replace(meta, first_line_seconds=meta.first_line_seconds + lines * meta.line_period_s,
                                quaternions_xyzw=q)
-    return build_model(meta, meta.bands)
+    return build_model(meta, meta.bands)[0]
 
 
 # --------------------------------------------------------------------------------------------- parsing
@@ -264,24 +275,24 @@ def test_refraction_displacement_matches_the_hydrostatic_delay():
 
 
 @pytest.mark.parametrize("name", PRODUCTS)
-def test_imd_corners_are_first_and_last_pixel_centres(models, name):
-    model = models[name]
-    px, m = corner_errors(model)
+def test_imd_corners_are_first_and_last_pixel_centres(models, metas, name):
+    model, meta = models[name], metas[name]
+    px, m = corner_errors(model, meta)
     assert np.max(np.abs(px)) < CORNER_TOL_PX
     assert np.max(m) < CORNER_TOL_PX * 0.65  # GSD <= 0.65 m
     # one row earlier is not the corner (the tolerance is tighter than a pixel)
-    lines_off, _ = corner_errors(perturbed(model, lines=1.0))
+    lines_off, _ = corner_errors(perturbed(meta, lines=1.0), meta)
     assert np.min(np.abs(lines_off[:, 0])) > CORNER_TOL_PX
     # 1e-5 rad of roll moves every corner by 13-18 m
-    _, turned_m = corner_errors(perturbed(model, attitude_rad=1e-5))
+    _, turned_m = corner_errors(perturbed(meta, attitude_rad=1e-5), meta)
     assert np.min(turned_m) > CORNER_TOL_PX * 0.65
 
 
 @pytest.mark.parametrize("name", PRODUCTS)
-def test_corners_without_aberration_or_refraction_miss_as_physics_predicts(models, name):
-    meta = models[name].worldview_metadata
-    no_ab, _ = corner_errors(build_model(meta, meta.bands, aberration=False))
-    no_ref, _ = corner_errors(build_model(meta, meta.bands, refraction=False))
+def test_corners_without_aberration_or_refraction_miss_as_physics_predicts(metas, name):
+    meta = metas[name]
+    no_ab, _ = corner_errors(build_model(meta, meta.bands, aberration=False)[0], meta)
+    no_ref, _ = corner_errors(build_model(meta, meta.bands, refraction=False)[0], meta)
     # aberration: v/c = 2.5e-5 rad over 700-900 km, 18-22 m, along track (rows)
     assert np.all((30.0 < np.abs(no_ab[:, 0])) & (np.abs(no_ab[:, 0]) < 60.0))
     # refraction: 1.2-1.9 m towards the nadir at 25-28 degrees off nadir
@@ -290,14 +301,15 @@ def test_corners_without_aberration_or_refraction_miss_as_physics_predicts(model
 
 
 @pytest.mark.parametrize("name", PRODUCTS)
-def test_model_agrees_with_the_vendor_rpc(models, name):
-    diff = rpb_differences(models[name])
+def test_model_agrees_with_the_vendor_rpc(models, metas, name):
+    meta = metas[name]
+    diff = rpb_differences(models[name], meta)
     bias = np.abs(diff.mean(axis=0))
     rms = np.sqrt(np.mean(np.sum(diff**2, axis=-1)))
     assert np.all(bias < RPB_BIAS_TOL_PX) and rms < RPB_RMS_TOL_PX[name]
-    shifted = rpb_differences(perturbed(models[name], lines=1.0), n=9)
+    shifted = rpb_differences(perturbed(meta, lines=1.0), meta, n=9)
     assert np.abs(shifted.mean(axis=0))[0] > RPB_BIAS_TOL_PX
-    turned = rpb_differences(perturbed(models[name], attitude_rad=1e-5), n=9)
+    turned = rpb_differences(perturbed(meta, attitude_rad=1e-5), meta, n=9)
     assert np.sqrt(np.mean(np.sum(turned**2, axis=-1))) > RPB_RMS_TOL_PX[name]
 
 
@@ -316,8 +328,8 @@ def test_round_trip_image_ground_image(models, name):
 
 
 @pytest.mark.parametrize("name", PRODUCTS)
-def test_fold_residuals_are_negligible(models, name):
-    fold = models[name].worldview_fold
+def test_fold_residuals_are_negligible(readings, name):
+    fold = readings[name].metadata.fold
     assert fold["P"]["time_residual_px"] < 0.02 and fold["P"]["polynomial_residual_px"] < 1e-4
     # the centre correction is aberration-sized (v/c = 25 microradians) plus refraction
     assert 20.0 < fold["central_correction_urad"] < 30.0

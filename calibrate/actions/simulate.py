@@ -254,7 +254,8 @@ def truth_error_of(model_path, truth_path, *, dem_path=None, dem_datum=None, geo
     if out_path and not to_stdout:  # before any work
         check_output_files(out_path, inputs=inputs)
     true_model = open_model(truth_path)
-    model, _, product_check = open_model_with_provenance(model_path)
+    opened = open_model_with_provenance(model_path)
+    model, product_check = opened.model, opened.product_check
     warning = require_usable(model, model_path, command="truth error")
     dem, coverage = None, {"warnings": []}
     if dem_path:

@@ -51,6 +51,7 @@ from sensor_models.readers.dimap_exterior import (
 )
 from sensor_models.readers.dimap_interior import fit_look_polynomials
 from sensor_models.readers.dimap_parse import DimapMetadata, parse_dimap
+from sensor_models.readers.scene_value import ProductMetadata, ProductReading
 
 __all__ = ["read_dimap", "read_dimap_checked"]
 
@@ -93,15 +94,20 @@ def read_dimap_checked(path, *, band: int | None = None, attitude: str = "measur
 
     Returns
     -------
-    model : PushbroomModel
-        ITRF orbit, body -> ITRF attitude samples every ``ATTITUDE_STEP_S`` over the scene
-        plus a margin, identity installation, one CCD per band spanning all columns, with
-        ``tan psi`` polynomials fitted to the detector directions (see
-        :func:`~sensor_models.readers.dimap_interior.fit_look_polynomials`). ``model.dimap_fits``
-        holds the fits per band.
-    check : ProductCheck
-        The :class:`~sensor_models.readers.self_check.ProductCheck` (``Scene.product_check`` of
-        :func:`~sensor_models.readers.scene_input.open_scene`).
+    ProductReading
+        ``(model, check, metadata)``:
+
+        model : PushbroomModel
+            ITRF orbit, body -> ITRF attitude samples every ``ATTITUDE_STEP_S`` over the scene
+            plus a margin, identity installation, one CCD per band spanning all columns, with
+            ``tan psi`` polynomials fitted to the detector directions (see
+            :func:`~sensor_models.readers.dimap_interior.fit_look_polynomials`).
+        check : ProductCheck
+            The :class:`~sensor_models.readers.self_check.ProductCheck` (``Scene.product_check``
+            of :func:`~sensor_models.readers.scene_input.open_scene`).
+        metadata : ProductMetadata
+            ``parsed`` (the :class:`~sensor_models.readers.dimap_parse.DimapMetadata`) and
+            ``look_fits`` (band -> ``LookFit``) (``Scene.metadata``).
 
     Raises
     ------
@@ -127,7 +133,7 @@ def read_dimap_checked(path, *, band: int | None = None, attitude: str = "measur
     fits = {f"B{lk.band_index}": fit_look_polynomials(lk, meta.n_cols) for lk in looks}
     model = _build_model(meta, fits, attitude)
     check = enforce(check_dimap(model, meta, attitude, self_check, lambda other: _build_model(meta, fits, other)))
-    return model, check
+    return ProductReading(model, check, ProductMetadata(meta, look_fits=fits))
 
 
 def _build_model(meta: DimapMetadata, fits: dict, attitude: str):
@@ -147,7 +153,7 @@ def _build_model(meta: DimapMetadata, fits: dict, attitude: str):
             raise
         raise ManifestError(exc.reason, path=meta.path, field=exc.field) from None
     bands = {name: [CcdLook("ccd1", 0, meta.n_cols, fit.tan_psi_x, fit.tan_psi_y)] for name, fit in fits.items()}
-    model = PushbroomModel(
+    return PushbroomModel(
         orbit=orbit,
         attitude=att,
         line_timing=timing,
@@ -155,6 +161,3 @@ def _build_model(meta: DimapMetadata, fits: dict, attitude: str):
         n_rows=meta.n_rows,
         name=f"SPOT{meta.mission} {meta.instrument} {meta.sensor_code} {meta.epoch}",
     )
-    model.dimap_fits = fits
-    model.dimap_metadata = meta
-    return model

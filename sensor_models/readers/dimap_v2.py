@@ -23,7 +23,8 @@ checked on a real SPOT 6 file (``docs/dimap_v2.md``):
 The ephemeris and attitudes of a sensor product end at the first and the last lines, and
 :class:`~sensor_models.models.pushbroom.PushbroomModel` needs a line beyond each end: the reader adds
 one sample ``EXTENSION_LINES`` lines beyond each end (orbit: a local polynomial; attitude: the
-end rotation rate held), recorded in ``model.dimap_v2_extension_s``.
+end rotation rate held), recorded in the ``extension_s`` of the reader's
+:class:`~sensor_models.readers.scene_value.ProductMetadata` (``Scene.metadata``).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from scipy.spatial.transform import Rotation
 from sensor_models.errors import InputError, ManifestError
 from sensor_models.readers._dimap_v2_parse import DimapV2Band, DimapV2Metadata, product_references, parse_dimap_v2
 from sensor_models.readers.dimap_common import DimapXml
+from sensor_models.readers.scene_value import ProductMetadata, ProductReading
 
 __all__ = [
     "DimapV2Band",
@@ -303,15 +305,20 @@ def read_dimap_v2_checked(path, *, band: str | None = None, rpc=None, self_check
 
     Returns
     -------
-    model : PushbroomModel
-        ITRF orbit and satellite -> ITRF attitude (each extended by ``EXTENSION_LINES`` lines
-        beyond the image), identity installation, line ``r`` at ``(r - 0.5) * LINE_PERIOD``
-        from ``Time_Range/START``, one array per band (:func:`band_look`).
-        ``model.dimap_v2_metadata`` holds the parsed file and ``model.dimap_v2_extension_s``
-        the orbit extension (before, after) in seconds.
-    check : ProductCheck
-        The :class:`~sensor_models.readers.self_check.ProductCheck` (``Scene.product_check`` of
-        :func:`~sensor_models.readers.scene_input.open_scene`).
+    ProductReading
+        ``(model, check, metadata)``:
+
+        model : PushbroomModel
+            ITRF orbit and satellite -> ITRF attitude (each extended by ``EXTENSION_LINES``
+            lines beyond the image), identity installation, line ``r`` at
+            ``(r - 0.5) * LINE_PERIOD`` from ``Time_Range/START``, one array per band
+            (:func:`band_look`).
+        check : ProductCheck
+            The :class:`~sensor_models.readers.self_check.ProductCheck` (``Scene.product_check``
+            of :func:`~sensor_models.readers.scene_input.open_scene`).
+        metadata : ProductMetadata
+            ``parsed`` (the :class:`DimapV2Metadata`) and ``extension_s`` (the orbit and
+            attitude extension (before, after) in seconds) (``Scene.metadata``).
 
     Raises
     ------
@@ -356,9 +363,8 @@ def build_dimap_v2_checked(meta: DimapV2Metadata, *, band: str | None = None, rp
 
     Returns
     -------
-    model : PushbroomModel
-    check : ProductCheck
-        As :func:`read_dimap_v2_checked`.
+    ProductReading
+        ``(model, check, metadata)``, as :func:`read_dimap_v2_checked`.
     """
     from sensor_models.models.pushbroom import PushbroomModel
     from sensor_models.models.pushbroom_types import LineTiming
@@ -390,9 +396,8 @@ def build_dimap_v2_checked(meta: DimapV2Metadata, *, band: str | None = None, rp
         if isinstance(exc, ManifestError):
             raise
         raise ManifestError(exc.reason, path=meta.path, field=exc.field) from None
-    model.dimap_v2_metadata = meta
-    model.dimap_v2_extension_s = extension
-    return model, enforce(check_dimap_v2(model, meta, self_check, rpc=_product_rpc(meta, rpc)))
+    check = enforce(check_dimap_v2(model, meta, self_check, rpc=_product_rpc(meta, rpc)))
+    return ProductReading(model, check, ProductMetadata(meta, extension_s=extension))
 
 
 def _product_rpc(meta: DimapV2Metadata, rpc):

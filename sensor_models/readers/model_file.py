@@ -16,7 +16,8 @@ __all__ = ["OpenedModel", "open_model", "open_model_with_provenance", "xml_root"
 _XML_HEAD_BYTES = 1 << 20
 
 #: Root element of a vendor XML file -> (module, reader function) of its geometric reader, which
-#: returns ``(model, product check)``.
+#: returns a :class:`~sensor_models.readers.scene_value.ProductReading`
+#: ``(model, product check, product metadata)``.
 _XML_READERS = {
     "Dimap_Document": ("sensor_models.readers.dimap_v2", "read_dimap_v2_checked"),
     "isd": ("sensor_models.readers.worldview", "read_worldview_checked"),
@@ -35,11 +36,16 @@ class OpenedModel(NamedTuple):
         other kind (:func:`~sensor_models.readers.scene_input.open_scene` finds their rasters).
     product_check : ProductCheck or None
         A vendor product's self-check; None for manifests and RPC files.
+    metadata : ProductMetadata or None
+        What a vendor product's reader parsed and derived
+        (:class:`~sensor_models.readers.scene_value.ProductMetadata`); None for manifests and
+        RPC files.
     """
 
     model: Any
     rasters: dict
     product_check: Any
+    metadata: Any = None
 
 
 def open_model(path, *, self_check: str = "refuse", **kwargs):
@@ -64,7 +70,7 @@ def open_model(path, *, self_check: str = "refuse", **kwargs):
     -------
     SensorModel
         The model the file describes, alone: a manifest's rasters and a product's self-check
-        come with :func:`~sensor_models.readers.scene_input.open_scene` (or
+        and metadata come with :func:`~sensor_models.readers.scene_input.open_scene` (or
         :func:`open_model_with_provenance`).
 
     Raises
@@ -77,18 +83,18 @@ def open_model(path, *, self_check: str = "refuse", **kwargs):
 
 
 def open_model_with_provenance(path, *, self_check: str = "refuse", **kwargs) -> OpenedModel:
-    """Open a sensor model with the rasters a manifest lists and a vendor product's self-check.
+    """Open a sensor model with the rasters a manifest lists and a vendor product's self-check and metadata.
 
     Parameters
     ----------
     path, self_check, **kwargs
         As :func:`open_model`. Manifests and RPC files state nothing about themselves to check:
-        their ``product_check`` is None.
+        their ``product_check`` and ``metadata`` are None.
 
     Returns
     -------
     OpenedModel
-        ``(model, rasters, product_check)``.
+        ``(model, rasters, product_check, metadata)``.
 
     Raises
     ------
@@ -105,11 +111,11 @@ def open_model_with_provenance(path, *, self_check: str = "refuse", **kwargs) ->
     if name.endswith(".dim"):
         from sensor_models.readers.dimap import read_dimap_checked
 
-        model, check = read_dimap_checked(path, self_check=self_check, **kwargs)
-        return OpenedModel(model, {}, check)
+        model, check, metadata = read_dimap_checked(path, self_check=self_check, **kwargs)
+        return OpenedModel(model, {}, check, metadata)
     if name.endswith(".xml"):
-        model, check = _read_vendor_xml(path, self_check=self_check, **kwargs)
-        return OpenedModel(model, {}, check)
+        model, check, metadata = _read_vendor_xml(path, self_check=self_check, **kwargs)
+        return OpenedModel(model, {}, check, metadata)
     if name.endswith(".json"):
         from sensor_models.readers.scene import read_manifest_and_rasters
 
@@ -160,7 +166,7 @@ def xml_root(path) -> str:
 
 
 def _read_vendor_xml(path: Path, **kwargs):
-    """``(model, product check)`` of a DIMAP v2 or WorldView XML file, told by its root element."""
+    """``(model, product check, product metadata)`` of a DIMAP v2 or WorldView XML file, told by its root element."""
     import importlib
 
     root = xml_root(path)

@@ -164,11 +164,11 @@ def check_worldview_pointing(meta) -> None:
             + (f"; {caveat}" if caveat else ""), path=meta.path)
 
 
-def _refraction_limit_m(model, meta, tan_z: float, heights) -> float:
+def _refraction_limit_m(fold, meta, tan_z: float, heights) -> float:
     """How far straight rays folded at one height err at other heights (refraction, m)."""
     from sensor_models.readers.worldview_los import refraction_displacement_m
 
-    fold = getattr(model, "worldview_fold", {}) or {}
+    fold = fold or {}
     h_ref = fold.get("refraction_height_m")
     if h_ref is None or not fold.get("refraction_shift_m") or max(np.abs(fold["refraction_shift_m"])) == 0.0:
         return 0.0
@@ -178,7 +178,7 @@ def _refraction_limit_m(model, meta, tan_z: float, heights) -> float:
     return float(np.max(np.abs(d)))
 
 
-def check_worldview(model, meta, policy: str) -> ProductCheck:
+def check_worldview(model, meta, fold, policy: str) -> ProductCheck:
     """A DigitalGlobe product's model against its ``IMD`` corners and its ``RPB``.
 
     Parameters
@@ -186,6 +186,10 @@ def check_worldview(model, meta, policy: str) -> ProductCheck:
     model : PushbroomModel
         From :func:`~sensor_models.readers.worldview.read_worldview` (bands named by ``BANDID``).
     meta : WorldViewMetadata
+    fold : dict or None
+        The fold's statistics from :func:`~sensor_models.readers.worldview_los.build_model`
+        (``refraction_height_m`` and ``refraction_shift_m`` set the tolerance's refraction
+        term; None or empty: no such term).
     policy : {"refuse", "warn"}
 
     Returns
@@ -213,13 +217,13 @@ def check_worldview(model, meta, policy: str) -> ProductCheck:
         lons.append(band.corner_lon), lats.append(band.corner_lat), haes.append(band.corner_hae_m)
     rounding = coordinate_rounding_m(np.concatenate(lons), np.concatenate(lats), np.concatenate(haes),
                                      view_tangent_value=tan_z)
-    refr = _refraction_limit_m(model, meta, tan_z, np.concatenate(haes))
+    refr = _refraction_limit_m(fold, meta, tan_z, np.concatenate(haes))
     tol = Tolerance.combine(base, (rounding, "corner rounding"), (refr, "refraction's height dependence"))
     comparisons = [compare("corners", f"IMD corners at their HAE ({', '.join(model.bands)})", np.concatenate(misses),
                            "max", tol)]
     if rpc is not None:
         heights = rpc.height_off + rpc.height_scale * np.linspace(-1.0, 1.0, RPC_GRID_HEIGHTS)
-        refr_rpc = _refraction_limit_m(model, meta, tan_z, heights)
+        refr_rpc = _refraction_limit_m(fold, meta, tan_z, heights)
         comparisons.append(check_rpc(model, rpc, n_rows, n_cols, band=ref, base=base,
                                      extra=((refr_rpc, "refraction's height dependence"),)))
     notes = [f"collected extent {n_rows} x {n_cols} pixels (corners at its first and last pixel centres)"]

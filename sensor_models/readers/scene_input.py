@@ -73,7 +73,8 @@ def open_scene(path, *, image=None, band=None, self_check: str = "refuse", **kwa
         The :class:`~sensor_models.readers.scene_value.Scene`: ``model`` (a crop's model
         describes the crop's pixels), ``rasters`` (band -> ``{"path": str, "index": int}``,
         absolute path, 1-based raster band), ``raster_candidates`` (the files looked for when
-        none was found, else empty), ``source``, ``crop`` and ``product_check``.
+        none was found, else empty), ``source``, ``crop``, ``product_check`` and ``metadata``
+        (a vendor product's :class:`~sensor_models.readers.scene_value.ProductMetadata`).
 
     Raises
     ------
@@ -89,7 +90,7 @@ def open_scene(path, *, image=None, band=None, self_check: str = "refuse", **kwa
     if not path.exists():
         raise InputError("no such file", path=str(path))
     if _is_model_file(path):
-        model, listed, check = open_model_with_provenance(path, self_check=self_check, **kwargs)
+        model, listed, check, metadata = open_model_with_provenance(path, self_check=self_check, **kwargs)
         if path.name.lower().endswith(".json"):  # a manifest lists its own rasters
             return _with_image(model, dict(listed), image, band, check_shape=image is not None,
                                source=path, product_check=check)
@@ -99,10 +100,10 @@ def open_scene(path, *, image=None, band=None, self_check: str = "refuse", **kwa
 
         check_policy(self_check)
         model = _model_of_raster(path, **kwargs)
-        check = None
+        check = metadata = None
         rasters, candidates = _single_raster(model, path), ()
     return _with_image(model, rasters, image, band, check_shape=True, source=path, product_check=check,
-                       raster_candidates=() if rasters else tuple(str(c) for c in candidates),
+                       metadata=metadata, raster_candidates=() if rasters else tuple(str(c) for c in candidates),
                        raster_tiles=len(candidates) if _names_tiles(path) else 0)
 
 
@@ -280,7 +281,7 @@ def _single_raster(model, raster: Path) -> dict:
 
 
 def _with_image(model, rasters: dict, image, band, *, check_shape: bool, source: Path, product_check,
-                raster_candidates: tuple = (), raster_tiles: int = 0) -> Scene:
+                metadata=None, raster_candidates: tuple = (), raster_tiles: int = 0) -> Scene:
     """The Scene: ``image`` replaces the raster of ``band``; a raster of another size crops the model."""
     key = band if band is not None else getattr(model, "reference_band", None)
     if image is not None:
@@ -295,7 +296,7 @@ def _with_image(model, rasters: dict, image, band, *, check_shape: bool, source:
             model, (row0, col0) = crop_to_raster(model, ref["path"], shape)
             crop = (row0, col0, full_shape)
     return Scene(model=model, rasters=rasters, source=Path(source), raster_candidates=raster_candidates,
-                 raster_tiles=raster_tiles, crop=crop, product_check=product_check)
+                 raster_tiles=raster_tiles, crop=crop, product_check=product_check, metadata=metadata)
 
 
 def _raster_rpc(path) -> tuple[tuple[int, int], bool]:

@@ -651,15 +651,20 @@ def read_worldview_checked(path, *, band: str | None = None, aberration: bool = 
 
     Returns
     -------
-    model : PushbroomModel
-        ITRF orbit (cubic Hermite through positions and velocities), body -> ITRF attitude
-        samples (rotation spline) with the corrections folded in, identity installation,
-        one CCD per band spanning ``NUMCOLUMNS``, cubic ``tan psi`` polynomials.
-        ``model.worldview_metadata`` holds the parsed file and ``model.worldview_fold`` the
-        fold residuals (see :func:`~sensor_models.readers.worldview_los.build_model`).
-    check : ProductCheck
-        The :class:`~sensor_models.readers.self_check.ProductCheck` (``Scene.product_check`` of
-        :func:`~sensor_models.readers.scene_input.open_scene`).
+    ProductReading
+        ``(model, check, metadata)``:
+
+        model : PushbroomModel
+            ITRF orbit (cubic Hermite through positions and velocities), body -> ITRF
+            attitude samples (rotation spline) with the corrections folded in, identity
+            installation, one CCD per band spanning ``NUMCOLUMNS``, cubic ``tan psi``
+            polynomials.
+        check : ProductCheck
+            The :class:`~sensor_models.readers.self_check.ProductCheck` (``Scene.product_check``
+            of :func:`~sensor_models.readers.scene_input.open_scene`).
+        metadata : ProductMetadata
+            ``parsed`` (the :class:`WorldViewMetadata`) and ``fold`` (the fold's statistics,
+            see :func:`~sensor_models.readers.worldview_los.build_model`) (``Scene.metadata``).
 
     Raises
     ------
@@ -672,6 +677,7 @@ def read_worldview_checked(path, *, band: str | None = None, aberration: bool = 
     """
     from sensor_models.readers.product_checks import (DIGITALGLOBE_SATELLITES, check_worldview,
                                                       check_worldview_pointing)
+    from sensor_models.readers.scene_value import ProductMetadata, ProductReading
     from sensor_models.readers.self_check import check_policy, enforce
     from sensor_models.readers.worldview_los import build_model
 
@@ -684,10 +690,11 @@ def read_worldview_checked(path, *, band: str | None = None, aberration: bool = 
     bands = meta.bands if band is None else (meta.band(band),)
     check_worldview_pointing(meta)
     try:
-        model = build_model(meta, bands, aberration=aberration, refraction=refraction,
-                            refraction_height_m=refraction_height_m)
+        model, fold = build_model(meta, bands, aberration=aberration, refraction=refraction,
+                                  refraction_height_m=refraction_height_m)
     except InputError as exc:
         if isinstance(exc, ManifestError) or exc.path is not None:
             raise
         raise ManifestError(exc.reason, path=meta.path, field=exc.field) from None
-    return model, enforce(check_worldview(model, meta, self_check))
+    check = enforce(check_worldview(model, meta, fold, self_check))
+    return ProductReading(model, check, ProductMetadata(meta, fold=fold))

@@ -283,12 +283,14 @@ def build_model(meta, bands, *, aberration: bool = True, refraction: bool = True
 
     Returns
     -------
-    PushbroomModel
-        See :func:`~sensor_models.readers.worldview.read_worldview`. Attributes added:
-        ``worldview_metadata`` and ``worldview_fold`` (dict: ``refraction_height_m``,
-        ``central_correction_urad``, ``refraction_shift_m`` (min, max), and per band
-        ``time_residual_px`` (how far the per-detector correction moves over the image
-        span from its mean) and ``polynomial_residual_px`` (cubic fit), both in pixels).
+    model : PushbroomModel
+        See :func:`~sensor_models.readers.worldview.read_worldview`.
+    fold : dict
+        The fold's statistics: ``refraction_height_m``, ``central_correction_urad``,
+        ``refraction_shift_m`` (min, max), and per band ``time_residual_px`` (how far the
+        per-detector correction moves over the image span from its mean) and
+        ``polynomial_residual_px`` (cubic fit), both in pixels (the ``fold`` of
+        :class:`~sensor_models.readers.scene_value.ProductMetadata`).
     """
     from sensor_models.geometry.ephemeris import Attitude, Orbit
     from sensor_models.models.pushbroom import PushbroomModel
@@ -318,6 +320,4 @@ def build_model(meta, bands, *, aberration: bool = True, refraction: bool = True
         n_rows=meta.n_rows,
         name=f"{meta.satellite} {meta.image_descriptor} {meta.epoch}",
     )
-    model.worldview_metadata = meta
-    model.worldview_fold = stats
-    return model
+    return model, stats
