@@ -21,7 +21,7 @@ import os
 
 from sensor_models.errors import InputError
 
-__all__ = ["available_cores", "connect", "dask_log_level", "worker_count"]
+__all__ = ["available_cores", "check_scheduler_address", "connect", "dask_log_level", "worker_count"]
 
 
 def available_cores() -> int:
@@ -35,6 +35,37 @@ def available_cores() -> int:
     if hasattr(os, "sched_getaffinity"):
         return max(1, len(os.sched_getaffinity(0)))
     return max(1, os.cpu_count() or 1)
+
+
+def check_scheduler_address(address: str) -> str:
+    """Refuse a Dask scheduler address that cannot be parsed, before any connection.
+
+    Parameters
+    ----------
+    address : str
+        ``scheme://host:port`` or ``host:port`` (TCP).
+
+    Returns
+    -------
+    str
+        ``address``, unchanged.
+
+    Raises
+    ------
+    InputError
+        Naming the address, when its scheme is unknown or its host/port cannot be parsed.
+    """
+    from distributed.comm import parse_address, parse_host_port
+    from distributed.comm.registry import get_backend
+
+    try:
+        scheme, location = parse_address(address)
+        get_backend(scheme)
+        if scheme in ("tcp", "tls"):
+            parse_host_port(location)
+    except ValueError as exc:
+        raise InputError(f"not a Dask scheduler address ({exc})", path=str(address), field="scheduler") from None
+    return address
 
 
 @contextlib.contextmanager

@@ -41,7 +41,7 @@ from calibrate._json import json_safe
 from calibrate.actions._guard import OutputRefusedError, allow_overwrite, overwrite_allowed, running_command
 from calibrate.actions._io import final_paths, staged_folder
 from calibrate.actions._provenance import command_line, current_command_line, with_provenance
-from calibrate.cluster import available_cores, connect, dask_log_level, worker_count
+from calibrate.cluster import available_cores, check_scheduler_address, connect, dask_log_level, worker_count
 from calibrate.pipelines.run import MIN_COVERAGE, MIN_GCPS, run_scene
 from sensor_models.errors import GcpcalError, InputError
 
@@ -316,8 +316,6 @@ def run_campaign(scenes, out_dir, *, source=None, scheduler=None, workers: int |
     InputError
         No scene, a bad scheduler address or an unreachable scheduler, an output refused by the guard.
     """
-    from calibrate.actions.validate import check_scheduler_address
-
     t0 = time.perf_counter()
     scenes = list(scenes)
     if not scenes:
