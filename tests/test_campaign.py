@@ -236,8 +236,12 @@ def test_campaign_equals_serial_runs_and_reports_the_broken_scene(tmp_path, caps
 
 # --------------------------------------------------------------------------- Ctrl-C
 def test_ctrl_c_during_a_campaign_is_one_line_and_leaves_nothing(tmp_path):
-    """The workers ignore SIGINT (calibrate.actions._worker_signals); gcpcal stops, the staging goes."""
-    campaign = _write_csv(tmp_path / "c.csv", [_entry("tiny", TINY), _entry("clear", HY1C)])
+    """A folder of scenes; the workers ignore SIGINT (calibrate.actions._worker_signals); gcpcal stops,
+    the staging goes."""
+    campaign = tmp_path / "scenes"
+    campaign.mkdir()
+    (campaign / "tiny").symlink_to(TINY, target_is_directory=True)  # each with its reference/dom.tif, dem.tif
+    (campaign / "clear").symlink_to(HY1C, target_is_directory=True)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     command = [sys.executable, "-c", "import sys; from calibrate.cli import main; sys.exit(main())"]
     proc = subprocess.Popen([*command, "-q", "campaign", str(campaign), "--out", str(tmp_path / "o"), "--workers", "2"],
@@ -253,4 +257,4 @@ def test_ctrl_c_during_a_campaign_is_one_line_and_leaves_nothing(tmp_path):
     err = err.decode()
     assert proc.returncode == 130, err
     assert [line for line in err.splitlines() if line.strip()] == ["gcpcal: interrupted"], err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scenes"]

@@ -334,7 +334,7 @@ def run_campaign(scenes, out_dir, *, source=None, scheduler=None, workers: int |
         if progress is not None:
             progress(0, len(scenes), None)
         with dask_log_level():
-            rows, n_workers = _run_tasks(scenes, stage, options, scheduler=scheduler, workers=workers,
+            rows, n_workers = _run_tasks(scenes, stage, out_dir, options, scheduler=scheduler, workers=workers,
                                          processes=processes, timeout_s=timeout_s, progress=progress)
         summary = {"kind": "gcpcal.campaign", "campaign": None if source is None else str(source),
                    "scenes": len(rows), "ok": sum(r["status"] == "ok" for r in rows),
@@ -342,7 +342,6 @@ def run_campaign(scenes, out_dir, *, source=None, scheduler=None, workers: int |
                    "failures": {r["name"]: r["reason"] for r in rows if r["status"] != "ok"},
                    "options": options, "scheduler": scheduler or "LocalCluster", "workers": n_workers,
                    "task_seconds": float(sum(r["seconds"] or 0.0 for r in rows))}
-        rows = final_paths(rows, stage, out_dir)  # messages naming a scene's staging name its folder
         _write_outputs(stage, scenes, rows, summary, t0)
     return final_paths(summary, stage, out_dir)
 
@@ -364,8 +363,9 @@ def _refuse_foreign_files(out_dir) -> None:
                                      "replace it, or another --out", path=str(path))
 
 
-def _run_tasks(scenes, stage: Path, options: dict, *, scheduler, workers, processes, timeout_s, progress):
-    """Submit one :func:`campaign_scene` per scene; return the rows in the campaign's order and the worker count."""
+def _run_tasks(scenes, stage: Path, out_dir, options: dict, *, scheduler, workers, processes, timeout_s, progress):
+    """Submit one :func:`campaign_scene` per scene into ``stage``; return the rows in the campaign's order
+    (their messages naming ``out_dir``, not the staging folder) and the worker count."""
     from distributed import as_completed
 
     argv, overwrite = current_command_line(), overwrite_allowed()
@@ -382,7 +382,7 @@ def _run_tasks(scenes, stage: Path, options: dict, *, scheduler, workers, proces
                 row = fut.result()
             except Exception as exc:  # noqa: BLE001 - a lost worker fails its scene only
                 row = _failed_row(scenes[k], f"task error: {type(exc).__name__}: {exc}")
-            rows[k] = row
+            rows[k] = row = final_paths(row, stage, out_dir)
             if progress is not None:
                 progress(done, len(scenes), row)
     finally:
