@@ -142,6 +142,23 @@ def test_failed_scenes_are_rows_with_their_reason(tmp_path):
     assert time.perf_counter() - t0 < 1.0 and (out / "campaign.csv").read_text() == "edited by hand\n"
 
 
+def test_campaign_at_a_scheduler_address(tmp_path, capsys):
+    """--scheduler: the workers of a running scheduler (here one in this process); every scene failed: exit 3."""
+    from distributed import LocalCluster
+
+    campaign = _write_csv(tmp_path / "c.csv", [_entry("tiny", TINY), _entry("no_dom", HY1C, dom=tmp_path / "x.tif")])
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=":0") as cluster:
+        code = main(["campaign", str(campaign), "--out", str(tmp_path / "o"), "--scheduler", cluster.scheduler_address,
+                     "--json"])
+    captured = capsys.readouterr()
+    assert code == 3, captured.err
+    summary = json.loads(captured.out)
+    assert summary["scheduler"] == cluster.scheduler_address and summary["workers"] == 1
+    assert summary["options"]["threads"] == 0  # at a scheduler: every core of the worker's machine
+    assert [r["status"] for r in summary["rows"]] == ["failed", "failed"]
+    assert "2 of 2 scene(s) failed (tiny: " in captured.err.splitlines()[-1]
+
+
 # --------------------------------------------------------------------------- equal to the serial runs
 def _figures(run: Path, name: str, scene: Path) -> dict:
     """A summary's numbers, without what names the run (its folder and scene, times, provenance)."""
