@@ -249,6 +249,8 @@ def campaign_scene(scene: CampaignScene, out_dir, *, options: dict, argv=None, o
     t0 = time.perf_counter()
     row = _failed_row(scene, "")
     try:
+        if not Path(out_dir).is_dir():  # a task started after its campaign stopped: write nothing
+            raise InputError("the campaign's folder is gone (the campaign was stopped)", path=str(out_dir))
         with contextlib.ExitStack() as stack:
             stack.enter_context(running_command("campaign"))
             stack.enter_context(allow_overwrite(overwrite))
