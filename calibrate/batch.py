@@ -31,11 +31,6 @@ must therefore be readable from the workers (shared filesystem on a cluster).
 
 from __future__ import annotations
 
-import contextlib
-import csv
-import importlib
-import io
-import logging
 import os
 import time
 from dataclasses import dataclass
@@ -44,8 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from calibrate._json import json_safe
+from calibrate.cluster import connect, dask_log_level, worker_count
 from sensor_models.errors import GcpcalError, InputError
-from sensor_models.files.documents import csv_error, load_yaml, read_text
 
 __all__ = ["COLUMNS", "Site", "calibration_manifest", "read_sites", "summarize_rows", "validate_scene",
            "validate_sites"]
@@ -136,85 +131,15 @@ def read_sites(path) -> list[Site]:
         One line naming the file, the entry and the field: unreadable file, not a list,
         missing or empty required field, unknown field, duplicate name, bad ``dem_datum``.
     """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".yaml", ".yml", ".csv"):
-        raise InputError("a sites file must be .yaml, .yml or .csv", path=str(path))
-    entries = _yaml_entries(path) if suffix != ".csv" else _csv_entries(read_text(path), path)
-    if not entries:
-        raise InputError("lists no scene", path=str(path))
-    base = path.resolve().parent
-    out, seen = [], {}
-    for label, entry in entries:
-        unknown = [k for k in entry if k not in _REQUIRED + _OPTIONAL]
-        if unknown:
-            raise InputError(f"{label}: unknown field (known: {', '.join(_REQUIRED + _OPTIONAL)})", path=str(path),
-                             field=str(unknown[0]))
-        values = {}
-        for key in _REQUIRED + _OPTIONAL:
-            value = entry.get(key)
-            if isinstance(value, bool) or (value is not None and not isinstance(value, (str, int, float))):
-                raise InputError(f"{label}: must be a string, got {type(value).__name__}", path=str(path), field=key)
-            value = None if value is None else str(value).strip()
-            if key in _REQUIRED and not value:
-                raise InputError(f"{label}: required field missing or empty", path=str(path), field=key)
-            if value:
-                values[key] = (base / value) if key in _PATHS else value
+    from calibrate.scene_lists import read_entries
+
+    out = []
+    for values in read_entries(path, required=_REQUIRED, optional=_OPTIONAL, paths=_PATHS):
+        label = values.pop("_label")
         if values.get("dem_datum") not in (None, "ellipsoid", "egm96"):
             raise InputError(f"{label}: must be ellipsoid or egm96, got {values['dem_datum']!r}", path=str(path),
                              field="dem_datum")
-        if values["name"] in seen:
-            raise InputError(f"{label}: name {values['name']!r} already used by {seen[values['name']]}",
-                             path=str(path), field="name")
-        seen[values["name"]] = label
         out.append(Site(**values))
-    return out
-
-
-def _yaml_entries(path: Path) -> list[tuple[str, dict]]:
-    doc = load_yaml(path)
-    if doc is None:
-        return []
-    if not isinstance(doc, list):
-        raise InputError(f"must be a YAML list of scenes (mappings), got a {type(doc).__name__}", path=str(path))
-    out = []
-    for k, entry in enumerate(doc, start=1):
-        if not isinstance(entry, dict):
-            raise InputError(f"entry {k}: must be a mapping with name, scene, dom, dem", path=str(path))
-        name = entry.get("name")
-        out.append((f"entry {k}" + (f" ({name!r})" if isinstance(name, str) and name else ""),
-                    {str(key): v for key, v in entry.items()}))
-    return out
-
-
-def _csv_entries(text: str, path: Path) -> list[tuple[str, dict]]:
-    reader = csv.DictReader(io.StringIO(text))
-    try:
-        return _csv_records(reader, path)
-    except csv.Error as exc:  # bad quoting, a field over the csv module's limit
-        raise csv_error(exc, path, reader.line_num) from None
-
-
-def _csv_records(reader: csv.DictReader, path: Path) -> list[tuple[str, dict]]:
-    header = [h.strip() for h in (reader.fieldnames or [])]
-    missing = [c for c in _REQUIRED if c not in header]
-    if missing:
-        raise InputError(f"the header lacks column(s) {', '.join(missing)} (header: {','.join(header)})",
-                         path=str(path), field=missing[0])
-    unknown = [c for c in header if c not in _REQUIRED + _OPTIONAL]
-    if unknown:
-        raise InputError(f"unknown column (known: {', '.join(_REQUIRED + _OPTIONAL)})", path=str(path),
-                         field=unknown[0])
-    reader.fieldnames = header
-    out = []
-    for k, rec in enumerate(reader, start=1):
-        if None in rec:
-            raise InputError(f"entry {k} (line {reader.line_num}): more cells than header columns", path=str(path))
-        if all((v or "").strip() == "" for v in rec.values()):
-            continue
-        name = (rec.get("name") or "").strip()
-        label = f"entry {k} (line {reader.line_num}" + (f", {name!r})" if name else ")")
-        out.append((label, {key: (v if (v or "").strip() else None) for key, v in rec.items()}))
     return out
 
 
@@ -390,48 +315,6 @@ def _coarse_line(summary: dict) -> str:
 
 
 # --------------------------------------------------------------------------- Dask orchestration
-@contextlib.contextmanager
-def _dask_log_level():
-    """Keep Dask's INFO chatter (scheduler start, workers joining) out of a non-verbose run."""
-    importlib.import_module("distributed")  # importing it configures its logger: do that first
-
-    logger = logging.getLogger("distributed")
-    old = logger.level
-    if logging.getLogger().getEffectiveLevel() > logging.INFO:
-        logger.setLevel(logging.WARNING)
-    try:
-        yield
-    finally:
-        logger.setLevel(old)
-
-
-def _connect(scheduler, workers: int, timeout_s: float):
-    """A Dask client: on a new LocalCluster (``scheduler`` None) or at the given address.
-
-    The LocalCluster's HTTP server takes a free port (``:0``), so concurrent runs never
-    compete for the dashboard's default port.
-    """
-    from distributed import Client, LocalCluster
-
-    if scheduler is None:
-        # workers log at CRITICAL only: a task's error reaches the client as its exception, and
-        # on Ctrl-C a loaded machine can stop the scheduler before a worker's heartbeat, which
-        # the worker would log at ERROR with a traceback (tests/test_bad_inputs.py, validate)
-        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.CRITICAL)
-        try:
-            return Client(cluster), cluster
-        except BaseException:
-            cluster.close()
-            raise
-    try:
-        return Client(str(scheduler), timeout=f"{float(timeout_s)}s"), None
-    except (OSError, TimeoutError) as exc:
-        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise InputError(f"cannot reach the Dask scheduler within {timeout_s:g} s ({why})", path=str(scheduler),
-                         field="scheduler") from None
-
-
 def validate_sites(sites, calibrated_model, *, scheduler=None, workers: int = 2, progress=None,
                    spacing_px: int = 32, timeout_s: float = 10.0, write_points=None):
     """Validate a calibration on every scene of ``sites``, one Dask task per scene.
@@ -483,7 +366,7 @@ def validate_sites(sites, calibrated_model, *, scheduler=None, workers: int = 2,
     if getattr(model, "kind", None) != "pushbroom":
         raise InputError("the calibration must be a push-broom manifest (calibrated manifest.json)", path=str(calib))
     rows: list[dict | None] = [None] * len(sites)
-    with _dask_log_level():
+    with dask_log_level():
         n_workers = _run_tasks(sites, str(calib), write_points, rows, scheduler=scheduler, workers=workers,
                                timeout_s=timeout_s, spacing_px=spacing_px, progress=progress)
     summary = summarize_rows(rows)
@@ -502,17 +385,9 @@ def _run_tasks(sites, calib: str, write_points, rows: list, *, scheduler, worker
     """Submit one :func:`validate_scene` per site, fill ``rows`` as they finish; return the worker count."""
     from distributed import as_completed
 
-    client, cluster = _connect(scheduler, workers, timeout_s)
+    client, cluster = connect(scheduler, workers, timeout_s)
     try:
-        if cluster is None:
-            try:
-                client.wait_for_workers(1, timeout=timeout_s)
-            except TimeoutError:
-                raise InputError(f"the Dask scheduler has no worker (none joined within {timeout_s:g} s)",
-                                 path=str(scheduler), field="scheduler") from None
-            n_workers = len(client.scheduler_info(n_workers=-1).get("workers", {}))
-        else:
-            n_workers = int(workers)
+        n_workers = worker_count(client, cluster, scheduler, timeout_s)
         futures = {client.submit(validate_scene, site, calib, write_points=write_points, spacing_px=spacing_px,
                                  threads=1, pure=False): k for k, site in enumerate(sites)}
         for done, fut in enumerate(as_completed(futures), start=1):

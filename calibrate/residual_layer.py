@@ -2,7 +2,7 @@
 
 One point feature per GCP or check point, at the point's ground position (EPSG:4326
 ``POINT Z``: lon, lat in degrees, h in metres above the WGS84 ellipsoid), with the fields of
-:data:`RESIDUAL_FIELDS`. ``match``, ``calibrate`` and ``validate`` write it through
+:data:`RESIDUAL_FIELDS`. ``match``, ``calibrate``, ``validate`` and ``campaign`` write it through
 :func:`write_residual_layer`; docs/calibration_outputs.md ("Residual layer") describes it.
 
 Residuals are observed minus modelled image coordinates, in pixels: ``resid_along_px`` in the
@@ -38,13 +38,14 @@ __all__ = ["KINDS", "LAYER_NAMES", "RESIDUAL_FIELDS", "concatenate_layers", "mod
 KINDS = ("gcp", "check", "outlier")
 
 #: Stage -> the name of its residual layer.
-LAYER_NAMES = {"match": "match_residuals", "calibrate": "calibration_residuals", "validate": "validation_residuals"}
+LAYER_NAMES = {"match": "match_residuals", "calibrate": "calibration_residuals", "validate": "validation_residuals",
+               "campaign": "campaign_residuals"}
 
 #: Field name -> (GeoPackage type, unit, meaning), in layer order (after ``fid`` and ``geom``).
 RESIDUAL_FIELDS = {
     "id": ("TEXT", "", "point id of the GCP table"),
     "kind": ("TEXT", "", "gcp | check | outlier"),
-    "site": ("TEXT", "", "validation site (validate); empty elsewhere"),
+    "site": ("TEXT", "", "validation scene name (validate) or campaign scene name (campaign); empty elsewhere"),
     "band": ("TEXT", "", "band the point was measured in"),
     "ccd": ("TEXT", "", "detector array (CCD) that imaged the point; empty for a single-array image"),
     "row": ("REAL", "px", "observed image row (first pixel centre at 0.5)"),

@@ -267,12 +267,13 @@ def _name_write_error(exc: BaseException, target: Path) -> BaseException:
 
 
 def final_paths(value, stage, out_dir):
-    """``value`` with every path (or string) under the staging folder moved under ``out_dir``.
+    """``value`` with every path under the staging folder moved under ``out_dir``, in text too.
 
     Parameters
     ----------
     value : dict, list, tuple, str, Path or any
-        A summary returned by a writer that wrote into ``stage`` (walked recursively).
+        A summary returned by a writer that wrote into ``stage`` (walked recursively; a string
+        naming the staging folder anywhere, e.g. a message "see <stage>/x.json", names ``out_dir``).
     stage : str or Path
         The staging folder of :func:`staged_folder`.
     out_dir : str or Path
@@ -290,8 +291,8 @@ def final_paths(value, stage, out_dir):
         return type(value)(final_paths(v, stage, final) for v in value)
     if isinstance(value, Path) and str(value).startswith(stage):
         return Path(final + str(value)[len(stage):])
-    if isinstance(value, str) and value.startswith(stage):
-        return final + value[len(stage):]
+    if isinstance(value, str) and stage in value:  # a path, or a message naming one
+        return value.replace(stage, final)
     return value
 
 

@@ -37,7 +37,7 @@ from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
-__all__ = ["HASH_LIMIT_BYTES", "PROVENANCE_TAG", "command_line", "file_digest", "geotiff_tags", "note",
+__all__ = ["HASH_LIMIT_BYTES", "PROVENANCE_TAG", "command_line", "current_command_line", "file_digest", "geotiff_tags", "note",
            "note_terrain", "provenance_record", "stage_inputs", "with_provenance"]
 
 #: Files larger than this are listed with their size but not hashed (a large DEM mosaic or DOM
@@ -69,6 +69,17 @@ def command_line(argv):
     finally:
         _NOTES.reset(notes)
         _COMMAND_LINE.reset(token)
+
+
+def current_command_line() -> tuple | None:
+    """The arguments of the running command (:func:`command_line`), for work handed to another process.
+
+    Returns
+    -------
+    tuple of str or None
+        None outside a command (a stage action called from Python).
+    """
+    return _COMMAND_LINE.get()
 
 
 @contextmanager

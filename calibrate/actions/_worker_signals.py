@@ -1,4 +1,4 @@
-"""Dask worker preload of the validate stage: worker processes ignore Ctrl-C and a closed terminal.
+"""Dask worker preload of validate and campaign: worker processes ignore Ctrl-C and a closed terminal.
 
 A Ctrl-C (SIGINT) or a closed terminal (SIGHUP) reaches every process of the foreground group,
 the Dask workers too, and each would print a traceback. The workers ignore both instead; the

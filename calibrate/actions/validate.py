@@ -24,44 +24,13 @@ import numpy as np
 
 from calibrate._json import json_safe
 from calibrate.batch import COLUMNS
+from calibrate.cluster import check_scheduler_address
 from calibrate.actions._io import final_paths, staged_folder
 from calibrate.actions._provenance import with_provenance
 from sensor_models.files.atomic import atomic_folder
-from sensor_models.errors import InputError
 
 __all__ = ["check_scheduler_address", "merge_residual_layers", "run_validation", "validate_calibration",
            "write_outputs", "write_scene_points"]
-
-
-def check_scheduler_address(address: str) -> str:
-    """Refuse a Dask scheduler address that cannot be parsed, before any connection.
-
-    Parameters
-    ----------
-    address : str
-        ``scheme://host:port`` or ``host:port`` (TCP).
-
-    Returns
-    -------
-    str
-        ``address``, unchanged.
-
-    Raises
-    ------
-    InputError
-        Naming the address, when its scheme is unknown or its host/port cannot be parsed.
-    """
-    from distributed.comm import parse_address, parse_host_port
-    from distributed.comm.registry import get_backend
-
-    try:
-        scheme, location = parse_address(address)
-        get_backend(scheme)
-        if scheme in ("tcp", "tls"):
-            parse_host_port(location)
-    except ValueError as exc:
-        raise InputError(f"not a Dask scheduler address ({exc})", path=str(address), field="scheduler") from None
-    return address
 
 
 def validate_calibration(sites_path, calibration, out_dir, *, scheduler=None, workers: int = 2, spacing_px: int = 32,

@@ -47,6 +47,8 @@ COMMANDS = {
                  "Calibrate every band of SCENE against its calibrated reference band (band-to-band)."),
     "validate": ("calibrate.cli.validate",
                  "Validate a calibration on the scenes of SITES (YAML or CSV: name, scene, dom, dem)."),
+    "campaign": ("calibrate.cli.campaign",
+                 "Run gcpcal run on every scene of CAMPAIGN, one Dask task per scene; one table for all."),
     "ortho": ("calibrate.cli.ortho", "Orthorectify a band of SCENE on the DEM into a Cloud-Optimized GeoTIFF."),
     "stars": ("calibrate.cli.stars",
               "Calibrate a staring camera from star tracks in FRAMES (a frames.json or its folder)."),
@@ -112,7 +114,7 @@ def cli(ctx, verbose, quiet):
            unreadable raster, unreachable Dask scheduler) or an internal error
       2    usage error (bad option or argument)
       3    the stage ran but failed (e.g. no convergence)
-      4    partial success (e.g. some validation scenes failed)
+      4    partial success (e.g. some validation or campaign scenes failed)
       129  hung up (SIGHUP)
       130  interrupted (Ctrl-C)
       143  terminated (SIGTERM)
@@ -175,7 +177,7 @@ def _verbosity(args: list[str]) -> int:
 
 
 #: Commands that start a Dask cluster: their workers ignore Ctrl-C (calibrate.actions._worker_signals).
-_CLUSTER_COMMANDS = ("validate",)
+_CLUSTER_COMMANDS = ("validate", "campaign")
 
 
 def _worker_config(args: list[str]):

@@ -16,7 +16,7 @@ import numpy as np
 from calibrate._json import json_default
 from sensor_models.errors import InputError
 
-__all__ = ["accept_product_disagreement_option", "add_options", "allow_implausible_option", "apply_verbosity", "constant_height_option", "dem_options", "dom_options", "echo_json",
+__all__ = ["accept_product_disagreement_option", "add_options", "allow_implausible_option", "apply_verbosity", "constant_height_option", "dem_options", "dom_options", "echo_json", "optional_dom_options",
            "echo_warnings", "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source",
            "out_dir_option", "quiet_of", "verbosity_options"]
 
@@ -206,11 +206,11 @@ def one_height_source(**given) -> str | None:
 
 
 
-def _dom_option_list():
+def _dom_option_list(required: bool = True):
     from sensor_models.maps.reference_qa import QA_LAYOUTS
 
     return [
-        click.option("--dom", "dom_items", multiple=True, required=True, type=click.Path(),
+        click.option("--dom", "dom_items", multiple=True, required=required, type=click.Path(),
                      help="Reference orthoimage: a raster, a Landsat band GeoTIFF, a Sentinel-2 JP2, a .SAFE or "
                           f"IMG_DATA folder (with --dom-band), or tiles: {_TILE_FORMS}."),
         click.option("--dom-band", help="Band of a product folder or of tiles, e.g. B04 (Sentinel-2) or B4 (Landsat)."),
@@ -230,7 +230,7 @@ def _dom_option_list():
     ]
 
 
-def dom_options(func):
+def dom_options(func, *, required: bool = True):
     """Decorator: the reference-orthoimage options, handed to the command as ``dom_path``.
 
     Adds ``--dom`` (repeatable), ``--dom-band``, ``--dom-qa`` (repeatable), ``--dom-qa-layout``,
@@ -241,6 +241,9 @@ def dom_options(func):
     ----------
     func : callable
         The command's callback.
+    required : bool
+        Whether ``--dom`` must be given (:func:`optional_dom_options`: it may not; the
+        ``DomSource`` then has no items).
 
     Returns
     -------
@@ -257,7 +260,12 @@ def dom_options(func):
                                        use_qa=not no_dom_qa, qa_cirrus=dom_mask_cirrus, mask=tuple(dom_mask))
         return func(*args, **kwargs)
 
-    return add_options(_dom_option_list())(wrapper)
+    return add_options(_dom_option_list(required))(wrapper)
+
+
+def optional_dom_options(func):
+    """:func:`dom_options` with ``--dom`` optional (``gcpcal campaign``: a folder's scenes have their own)."""
+    return dom_options(func, required=False)
 
 
 def accept_product_disagreement_option(func):

@@ -25,11 +25,14 @@ __all__ = ["command"]
               help="GCPs needed to calibrate from the ground.")
 @click.option("--min-coverage", type=click.FloatRange(0.0, 1.0), default=MIN_COVERAGE, show_default=True,
               help="Share of a 4 x 4 partition of the image the GCPs must cover.")
+@click.option("--relative", is_flag=True,
+              help="After a calibration from the GCPs, calibrate the other bands against the reference band "
+                   "(gcpcal relative, into OUT/relative).")
 @accept_product_disagreement_option
 @json_option
 @click.pass_context
 def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, star_frames, out_dir, min_gcps, min_coverage,
-            as_json, self_check):
+            relative, as_json, self_check):
     """Calibrate SCENE from GCPs, or from star frames when clouds leave too few (says which and why).
 
     SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
@@ -39,7 +42,7 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, star_frames, 
     with stage_progress(ctx, "gcpcal run", as_json) as progress:
         summary = run_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_dir=out_dir, star_frames=star_frames,
                             dem_datum=dem_datum, geoid=geoid, min_gcps=min_gcps, min_coverage=min_coverage,
-                            progress=progress.message, self_check=self_check)
+                            relative=relative, progress=progress.message, self_check=self_check)
     echo_warnings(summary)
     if as_json:
         echo_json(summary)

@@ -8,6 +8,7 @@ A pipeline calls the very functions the ``gcpcal`` stage commands call (:mod:`ca
 * :mod:`.demo`: ``gcpcal demo``, the scene pipeline on an embedded fixture, scored against its
   TRUE model;
 * :mod:`.run`: ``gcpcal run``, match, then calibrate from the GCPs or from star frames;
+* :mod:`.campaign`: ``gcpcal campaign``, the run pipeline on many scenes, one Dask task each;
 * :mod:`.experiment`: ``gcpcal experiment``, a seed experiment (:mod:`calibrate.experiments`),
   handed the scene pipeline where it runs the user's chain (seed 003).
 

@@ -15,6 +15,9 @@ A composition of the stage actions a user runs, in the scene pipeline's layout
    Otherwise, with star frames (a ``frames.json`` sequence of the same camera with its mirror
    turned to deep space), the camera is calibrated from the stars
    (:mod:`calibrate.actions.stars`); without them the run fails with the reason.
+4. With ``relative``, after a calibration from the GCPs the other bands are calibrated against
+   the calibrated reference band (:func:`calibrate.pipelines.scene.relative_step`: ``relative/``;
+   ``gcpcal run --relative``), as ``gcpcal relative`` would.
 
 ``run.summary.json`` says which path was taken and why (``path``: ``"gcps"`` or ``"stars"``,
 ``reason``), with the matching figures that decided it.
@@ -38,7 +41,7 @@ from calibrate.actions._io import staged_output
 from calibrate.actions._status import FailedCalibrationError, record_product_check, require_usable, status_fields
 from calibrate.actions.stars import read_star_inputs, stars_sequence
 from calibrate.actions._provenance import with_provenance
-from calibrate.pipelines.scene import CALIBRATION_DIR, GCP_FILE, calibrate_step, match_step
+from calibrate.pipelines.scene import CALIBRATION_DIR, FINAL_MODEL, GCP_FILE, calibrate_step, match_step, relative_step
 from gcpmatch.options import MatchOptions
 from sensor_models.errors import GcpcalError, InputError
 
@@ -75,12 +78,12 @@ def gcp_coverage(row, col, image_shape, cells: int = 4) -> float:
     return float(np.unique(i * cells + j).size / cells**2)
 
 
-def _match(scene_path, out_dir: Path, *, dom_path, dem_path, dem_datum, geoid, spacing_px, self_check):
+def _match(scene_path, out_dir: Path, *, dom_path, dem_path, dem_datum, geoid, options, self_check):
     """Match the scene; return ``(match summary, failure message or None)``: a failed match is a
     reason to fall back on the stars, a user's mistake is not."""
     try:
         match = match_step(scene_path, out_dir, dom_path=dom_path, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
-                           options=MatchOptions(spacing_px=spacing_px), self_check=self_check)
+                           options=options, self_check=self_check)
         return match, None
     except GcpcalError as exc:
         if isinstance(exc, InputError) and not (out_dir / GCP_FILE).with_suffix(".summary.json").exists() and \
@@ -151,7 +154,7 @@ def _own_status(out_dir: Path, summary: dict) -> dict:
 @staged_output("out_dir", inputs=("scene_path", "dom_path", "dem_path", "geoid", "star_frames"), prefix=".run-")
 def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_datum=None, geoid=None,
               min_gcps: int = MIN_GCPS, min_coverage: float = MIN_COVERAGE, spacing_px: int = 16,
-              progress=None, self_check: str = "refuse") -> dict:
+              relative: bool = False, threads: int = 0, progress=None, self_check: str = "refuse") -> dict:
     """Match, decide, calibrate (see the module docstring).
 
     Parameters
@@ -175,6 +178,13 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
         Share of a 4 x 4 partition of the image the GCPs must cover, in ``[0, 1]``.
     spacing_px : int
         Matching window spacing, pixels.
+    relative : bool
+        After a calibration from the GCPs, calibrate every other band against the calibrated
+        reference band (:func:`calibrate.pipelines.scene.relative_step`, into ``relative/``);
+        the run's model is then ``relative/manifest.json``.
+    threads : int
+        Matching threads (0: every core); the GCPs do not depend on it
+        (:class:`gcpmatch.options.MatchOptions`).
     progress : callable(str), optional
         Receives progress messages.
     self_check : {"refuse", "warn"}
@@ -201,7 +211,8 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
     gcp_file = out_dir / GCP_FILE
     step("matching the scene against the DOM")
     match, failure = _match(scene_path, out_dir, dom_path=dom_path, dem_path=dem_path, dem_datum=dem_datum,
-                            geoid=geoid, spacing_px=spacing_px, self_check=self_check)
+                            geoid=geoid, options=MatchOptions(spacing_px=spacing_px, threads=threads),
+                            self_check=self_check)
     enough, reason, n_gcps, coverage = _decide(model, gcp_file, match, failure, min_gcps, min_coverage)
     summary = {"kind": "gcpcal.run", "scene": str(scene_path), "gcps": n_gcps, "coverage": coverage,
                "cloud_fraction": match.get("cloud_fraction"), "reason": reason}
@@ -210,6 +221,12 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
         result = calibrate_step(scene_path, out_dir, report=True, self_check=self_check)
         summary.update(path="gcps", success=result["success"], message=result["message"],
                        check_rmse_px=result["check_rmse_px"], model=f"{CALIBRATION_DIR}/{result['model']}" if result.get("model") else None)
+        if relative and result["status"] != "failed":
+            step("calibrating the other bands against the reference band")
+            rel = relative_step(scene_path, out_dir, dem_path=dem_path, dem_datum=dem_datum, geoid=geoid,
+                                self_check=self_check)
+            summary.update(relative={"success": rel.get("success"), "message": rel.get("message")},
+                           model=FINAL_MODEL if rel.get("success") else summary["model"])
     elif star_frames is not None:
         step(f"falling back on the star frames ({reason})")
         doc = stars_sequence(star_frames, out_dir / "stars")
