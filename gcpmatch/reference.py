@@ -138,7 +138,7 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
 
     from concurrent.futures import ThreadPoolExecutor
 
-    from sensor_models.files.threads import opencv_threads, thread_count
+    from sensor_models.files.threads import libraries_single_threaded, thread_count
     from sensor_models.imaging.locate import dem_planes
 
     dem_planes(dem)  # shared sampling planes, built once before the threads
@@ -148,8 +148,8 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
         if workers <= 1 or len(starts) == 1:
             for a in starts:
                 render(a)
-        else:  # numpy, OpenCV and GDAL release the GIL: blocks render in parallel, one OpenCV thread each
-            with opencv_threads(1), ThreadPoolExecutor(max_workers=workers) as pool:
+        else:  # numpy, OpenCV and GDAL release the GIL: blocks render in parallel, one OpenCV and BLAS thread each
+            with libraries_single_threaded(), ThreadPoolExecutor(max_workers=workers) as pool:
                 list(pool.map(render, starts))
     return out
 

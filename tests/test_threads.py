@@ -7,6 +7,7 @@ import threading
 import time
 
 import pytest
+import rasterio
 
 from sensor_models.errors import InputError
 from sensor_models.files.threads import (THREADS_ENV, available_cores, blas_threads, map_ordered, opencv_threads,
@@ -81,3 +82,41 @@ def test_library_thread_settings_are_restored():
     with blas_threads(1):
         assert all(i["num_threads"] == 1 for i in threadpool_info() if i["user_api"] == "blas")
     assert [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"] == blas_before
+
+
+def _one_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_cli_threads_option_parses_and_a_bad_count_is_one_line(tmp_path, capsys, monkeypatch):
+    """``--threads`` on match, ortho and simulate (``--workers`` there too): a bad count is one usage
+    line (exit 2), a bad ``GCPCAL_THREADS`` one line naming it (exit 1); a good count reaches the stage."""
+    import json
+    from pathlib import Path
+
+    from calibrate.cli import main
+
+    fix = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    ortho = ["ortho", str(fix / "truth_manifest.json"), "--dem", str(fix / "reference" / "dem.tif"),
+             "--resolution", "400"]
+    for argv in (ortho + ["--out", str(tmp_path / "o.tif"), "--threads", "x"],
+                 ["simulate", "pushbroom", "--out", str(tmp_path / "s"), "--workers", "-1"],
+                 ["simulate", "series", "--out", str(tmp_path / "v"), "--threads", "1.5"],
+                 ["match", str(fix / "manifest.json"), "--dom", str(fix / "reference" / "dom.tif"), "--dem",
+                  str(fix / "reference" / "dem.tif"), "--out", str(tmp_path / "g.csv"), "--threads", "-2"]):
+        assert main(argv) == 2, argv
+        assert "--threads" in _one_line(capsys.readouterr().err)
+    monkeypatch.setenv(THREADS_ENV, "lots")
+    assert main(ortho + ["--out", str(tmp_path / "o.tif")]) == 1
+    assert THREADS_ENV in _one_line(capsys.readouterr().err)
+    assert not (tmp_path / "o.tif").exists()
+    monkeypatch.setenv(THREADS_ENV, "1")
+    for extra, expected in (([], 1), (["--threads", "2"], 2)):
+        out = tmp_path / f"o{expected}.tif"
+        assert main(ortho + ["--out", str(out), "--json", *extra]) == 0
+        assert json.loads(capsys.readouterr().out)["threads"] == expected
+    with rasterio.open(tmp_path / "o1.tif") as a, rasterio.open(tmp_path / "o2.tif") as b:
+        assert (a.read(1) == b.read(1)).all() and a.read(1).any()

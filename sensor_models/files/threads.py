@@ -23,8 +23,8 @@ from contextlib import contextmanager
 
 from sensor_models.errors import InputError
 
-__all__ = ["THREADS_ENV", "available_cores", "blas_threads", "map_ordered", "opencv_threads", "parse_threads",
-           "thread_count"]
+__all__ = ["THREADS_ENV", "PerThread", "available_cores", "blas_threads", "libraries_single_threaded", "map_ordered",
+           "opencv_threads", "parse_threads", "thread_count"]
 
 #: Environment variable capping the threads of every parallel stage (0 or unset: every core).
 THREADS_ENV = "GCPCAL_THREADS"
@@ -140,6 +140,44 @@ def map_ordered(function, items, threads: int, *, in_flight: int | None = None):
                 future.cancel()
 
 
+class PerThread:
+    """One object per thread (a GDAL dataset is not thread-safe): made by ``factory()`` on a thread's
+    first :meth:`get`; :meth:`close` closes every one made.
+
+    Parameters
+    ----------
+    factory : callable() -> object with close()
+        Opens a new object (e.g. ``lambda: rasterio.open(path)``).
+    first : object, optional
+        The calling thread's object, already open.
+    """
+
+    def __init__(self, factory, first=None):
+        self._factory = factory
+        self._local = threading.local()
+        self._lock = threading.Lock()
+        self._made = []
+        if first is not None:
+            self._local.value = first
+            self._made.append(first)
+
+    def get(self):
+        """This thread's object (opened now on the thread's first call)."""
+        value = getattr(self._local, "value", None)
+        if value is None:
+            value = self._local.value = self._factory()
+            with self._lock:
+                self._made.append(value)
+        return value
+
+    def close(self) -> None:
+        """Close every object made (the threads that used them have finished)."""
+        with self._lock:
+            made, self._made = self._made, []
+        for value in made:
+            value.close()
+
+
 @contextmanager
 def opencv_threads(n: int):
     """OpenCV's own thread count set to ``n`` inside the block, restored after (a process-wide setting).
@@ -176,4 +214,17 @@ def blas_threads(n: int):
         if not _CONTROLLER:
             _CONTROLLER.append(ThreadpoolController())
     with _CONTROLLER[0].limit(limits=int(n), user_api="blas"):
+        yield
+
+
+@contextmanager
+def libraries_single_threaded():
+    """OpenCV and BLAS on one thread each inside the block (process-wide settings, restored after).
+
+    For the stages that run their own blocks on threads: the blocks are the parallelism, a
+    library's own threads on top would only compete for the same cores (measured: OpenBLAS's
+    waiting threads tripled the orthorectification's CPU time on 2 threads), and one thread per
+    call gives the same numbers whatever the count.
+    """
+    with opencv_threads(1), blas_threads(1):
         yield
