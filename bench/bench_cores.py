@@ -24,6 +24,10 @@ target for phase correlation is >= 0.7 up to 16 cores). The load average is read
 child. Each child also reports a digest of its result (the shifts, the orthoimage's pixels, the
 scene's bytes): they must be the same for every count.
 
+``--base-root PATH`` (a checkout of another revision, e.g. ``git worktree add /tmp/base REV``)
+adds the stage ``phase_base``: the same phase runs with that revision's code, interleaved with
+``phase`` (``workers = n`` there too), so the two compare on the same load.
+
 Usage: ``python bench/bench_cores.py [--cores 1,2,4,8,16] [--stages phase,ortho,simulate]
 [--pairs 20000] [--repeat 3] [--json PATH]``. Prints a table; writes JSON only with ``--json``.
 """
@@ -48,6 +52,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 STAGES = ("phase", "ortho", "simulate")
+CHILD_STAGES = STAGES + ("phase_base",)
 BASE_PAIRS = 2048
 #: target efficiency of phase correlation (speed-up / cores)
 TARGET_EFFICIENCY = 0.7
@@ -123,7 +128,10 @@ def _simulate_child(args) -> dict:
 
 def child(args) -> None:
     """One stage at ``args.threads`` threads in this (pinned) process; prints one JSON line."""
-    run = {"phase": _phase_child, "ortho": _ortho_child, "simulate": _simulate_child}[args.child]
+    if args.code_root:  # another revision's packages first
+        sys.path.insert(0, str(Path(args.code_root).resolve()))
+    run = {"phase": _phase_child, "phase_base": _phase_child, "ortho": _ortho_child,
+           "simulate": _simulate_child}[args.child]
     result = run(args)
     result.update(stage=args.child, threads=args.threads, affinity=len(os.sched_getaffinity(0)))
     print(json.dumps(result))
@@ -153,11 +161,12 @@ def prepare(stages, folder: Path, args) -> None:
 
 def run_child(stage: str, n: int, cores: list[int], folder: Path, args) -> dict:
     """The stage in a child process pinned to the first ``n`` of ``cores``."""
+    code_root = Path(args.base_root).resolve() if stage == "phase_base" else ROOT
     env = {k: v for k, v in os.environ.items() if k != "GCPCAL_THREADS"}
-    env.update(OMP_NUM_THREADS=str(n), OPENBLAS_NUM_THREADS=str(n), MKL_NUM_THREADS=str(n), PYTHONPATH=str(ROOT))
+    env.update(OMP_NUM_THREADS=str(n), OPENBLAS_NUM_THREADS=str(n), MKL_NUM_THREADS=str(n), PYTHONPATH=str(code_root))
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", stage, "--threads", str(n), "--data", str(folder),
            "--pairs", str(args.pairs), "--ortho-scene", str(args.ortho_scene), "--sim-rows", str(args.sim_rows),
-           "--sim-detectors", str(args.sim_detectors)]
+           "--sim-detectors", str(args.sim_detectors), "--code-root", str(code_root)]
     load = os.getloadavg()[0]
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False,
                           preexec_fn=lambda: os.sched_setaffinity(0, cores[:n]))
@@ -214,7 +223,9 @@ def main(argv=None) -> None:
     ap.add_argument("--sim-detectors", type=int, default=1024, help="Detectors per CCD of the simulated scene.")
     ap.add_argument("--repeat", type=int, default=3, help="Runs of every count (interleaved).")
     ap.add_argument("--json", type=Path, help="Write the runs and the summary here.")
-    ap.add_argument("--child", choices=STAGES, help=argparse.SUPPRESS)
+    ap.add_argument("--base-root", type=Path, help="Another revision's checkout: adds the stage phase_base.")
+    ap.add_argument("--child", choices=CHILD_STAGES, help=argparse.SUPPRESS)
+    ap.add_argument("--code-root", help=argparse.SUPPRESS)
     ap.add_argument("--threads", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--data", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -228,6 +239,8 @@ def main(argv=None) -> None:
     stages = [s.strip() for s in args.stages.split(",") if s.strip()]
     if not counts or any(s not in STAGES for s in stages):
         raise SystemExit(f"bench_cores: counts within 1..{len(cores)} and stages among {', '.join(STAGES)} needed")
+    if args.base_root is not None and "phase" in stages:
+        stages.insert(stages.index("phase") + 1, "phase_base")
     if skipped:
         print(f"skipped counts above the {len(cores)} cores this process may run on: {skipped}")
     runs = []
@@ -249,7 +262,8 @@ def main(argv=None) -> None:
     if args.json is not None:
         doc = {"machine": {"cores_usable": len(cores), "cpu_count": os.cpu_count(), "machine": platform.machine(),
                            "python": platform.python_version(), "processor": platform.processor()},
-               "options": {k: v for k, v in vars(args).items() if k not in ("child", "threads", "data", "json")},
+               "options": {k: v for k, v in vars(args).items()
+                           if k not in ("child", "threads", "data", "json", "code_root")},
                "skipped_counts": skipped, "target_phase_efficiency": TARGET_EFFICIENCY,
                "runs": runs, "summary": {s: {**b, "by_threads": {str(k): v for k, v in b["by_threads"].items()}}
                                          for s, b in summary.items()}}
