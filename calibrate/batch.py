@@ -219,7 +219,8 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
     spacing_px : int
         Matching window grid spacing, pixels.
     threads : int, optional
-        OpenCV threads in this process (1 on single-threaded Dask workers).
+        Threads of the match in this process: OpenCV, reference chips, phase correlation (1 on
+        single-threaded Dask workers); None: ``GCPCAL_THREADS`` or every core.
     coarse_skip : bool
         Skip the coarse SIFT stage when a cheap check finds the calibrated model within the
         fine search radius (:func:`gcpmatch.coarse_skip.within_fine_radius`); False: always SIFT.
@@ -238,7 +239,8 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
             import cv2
 
             cv2.setNumThreads(int(threads))
-        _validate(site, Path(calibration), write_points, spacing_px, row, coarse_skip=coarse_skip)
+        _validate(site, Path(calibration), write_points, spacing_px, row, coarse_skip=coarse_skip,
+                  threads=threads or 0)
         row["status"], row["reason"] = "ok", ""
     except GcpcalError as exc:
         row["reason"] = str(exc)
@@ -252,7 +254,7 @@ def validate_scene(site: Site, calibration, *, write_points=None, spacing_px: in
 
 
 def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out: dict, *,
-              coarse_skip: bool = True) -> None:
+              coarse_skip: bool = True, threads: int = 0) -> None:
     """Fill ``out`` (a row) step by step, so a failure keeps what was learnt before it."""
     from calibrate.accuracy import check_point_accuracy
     from calibrate.plausibility import check_dem_heights, check_dom_resolution
@@ -287,7 +289,7 @@ def _validate(site: Site, calibration: Path, write_points, spacing_px: int, out:
     # skipped when a few windows show it (and runs when they do not)
     table, summary = extract_gcps(model, image, dem, dom, band=band,
                                   options=MatchOptions(spacing_px=spacing_px, check_fraction=0.0,
-                                                       coarse_skip=coarse_skip))
+                                                       coarse_skip=coarse_skip, threads=threads))
     out["coarse"] = _coarse_line(summary)
     out["cloud_fraction"] = summary.get("cloud_fraction")
     if table is None or len(table) == 0:

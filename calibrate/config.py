@@ -25,6 +25,7 @@ from dataclasses import dataclass, fields, replace
 
 from gcpmatch.options import MatchOptions
 from sensor_models.errors import InputError
+from sensor_models.files.threads import parse_threads
 
 __all__ = [
     "ATTITUDE_MODES",
@@ -310,6 +311,9 @@ class OrthoOptions(_Options):
         Random output pixels at which the node-grid geometry is checked against the exact model.
     seed : int
         Seed of those check points.
+    threads : int
+        Blocks computed at once; 0: ``GCPCAL_THREADS`` or every core
+        (:func:`sensor_models.files.threads.thread_count`). The output does not depend on it.
     """
 
     crs: str | None = None
@@ -319,6 +323,7 @@ class OrthoOptions(_Options):
     node_step_px: float = 16.0
     check_points: int = 256
     seed: int = 0
+    threads: int = 0
 
     def __post_init__(self):
         _choice(self.resampling, ORTHO_RESAMPLING, "resampling")
@@ -329,6 +334,7 @@ class OrthoOptions(_Options):
         _positive(self.node_step_px, "node_step_px")
         if self.check_points < 0:
             raise InputError(f"check_points must be >= 0, got {self.check_points}", field="check_points")
+        parse_threads(self.threads)
 
     def to_kwargs(self) -> dict:
         """Keyword arguments of :func:`sensor_models.imaging.ortho.orthorectify_to_file`.

@@ -21,10 +21,8 @@ summary:
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 
-import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
@@ -40,6 +38,7 @@ from gcpmatch.uncertainty import reference_sigma_px, window_sigma
 from sensor_models.maps.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs
 from sensor_models.errors import InputError
+from sensor_models.files.threads import opencv_threads
 
 __all__ = ["MatchOptions", "coarse_stage", "correlate_pairs", "extract_gcps", "grid_starts", "read_band", "reject_outliers",
            "window_count"]
@@ -144,17 +143,6 @@ def extract_gcps(model, scene: np.ndarray, dem, dom, *, band: str, mask: np.ndar
     with opencv_threads(opt.thread_count()):
         return _extract(model, scene, dem, dom, band=band, mask=mask, opt=opt, accuracy=accuracy, progress=progress,
                         progress_count=progress_count)
-
-
-@contextmanager
-def opencv_threads(n: int):
-    """OpenCV's thread count set to ``n`` inside the block, restored after (a process-wide setting)."""
-    before = cv2.getNumThreads()
-    cv2.setNumThreads(int(n))
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(before)
 
 
 def _extract(model, scene, dem, dom, *, band, mask, opt: MatchOptions, accuracy, progress, progress_count=None):

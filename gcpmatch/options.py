@@ -9,10 +9,10 @@ command takes its option defaults from here. Every field is checked by
 from __future__ import annotations
 
 import numbers
-import os
 from dataclasses import dataclass
 
 from sensor_models.errors import InputError
+from sensor_models.files.threads import thread_count
 
 __all__ = ["BACKENDS", "SIGMA_MODELS", "MatchOptions", "require_cuda"]
 
@@ -109,8 +109,9 @@ class MatchOptions:
         Skip the coarse SIFT stage when a cheap check finds the model already within the fine
         search radius (``window_px / 4``); ``gcpcal validate`` sets it (default False).
     threads : int
-        Threads of the reference chips, the phase correlation's FFTs and OpenCV (SIFT, warps);
-        0 (default): every core of the machine. The GCPs do not depend on it (the work is split
+        Threads of the reference chips (blocks of lines), the phase correlation (batches of
+        windows) and OpenCV (SIFT); 0 (default): ``GCPCAL_THREADS`` when set, else every core this
+        process may run on. The GCPs do not depend on it (the work is split
         into the same blocks and batches whatever the count, and no sum runs across threads).
     """
 
@@ -136,8 +137,9 @@ class MatchOptions:
     threads: int = 0
 
     def thread_count(self) -> int:
-        """Threads to use: ``threads``, or every core of the machine when it is 0."""
-        return self.threads if self.threads > 0 else max(1, os.cpu_count() or 1)
+        """Threads to use: ``threads``, or when it is 0 ``GCPCAL_THREADS`` or every core this process
+        may run on (:func:`sensor_models.files.threads.thread_count`)."""
+        return thread_count(self.threads)
 
     def validate(self) -> MatchOptions:
         """Check every field; return ``self`` unchanged.

@@ -100,6 +100,7 @@ border), ``LOW_SCORE`` (``score < min_score``), ``LOW_PEAK_RATIO``
 from __future__ import annotations
 
 import enum
+import queue
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,6 +108,7 @@ import numpy as np
 from gcpmatch.phase_numpy import NumpyKernel
 from gcpmatch.phase_plan import make_plan
 from sensor_models.errors import InputError
+from sensor_models.files.threads import blas_threads, map_ordered, thread_count
 
 __all__ = ["FIRST_PASSES", "MIN_PEAK_RATIO", "MIN_WINDOW_PX", "NULL_SIGMA_FACTOR", "PhaseMatches", "Reject",
            "phase_correlate"]
@@ -248,8 +250,11 @@ def phase_correlate(reference, moving, *, upsample: int | None = None, window: s
         Pairs processed at once (bounds the memory: about 20 bytes per pixel and pair in
         float32, measured); ``None``: 2**20 px worth of windows (256 pairs of 64 x 64 px).
     workers : int or None
-        Threads of ``scipy.fft`` (``None`` or -1: all cores); CPU backend only (torch uses
-        ``torch.set_num_threads``).
+        Threads over the batches (``None`` or -1: :func:`sensor_models.files.threads.thread_count`,
+        ``GCPCAL_THREADS`` or every core; 1: one after the other); with fewer batches than
+        threads, the rest go to each batch's ``scipy.fft`` calls. The batches, and so the
+        results, are the same whatever the count; the scratch memory is ``workers`` times a
+        batch's. CPU backend only (torch uses ``torch.set_num_threads``).
     first_pass : {"half", "full"}
         Where the first estimate and the peak ratio come from (module docstring, step 3):
         ``"half"`` at half resolution (windows with both sides divisible by 4 and at least
@@ -279,21 +284,32 @@ def phase_correlate(reference, moving, *, upsample: int | None = None, window: s
                      dtype=options["dtype"], first_pass=first_pass)
     if min_peak_ratio is None:
         min_peak_ratio = MIN_PEAK_RATIO["half" if plan.coarse is not None else "full"]
-    outputs = _run_batches(_make_kernel(plan, options, workers), ref, mov, batch)
+    if options["backend"] == "numpy":
+        outputs = _run_numpy_batches(plan, ref, mov, batch, thread_count(None if workers == -1 else workers))
+    else:
+        from gcpmatch import _phase_torch  # lazy: torch is an optional dependency
+
+        kernel = _phase_torch.TorchKernel(plan, device=options["device"])
+        outputs = _concatenate([kernel(ref[a:b], mov[a:b]) for a, b in _batches(ref.shape, batch)])
     return _assess(*outputs, min_score, min_peak_ratio, max_shift)
 
 
-def _make_kernel(plan, options: dict, workers):
-    """The batch kernel of the validated backend: numpy + scipy.fft, or torch (lazy import)."""
-    if options["backend"] == "numpy":
-        return NumpyKernel(plan, workers=-1 if workers is None else workers)
-    from gcpmatch import _phase_torch  # lazy: torch is an optional dependency
+def _batches(shape: tuple[int, int, int], batch) -> list[tuple[int, int]]:
+    """``(first, end)`` pair indices of the batches of (N, H, W) pairs: ``batch`` pairs each
+    (None: 2**20 px worth), whatever the thread count."""
+    n_pairs, height, width = shape
+    if batch is None:
+        batch = max(1, _BATCH_PIXELS // (height * width))
+    return [(a, min(n_pairs, a + batch)) for a in range(0, n_pairs, batch)]
 
-    return _phase_torch.TorchKernel(plan, device=options["device"])
 
+def _run_numpy_batches(plan, ref: np.ndarray, mov: np.ndarray, batch, threads: int):
+    """The numpy kernel over the batches of pairs on ``threads`` threads, results in pair order.
 
-def _run_batches(kernel, ref: np.ndarray, mov: np.ndarray, batch):
-    """Run ``kernel`` over the (N, H, W) pairs ``batch`` at a time (None: 2**20 px worth).
+    Each running thread takes a kernel of its own (a kernel keeps scratch buffers between
+    batches); with fewer batches than threads, each kernel's FFTs get ``threads // batches``
+    workers (``scipy.fft`` splits a batch over its transforms: the same numbers). BLAS runs one
+    thread meanwhile.
 
     Returns
     -------
@@ -301,10 +317,27 @@ def _run_batches(kernel, ref: np.ndarray, mov: np.ndarray, batch):
         The kernel's six outputs (shift, peak, quality mean and variance, secondary peak, first
         quality mean), each concatenated over the batches along the first axis (N).
     """
-    n_pairs, height, width = ref.shape
-    if batch is None:
-        batch = max(1, _BATCH_PIXELS // (height * width))
-    parts = [kernel(ref[i:i + batch], mov[i:i + batch]) for i in range(0, n_pairs, batch)]
+    spans = _batches(ref.shape, batch)
+    pool_threads = min(threads, len(spans))
+    fft_workers = max(1, threads // pool_threads)
+    idle = queue.SimpleQueue()  # kernels not running a batch now
+
+    def run(span):
+        try:
+            kernel = idle.get_nowait()
+        except queue.Empty:
+            kernel = NumpyKernel(plan, workers=fft_workers)
+        try:
+            return kernel(ref[span[0]:span[1]], mov[span[0]:span[1]])
+        finally:
+            idle.put(kernel)
+
+    with blas_threads(1):  # small products: BLAS threads would only wait (sensor_models.files.threads)
+        return _concatenate(list(map_ordered(run, spans, pool_threads)))
+
+
+def _concatenate(parts) -> tuple:
+    """Per-batch kernel outputs joined along the pair axis."""
     return tuple(np.concatenate(p) for p in zip(*parts))
 
 

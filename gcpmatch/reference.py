@@ -87,7 +87,7 @@ def scene_gsd_m(model, *, band=None, height_m: float = 0.0) -> float:
 
 
 def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: int = 0, row1: int | None = None,
-                      psf_sigma_px: float = 0.45, block_lines: int = 512, workers: int = 2,
+                      psf_sigma_px: float = 0.45, block_lines: int = 512, workers: int | None = None,
                       interpolation: str = CHIP_INTERPOLATION) -> np.ndarray:
     """The DOM seen through ``model`` by one CCD: float32 (row1 - row0, n_detectors), NaN = none.
 
@@ -107,8 +107,11 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
         Lines to render (default: all).
     psf_sigma_px : float
         Optical PSF sigma in scene pixels added to the pixel's box response.
-    block_lines, workers : int
-        Lines per block and threads rendering blocks.
+    block_lines : int
+        Lines per block.
+    workers : int or None
+        Threads rendering blocks; None: :func:`sensor_models.files.threads.thread_count` (``GCPCAL_THREADS``
+        or every core). The blocks, and so the chips, are the same whatever the count.
     interpolation : {"lanczos", "cubic", "linear"}
         DOM resampling kernel (:func:`sensor_models.maps.raster.sample_map_image`).
 
@@ -135,16 +138,18 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
 
     from concurrent.futures import ThreadPoolExecutor
 
+    from sensor_models.files.threads import libraries_single_threaded, thread_count
     from sensor_models.imaging.locate import dem_planes
 
     dem_planes(dem)  # shared sampling planes, built once before the threads
     starts = list(range(row0, row1, block_lines))
+    workers = thread_count(workers)
     with dom.reading():  # one file handle per thread: blocks share decompressed DOM tiles
         if workers <= 1 or len(starts) == 1:
             for a in starts:
                 render(a)
-        else:  # numpy, OpenCV and GDAL release the GIL: blocks render in parallel
-            with ThreadPoolExecutor(max_workers=workers) as pool:
+        else:  # numpy, OpenCV and GDAL release the GIL: blocks render in parallel, one OpenCV and BLAS thread each
+            with libraries_single_threaded(), ThreadPoolExecutor(max_workers=workers) as pool:
                 list(pool.map(render, starts))
     return out
 

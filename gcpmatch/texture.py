@@ -33,6 +33,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import convolve
 
+from sensor_models.files.threads import map_ordered, thread_count
+
 __all__ = ["band_noise_dn", "cramer_rao_sigma_px", "gradient_snr", "mismatch_cr_sigma_px", "texture_sigma_px",
            "weak_texture"]
 
@@ -151,8 +153,12 @@ def texture_sigma_px(snr_row: np.ndarray, snr_col: np.ndarray, scale_px: float) 
     return np.where(np.isfinite(inv2), scale_px * np.sqrt(np.where(np.isfinite(inv2), inv2, 0.0)), 0.0)
 
 
+#: Windows per task of :func:`mismatch_cr_sigma_px` (fixed: the numbers do not depend on the threads).
+MISMATCH_CHUNK = 256
+
+
 def mismatch_cr_sigma_px(reference: np.ndarray, scene: np.ndarray, shift_px: np.ndarray, *,
-                         border_px: int = 8) -> np.ndarray:
+                         border_px: int = 8, threads: int | None = None) -> np.ndarray:
     """Per window and axis: the Cramer-Rao shape with the pair's own mismatch as the noise, pixels.
 
     The reference window is moved by the measured shift (bilinear), the scene window is fitted by
@@ -169,6 +175,9 @@ def mismatch_cr_sigma_px(reference: np.ndarray, scene: np.ndarray, shift_px: np.
         Scene minus reference shift (row, col), pixels (:class:`gcpmatch.window_match.PairMatches`).
     border_px : int
         Border left out of the fit; a pair whose shift exceeds it on an axis gets NaN.
+    threads : int or None
+        Chunks of ``MISMATCH_CHUNK`` windows computed at once (None: ``GCPCAL_THREADS`` or every
+        core, :func:`sensor_models.files.threads.thread_count`); the numbers do not depend on it.
 
     Returns
     -------
@@ -176,9 +185,22 @@ def mismatch_cr_sigma_px(reference: np.ndarray, scene: np.ndarray, shift_px: np.
         ``(row, col)`` bound-shaped sigma, pixels; NaN where the shift is not finite or too large.
     """
     reference, scene = np.asarray(reference), np.asarray(scene)
-    n, w = reference.shape[0], reference.shape[-1]
+    n = reference.shape[0]
     if n == 0:
         return np.zeros((0, 2))
+    spans = [(a, min(n, a + MISMATCH_CHUNK)) for a in range(0, n, MISMATCH_CHUNK)]
+    threads = min(thread_count(threads), len(spans))
+
+    def chunk(span):
+        a, b = span
+        return _mismatch_chunk(reference[a:b], scene[a:b], np.asarray(shift_px)[a:b], border_px)
+
+    return np.concatenate(list(map_ordered(chunk, spans, threads)))
+
+
+def _mismatch_chunk(reference: np.ndarray, scene: np.ndarray, shift_px: np.ndarray, border_px: int) -> np.ndarray:
+    """:func:`mismatch_cr_sigma_px` of one chunk of (k, w, w) windows: (k, 2) sigma, pixels."""
+    w = reference.shape[-1]
     d = np.nan_to_num(np.asarray(shift_px, dtype=np.float64), nan=0.0)
     ok = np.isfinite(shift_px).all(axis=1) & (np.abs(np.asarray(shift_px)) <= border_px).all(axis=1)
     d[~ok] = 0.0

@@ -87,7 +87,8 @@ def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOpti
     cr = np.full((n, 2), np.nan)
     matched = status == ""
     if options.sigma_model == "window" and options.mismatch_sigma_scale > 0.0 and matched.any():
-        cr[matched] = mismatch_cr_sigma_px(reference[matched], scene[matched], pm.shift_px[matched])
+        cr[matched] = mismatch_cr_sigma_px(reference[matched], scene[matched], pm.shift_px[matched],
+                                           threads=options.thread_count())
     return PairMatches(shift_px=pm.shift_px, status=status,
                        quality={"score": pm.score, "peak_ratio": pm.peak_ratio,
                                 "mismatch_cr_row_px": cr[:, 0], "mismatch_cr_col_px": cr[:, 1]})

@@ -184,6 +184,50 @@ def test_cog_layout_and_block_independence(tmp_path, truth, dem):
     assert sorted(p.name for p in tmp_path.iterdir() if p.name != ".gcpcal-outputs.json") == ["a.tif", "b.tif"]  # no temporary left
 
 
+def test_thread_count_does_not_change_the_output(tmp_path, truth, dem):
+    """Blocks computed on 1, 2 or 3 threads (the raster read through one handle per thread, the
+    DEM by windows from threads too): the same pixels, check points and summary, bit for bit."""
+    from sensor_models.terrain.dem_windows import open_ortho_dem
+
+    coarse, windows = open_ortho_dem(DEM, max_nodes=60_000)
+    pixels, summaries = [], []
+    for threads in (1, 2, 3):
+        out = tmp_path / f"t{threads}.tif"
+        summary = orthorectify_to_file(truth, B2, coarse, out, block=128, threads=threads, dem_windows=windows)
+        assert summary["threads"] == threads
+        with rasterio.open(out) as ds:
+            pixels.append(ds.read(1))
+        summaries.append({k: v for k, v in summary.items() if k not in ("seconds", "cog_seconds", "pixels_per_s",
+                                                                        "output", "threads")})
+    windows.close()
+    assert summaries[0]["valid_fraction"] > 0.6
+    for values, summary in zip(pixels[1:], summaries[1:]):
+        np.testing.assert_array_equal(values, pixels[0])
+        assert summary == summaries[0]
+    t = rasterio.open(tmp_path / "t1.tif").transform
+    shape = (300, 280)
+    memory = [orthorectify(truth, rasterio.open(B2).read(1), dem, t, "EPSG:32631", shape, band="B2", block_rows=64,
+                           threads=n) for n in (1, 3)]
+    np.testing.assert_array_equal(memory[0], memory[1])
+    assert np.isfinite(memory[0]).mean() > 0.5
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+def test_atomic_no_partial_output_threads(tmp_path, truth, dem, threads):
+    """An error while blocks run on threads: no output, no temporary, the source closed after the blocks."""
+    out = tmp_path / "ortho.tif"
+    out.write_bytes(b"previous")
+
+    def fail(done, total):
+        if done == 2:
+            raise RuntimeError("interrupted")
+
+    with pytest.raises(RuntimeError, match="interrupted"):
+        orthorectify_to_file(truth, B2, dem, out, block=128, progress=fail, threads=threads)
+    assert out.read_bytes() == b"previous"
+    assert [p.name for p in tmp_path.iterdir() if p.name != ".gcpcal-outputs.json"] == ["ortho.tif"]
+
+
 def test_atomic_no_partial_output(tmp_path, truth, dem):
     out = tmp_path / "ortho.tif"
     out.write_bytes(b"previous")

@@ -187,6 +187,38 @@ def test_batch_equals_single_pairs(realistic_set):
     np.testing.assert_allclose(whole.shift_px, batch.shift_px, atol=1e-6)
 
 
+def test_results_do_not_depend_on_the_thread_count(realistic_set, monkeypatch):
+    """The batches run on threads (two at once with workers=2) and give the same numbers, bit for
+    bit, whatever the count: 1 to 16 threads, ``GCPCAL_THREADS``, fewer batches than threads (the
+    rest go to the FFTs), float64 and the upsampled refinement."""
+    import threading
+
+    ref, mov, _ = realistic_set
+    fields = ("shift_row_px", "shift_col_px", "score", "peak_ratio", "reason")
+    for kwargs in ({"batch": 32}, {"batch": 200}, {"batch": 45, "dtype": "float64", "upsample": 40}):
+        serial = phase_correlate(ref, mov, workers=1, **kwargs)
+        for workers in (2, 3, 16):
+            threaded = phase_correlate(ref, mov, workers=workers, **kwargs)
+            for name in fields:
+                np.testing.assert_array_equal(getattr(threaded, name), getattr(serial, name), err_msg=name)
+    monkeypatch.setenv("GCPCAL_THREADS", "2")
+    default = phase_correlate(ref, mov, batch=32)
+    np.testing.assert_array_equal(default.shift_px, phase_correlate(ref, mov, batch=32, workers=1).shift_px)
+    # two batches at once: each waits at a barrier for the other (a serial run would time out)
+    barrier, call = threading.Barrier(2, timeout=20.0), NumpyKernel.__call__
+    entered = []
+
+    def meeting(self, a, b):
+        entered.append(threading.get_ident())
+        if len(entered) <= 2:
+            barrier.wait()
+        return call(self, a, b)
+
+    monkeypatch.setattr(NumpyKernel, "__call__", meeting)
+    phase_correlate(ref, mov, batch=32, workers=2)
+    assert len(set(entered[:2])) == 2 and len(entered) == 10
+
+
 def test_integer_dtypes_accepted():
     rng = np.random.default_rng(3)
     shifts = np.array([[2.3, -1.6]])

@@ -86,7 +86,8 @@ def ortho_scene(scene_path, out_path, *, dem_path, calibration=None, dem_datum=N
             result = orthorectify_to_file(geometry, image, dem, tif_tmp, crs=options.crs,
                                           resolution_m=options.resolution_m, band=band,
                                           resampling=options.resampling, block=options.block, progress=say,
-                                          dem_windows=dem_windows, tags=geotiff_tags())
+                                          dem_windows=dem_windows, tags=geotiff_tags(),
+                                          threads=options.threads or None)
             summary = _summary(result, out_path, summary_path, scene_path, calib_file, geometry, image, dem_path,
                                status_fields(geometry, scene_warning, calib_warning,
                                              product_check=scene.product_check), dem_figures, t0)

@@ -42,7 +42,7 @@ def pushbroom_config(config_path=None, seed=None):
     return cfg if seed is None else cfg.with_seed(seed)
 
 
-def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, geoid=None, workers: int = 2,
+def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, geoid=None, workers: int | None = None,
                              progress=None, profile: str = "ideal", config_path=None, model_path=None,
                              window=None) -> dict:
     """Render a level-1A push-broom scene through a TRUE model; write the LAB manifest and truth.
@@ -57,8 +57,8 @@ def simulate_pushbroom_scene(out_dir, config, *, dom_path=None, dem_path=None, g
         Reference orthoimage and DEM to render from (both or neither; default: procedural).
     geoid : str or Path, optional
         EGM96 grid for an orthometric DEM.
-    workers : int
-        Rendering threads.
+    workers : int or None
+        Rendering threads (None or 0: ``GCPCAL_THREADS`` or every core).
     progress : callable(done, total), optional
         Called as rendering proceeds.
     profile : str
@@ -123,7 +123,7 @@ def _simulate_through_model_file(out_dir, config, model_path, window, *, dom_pat
 
 
 def simulate_validation_series(out_dir, n_scenes: int, *, seed: int = 0, config_path=None, cloud_fractions=(),
-                               calibration_scene: bool = False, workers: int = 2) -> list:
+                               calibration_scene: bool = False, workers: int | None = None) -> list:
     """Validation scenes of one sensor (dates, sites, attitude biases, clouds) and their sites file.
 
     Parameters
@@ -140,8 +140,8 @@ def simulate_validation_series(out_dir, n_scenes: int, *, seed: int = 0, config_
         Cloud covers cycled over the scenes, in ``[0, 1]``.
     calibration_scene : bool
         Also render a scene to calibrate the sensor on.
-    workers : int
-        Parallel renderings.
+    workers : int or None
+        Rendering threads per scene (None or 0: ``GCPCAL_THREADS`` or every core).
 
     Returns
     -------

@@ -25,6 +25,7 @@ from calibrate.actions._provenance import command_line
 from calibrate.cli._errors import Interrupted, note_signal, quiet_cluster_logs, run_guarded
 from calibrate.cli.options import add_options, apply_verbosity, verbosity_options
 from sensor_models import __version__
+from sensor_models.files.threads import thread_count
 
 __all__ = ["COMMANDS", "cli", "load_all_commands", "main"]
 
@@ -123,6 +124,7 @@ def cli(ctx, verbose, quiet):
     ctx.ensure_object(dict)
     ctx.obj.update(quiet=False, verbose=0)
     apply_verbosity(ctx, verbose, quiet)
+    thread_count()  # a bad GCPCAL_THREADS stops any command before it starts (one line, exit 1)
 
 
 #: ``--overwrite``, on every command that writes (every command but the groups).

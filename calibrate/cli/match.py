@@ -10,7 +10,7 @@ from gcpmatch.options import SIGMA_MODELS
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option,
                                    dom_options, echo_json, echo_warnings, json_option, reference_sigma_option,
-                                   required_dem_options, window_option)
+                                   required_dem_options, threads_option, window_option)
 from sensor_models.maps.dom_inputs import ASSUMED_REFERENCE_SIGMA_M
 
 __all__ = ["command"]
@@ -42,8 +42,7 @@ __all__ = ["command"]
 @reference_sigma_option("the DOM's, as its producer states it (default: the DOM's GEOLOCATION_RMSE_M or "
                         "GEOMETRIC_RMSE_X/Y tags, or GEOMETRIC_RMSE_MODEL_X/Y of a Landsat MTL beside it, else an "
                         f"assumed {ASSUMED_REFERENCE_SIGMA_M:.1f} m); used by --sigma-model window.")
-@click.option("--threads", type=click.IntRange(min=0), default=MatchOptions.threads, show_default=True,
-              help="Threads for the reference chips, FFTs and OpenCV; 0: every core. The GCPs do not depend on it.")
+@threads_option("the reference chips, the phase correlation's batches of windows and OpenCV (SIFT)")
 @accept_product_disagreement_option
 @json_option
 @click.pass_context

@@ -387,6 +387,26 @@ json_option = click.option("--json", "as_json", is_flag=True,
                            help="Print the summary as JSON on stdout, and nothing else there; no progress.")
 
 
+def threads_option(what: str, *aliases: str):
+    """``--threads N`` (and ``aliases``): threads of a command's parallel stages, 0 for the default.
+
+    Parameters
+    ----------
+    what : str
+        What the threads run, for the help.
+    aliases : str
+        Other names of the option (an older ``--workers``).
+
+    Returns
+    -------
+    click decorator
+        The option, passed as ``threads`` (an integer >= 0).
+    """
+    return click.option("--threads", *aliases, "threads", type=click.IntRange(min=0), default=0, show_default=True,
+                        help=f"Threads for {what}; 0: GCPCAL_THREADS when set, else every core. "
+                             "The outputs do not depend on it.")
+
+
 def out_dir_option(required: bool = True, default=None, help: str = "Output folder."):
     """The ``--out`` option of a command that writes a folder (keyword ``out_dir``).
 

@@ -7,7 +7,7 @@ import click
 from calibrate.actions.ortho import ortho_scene
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option,
-                                   echo_json, echo_warnings, json_option, required_dem_options)
+                                   echo_json, echo_warnings, json_option, required_dem_options, threads_option)
 from calibrate.config import ORTHO_RESAMPLING, OrthoOptions
 
 __all__ = ["command"]
@@ -30,12 +30,13 @@ __all__ = ["command"]
               help="Interpolation of the scene pixels.")
 @click.option("--image", type=click.Path(dir_okay=False), help="Scene raster (default: the raster SCENE lists, names or has beside it).")
 @click.option("--block", type=click.IntRange(min=64), default=OrthoOptions.block, show_default=True,
-              help="Output pixels per block side (memory grows with its square, not with the output).")
+              help="Output pixels per block side (memory grows with its square times --threads, not with the output).")
+@threads_option("the output blocks (each with one OpenCV thread)")
 @accept_product_disagreement_option
 @json_option
 @click.pass_context
 def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_path, band, crs, resolution, resampling,
-            image, block, as_json, self_check):
+            image, block, threads, as_json, self_check):
     """Orthorectify a band of SCENE on the DEM into a Cloud-Optimized GeoTIFF.
 
     The geometry comes from --calibration (the calibrated model) when given, the pixels from
@@ -46,7 +47,7 @@ def command(ctx, scene_path, calibration, dem_path, dem_datum, geoid, out_path, 
     beside it or named in it, or a raster carrying an RPC (GeoTIFF tags, or a .RPB, _RPC.TXT or
     .geom beside it); a crop with a pixel geotransform crops the model (docs/inputs.md).
     """
-    options = OrthoOptions(crs=crs, resolution_m=resolution, resampling=resampling, block=block)
+    options = OrthoOptions(crs=crs, resolution_m=resolution, resampling=resampling, block=block, threads=threads)
     with stage_progress(ctx, "gcpcal ortho: blocks", as_json) as progress:
         summary = ortho_scene(scene_path, out_path, dem_path=dem_path, calibration=calibration, dem_datum=dem_datum,
                               geoid=geoid, band=band, image=image, options=options, progress=progress.count,

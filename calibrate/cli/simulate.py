@@ -11,7 +11,7 @@ from calibrate.actions.simulate import (PROFILE_NAMES, pushbroom_config, simulat
                                         simulate_geo_star_frames, simulate_pushbroom_scene,
                                         simulate_validation_series)
 from calibrate.cli._progress import stage_progress
-from calibrate.cli.options import echo_json, echo_warnings, float_list, json_option, out_dir_option
+from calibrate.cli.options import echo_json, echo_warnings, float_list, json_option, out_dir_option, threads_option
 
 __all__ = ["command"]
 
@@ -28,7 +28,7 @@ def command():
 @click.option("--dom", "dom_path", type=click.Path(dir_okay=False), help="Reference orthoimage to render from (with --dem).")
 @click.option("--dem", "dem_path", type=click.Path(dir_okay=False), help="DEM declaring its vertical datum (with --dom).")
 @click.option("--geoid", type=click.Path(dir_okay=False), help="EGM96 grid for an orthometric DEM.")
-@click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True, help="Rendering threads.")
+@threads_option("rendering (each with one OpenCV thread)", "--workers")
 @click.option("--print-config", is_flag=True, help="Print the effective configuration as JSON and exit.")
 @click.option("--profile", type=click.Choice(PROFILE_NAMES), default="ideal", show_default=True,
               help="Error profile (docs/error_budget.md); realistic: --dom is the source radiance, no --dem.")
@@ -38,7 +38,7 @@ def command():
 @click.option("--window", help="With --model: ROW0,COL0,ROWS,COLS of the model's pixels to render (default: all).")
 @json_option
 @click.pass_context
-def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid, workers, print_config, profile,
+def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid, threads, print_config, profile,
                       model_path, window, as_json):
     """Render a level-1A push-broom scene through a TRUE model; write the LAB manifest and truth.
 
@@ -53,7 +53,7 @@ def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid
     window = _window(window)
     with stage_progress(ctx, "gcpcal simulate pushbroom: rendering", as_json) as progress:
         summary = simulate_pushbroom_scene(out_dir, cfg, dom_path=dom_path, dem_path=dem_path, geoid=geoid,
-                                           workers=workers, profile=profile, progress=progress.count,
+                                           workers=threads or None, profile=profile, progress=progress.count,
                                            config_path=config_path, model_path=model_path, window=window)
     echo_warnings(summary)
     if as_json:
@@ -77,15 +77,15 @@ def pushbroom_command(ctx, out_dir, seed, config_path, dom_path, dem_path, geoid
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="Sensor configuration (JSON, as simulate pushbroom).")
 @click.option("--clouds", default="0,0,0,0.3", show_default=True, help="Cloud covers cycled over the scenes.")
 @click.option("--calibration-scene", is_flag=True, help="Also render a scene to calibrate the sensor on.")
-@click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True, help="Parallel renderings.")
+@threads_option("rendering each scene", "--workers")
 @json_option
 @click.pass_context
-def series_command(ctx, out_dir, scenes, seed, config_path, clouds, calibration_scene, workers, as_json):
+def series_command(ctx, out_dir, scenes, seed, config_path, clouds, calibration_scene, threads, as_json):
     """Validation scenes of one sensor (dates, sites, attitude biases, clouds) and their sites file."""
     with stage_progress(ctx, f"gcpcal simulate series: {scenes} scene(s)", as_json):
         paths = simulate_validation_series(out_dir, scenes, seed=seed, config_path=config_path,
                                            cloud_fractions=tuple(float_list(clouds, "clouds")),
-                                           calibration_scene=calibration_scene, workers=workers)
+                                           calibration_scene=calibration_scene, workers=threads or None)
     if as_json:
         echo_json({"command": "simulate series", "scenes": [str(p) for p in paths],
                    "sites": str(Path(out_dir) / "sites.yaml")})

@@ -1,1 +1,1 @@
-"""File primitives every room uses: documents read with size and encoding checks, outputs written whole or not at all."""
+"""File primitives every room uses: documents read with size and encoding checks, outputs written whole or not at all, and the thread count of the parallel stages."""

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import os
 import time
+from contextlib import closing
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +38,7 @@ import pyproj
 from affine import Affine
 
 from sensor_models.errors import InputError
+from sensor_models.files.threads import libraries_single_threaded, map_ordered, thread_count
 from sensor_models.imaging.ortho_geometry import OrthoGeometry, check_geometry, draw_checks
 from sensor_models.imaging.ortho_grid import ortho_grid
 from sensor_models.imaging.ortho_resample import RESAMPLING, SourceBand, resample_block, resolve_source
@@ -78,7 +80,7 @@ def _to_dtype(values: np.ndarray, dtype: np.dtype, nodata) -> np.ndarray:
 
 # ---------------------------------------------------------------- in memory
 def orthorectify(model, image: np.ndarray, dem, transform, crs, shape, *, band=None, block_rows: int = 512,
-                 resampling: str = "bilinear", node_step_px: float = 16.0) -> np.ndarray:
+                 resampling: str = "bilinear", node_step_px: float = 16.0, threads: int | None = None) -> np.ndarray:
     """Orthoimage (float32, ``shape``, NaN = no data) of an in-memory ``image`` on a given grid.
 
     Parameters
@@ -99,6 +101,9 @@ def orthorectify(model, image: np.ndarray, dem, transform, crs, shape, *, band=N
     node_step_px : float
         Node spacing of the geometry grid in image pixels
         (:class:`~sensor_models.imaging.ortho_geometry.OrthoGeometry`).
+    threads : int or None
+        Blocks computed at once (:func:`sensor_models.files.threads.thread_count`: None for
+        ``GCPCAL_THREADS`` or every core); the output does not depend on it.
 
     Returns
     -------
@@ -115,10 +120,17 @@ def orthorectify(model, image: np.ndarray, dem, transform, crs, shape, *, band=N
     source = SourceBand(np.ascontiguousarray(image, dtype=np.float32))
     out = np.full(grid.shape, np.nan, dtype=np.float32)
     step = max(16, int(block_rows))
-    for a in range(0, grid.shape[0], step):
-        for b in range(0, grid.shape[1], step):
-            geom = geometry.block(a, min(a + step, grid.shape[0]), b, min(b + step, grid.shape[1]))
-            out[a:a + geom.row.shape[0], b:b + geom.row.shape[1]] = resample_block(source, geom, RESAMPLING[resampling])
+    blocks = [(a, min(a + step, grid.shape[0]), b, min(b + step, grid.shape[1]))
+              for a in range(0, grid.shape[0], step) for b in range(0, grid.shape[1], step)]
+
+    def compute(block):
+        return resample_block(source, geometry.block(*block), RESAMPLING[resampling])
+
+    threads = thread_count(threads)
+    computed = map_ordered(compute, blocks, threads, in_flight=threads)
+    with closing(computed), libraries_single_threaded():  # the blocks fill the cores
+        for (a, b, c, d), values in zip(blocks, computed):
+            out[a:b, c:d] = values
     return out
 
 
@@ -132,7 +144,8 @@ def _block_size(block: int, scale: float) -> int:
 def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=None, band=None,
                          resampling: str = "bilinear", block: int = 1024, nodata=0, dtype=None,
                          node_step_px: float = 16.0, check_points: int = 256, seed: int = 0,
-                         progress=None, dem_windows=None, tags: dict | None = None, rasters=None) -> dict:
+                         progress=None, dem_windows=None, tags: dict | None = None, rasters=None,
+                         threads: int | None = None) -> dict:
     """Orthorectify one band into a Cloud-Optimized GeoTIFF, block by block, atomically.
 
     Parameters
@@ -154,8 +167,8 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         Band of the geometry (default: the model's reference band).
     resampling : {"nearest", "bilinear", "cubic"}
     block : int
-        Output pixels per block side (memory ~ 150 bytes per block pixel; smaller for outputs
-        much coarser than the image).
+        Output pixels per block side (memory ~ 150 bytes per block pixel and thread; smaller for
+        outputs much coarser than the image).
     nodata : number
         Value of output pixels off the image or the DEM.
     dtype : numpy dtype, optional
@@ -177,6 +190,11 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
     rasters : dict, optional
         Band -> ``{"path": str, "index": int}`` where a band name or None as ``image`` is looked
         up (``Scene.rasters`` of :func:`sensor_models.readers.open_scene`).
+    threads : int or None
+        Blocks computed at once, each with one OpenCV and one BLAS thread (None: ``GCPCAL_THREADS`` or every
+        core, :func:`sensor_models.files.threads.thread_count`); the blocks are written, and the
+        check points drawn, in block order by the calling thread, so the file does not depend on
+        it. At most ``threads`` computed blocks wait to be written.
 
     Returns
     -------
@@ -210,6 +228,7 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         _check_nodata(nodata, out_dtype)
         step = _block_size(block, geometry.scale)
         plan = _BlockPlan(geometry, source, step, RESAMPLING[resampling], out_dtype, nodata, check_points, seed)
+        plan.threads = thread_count(threads)
         t_cog = _write_cog(plan, out_path, model=model, band=band, resampling=resampling, progress=progress, tags=tags)
     finally:
         source.close()
@@ -248,6 +267,7 @@ def _summary(plan: "_BlockPlan", out_path: Path, *, band, resampling, step) -> d
         "resampling": resampling,
         "valid_fraction": plan.n_valid / float(n_rows * n_cols),
         "block_px": step,
+        "threads": plan.threads,
         "node_step_out_px": geometry.node_step,
         "image_px_per_output_px": geometry.scale,
         "geometry_check_points": err["n"],
@@ -278,21 +298,28 @@ class _BlockPlan:
         self.rng = np.random.default_rng(seed)
         self.checks = []
         self.n_valid = 0
+        self.threads = 1
+
+    def compute(self, block):
+        """Geometry and resampled values (None off the image) of one ``(row0, row1, col0, col1)`` block."""
+        geom = self.geometry.block(*block)
+        return geom, resample_block(self.source, geom, self.interpolation) if geom.valid.any() else None
 
     def write(self, dst, progress=None) -> None:
-        """Resample every block into band 1 of the open dataset ``dst``."""
+        """Resample every block into band 1 of the open dataset ``dst``, ``threads`` blocks at once."""
         from rasterio.windows import Window
 
-        for k, (a, b, c, d) in enumerate(self.blocks):
-            geom = self.geometry.block(a, b, c, d)
-            if geom.valid.any():
-                values = resample_block(self.source, geom, self.interpolation)
-                good = geom.valid & np.isfinite(values)
-                self.n_valid += int(np.count_nonzero(good))
-                dst.write(_to_dtype(values, self.out_dtype, self.nodata), 1, window=Window(c, a, d - c, b - a))
-                self.checks.append(draw_checks(geom, a, c, self.per_block, self.rng))
-            if progress is not None:
-                progress(k + 1, len(self.blocks))
+        computed = map_ordered(self.compute, self.blocks, self.threads, in_flight=self.threads)
+        # closing: on an error the running blocks finish before the caller closes the source
+        with closing(computed), libraries_single_threaded():  # the blocks fill the cores
+            for k, ((a, b, c, d), (geom, values)) in enumerate(zip(self.blocks, computed)):
+                if values is not None:
+                    good = geom.valid & np.isfinite(values)
+                    self.n_valid += int(np.count_nonzero(good))
+                    dst.write(_to_dtype(values, self.out_dtype, self.nodata), 1, window=Window(c, a, d - c, b - a))
+                    self.checks.append(draw_checks(geom, a, c, self.per_block, self.rng))
+                if progress is not None:
+                    progress(k + 1, len(self.blocks))
 
 
 def _write_cog(plan: _BlockPlan, out_path: Path, *, model, band, resampling, progress, tags=None) -> float:

@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from sensor_models.errors import InputError
+from sensor_models.files.threads import PerThread
 from sensor_models.imaging.ortho_geometry import BlockGeometry
 
 __all__ = ["RESAMPLING", "SourceBand", "resample_block", "resolve_source"]
@@ -36,6 +37,8 @@ _READ_PAD = 3
 # ---------------------------------------------------------------- source pixels
 class SourceBand:
     """Windowed float32 access to one band of a raster in scene geometry (NaN = no data).
+
+    :meth:`read` may be called from several threads at once (each reads through its own handle).
 
     Parameters
     ----------
@@ -77,6 +80,7 @@ class SourceBand:
         if not 1 <= index <= self.dataset.count:
             self.dataset.close()
             raise InputError(f"band index {index} outside 1..{self.dataset.count}", path=self.path)
+        self._datasets = PerThread(lambda: rasterio.open(self.path), first=self.dataset)  # one handle per thread
         self.index = index
         self.shape = (self.dataset.height, self.dataset.width)
         self.dtype = np.dtype(self.dataset.dtypes[index - 1])
@@ -88,13 +92,13 @@ class SourceBand:
             return self.array[r0:r1, c0:c1].astype(np.float32)
         from rasterio.windows import Window
 
-        data = self.dataset.read(self.index, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
+        data = self._datasets.get().read(self.index, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
         return np.ma.filled(data.astype(np.float32), np.nan)
 
     def close(self):
-        """Close the raster file (nothing to do for an array)."""
+        """Close the raster file, every thread's handle (nothing to do for an array)."""
         if self.dataset is not None:
-            self.dataset.close()
+            self._datasets.close()
 
 
 def resolve_source(model, image, band, rasters=None):

@@ -39,6 +39,7 @@ import rasterio
 
 from sensor_models.files.atomic import atomic_folder
 from sensor_models.errors import InputError
+from sensor_models.files.threads import thread_count
 from sensor_models.imaging.locate import dem_planes, locate_block
 from sensor_models.maps.grid import MapGrid
 from sensor_models.imaging.psf import psf_sigma_dom_px
@@ -164,7 +165,7 @@ def simulate_pushbroom(
     dom=None,
     dem=None,
     geoid=None,
-    workers: int = 2,
+    workers: int | None = None,
     block_lines: int = 256,
     progress=None,
     record_timings: bool = True,
@@ -182,8 +183,10 @@ def simulate_pushbroom(
         be EGM96 with ``geoid``). Without them a procedural reference is generated.
     geoid : path, optional
         EGM96 grid for an orthometric DEM.
-    workers : int
-        Threads rendering (band, CCD) tasks of a block.
+    workers : int or None
+        Threads rendering (band, CCD) tasks of a block, each with one OpenCV and BLAS thread; None or 0:
+        ``GCPCAL_THREADS`` or every core (:func:`sensor_models.files.threads.thread_count`). The
+        files do not depend on it.
     block_lines : int
         Lines rendered per block (memory ~ block_lines x columns x 40 bytes per worker).
     progress : callable, optional
@@ -207,6 +210,7 @@ def simulate_pushbroom(
     """
     t_start = time.perf_counter()
     cfg = (config or SimConfig()).validate()
+    workers = thread_count(workers)
     if isinstance(profile, str):
         from sensor_models.simulate.profiles import get_profile
 
@@ -374,7 +378,8 @@ def _model_config(cfg: SimConfig, model) -> SimConfig:
 
 
 def simulate_through_model(out_dir, model, *, dom, dem, config: SimConfig | None = None, geoid=None,
-                           workers: int = 2, block_lines: int = 256, progress=None, record_timings: bool = True,
+                           workers: int | None = None, block_lines: int = 256, progress=None,
+                           record_timings: bool = True,
                            source: dict | None = None) -> dict:
     """Render a scene through a given push-broom model with known errors; write it as a delivered product.
 
@@ -417,6 +422,7 @@ def simulate_through_model(out_dir, model, *, dom, dem, config: SimConfig | None
         raise InputError("rendering through a given model needs both --dom and --dem")
     t_start = time.perf_counter()
     cfg = _model_config(config or SimConfig(), model)
+    workers = thread_count(workers)
     true_model, injected = perturbed_model(model, cfg)
     models = SimpleNamespace(true_model=true_model, lab_model=model,
                              truth={"injected": injected, "source": source or {}})

@@ -34,6 +34,7 @@ import numpy as np
 import pyproj
 
 from sensor_models.errors import InputError
+from sensor_models.files.threads import thread_count
 from sensor_models.imaging.locate import dem_planes, locate_block
 from sensor_models.maps.grid import MapGrid
 from sensor_models.simulate.config import SimConfig
@@ -393,7 +394,8 @@ def _figures(cfg, profile, models, lens, true_dem: Dem, user_dem_path: Path, sou
             "dem_error_under_footprint_m": {"rms": float(np.sqrt(np.mean(dh**2))), "max": float(np.abs(dh).max())}}
 
 
-def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=None, geoid=None, workers: int = 2,
+def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=None, geoid=None,
+                       workers: int | None = None,
                        block_lines: int = 256, progress=None, t_start: float | None = None,
                        record_timings: bool = True) -> dict:
     """Render a scene under ``profile`` into the (temporary) folder ``tmp``; return its summary.
@@ -423,6 +425,7 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
         The summary (``summary.json``), with ``profile`` and ``injected`` figures.
     """
     t_start = time.perf_counter() if t_start is None else t_start
+    workers = thread_count(workers)
     if dem_path is not None or geoid is not None:
         raise InputError(f"the {profile.name} profile derives the user's DEM from a procedural TRUE DEM: give --dom "
                          "only (the scene's source radiance)", field="dem")

@@ -16,6 +16,7 @@ import numpy as np
 import pyproj
 
 from sensor_models.errors import InputError
+from sensor_models.files.threads import libraries_single_threaded, thread_count
 from sensor_models.maps.grid import MapGrid
 
 __all__ = ["PhaseClock", "SetupProgress", "check_covers", "footprint_lonlat", "render_scene", "step_progress", "utm_crs",
@@ -193,6 +194,7 @@ def render_scene(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lines
     """
     import rasterio
 
+    workers = thread_count(workers)
     # GDAL keeps written blocks in its cache until the file closes (by default 5 % of the RAM):
     # without a cap the whole compressed scene would sit in memory
     with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
@@ -215,7 +217,8 @@ def _render_blocks(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lin
                          if getattr(renderer, "shadows", None) is not None else None)
     cloud_pixels = 0
     try:
-        with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        # one OpenCV and one BLAS thread per task: the tasks fill the cores
+        with libraries_single_threaded(), ThreadPoolExecutor(max_workers=workers) as pool:
 
             for k, (r0, r1) in enumerate(blocks):
                 jobs = {(b, c): pool.submit(renderer.task, b, c, r0, r1) for b in bands for c in range(n_ccd)}
@@ -273,7 +276,7 @@ def write_outputs(cfg, models, tmp: Path, initial, reference_files, dem_figures,
         Rendering time: from the start of the command to the last block written (models,
         reference and blocks).
     workers : int
-        Rendering threads.
+        Rendering threads (the count used).
     t_start : float
         ``time.perf_counter()`` at the start.
     record_timings : bool

@@ -251,7 +251,7 @@ def _sites_documents(entries: list[dict]) -> tuple[str, str]:
 def simulate_series(out_dir, n_scenes: int, *, base_config: SimConfig | None = None, seed: int = 0,
                     sites=DEFAULT_SITES, cloud_fractions=(0.0, 0.0, 0.0, 0.3),
                     attitude_bias_sigma_arcsec=(28.0, 14.0, 20.0), center_jitter_deg: float = 0.02,
-                    revisit_days=(3, 16), calibration_scene: bool = False, workers: int = 2,
+                    revisit_days=(3, 16), calibration_scene: bool = False, workers: int | None = None,
                     progress=None) -> list[Path]:
     """Render a validation series of one sensor and write its sites file (module docstring).
 
@@ -264,8 +264,8 @@ def simulate_series(out_dir, n_scenes: int, *, base_config: SimConfig | None = N
     calibration_scene : bool
         Also render ``base_config`` itself into ``out_dir/calibration`` (a scene to calibrate
         the sensor on, with its own procedural reference).
-    workers : int
-        Rendering threads per scene.
+    workers : int or None
+        Rendering threads per scene (None: ``GCPCAL_THREADS`` or every core).
     progress : callable, optional
         ``progress(done, total, name)`` after each scene.
 

@@ -22,11 +22,13 @@ of the image border, the default resolution, the DEM coverage figures). So
 from __future__ import annotations
 
 import os
+import threading
 
 import numpy as np
 import pyproj
 
 from sensor_models.errors import InputError
+from sensor_models.files.threads import PerThread
 
 __all__ = ["COARSE_DEM_NODES", "MAX_DEM_NODES", "DemWindows", "bilinear_nodes", "open_ortho_dem"]
 
@@ -77,6 +79,9 @@ def bilinear_nodes(z: np.ndarray, u, v, *, shape=None, row0: int = 0, col0: int 
 class DemWindows:
     """Full-resolution ellipsoidal DEM heights read from the raster by windows.
 
+    :meth:`read` and :meth:`heights` may be called from several threads at once (each reads
+    through its own handle).
+
     Parameters
     ----------
     path : str or os.PathLike
@@ -115,6 +120,8 @@ class DemWindows:
         self._offset = self._ds.offsets[0] if self._ds.offsets else 0.0
         self._geoid = geoid if datum == "egm96" else None
         self._geometry = GridGeometry(self.transform, self.crs, self.shape)
+        self._datasets = PerThread(lambda: rasterio.open(self.path), first=self._ds)  # one handle per thread
+        self._count_lock = threading.Lock()
         self.nodes_read = 0
         self.largest_window_nodes = 0
 
@@ -132,7 +139,7 @@ class DemWindows:
         """
         from rasterio.windows import Window
 
-        band = self._ds.read(1, window=Window(col0, row0, col1 - col0, row1 - row0), masked=True)
+        band = self._datasets.get().read(1, window=Window(col0, row0, col1 - col0, row1 - row0), masked=True)
         values = np.ma.filled(band.astype(np.float64), np.nan)
         if self._scale != 1.0 or self._offset != 0.0:
             values = values * self._scale + self._offset
@@ -141,8 +148,9 @@ class DemWindows:
                                      np.arange(row0, row1, dtype=np.float64))
             lon, lat = self._geometry.index_to_lonlat(cols, rows)
             values = values + self._geoid.undulation_m(lon, lat)
-        self.nodes_read += values.size
-        self.largest_window_nodes = max(self.largest_window_nodes, values.size)
+        with self._count_lock:
+            self.nodes_read += values.size
+            self.largest_window_nodes = max(self.largest_window_nodes, values.size)
         return values
 
     def heights(self, u, v) -> np.ndarray:
@@ -170,8 +178,8 @@ class DemWindows:
         return bilinear_nodes(z, u, v, shape=self.shape, row0=row0, col0=col0)
 
     def close(self) -> None:
-        """Close the raster."""
-        self._ds.close()
+        """Close the raster (every thread's handle)."""
+        self._datasets.close()
 
 
 def open_ortho_dem(path, *, vertical_datum=None, geoid=None, max_nodes: int = MAX_DEM_NODES,

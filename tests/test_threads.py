@@ -1,0 +1,122 @@
+"""The thread count of the parallel stages (sensor_models.files.threads): options, environment, the ordered map."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import pytest
+import rasterio
+
+from sensor_models.errors import InputError
+from sensor_models.files.threads import (THREADS_ENV, available_cores, blas_threads, map_ordered, opencv_threads,
+                                         parse_threads, thread_count)
+
+
+def test_parse_threads_accepts_counts_and_names_the_field_of_a_bad_one():
+    assert parse_threads("4") == 4 and parse_threads(" 0 ") == 0 and parse_threads(3) == 3
+    for bad in ("x", "-1", "2.5", -3, 1.5, True, ""):
+        with pytest.raises(InputError) as err:
+            parse_threads(bad, field="--threads")
+        message = str(err.value)
+        assert "\n" not in message and "--threads" in message and repr(bad) in message
+
+
+def test_thread_count_explicit_then_environment_then_affinity(monkeypatch):
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    cores = len(os.sched_getaffinity(0))
+    assert available_cores() == cores
+    assert thread_count() == cores and thread_count(0) == cores and thread_count(None) == cores
+    assert thread_count(5) == 5
+    monkeypatch.setenv(THREADS_ENV, "3")
+    assert thread_count() == 3 and thread_count(0) == 3 and thread_count(1) == 1
+    monkeypatch.setenv(THREADS_ENV, "0")
+    assert thread_count() == cores
+    monkeypatch.setenv(THREADS_ENV, "many")
+    with pytest.raises(InputError, match=THREADS_ENV):
+        thread_count()
+    with pytest.raises(InputError, match="threads"):
+        thread_count(-1)
+
+
+def test_map_ordered_keeps_the_order_bounds_what_is_in_flight_and_raises_at_the_turn():
+    started, lock = [], threading.Lock()
+    yielded = []
+
+    def work(k):
+        with lock:
+            started.append(k)
+        time.sleep(0.002 * (k % 3))  # blocks finish out of order
+        return k * k
+
+    for k, value in enumerate(map_ordered(work, range(40), 3, in_flight=4)):
+        assert value == k * k
+        # at most in_flight blocks were submitted beyond the ones already yielded
+        assert len(started) <= len(yielded) + 4 + 1
+        yielded.append(value)
+    assert yielded == [k * k for k in range(40)]
+    assert list(map_ordered(work, range(5), 1)) == [0, 1, 4, 9, 16]
+
+    def fails(k):
+        if k == 6:
+            raise ValueError("block 6")
+        return k
+
+    out = []
+    with pytest.raises(ValueError, match="block 6"):
+        for value in map_ordered(fails, range(50), 2):
+            out.append(value)
+    assert out == list(range(6))
+
+
+def test_library_thread_settings_are_restored():
+    import cv2
+    from threadpoolctl import threadpool_info
+
+    before = cv2.getNumThreads()
+    with opencv_threads(1):
+        assert cv2.getNumThreads() == 1
+    assert cv2.getNumThreads() == before
+    blas_before = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+    with blas_threads(1):
+        assert all(i["num_threads"] == 1 for i in threadpool_info() if i["user_api"] == "blas")
+    assert [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"] == blas_before
+
+
+def _one_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_cli_threads_option_parses_and_a_bad_count_is_one_line(tmp_path, capsys, monkeypatch):
+    """``--threads`` on match, ortho and simulate (``--workers`` there too): a bad count is one usage
+    line (exit 2), a bad ``GCPCAL_THREADS`` one line naming it (exit 1); a good count reaches the stage."""
+    import json
+    from pathlib import Path
+
+    from calibrate.cli import main
+
+    fix = Path(__file__).resolve().parents[1] / "fixtures" / "hy1c_czi"
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    ortho = ["ortho", str(fix / "truth_manifest.json"), "--dem", str(fix / "reference" / "dem.tif"),
+             "--resolution", "400"]
+    for argv in (ortho + ["--out", str(tmp_path / "o.tif"), "--threads", "x"],
+                 ["simulate", "pushbroom", "--out", str(tmp_path / "s"), "--workers", "-1"],
+                 ["simulate", "series", "--out", str(tmp_path / "v"), "--threads", "1.5"],
+                 ["match", str(fix / "manifest.json"), "--dom", str(fix / "reference" / "dom.tif"), "--dem",
+                  str(fix / "reference" / "dem.tif"), "--out", str(tmp_path / "g.csv"), "--threads", "-2"]):
+        assert main(argv) == 2, argv
+        assert "--threads" in _one_line(capsys.readouterr().err)
+    monkeypatch.setenv(THREADS_ENV, "lots")
+    assert main(ortho + ["--out", str(tmp_path / "o.tif")]) == 1
+    assert THREADS_ENV in _one_line(capsys.readouterr().err)
+    assert not (tmp_path / "o.tif").exists()
+    monkeypatch.setenv(THREADS_ENV, "1")
+    for extra, expected in (([], 1), (["--threads", "2"], 2)):
+        out = tmp_path / f"o{expected}.tif"
+        assert main(ortho + ["--out", str(out), "--json", *extra]) == 0
+        assert json.loads(capsys.readouterr().out)["threads"] == expected
+    with rasterio.open(tmp_path / "o1.tif") as a, rasterio.open(tmp_path / "o2.tif") as b:
+        assert (a.read(1) == b.read(1)).all() and a.read(1).any()
