@@ -132,8 +132,10 @@ def open_vector(backend: str, path: Path, layer: str | None = None) -> dict:
 
 
 def _is_point(geometry: str | None, z: bool) -> bool:
+    """Whether GDAL's name of a geometry type (``Point Z``, ``Point25D``, osgeo's ``3D Point``) is a point."""
     text = (geometry or "").replace(" ", "").lower()
-    return text.startswith("point") and (("z" in text[5:] or "25d" in text) if z else True)
+    is_3d = text.startswith("3d") or "25d" in text or text.endswith("z")
+    return text.removeprefix("3d").startswith("point") and "multi" not in text and (is_3d or not z)
 
 
 # ----------------------------------------------------------------------------- QGIS, when installed
@@ -320,8 +322,8 @@ def test_qgis_loads_every_kind(qgis, outputs):
         assert residuals["renderer"] == "categorizedSymbol" and residuals["attribute"] == "kind"
     table = qgis.vector(str(demo / "gcps.csv"))
     assert table["valid"]
-    if qgis.kind == "pyqgis":
-        assert table["crs"] == "EPSG:4326"
+    if qgis.kind == "pyqgis":  # the .prj's ESRI WKT of WGS84
+        assert table["crs"] in ("EPSG:4326", "OGC:CRS84"), table
         text = qgis.vector(f"file://{out / 'points.csv'}?type=csv&xField=lon&yField=lat&crs=EPSG:4326",
                            provider="delimitedtext")
         assert text["valid"] and text["count"] == 2
@@ -330,3 +332,11 @@ def test_qgis_loads_every_kind(qgis, outputs):
         assert layer["valid"], raster
         if qgis.kind == "pyqgis":  # drawn on the map: ortho in its UTM zone, RPC and GCP rasters warped
             assert layer["crs"] == ("EPSG:32631" if raster.name == "ortho.tif" else "EPSG:4326"), (raster, layer)
+
+
+def test_point_geometry_names_of_each_gdal_interface():
+    # pyogrio and ogrinfo -json name a 3D point "Point Z" or "Point25D", osgeo's GeometryTypeToName "3D Point"
+    for name in ("Point Z", "Point25D", "3D Point"):
+        assert _is_point(name, z=True) and _is_point(name, z=False)
+    assert _is_point("Point", z=False) and not _is_point("Point", z=True)
+    assert not _is_point("3D Multi Point", z=True) and not _is_point("Polygon", z=False) and not _is_point(None, False)
