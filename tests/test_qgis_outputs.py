@@ -253,7 +253,7 @@ def test_gcp_geopackage_and_geotiff(gdal, outputs):
     info = open_vector(gdal, out / "gcps.gpkg", "gcps")
     with open(out / "gcps.csv", newline="") as fh:
         kinds = [r["kind"] for r in csv.DictReader(fh)]
-    assert info["crs"] == "EPSG:4326" and info["count"] == len(kinds)
+    assert info["crs"] == "EPSG:4326" and info["count"] == len(kinds) and _is_point(info["geometry"], z=True)
     raster = open_raster(gdal, out / "gcps.tif")
     # only the points of kind gcp are GDAL GCPs: a warp uses them all, the check points stay independent
     assert raster["gcps"] == kinds.count("gcp") < len(kinds)
