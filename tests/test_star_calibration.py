@@ -186,3 +186,28 @@ def test_simulation_is_deterministic(tmp_path):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     assert (tmp_path / "a" / "truth.json").read_text() == (tmp_path / "b" / "truth.json").read_text()
     assert not any(p.name.startswith(".") for p in tmp_path.iterdir())
+
+
+def test_truth_error_of_a_star_frame_compares_lines_of_sight(sequence, tmp_path, capsys):
+    """A frame pointed at the stars sees no ground: ``gcpcal truth error`` compares the lines of
+    sight (each pixel's TRUE GCRF direction projected through the model under test), the same
+    figure as projecting the directions by hand, and says so."""
+    from calibrate.cli import main
+
+    out, _, _ = sequence
+    capsys.readouterr()
+    assert main(["truth", "error", str(out / "manifest.json"), "--truth", str(out / "truth_manifest.json"),
+                 "--step", "32", "--out", str(tmp_path / "e.json")]) == 0
+    said = capsys.readouterr().out
+    result = json.loads((tmp_path / "e.json").read_text())
+    assert result["compared"] == "lines of sight" and "lines of sight" in said
+    truth, lab = read_geo_manifest(out / "truth_manifest.json"), read_geo_manifest(out / "manifest.json")
+    n_rows, n_cols = truth.image_shape
+    k_r, k_c = (int(np.ceil((n - 1) / 32.0)) + 1 for n in (n_rows, n_cols))  # pixel centres, both ends
+    rows, cols = (a.ravel() for a in np.meshgrid(np.linspace(0.5, n_rows - 0.5, k_r),
+                                                 np.linspace(0.5, n_cols - 0.5, k_c), indexing="ij"))
+    r, c = lab.star_to_image(truth.object_vector_gcrf(rows, cols))
+    by_hand = np.hypot(r - rows, c - cols)
+    assert result["n_points"] == by_hand.size
+    assert result["rms_px"] == pytest.approx(float(np.sqrt(np.mean(by_hand ** 2))), rel=1e-9)
+    assert result["rms_px"] > 5.0  # the LAB model is tens of pixels off (seed 000's initial errors)

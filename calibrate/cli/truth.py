@@ -45,7 +45,11 @@ def error_command(model_path, truth_path, dem_path, dem_datum, geoid, height, he
             continue
         click.echo(f"{r['band']:>6} {r['ccd']:>10}  rms {r['rms_px']:.4f} px  max {r['max_px']:.4f} px  "
                    f"mean (row, col) ({r['mean_row_px']:+.4f}, {r['mean_col_px']:+.4f})")
-    click.echo(f"all: rms {result['rms_px']:.4f} px, max {result['max_px']:.4f} px over {result['n_points']} points")
+    if result["rms_px"] is None:
+        click.echo(f"all: no grid point seen by both models ({result['n_missing']} left out)")
+        return
+    over = " (lines of sight: the frame sees no ground)" if result.get("compared") == "lines of sight" else ""
+    click.echo(f"all: rms {result['rms_px']:.4f} px, max {result['max_px']:.4f} px over {result['n_points']} points{over}")
 
 
 def _heights_m(height, height_range, dem_path):

@@ -57,6 +57,9 @@ def model_difference(
         "n_points"}, ...], "n_missing", "step_px"}``; errors are ``model - reference``, in pixels.
         Grid points that either model cannot see (off the DEM, behind the other model's CCD) are
         left out and counted in ``"n_missing"``; ``"step_px"`` is the grid spacing.
+        ``"compared"`` is ``"ground"``, or ``"lines of sight"`` for staring frames that see no
+        ground at all (a frame pointed at the stars): there each pixel's GCRF direction by the
+        reference model is projected through ``model`` (a point at infinity).
 
     Raises
     ------
@@ -81,10 +84,45 @@ def model_difference(
             all_dr.append(dr)
             all_dc.append(dc)
     dr, dc = np.concatenate(all_dr), np.concatenate(all_dc)
+    if dr.size == 0 and _sees_stars(reference_model) and _sees_stars(model):
+        return _line_of_sight_difference(reference_model, model, rows, bands, step_px)
     out = _stats(dr, dc)
     out["n_missing"] = missing
     out["step_px"] = float(step_px)
     out["per_ccd"] = per_ccd
+    out["compared"] = "ground"
+    return out
+
+
+def _sees_stars(model) -> bool:
+    """True for a staring model that maps lines of sight (GCRF directions) to pixels and back."""
+    return callable(getattr(model, "object_vector_gcrf", None)) and callable(getattr(model, "star_to_image", None))
+
+
+def _line_of_sight_difference(reference_model, model, rows, bands, step_px: float) -> dict:
+    """The difference over the lines of sight, for a frame that sees no ground (a star frame).
+
+    Each grid pixel's direction in GCRF by ``reference_model`` is projected through ``model``
+    (:meth:`star_to_image`): the pixel error of ``model`` for a point at infinity along that
+    line of sight, which is what a star frame can check.
+    """
+    per_ccd, all_dr, all_dc, missing = [], [], [], 0
+    for band in bands:
+        for _, c, _kw in _arrays(reference_model, model, band):
+            cols = c.first_col + _grid(c.n_detectors, step_px)
+            rr, cc = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
+            r_m, c_m = model.star_to_image(reference_model.object_vector_gcrf(rr, cc))
+            dr, dc = r_m - rr, c_m - cc
+            good = np.isfinite(dr) & np.isfinite(dc)
+            missing += int((~good).sum())
+            per_ccd.append(_stats(dr[good], dc[good]) | {"band": band, "ccd": c.name})
+            all_dr.append(dr[good])
+            all_dc.append(dc[good])
+    out = _stats(np.concatenate(all_dr), np.concatenate(all_dc))
+    out["n_missing"] = missing
+    out["step_px"] = float(step_px)
+    out["per_ccd"] = per_ccd
+    out["compared"] = "lines of sight"
     return out
 
 
