@@ -34,7 +34,7 @@ from gcpmatch.options import MatchOptions
 from gcpmatch.outliers import local_consistency, smooth_residuals
 from gcpmatch.reference import reference_for_ccd, reference_for_image, scene_gsd_m
 from gcpmatch.texture import band_noise_dn, gradient_snr, weak_texture
-from gcpmatch.uncertainty import reference_sigma_px, window_sigma
+from gcpmatch.uncertainty import reference_sigma_px, score_sigma_px, window_sigma
 from sensor_models.maps.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs
 from sensor_models.errors import InputError
@@ -44,7 +44,7 @@ __all__ = ["MatchOptions", "coarse_stage", "correlate_pairs", "extract_gcps", "g
            "window_count"]
 
 REASONS = ("no_reference", "no_data", "cloud", "no_texture", "flat", "not_finite", "out_of_range",
-           "low_score", "low_peak_ratio", "inconsistent", "model_residual")
+           "low_score", "low_peak_ratio", "spectral_spread", "inconsistent", "model_residual")
 
 
 def grid_starts(n: int, window: int, spacing: int) -> np.ndarray:
@@ -474,6 +474,10 @@ def reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, op
     if opt.min_gradient_snr > 0.0 and quality and "gradient_snr_row" in quality:  # absolute texture gate
         weak = weak_texture(quality["gradient_snr_row"], quality["gradient_snr_col"], opt.min_gradient_snr)
         status[(status == "") & weak] = "no_texture"
+    if opt.max_spectral_spread > 0.0 and quality and "spectral_spread_px" in quality:  # real change
+        noise = score_sigma_px(quality["score"], window_px=opt.window_px)
+        with np.errstate(invalid="ignore"):
+            status[(status == "") & (quality["spectral_spread_px"] > opt.max_spectral_spread * noise)] = "spectral_spread"
     # local consistency on the window grid
     grid = np.where((status == "")[:, None], shift, np.nan).reshape(*grid_shape, 2)
     consistent = local_consistency(grid).reshape(-1)
@@ -489,7 +493,8 @@ def reject_outliers(status, std_r, shift, rr, cc, grid_shape, first_col: int, op
     kept_quality = {k: v[keep] for k, v in (quality or {}).items()}
     return keep, r_c, c_c, window_sigma(sigma, residual[inl], kept_quality, model=opt.sigma_model,
                                         reference_sigma_px=reference_sigma_px, window_px=opt.window_px,
-                                        texture_sigma_px=opt.texture_sigma_px, mismatch_scale=opt.mismatch_sigma_scale)
+                                        texture_sigma_px=opt.texture_sigma_px, mismatch_scale=opt.mismatch_sigma_scale,
+                                        spread_sigma=opt.spectral_spread_sigma)
 
 
 def _ccd_gcps(model_pc, dem, band, look, r_c, c_c, shift, score, sigma, ccd_kw) -> dict:

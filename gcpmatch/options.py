@@ -105,6 +105,18 @@ class MatchOptions:
         ``sigma_model="window"``: factor on each pair's Cramer-Rao-shaped sigma with the pair's own
         mismatch as its noise (:func:`gcpmatch.texture.mismatch_cr_sigma_px`), added in
         quadrature; >= 0, 0 (default) for none.
+    spectral_spread_sigma : bool
+        ``sigma_model="window"``: add in quadrature each pair's spectral spread, how far the shift
+        moves when the cross-power is weighted otherwise (pure phase, low-pass:
+        :func:`gcpmatch.window_match.spectral_spread_px`), which grows where the reference
+        shows the ground differently (another band, season or sensor); default False
+        (docs/matching.md, "Matching under real change").
+    max_spectral_spread : float
+        Reject a window (``spectral_spread``) whose spectral spread exceeds this many times the
+        matching noise its score predicts (:func:`gcpmatch.uncertainty.score_sigma_px`): a pair
+        that disagrees with itself beyond its noise shows the ground differently in the two
+        images; > 0, or 0 (default) for no test. 1 keeps the pairs consistent within their
+        predicted noise (docs/matching.md, "Matching under real change").
     coarse_skip : bool
         Skip the coarse SIFT stage when a cheap check finds the model already within the fine
         search radius (``window_px / 4``); ``gcpcal validate`` sets it (default False).
@@ -134,6 +146,8 @@ class MatchOptions:
     min_gradient_snr: float = 0.0
     texture_sigma_px: float = 0.0
     mismatch_sigma_scale: float = 1.0
+    spectral_spread_sigma: bool = False
+    max_spectral_spread: float = 0.0
     threads: int = 0
 
     def thread_count(self) -> int:
@@ -196,12 +210,13 @@ class MatchOptions:
             if len(values) not in (1, 2) or not all(_is_real(v) and v >= 0 for v in values):
                 raise InputError(f"reference sigma must be one or two (east, north) values >= 0 metres, got "
                                  f"{self.reference_sigma_m!r}", field="reference_sigma_m")
-        for name in ("min_gradient_snr", "texture_sigma_px", "mismatch_sigma_scale"):
+        for name in ("min_gradient_snr", "texture_sigma_px", "mismatch_sigma_scale", "max_spectral_spread"):
             value = getattr(self, name)
             if not _is_real(value) or not value >= 0.0 or value == float("inf"):
                 raise InputError(f"must be a finite number >= 0, got {value!r}", field=name)
         if not _is_int(self.threads) or self.threads < 0:
             raise InputError(f"threads must be an integer >= 0 (0: every core), got {self.threads!r}", field="threads")
-        if not isinstance(self.coarse_skip, bool):
-            raise InputError(f"coarse_skip must be true or false, got {self.coarse_skip!r}", field="coarse_skip")
+        for name in ("coarse_skip", "spectral_spread_sigma"):
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}", field=name)
         return self

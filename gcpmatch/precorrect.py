@@ -21,7 +21,7 @@ import numpy as np
 
 from sensor_models.geometry.geodesy import enu_basis, geodetic_to_ecef
 
-__all__ = ["PrecorrectResult", "exterior_names", "fit_exterior_in_ground", "fit_ccd_offsets"]
+__all__ = ["PrecorrectResult", "exterior_names", "fit_exterior_in_ground", "fit_ccd_offsets", "ground_distance_m"]
 
 HUBER_K = 1.345
 
@@ -69,6 +69,34 @@ def _ground_residual(model, row, col, xyz, h, basis, band, ccd):
     lon, lat, hh = model.image_to_ground(row, col, height=h, **kw)
     d = geodetic_to_ecef(lon, lat, hh) - xyz
     return np.stack([d @ basis[0], d @ basis[1]], axis=-1)  # (N, 2) east, north metres
+
+
+def ground_distance_m(model, row, col, lon, lat, h, *, band=None, ccd=None) -> np.ndarray:
+    """Horizontal distance, metres, between where ``model`` puts each pixel and its matched ground point.
+
+    Parameters
+    ----------
+    model : SensorModel
+        The model.
+    row, col : ndarray (N,)
+        Scene coordinates, continuous pixels.
+    lon, lat, h : ndarray (N,)
+        Matched ground points: WGS84 degrees, metres above the ellipsoid.
+    band : str, optional
+        Band of ``model``.
+    ccd : ndarray (N,) of int, optional
+        CCD of each point.
+
+    Returns
+    -------
+    ndarray (N,)
+        ``|(east, north)|`` of the pixel's ground point (at height ``h``) minus the matched one,
+        metres; NaN where the model cannot localize the pixel.
+    """
+    xyz = geodetic_to_ecef(lon, lat, h)
+    basis = enu_basis(float(np.mean(lon)), float(np.mean(lat)))
+    r = _ground_residual(model, row, col, xyz, h, basis, band, ccd)
+    return np.hypot(r[:, 0], r[:, 1])
 
 
 def _steps(names):

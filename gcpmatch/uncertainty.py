@@ -19,6 +19,11 @@ Two models (:data:`gcpmatch.options.SIGMA_MODELS`; docs/matching.md, section "si
   the score is relative to each window, this term is not, and it carries what texture-poor ground
   loses (docs/matching.md, "Texture-poor ground");
 
+  with :attr:`~gcpmatch.options.MatchOptions.spectral_spread_sigma`, a further term in quadrature:
+  the pair's spectral spread (:func:`gcpmatch.window_match.spectral_spread_px`, how far the shift
+  moves under other weightings of the cross-power), which the score does not see where the
+  reference shows the ground otherwise (another band or date; docs/matching.md, "Matching under
+  real change");
   and ``sigma_ref_px`` the DOM's east / north accuracy projected into the CCD's rows and
   columns through the model's local ground -> image Jacobian (:func:`reference_sigma_px`),
   taken as the rms of the two axes (a GCP carries one ``sigma_px`` for both axes).
@@ -76,7 +81,7 @@ def score_sigma_px(score: np.ndarray, *, window_px: int = 64) -> np.ndarray:
 
 def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *, model: str = "ccd",
                  reference_sigma_px: float = 0.0, window_px: int = 64, texture_sigma_px: float = 0.0,
-                 mismatch_scale: float = 0.0) -> np.ndarray:
+                 mismatch_scale: float = 0.0, spread_sigma: bool = False) -> np.ndarray:
     """Per-GCP standard deviation per axis, pixels, for the kept matches of one CCD.
 
     Parameters
@@ -102,6 +107,10 @@ def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *,
         ``"window"`` only: factor on the rms over the two axes of the quality's
         ``mismatch_cr_row_px`` and ``mismatch_cr_col_px`` (:func:`gcpmatch.texture.mismatch_cr_sigma_px`),
         added in quadrature; NaN counts as 0 (0, the default: none; :attr:`MatchOptions.mismatch_sigma_scale`).
+    spread_sigma : bool
+        ``"window"`` only: add the quality's ``spectral_spread_px``
+        (:func:`gcpmatch.window_match.spectral_spread_px`) in quadrature (False, the default: not;
+        :attr:`MatchOptions.spectral_spread_sigma`).
 
     Returns
     -------
@@ -117,6 +126,8 @@ def window_sigma(sigma_ccd_px: float, residual_px: np.ndarray, quality: dict, *,
         if mismatch_scale > 0.0 and "mismatch_cr_row_px" in quality:
             cr = np.sqrt(0.5 * (quality["mismatch_cr_row_px"] ** 2 + quality["mismatch_cr_col_px"] ** 2))
             match = np.hypot(match, mismatch_scale * np.nan_to_num(cr, nan=0.0))
+        if spread_sigma and "spectral_spread_px" in quality:  # MatchOptions.spectral_spread_sigma
+            match = np.hypot(match, np.nan_to_num(quality["spectral_spread_px"], nan=0.0))
         return np.maximum(match, MIN_SIGMA_PX)
     base = max(sigma_ccd_px, MIN_SIGMA_PX) if np.isfinite(sigma_ccd_px) else FALLBACK_SIGMA_PX
     return np.full(n, base)

@@ -18,7 +18,13 @@ from gcpmatch.phase import Reject, phase_correlate
 from gcpmatch.radiometry import prepare_windows
 from gcpmatch.texture import mismatch_cr_sigma_px
 
-__all__ = ["PairMatches", "correlate_pairs"]
+__all__ = ["PairMatches", "SPREAD_WEIGHTINGS", "correlate_pairs", "spectral_spread_px"]
+
+#: the other weightings of the cross-power that :func:`spectral_spread_px` compares the shift with
+#: (keywords of :func:`gcpmatch.phase.phase_correlate`): pure phase correlation (every frequency
+#: whitened: the shift read from edges and fine detail) and a low-passed, barely whitened one (read
+#: from the coarse pattern); the default ``eps = 0.5`` sits between them
+SPREAD_WEIGHTINGS = ({"eps": 0.01, "lowpass": None}, {"eps": 1.0, "lowpass": 0.15})
 
 _PHASE_REASON = {Reject.OK: "", Reject.FLAT: "flat", Reject.NOT_FINITE: "not_finite",
                  Reject.OUT_OF_RANGE: "out_of_range", Reject.LOW_SCORE: "low_score",
@@ -42,7 +48,9 @@ class PairMatches:
         the pair's own mismatch as its noise, pixels: :func:`gcpmatch.texture.mismatch_cr_sigma_px`
         of the raw windows at the measured shift; NaN where the shift is not finite or too large, for
         rejected pairs, and for all when ``options`` does not use it: ``sigma_model`` other than
-        ``"window"`` or ``mismatch_sigma_scale`` 0).
+        ``"window"`` or ``mismatch_sigma_scale`` 0); ``spectral_spread_px`` only with
+        ``options.spectral_spread_sigma`` or ``options.max_spectral_spread`` (:func:`spectral_spread_px`;
+        NaN for rejected pairs).
     """
 
     shift_px: np.ndarray
@@ -89,6 +97,55 @@ def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOpti
     if options.sigma_model == "window" and options.mismatch_sigma_scale > 0.0 and matched.any():
         cr[matched] = mismatch_cr_sigma_px(reference[matched], scene[matched], pm.shift_px[matched],
                                            threads=options.thread_count())
-    return PairMatches(shift_px=pm.shift_px, status=status,
-                       quality={"score": pm.score, "peak_ratio": pm.peak_ratio,
-                                "mismatch_cr_row_px": cr[:, 0], "mismatch_cr_col_px": cr[:, 1]})
+    quality = {"score": pm.score, "peak_ratio": pm.peak_ratio,
+               "mismatch_cr_row_px": cr[:, 0], "mismatch_cr_col_px": cr[:, 1]}
+    if options.spectral_spread_sigma or options.max_spectral_spread > 0.0:
+        spread = np.full(n, np.nan)
+        if matched.any():
+            spread[matched] = spectral_spread_px(ref[matched], mov[matched], pm.shift_px[matched],
+                                                 max_shift_px=w / 4.0, **{k: v for k, v in kwargs.items()
+                                                                          if k not in ("eps", "lowpass")})
+        quality["spectral_spread_px"] = spread
+    return PairMatches(shift_px=pm.shift_px, status=status, quality=quality)
+
+
+def spectral_spread_px(reference: np.ndarray, moving: np.ndarray, shift_px: np.ndarray, *, max_shift_px: float,
+                       **phase_options) -> np.ndarray:
+    """How far each pair's shift moves under the other weightings of :data:`SPREAD_WEIGHTINGS`, pixels.
+
+    Where scene and reference show the same ground the same way, every weighting of the
+    cross-power finds the same shift up to noise. Where the reference shows it otherwise
+    (another band: contrast inverted over some fields; another date: fields changed, water
+    moved), the fine detail and the coarse pattern disagree, and the shift depends on which
+    frequencies are trusted: that disagreement is a lower bound of the pair's error, seen in the
+    pair itself (no constant fitted to a scene).
+
+    ``spread^2 = 1/2 sum_w |d_w|^2``, with ``d_w`` the (row, col) shift under weighting ``w``
+    minus ``shift_px``: the rms over the two axes of the root sum of squares over the
+    weightings. The other estimates are read whatever their score (a low score is what a
+    changed pair gives); one that is not finite or beyond ``max_shift_px`` counts as a difference
+    of ``max_shift_px``.
+
+    Parameters
+    ----------
+    reference, moving : ndarray, shape (n, h, w)
+        The prepared window pairs (as phase-correlated).
+    shift_px : ndarray, shape (n, 2)
+        Their shift under the matcher's own weighting, pixels.
+    max_shift_px : float
+        Largest shift accepted, pixels.
+    **phase_options
+        Further keywords of :func:`gcpmatch.phase.phase_correlate` (backend, device, workers).
+
+    Returns
+    -------
+    ndarray of float64, shape (n,)
+        The spread, pixels per axis.
+    """
+    total = np.zeros(reference.shape[0])
+    for weighting in SPREAD_WEIGHTINGS:
+        other = phase_correlate(reference, moving, max_shift_px=max_shift_px, **phase_options, **weighting)
+        d2 = np.sum((other.shift_px - shift_px) ** 2, axis=1)
+        found = np.isfinite(d2) & (np.abs(other.shift_px) <= max_shift_px).all(axis=1)
+        total += np.where(found, d2, max_shift_px**2)
+    return np.sqrt(0.5 * total)
