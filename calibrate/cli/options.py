@@ -336,8 +336,9 @@ def allow_implausible_option(func):
 verbosity_options = [
     click.option("-v", "--verbose", count=True, help="More log output (repeatable); -v shows the traceback of an "
                                                      "internal error, -vv of any error."),
-    click.option("-q", "--quiet", is_flag=True, help="Only errors, warnings and the reason of an exit 3 or 4; "
-                                                     "no progress."),
+    click.option("-q", "--quiet", is_flag=True, help="Results on stdout as usual; on stderr only warnings, errors "
+                                                     "and the reason of an exit 3 or 4 (no step messages, no "
+                                                     "progress)."),
 ]
 
 

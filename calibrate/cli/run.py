@@ -47,7 +47,9 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, star_frames, 
     if as_json:
         echo_json(summary)
     else:
-        click.echo(f"{out_dir}: path {summary['path']} ({summary['reason']}); "
+        taken = f"path {summary['path']}" if summary["path"] else "no path"
+        click.echo(f"{out_dir}: {taken} ({summary['reason']}); "
                    f"{'converged' if summary['success'] else 'FAILED'}: {summary['message']}")
     if not summary["success"]:
-        exit_with_status(ctx, EXIT_FAILED, f"path {summary['path']}: {summary['message']}")
+        exit_with_status(ctx, EXIT_FAILED, f"path {summary['path']}: {summary['message']}" if summary["path"]
+                         else summary["message"])
