@@ -201,3 +201,38 @@ def stage_progress(ctx: click.Context, label: str, as_json: bool = False, consol
     from calibrate.cli.options import quiet_of
 
     return StageProgress(label, quiet=quiet_of(ctx, as_json), console=console)
+
+
+def scene_lines(bar: StageProgress, ok_text):
+    """The ``progress(done, total, row)`` callback of a many-scene command: one stderr line per scene.
+
+    Parameters
+    ----------
+    bar : StageProgress
+        The command's progress.
+    ok_text : callable(row) -> str
+        The line of a scene that succeeded, after its name (rich markup allowed; escape values).
+
+    Returns
+    -------
+    callable(done, total, row)
+        ``row`` None when the work starts (the workers are starting); else a finished scene's row
+        (``name``, ``status``, ``reason`` and what ``ok_text`` reads).
+    """
+    from rich.markup import escape
+
+    def progress(done, total, row):
+        if row is None:
+            bar.count(0, total)
+            bar.status("starting the workers")
+            return
+        if row["status"] == "ok":
+            text = f"{escape(row['name'])}: {ok_text(row)}"
+        else:
+            text = f"{escape(row['name'])}: [red]failed[/red] ({escape(row['reason'] or '')})"
+        bar.note(text, markup=True)
+        bar.count(done, total)
+        bar.status(row["name"])
+
+    return progress
+

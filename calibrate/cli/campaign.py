@@ -11,7 +11,7 @@ from __future__ import annotations
 import click
 
 from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
-from calibrate.cli._progress import stage_progress
+from calibrate.cli._progress import scene_lines, stage_progress
 from calibrate.cli.options import (add_options, dem_options, echo_json, exit_with_status, json_option,
                                    optional_dom_options, out_dir_option)
 from calibrate.pipelines.run import MIN_COVERAGE, MIN_GCPS
@@ -57,7 +57,7 @@ def command(ctx, campaign_path, out_dir, dom_path, dem_path, dem_datum, geoid, s
     with stage_progress(ctx, "gcpcal campaign", as_json) as bar:
         summary = run_campaign(scenes, out_dir, source=campaign_path, scheduler=scheduler, workers=workers,
                                threads=threads, timeout_s=timeout, spacing_px=spacing, min_gcps=min_gcps,
-                               min_coverage=min_coverage, relative=relative, progress=_scene_printer(bar))
+                               min_coverage=min_coverage, relative=relative, progress=scene_lines(bar, _ok_text))
     if as_json:
         echo_json(summary)
     else:
@@ -68,24 +68,8 @@ def command(ctx, campaign_path, out_dir, dom_path, dem_path, dem_datum, geoid, s
                          f"{summary['failed']} of {summary['scenes']} scene(s) failed ({reasons})")
 
 
-def _scene_printer(bar):
-    """The ``progress(done, total, row)`` callback of the campaign: one stderr line per scene."""
-    from rich.markup import escape
-
-    def progress(done, total, row):
-        if row is None:
-            bar.count(0, total)
-            bar.status("starting the workers")
-            return
-        if row["status"] == "ok":
-            text = f"{escape(row['name'])}: {row['gcps']} GCPs, check RMSE {_f(row['check_rmse_after_px'])} px"
-        else:
-            text = f"{escape(row['name'])}: [red]failed[/red] ({escape(row['reason'] or '')})"
-        bar.note(text, markup=True)
-        bar.count(done, total)
-        bar.status(row["name"])
-
-    return progress
+def _ok_text(row) -> str:
+    return f"{row['gcps']} GCPs, check RMSE {_f(row['check_rmse_after_px'])} px"
 
 
 def _f(value, digits: int = 3) -> str:

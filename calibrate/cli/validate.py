@@ -11,7 +11,7 @@ import click
 
 from calibrate.actions.validate import validate_calibration
 from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
-from calibrate.cli._progress import stage_progress
+from calibrate.cli._progress import scene_lines, stage_progress
 from calibrate.cli.options import echo_json, echo_warnings, exit_with_status, json_option, out_dir_option
 
 __all__ = ["command"]
@@ -38,7 +38,7 @@ def command(ctx, sites_path, calibration, out_dir, scheduler, workers, spacing, 
 
     with stage_progress(ctx, "gcpcal validate", as_json) as bar:
         summary = validate_calibration(sites_path, calibration, out_dir, scheduler=scheduler, workers=workers,
-                                       spacing_px=spacing, timeout_s=timeout, progress=_scene_printer(bar, escape))
+                                       spacing_px=spacing, timeout_s=timeout, progress=scene_lines(bar, _ok_text))
     echo_warnings(summary)
     if as_json:
         echo_json(summary)
@@ -50,22 +50,8 @@ def command(ctx, sites_path, calibration, out_dir, scheduler, workers, spacing, 
                          f"{summary['failed']} of {summary['scenes']} scene(s) failed ({reasons})")
 
 
-def _scene_printer(bar, escape):
-    """The ``progress(done, total, row)`` callback of the validation: one stderr line per scene."""
-    def progress(done, total, row):
-        if row is None:  # the sites file is read: the work starts
-            bar.count(0, total)
-            bar.status("starting the workers")
-            return
-        if row["status"] == "ok":
-            text = f"{escape(row['name'])}: planar {row['rmse_planar_px']:.3f} px on {row['points']} points"
-        else:
-            text = f"{escape(row['name'])}: [red]failed[/red] ({escape(row['reason'] or '')})"
-        bar.note(text, markup=True)
-        bar.count(done, total)
-        bar.status(row["name"])
-
-    return progress
+def _ok_text(row) -> str:
+    return f"planar {row['rmse_planar_px']:.3f} px on {row['points']} points"
 
 
 def _print_table(out, table_cls, escape, rows, summary, out_dir) -> None:
