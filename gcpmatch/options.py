@@ -14,10 +14,11 @@ from dataclasses import dataclass
 
 from sensor_models.errors import InputError
 
-__all__ = ["BACKENDS", "SIGMA_MODELS", "MatchOptions", "require_cuda"]
+__all__ = ["BACKENDS", "COARSE_SEARCHES", "SIGMA_MODELS", "MatchOptions", "require_cuda"]
 
 BACKENDS = ("cpu", "gpu", "torch")  # numpy/scipy; torch on CUDA; torch on the CPU
 SIGMA_MODELS = ("window", "ccd")  # the first is the default
+COARSE_SEARCHES = ("adaptive", "exhaustive")  # FLANN + adaptive budget; brute force, full budget
 
 
 def require_cuda() -> None:
@@ -105,6 +106,11 @@ class MatchOptions:
         ``sigma_model="window"``: factor on each pair's Cramer-Rao-shaped sigma with the pair's own
         mismatch as its noise (:func:`gcpmatch.texture.mismatch_cr_sigma_px`), added in
         quadrature; >= 0, 0 (default) for none.
+    coarse_search : str
+        Feature search of the coarse stage (:mod:`gcpmatch.coarse_features`): ``"adaptive"``
+        (default; FLANN k-d trees, a half-resolution first pass that the full budget follows
+        only where it is not trusted) or ``"exhaustive"`` (brute-force matching of the full
+        budget at full resolution).
     coarse_skip : bool
         Skip the coarse SIFT stage when a cheap check finds the model already within the fine
         search radius (``window_px / 4``); ``gcpcal validate`` sets it (default False).
@@ -130,6 +136,7 @@ class MatchOptions:
     lowpass_cycles_px: float | None = None
     reference_sigma_m: float | tuple[float, float] | None = None
     coarse_skip: bool = False
+    coarse_search: str = "adaptive"
     min_gradient_snr: float = 0.0
     texture_sigma_px: float = 0.0
     mismatch_sigma_scale: float = 1.0
@@ -200,6 +207,9 @@ class MatchOptions:
                 raise InputError(f"must be a finite number >= 0, got {value!r}", field=name)
         if not _is_int(self.threads) or self.threads < 0:
             raise InputError(f"threads must be an integer >= 0 (0: every core), got {self.threads!r}", field="threads")
+        if self.coarse_search not in COARSE_SEARCHES:
+            raise InputError(f"coarse search must be one of {', '.join(COARSE_SEARCHES)}, got {self.coarse_search!r}",
+                             field="coarse_search")
         if not isinstance(self.coarse_skip, bool):
             raise InputError(f"coarse_skip must be true or false, got {self.coarse_skip!r}", field="coarse_skip")
         return self
