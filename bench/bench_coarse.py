@@ -37,8 +37,8 @@ import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-#: ``../shared/data`` beside the checkout (``--data`` for another place)
-DATA = {"root": ROOT.parent / "shared" / "data"}
+#: ``../shared/data`` beside the checkout (``GCPCAL_SHARED_DATA`` or ``--data`` for another place)
+DATA = {"root": Path(os.environ.get("GCPCAL_SHARED_DATA") or ROOT.parent / "shared" / "data")}
 SOURCES = {"sentinel2": ("real_textures", "sentinel2", "s2_B04.jp2"),
            "landsat8": ("real_textures", "landsat8", "l8_B8.tif")}
 CASES = ("demo_realistic", "pleiades", "sentinel2", "landsat8", "large_sentinel2", "clouds60", "texture_poor",
