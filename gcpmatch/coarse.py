@@ -257,16 +257,11 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     dom_valid = np.isfinite(win.dom_small)
     images = (warped, warped_valid > 0, to_uint8(win.dom_small, dom_valid), dom_valid)
     geometry = _Geometry(model, band, scene.shape, f, a_pred, win, dem, 0.5 * coarse_res, dem_cover, note)
-    if backend == "cpu" and adaptive:  # the first pass, kept where trusted and spread over the arrays
-        found = first_pass(*images, n_features=n_features, ransac_px=ransac_px, seed=seed, capture_px=capture_px / f,
-                           matcher=matcher)
-        if found is not None:
-            try:
-                result, match_cols = _precorrected(found, geometry)
-                if spread_over_arrays(model, band, result.points["col"], match_cols):
-                    return result
-            except CoarseMatchError:
-                pass
+    if backend == "cpu" and adaptive:
+        result = _trusted_first_pass(images, geometry, n_features=n_features, ransac_px=ransac_px, seed=seed,
+                                     capture_px=capture_px / f, matcher=matcher)
+        if result is not None:
+            return result
     if backend == "cpu":
         found = full_pass(*images, n_features=n_features, ransac_px=ransac_px, seed=seed, matcher=matcher,
                           passes=2 if adaptive else 1)
@@ -289,6 +284,19 @@ class _Geometry:
     min_scale_m: float
     dem_cover: float
     note: str
+
+
+def _trusted_first_pass(images, g: _Geometry, **search) -> CoarseResult | None:
+    """The first pass's pre-correction where it is trusted and spread over the detector arrays
+    (:func:`gcpmatch.coarse_features.first_pass`, :func:`spread_over_arrays`), else None."""
+    found = first_pass(*images, **search)
+    if found is None:
+        return None
+    try:
+        result, match_cols = _precorrected(found, g)
+    except CoarseMatchError:
+        return None
+    return result if spread_over_arrays(g.model, g.band, result.points["col"], match_cols) else None
 
 
 def _precorrected(found: FeatureMatches, g: _Geometry):
