@@ -108,8 +108,8 @@ class MatchOptions:
         quadrature; >= 0, 0 (default) for none.
     coarse_search : str
         Feature search of the coarse stage (:mod:`gcpmatch.coarse_features`): ``"adaptive"``
-        (default; FLANN k-d trees, a half-resolution first pass that the full budget follows
-        only where it is not trusted) or ``"exhaustive"`` (brute-force matching of the full
+        (default; FLANN k-d trees, a first pass of 2 000 scene keypoints that the full budget
+        follows only where it is not trusted) or ``"exhaustive"`` (brute-force matching of the full
         budget at full resolution).
     coarse_skip : bool
         Skip the coarse SIFT stage when a cheap check finds the model already within the fine

@@ -111,7 +111,7 @@ def test_cloudy_scene_refuses_the_first_pass_and_matches_brute_force(tmp_path):
     gap = _corner_gap_px(old.model, new.model, inputs["dem"], "B2")
     err_new = truth_error(truth, new.model, dem=inputs["dem"], step_px=32)["max_px"]
     print(f"clouds: passes {new.feature_passes}, gap {gap:.2f} px, vs TRUE {err_new:.2f} px")
-    assert new.feature_passes == 2  # the half-resolution pass misses cloudy CCDs: the full budget runs
+    assert new.feature_passes == 2  # the first pass misses cloudy CCDs: the full budget runs
     assert gap < CAPTURE_PX / 4 and err_new < 2.0
 
 

@@ -35,7 +35,7 @@ __all__ = ["command"]
 @click.option("--max-offset", type=click.FloatRange(min=1.0), default=MatchOptions.max_offset_px, show_default=True,
               help="Largest expected model error, pixels.")
 @click.option("--coarse-search", type=click.Choice(COARSE_SEARCHES), default=MatchOptions.coarse_search, show_default=True,
-              help="Coarse SIFT search: 'adaptive' (FLANN, a half-resolution first pass, the full feature budget "
+              help="Coarse SIFT search: 'adaptive' (FLANN, a first pass of 2000 scene keypoints, the full feature budget "
                    "only where it is not trusted) or 'exhaustive' (brute force, full budget); docs/matching.md.")
 @click.option("--backend", type=click.Choice(["cpu", "gpu"]), default=MatchOptions.backend, show_default=True,
               help="Phase correlation on CPU (numpy) or GPU (torch).")
