@@ -25,7 +25,6 @@ take its installation. Each session's figures are those of a run in one process.
 from __future__ import annotations
 
 import os
-import shutil
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import replace
@@ -60,7 +59,7 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
     Parameters
     ----------
     work : Path
-        Scratch folder for the frames (removed once read; the manifest and truth stay).
+        Scratch folder of the session's manifest and truth (its frames stay in memory).
     profile : StarsProfile
     day : int
         Day index (the date and the noise seed).
@@ -78,7 +77,6 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
         (a :class:`calibrate.star_pooling.StarSession`, for pooling; not JSON).
     """
     from calibrate.star_calibration import process_frames
-    from calibrate.star_frames import load_frame, read_frame_list
     from calibrate.star_pooling import StarSession
     from sensor_models.readers.geo_manifest import read_geo_manifest
     from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
@@ -87,12 +85,12 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
     inst = tuple(float(x) for x in installation_error_arcsec)
     folder = work / f"{profile.name}_day{day:02d}_{n_frames}" if not inst else work / f"{profile.name}_day{day:02d}_{n_frames}_i"
     config = GeoStarsConfig(n_frames=int(n_frames), epoch_utc=epoch, seed=int(day), installation_error_arcsec=inst)
-    simulated = simulate_geo_stars(folder, config=config, profile=profile)
-    paths, seconds, manifest = read_frame_list(folder)
-    lab = read_geo_manifest(manifest)
-    frames = [load_frame(p) for p in paths]
-    shutil.rmtree(folder / "frames", ignore_errors=True)  # scratch, in memory now (2 MB a frame)
+    frames = []  # the uint16 frames, kept in memory (2 MB a frame) instead of written and read back
+    simulated = simulate_geo_stars(folder, config=config, profile=profile, frames_out=frames)
+    seconds = np.arange(len(frames)) * float(config.frame_interval_s)
+    lab = read_geo_manifest(folder / "manifest.json")
     r = process_frames(frames, seconds, lab, options=OPTIONS)
+    del frames
     a = r.accuracy
     out = {"success": bool(r.success), "tracks": int(r.frames["n_tracks"]),
            "installation_error_arcsec": simulated["installation_error_arcsec"],
