@@ -34,12 +34,15 @@ import numpy as np
 
 from calibrate.config import StarOptions
 from calibrate.experiments.results import ExperimentResult, PaperTable, SensitivityCurve
+from sensor_models.errors import InputError
 from sensor_models.simulate.profiles import Sourced, get_profile, profile_table
 
-__all__ = ["FULL_SESSIONS", "PAPER", "SessionPool", "default_workers", "run", "run_session"]
+__all__ = ["FULL_SESSIONS", "MIN_FRAMES", "PAPER", "SessionPool", "default_workers", "run", "run_session"]
 
 #: sessions of a full ``paper-000`` run: the paper's 20 days (a session of 120 frames: ~6 CPU-s)
 FULL_SESSIONS = 20
+#: fewest frames per session: a track needs more than 25 points (seed 000 section 3.2)
+MIN_FRAMES = 30
 #: sessions of a quick run of a profile with several sessions (enough to exercise the pooling)
 QUICK_SESSIONS = 2
 #: the star processing of every session (seed 000: tracks of > 25 points, five held out per track)
@@ -160,10 +163,13 @@ def _timed_session(work: Path, profile, **kw) -> tuple:
 
 
 def _init_worker() -> None:
-    """One OpenCV thread per worker process (the workers already fill the cores)."""
+    """One OpenCV thread and one BLAS thread per worker process (the workers already fill the
+    cores; a BLAS thread pool per process only contends on them)."""
     import cv2
+    from threadpoolctl import threadpool_limits
 
     cv2.setNumThreads(1)
+    threadpool_limits(1, user_api="blas")
 
 
 class SessionPool:
@@ -357,7 +363,8 @@ def _all_sessions(work, profile, n_sessions: int, n_frames: int, quick: bool, wo
     return days, (plan, curve_runs), (day_plan, day_runs), {"simulated": len(runner.futures), "cpu_s": runner.cpu_s}
 
 
-def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int | None = None) -> ExperimentResult:
+def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int | None = None,
+        frames: int | None = None) -> ExperimentResult:
     """Run the seed 000 experiment (module docstring).
 
     Parameters
@@ -373,6 +380,15 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int |
         Processes running the sessions (default :func:`default_workers`; 1: all in this one).
         The figures do not depend on it. With more than one, a script that calls ``run`` must
         do so under ``if __name__ == "__main__":`` (the workers import the main module).
+    frames : int, optional
+        Frames per session, 10 s apart (default 120, 30 with ``quick``; at least
+        :data:`MIN_FRAMES`). A star crosses the frame in about 28 frames, so the tracks of more
+        than 25 points grow with the session: ~16 a session at 120 frames, ~21 at 150.
+
+    Raises
+    ------
+    InputError
+        ``frames`` below :data:`MIN_FRAMES`.
 
     Returns
     -------
@@ -381,7 +397,9 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int |
     t0 = time.perf_counter()
     profile = get_profile(profile_name, "stars")
     work = Path(work_dir)
-    n_frames = 30 if quick else 120
+    n_frames = (30 if quick else 120) if frames is None else int(frames)
+    if n_frames < MIN_FRAMES:
+        raise InputError(f"at least {MIN_FRAMES} frames per session, got {n_frames}", field="frames")
     wanted = int(profile.value("sessions"))
     n_sessions = min(wanted, QUICK_SESSIONS if quick else FULL_SESSIONS)
     sessions, (plan, curve_runs), (day_plan, day_runs), cost = _all_sessions(
