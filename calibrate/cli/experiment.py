@@ -22,7 +22,7 @@ __all__ = ["command"]
                    "band); default: the procedural texture.")
 @click.option("--frames", type=click.IntRange(min=30),
               help="Experiment 000: frames per session, 10 s apart (default 120, 30 with --quick; paper-000 "
-                   "with 150 gives about the paper's 437 tracks over its 20 sessions).")
+                   "with 160 gives over 400 tracks from its 20 sessions, the paper's scale).")
 @json_option
 def command(seed, profile, out_dir, quick, source, frames, as_json):
     """Run seed SEED's experiment (000 stars, 002 staring schemes + thermal, 003 push-broom, 004 OALR).

@@ -12,14 +12,17 @@ held-out points (table 3) and the 2-sigma bound of their normal fit (table 4), p
 
 Scale: the paper pools 20 days (437 tracks). A session here is one day with its own noise,
 wobble and date; ``paper-000`` runs :data:`FULL_SESSIONS` of them (``quick``: one short one), and
-the result states the number.
+the result states the number. A session has 120 frames by default (``frames``: more frames,
+more tracks of over 25 points; 160 give over 400 tracks from 20 sessions, the paper's scale).
 
 Sensitivity: accuracy against the attitude noise (the observation-noise analogue for stars) and
 against the unmeasured wobble amplitude (jitter). DEM and DOM errors do not apply to stars.
 
 Speed: the sessions are independent (each its own seed), so they run in worker processes
-(:class:`SessionPool`, one per core this process may use); day 0 goes first, as the other days
-take its installation. Each session's figures are those of a run in one process.
+(:class:`SessionPool`, one per core this process may use, one OpenCV and one BLAS thread each);
+day 0 goes first, as the other days take its installation. Each session's figures are those of
+a run in one process. A session's frames stay in memory (``simulate_geo_stars(frames_out=)``):
+the same uint16 values as the GeoTIFF frames a user's run reads.
 """
 
 from __future__ import annotations
@@ -383,7 +386,7 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int |
     frames : int, optional
         Frames per session, 10 s apart (default 120, 30 with ``quick``; at least
         :data:`MIN_FRAMES`). A star crosses the frame in about 28 frames, so the tracks of more
-        than 25 points grow with the session: ~16 a session at 120 frames, ~21 at 150.
+        than 25 points grow with the session: ~16 a session at 120 frames, ~19 at 150.
 
     Raises
     ------

@@ -54,6 +54,9 @@ Outputs (``out_dir``)
 ``summary.json``
     Counts and timings.
 
+With ``frames_out`` the frames are handed back in memory instead, and ``frames/`` and
+``frames.json`` are not written.
+
 Everything is written into a temporary folder beside ``out_dir`` and moved in with
 :func:`os.replace`; the output is a deterministic function of the configuration and seed.
 """
