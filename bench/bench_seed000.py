@@ -9,7 +9,7 @@ tables, curves and headline. With ``--reference`` (an earlier output of this scr
 worker count) it also records the largest absolute difference of any number of the tables,
 curves and headline, and where.
 
-Usage: ``python bench/bench_seed000.py [--profile paper-000] [--workers N] [--quick]
+Usage: ``python bench/bench_seed000.py [--profile paper-000] [--workers N] [--quick] [--frames N]
 [--reference OLD.json] [--out FILE]`` (JSON on stdout without ``--out``).
 """
 
@@ -80,6 +80,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--profile", default="paper-000", choices=("ideal", "realistic", "paper-000"))
     ap.add_argument("--workers", type=int, default=None, help="worker processes (default: the usable cores)")
     ap.add_argument("--quick", action="store_true", help="the experiment's reduced run")
+    ap.add_argument("--frames", type=int, default=None, help="frames per session (default the experiment's: 120)")
     ap.add_argument("--reference", type=Path, help="an earlier output of this script to compare the figures with")
     ap.add_argument("--out", type=Path, help="write the JSON here (default: stdout)")
     args = ap.parse_args(argv)
@@ -90,14 +91,14 @@ def main(argv=None) -> dict:
     load_before = _load()
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_seed000-") as work:
-        result = run(args.profile, quick=args.quick, work_dir=Path(work), workers=workers)
+        result = run(args.profile, quick=args.quick, work_dir=Path(work), workers=workers, frames=args.frames)
     wall = time.perf_counter() - t0
     doc = {
         "command": "python bench/bench_seed000.py " + " ".join(sys.argv[1:] if argv is None else argv),
         "profile": args.profile, "quick": bool(args.quick), "workers": workers,
         "usable_cores": default_workers(), "machine": platform.machine(), "python": platform.python_version(),
         "wall_s": round(wall, 2), "load_before": load_before, "load_after": _load(),
-        "sessions_run": result.scale["sessions_run"], "sessions_simulated": result.scale["sessions_simulated"],
+        "frames_per_session": result.scale["frames_per_session"], "sessions_run": result.scale["sessions_run"], "sessions_simulated": result.scale["sessions_simulated"],
         "session_cpu_s": result.scale["session_cpu_s"],
         "cpu_bound_wall_s": round(result.scale["session_cpu_s"] / workers, 1),
         "tracks": result.headline.get("tracks"),

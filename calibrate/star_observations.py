@@ -5,7 +5,8 @@ centroid, smoothed centroid, apparent and virtual directions, held-out and rejec
 :func:`smooth_tracks` draws ``n_check`` points per track for the accuracy (seed 000 section
 3.2) and smooths the others by a smoothing spline of ``row(t)`` and ``col(t)``
 (:func:`smooth_track`, seed 000 eq. 2: :func:`scipy.interpolate.make_smoothing_spline`, the
-weight chosen by generalized cross-validation), whose residuals also reject outliers.
+weight chosen by generalized cross-validation in :mod:`calibrate.spline_gcv`), whose residuals
+also reject outliers.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import make_smoothing_spline
+
+from calibrate.spline_gcv import gcv_weights
 
 __all__ = ["StarObservations", "smooth_track", "smooth_tracks"]
 
@@ -87,8 +90,9 @@ def smooth_track(t, y, good, smooth: bool) -> np.ndarray:
 
     A straight line in time is removed first (the drift at the sidereal rate), then each
     coordinate's remainder is fitted by a cubic smoothing spline on normalized time with the
-    weight chosen by generalized cross-validation (seed 000 eq. 2); fewer than 5 points, or
-    ``smooth=False``, keep the straight line.
+    weight chosen by generalized cross-validation (seed 000 eq. 2; the weight from
+    :func:`calibrate.spline_gcv.gcv_weights`); fewer than 5 points, or ``smooth=False``, keep
+    the straight line.
 
     Parameters
     ----------
@@ -114,8 +118,10 @@ def smooth_track(t, y, good, smooth: bool) -> np.ndarray:
     span = max(float(tg.max() - tg.min()), 1e-9)
     x = (t - tg.min()) / span
     out = line.copy()
+    rest = (y - line)[good]
+    lam = gcv_weights(x[good], rest)  # the GCV weight make_smoothing_spline(lam=None) would pick
     for j in range(y.shape[1]):
-        spl = make_smoothing_spline(x[good], (y[:, j] - line[:, j])[good], lam=None)
+        spl = make_smoothing_spline(x[good], rest[:, j], lam=lam[j])
         out[:, j] += spl(x)
     return out
 

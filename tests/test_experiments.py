@@ -335,3 +335,19 @@ def test_seed000_sessions_in_worker_processes_equal_those_of_one_process(tmp_pat
         np.testing.assert_array_equal(getattr(got["session"].observations, name),
                                       getattr(want["session"].observations, name))
     np.testing.assert_array_equal(got["session"].body_to_gcrf, want["session"].body_to_gcrf)
+
+
+def test_frames_per_session_is_an_option_of_experiment_000(tmp_path, capsys):
+    """``--frames`` sets experiment 000's session length; refused below a track's length and
+    for the other experiments, before anything is simulated or written."""
+    from calibrate.experiments.registry import run_experiment
+    from sensor_models.errors import InputError
+
+    with pytest.raises(InputError, match="applies to experiment 000"):
+        run_experiment("002", "ideal", quick=True, work_dir=tmp_path, frames=60)
+    with pytest.raises(InputError, match="at least 30 frames"):
+        run_experiment("000", "ideal", quick=True, work_dir=tmp_path, frames=20)
+    assert main(["experiment", "000", "--frames", "20", "--out", str(tmp_path / "o")]) == 2
+    assert main(["-q", "experiment", "004", "--quick", "--frames", "60", "--out", str(tmp_path / "p")]) == 1
+    assert "applies to experiment 000" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists() and not (tmp_path / "p").exists()

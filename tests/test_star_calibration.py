@@ -10,7 +10,7 @@ import pytest
 from calibrate.config import StarOptions
 from calibrate.star_accuracy import radec_errors_px
 from calibrate.star_calibration import process_frames
-from calibrate.star_frames import read_frame_list
+from calibrate.star_frames import load_frame, read_frame_list
 from calibrate.star_observations import smooth_track
 from sensor_models.errors import InputError
 from sensor_models.readers.geo_manifest import read_geo_manifest
@@ -211,3 +211,22 @@ def test_truth_error_of_a_star_frame_compares_lines_of_sight(sequence, tmp_path,
     assert result["n_points"] == by_hand.size
     assert result["rms_px"] == pytest.approx(float(np.sqrt(np.mean(by_hand ** 2))), rel=1e-9)
     assert result["rms_px"] > 5.0  # the LAB model is tens of pixels off (seed 000's initial errors)
+
+
+def test_frames_kept_in_memory_equal_the_written_frames(tmp_path):
+    """``frames_out`` holds the values the GeoTIFF frames hold (the profile's errors included),
+    writes no frame files nor frame list, and leaves the truth and the manifest as written."""
+    from sensor_models.simulate.profiles import get_profile
+
+    profile = get_profile("paper-000", "stars")
+    cfg = GeoStarsConfig(n_frames=3, seed=5)
+    simulate_geo_stars(tmp_path / "files", config=cfg, profile=profile)
+    kept = []
+    simulate_geo_stars(tmp_path / "memory", config=cfg, profile=profile, frames_out=kept)
+    paths, _, _ = read_frame_list(tmp_path / "files")
+    assert len(kept) == 3 and all(f.dtype == np.uint16 for f in kept)
+    for path, frame in zip(paths, kept):
+        np.testing.assert_array_equal(load_frame(path), frame.astype(np.float32))
+    assert not (tmp_path / "memory" / "frames").exists() and not (tmp_path / "memory" / "frames.json").exists()
+    for name in ("truth.json", "manifest.json"):
+        assert (tmp_path / "memory" / name).read_text() == (tmp_path / "files" / name).read_text()

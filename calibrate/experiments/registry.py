@@ -33,7 +33,8 @@ def profiles_of(seed: str) -> tuple:
     return ("ideal", "realistic", EXPERIMENTS[seed][1])
 
 
-def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=None, source=None, pipeline=None):
+def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=None, source=None, pipeline=None,
+                   frames: int | None = None):
     """Run one experiment.
 
     Parameters
@@ -52,6 +53,8 @@ def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=Non
         The scene pipeline experiment 003 runs the user's chain through
         (:func:`calibrate.pipelines.scene.scene_pipeline`, handed in by ``gcpcal experiment``:
         experiments never import the stage actions); required by seed 003, unused by the others.
+    frames : int, optional
+        Experiment 000: frames per session (default its own: 120, 30 with ``quick``).
 
     Returns
     -------
@@ -69,8 +72,12 @@ def run_experiment(seed: str, profile: str, *, quick: bool = False, work_dir=Non
                          field="profile")
     if source is not None and seed != "003":
         raise InputError("--source applies to experiment 003 (the push-broom scene's radiance)", field="source")
+    if frames is not None and seed != "000":
+        raise InputError("--frames applies to experiment 000 (frames per star session)", field="frames")
     module = importlib.import_module(f"calibrate.experiments.{EXPERIMENTS[seed][0]}")
     kwargs = {} if source is None else {"source": source}
+    if frames is not None:
+        kwargs["frames"] = int(frames)
     if seed in NEEDS_PIPELINE:
         kwargs["pipeline"] = pipeline
     return module.run(profile, quick=quick, work_dir=work_dir, **kwargs)

@@ -12,20 +12,22 @@ held-out points (table 3) and the 2-sigma bound of their normal fit (table 4), p
 
 Scale: the paper pools 20 days (437 tracks). A session here is one day with its own noise,
 wobble and date; ``paper-000`` runs :data:`FULL_SESSIONS` of them (``quick``: one short one), and
-the result states the number.
+the result states the number. A session has 120 frames by default (``frames``: more frames,
+more tracks of over 25 points; 160 give over 400 tracks from 20 sessions, the paper's scale).
 
 Sensitivity: accuracy against the attitude noise (the observation-noise analogue for stars) and
 against the unmeasured wobble amplitude (jitter). DEM and DOM errors do not apply to stars.
 
 Speed: the sessions are independent (each its own seed), so they run in worker processes
-(:class:`SessionPool`, one per core this process may use); day 0 goes first, as the other days
-take its installation. Each session's figures are those of a run in one process.
+(:class:`SessionPool`, one per core this process may use, one OpenCV and one BLAS thread each);
+day 0 goes first, as the other days take its installation. Each session's figures are those of
+a run in one process. A session's frames stay in memory (``simulate_geo_stars(frames_out=)``):
+the same uint16 values as the GeoTIFF frames a user's run reads.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import replace
@@ -35,12 +37,15 @@ import numpy as np
 
 from calibrate.config import StarOptions
 from calibrate.experiments.results import ExperimentResult, PaperTable, SensitivityCurve
+from sensor_models.errors import InputError
 from sensor_models.simulate.profiles import Sourced, get_profile, profile_table
 
-__all__ = ["FULL_SESSIONS", "PAPER", "SessionPool", "default_workers", "run", "run_session"]
+__all__ = ["FULL_SESSIONS", "MIN_FRAMES", "PAPER", "SessionPool", "default_workers", "run", "run_session"]
 
 #: sessions of a full ``paper-000`` run: the paper's 20 days (a session of 120 frames: ~6 CPU-s)
 FULL_SESSIONS = 20
+#: fewest frames per session: a track needs more than 25 points (seed 000 section 3.2)
+MIN_FRAMES = 30
 #: sessions of a quick run of a profile with several sessions (enough to exercise the pooling)
 QUICK_SESSIONS = 2
 #: the star processing of every session (seed 000: tracks of > 25 points, five held out per track)
@@ -60,7 +65,7 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
     Parameters
     ----------
     work : Path
-        Scratch folder for the frames (removed once read; the manifest and truth stay).
+        Scratch folder of the session's manifest and truth (its frames stay in memory).
     profile : StarsProfile
     day : int
         Day index (the date and the noise seed).
@@ -78,7 +83,6 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
         (a :class:`calibrate.star_pooling.StarSession`, for pooling; not JSON).
     """
     from calibrate.star_calibration import process_frames
-    from calibrate.star_frames import load_frame, read_frame_list
     from calibrate.star_pooling import StarSession
     from sensor_models.readers.geo_manifest import read_geo_manifest
     from sensor_models.simulate.star_sky import GeoStarsConfig, simulate_geo_stars
@@ -87,12 +91,12 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
     inst = tuple(float(x) for x in installation_error_arcsec)
     folder = work / f"{profile.name}_day{day:02d}_{n_frames}" if not inst else work / f"{profile.name}_day{day:02d}_{n_frames}_i"
     config = GeoStarsConfig(n_frames=int(n_frames), epoch_utc=epoch, seed=int(day), installation_error_arcsec=inst)
-    simulated = simulate_geo_stars(folder, config=config, profile=profile)
-    paths, seconds, manifest = read_frame_list(folder)
-    lab = read_geo_manifest(manifest)
-    frames = [load_frame(p) for p in paths]
-    shutil.rmtree(folder / "frames", ignore_errors=True)  # scratch, in memory now (2 MB a frame)
+    frames = []  # the uint16 frames, kept in memory (2 MB a frame) instead of written and read back
+    simulated = simulate_geo_stars(folder, config=config, profile=profile, frames_out=frames)
+    seconds = np.arange(len(frames)) * float(config.frame_interval_s)
+    lab = read_geo_manifest(folder / "manifest.json")
     r = process_frames(frames, seconds, lab, options=OPTIONS)
+    del frames
     a = r.accuracy
     out = {"success": bool(r.success), "tracks": int(r.frames["n_tracks"]),
            "installation_error_arcsec": simulated["installation_error_arcsec"],
@@ -162,10 +166,13 @@ def _timed_session(work: Path, profile, **kw) -> tuple:
 
 
 def _init_worker() -> None:
-    """One OpenCV thread per worker process (the workers already fill the cores)."""
+    """One OpenCV thread and one BLAS thread per worker process (the workers already fill the
+    cores; a BLAS thread pool per process only contends on them)."""
     import cv2
+    from threadpoolctl import threadpool_limits
 
     cv2.setNumThreads(1)
+    threadpool_limits(1, user_api="blas")
 
 
 class SessionPool:
@@ -359,7 +366,8 @@ def _all_sessions(work, profile, n_sessions: int, n_frames: int, quick: bool, wo
     return days, (plan, curve_runs), (day_plan, day_runs), {"simulated": len(runner.futures), "cpu_s": runner.cpu_s}
 
 
-def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int | None = None) -> ExperimentResult:
+def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int | None = None,
+        frames: int | None = None) -> ExperimentResult:
     """Run the seed 000 experiment (module docstring).
 
     Parameters
@@ -375,6 +383,15 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int |
         Processes running the sessions (default :func:`default_workers`; 1: all in this one).
         The figures do not depend on it. With more than one, a script that calls ``run`` must
         do so under ``if __name__ == "__main__":`` (the workers import the main module).
+    frames : int, optional
+        Frames per session, 10 s apart (default 120, 30 with ``quick``; at least
+        :data:`MIN_FRAMES`). A star crosses the frame in about 28 frames, so the tracks of more
+        than 25 points grow with the session: ~16 a session at 120 frames, ~19 at 150.
+
+    Raises
+    ------
+    InputError
+        ``frames`` below :data:`MIN_FRAMES`.
 
     Returns
     -------
@@ -383,7 +400,9 @@ def run(profile_name: str, *, quick: bool = False, work_dir=None, workers: int |
     t0 = time.perf_counter()
     profile = get_profile(profile_name, "stars")
     work = Path(work_dir)
-    n_frames = 30 if quick else 120
+    n_frames = (30 if quick else 120) if frames is None else int(frames)
+    if n_frames < MIN_FRAMES:
+        raise InputError(f"at least {MIN_FRAMES} frames per session, got {n_frames}", field="frames")
     wanted = int(profile.value("sessions"))
     n_sessions = min(wanted, QUICK_SESSIONS if quick else FULL_SESSIONS)
     sessions, (plan, curve_runs), (day_plan, day_runs), cost = _all_sessions(

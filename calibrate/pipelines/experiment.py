@@ -18,7 +18,8 @@ from calibrate.actions._io import staged_folder
 __all__ = ["experiment_stage"]
 
 
-def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool = False, source=None) -> dict:
+def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool = False, source=None,
+                     frames: int | None = None) -> dict:
     """Run experiment ``seed`` under ``profile`` and write ``out_dir``.
 
     Parameters
@@ -33,6 +34,8 @@ def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool 
         The reduced run.
     source : str or Path, optional
         Source radiance raster of experiment 003's ``realistic`` scene (default: procedural).
+    frames : int, optional
+        Experiment 000: frames per session (default 120, 30 with ``quick``).
 
     Returns
     -------
@@ -47,7 +50,8 @@ def experiment_stage(seed: str, out_dir, *, profile: str = "ideal", quick: bool 
     with staged_folder(out_dir, ".experiment-", inputs=[source]) as stage:
         work = make_stage_dir(stage.parent, f"{Path(out_dir).name}-work")  # named so a later run can clean it
         try:
-            result = run_experiment(seed, profile, quick=quick, work_dir=work, source=source, pipeline=scene_pipeline)
+            result = run_experiment(seed, profile, quick=quick, work_dir=work, source=source, pipeline=scene_pipeline,
+                                    frames=frames)
         finally:
             shutil.rmtree(work, ignore_errors=True)
         return write_experiment(result, stage)

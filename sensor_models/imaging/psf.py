@@ -54,7 +54,7 @@ def pixel_integrals(centres, mu, sigma):
 
 def render_stars(shape, rowcol, flux, *, sigma_px: float, background: float = 0.0,
                  gain_e_per_adu: float = 1.0, read_noise_e: float = 0.0, rng=None,
-                 half_width_px: int | None = None) -> np.ndarray:
+                 half_width_px: int | None = None, out: np.ndarray | None = None) -> np.ndarray:
     """Render pixel-integrated circular Gaussian stars, optionally with shot and read noise.
 
     Parameters
@@ -77,46 +77,69 @@ def render_stars(shape, rowcol, flux, *, sigma_px: float, background: float = 0.
         Noise generator; ``None`` renders a noiseless image.
     half_width_px : int, optional
         Stars are drawn within this many pixels of their centre (default ``ceil(5 sigma)``).
+    out : ndarray of float64, shape ``shape``, optional
+        C-contiguous array to render into (a frame loop reuses one buffer instead of touching a
+        fresh 8 MB allocation per 1024 x 1024 frame); returned.
 
     Returns
     -------
     ndarray of float64, shape ``shape``
         ``background + sum F_k Er Ec`` plus Gaussian noise of variance
-        ``max(signal, 0) / gain + (read_noise / gain)^2`` when ``rng`` is given.
+        ``max(signal, 0) / gain + (read_noise / gain)^2`` when ``rng`` is given (the same
+        draws, and the same bits, with or without ``out``).
+
+    Notes
+    -----
+    The star sums are formed only at the pixels a star touches (each pixel's terms added in the
+    order of the stars), the untouched background being one value.
     """
     h, w = int(shape[0]), int(shape[1])
     rc = np.asarray(rowcol, dtype=np.float64).reshape(-1, 2)
     flux = np.broadcast_to(np.asarray(flux, dtype=np.float64), (rc.shape[0],))
     half = int(np.ceil(5.0 * sigma_px)) if half_width_px is None else int(half_width_px)
     bg = float(background)
-    image = np.full((h, w), bg)
-    touched = np.zeros(0, dtype=np.intp)  # flat indices of the pixels a star adds to
-    if rc.shape[0]:
-        centre = np.floor(rc).astype(np.intp)
-        offs = np.arange(-half, half + 1)
-        rr = centre[:, 0:1] + offs
-        cc = centre[:, 1:2] + offs
-        s = np.full(rc.shape[0], float(sigma_px))
-        er, _, _ = pixel_integrals(rr + 0.5, rc[:, 0], s)
-        ec, _, _ = pixel_integrals(cc + 0.5, rc[:, 1], s)
-        stamps = flux[:, None, None] * er[:, :, None] * ec[:, None, :]
-        inside = ((rr >= 0) & (rr < h))[:, :, None] & ((cc >= 0) & (cc < w))[:, None, :]
-        r_idx = np.broadcast_to(rr[:, :, None], stamps.shape)[inside]
-        c_idx = np.broadcast_to(cc[:, None, :], stamps.shape)[inside]
-        np.add.at(image, (r_idx, c_idx), stamps[inside])
-        touched = np.unique(r_idx * w + c_idx)
+    if out is not None and (out.shape != (h, w) or out.dtype != np.float64 or not out.flags.c_contiguous):
+        raise ValueError(f"out must be a C-contiguous float64 array of shape {(h, w)}")
+    touched, star = _star_sums(h, w, rc, flux, float(sigma_px), half, bg)
     if rng is None:
+        image = np.empty((h, w)) if out is None else out
+        image.fill(bg)
+        image.reshape(-1)[touched] = star
         return image
     # noise sigma sqrt(max(signal, 0) / gain + (read / gain)^2): one value on the untouched
     # background, evaluated per pixel only where a star adds (the same arithmetic, fewer passes)
     read_var = (read_noise_e / gain_e_per_adu) ** 2
-    noisy = rng.standard_normal((h, w))
+    noisy = rng.standard_normal((h, w)) if out is None else rng.standard_normal(out=out)
     z = noisy.reshape(-1)[touched]
-    star = image.reshape(-1)[touched]
     noisy *= np.sqrt(max(bg, 0.0) / gain_e_per_adu + read_var)
     noisy += bg
     noisy.reshape(-1)[touched] = star + z * np.sqrt(np.maximum(star, 0.0) / gain_e_per_adu + read_var)
     return noisy
+
+
+def _star_sums(h: int, w: int, rc: np.ndarray, flux: np.ndarray, sigma_px: float, half: int, bg: float):
+    """Flat indices of the pixels the stars touch (sorted) and ``bg + sum F_k Er Ec`` there.
+
+    Each pixel's terms are added to ``bg`` one star after the other (:func:`numpy.add.at` in
+    the stars' order), as a full-frame accumulation would add them.
+    """
+    if not rc.shape[0]:
+        return np.zeros(0, dtype=np.intp), np.zeros(0)
+    centre = np.floor(rc).astype(np.intp)
+    offs = np.arange(-half, half + 1)
+    rr = centre[:, 0:1] + offs
+    cc = centre[:, 1:2] + offs
+    s = np.full(rc.shape[0], sigma_px)
+    er, _, _ = pixel_integrals(rr + 0.5, rc[:, 0], s)
+    ec, _, _ = pixel_integrals(cc + 0.5, rc[:, 1], s)
+    stamps = flux[:, None, None] * er[:, :, None] * ec[:, None, :]
+    inside = ((rr >= 0) & (rr < h))[:, :, None] & ((cc >= 0) & (cc < w))[:, None, :]
+    r_idx = np.broadcast_to(rr[:, :, None], stamps.shape)[inside]
+    c_idx = np.broadcast_to(cc[:, None, :], stamps.shape)[inside]
+    touched, where = np.unique(r_idx * w + c_idx, return_inverse=True)
+    star = np.full(touched.size, bg)
+    np.add.at(star, where, stamps[inside])
+    return touched, star
 
 
 def psf_sigma_dom_px(gsd_m: float, dom_resolution_m: float, psf_sigma_px: float) -> float:

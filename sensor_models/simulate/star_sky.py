@@ -54,6 +54,9 @@ Outputs (``out_dir``)
 ``summary.json``
     Counts and timings.
 
+With ``frames_out`` the frames are handed back in memory instead, and ``frames/`` and
+``frames.json`` are not written.
+
 Everything is written into a temporary folder beside ``out_dir`` and moved in with
 :func:`os.replace`; the output is a deterministic function of the configuration and seed.
 """
@@ -311,7 +314,8 @@ def _build_models(cfg: GeoStarsConfig, rng, errors=None):
 # --------------------------------------------------------------------------- rendering
 def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frames: int | None = None,
                        frame_interval_s: float | None = None, seed: int | None = None,
-                       mag_limit: float | None = None, image_shape=None, profile=None) -> dict:
+                       mag_limit: float | None = None, image_shape=None, profile=None,
+                       frames_out: list | None = None) -> dict:
     """Render a star-field sequence of a geostationary staring camera (module docstring).
 
     Parameters
@@ -327,6 +331,12 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
         drift replace the configuration's, and its errors beyond the default ones
         (:mod:`sensor_models.simulate.star_truth`) are injected. None or ``ideal``: the default
         sequence, byte for byte.
+    frames_out : list, optional
+        Keep the frames in memory instead of writing them: each frame's uint16 array (H, W),
+        the values the GeoTIFF would hold, is appended to this list in time order, and neither
+        ``frames/`` nor ``frames.json`` is written (the frame of index ``k`` is at ``k *
+        frame_interval_s`` seconds). For a caller that processes the frames at once (the seed
+        000 experiment) rather than a user's files.
 
     Returns
     -------
@@ -353,11 +363,14 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
     out_dir = Path(out_dir)
     with atomic_folder(out_dir, mode="merge") as tmp:
         tmp = tmp.resolve()
-        frames, rendered, n_per_frame = _render_frames(tmp, cfg, truth, catalog, unit_icrs, mags, rng, errors)
+        frames, rendered, n_per_frame = _render_frames(tmp, cfg, truth, catalog, unit_icrs, mags, rng, errors,
+                                                       frames_out)
         write_geo_manifest(lab, tmp / "manifest.json")
         write_geo_manifest(truth, tmp / "truth_manifest.json")
         frames_doc = {"format_version": 1, "kind": FRAMES_KIND, "epoch_utc": str(np.datetime64(lab.epoch, "ms")),
                       "manifest": "manifest.json", "frames": frames}
+        names = ("truth.json", "summary.json") if frames_out is not None else ("frames.json", "truth.json",
+                                                                                 "summary.json")
         truth_doc = _truth_doc(cfg, lab, truth, d_inst, rendered)
         hips = sorted({h for r in rendered for h, rr, cc in zip(r["hip"], r["row"], r["col"])
                        if 0 <= rr < shape[0] and 0 <= cc < shape[1]})
@@ -374,8 +387,9 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
         }
         if profile is not None:
             summary["profile"] = profile.name
-        for name, doc in (("frames.json", frames_doc), ("truth.json", truth_doc), ("summary.json", summary)):
-            (tmp / name).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        written = {"frames.json": frames_doc, "truth.json": truth_doc, "summary.json": summary}
+        for name in names:
+            (tmp / name).write_text(json.dumps(written[name], indent=1) + "\n", encoding="utf-8")
     return summary
 
 
@@ -408,8 +422,10 @@ def _star_catalog(cfg: GeoStarsConfig):
     return catalog, unit_icrs, mags
 
 
-def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, mags, rng, errors=None):
-    """Render and write every frame under ``tmp/frames``; the frame list, stars drawn, counts inside."""
+def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, mags, rng, errors=None,
+                   frames_out: list | None = None):
+    """Render and write every frame under ``tmp/frames`` (or append it to ``frames_out``); the
+    frame list, stars drawn, counts inside. One float64 buffer serves every frame."""
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning
 
@@ -419,8 +435,10 @@ def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, ma
     seconds = np.arange(int(cfg.n_frames)) * float(cfg.frame_interval_s)
     margin = 5.0 * cfg.psf_sigma_px + 2.0
     shape = truth.image_shape
-    (tmp / "frames").mkdir()
+    if frames_out is None:
+        (tmp / "frames").mkdir()
     frames, rendered = [], []
+    buffer = np.empty(shape)
     profile = dict(driver="GTiff", width=shape[1], height=shape[0], count=1, dtype="uint16")
     n_per_frame = []
     unit_icrs, gain = _truth_sky(cfg, unit_icrs, shape, errors)
@@ -435,7 +453,7 @@ def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, ma
             at = at + pixel_phase_shift(at, errors.pixel_phase_px)
         img = render_stars(shape, at, flux, sigma_px=cfg.psf_sigma_px,
                            background=cfg.background_adu, gain_e_per_adu=cfg.gain_e_per_adu,
-                           read_noise_e=cfg.read_noise_e, rng=rng)
+                           read_noise_e=cfg.read_noise_e, rng=rng, out=buffer)
         if gain is not None:  # background + (img - background) * gain, in place
             img -= cfg.background_adu
             img *= gain
@@ -443,10 +461,13 @@ def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, ma
         np.rint(img, out=img)
         dn = np.clip(img, 0, 65535, out=img).astype(np.uint16)
         name = f"frames/frame_{k:04d}.tif"
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(tmp / name, "w", **profile) as dst:
-                dst.write(dn, 1)
+        if frames_out is not None:
+            frames_out.append(dn)
+        else:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                with rasterio.open(tmp / name, "w", **profile) as dst:
+                    dst.write(dn, 1)
         frames.append({"path": name, "seconds": float(t)})
         inside = (row >= 0) & (row < shape[0]) & (col >= 0) & (col < shape[1])
         n_per_frame.append(int(inside.sum()))
