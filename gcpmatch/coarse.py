@@ -10,13 +10,12 @@
    against north-up maps and SIFT descriptors are not mirror invariant; after this warp what
    is left is the model's error (offset, a few degrees of rotation, scale), which SIFT and
    RANSAC absorb.
-3. SIFT (OpenCV) on both, Lowe's ratio test on the two nearest neighbours (FLANN randomized k-d
-   trees by default, brute force on request) and RANSAC of an affine map between the warped scene
-   and the DOM (threshold ``ransac_px``), with a feature budget that adapts to the scene
-   (:mod:`gcpmatch.coarse_features`): a first pass with the strongest 2 000 keypoints of the
-   scene and the same density in the DOM, accepted when its inliers exceed chance and pin the
-   affine map at the scene's corners well inside the fine stage's capture radius; else the full
-   ``n_features`` in both.
+3. SIFT (OpenCV) on both, approximate nearest neighbours (FLANN randomized k-d trees, Muja &
+   Lowe 2009, seeded) with Lowe's ratio test (0.8), and RANSAC of an affine map between the
+   warped scene and the DOM (threshold ``ransac_px``). The feature budget adapts to the scene:
+   the strongest ``FIRST_FEATURE_BUDGET`` keypoints of the scene first (``n_features`` in the
+   DOM), and only where RANSAC keeps fewer than ``MIN_FIRST_INLIERS`` of their matches (clouds,
+   texture-poor ground, a large error), the full ``n_features`` in both.
 4. The inliers become ground points (DOM position, DEM height) and the model's exterior is
    fitted to them in ground space (:func:`gcpmatch.precorrect.fit_exterior_in_ground`), then all
    ratio-test matches are re-screened against the corrected model and each CCD's offset is
@@ -31,12 +30,16 @@ import cv2
 import numpy as np
 import pyproj
 
-from gcpmatch.coarse_features import MATCHERS, CoarseMatchError, FeatureMatches, first_pass, full_pass
 from gcpmatch.coarse_skip import within_fine_radius
-from gcpmatch.precorrect import CCD_MIN_POINTS, fit_ccd_offsets, fit_exterior_in_ground, ground_distance_m
+from gcpmatch.precorrect import fit_ccd_offsets, fit_exterior_in_ground, ground_distance_m
 from gcpmatch.reference import grid_resolution_m, scene_gsd_m
+from sensor_models.errors import GcpcalError
 
-__all__ = ["MATCHERS", "MIN_REDUCED_SIDE_PX", "CoarseMatchError", "CoarseResult", "spread_over_arrays", "coarse_match", "reduction_factor", "to_uint8"]
+__all__ = ["MIN_REDUCED_SIDE_PX", "CoarseResult", "coarse_match", "reduction_factor", "to_uint8"]
+
+
+class CoarseMatchError(GcpcalError, RuntimeError):
+    """The coarse stage found no consistent set of matches."""
 
 
 @dataclass
@@ -78,7 +81,6 @@ class CoarseResult:
     points: dict = field(default_factory=dict)  # row, col, lon, lat, h of the final inliers
     dem_coverage: float = 1.0  # fraction of the searched DOM with DEM heights
     note: str = ""
-    feature_passes: int = 1  # 2 where the first, smaller feature budget was not trusted
 
     def summary(self) -> dict:
         """The counts and fit figures as a JSON-ready dict (no model, no points).
@@ -168,10 +170,50 @@ def scene_height_m(model, dem, *, band=None, iterations: int = 3) -> float:
     return h
 
 
+#: Scene keypoints of the first SIFT pass (the DOM keeps the full budget: its search window is
+#: larger than the scene, and where clouds or bare ground leave the scene few features, the DOM's
+#: strongest ones would lie elsewhere). Measured, one thread, CPU time of the coarse stage with
+#: the brute-force matcher and 12 000 features against FLANN and this budget: realistic demo 2.72
+#: -> 0.93 s (pre-correction against the TRUE model 2.37 px rms both), Pleiades tutorial pair
+#: 1.42 -> 0.48 s (the two pre-corrections 0.69 px apart), a 60 %-cloud scene 0.23 -> 0.22 px
+#: against the TRUE model.
+FIRST_FEATURE_BUDGET = 4000
+#: RANSAC inliers below which the first pass is not trusted and the full budget runs: an affine
+#: map has 6 parameters, and the pre-correction then fits the exterior to the inliers in ground
+#: space; 50 leaves it determined several times over where a few outliers survive RANSAC.
+MIN_FIRST_INLIERS = 50
+#: FLANN randomized k-d trees and leaves checked per query (OpenCV's FlannBasedMatcher).
+FLANN_TREES, FLANN_CHECKS = 4, 64
+
+
+def _sift_features(img, mask, n_features):
+    """OpenCV SIFT keypoints and descriptors of a uint8 image, the ``n_features`` strongest
+    (``mask`` True where usable)."""
+    return cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.01).detectAndCompute(
+        img, mask.astype(np.uint8) * 255)
+
+
+def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0):
+    """FLANN k-d tree matching of two images' SIFT features with Lowe's ratio test (0.8).
+
+    The trees are randomized by OpenCV's generator of the calling thread, seeded here, so the
+    matches do not depend on what ran before in the process.
+    """
+    (kp_a, des_a), (kp_b, des_b) = scene_features, dom_features
+    if des_a is None or des_b is None or len(kp_a) < 2 or len(kp_b) < 2:
+        return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32), len(kp_a), len(kp_b)
+    cv2.setRNGSeed(seed)
+    matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": FLANN_TREES}, {"checks": FLANN_CHECKS})
+    pairs = matcher.knnMatch(des_a, des_b, k=2)
+    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
+    pa = np.float32([kp_a[m.queryIdx].pt for m in good]).reshape(-1, 2)
+    pb = np.float32([kp_b[m.trainIdx].pt for m in good]).reshape(-1, 2)
+    return pa, pb, len(kp_a), len(kp_b)
+
+
 def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None, max_offset_px: float = 1000.0,
                  target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
-                 seed: int = 0, backend: str = "cpu", device=None, skip_within_px: float | None = None,
-                 matcher: str = "flann", adaptive: bool = True, capture_px: float = 16.0) -> CoarseResult:
+                 seed: int = 0, backend: str = "cpu", device=None, skip_within_px: float | None = None) -> CoarseResult:
     """Pre-correct ``model`` so that it lands within a few pixels of the truth (see module doc).
 
     Parameters
@@ -199,7 +241,7 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     seed : int
         Seed of the RANSAC draws.
     backend : {"cpu", "torch"}
-        OpenCV SIFT, ratio-test matching and affine RANSAC, or kornia's SIFT, ratio-test
+        OpenCV SIFT, brute-force matching and affine RANSAC, or kornia's SIFT, ratio-test
         matching and homography RANSAC on the torch ``device`` (``None``: CUDA if available).
     device : str or torch.device, optional
         Torch device of the ``"torch"`` backend.
@@ -208,14 +250,6 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         the model already within half of it, SIFT is skipped and ``model`` is returned
         unchanged, with the note "coarse stage skipped: model within N px"
         (:func:`gcpmatch.coarse_skip.within_fine_radius`); else SIFT runs. None: always SIFT.
-    matcher : {"flann", "brute"}
-        Nearest-neighbour search of the ``"cpu"`` backend: FLANN k-d trees or exhaustive.
-    adaptive : bool
-        ``"cpu"`` backend: a first pass with a smaller budget, the full one only where it is not
-        trusted (:func:`gcpmatch.coarse_features.first_pass`); False: the full budget at once.
-    capture_px : float
-        Capture radius of the fine stage, scene pixels (its search radius, ``window_px / 4``): a
-        first pass is trusted only when its affine fit is pinned well inside it.
 
     Returns
     -------
@@ -252,73 +286,23 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     dem_cover, note = _restrict_to_dem(win, dem)
     a_pred = _predicted_affine(model, band, h_mid, scene.shape, f, win)
     warped, warped_valid = _warp_to_dom(small, small_valid, a_pred)
-    if matcher not in MATCHERS:
-        raise ValueError(f"matcher must be one of {', '.join(MATCHERS)}, got {matcher!r}")
-    dom_valid = np.isfinite(win.dom_small)
-    images = (warped, warped_valid > 0, to_uint8(win.dom_small, dom_valid), dom_valid)
-    geometry = _Geometry(model, band, scene.shape, f, a_pred, win, dem, 0.5 * coarse_res, dem_cover, note)
-    if backend == "cpu" and adaptive:
-        result = _trusted_first_pass(images, geometry, n_features=n_features, ransac_px=ransac_px, seed=seed,
-                                     capture_px=capture_px / f, matcher=matcher)
-        if result is not None:
-            return result
-    if backend == "cpu":
-        found = full_pass(*images, n_features=n_features, ransac_px=ransac_px, seed=seed, matcher=matcher,
-                          passes=2 if adaptive else 1)
-    else:
-        found = _torch_matches(*images, n_features=n_features, ransac_px=ransac_px, seed=seed, device=device)
-    return _precorrected(found, geometry)[0]
-
-
-@dataclass
-class _Geometry:
-    """What turns feature matches into a pre-corrected model (:func:`_precorrected`)."""
-
-    model: object
-    band: str | None
-    shape: tuple
-    f: int
-    a_pred: np.ndarray
-    win: object
-    dem: object
-    min_scale_m: float
-    dem_cover: float
-    note: str
-
-
-def _trusted_first_pass(images, g: _Geometry, **search) -> CoarseResult | None:
-    """The first pass's pre-correction where it is trusted and spread over the detector arrays
-    (:func:`gcpmatch.coarse_features.first_pass`, :func:`spread_over_arrays`), else None."""
-    found = first_pass(*images, **search)
-    if found is None:
-        return None
-    try:
-        result, match_cols = _precorrected(found, g)
-    except CoarseMatchError:
-        return None
-    return result if spread_over_arrays(g.model, g.band, result.points["col"], match_cols) else None
-
-
-def _precorrected(found: FeatureMatches, g: _Geometry):
-    """The coarse result of one pass's matches, and the scene columns of its ratio-test matches
-    inside the scene and the DEM."""
-    n_rows, n_cols = g.shape
-    row, col, glon, glat, gh = _matches_on_ground(found.ps, found.pd, g.a_pred, g.f, g.win, g.dem)
+    ps, pd, n_kp_s, n_kp_d, ransac_in = _sift_ransac(warped, warped_valid, win.dom_small, n_features=n_features,
+                                                     ransac_px=ransac_px, seed=seed, backend=backend, device=device)
+    row, col, glon, glat, gh = _matches_on_ground(ps, pd, a_pred, f, win, dem)
     inside = (row > 0) & (row < n_rows) & (col > 0) & (col < n_cols) & np.isfinite(gh)
-    sel = found.inlier & inside
+    sel = ransac_in & inside
     if sel.sum() < 6:
-        where = "" if not g.note else f" ({g.note})"
+        where = "" if not note else f" ({note})"
         raise CoarseMatchError(f"too few RANSAC inliers inside the scene and the DEM: {int(sel.sum())} < 6{where}")
-    corrected, keep, rms_m, offsets = _precorrect(g.model, g.band, row, col, glon, glat, gh, sel=sel, inside=inside,
-                                                  min_scale_m=g.min_scale_m)
-    result = CoarseResult(
-        model=corrected, n_keypoints_scene=found.n_kp_s, n_keypoints_dom=found.n_kp_d, n_matches=len(found.ps),
-        n_ransac_inliers=int(found.inlier.sum()), n_inliers=int(keep.size), rms_m=rms_m, factor=g.f,
+    corrected, keep, rms_m, offsets = _precorrect(model, band, row, col, glon, glat, gh, sel=sel, inside=inside,
+                                                  min_scale_m=0.5 * coarse_res)
+    return CoarseResult(
+        model=corrected, n_keypoints_scene=n_kp_s, n_keypoints_dom=n_kp_d, n_matches=len(ps),
+        n_ransac_inliers=int(ransac_in.sum()), n_inliers=int(keep.size), rms_m=rms_m, factor=f,
         ccd_offsets_px=offsets,
         points={"row": row[keep], "col": col[keep], "lon": glon[keep], "lat": glat[keep], "h": gh[keep]},
-        dem_coverage=g.dem_cover, note=g.note, feature_passes=found.passes,
+        dem_coverage=dem_cover, note=note,
     )
-    return result, col[inside]
 
 
 #: the reduced scene's shorter side is kept at this many pixels or more (when the scene has them):
@@ -491,50 +475,65 @@ def _warp_to_dom(small, small_valid, a_pred):
     return warped, warped_valid
 
 
-def spread_over_arrays(model, band, kept_cols: np.ndarray, match_cols: np.ndarray) -> bool:
-    """Whether a first pass's kept matches let the pre-correction fit every detector array.
+def _sift_ransac(warped, warped_valid, dom_small, *, n_features, ransac_px, seed, backend, device):
+    """SIFT matches (ratio test) between the warped scene and the DOM, and their RANSAC inliers.
 
-    :func:`gcpmatch.precorrect.fit_ccd_offsets` fits a CCD's offset and scale from ``4 *
-    CCD_MIN_POINTS`` matches spread over more than half of it; an array the kept matches miss
-    keeps what the exterior fit extrapolates to it. Every array that holds that many ratio-test
-    matches must keep that many, so spread. Models without detector arrays pass.
+    The OpenCV path adapts its feature budget (module docstring, step 3).
 
-    Parameters
-    ----------
-    model : SensorModel
-    band : str or None
-    kept_cols, match_cols : ndarray, shape (n,) and (m,)
-        Scene columns (continuous pixels) of the kept matches and of all ratio-test matches
-        inside the scene.
+    Returns
+    -------
+    ps, pd : ndarray of float32, shape (m, 2)
+        Matched (x, y) positions in the warped scene and in the reduced DOM (OpenCV pixels).
+    n_kp_s, n_kp_d : int
+        Keypoints found in each image.
+    ransac_in : ndarray of bool, shape (m,)
+        Matches consistent with one affine (OpenCV) or homography (kornia) map.
     """
-    if not any(g.startswith("interior.") for g in model.parameter_groups()):
-        return True
-    need = 4 * CCD_MIN_POINTS
-    kept_ccd = model.detector_index(kept_cols, band=band)
-    match_ccd = model.detector_index(match_cols, band=band)
-    for i, look in enumerate(model.detector_arrays(band)):
-        if (match_ccd == i).sum() < need:
-            continue
-        on = kept_ccd == i
-        if on.sum() < need or np.ptp(kept_cols[on]) / max(look.n_detectors, 1) <= 0.5:
-            return False
-    return True
+    dom_valid = np.isfinite(dom_small)
+    dom_u8 = to_uint8(dom_small, dom_valid)
+    if backend != "cpu":
+        from gcpmatch._features_kornia import ransac_inliers, sift_matches
+
+        ps, pd, n_kp_s, n_kp_d = sift_matches(warped, warped_valid > 0, dom_u8, dom_valid, n_features=n_features,
+                                              device=device)
+        _check_matches(ps, n_kp_s, n_kp_d)
+        return ps, pd, n_kp_s, n_kp_d, _enough(ransac_inliers(ps, pd, threshold_px=ransac_px, seed=seed,
+                                                              device=device))
+    dom_features = _sift_features(dom_u8, dom_valid, n_features)  # the full budget in both passes
+    first = min(n_features, FIRST_FEATURE_BUDGET)
+    if first < n_features:  # the full budget in the scene only where the first is not enough
+        try:
+            found = _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, first), dom_features,
+                                        ransac_px, seed)
+            if int(found[-1].sum()) >= MIN_FIRST_INLIERS:
+                return found
+        except CoarseMatchError:
+            pass
+    return _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, n_features), dom_features, ransac_px, seed)
 
 
-def _torch_matches(warped, warped_valid, dom_u8, dom_valid, *, n_features, ransac_px, seed, device) -> FeatureMatches:
-    """kornia's SIFT, ratio-test matches and homography RANSAC on the torch ``device``."""
-    from gcpmatch._features_kornia import ransac_inliers, sift_matches
+def _sift_ransac_opencv(scene_features, dom_features, ransac_px, seed):
+    """FLANN ratio matches of the scene's and the DOM's SIFT features, seeded affine RANSAC."""
+    ps, pd, n_kp_s, n_kp_d = _sift_matches_opencv(scene_features, dom_features, seed=seed)
+    _check_matches(ps, n_kp_s, n_kp_d)
+    cv2.setRNGSeed(seed)
+    _, mask = cv2.estimateAffine2D(ps, pd, method=cv2.RANSAC, ransacReprojThreshold=ransac_px,
+                                   maxIters=10000, confidence=0.999)
+    ransac_in = np.zeros(len(ps), bool) if mask is None else mask.ravel().astype(bool)
+    return ps, pd, n_kp_s, n_kp_d, _enough(ransac_in)
 
-    ps, pd, n_kp_s, n_kp_d = sift_matches(warped, warped_valid, dom_u8, dom_valid, n_features=n_features,
-                                          device=device)
+
+def _check_matches(ps, n_kp_s, n_kp_d) -> None:
     if n_kp_s < 8 or n_kp_d < 8:
         raise CoarseMatchError(f"too few SIFT keypoints (scene {n_kp_s}, DOM {n_kp_d}): no texture?")
     if len(ps) < 8:
         raise CoarseMatchError(f"only {len(ps)} SIFT matches pass the ratio test")
-    ransac_in = ransac_inliers(ps, pd, threshold_px=ransac_px, seed=seed, device=device)
+
+
+def _enough(ransac_in: np.ndarray) -> np.ndarray:
     if ransac_in.sum() < 6:
         raise CoarseMatchError("RANSAC found no consistent set of SIFT matches")
-    return FeatureMatches(ps, pd, n_kp_s, n_kp_d, ransac_in, np.full((2, 3), np.nan))
+    return ransac_in
 
 
 def _matches_on_ground(ps, pd, a_pred, f, win: _DomWindow, dem):

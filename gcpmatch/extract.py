@@ -244,8 +244,7 @@ def coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
     band : str
         The band matched.
     opt : MatchOptions
-        ``max_offset_px``, ``seed``, ``backend``, ``window_px`` (the fine search radius, ``window_px / 4``,
-        is the capture radius the coarse stage aims within), ``coarse_search`` and ``coarse_skip`` are used.
+        ``max_offset_px``, ``seed``, ``backend``, ``window_px`` and ``coarse_skip`` are used.
 
     Returns
     -------
@@ -256,9 +255,7 @@ def coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
     device = "cuda" if opt.backend == "gpu" else ("cpu" if torch_backend else None)
     return coarse_match(scene, model, dem, dom, band=band, max_offset_px=opt.max_offset_px, seed=opt.seed,
                         backend="torch" if torch_backend else "cpu", device=device,
-                        skip_within_px=opt.window_px / 4.0 if opt.coarse_skip else None,
-                        matcher="flann" if opt.coarse_search == "adaptive" else "brute",
-                        adaptive=opt.coarse_search == "adaptive", capture_px=opt.window_px / 4.0)
+                        skip_within_px=opt.window_px / 4.0 if opt.coarse_skip else None)
 
 
 def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, look, opt: MatchOptions,

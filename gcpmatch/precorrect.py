@@ -176,11 +176,7 @@ def fit_exterior_in_ground(model, row, col, lon, lat, h, *, band=None, ccd=None,
     return PrecorrectResult(cur, names, x[idx] - pv.values[idx], rms, inlier, it)
 
 
-#: fewest matches a CCD needs for its offset (4 x as many, spread over more than half of it, for its scale)
-CCD_MIN_POINTS = 5
-
-
-def fit_ccd_offsets(model, row, col, lon, lat, h, ccd, *, band: str, min_points: int = CCD_MIN_POINTS):
+def fit_ccd_offsets(model, row, col, lon, lat, h, ccd, *, band: str, min_points: int = 5):
     """Correct each CCD's ``tan psi`` offset (``c0``) and, with enough points, scale (``c1``).
 
     Per CCD, the image-space residuals of its matches are fitted by robust (Huber IRLS) least
