@@ -246,8 +246,21 @@ def csv_lines(table: dict) -> list[str]:
         N + 1 lines, without line ends.
     """
     lines = ["row,col,lon,lat,h"]
-    lines += [f"{a:.6f},{b:.6f},{x:.10f},{y:.10f},{z:.4f}" for a, b, x, y, z in zip(*table.values())]
+    lines += [",".join(point_fields(a, b, x, y, z)) for a, b, x, y, z in zip(*table.values())]
     return lines
+
+
+#: Decimals printed for row, col (px), lon, lat (degrees, ~10 um) and h (m, 0.1 mm).
+POINT_DECIMALS = (6, 6, 10, 10, 4)
+
+
+def point_fields(*values) -> list[str]:
+    """``row, col, lon, lat, h`` as fixed-point text (:data:`POINT_DECIMALS`), never ``-0.0000``.
+
+    A value that rounds to zero prints as ``0``: a height of -1e-12 m (the last bits of the
+    arithmetic, which differ between CPUs) is the same point as +1e-12 m.
+    """
+    return [f"{round(float(v), d) + 0.0:.{d}f}" for v, d in zip(values, POINT_DECIMALS)]
 
 
 def _write_points(out_path: Path, table: dict, summary: dict, inputs, records) -> None:

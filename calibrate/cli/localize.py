@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from calibrate.actions.localize import csv_lines, json_lines, localize_points
+from calibrate.actions.localize import csv_lines, json_lines, localize_points, point_fields
 from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option, constant_height_option, dem_options, echo_json, echo_warnings,
                                    float_list, json_option, one_height_source)
 from sensor_models.errors import InputError
@@ -98,4 +98,5 @@ def command(model_path, rows, cols, lon, lat, h_text, csv_path, jsonl_path, inve
     elif not out_path:
         click.echo(f"{'row':>14} {'col':>14} {'lon_deg':>16} {'lat_deg':>16} {'h_m':>11}")
         for a, b, x, y, z in zip(*table.values()):
-            click.echo(f"{a:14.6f} {b:14.6f} {x:16.10f} {y:16.10f} {z:11.4f}")
+            fields = point_fields(a, b, x, y, z)
+            click.echo(" ".join(f"{t:>{w}}" for t, w in zip(fields, (14, 14, 16, 16, 11))))
