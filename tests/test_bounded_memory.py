@@ -204,8 +204,13 @@ def test_simulate_by_blocks_equals_simulate_at_once(tmp_path):
     differ = va != vb
     assert np.abs(va.astype(np.int64) - vb).max() <= 1 and differ.mean() < 0.01
     assert va.std() > 100  # textured
-    # progress: two set-up steps (models, reference), then one step per block of 32 lines
-    assert steps == [(k, 8) for k in range(1, 9)]
+    # progress: two set-up steps (models, reference: the procedural reference counted in its
+    # phases and DOM strips, P parts), then one step per block of 32 lines
+    total = steps[-1][1]
+    parts = total - 8
+    assert parts > 0 and steps[0] == (1, 8) and steps[-1] == (total, total)
+    assert [d for d, _ in steps] == sorted(d for d, _ in steps)
+    assert steps[-7:] == [(parts + k, total) for k in range(2, 9)]  # reference done, then the 6 blocks
     # timings: "rendered in" covers the set-up and the blocks; the phases add up to the command
     phases = s_blocks["phase_seconds"]
     assert list(phases) == ["models", "reference", "blocks", "truth_error", "outputs"]

@@ -120,3 +120,37 @@ def test_cli_threads_option_parses_and_a_bad_count_is_one_line(tmp_path, capsys,
         assert json.loads(capsys.readouterr().out)["threads"] == expected
     with rasterio.open(tmp_path / "o1.tif") as a, rasterio.open(tmp_path / "o2.tif") as b:
         assert (a.read(1) == b.read(1)).all() and a.read(1).any()
+
+
+def test_library_settings_held_by_concurrent_blocks_are_restored_once_all_leave():
+    """This thread and another inside ``blas_threads(1)``/``opencv_threads(1)`` at once: the other
+    leaving first does not restore the settings under this one; this one leaving last restores
+    what was there before. (OpenBLAS ignores a thread count raised from another thread than the
+    one that lowered it, so the test keeps the setting and the restoring on this thread.)"""
+    import cv2
+    from threadpoolctl import threadpool_info
+
+    def blas():
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    before_cv, before_blas = cv2.getNumThreads(), blas()
+
+    def other():
+        with opencv_threads(1), blas_threads(1):
+            pass
+
+    with opencv_threads(1), blas_threads(1):
+        thread = threading.Thread(target=other)
+        thread.start()
+        thread.join(20)
+        assert cv2.getNumThreads() == 1 and all(n == 1 for n in blas())  # still held
+    assert cv2.getNumThreads() == before_cv and blas() == before_blas
+
+
+def test_blas_setting_reaches_a_library_loaded_after_the_first_block():
+    """Each outermost block scans the libraries loaded at that time (SciPy's own BLAS may load late)."""
+    import scipy.linalg  # noqa: F401  loads SciPy's BLAS where it has its own
+    from threadpoolctl import threadpool_info
+
+    with blas_threads(1):
+        assert all(i["num_threads"] == 1 for i in threadpool_info() if i["user_api"] == "blas")

@@ -178,43 +178,63 @@ class PerThread:
             value.close()
 
 
-@contextmanager
-def opencv_threads(n: int):
-    """OpenCV's own thread count set to ``n`` inside the block, restored after (a process-wide setting).
+class _ProcessSetting:
+    """A process-wide library setting held while any thread is inside one of its blocks.
 
-    Stages that already run blocks on ``threads`` threads set it to 1, so that each OpenCV call
-    does not start another ``threads`` workers (``threads**2`` busy threads on ``threads`` cores).
+    The first block to enter applies it, the last to leave restores what was there before: blocks
+    entered by several threads at once, or nested, neither restore early nor leave the setting
+    behind. The first entrant's value holds until the last leaves (every caller asks for 1).
+    ``apply(n)`` sets the value and returns the function that restores the previous one.
     """
+
+    def __init__(self, apply):
+        self._apply, self._lock, self._depth, self._restore = apply, threading.Lock(), 0, None
+
+    @contextmanager
+    def __call__(self, n: int):
+        with self._lock:
+            if self._depth == 0:
+                self._restore = self._apply(int(n))
+            self._depth += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._depth -= 1
+                if self._depth == 0:
+                    restore, self._restore = self._restore, None
+                    restore()
+
+
+def _set_opencv_threads(n: int):
     import cv2
 
     before = cv2.getNumThreads()
-    cv2.setNumThreads(int(n))
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(before)
+    cv2.setNumThreads(n)
+    return lambda: cv2.setNumThreads(before)
 
 
-_CONTROLLER = []  # the threadpoolctl controller, built on first use (it scans the loaded libraries)
-_CONTROLLER_LOCK = threading.Lock()
-
-
-@contextmanager
-def blas_threads(n: int):
-    """The BLAS libraries' thread count (OpenBLAS, MKL, BLIS) set to ``n`` inside the block, restored after.
-
-    A process-wide setting, through ``threadpoolctl``. The phase correlation's matrix-vector
-    products are small (a few hundred rows of a few thousand): split over OpenBLAS's threads they
-    cost more in the threads' busy waiting than they gain (measured in docs/speed.md, "Every
-    core"), and stages that run blocks on threads of their own need one BLAS thread per block.
-    """
+def _set_blas_threads(n: int):
     from threadpoolctl import ThreadpoolController
 
-    with _CONTROLLER_LOCK:
-        if not _CONTROLLER:
-            _CONTROLLER.append(ThreadpoolController())
-    with _CONTROLLER[0].limit(limits=int(n), user_api="blas"):
-        yield
+    # a controller of its own each time: it scans the libraries loaded now (SciPy's BLAS, say,
+    # may have been loaded since the last block)
+    return ThreadpoolController().limit(limits=n, user_api="blas").restore_original_limits
+
+
+#: OpenCV's own thread count set to ``n`` inside the block, restored after (a process-wide
+#: setting, :class:`_ProcessSetting`). Stages that already run blocks on ``threads`` threads set
+#: it to 1, so that each OpenCV call does not start another ``threads`` workers (``threads**2``
+#: busy threads on ``threads`` cores).
+opencv_threads = _ProcessSetting(_set_opencv_threads)
+
+#: The BLAS libraries' thread count (OpenBLAS, MKL, BLIS) set to ``n`` inside the block, restored
+#: after, through ``threadpoolctl`` (a process-wide setting, :class:`_ProcessSetting`). The phase
+#: correlation's matrix-vector products are small (a few hundred rows of a few thousand): split
+#: over OpenBLAS's threads they cost more in the threads' busy waiting than they gain (measured in
+#: docs/speed.md, "Every core"), and stages that run blocks on threads of their own need one BLAS
+#: thread per block.
+blas_threads = _ProcessSetting(_set_blas_threads)
 
 
 @contextmanager
