@@ -26,6 +26,9 @@ from affine import Affine
 
 __all__ = ["Sun", "cast_shadow", "illumination", "resample_to_grid", "sun_angles_deg", "terrain_light_on_grid"]
 
+#: target rows :func:`resample_to_grid` resamples at a time
+_STRIP_ROWS = 1024
+
 
 @dataclass(frozen=True)
 class Sun:
@@ -211,7 +214,12 @@ def resample_to_grid(values, from_transform: Affine, shape, transform: Affine, *
     cols = np.arange(shape[1], dtype=np.float64)
     dc = ((transform.c + (cols + 0.5) * transform.a - from_transform.c) / from_transform.a - 0.5).astype(np.float32)
     dr = ((transform.f + (rows + 0.5) * transform.e - from_transform.f) / from_transform.e - 0.5).astype(np.float32)
-    map_c = np.broadcast_to(dc[None, :], shape).copy()
-    map_r = np.broadcast_to(dr[:, None], shape).copy()
-    return cv2.remap(np.asarray(values, np.float32), map_c, map_r, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                     borderValue=float(fill))
+    src = np.asarray(values, np.float32)
+    out = np.empty(shape, dtype=np.float32)
+    for r0 in range(0, shape[0], _STRIP_ROWS):  # pixel by pixel: no whole-grid maps
+        rows = slice(r0, min(r0 + _STRIP_ROWS, shape[0]))
+        n = rows.stop - rows.start
+        map_c = np.broadcast_to(dc[None, :], (n, shape[1])).copy()
+        map_r = np.broadcast_to(dr[rows, None], (n, shape[1])).copy()
+        out[rows] = cv2.remap(src, map_c, map_r, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=float(fill))
+    return out

@@ -153,7 +153,8 @@ def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0,
 
             dom = texture_poor_cover(dom, abs(data.dom_transform.a), *texture_poor, seed=[cfg.seed, 40],
                                      water=data.water_mask)[0]
-        source = (dom / np.float32(np.percentile(dom, 99.5)), data.dom_transform, data.crs)
+        dom /= np.float32(np.percentile(dom, 99.5))  # dom is this function's own float32 array
+        source = (dom, data.dom_transform, data.crs)
     else:
         source = given_source
     return source, data
@@ -218,10 +219,14 @@ class _KernelRenderer:
         self.grid = MapGrid(transform, crs, radiance.shape)
         self.scale = cfg.scene.gsd_m / abs(transform.a)
         filled = np.nan_to_num(radiance, nan=0.0)
-        self.radiance = None
-        for kern in _field_kernels(profile, self.scale):  # centre (and edge, with astigmatism)
-            f = cv2.filter2D(filled, cv2.CV_32F, kern, borderType=cv2.BORDER_REFLECT)
-            self.radiance = f if self.radiance is None else np.dstack([self.radiance, f])
+        kernels = _field_kernels(profile, self.scale)  # centre (and edge, with astigmatism)
+        if len(kernels) == 1:
+            self.radiance = cv2.filter2D(filled, cv2.CV_32F, kernels[0], borderType=cv2.BORDER_REFLECT)
+        else:  # (H, W, n_kernels), each plane filtered into place
+            self.radiance = np.empty(filled.shape + (len(kernels),), dtype=np.float32)
+            for i, kern in enumerate(kernels):
+                self.radiance[..., i] = cv2.filter2D(filled, cv2.CV_32F, kern, borderType=cv2.BORDER_REFLECT)
+        del filled
         self.weights = field_weights(cfg)
         self.offsets = footprint_offsets(int(v("supersampling")), float(v("motion_smear_lines")))
         self.profile = profile
@@ -299,8 +304,14 @@ def _lit_sources(cfg: SimConfig, profile, source, data):
                                                   skylight=k)
             lights[name] = light
             figures[f"sun_{name}"] = {**sun.to_dict(), "cast_shadow_fraction": round(float((shadow > 0.5).mean()), 5)}
-        scene, dom = radiance * lights["scene"], radiance * lights["dom"]
-        figures["light_ratio_rms"] = round(float(np.std(np.log(lights["scene"] / lights["dom"]))), 4)
+            del shadow
+        ratio = lights["scene"] / lights["dom"]
+        figures["light_ratio_rms"] = round(float(np.std(np.log(ratio, out=ratio))), 4)
+        del ratio
+        # the lit radiances take the lights' places (no further whole-grid copies)
+        scene = np.multiply(lights["scene"], radiance, out=lights["scene"])
+        dom = np.multiply(lights["dom"], radiance, out=lights["dom"])
+        del lights
     sky = {"layers": None, "cloud_shadow": None, "figures": figures}
     if cfg.clouds.cover > 0 and int(v("cloud_layers")) <= 0:
         raise InputError(f"clouds need cloud layers under the {profile.name} profile (cloud_layers = 0)",
@@ -315,7 +326,8 @@ def _lit_sources(cfg: SimConfig, profile, source, data):
         scene = scene * (1.0 - np.float32(1.0 - k) * shade)
         sky.update(layers=layers, cloud_shadow=shade)
         figures["clouds"] = {**layers.to_dict(), "ground_shadow_fraction": round(float((shade > 0.5).mean()), 4)}
-    return (scene.astype(np.float32), transform, crs), (dom.astype(np.float32), transform, crs), sky
+    return ((scene.astype(np.float32, copy=False), transform, crs), (dom.astype(np.float32, copy=False), transform, crs),
+            sky)
 
 
 def _stated_dom_accuracy(profile) -> dict:
@@ -433,8 +445,11 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     clock.mark("models")
     setup_done(1)
     scene_source, dom_source, sky = _lit_sources(cfg, profile, source, data)
+    del source  # each whole source-grid array is let go as soon as the next step no longer needs it
     reference_files, degraded = _write_reference(tmp, cfg, profile, dom_source, data)
+    del dom_source, data
     renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, scene_source, lens, sky)
+    del scene_source
     dem_planes(true_dem)
     clock.mark("reference")
     setup_done(2)
