@@ -33,12 +33,12 @@ _PSF_TRUNCATE = 3.0
 #: DOM rows processed together at most, and DOM pixels (the texture synthesis holds about 130
 #: bytes a pixel of its strip: narrower strips on wider grids bound that memory)
 _STRIP_ROWS = 256
-_STRIP_PIXELS = 1 << 20
+_STRIP_PIXELS = 1 << 18
 
 
 def strip_rows(n_cols: int) -> int:
     """Rows of each strip :func:`render_dom` renders on a DOM of ``n_cols`` columns: 256, fewer
-    above 4096 columns (at most ``_STRIP_PIXELS`` pixels, at least 8 rows). The pixels do not
+    above 1024 columns (at most ``_STRIP_PIXELS`` pixels, at least 8 rows). The pixels do not
     depend on it."""
     return max(8, min(_STRIP_ROWS, _STRIP_PIXELS // max(1, int(n_cols))))
 

@@ -35,8 +35,8 @@ from sensor_models.simulate.radiometry import smooth_field
 
 __all__ = ["DegradedRaster", "degrade_dem", "degrade_dom", "displacement_field_m", "write_raster"]
 
-#: rows of the source :func:`degrade_dom` resamples at a time
-_STRIP_ROWS = 512
+#: source pixels :func:`degrade_dom` resamples at a time (whole rows)
+_STRIP_PIXELS = 1 << 18
 #: nodata of the degraded DEM
 DEM_NODATA = -32768.0
 
@@ -135,8 +135,11 @@ def _area_average(values: np.ndarray, transform: Affine, out_res_m: float):
     res = abs(transform.a)
     n_rows = max(2, int(round(values.shape[0] * res / out_res_m)))
     n_cols = max(2, int(round(values.shape[1] * res / out_res_m)))
-    valid = np.isfinite(values).astype(np.float32)
-    filled = np.where(valid > 0, values, 0.0).astype(np.float32, copy=False)
+    finite = np.isfinite(values)
+    valid = finite.astype(np.float32)
+    # all finite (a procedural source): the values themselves, no filled copy
+    filled = np.asarray(values, np.float32) if finite.all() else np.where(finite, values, 0.0).astype(np.float32)
+    del finite
     s = cv2.resize(filled, (n_cols, n_rows), interpolation=cv2.INTER_AREA)
     del filled
     w = cv2.resize(valid, (n_cols, n_rows), interpolation=cv2.INTER_AREA)
@@ -181,8 +184,9 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
     cols = np.arange(src.shape[1], dtype=np.float32)[None, :]
     sums = np.zeros(3)  # east, north, squared magnitude (float64 sums over the strips)
     mag_max = 0.0
-    for r0 in range(0, src.shape[0], _STRIP_ROWS):  # pixel by pixel: no whole-raster field or map is held
-        r1 = min(r0 + _STRIP_ROWS, src.shape[0])
+    step = max(1, _STRIP_PIXELS // src.shape[1])
+    for r0 in range(0, src.shape[0], step):  # pixel by pixel: no whole-raster field or map is held
+        r1 = min(r0 + step, src.shape[0])
         east = (np.float32(bias_e) + rms * unit_e.rows(r0, r1)).astype(np.float32)
         north = (np.float32(bias_n) + rms * unit_n.rows(r0, r1)).astype(np.float32)
         mag = np.hypot(east, north)
@@ -200,11 +204,31 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
                "geolocation_bias_m": [float(sums[0] / n), float(sums[1] / n)]}
     sigma_src = v("reference_mtf_sigma_px") * v("reference_resolution_m") / res
     if sigma_src > 0:
-        x = cv2.GaussianBlur(x, (0, 0), sigmaX=sigma_src, sigmaY=sigma_src, borderType=cv2.BORDER_REPLICATE)
+        _blur_in_place(x, sigma_src)
     x, out_transform = _area_average(x, transform, v("reference_resolution_m"))
     dn = np.clip(np.rint(1.0 + 3000.0 * np.nan_to_num(x, nan=0.0)), 1, 4095).astype(np.uint16)
     figures["resolution_m"] = float(abs(out_transform.a))
     return DegradedRaster(dn, out_transform, figures)
+
+
+def _blur_in_place(x: np.ndarray, sigma_px: float) -> None:
+    """``cv2.GaussianBlur(x, (0, 0), sigma_px, borderType=BORDER_REPLICATE)`` written back into ``x``.
+
+    Strip by strip, each blurred with the rows its kernel reaches (OpenCV's radius for float
+    images is round(4 sigma)); the original rows a strip needs above it are kept aside before
+    they are overwritten. Same pixels as one blur of the whole raster, without a second copy.
+    """
+    halo = int(np.ceil(4.0 * sigma_px)) + 2
+    tail = x[:0].copy()  # the last (up to ``halo``) original rows above the next strip
+    step = max(4 * halo, _STRIP_PIXELS // x.shape[1])
+    for r0 in range(0, x.shape[0], step):
+        r1 = min(r0 + step, x.shape[0])
+        a0, a1 = max(0, r0 - halo), min(x.shape[0], r1 + halo)
+        block = x[a0:a1].copy()
+        block[:r0 - a0] = tail[tail.shape[0] - (r0 - a0):]
+        tail = np.concatenate([tail, x[r0:r1]])[-halo:]
+        x[r0:r1] = cv2.GaussianBlur(block, (0, 0), sigmaX=sigma_px, sigmaY=sigma_px,
+                                    borderType=cv2.BORDER_REPLICATE)[r0 - a0:r1 - a0]
 
 
 def degrade_dem(dem_m: np.ndarray, transform: Affine, profile, *, seed: int) -> DegradedRaster:

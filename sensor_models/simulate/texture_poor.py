@@ -36,8 +36,9 @@ __all__ = ["attenuate_texture", "texture_poor_cover", "texture_poor_mask"]
 
 #: cell of the coarse grid the random field is drawn on, metres (upsampled by bicubic interpolation)
 _CELL_M = 100.0
-#: rows :func:`attenuate_texture` filters at a time (plus the Gaussian's reach above and below)
-_STRIP_ROWS = 1024
+#: pixels :func:`attenuate_texture` filters at a time (whole rows, at least four times the Gaussian's
+#: reach, which is added above and below)
+_STRIP_PIXELS = 1 << 18
 #: weight of the finer octave (correlation length scale_m / 4) in the field
 _FINE_WEIGHT = 0.5
 
@@ -149,8 +150,9 @@ def attenuate_texture(radiance: np.ndarray, mask: np.ndarray, attenuation: float
     halo = int(np.ceil(4.0 * sigma)) + 2
     n_rows = src.shape[0]
     out = np.empty(src.shape, dtype=np.float32)
-    for r0 in range(0, n_rows, _STRIP_ROWS):
-        r1 = min(n_rows, r0 + _STRIP_ROWS)
+    step = max(4 * halo, _STRIP_PIXELS // src.shape[1])
+    for r0 in range(0, n_rows, step):
+        r1 = min(n_rows, r0 + step)
         a0, a1 = max(0, r0 - halo), min(n_rows, r1 + halo)
         s, m = src[a0:a1], mask[a0:a1].astype(np.float32)
         keep = slice(r0 - a0, r1 - a0)

@@ -29,8 +29,8 @@ __all__ = ["TEXTURED_GRADIENT_ENERGY", "block_average", "block_gradient_energy",
 #: relative gradient energy ``mean |grad L|^2 / mean(L)^2`` above which a block has texture:
 #: 10 x (2 x 0.01^2), ten times that of a flat block with 1 % noise (module docstring)
 TEXTURED_GRADIENT_ENERGY = 10.0 * 2.0 * 0.01**2
-#: rows of the raster :func:`scale_contrast` converts to float64 at a time (rounded to whole blocks)
-_STRIP_ROWS = 512
+#: pixels of the raster :func:`scale_contrast` converts to float64 at a time (whole rows of blocks)
+_STRIP_PIXELS = 1 << 18
 
 
 def block_average(data: np.ndarray, valid: np.ndarray, factor: int) -> tuple:
@@ -258,7 +258,7 @@ def scale_contrast(radiance: np.ndarray, gsd_m: float, target: float, *, common_
     src = np.asarray(radiance)
     valid = np.isfinite(src)
     # strips of whole measurement blocks: no float64 copy of the whole raster is held
-    step = factor * window * max(1, _STRIP_ROWS // (factor * window))
+    step = factor * window * max(1, _STRIP_PIXELS // max(1, src.shape[1]) // (factor * window))
     strips = [slice(r0, min(r0 + step, src.shape[0])) for r0 in range(0, src.shape[0], step)]
     total, count = 0.0, 0
     for rows in strips:
