@@ -206,7 +206,11 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
     if sigma_src > 0:
         _blur_in_place(x, sigma_src)
     x, out_transform = _area_average(x, transform, v("reference_resolution_m"))
-    dn = np.clip(np.rint(1.0 + 3000.0 * np.nan_to_num(x, nan=0.0)), 1, 4095).astype(np.uint16)
+    # DN = clip(rint(1 + 3000 x), 1, 4095), in place: the reference grid may be finer than the source's
+    x = np.nan_to_num(x, nan=0.0, copy=False)
+    x *= np.float32(3000.0)
+    x += np.float32(1.0)
+    dn = np.clip(np.rint(x, out=x), 1, 4095, out=x).astype(np.uint16)
     figures["resolution_m"] = float(abs(out_transform.a))
     return DegradedRaster(dn, out_transform, figures)
 
