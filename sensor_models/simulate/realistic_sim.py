@@ -422,10 +422,9 @@ def _scene_masks(tmp: Path) -> dict:
     return out
 
 
-def _figures(cfg, profile, models, lens, true_dem: Dem, user_dem_path: Path, source_scale: float) -> dict:
+def _figures(cfg, profile, models, lens, true_dem: Dem, user: Dem, source_scale: float) -> dict:
     """What the profile injected, measured: MTF at Nyquist, lens residual, DEM error."""
     mtf = mtf_nyquist(profile, source_scale)
-    user = Dem.open(user_dem_path)
     lon, lat = footprint_sample_lonlat(models.true_model, cfg.reference.mean_height_m, n_side=33)
     dh = user.height_m(lon, lat) - true_dem.height_m(lon, lat)
     dh = dh[np.isfinite(dh)]
@@ -492,7 +491,7 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     g_lon, g_lat = footprint_sample_lonlat(models.true_model, float(np.mean(true_dem.height_range_m)), n_side=65)
     dem_figures = check_dem_footprint(user_dem, g_lon, g_lat, min_coverage=1.0)
     dem_figures["warnings"] = [w.replace(f"{tmp}/", "") for w in dem_figures["warnings"]]  # no temporary path
-    injected = {**_figures(cfg, profile, models, lens, true_dem, tmp / "reference" / "dem.tif", renderer.scale),
+    injected = {**_figures(cfg, profile, models, lens, true_dem, user_dem, renderer.scale),
                 **degraded, **sky["figures"], **_scene_masks(tmp),
                 "jitter_spectrum": models.truth.get("jitter_spectrum"),
                 "source_radiance": str(Path(dom_path).resolve()) if dom_path else "procedural"}

@@ -135,18 +135,19 @@ def _area_average(values: np.ndarray, transform: Affine, out_res_m: float):
     res = abs(transform.a)
     n_rows = max(2, int(round(values.shape[0] * res / out_res_m)))
     n_cols = max(2, int(round(values.shape[1] * res / out_res_m)))
+    # the weights first, their full-size mask let go before the sums are made (the output grid may
+    # be finer than the input's)
     finite = np.isfinite(values)
-    valid = finite.astype(np.float32)
+    w = cv2.resize(finite.astype(np.float32), (n_cols, n_rows), interpolation=cv2.INTER_AREA)
     # all finite (a procedural source): the values themselves, no filled copy
     filled = np.asarray(values, np.float32) if finite.all() else np.where(finite, values, 0.0).astype(np.float32)
     del finite
     s = cv2.resize(filled, (n_cols, n_rows), interpolation=cv2.INTER_AREA)
     del filled
-    w = cv2.resize(valid, (n_cols, n_rows), interpolation=cv2.INTER_AREA)
-    del valid
-    void = w <= 0.5
+    void = (w <= 0.5) if float(w.min()) <= 0.5 else None
     out = np.divide(s, np.maximum(w, np.float32(1e-6), out=w), out=s)  # in place: no further full-size copies
-    out[void] = np.nan
+    if void is not None:
+        out[void] = np.nan
     sx = values.shape[1] * res / n_cols
     sy = values.shape[0] * res / n_rows
     return out, Affine(sx, 0.0, transform.c, 0.0, -sy, transform.f)
