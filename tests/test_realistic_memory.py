@@ -7,7 +7,7 @@
   step (the whole raster), to the tolerances of ``tests/compare_outputs.py``.
 * The peak RSS of the command (a child process, ``ru_maxrss``) grows with the source grid by at
   most :data:`MAX_BYTES_PER_SOURCE_PIXEL` between two widths of the seed-003 geometry (measured:
-  24.5 bytes a pixel; the same steps run on whole rasters, each holding its whole-grid
+  23.6 bytes a pixel; the same steps run on whole rasters, each holding its whole-grid
   temporaries, measure 56.6: docs/memory.md).
 """
 
@@ -91,7 +91,7 @@ def _peak(tmp: Path, detectors_per_ccd: int) -> dict:
 
 @pytest.mark.slow
 def test_realistic_peak_memory_per_source_pixel_is_bounded(tmp_path):
-    """About 40 s on a quiet machine: two renders of the seed-003 geometry at 1/32 and 1/8 of its
+    """About 30 s: two renders of the seed-003 geometry at 1/32 and 1/8 of its
     width (170 and 681 detectors per CCD), 256 lines, one band."""
     small, large = _peak(tmp_path, 170), _peak(tmp_path, 681)
     assert large["source_pixels"] > 3.0 * small["source_pixels"]
