@@ -26,6 +26,9 @@ from affine import Affine
 
 __all__ = ["Sun", "cast_shadow", "illumination", "resample_to_grid", "sun_angles_deg", "terrain_light_on_grid"]
 
+#: target pixels :func:`resample_to_grid` resamples at a time (whole rows, at least one)
+_STRIP_PIXELS = 1 << 18
+
 
 @dataclass(frozen=True)
 class Sun:
@@ -187,7 +190,8 @@ def terrain_light_on_grid(dem_m, dem_transform: Affine, shape, transform: Affine
             resample_to_grid(shadow, dem_transform, shape, transform, fill=0.0))
 
 
-def resample_to_grid(values, from_transform: Affine, shape, transform: Affine, *, fill: float) -> np.ndarray:
+def resample_to_grid(values, from_transform: Affine, shape, transform: Affine, *, fill: float,
+                     rows: slice | None = None) -> np.ndarray:
     """Bilinear resampling of a north-up raster onto another north-up grid of the same CRS.
 
     Parameters
@@ -202,16 +206,26 @@ def resample_to_grid(values, from_transform: Affine, shape, transform: Affine, *
         Target pixel-corner affine.
     fill : float
         Value outside the source.
+    rows : slice, optional
+        Only these target rows (``start:stop``, step 1): the same values as those rows of the
+        whole result, without a whole-grid array.
 
     Returns
     -------
-    ndarray of float32, shape ``shape``
+    ndarray of float32, shape ``shape`` (``(len(rows), shape[1])`` with ``rows``)
     """
-    rows = np.arange(shape[0], dtype=np.float64)
+    r_all = np.arange(shape[0], dtype=np.float64)
     cols = np.arange(shape[1], dtype=np.float64)
     dc = ((transform.c + (cols + 0.5) * transform.a - from_transform.c) / from_transform.a - 0.5).astype(np.float32)
-    dr = ((transform.f + (rows + 0.5) * transform.e - from_transform.f) / from_transform.e - 0.5).astype(np.float32)
-    map_c = np.broadcast_to(dc[None, :], shape).copy()
-    map_r = np.broadcast_to(dr[:, None], shape).copy()
-    return cv2.remap(np.asarray(values, np.float32), map_c, map_r, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                     borderValue=float(fill))
+    dr = ((transform.f + (r_all + 0.5) * transform.e - from_transform.f) / from_transform.e - 0.5).astype(np.float32)
+    src = np.asarray(values, np.float32)
+    first, stop = (0, shape[0]) if rows is None else rows.indices(shape[0])[:2]
+    out = np.empty((max(0, stop - first), shape[1]), dtype=np.float32)
+    step = max(1, _STRIP_PIXELS // max(1, shape[1]))
+    for r0 in range(first, stop, step):  # pixel by pixel: no whole-grid maps
+        r1 = min(r0 + step, stop)
+        map_c = np.broadcast_to(dc[None, :], (r1 - r0, shape[1])).copy()
+        map_r = np.broadcast_to(dr[r0:r1, None], (r1 - r0, shape[1])).copy()
+        out[r0 - first:r1 - first] = cv2.remap(src, map_c, map_r, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                               borderValue=float(fill))
+    return out

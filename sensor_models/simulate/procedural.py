@@ -291,7 +291,8 @@ def generate_reference(
         fewer where the terrain offers no room for them.
     progress : callable(done, total), optional
         Called as the phases end: the terrain, lakes, rivers, heights, land cover and roads
-        (one part each), then every strip of ``256`` DOM rows rendered, then the blur and noise.
+        (one part each), then every strip of DOM rows rendered
+        (:func:`~sensor_models.simulate.procedural_dom.dom_strips`), then the blur and noise.
 
     Returns
     -------
@@ -338,7 +339,7 @@ def _synthesize(args, progress=None):
     ext = dem_grid.grown(MARGIN_NODES)
     area_km2 = args["width_m"] * args["height_m"] / 1e6
 
-    total = _PHASES + dom_strips(dom_grid.n_rows) + 1
+    total = _PHASES + dom_strips(dom_grid.n_rows, dom_grid.n_cols) + 1
     done = [0]
 
     def step(n=1):

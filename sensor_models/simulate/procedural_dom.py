@@ -28,13 +28,24 @@ _DN_MAX = 4095
 _NOISE_DN = 2.5
 #: Gaussian point-spread function of the sensor, pixels.
 _PSF_SIGMA_PX = 0.6
-#: DOM rows processed together (bounds the memory of the texture synthesis).
+#: its kernel's reach, standard deviations
+_PSF_TRUNCATE = 3.0
+#: DOM rows processed together at most, and DOM pixels (the texture synthesis holds about 130
+#: bytes a pixel of its strip: narrower strips on wider grids bound that memory)
 _STRIP_ROWS = 256
+_STRIP_PIXELS = 1 << 18
 
 
-def dom_strips(n_rows: int) -> int:
-    """Strips of rows :func:`render_dom` renders for a DOM of ``n_rows`` rows (its progress count)."""
-    return -(-int(n_rows) // _STRIP_ROWS)
+def strip_rows(n_cols: int) -> int:
+    """Rows of each strip :func:`render_dom` renders on a DOM of ``n_cols`` columns: 256, fewer
+    above 1024 columns (at most ``_STRIP_PIXELS`` pixels, at least 8 rows). The pixels do not
+    depend on it."""
+    return max(8, min(_STRIP_ROWS, _STRIP_PIXELS // max(1, int(n_cols))))
+
+
+def dom_strips(n_rows: int, n_cols: int) -> int:
+    """Strips of rows :func:`render_dom` renders for a DOM of ``n_rows x n_cols`` (its progress count)."""
+    return -(-int(n_rows) // strip_rows(n_cols))
 
 
 def render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, rng, keys, strip_done=None):
@@ -49,20 +60,26 @@ def render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, rn
     land_cover : ndarray, uint8
     """
     ctx = _dom_context(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, keys)
+    step = strip_rows(grid.n_cols)
     radiance = np.empty(grid.shape, dtype=np.float32)
     water = np.zeros(grid.shape, dtype=bool)
     cover_map = np.zeros(grid.shape, dtype=np.uint8)
-    for r0 in range(0, grid.n_rows, _STRIP_ROWS):
-        rows = slice(r0, min(r0 + _STRIP_ROWS, grid.n_rows))
+    for r0 in range(0, grid.n_rows, step):
+        rows = slice(r0, min(r0 + step, grid.n_rows))
         radiance[rows], water[rows], cover_map[rows] = _render_strip(ctx, rows, rng)
         if strip_done is not None:
             strip_done()
 
-    radiance = ndimage.gaussian_filter(radiance, _PSF_SIGMA_PX, mode="nearest", truncate=3.0)
+    # the PSF blurred strip by strip, each with the rows its kernel reaches (scipy's radius
+    # int(truncate sigma + 0.5)): the same pixels as one blur of the whole radiance
+    halo = int(_PSF_TRUNCATE * _PSF_SIGMA_PX + 0.5) + 1
     dom = np.empty(grid.shape, dtype=np.uint16)
-    for r0 in range(0, grid.n_rows, _STRIP_ROWS):
-        rows = slice(r0, min(r0 + _STRIP_ROWS, grid.n_rows))
-        noisy = radiance[rows]
+    for r0 in range(0, grid.n_rows, step):
+        r1 = min(r0 + step, grid.n_rows)
+        a0, a1 = max(0, r0 - halo), min(grid.n_rows, r1 + halo)
+        noisy = ndimage.gaussian_filter(radiance[a0:a1], _PSF_SIGMA_PX, mode="nearest",
+                                        truncate=_PSF_TRUNCATE)[r0 - a0:r1 - a0]
+        rows = slice(r0, r1)
         noisy += rng.standard_normal(noisy.shape, dtype=np.float32) * np.float32(_NOISE_DN)
         dom[rows] = np.clip(np.rint(noisy), 1, _DN_MAX).astype(np.uint16)
     return dom, water, cover_map

@@ -39,7 +39,8 @@ from sensor_models.imaging.locate import dem_planes, locate_block
 from sensor_models.maps.grid import MapGrid
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.clouds3d import apparent_clouds, cloud_layers, ground_shadow, ray_slope
-from sensor_models.simulate.illumination import Sun, resample_to_grid, sun_angles_deg, terrain_light_on_grid
+from sensor_models.simulate.illumination import (Sun, cast_shadow, illumination, resample_to_grid,
+                                                 sun_angles_deg)
 from sensor_models.simulate.jitter import jitter_spectrum
 from sensor_models.simulate.kernel import (detector_response, footprint_offsets, integrate_footprint, optics_kernel,
                                            system_mtf)
@@ -154,7 +155,8 @@ def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0,
 
             dom = texture_poor_cover(dom, abs(data.dom_transform.a), *texture_poor, seed=[cfg.seed, 40],
                                      water=data.water_mask)[0]
-        source = (dom / np.float32(np.percentile(dom, 99.5)), data.dom_transform, data.crs)
+        dom /= np.float32(np.percentile(dom, 99.5))  # dom is this function's own float32 array
+        source = (dom, data.dom_transform, data.crs)
     else:
         source = given_source
     return source, data
@@ -218,11 +220,15 @@ class _KernelRenderer:
         self.cfg, self.model, self.dem, self.lens = cfg, model, dem, lens
         self.grid = MapGrid(transform, crs, radiance.shape)
         self.scale = cfg.scene.gsd_m / abs(transform.a)
-        filled = np.nan_to_num(radiance, nan=0.0)
-        self.radiance = None
-        for kern in _field_kernels(profile, self.scale):  # centre (and edge, with astigmatism)
-            f = cv2.filter2D(filled, cv2.CV_32F, kern, borderType=cv2.BORDER_REFLECT)
-            self.radiance = f if self.radiance is None else np.dstack([self.radiance, f])
+        filled = np.nan_to_num(radiance, nan=0.0) if np.isnan(radiance).any() else radiance
+        kernels = _field_kernels(profile, self.scale)  # centre (and edge, with astigmatism)
+        if len(kernels) == 1:
+            self.radiance = cv2.filter2D(filled, cv2.CV_32F, kernels[0], borderType=cv2.BORDER_REFLECT)
+        else:  # (H, W, n_kernels), each plane filtered into place
+            self.radiance = np.empty(filled.shape + (len(kernels),), dtype=np.float32)
+            for i, kern in enumerate(kernels):
+                self.radiance[..., i] = cv2.filter2D(filled, cv2.CV_32F, kern, borderType=cv2.BORDER_REFLECT)
+        del filled
         self.weights = field_weights(cfg)
         self.offsets = footprint_offsets(int(v("supersampling")), float(v("motion_smear_lines")))
         self.profile = profile
@@ -280,43 +286,77 @@ def _sun(profile, key: str, lat_deg: float):
     return None if when is None else sun_angles_deg(lat_deg, float(when[0]), float(when[1]))
 
 
-def _lit_sources(cfg: SimConfig, profile, source, data):
-    """Scene and DOM radiance under their own suns, with the scene's clouds and their shadows.
+def _lit_source(cfg: SimConfig, profile, source, data, which: str):
+    """The scene's (``which="scene"``, with its clouds and their shadows) or the DOM's (``"dom"``)
+    radiance under its own sun.
 
-    Returns ``(scene source, DOM source, sky)``: sources as ``(radiance, transform, crs)``;
-    ``sky`` holds ``layers`` (:class:`CloudLayers` or None), ``cloud_shadow`` (ground map) and
-    JSON-safe ``figures``.
+    Returns ``(source, sky)``: the source as ``(radiance, transform, crs)``; ``sky`` holds
+    ``layers`` (:class:`CloudLayers` or None), ``cloud_shadow`` (ground map) and JSON-safe
+    ``figures`` (both suns; the clouds with ``"scene"``). One at a time, so that the DOM's is
+    degraded and let go before the scene's is made.
     """
     radiance, transform, crs = source
     v, res = profile.value, abs(transform.a)
     sun_s, sun_d = _sun(profile, "sun_scene_date_time", cfg.scene.center_lat_deg), \
         _sun(profile, "sun_dom_date_time", cfg.scene.center_lat_deg)
-    scene, dom, figures = radiance, radiance, {}
-    k = float(v("skylight_fraction"))
-    if sun_s is not None and sun_d is not None:
-        lights = {}
-        for name, sun in (("scene", sun_s), ("dom", sun_d)):
-            light, shadow = terrain_light_on_grid(data.dem_m, data.dem_transform, radiance.shape, transform, sun,
-                                                  skylight=k)
-            lights[name] = light
-            figures[f"sun_{name}"] = {**sun.to_dict(), "cast_shadow_fraction": round(float((shadow > 0.5).mean()), 5)}
-        scene, dom = radiance * lights["scene"], radiance * lights["dom"]
-        figures["light_ratio_rms"] = round(float(np.std(np.log(lights["scene"] / lights["dom"]))), 4)
-    sky = {"layers": None, "cloud_shadow": None, "figures": figures}
     if cfg.clouds.cover > 0 and int(v("cloud_layers")) <= 0:
         raise InputError(f"clouds need cloud layers under the {profile.name} profile (cloud_layers = 0)",
                          field="clouds.cover")
-    if cfg.clouds.cover > 0 and int(v("cloud_layers")) > 0:
+    lit, figures = radiance, {}
+    k = float(v("skylight_fraction"))
+    if sun_s is not None and sun_d is not None:
+        lit, figures = _sunlit(radiance, transform, data, {"scene": sun_s, "dom": sun_d}, k, which)
+    sky = {"layers": None, "cloud_shadow": None, "figures": figures}
+    if which == "scene" and cfg.clouds.cover > 0:
         ground = resample_to_grid(data.dem_m, data.dem_transform, radiance.shape, transform,
                                   fill=float(np.nanmean(data.dem_m)))
         layers = cloud_layers(radiance.shape, res, cover=cfg.clouds.cover, scale_m=cfg.clouds.scale_m,
                               heights_km=v("cloud_top_height_km"), n_layers=int(v("cloud_layers")),
                               mean_ground_m=float(np.nanmean(data.dem_m)), seed=cfg.pass_seed)
         shade = ground_shadow(layers, ground, res, sun_s or Sun(89.9, 180.0)) * np.float32(v("cloud_shadow"))
-        scene = scene * (1.0 - np.float32(1.0 - k) * shade)
+        lit = lit * (1.0 - np.float32(1.0 - k) * shade)
         sky.update(layers=layers, cloud_shadow=shade)
         figures["clouds"] = {**layers.to_dict(), "ground_shadow_fraction": round(float((shade > 0.5).mean()), 4)}
-    return (scene.astype(np.float32), transform, crs), (dom.astype(np.float32), transform, crs), sky
+    return (lit.astype(np.float32, copy=False), transform, crs), sky
+
+
+#: source pixels :func:`_sunlit` lights at a time (whole rows)
+_STRIP_PIXELS = 1 << 18
+
+
+def _sunlit(radiance, transform, data, suns: dict, skylight: float, which: str):
+    """``radiance`` under ``suns[which]``: hill shading and cast shadows of the TRUE DEM
+    (:func:`sensor_models.simulate.illumination.illumination`, computed on the DEM grid), resampled to the
+    source grid strip by strip (:func:`sensor_models.simulate.illumination.resample_to_grid`).
+
+    Returns ``(lit, figures)``: the lit radiance (float32, the source's shape) and, per sun of
+    ``suns`` (``"scene"`` and ``"dom"``), its angles and cast-shadow fraction, with
+    ``light_ratio_rms`` = std of ``log(light_scene / light_dom)`` over the source grid.
+    """
+    dem_res = abs(data.dem_transform.a)
+    on_dem = {}
+    for name, sun in suns.items():
+        shadow = cast_shadow(data.dem_m, dem_res, sun)
+        on_dem[name] = illumination(data.dem_m, dem_res, sun, skylight=skylight, shadow=shadow), shadow
+    lit = np.empty(radiance.shape, dtype=np.float32)
+    shaded = dict.fromkeys(suns, 0)
+    log_sum = log_sq = 0.0
+    step = max(1, _STRIP_PIXELS // radiance.shape[1])
+    for r0 in range(0, radiance.shape[0], step):
+        rows = slice(r0, min(r0 + step, radiance.shape[0]))
+        light = {}
+        for name, (on_grid, shadow) in on_dem.items():
+            light[name] = resample_to_grid(on_grid, data.dem_transform, radiance.shape, transform, fill=1.0, rows=rows)
+            cast = resample_to_grid(shadow, data.dem_transform, radiance.shape, transform, fill=0.0, rows=rows)
+            shaded[name] += int(np.count_nonzero(cast > 0.5))
+        np.multiply(radiance[rows], light[which], out=lit[rows])
+        ratio = np.log(light["scene"] / light["dom"]).astype(np.float64)
+        log_sum, log_sq = log_sum + float(ratio.sum()), log_sq + float(np.square(ratio).sum())
+    n = radiance.size
+    figures = {f"sun_{name}": {**sun.to_dict(), "cast_shadow_fraction": round(shaded[name] / n, 5)}
+               for name, sun in suns.items()}
+    figures["light_ratio_rms"] = round(float(np.sqrt(max(log_sq / n - (log_sum / n) ** 2, 0.0))), 4)
+    return lit, figures
 
 
 def _stated_dom_accuracy(profile) -> dict:
@@ -383,10 +423,9 @@ def _scene_masks(tmp: Path) -> dict:
     return out
 
 
-def _figures(cfg, profile, models, lens, true_dem: Dem, user_dem_path: Path, source_scale: float) -> dict:
+def _figures(cfg, profile, models, lens, true_dem: Dem, user: Dem, source_scale: float) -> dict:
     """What the profile injected, measured: MTF at Nyquist, lens residual, DEM error."""
     mtf = mtf_nyquist(profile, source_scale)
-    user = Dem.open(user_dem_path)
     lon, lat = footprint_sample_lonlat(models.true_model, cfg.reference.mean_height_m, n_side=33)
     dh = user.height_m(lon, lat) - true_dem.height_m(lon, lat)
     dh = dh[np.isfinite(dh)]
@@ -433,11 +472,17 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     clock = PhaseClock(t_start)
     setup_done, block_progress = step_progress(progress, cfg.scene.n_rows, block_lines)
     cfg, models, lens, source, true_dem, data = realistic_setup(cfg, profile, dom_path, progress=setup_done.part)
+    data = replace(data, dom=None, water_mask=None, land_cover=None)  # the next steps read its DEM only
     clock.mark("models")
     setup_done(1)
-    scene_source, dom_source, sky = _lit_sources(cfg, profile, source, data)
+    # each whole source-grid array is let go as soon as the next step no longer needs it
+    dom_source, _ = _lit_source(cfg, profile, source, data, "dom")
     reference_files, degraded = _write_reference(tmp, cfg, profile, dom_source, data)
+    del dom_source
+    scene_source, sky = _lit_source(cfg, profile, source, data, "scene")
+    del source, data
     renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, scene_source, lens, sky)
+    del scene_source
     dem_planes(true_dem)
     clock.mark("reference")
     setup_done(2)
@@ -449,7 +494,7 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     g_lon, g_lat = footprint_sample_lonlat(models.true_model, float(np.mean(true_dem.height_range_m)), n_side=65)
     dem_figures = check_dem_footprint(user_dem, g_lon, g_lat, min_coverage=1.0)
     dem_figures["warnings"] = [w.replace(f"{tmp}/", "") for w in dem_figures["warnings"]]  # no temporary path
-    injected = {**_figures(cfg, profile, models, lens, true_dem, tmp / "reference" / "dem.tif", renderer.scale),
+    injected = {**_figures(cfg, profile, models, lens, true_dem, user_dem, renderer.scale),
                 **degraded, **sky["figures"], **_scene_masks(tmp),
                 "jitter_spectrum": models.truth.get("jitter_spectrum"),
                 "source_radiance": str(Path(dom_path).resolve()) if dom_path else "procedural"}

@@ -35,6 +35,8 @@ from sensor_models.simulate.radiometry import smooth_field
 
 __all__ = ["DegradedRaster", "degrade_dem", "degrade_dom", "displacement_field_m", "write_raster"]
 
+#: source pixels :func:`degrade_dom` resamples at a time (whole rows)
+_STRIP_PIXELS = 1 << 18
 #: nodata of the degraded DEM
 DEM_NODATA = -32768.0
 
@@ -84,23 +86,48 @@ def displacement_field_m(shape, resolution_m: float, *, bias_m, field_rms_m: flo
     -------
     east_m, north_m : ndarray of float32, shape ``shape``
     """
+    fields = _displacement_fields(shape, resolution_m, field_rms_m=field_rms_m, field_scale_m=field_scale_m, seed=seed)
+    return tuple((np.float32(b) + np.float32(field_rms_m) * f.rows(0, shape[0])).astype(np.float32)
+                 for b, f in zip(bias_m, fields))
+
+
+def _displacement_fields(shape, resolution_m: float, *, field_rms_m: float, field_scale_m: float, seed: int):
+    """The unit east and north fields of :func:`displacement_field_m`, as :class:`_Upsampled`."""
     coarse = 8
     cshape = (shape[0] // coarse + 2, shape[1] // coarse + 2)
     scale = max(field_scale_m / (resolution_m * coarse), 1.0)
-    out = []
-    for k, b in enumerate(bias_m):
-        f = smooth_field(cshape, scale, _seed(seed, 1 + k)) if field_rms_m > 0 else np.zeros(cshape, np.float32)
-        f = cv2.resize(f, (cshape[1] * coarse, cshape[0] * coarse), interpolation=cv2.INTER_LINEAR)
-        out.append((np.float32(b) + np.float32(field_rms_m) * f[: shape[0], : shape[1]]).astype(np.float32))
-    return out[0], out[1]
+    return [_Upsampled(smooth_field(cshape, scale, _seed(seed, 1 + k)) if field_rms_m > 0
+                       else np.zeros(cshape, np.float32), coarse, shape[1]) for k in range(2)]
+
+
+class _Upsampled:
+    """A coarse field enlarged ``factor`` times (OpenCV bilinear), cropped to ``n_cols``, row range by row range.
+
+    ``rows(r0, r1)`` equals rows ``r0:r1`` of ``cv2.resize(coarse, (W factor, H factor),
+    INTER_LINEAR)[:, :n_cols]``: it enlarges only the coarse rows those output rows reach, one
+    more on each side (the bilinear weights of an output row depend on its position modulo
+    ``factor`` only), so no whole-grid field is held.
+    """
+
+    def __init__(self, coarse: np.ndarray, factor: int, n_cols: int):
+        self.coarse, self.factor, self.n_cols = coarse, int(factor), int(n_cols)
+
+    def rows(self, r0: int, r1: int) -> np.ndarray:
+        f, c = self.factor, self.coarse
+        c0, c1 = max(0, r0 // f - 1), min(c.shape[0], (r1 - 1) // f + 2)
+        up = cv2.resize(c[c0:c1], (c.shape[1] * f, (c1 - c0) * f), interpolation=cv2.INTER_LINEAR)
+        return up[r0 - c0 * f:r1 - c0 * f, :self.n_cols]
+
+
+def _smooth_rows(shape, scale_px: float, seed: int, purpose: int) -> _Upsampled:
+    """The field of :func:`_smooth`, as :class:`_Upsampled`."""
+    coarse = max(1, int(scale_px // 8))
+    cshape = (shape[0] // coarse + 2, shape[1] // coarse + 2)
+    return _Upsampled(smooth_field(cshape, max(scale_px / coarse, 1.0), _seed(seed, purpose)), coarse, shape[1])
 
 
 def _smooth(shape, scale_px: float, seed: int, purpose: int) -> np.ndarray:
-    coarse = max(1, int(scale_px // 8))
-    cshape = (shape[0] // coarse + 2, shape[1] // coarse + 2)
-    f = smooth_field(cshape, max(scale_px / coarse, 1.0), _seed(seed, purpose))
-    f = cv2.resize(f, (cshape[1] * coarse, cshape[0] * coarse), interpolation=cv2.INTER_LINEAR)
-    return f[: shape[0], : shape[1]]
+    return _smooth_rows(shape, scale_px, seed, purpose).rows(0, shape[0])
 
 
 def _area_average(values: np.ndarray, transform: Affine, out_res_m: float):
@@ -108,11 +135,19 @@ def _area_average(values: np.ndarray, transform: Affine, out_res_m: float):
     res = abs(transform.a)
     n_rows = max(2, int(round(values.shape[0] * res / out_res_m)))
     n_cols = max(2, int(round(values.shape[1] * res / out_res_m)))
-    valid = np.isfinite(values).astype(np.float32)
-    filled = np.where(valid > 0, values, 0.0).astype(np.float32)
+    # the weights first, their full-size mask let go before the sums are made (the output grid may
+    # be finer than the input's)
+    finite = np.isfinite(values)
+    w = cv2.resize(finite.astype(np.float32), (n_cols, n_rows), interpolation=cv2.INTER_AREA)
+    # all finite (a procedural source): the values themselves, no filled copy
+    filled = np.asarray(values, np.float32) if finite.all() else np.where(finite, values, 0.0).astype(np.float32)
+    del finite
     s = cv2.resize(filled, (n_cols, n_rows), interpolation=cv2.INTER_AREA)
-    w = cv2.resize(valid, (n_cols, n_rows), interpolation=cv2.INTER_AREA)
-    out = np.where(w > 0.5, s / np.maximum(w, 1e-6), np.nan).astype(np.float32)
+    del filled
+    void = (w <= 0.5) if float(w.min()) <= 0.5 else None
+    out = np.divide(s, np.maximum(w, np.float32(1e-6), out=w), out=s)  # in place: no further full-size copies
+    if void is not None:
+        out[void] = np.nan
     sx = values.shape[1] * res / n_cols
     sy = values.shape[0] * res / n_rows
     return out, Affine(sx, 0.0, transform.c, 0.0, -sy, transform.f)
@@ -140,27 +175,65 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
     """
     v = profile.value
     res = abs(transform.a)
-    east, north = displacement_field_m(radiance.shape, res, bias_m=v("dom_bias_m"), field_rms_m=v("dom_field_rms_m"),
-                                       field_scale_m=v("dom_field_scale_m"), seed=seed)
-    rows, cols = np.mgrid[0 : radiance.shape[0], 0 : radiance.shape[1]].astype(np.float32)
-    # the DOM pixel at p shows the ground at p + e (north is up: row decreases northwards)
-    x = cv2.remap(radiance.astype(np.float32), cols + east / np.float32(res), rows - north / np.float32(res),
-                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    del rows, cols
-    change = _smooth(x.shape, v("seasonal_scale_m") / res, seed, 10)
-    haze = _smooth(x.shape, 5000.0 / res, seed, 11)
-    x = x * (1.0 + np.float32(v("seasonal_change")) * change) + np.float32(v("haze")) * (1.0 + 0.5 * haze)
-    x = np.power(np.clip(x, 0.0, None), np.float32(v("reference_gamma")))
+    (bias_e, bias_n), rms = v("dom_bias_m"), np.float32(v("dom_field_rms_m"))
+    unit_e, unit_n = _displacement_fields(radiance.shape, res, field_rms_m=v("dom_field_rms_m"),
+                                          field_scale_m=v("dom_field_scale_m"), seed=seed)
+    change = _smooth_rows(radiance.shape, v("seasonal_scale_m") / res, seed, 10)
+    haze = _smooth_rows(radiance.shape, 5000.0 / res, seed, 11)
+    src = np.asarray(radiance, dtype=np.float32)
+    x = np.empty(src.shape, dtype=np.float32)
+    cols = np.arange(src.shape[1], dtype=np.float32)[None, :]
+    sums = np.zeros(3)  # east, north, squared magnitude (float64 sums over the strips)
+    mag_max = 0.0
+    step = max(1, _STRIP_PIXELS // src.shape[1])
+    for r0 in range(0, src.shape[0], step):  # pixel by pixel: no whole-raster field or map is held
+        r1 = min(r0 + step, src.shape[0])
+        east = (np.float32(bias_e) + rms * unit_e.rows(r0, r1)).astype(np.float32)
+        north = (np.float32(bias_n) + rms * unit_n.rows(r0, r1)).astype(np.float32)
+        mag = np.hypot(east, north)
+        sums += [east.sum(dtype=np.float64), north.sum(dtype=np.float64), np.square(mag, dtype=np.float64).sum()]
+        mag_max = max(mag_max, float(mag.max()))
+        r = np.arange(r0, r1, dtype=np.float32)[:, None]
+        # the DOM pixel at p shows the ground at p + e (north is up: row decreases northwards)
+        xs = cv2.remap(src, cols + east / np.float32(res), r - north / np.float32(res),
+                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        xs = (xs * (1.0 + np.float32(v("seasonal_change")) * change.rows(r0, r1))
+              + np.float32(v("haze")) * (1.0 + 0.5 * haze.rows(r0, r1)))
+        x[r0:r1] = np.power(np.clip(xs, 0.0, None), np.float32(v("reference_gamma")))
+    n = float(src.size)
+    figures = {"geolocation_rms_m": float(np.sqrt(sums[2] / n)), "geolocation_max_m": mag_max,
+               "geolocation_bias_m": [float(sums[0] / n), float(sums[1] / n)]}
     sigma_src = v("reference_mtf_sigma_px") * v("reference_resolution_m") / res
     if sigma_src > 0:
-        x = cv2.GaussianBlur(x, (0, 0), sigmaX=sigma_src, sigmaY=sigma_src, borderType=cv2.BORDER_REPLICATE)
+        _blur_in_place(x, sigma_src)
     x, out_transform = _area_average(x, transform, v("reference_resolution_m"))
-    dn = np.clip(np.rint(1.0 + 3000.0 * np.nan_to_num(x, nan=0.0)), 1, 4095).astype(np.uint16)
-    mag = np.hypot(east, north)
-    figures = {"geolocation_rms_m": float(np.sqrt(np.mean(mag**2))), "geolocation_max_m": float(mag.max()),
-               "geolocation_bias_m": [float(east.mean()), float(north.mean())],
-               "resolution_m": float(abs(out_transform.a))}
+    # DN = clip(rint(1 + 3000 x), 1, 4095), in place: the reference grid may be finer than the source's
+    x = np.nan_to_num(x, nan=0.0, copy=False)
+    x *= np.float32(3000.0)
+    x += np.float32(1.0)
+    dn = np.clip(np.rint(x, out=x), 1, 4095, out=x).astype(np.uint16)
+    figures["resolution_m"] = float(abs(out_transform.a))
     return DegradedRaster(dn, out_transform, figures)
+
+
+def _blur_in_place(x: np.ndarray, sigma_px: float) -> None:
+    """``cv2.GaussianBlur(x, (0, 0), sigma_px, borderType=BORDER_REPLICATE)`` written back into ``x``.
+
+    Strip by strip, each blurred with the rows its kernel reaches (OpenCV's radius for float
+    images is round(4 sigma)); the original rows a strip needs above it are kept aside before
+    they are overwritten. Same pixels as one blur of the whole raster, without a second copy.
+    """
+    halo = int(np.ceil(4.0 * sigma_px)) + 2
+    tail = x[:0].copy()  # the last (up to ``halo``) original rows above the next strip
+    step = max(4 * halo, _STRIP_PIXELS // x.shape[1])
+    for r0 in range(0, x.shape[0], step):
+        r1 = min(r0 + step, x.shape[0])
+        a0, a1 = max(0, r0 - halo), min(x.shape[0], r1 + halo)
+        block = x[a0:a1].copy()
+        block[:r0 - a0] = tail[tail.shape[0] - (r0 - a0):]
+        tail = np.concatenate([tail, x[r0:r1]])[-halo:]
+        x[r0:r1] = cv2.GaussianBlur(block, (0, 0), sigmaX=sigma_px, sigmaY=sigma_px,
+                                    borderType=cv2.BORDER_REPLICATE)[r0 - a0:r1 - a0]
 
 
 def degrade_dem(dem_m: np.ndarray, transform: Affine, profile, *, seed: int) -> DegradedRaster:

@@ -36,6 +36,9 @@ __all__ = ["attenuate_texture", "texture_poor_cover", "texture_poor_mask"]
 
 #: cell of the coarse grid the random field is drawn on, metres (upsampled by bicubic interpolation)
 _CELL_M = 100.0
+#: pixels :func:`attenuate_texture` filters at a time (whole rows, at least four times the Gaussian's
+#: reach, which is added above and below)
+_STRIP_PIXELS = 1 << 18
 #: weight of the finer octave (correlation length scale_m / 4) in the field
 _FINE_WEIGHT = 0.5
 
@@ -98,7 +101,7 @@ def texture_poor_mask(shape: tuple, res_m: float, fraction: float, *, seed, scal
     allowed = np.ones(shape, dtype=bool) if exclude is None else ~np.asarray(exclude, dtype=bool)
     if not allowed.any():
         return mask
-    threshold = np.quantile(field[allowed], 1.0 - fraction)
+    threshold = np.quantile(field[allowed], 1.0 - fraction, overwrite_input=True)  # partitions its own copy
     return allowed & (field > threshold)
 
 
@@ -140,14 +143,25 @@ def attenuate_texture(radiance: np.ndarray, mask: np.ndarray, attenuation: float
     src = np.asarray(radiance, dtype=np.float32)
     if attenuation == 1.0 or not mask.any():
         return src.copy()
-    m = mask.astype(np.float32)
     sigma = max(float(smooth_m) / float(res_m), 0.5)
     blur = dict(ksize=(0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
-    num = cv2.GaussianBlur(src * m, **blur)
-    den = cv2.GaussianBlur(m, **blur)
-    local = np.where(den > 1e-6, num / np.maximum(den, np.float32(1e-6)), src)
-    out = np.where(mask, local + np.float32(attenuation) * (src - local), src)
-    return out.astype(np.float32)
+    # by strips of rows, each blurred with the rows its kernel reaches (OpenCV's radius for float
+    # images is round(4 sigma)): the whole raster is never held in float32 more than once
+    halo = int(np.ceil(4.0 * sigma)) + 2
+    n_rows = src.shape[0]
+    out = np.empty(src.shape, dtype=np.float32)
+    step = max(4 * halo, _STRIP_PIXELS // src.shape[1])
+    for r0 in range(0, n_rows, step):
+        r1 = min(n_rows, r0 + step)
+        a0, a1 = max(0, r0 - halo), min(n_rows, r1 + halo)
+        s, m = src[a0:a1], mask[a0:a1].astype(np.float32)
+        keep = slice(r0 - a0, r1 - a0)
+        num = cv2.GaussianBlur(s * m, **blur)[keep]
+        den = cv2.GaussianBlur(m, **blur)[keep]
+        s = s[keep]
+        local = np.where(den > 1e-6, num / np.maximum(den, np.float32(1e-6)), s)
+        out[r0:r1] = np.where(mask[r0:r1], local + np.float32(attenuation) * (s - local), s)
+    return out
 
 
 def texture_poor_cover(radiance: np.ndarray, res_m: float, fraction: float, attenuation: float, *, seed,

@@ -29,6 +29,8 @@ __all__ = ["TEXTURED_GRADIENT_ENERGY", "block_average", "block_gradient_energy",
 #: relative gradient energy ``mean |grad L|^2 / mean(L)^2`` above which a block has texture:
 #: 10 x (2 x 0.01^2), ten times that of a flat block with 1 % noise (module docstring)
 TEXTURED_GRADIENT_ENERGY = 10.0 * 2.0 * 0.01**2
+#: pixels of the raster :func:`scale_contrast` converts to float64 at a time (whole rows of blocks)
+_STRIP_PIXELS = 1 << 18
 
 
 def block_average(data: np.ndarray, valid: np.ndarray, factor: int) -> tuple:
@@ -253,22 +255,38 @@ def scale_contrast(radiance: np.ndarray, gsd_m: float, target: float, *, common_
         Median RMS contrast before and after.
     """
     factor = max(1, int(round(common_gsd_m / gsd_m)))
-    src = np.asarray(radiance, dtype=np.float64)
+    src = np.asarray(radiance)
     valid = np.isfinite(src)
-    m = float(src[valid].mean())
+    # strips of whole measurement blocks: no float64 copy of the whole raster is held
+    step = factor * window * max(1, _STRIP_PIXELS // max(1, src.shape[1]) // (factor * window))
+    strips = [slice(r0, min(r0 + step, src.shape[0])) for r0 in range(0, src.shape[0], step)]
+    total, count = 0.0, 0
+    for rows in strips:
+        total += float(src[rows][valid[rows]].sum(dtype=np.float64))
+        count += int(np.count_nonzero(valid[rows]))
+    m = total / max(count, 1)
 
-    def contrast(x):
-        return rms_contrast_median(*block_average(x, valid, factor), window=window)
+    def scaled(rows, gain):
+        s = src[rows].astype(np.float64)
+        return s if gain is None else np.maximum(m + gain * (s - m), 0.01 * m)
 
-    before = contrast(src)
-    gain, out = 1.0, src
+    def contrast(gain):
+        c = [block_rms_contrast(*block_average(scaled(rows, gain), valid[rows], factor), window=window) for rows in strips]
+        c = np.concatenate(c) if c else np.empty(0)
+        return float(np.median(c)) if c.size else float("nan")
+
+    before = contrast(None)
+    gain, applied = 1.0, None
     for _ in range(max(1, int(passes))):
-        now = contrast(out)
+        now = before if applied is None else contrast(applied)
         if not np.isfinite(now) or now <= 0.0:
             break
         gain *= float(target) / now
-        out = np.maximum(m + gain * (src - m), 0.01 * m)
-    return out.astype(np.float32), float(gain), (float(before), float(contrast(out)))
+        applied = gain
+    out = np.empty(src.shape, dtype=np.float32)
+    for rows in strips:
+        out[rows] = scaled(rows, applied)
+    return out, float(gain), (float(before), float(before if applied is None else contrast(applied)))
 
 
 def spectral_slope(img: np.ndarray, *, lo_px: float = 4.0, hi_px: float = 64.0) -> float:
