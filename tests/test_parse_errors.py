@@ -20,15 +20,14 @@ from pathlib import Path
 import pytest
 
 from calibrate.cli import main
+from tests.conftest import SHARED_DATA
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "fixtures" / "hy1c_czi"
 SCENE = FIXTURE / "manifest.json"
 DEM = FIXTURE / "reference" / "dem.tif"
 DOM = FIXTURE / "reference" / "dom.tif"
-DATA = ROOT.parent / "shared" / "data"
-if not DATA.is_dir():
-    DATA = Path("/work/shared/data")
+DATA = SHARED_DATA  # ../shared/data beside the project, or GCPCAL_SHARED_DATA
 
 _POINT = ["--rows", "1", "--cols", "1", "--height", "0"]
 

@@ -24,12 +24,11 @@ from sensor_models.imaging.ortho_grid import scene_gsd_m
 from sensor_models.maps.raster import MapImage
 from sensor_models.readers import open_scene
 from sensor_models.terrain.dem import Dem
+from tests.conftest import SHARED_DATA
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = [ROOT / "fixtures" / "hy1c_czi", ROOT / "fixtures" / "hy1c_czi_realistic"]
-DATA = ROOT.parent / "shared" / "data"
-if not DATA.is_dir():
-    DATA = Path("/work/shared/data")
+DATA = SHARED_DATA  # ../shared/data beside the project, or GCPCAL_SHARED_DATA
 needs_data = pytest.mark.skipif(not (DATA / "pleiades_ventoux").is_dir(), reason=f"no real test data at {DATA}")
 
 
