@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.test_tutorial import fenced_blocks, normalized, split_commands, text_blocks_against_output
+from tests.test_tutorial import checked_text_blocks, fenced_blocks, normalized, split_commands
 from tests.test_tutorial import line_agrees as tutorial_line_agrees
 from tests.test_tutorial_pushbroom import run_document
 
@@ -74,13 +74,8 @@ def _check_exits(tutorial):
 
 
 def _check_text_blocks(tutorial) -> int:
-    checked = 0
-    for missing, printed in text_blocks_against_output(
-            tutorial.blocks, tutorial.steps,
-            lambda text: normalized(text.replace(str(tutorial.work), WORK_PLACEHOLDER)), line_agrees):
-        assert not missing, (missing, printed)
-        checked += 1
-    return checked
+    return checked_text_blocks(tutorial.blocks, tutorial.steps,
+                               lambda text: normalized(text.replace(str(tutorial.work), WORK_PLACEHOLDER)), line_agrees)
 
 
 # ----------------------------------------------------------------------------- the document itself
