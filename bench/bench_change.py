@@ -2,11 +2,11 @@
 
 Scenes are rendered from one real band and matched against the same band (``same``) or another
 band of the same product (``cross``: Sentinel-2 red against near-infrared, whose contrast inverts
-over vegetation), as :mod:`fixtures.change_pairs` describes (the shared test data hold no two
+over vegetation), as :mod:`bench.change_pairs` describes (the shared test data hold no two
 dates of one place). Each (pair, seed, reference) is matched through the production matcher
 (:func:`gcpmatch.extract.extract_gcps`: coarse SIFT stage, reference chips, phase correlation,
 outlier rejection, ``sigma_px``) with each variant of :data:`VARIANTS`, and its GCPs are graded
-against the TRUE model (:func:`fixtures.change_pairs.truth_errors`).
+against the TRUE model (:func:`bench.change_pairs.truth_errors`).
 
 Printed per row: GCPs, truth error rms / median / p95 (2-D, px), mean error (row, col) px, and
 rms of truth error over ``sigma_px`` pooled and per axis (1: honest); then the rms pooled over the
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "fixtures"))
+sys.path.insert(0, str(ROOT / "bench"))
 
 import change_pairs  # noqa: E402
 

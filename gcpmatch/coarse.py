@@ -315,7 +315,7 @@ MIN_REDUCED_SIDE_PX = 256
 #: the re-screening refit on every ratio match is rejected when it moves the RANSAC consensus
 #: (median distance) by more than this many times the consensus's own robust spread about the
 #: first fit. Measured: 2.4-3.5 on same-band scenes (cloudy ideal scene of tests/test_match.py,
-#: Sentinel-2 scenes of fixtures/change_pairs.py), 43-80 for Sentinel-2 red against
+#: Sentinel-2 scenes of bench/change_pairs.py), 43-80 for Sentinel-2 red against
 #: near-infrared, where about 20 % of the ratio matches are right
 PULLED_FACTOR = 10.0
 

@@ -1,6 +1,6 @@
 """Matching under real radiometric change: a scene rendered from one real band, matched on another.
 
-The scenes come from :mod:`fixtures.change_pairs` (the realistic profile's TRUE model, optics,
+The scenes come from :mod:`bench.change_pairs` (the realistic profile's TRUE model, optics,
 noise and sun shading; the reference a real file, exact by construction). ``same``: the
 reference is the band the scene was rendered from; ``cross``: the Sentinel-2 red band against a
 scene of its near-infrared band or the other way round (contrast inverted over vegetation; the
@@ -22,7 +22,7 @@ from gcpmatch.options import MatchOptions
 from gcpmatch.window_match import spectral_spread_px
 from sensor_models.errors import InputError
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fixtures"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
 import change_pairs  # noqa: E402
 
