@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibrate._json import json_safe
+from calibrate.normal_decomposition import covariance_sigma
 from sensor_models.base import SensorModel
 
 __all__ = ["CalibrationResult", "parameter_unit", "residual_statistics"]
@@ -124,9 +125,7 @@ class CalibrationResult:
         ndarray, shape (P,), or None
             Square roots of the covariance diagonal (parameter units); None without a covariance.
         """
-        if self.covariance is None:
-            return None
-        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+        return covariance_sigma(self.covariance)
 
     def statistics(self, which: str = "after") -> dict:
         """RMS residuals (px) of all valid points and of the inliers, ``which`` in before/after.

@@ -100,7 +100,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibrate.lsq_inputs import Prior
-from calibrate.normal_decomposition import Decomposition, damped_step, decompose, inverse_diagonal, summarize_names
+from calibrate.normal_decomposition import (Decomposition, covariance_sigma, damped_step, decompose, inverse_diagonal,
+                                            summarize_names)
 from calibrate.normal_equations import Evaluation, evaluate, prior_cost, robust_cost, with_prior
 from calibrate.robust_loss import HUBER_C, TUNING, check_robust_rule, robust_scale, robust_u_dw, robust_weights
 from sensor_models.errors import InputError
@@ -188,9 +189,7 @@ class LsqResult:
         ndarray, shape (P,), or None
             Square roots of the covariance diagonal (parameter units); None without a covariance.
         """
-        if self.covariance is None:
-            return None
-        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+        return covariance_sigma(self.covariance)
 
 
 # --------------------------------------------------------------------------- solver

@@ -16,7 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["WARN_CONDITION", "Decomposition", "damped_step", "decompose", "inverse_diagonal", "summarize_names"]
+__all__ = ["WARN_CONDITION", "Decomposition", "covariance_sigma", "damped_step", "decompose", "inverse_diagonal",
+           "summarize_names"]
 
 #: eigenvector components at least this fraction of the largest name a near-null direction
 _PARTICIPATION = 0.3
@@ -180,6 +181,16 @@ def damped_step(dec, rhs, damping):
     bs = rhs / dec.d
     coef = (dec.eigvec.T @ bs) / (dec.eigval + damping)
     return (dec.eigvec @ coef) / dec.d
+
+
+def covariance_sigma(covariance) -> np.ndarray | None:
+    """Standard deviations from a covariance matrix, shape (P,), or None without one.
+
+    Square roots of the diagonal (parameter units), negative round-off clipped to 0.
+    """
+    if covariance is None:
+        return None
+    return np.sqrt(np.clip(np.diag(covariance), 0.0, None))
 
 
 def inverse_diagonal(dec):
