@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import click
 
-from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
 from calibrate.cli._progress import scene_lines, stage_progress
-from calibrate.cli.options import (add_options, dem_options, echo_json, exit_with_status, json_option,
+from calibrate.cli.options import (add_options, dem_options, echo_json, exit_for_failed_scenes, json_option,
                                    optional_dom_options, out_dir_option)
 from calibrate.pipelines.run import MIN_COVERAGE, MIN_GCPS
 
@@ -62,10 +61,7 @@ def command(ctx, campaign_path, out_dir, dom_path, dem_path, dem_datum, geoid, s
         echo_json(summary)
     else:
         _print_table(summary, out_dir)
-    if summary["failed"]:
-        reasons = "; ".join(f"{name}: {reason}" for name, reason in summary["failures"].items())
-        exit_with_status(ctx, EXIT_FAILED if not summary["ok"] else EXIT_PARTIAL,
-                         f"{summary['failed']} of {summary['scenes']} scene(s) failed ({reasons})")
+    exit_for_failed_scenes(ctx, summary)
 
 
 def _ok_text(row) -> str:

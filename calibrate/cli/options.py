@@ -14,10 +14,11 @@ import click
 import numpy as np
 
 from calibrate._json import json_default
+from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
 from sensor_models.errors import InputError
 
 __all__ = ["accept_product_disagreement_option", "add_options", "allow_implausible_option", "apply_verbosity", "constant_height_option", "dem_options", "dom_options", "echo_json", "optional_dom_options",
-           "echo_warnings", "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source",
+           "echo_warnings", "exit_for_failed_scenes", "exit_with_status", "float_list", "height_range_option", "json_option", "one_height_source",
            "out_dir_option", "quiet_of", "verbosity_options"]
 
 
@@ -382,6 +383,24 @@ def exit_with_status(ctx: click.Context, code: int, reason: str) -> None:
     text = " ".join(str(reason).split()) or "(no reason given)"
     click.echo(f"gcpcal: {what}: {text}", err=True)
     ctx.exit(code)
+
+
+def exit_for_failed_scenes(ctx: click.Context, summary: dict) -> None:
+    """A many-scene command (``validate``, ``campaign``) ends with exit 3 when every scene failed,
+    4 when some did, naming each failed scene and its reason; nothing when none failed.
+
+    Parameters
+    ----------
+    ctx : click.Context
+        The command's context.
+    summary : dict
+        ``failed``, ``ok``, ``scenes`` counts and ``failures`` (scene name -> reason).
+    """
+    if not summary["failed"]:
+        return
+    reasons = "; ".join(f"{name}: {reason}" for name, reason in summary["failures"].items())
+    exit_with_status(ctx, EXIT_PARTIAL if summary["ok"] else EXIT_FAILED,
+                     f"{summary['failed']} of {summary['scenes']} scene(s) failed ({reasons})")
 
 #: ``--json`` (keyword ``as_json``).
 json_option = click.option("--json", "as_json", is_flag=True,

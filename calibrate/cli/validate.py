@@ -10,9 +10,8 @@ from __future__ import annotations
 import click
 
 from calibrate.actions.validate import validate_calibration
-from calibrate.cli._errors import EXIT_FAILED, EXIT_PARTIAL
 from calibrate.cli._progress import scene_lines, stage_progress
-from calibrate.cli.options import echo_json, echo_warnings, exit_with_status, json_option, out_dir_option
+from calibrate.cli.options import echo_json, echo_warnings, exit_for_failed_scenes, json_option, out_dir_option
 
 __all__ = ["command"]
 
@@ -44,10 +43,7 @@ def command(ctx, sites_path, calibration, out_dir, scheduler, workers, spacing, 
         echo_json(summary)
     else:
         _print_table(Console(), Table, escape, summary["rows"], summary, out_dir)
-    if summary["failed"]:
-        reasons = "; ".join(f"{name}: {reason}" for name, reason in summary["failures"].items())
-        exit_with_status(ctx, EXIT_FAILED if not summary["ok"] else EXIT_PARTIAL,
-                         f"{summary['failed']} of {summary['scenes']} scene(s) failed ({reasons})")
+    exit_for_failed_scenes(ctx, summary)
 
 
 def _ok_text(row) -> str:
