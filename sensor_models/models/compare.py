@@ -73,24 +73,37 @@ def model_difference(
     bands = tuple(bands)
     if tuple(reference_model.image_shape) != tuple(model.image_shape):
         raise InputError(f"the models describe different images ({reference_model.image_shape} and {model.image_shape})")
-    per_ccd, all_dr, all_dc, missing = [], [], [], 0
     rows = _grid(reference_model.image_shape[0], step_px)
+
+    def on_ground(rr, cc, kw):
+        return _ground_difference(reference_model, model, rr, cc, kw, dem, heights_m)
+
+    out = _over_arrays(reference_model, model, rows, bands, step_px, on_ground, "ground")
+    if out["n_points"] == 0 and _sees_stars(reference_model) and _sees_stars(model):
+        out = _over_arrays(reference_model, model, rows, bands, step_px,
+                           lambda rr, cc, kw: _line_of_sight_difference(reference_model, model, rr, cc),
+                           "lines of sight")
+    return out
+
+
+def _over_arrays(reference_model, model, rows, bands, step_px: float, difference, compared: str) -> dict:
+    """:func:`model_difference`'s statistics of ``difference(rows, cols, kw) -> (dr, dc, n_missing)``
+    over the grid of every detector array of ``bands`` (``compared`` names the comparison)."""
+    per_ccd, all_dr, all_dc, missing = [], [], [], 0
     for band in bands:
-        for i, c, kw in _arrays(reference_model, model, band):
+        for _, c, kw in _arrays(reference_model, model, band):
             cols = c.first_col + _grid(c.n_detectors, step_px)
-            dr, dc, n_missing = _array_difference(reference_model, model, rows, cols, kw, dem, heights_m)
+            rr, cc = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
+            dr, dc, n_missing = difference(rr, cc, kw)
             missing += n_missing
             per_ccd.append(_stats(dr, dc) | {"band": band, "ccd": c.name})
             all_dr.append(dr)
             all_dc.append(dc)
-    dr, dc = np.concatenate(all_dr), np.concatenate(all_dc)
-    if dr.size == 0 and _sees_stars(reference_model) and _sees_stars(model):
-        return _line_of_sight_difference(reference_model, model, rows, bands, step_px)
-    out = _stats(dr, dc)
+    out = _stats(np.concatenate(all_dr), np.concatenate(all_dc))
     out["n_missing"] = missing
     out["step_px"] = float(step_px)
     out["per_ccd"] = per_ccd
-    out["compared"] = "ground"
+    out["compared"] = compared
     return out
 
 
@@ -99,39 +112,30 @@ def _sees_stars(model) -> bool:
     return callable(getattr(model, "object_vector_gcrf", None)) and callable(getattr(model, "star_to_image", None))
 
 
-def _line_of_sight_difference(reference_model, model, rows, bands, step_px: float) -> dict:
-    """The difference over the lines of sight, for a frame that sees no ground (a star frame).
+def _line_of_sight_difference(reference_model, model, rr, cc):
+    """Row and column differences over the lines of sight, for a frame that sees no ground (a star frame).
 
-    Each grid pixel's direction in GCRF by ``reference_model`` is projected through ``model``
+    Each pixel's direction in GCRF by ``reference_model`` is projected through ``model``
     (:meth:`star_to_image`): the pixel error of ``model`` for a point at infinity along that
-    line of sight, which is what a star frame can check.
+    line of sight, which is what a star frame can check. Returns the finite differences and the
+    number of the others.
     """
-    per_ccd, all_dr, all_dc, missing = [], [], [], 0
-    for band in bands:
-        for _, c, _kw in _arrays(reference_model, model, band):
-            cols = c.first_col + _grid(c.n_detectors, step_px)
-            rr, cc = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
-            r_m, c_m = model.star_to_image(reference_model.object_vector_gcrf(rr, cc))
-            dr, dc = r_m - rr, c_m - cc
-            good = np.isfinite(dr) & np.isfinite(dc)
-            missing += int((~good).sum())
-            per_ccd.append(_stats(dr[good], dc[good]) | {"band": band, "ccd": c.name})
-            all_dr.append(dr[good])
-            all_dc.append(dc[good])
-    out = _stats(np.concatenate(all_dr), np.concatenate(all_dc))
-    out["n_missing"] = missing
-    out["step_px"] = float(step_px)
-    out["per_ccd"] = per_ccd
-    out["compared"] = "lines of sight"
-    return out
+    r_m, c_m = model.star_to_image(reference_model.object_vector_gcrf(rr, cc))
+    return _finite(r_m - rr, c_m - cc)
 
 
-def _array_difference(reference_model, model, rows, cols, kw, dem, heights_m):
-    """Row and column differences ``model - reference`` on the grid ``rows x cols`` of one array.
+def _finite(dr, dc):
+    """The differences where both are finite, and how many are not."""
+    good = np.isfinite(dr) & np.isfinite(dc)
+    return dr[good], dc[good], int((~good).sum())
+
+
+def _ground_difference(reference_model, model, rr, cc, kw, dem, heights_m):
+    """Row and column differences ``model - reference`` at the grid pixels ``rr, cc`` of one array,
+    localized by the reference model on ``dem`` or at each of ``heights_m``.
 
     Returns the differences of the points both models see and the number of the others.
     """
-    rr, cc = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
     if dem is not None:
         lon, lat, h = reference_model.image_to_ground(rr, cc, dem=dem, **kw)
         r_obs, c_obs = rr, cc
@@ -143,9 +147,7 @@ def _array_difference(reference_model, model, rows, cols, kw, dem, heights_m):
     r_m, c_m = np.full(lon.shape, np.nan), np.full(lon.shape, np.nan)
     if ok.any():
         r_m[ok], c_m[ok] = model.ground_to_image(lon[ok], lat[ok], h[ok], **kw)
-    dr, dc = r_m - r_obs, c_m - c_obs
-    good = np.isfinite(dr) & np.isfinite(dc)
-    return dr[good], dc[good], int((~good).sum())
+    return _finite(r_m - r_obs, c_m - c_obs)
 
 
 def _arrays(reference_model, model, band):
