@@ -45,7 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 from scipy.optimize import minimize_scalar
-from threadpoolctl import threadpool_limits
+
+from sensor_models.files.threads import blas_threads
 
 __all__ = [
     "MAX_PSPLINE_SEGMENTS",
@@ -271,7 +272,7 @@ class _Pencil:
     def __init__(self, normal, rhs, rss0, penalty, ridge):
         a = normal + np.diag(ridge)
         self.d = d = 1.0 / np.sqrt(np.diag(a))  # Jacobi scaling: the same problem, tamer numbers
-        with threadpool_limits(1, user_api="blas"):  # a few hundred columns: threads only contend
+        with blas_threads(1):  # a few hundred columns: threads only contend
             s, v = scipy.linalg.eigh(d[:, None] * penalty * d[None, :], d[:, None] * a * d[None, :])
         self.s, self.v = np.clip(s, 0.0, None), v  # S v = s A v, V^T A V = I
         self.beta = v.T @ (d * rhs)

@@ -38,7 +38,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import cholesky, solve_triangular, svd
 from scipy.optimize import minimize_scalar
-from threadpoolctl import threadpool_limits
+
+from sensor_models.files.threads import blas_threads
 
 __all__ = ["gcv_weights"]
 
@@ -89,7 +90,7 @@ def _penalty_spectrum(h: np.ndarray, y: np.ndarray):
     q[j + 1, j] = -1.0 / h[:-1] - 1.0 / h[1:]
     q[j + 2, j] = 1.0 / h[1:]
     r = np.diag((h[:-1] + h[1:]) / 3.0) + np.diag(h[1:-1] / 6.0, 1) + np.diag(h[1:-1] / 6.0, -1)
-    with threadpool_limits(1, user_api="blas"):  # a ~100 x 100 problem: BLAS threads only contend
+    with blas_threads(1):  # a ~100 x 100 problem: BLAS threads only contend
         g = solve_triangular(cholesky(r, lower=True), q.T, lower=True).T  # Q L^-T, (n, n-2)
         u, s, _ = svd(g, full_matrices=False)
         c = u.T @ y

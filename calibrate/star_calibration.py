@@ -109,6 +109,11 @@ class StarCalibrationResult:
     versus_points : list of dict
         Figure 8: accuracy against the calibration points used per track (when computed).
     timings : dict
+    frame_body_to_gcrf : ndarray, shape (F, 3, 3), or None
+        The LAB model's body-to-GCRF rotation at each frame instant (the ``B_k`` of seed 000
+        eq. 9), as the run computed them.
+    frame_seconds : ndarray, shape (F,), or None
+        The frame instants, seconds after the model's epoch.
     """
 
     success: bool
@@ -127,6 +132,8 @@ class StarCalibrationResult:
     runs: list = field(default_factory=list)
     versus_points: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
+    frame_body_to_gcrf: np.ndarray | None = None
+    frame_seconds: np.ndarray | None = None
 
     def to_dict(self, *, points: bool = False) -> dict:
         """JSON-safe summary (the CLI's stars.json).
@@ -271,7 +278,8 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, *, options: Star
     model0 = models[0]
     base = dict(success=False, scheme=options.scheme, parameter_names=model0.parameter_names(),
                 initial=model0.parameters().values, sigma=None, sigma_names=(), tracks=tracks, frames=frame_info,
-                observations=obs, timings=timings)
+                observations=obs, timings=timings, frame_body_to_gcrf=np.stack([m.body_to_gcrf for m in models]),
+                frame_seconds=t)
     if obs.calibration.sum() < 5:
         return StarCalibrationResult(message=f"only {int(obs.calibration.sum())} usable track points "
                                              f"(tracks of >= {options.min_track_points} points needed)",
@@ -323,7 +331,7 @@ def _calibrate_and_score(obs, models, base, options, versus_points, t0):
     """Step 6 and the accuracy: calibrate frame 0's model, score it on the held-out points."""
     timings = base["timings"]
     model0 = models[0]
-    b_all = np.stack([m.body_to_gcrf for m in models])
+    b_all = base["frame_body_to_gcrf"]
     cal = obs.calibration
     kw = dict(interior_degree=options.interior_degree, interior_prior_px=options.interior_prior_px,
               robust=options.robust)

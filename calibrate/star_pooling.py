@@ -79,6 +79,9 @@ class StarSession:
         if result.observations is None:
             raise InputError("the session has no track observations", field="observations")
         t = np.asarray(seconds, dtype=np.float64).reshape(-1)
+        if result.frame_seconds is not None and np.array_equal(result.frame_seconds, t):
+            # the run's own rotations (the same model at the same instants)
+            return cls(lab_model.at_frame(float(t[0])), result.frame_body_to_gcrf, result.observations)
         frames = [lab_model.at_frame(float(s)) for s in t]
         return cls(frames[0], np.stack([m.body_to_gcrf for m in frames]), result.observations)
 

@@ -59,7 +59,8 @@ PAPER = {"ra_before_px": -6.795, "de_before_px": -21.004, "ra_mean_abs_px": 0.84
          "ra_two_sigma_px": 2.24, "de_two_sigma_px": 2.35, "tracks": 437}
 
 
-def run_session(work: Path, profile, *, day: int, n_frames: int, installation_error_arcsec=()) -> dict:
+def run_session(work: Path, profile, *, day: int, n_frames: int, installation_error_arcsec=(),
+                noise_replay=None) -> dict:
     """Simulate and calibrate one session; its held-out accuracy.
 
     Parameters
@@ -74,6 +75,8 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
     installation_error_arcsec : (float, float, float) or ()
         The session's TRUE installation error (roll, pitch, yaw); empty: the simulator's
         choice for seed 000's initial error at the centre.
+    noise_replay : sensor_models.simulate.noise_replay.NormalReplay, optional
+        Noise draws shared with the other sessions of the same day (the same frames, faster).
 
     Returns
     -------
@@ -92,7 +95,8 @@ def run_session(work: Path, profile, *, day: int, n_frames: int, installation_er
     folder = work / f"{profile.name}_day{day:02d}_{n_frames}" if not inst else work / f"{profile.name}_day{day:02d}_{n_frames}_i"
     config = GeoStarsConfig(n_frames=int(n_frames), epoch_utc=epoch, seed=int(day), installation_error_arcsec=inst)
     frames = []  # the uint16 frames, kept in memory (2 MB a frame) instead of written and read back
-    simulated = simulate_geo_stars(folder, config=config, profile=profile, frames_out=frames)
+    simulated = simulate_geo_stars(folder, config=config, profile=profile, frames_out=frames,
+                                   noise_replay=noise_replay)
     seconds = np.arange(len(frames)) * float(config.frame_interval_s)
     lab = read_geo_manifest(folder / "manifest.json")
     r = process_frames(frames, seconds, lab, options=OPTIONS)
@@ -165,6 +169,34 @@ def _timed_session(work: Path, profile, **kw) -> tuple:
     return out, time.process_time() - c0
 
 
+def _timed_group(work: Path, sessions: list, replay_bytes: int) -> list:
+    """:func:`_timed_session` of each ``(profile, kw)`` in turn, the noise draws of the first
+    replayed for the others (sessions of one day: the same draws, :mod:`~sensor_models.simulate.noise_replay`)."""
+    from sensor_models.simulate.noise_replay import NormalReplay
+
+    replay = NormalReplay(replay_bytes)
+    return [_timed_session(work, profile, noise_replay=replay, **kw) for profile, kw in sessions]
+
+
+def replay_budget_bytes(workers: int) -> int:
+    """Memory each worker may keep of a day's noise draws: a quarter of the available memory
+    shared by the workers (0 where the system does not say: nothing kept, the same results).
+
+    Parameters
+    ----------
+    workers : int
+
+    Returns
+    -------
+    int
+        Bytes (a 160-frame session of 1024 x 1024 frames draws 1.34 GB).
+    """
+    from sensor_models.simulate.noise_replay import available_memory_bytes
+
+    free = available_memory_bytes()
+    return 0 if free is None else int(free // (4 * max(1, int(workers))))
+
+
 def _init_worker() -> None:
     """One OpenCV thread and one BLAS thread per worker process (the workers already fill the
     cores; a BLAS thread pool per process only contends on them)."""
@@ -180,7 +212,9 @@ class SessionPool:
 
     ``submit`` returns a future of :func:`run_session`'s dict; a session already asked for
     (same magnitudes, day, frames and installation) returns the first one's future.
-    ``cpu_s`` sums the CPU seconds of the sessions finished so far (wherever they ran).
+    ``submit_group`` runs sessions of one day one after the other in one worker, which draws
+    their per-pixel noise once (:func:`replay_budget_bytes` of it kept). ``cpu_s`` sums the CPU
+    seconds of the sessions finished so far (wherever they ran).
 
     Parameters
     ----------
@@ -188,14 +222,19 @@ class SessionPool:
         Scratch folder of the simulated sessions.
     workers : int
         Worker processes; 1 runs every session in this process.
+    max_group : int, optional
+        Most sessions a group runs in one worker (larger groups are split: many workers gain
+        more from running sessions side by side than from sharing their noise).
     """
 
-    def __init__(self, work: Path, workers: int):
+    def __init__(self, work: Path, workers: int, max_group: int | None = None):
         self.work = Path(work)
         self.workers = int(workers)
+        self.max_group = None if max_group is None else max(1, int(max_group))
         self.futures: dict = {}
         self.cpu_s = 0.0
         self.pool = None
+        self.replay_bytes = replay_budget_bytes(self.workers)
         if self.workers > 1:
             import multiprocessing
 
@@ -221,20 +260,47 @@ class SessionPool:
         Future
             Of :func:`run_session`'s dict.
         """
-        inst = tuple(float(x) for x in installation_error_arcsec)
-        key = (_magnitudes(profile), int(day), int(n_frames), inst)
-        if key not in self.futures:
-            kw = dict(day=int(day), n_frames=int(n_frames), installation_error_arcsec=inst)
+        return self.submit_group([(profile, dict(day=day, n_frames=n_frames,
+                                                 installation_error_arcsec=installation_error_arcsec))])[0]
+
+    def submit_group(self, sessions: list) -> list:
+        """Run sessions of one day one after the other in one worker, their noise drawn once.
+
+        Parameters
+        ----------
+        sessions : list of (StarsProfile, dict)
+            Each profile and :meth:`submit`'s keywords (``day``, ``n_frames``,
+            ``installation_error_arcsec``); sessions already asked for are not run again.
+
+        Returns
+        -------
+        list of Future
+            Of :func:`run_session`'s dict, one per session given.
+        """
+        keys, new = [], {}
+        for profile, kw in sessions:
+            kw = dict(day=int(kw["day"]), n_frames=int(kw["n_frames"]),
+                      installation_error_arcsec=tuple(float(x) for x in kw.get("installation_error_arcsec", ())))
+            key = (_magnitudes(profile), kw["day"], kw["n_frames"], kw["installation_error_arcsec"])
+            keys.append(key)
+            if key not in self.futures and key not in new:
+                new[key] = (profile, kw)
+        items = list(new.items())
+        size = len(items) if self.max_group is None else self.max_group
+        for start in range(0, len(items), max(1, size)):
+            chunk = items[start:start + size]
+            args = (_timed_group, self.work, [session for _, session in chunk], self.replay_bytes)
             if self.pool is not None:
-                timed = self.pool.submit(_timed_session, self.work, profile, **kw)
+                timed = self.pool.submit(*args)
             else:
                 timed = Future()
-                timed.set_result(_timed_session(self.work, profile, **kw))
-            self.futures[key] = self._untimed(timed)
-        return self.futures[key]
+                timed.set_result(args[0](*args[1:]))
+            for i, (key, _) in enumerate(chunk):
+                self.futures[key] = self._untimed(timed, i)
+        return [self.futures[key] for key in keys]
 
-    def _untimed(self, timed: Future) -> Future:
-        """A future of the session's dict alone; its CPU time added to ``cpu_s``."""
+    def _untimed(self, timed: Future, index: int) -> Future:
+        """A future of one session's dict (``index`` in its group); its CPU time added to ``cpu_s``."""
         out = Future()
 
         def done(f):
@@ -244,7 +310,7 @@ class SessionPool:
             if f.exception() is not None:
                 out.set_exception(f.exception())
                 return
-            result, cpu = f.result()
+            result, cpu = f.result()[index]
             self.cpu_s += cpu
             out.set_result(result)
 
@@ -257,12 +323,13 @@ class SessionPool:
             self.pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _following_days(sessions: SessionPool, profile, first: dict, n_sessions: int, n_frames: int) -> list:
-    """Futures of days 1..n-1: day 0's installation plus the profile's daily offset."""
+def _following_days(profile, first: dict, n_sessions: int, n_frames: int) -> dict:
+    """Days 1..n-1 of ``profile``, ``{day: (profile, keywords of SessionPool.submit)}``: day 0's
+    installation plus the profile's daily offset."""
     base = np.asarray(first["installation_error_arcsec"], dtype=np.float64)
     offsets = _day_offsets_arcsec(profile, n_sessions)
-    return [sessions.submit(profile, day=day, n_frames=n_frames, installation_error_arcsec=tuple(base + offsets[day]))
-            for day in range(1, n_sessions)]
+    return {day: (profile, dict(day=day, n_frames=n_frames, installation_error_arcsec=tuple(base + offsets[day])))
+            for day in range(1, n_sessions)}
 
 
 def _day_to_day_plan(profile, quick: bool, n_sessions: int) -> tuple:
@@ -344,25 +411,34 @@ def _curves(profile, n_frames, plan: list, runs: list) -> list:
 
 def _all_sessions(work, profile, n_sessions: int, n_frames: int, quick: bool, workers: int) -> tuple:
     """Every session of the experiment: the profile's days, the curves' day-0 variants and the
-    day-to-day curve's days (day 0 first; the other days once its installation is known); and
-    ``{"simulated": sessions run, "cpu_s": their CPU seconds}``."""
-    runner = SessionPool(work, workers)
+    day-to-day curve's days (day 0 first; the other days once its installation is known), the
+    sessions of one day grouped (:meth:`SessionPool.submit_group`); and ``{"simulated": sessions
+    run, "cpu_s": their CPU seconds}``."""
+    plan = _curve_plan(profile, quick)
+    xs, k, varied = _day_to_day_plan(profile, quick, n_sessions) if n_sessions > 1 else (None, 0, {})
+    expected = n_sessions + sum(len(row[-1]) for row in plan) + (k - 1) * sum(v is not None for v in varied.values())
+    runner = SessionPool(work, workers, max_group=max(1, -(-expected // (2 * max(1, int(workers))))))
     try:
         first = runner.submit(profile, day=0, n_frames=n_frames)
-        plan = _curve_plan(profile, quick)
-        curve_runs = [[runner.submit(p, day=0, n_frames=n_frames) for p in profiles] for *_, profiles in plan]
-        days = [first] + _following_days(runner, profile, first.result(), n_sessions, n_frames)
-        day_plan, day_runs = None, {}
-        if n_sessions > 1:
-            xs, k, varied = _day_to_day_plan(profile, quick, n_sessions)
-            day_plan = (xs, k)
-            day_runs = {x: days[:k] if v is None else [first] + _following_days(runner, v, first.result(), k, n_frames)
-                        for x, v in varied.items()}
+        flat = iter(runner.submit_group([(p, dict(day=0, n_frames=n_frames)) for *_, profiles in plan for p in profiles]))
+        curve_runs = [[next(flat) for _ in profiles] for *_, profiles in plan]
+        day0 = first.result()
+        wanted = {None: _following_days(profile, day0, n_sessions, n_frames)}  # None: the profile's own days
+        wanted.update({x: _following_days(v, day0, k, n_frames) for x, v in varied.items() if v is not None})
+        futures = {x: {} for x in wanted}
+        groups = [[(x, wanted[x][day]) for x in wanted if day in wanted[x]] for day in range(1, n_sessions)]
+        for group in sorted(groups, key=len, reverse=True):  # the longest first: the workers end together
+            for (x, session), f in zip(group, runner.submit_group([session for _, session in group])):
+                futures[x][session[1]["day"]] = f
+        days = [first] + [futures[None][day] for day in range(1, n_sessions)]
+        day_runs = {x: days[:k] if v is None else [first] + [futures[x][day] for day in range(1, k)]
+                    for x, v in varied.items()}
         days = [f.result() for f in days]
         curve_runs = [[f.result() for f in row] for row in curve_runs]
         day_runs = {x: [f.result() for f in row] for x, row in day_runs.items()}
     finally:
         runner.close()
+    day_plan = (xs, k) if n_sessions > 1 else None
     return days, (plan, curve_runs), (day_plan, day_runs), {"simulated": len(runner.futures), "cpu_s": runner.cpu_s}
 
 

@@ -214,12 +214,20 @@ def _set_opencv_threads(n: int):
     return lambda: cv2.setNumThreads(before)
 
 
+_controller_cache: list = [None, -1]  # [ThreadpoolController, len(sys.modules) when it scanned]
+
+
 def _set_blas_threads(n: int):
+    import sys
+
     from threadpoolctl import ThreadpoolController
 
-    # a controller of its own each time: it scans the libraries loaded now (SciPy's BLAS, say,
-    # may have been loaded since the last block)
-    return ThreadpoolController().limit(limits=n, user_api="blas").restore_original_limits
+    # A controller scans the shared libraries loaded (4 ms: more than a small solve it guards).
+    # BLAS libraries arrive with the extension modules that link them (NumPy's, SciPy's), so the
+    # scan is redone only when a module was imported since the last one.
+    if _controller_cache[1] != len(sys.modules):
+        _controller_cache[:] = [ThreadpoolController(), len(sys.modules)]
+    return _controller_cache[0].limit(limits=n, user_api="blas").restore_original_limits
 
 
 #: OpenCV's own thread count set to ``n`` inside the block, restored after (a process-wide

@@ -315,7 +315,7 @@ def _build_models(cfg: GeoStarsConfig, rng, errors=None):
 def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frames: int | None = None,
                        frame_interval_s: float | None = None, seed: int | None = None,
                        mag_limit: float | None = None, image_shape=None, profile=None,
-                       frames_out: list | None = None) -> dict:
+                       frames_out: list | None = None, noise_replay=None) -> dict:
     """Render a star-field sequence of a geostationary staring camera (module docstring).
 
     Parameters
@@ -337,6 +337,10 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
         ``frames/`` nor ``frames.json`` is written (the frame of index ``k`` is at ``k *
         frame_interval_s`` seconds). For a caller that processes the frames at once (the seed
         000 experiment) rather than a user's files.
+    noise_replay : sensor_models.simulate.noise_replay.NormalReplay, optional
+        Keeps the frames' per-pixel noise draws and replays them where another sequence's
+        generator reaches the same state (sequences of one seed): the same frames, bit for bit,
+        without drawing the noise again.
 
     Returns
     -------
@@ -363,7 +367,8 @@ def simulate_geo_stars(out_dir, *, config: GeoStarsConfig | None = None, n_frame
     out_dir = Path(out_dir)
     with atomic_folder(out_dir, mode="merge") as tmp:
         tmp = tmp.resolve()
-        frames, rendered, n_per_frame = _render_frames(tmp, cfg, truth, catalog, unit_icrs, mags, rng, errors,
+        frame_rng = rng if noise_replay is None else noise_replay.generator(rng)
+        frames, rendered, n_per_frame = _render_frames(tmp, cfg, truth, catalog, unit_icrs, mags, frame_rng, errors,
                                                        frames_out)
         write_geo_manifest(lab, tmp / "manifest.json")
         write_geo_manifest(truth, tmp / "truth_manifest.json")
@@ -429,7 +434,7 @@ def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, ma
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning
 
-    from sensor_models.imaging.psf import render_stars
+    from sensor_models.imaging.psf import dn_uint16, render_stars
     from sensor_models.geometry.star_catalogue import catalog_stars_in_frame
 
     seconds = np.arange(int(cfg.n_frames)) * float(cfg.frame_interval_s)
@@ -454,12 +459,12 @@ def _render_frames(tmp: Path, cfg: GeoStarsConfig, truth, catalog, unit_icrs, ma
         img = render_stars(shape, at, flux, sigma_px=cfg.psf_sigma_px,
                            background=cfg.background_adu, gain_e_per_adu=cfg.gain_e_per_adu,
                            read_noise_e=cfg.read_noise_e, rng=rng, out=buffer)
-        if gain is not None:  # background + (img - background) * gain, in place
+        offset = 0.0
+        if gain is not None:  # background + (img - background) * gain; the background added in dn_uint16
             img -= cfg.background_adu
             img *= gain
-            img += cfg.background_adu
-        np.rint(img, out=img)
-        dn = np.clip(img, 0, 65535, out=img).astype(np.uint16)
+            offset = cfg.background_adu
+        dn = dn_uint16(img, offset)
         name = f"frames/frame_{k:04d}.tif"
         if frames_out is not None:
             frames_out.append(dn)
