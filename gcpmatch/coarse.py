@@ -11,8 +11,9 @@
    is left is the model's error (offset, a few degrees of rotation, scale), which SIFT and
    RANSAC absorb.
 3. SIFT (OpenCV) on both, approximate nearest neighbours (FLANN randomized k-d trees, Muja &
-   Lowe 2009, seeded) with Lowe's ratio test (0.8), and RANSAC of an affine map between the
-   warped scene and the DOM (threshold ``ransac_px``). The feature budget adapts to the scene:
+   Lowe 2009, seeded; with the torch backends the exact two nearest neighbours, found on the
+   device: :mod:`gcpmatch._features_torch`) with Lowe's ratio test (0.8), and RANSAC of an
+   affine map between the warped scene and the DOM (threshold ``ransac_px``). The feature budget adapts to the scene:
    the strongest ``FIRST_FEATURE_BUDGET`` keypoints of the scene first (``n_features`` in the
    DOM), and only where RANSAC keeps fewer than ``MIN_FIRST_INLIERS`` of their matches (clouds,
    texture-poor ground, a large error), the full ``n_features`` in both.
@@ -193,21 +194,41 @@ def _sift_features(img, mask, n_features):
         img, mask.astype(np.uint8) * 255)
 
 
-def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0):
-    """FLANN k-d tree matching of two images' SIFT features with Lowe's ratio test (0.8).
+def _flann_ratio_pairs(des_a, des_b, *, seed: int = 0):
+    """FLANN k-d tree two nearest neighbours with Lowe's ratio test (0.8): (query, train) indices.
 
     The trees are randomized by OpenCV's generator of the calling thread, seeded here, so the
     matches do not depend on what ran before in the process.
     """
-    (kp_a, des_a), (kp_b, des_b) = scene_features, dom_features
-    if des_a is None or des_b is None or len(kp_a) < 2 or len(kp_b) < 2:
-        return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32), len(kp_a), len(kp_b)
     cv2.setRNGSeed(seed)
     matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": FLANN_TREES}, {"checks": FLANN_CHECKS})
     pairs = matcher.knnMatch(des_a, des_b, k=2)
     good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
-    pa = np.float32([kp_a[m.queryIdx].pt for m in good]).reshape(-1, 2)
-    pb = np.float32([kp_b[m.trainIdx].pt for m in good]).reshape(-1, 2)
+    return (np.array([m.queryIdx for m in good], dtype=np.intp), np.array([m.trainIdx for m in good], dtype=np.intp))
+
+
+def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0, device=None):
+    """Ratio-test matches of two images' SIFT features: FLANN on the CPU (``device`` None), else the
+    exact two nearest neighbours on the torch ``device`` (:mod:`gcpmatch._features_torch`).
+
+    Returns
+    -------
+    pa, pb : ndarray of float32, shape (m, 2)
+        Matched keypoint positions (x, y) in each image (OpenCV pixels).
+    n_a, n_b : int
+        Keypoints of each image.
+    """
+    (kp_a, des_a), (kp_b, des_b) = scene_features, dom_features
+    if des_a is None or des_b is None or len(kp_a) < 2 or len(kp_b) < 2:
+        return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32), len(kp_a), len(kp_b)
+    if device is None:
+        query, train = _flann_ratio_pairs(des_a, des_b, seed=seed)
+    else:
+        from gcpmatch._features_torch import ratio_test_pairs
+
+        query, train = ratio_test_pairs(des_a, des_b, ratio=0.8, device=device)
+    pa = np.float32([kp_a[i].pt for i in query]).reshape(-1, 2)
+    pb = np.float32([kp_b[j].pt for j in train]).reshape(-1, 2)
     return pa, pb, len(kp_a), len(kp_b)
 
 
@@ -241,10 +262,11 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     seed : int
         Seed of the RANSAC draws.
     backend : {"cpu", "torch"}
-        OpenCV SIFT, brute-force matching and affine RANSAC, or kornia's SIFT, ratio-test
-        matching and homography RANSAC on the torch ``device`` (``None``: CUDA if available).
+        OpenCV SIFT, FLANN ratio-test matching and affine RANSAC; or the same SIFT features and
+        RANSAC with the descriptors' exact two nearest neighbours found on the torch ``device``
+        (:mod:`gcpmatch._features_torch`: the matches of a brute-force matcher).
     device : str or torch.device, optional
-        Torch device of the ``"torch"`` backend.
+        Torch device of the ``"torch"`` backend (``None``: CUDA if available, else the CPU).
     skip_within_px : float, optional
         The fine stage's search radius, pixels: when a few windows' phase correlation shows
         the model already within half of it, SIFT is skipped and ``model`` is returned
@@ -478,7 +500,8 @@ def _warp_to_dom(small, small_valid, a_pred):
 def _sift_ransac(warped, warped_valid, dom_small, *, n_features, ransac_px, seed, backend, device):
     """SIFT matches (ratio test) between the warped scene and the DOM, and their RANSAC inliers.
 
-    The OpenCV path adapts its feature budget (module docstring, step 3).
+    Both backends adapt the feature budget (module docstring, step 3); ``backend`` other than
+    ``"cpu"`` matches the descriptors on the torch ``device`` (None: CUDA if available).
 
     Returns
     -------
@@ -487,34 +510,29 @@ def _sift_ransac(warped, warped_valid, dom_small, *, n_features, ransac_px, seed
     n_kp_s, n_kp_d : int
         Keypoints found in each image.
     ransac_in : ndarray of bool, shape (m,)
-        Matches consistent with one affine (OpenCV) or homography (kornia) map.
+        Matches consistent with one affine map.
     """
     dom_valid = np.isfinite(dom_small)
     dom_u8 = to_uint8(dom_small, dom_valid)
-    if backend != "cpu":
-        from gcpmatch._features_kornia import ransac_inliers, sift_matches
-
-        ps, pd, n_kp_s, n_kp_d = sift_matches(warped, warped_valid > 0, dom_u8, dom_valid, n_features=n_features,
-                                              device=device)
-        _check_matches(ps, n_kp_s, n_kp_d)
-        return ps, pd, n_kp_s, n_kp_d, _enough(ransac_inliers(ps, pd, threshold_px=ransac_px, seed=seed,
-                                                              device=device))
+    device = (device or "auto") if backend != "cpu" else None  # None: FLANN on the CPU
     dom_features = _sift_features(dom_u8, dom_valid, n_features)  # the full budget in both passes
     first = min(n_features, FIRST_FEATURE_BUDGET)
     if first < n_features:  # the full budget in the scene only where the first is not enough
         try:
             found = _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, first), dom_features,
-                                        ransac_px, seed)
+                                        ransac_px, seed, device)
             if int(found[-1].sum()) >= MIN_FIRST_INLIERS:
                 return found
         except CoarseMatchError:
             pass
-    return _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, n_features), dom_features, ransac_px, seed)
+    return _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, n_features), dom_features, ransac_px, seed,
+                               device)
 
 
-def _sift_ransac_opencv(scene_features, dom_features, ransac_px, seed):
-    """FLANN ratio matches of the scene's and the DOM's SIFT features, seeded affine RANSAC."""
-    ps, pd, n_kp_s, n_kp_d = _sift_matches_opencv(scene_features, dom_features, seed=seed)
+def _sift_ransac_opencv(scene_features, dom_features, ransac_px, seed, device=None):
+    """Ratio matches of the scene's and the DOM's SIFT features (FLANN, or exact on a torch
+    ``device``), seeded affine RANSAC."""
+    ps, pd, n_kp_s, n_kp_d = _sift_matches_opencv(scene_features, dom_features, seed=seed, device=device)
     _check_matches(ps, n_kp_s, n_kp_d)
     cv2.setRNGSeed(seed)
     _, mask = cv2.estimateAffine2D(ps, pd, method=cv2.RANSAC, ransacReprojThreshold=ransac_px,

@@ -32,6 +32,7 @@ from gcpmatch.coverage import reference_coverage
 from gcpmatch.gcps import GcpTable
 from gcpmatch.options import MatchOptions
 from gcpmatch.outliers import local_consistency, smooth_residuals
+from gcpmatch.phase_batch import match_batch
 from gcpmatch.reference import reference_for_ccd, reference_for_image, scene_gsd_m
 from gcpmatch.texture import band_noise_dn, gradient_snr, weak_texture
 from gcpmatch.uncertainty import reference_sigma_px, score_sigma_px, window_sigma
@@ -401,8 +402,9 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions, on_batch=None):
     # estimate convolves the whole CCD (4.5 CPU-s and ~1.5 GB of float64 scratch at 8192 x 5450)
     snr_used = opt.min_gradient_snr > 0.0 or (opt.sigma_model == "window" and opt.texture_sigma_px > 0.0)
     noise_dn = band_noise_dn(img) if snr_used else None
-    for a in range(0, n, opt.batch):
-        b = min(n, a + opt.batch)
+    step = match_batch(w, opt.backend, opt.batch)
+    for a in range(0, n, step):
+        b = min(n, a + step)
         ws = win_s[rr[a:b], cc[a:b]]
         wr = win_r[rr[a:b], cc[a:b]]
         bad_ref = ~np.isfinite(wr).all(axis=(1, 2))

@@ -72,7 +72,9 @@ class MatchOptions:
     seed : int
         Seed of the random draws (RANSAC, check-point split); >= 0.
     batch : int
-        Windows phase-correlated per batch (bounds memory); >= 1.
+        Windows phase-correlated per batch (bounds memory); >= 1. With ``backend="gpu"`` the
+        least: batches are sized up from the free GPU and host memory
+        (:func:`gcpmatch.phase_batch.match_batch`).
     radiometry : str
         Preparation of each window pair before correlation (:mod:`gcpmatch.radiometry`):
         ``"none"``, ``"rank"`` (rank transform: invariant to any monotonic grey-level change) or

@@ -105,6 +105,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gcpmatch.phase_batch import BATCH_PIXELS, device_batch
 from gcpmatch.phase_numpy import NumpyKernel
 from gcpmatch.phase_plan import make_plan
 from sensor_models.errors import InputError
@@ -133,10 +134,6 @@ FIRST_PASSES = ("half", "full")
 #: ratio reaches 2.0 in 1.39 % of them on the full surface and 1.8 in 1.25 % on the half one
 #: (2.0 in 0.76 %); on the matched pairs the half ratio is 0.76 times the full one (median).
 MIN_PEAK_RATIO = {"full": 2.0, "half": 1.8}
-#: Default batch: 256 windows of 64 x 64 px (~20 MB of scratch). Fewer Python calls per pair
-#: than 128 (measured, ``first_pass="half"``, 1 thread: 72.0 % of the FFT floor against 66.4 %);
-#: the floor itself is fastest at 32 pairs, where this kernel's per-call overhead dominates.
-_BATCH_PIXELS = 1 << 20
 
 
 class Reject(enum.IntEnum):
@@ -248,7 +245,9 @@ def phase_correlate(reference, moving, *, upsample: int | None = None, window: s
         Torch device (``"cpu"``, ``"cuda"``, ``"cuda:1"``); only with the torch backends.
     batch : int or None
         Pairs processed at once (bounds the memory: about 20 bytes per pixel and pair in
-        float32, measured); ``None``: 2**20 px worth of windows (256 pairs of 64 x 64 px).
+        float32, measured); ``None``: on the CPU backend 2**20 px worth of windows (256 pairs of
+        64 x 64 px), on the torch backends what the device's free memory holds
+        (:func:`gcpmatch.phase_batch.device_batch`). The results do not depend on it.
     workers : int or None
         Threads over the batches (``None`` or -1: :func:`sensor_models.files.threads.thread_count`,
         ``GCPCAL_THREADS`` or every core; 1: one after the other); with fewer batches than
@@ -290,6 +289,8 @@ def phase_correlate(reference, moving, *, upsample: int | None = None, window: s
         from gcpmatch import _phase_torch  # lazy: torch is an optional dependency
 
         kernel = _phase_torch.TorchKernel(plan, device=options["device"])
+        if batch is None:  # from the device's free memory (gcpmatch.phase_batch)
+            batch = device_batch((height, width), plan.dtype, kernel.device)
         outputs = _concatenate([kernel(ref[a:b], mov[a:b]) for a, b in _batches(ref.shape, batch)])
     return _assess(*outputs, min_score, min_peak_ratio, max_shift)
 
@@ -299,7 +300,7 @@ def _batches(shape: tuple[int, int, int], batch) -> list[tuple[int, int]]:
     (None: 2**20 px worth), whatever the thread count."""
     n_pairs, height, width = shape
     if batch is None:
-        batch = max(1, _BATCH_PIXELS // (height * width))
+        batch = max(1, BATCH_PIXELS // (height * width))
     return [(a, min(n_pairs, a + batch)) for a in range(0, n_pairs, batch)]
 
 

@@ -146,7 +146,6 @@ def test_bad_inputs_fail_cleanly(clear_scene, tmp_path, capsys):
 
 def test_torch_backend_gives_the_same_gcps(clear_scene):
     pytest.importorskip("torch")
-    pytest.importorskip("kornia")
     from gcpmatch.phase import phase_correlate
 
     lab, truth, dem, dom, img = _open(clear_scene)
