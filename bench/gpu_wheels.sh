@@ -19,7 +19,9 @@ cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 pin() { grep -i "^$1==" constraints.txt | head -n 1; }
 # rasterio (with its GDAL), pyproj (with PROJ), pyerfa (erfa: time scales and frames), affine
-# (grids), astropy-iers-data (Earth orientation tables)
+# (grids), astropy-iers-data (Earth orientation tables). kornia (1.9 MB) and kornia_rs (5.3 MB)
+# stay behind too: with them the wheels would not fit; the device matching then runs its
+# torch-only path (gcpmatch/_features_torch.py), which gives the same matches.
 wanted=(rasterio pyproj pyerfa affine astropy-iers-data)
 specs=()
 for name in "${wanted[@]}"; do

@@ -37,10 +37,18 @@ def _brute_force_ratio(des_a, des_b, ratio=0.8):
     return np.array([m.queryIdx for m in good]), np.array([m.trainIdx for m in good])
 
 
+@pytest.mark.parametrize("kornia_installed", [True, False])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_device_matches_are_the_brute_force_matchers(seed):
+def test_device_matches_are_the_brute_force_matchers(seed, kornia_installed, monkeypatch):
     """Random textures, a rotated and rescaled copy of each: the torch matcher keeps exactly the
-    ratio-test matches of OpenCV's brute-force matcher (same query, same train index)."""
+    ratio-test matches of OpenCV's brute-force matcher (same query, same train index), through
+    kornia's ratio test and through the torch-only one used where kornia is not installed."""
+    import gcpmatch._features_torch as features
+
+    if kornia_installed:
+        pytest.importorskip("kornia", reason="kornia (optional 'gpu' extra) is not installed")
+    else:
+        monkeypatch.setattr(features, "_kornia_match_snn", lambda: features._match_snn_torch)
     rng = np.random.default_rng(seed)
     a = _textured(rng, (360, 420), float(rng.uniform(1.0, 3.0)))
     angle, scale = float(rng.uniform(-20, 20)), float(rng.uniform(0.8, 1.2))
