@@ -191,10 +191,9 @@ def scene_height_m(model, dem, *, band=None, iterations: int = 3) -> float:
 #: stay, so the coarse stage's peak follows the larger of the two images, not their sum.
 SIFT_BYTES_PER_PX = 230
 #: Memory the coarse stage's SIFT may take, bytes: a scene whose warped image or DOM window
-#: would need more is matched by tiles (:func:`plan_tiles`). 1 GiB holds 4.7 M pixels: the
-#: full-size seed-003 scene reduced 14 times (a 1.4 M pixel DOM window) and every scene of the
-#: tests and tutorials stay whole; a 512-line strip of its full width (reduced twice, 33 M
-#: pixels of DOM window) is tiled.
+#: would need more is matched by tiles (:func:`plan_tiles`). 1 GiB holds 4.67 M pixels: every
+#: scene of the tests and tutorials stays whole (0.92 M pixels at most); a 512-line strip of the
+#: seed-003 width (reduced twice, a 31.3 M pixel DOM window) runs as 7 tiles.
 SIFT_BUDGET_BYTES = 1 << 30
 #: Tiles overlap by this many reduced pixels: a keypoint near a tile's edge has its
 #: descriptor's support (about 10 times its scale) in the neighbour, where it is kept.
