@@ -1,14 +1,15 @@
 """Diagnostic: match a full-width strip with a widened coarse stage, then calibrate and grade.
 
-``gcpcal match`` fails on a 512-line strip of the seed's full width at its coarse stage (the
-21 800-column strip is reduced 14 times to 36 rows, and the LAB model's rotation moves it by
--270..+290 lines across the swath; docs/experiments.md). This script runs the library's match
-action (:func:`calibrate.actions.match.match_scene`, everything else as ``gcpcal match``) with
-the coarse stage's reduction target and SIFT feature cap raised (``--target-px``,
-``--n-features``: ``gcpmatch.coarse.coarse_match`` arguments the CLI does not expose), then
-``gcpcal calibrate`` (auto, static) and ``gcpcal truth error`` as a user would, and the GCP truth
-error by off-nadir angle (``bench/gcp_truth.py``). NOT what ``gcpcal match`` does by default:
-a diagnostic of what the full width gives once the coarse stage has found the scene.
+On a 512-line strip of the seed's full width, ``gcpcal match`` reduces the 21 800-column strip
+twice (``MIN_REDUCED_SIDE_PX``) and runs SIFT by tiles under its memory budget
+(docs/matching.md, "The coarse stage by tiles"); its outermost CCD gets no coarse match
+(docs/experiments.md). This script runs the library's match action
+(:func:`calibrate.actions.match.match_scene`, everything else as ``gcpcal match``) with the coarse
+stage's reduction target and SIFT feature cap raised (``--target-px``, ``--n-features``:
+``gcpmatch.coarse.coarse_match`` arguments the CLI does not expose), then ``gcpcal calibrate``
+(auto, static) and ``gcpcal truth error`` as a user would, and the GCP truth error by off-nadir
+angle (``bench/gcp_truth.py``). NOT what ``gcpcal match`` does by default: a diagnostic of what
+the full width gives with more features in the coarse stage.
 
 The match runs in this process; the later commands are forked from it, so their ``peak_rss_mib``
 includes this process's resident memory at the fork (not a figure to report).

@@ -17,6 +17,13 @@
    the strongest ``FIRST_FEATURE_BUDGET`` keypoints of the scene first (``n_features`` in the
    DOM), and only where RANSAC keeps fewer than ``MIN_FIRST_INLIERS`` of their matches (clouds,
    texture-poor ground, a large error), the full ``n_features`` in both.
+   When the warped scene or its DOM window would need more memory than ``sift_budget_bytes``
+   for SIFT's scale space (``SIFT_BYTES_PER_PX`` a pixel of the larger of the two), steps 1-3
+   run by overlapping tiles of the reduced scene (:func:`plan_tiles`: the coarsest grid whose
+   every tile fits, tile sides kept at ``MIN_REDUCED_SIDE_PX`` or more), each warped by its own
+   predicted map against the DOM window around its own footprint, with its own RANSAC; the
+   matches in each tile's core are merged in full-scene coordinates. A scene within the budget
+   is matched whole, as above.
 4. The inliers become ground points (DOM position, DEM height) and the model's exterior is
    fitted to them in ground space (:func:`gcpmatch.precorrect.fit_exterior_in_ground`), then all
    ratio-test matches are re-screened against the corrected model and each CCD's offset is
@@ -32,11 +39,12 @@ import numpy as np
 import pyproj
 
 from gcpmatch.coarse_skip import within_fine_radius
-from gcpmatch.precorrect import fit_ccd_offsets, fit_exterior_in_ground, ground_distance_m
+from gcpmatch.precorrect import precorrect_matches
 from gcpmatch.reference import grid_resolution_m, scene_gsd_m
 from sensor_models.errors import GcpcalError
 
-__all__ = ["MIN_REDUCED_SIDE_PX", "CoarseResult", "coarse_match", "reduction_factor", "to_uint8"]
+__all__ = ["MIN_REDUCED_SIDE_PX", "SIFT_BUDGET_BYTES", "SIFT_BYTES_PER_PX", "CoarseResult", "Tile", "coarse_match",
+           "plan_tiles", "reduction_factor", "to_uint8"]
 
 
 class CoarseMatchError(GcpcalError, RuntimeError):
@@ -82,6 +90,7 @@ class CoarseResult:
     points: dict = field(default_factory=dict)  # row, col, lon, lat, h of the final inliers
     dem_coverage: float = 1.0  # fraction of the searched DOM with DEM heights
     note: str = ""
+    tiles: int = 1  # SIFT passes: 1 for the whole scene, else the tiles of plan_tiles
 
     def summary(self) -> dict:
         """The counts and fit figures as a JSON-ready dict (no model, no points).
@@ -91,15 +100,15 @@ class CoarseResult:
         dict
             Keypoints, ratio matches, RANSAC inliers, kept inliers, ``rms_m``, ``factor``,
             ``ccd_offsets_px`` (keys as strings), ``dem_coverage`` (fraction of the DOM searched
-            around the scene that has DEM heights) and ``note`` (says when the search was
-            restricted to that part).
+            around the scene that has DEM heights), ``note`` (says when the search was
+            restricted to that part) and ``tiles`` (SIFT passes: 1 for the whole scene).
         """
         return {
             "keypoints_scene": self.n_keypoints_scene, "keypoints_dom": self.n_keypoints_dom,
             "ratio_matches": self.n_matches, "ransac_inliers": self.n_ransac_inliers,
             "inliers": self.n_inliers, "rms_m": self.rms_m, "factor": self.factor,
             "ccd_offsets_px": {str(k): v for k, v in self.ccd_offsets_px.items()},
-            "dem_coverage": self.dem_coverage, "note": self.note,
+            "dem_coverage": self.dem_coverage, "note": self.note, "tiles": self.tiles,
         }
 
 
@@ -126,13 +135,15 @@ def to_uint8(img: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
     return np.where(valid, out, 0.0).astype(np.uint8)
 
 
-def _border(model, band, n=24):
-    """Rows and columns of ``n`` points along each of the four image edges (pixel centres)."""
+def _border(model, band, n=24, part=None):
+    """Rows and columns of ``n`` points along each of the four edges (pixel centres) of the image,
+    or of its rectangle ``part = (row0, row1, col0, col1)`` (scene pixels, half-open)."""
     n_rows, n_cols = model.image_shape
-    along = np.linspace(0.5, n_rows - 0.5, n)
-    across = np.linspace(0.5, n_cols - 0.5, n)
-    rows = np.concatenate([np.full(n, 0.5), np.full(n, n_rows - 0.5), along, along])
-    cols = np.concatenate([across, across, np.full(n, 0.5), np.full(n, n_cols - 0.5)])
+    row0, row1, col0, col1 = (0, n_rows, 0, n_cols) if part is None else part
+    along = np.linspace(row0 + 0.5, row1 - 0.5, n)
+    across = np.linspace(col0 + 0.5, col1 - 0.5, n)
+    rows = np.concatenate([np.full(n, row0 + 0.5), np.full(n, row1 - 0.5), along, along])
+    cols = np.concatenate([across, across, np.full(n, col0 + 0.5), np.full(n, col1 - 0.5)])
     return rows, cols
 
 
@@ -169,6 +180,25 @@ def scene_height_m(model, dem, *, band=None, iterations: int = 3) -> float:
             break
         h = float(np.nanmedian(z))
     return h
+
+
+#: Bytes of memory per pixel of the image OpenCV SIFT runs on (its scale space: the first
+#: octave at twice the image's size, 6 Gaussian and 5 difference-of-Gaussian float32 levels per
+#: octave, about 176 bytes a pixel in the first octave, 4/3 of that over all octaves). Measured
+#: (OpenCV 5.0, ``detectAndCompute`` of a uint8 image, peak resident memory of a fresh process
+#: before and after; tests/test_coarse_tiles.py): 228-231 bytes a pixel from 1 to 6 M pixels,
+#: 1 to 4 threads, 4 000 to 40 000 features.
+#: The DOM's features are found before the scene's and only their keypoints and descriptors
+#: stay, so the coarse stage's peak follows the larger of the two images, not their sum.
+SIFT_BYTES_PER_PX = 230
+#: Memory the coarse stage's SIFT may take, bytes: a scene whose warped image or DOM window
+#: would need more is matched by tiles (:func:`plan_tiles`). 1 GiB holds 4.67 M pixels: every
+#: scene of the tests and tutorials stays whole (0.92 M pixels at most); a 512-line strip of the
+#: seed-003 width (reduced twice, a 31.3 M pixel DOM window) runs as 7 tiles.
+SIFT_BUDGET_BYTES = 1 << 30
+#: Tiles overlap by this many reduced pixels: a keypoint near a tile's edge has its
+#: descriptor's support (about 10 times its scale) in the neighbour, where it is kept.
+TILE_OVERLAP_PX = 64
 
 
 #: Scene keypoints of the first SIFT pass (the DOM keeps the full budget: its search window is
@@ -234,7 +264,8 @@ def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0, device=
 
 def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None, max_offset_px: float = 1000.0,
                  target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
-                 seed: int = 0, backend: str = "cpu", device=None, skip_within_px: float | None = None) -> CoarseResult:
+                 seed: int = 0, backend: str = "cpu", device=None, skip_within_px: float | None = None,
+                 sift_budget_bytes: int = SIFT_BUDGET_BYTES) -> CoarseResult:
     """Pre-correct ``model`` so that it lands within a few pixels of the truth (see module doc).
 
     Parameters
@@ -272,6 +303,11 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         the model already within half of it, SIFT is skipped and ``model`` is returned
         unchanged, with the note "coarse stage skipped: model within N px"
         (:func:`gcpmatch.coarse_skip.within_fine_radius`); else SIFT runs. None: always SIFT.
+    sift_budget_bytes : int
+        Memory SIFT's scale space may take, bytes: when the warped scene or its DOM window would
+        need more (``SIFT_BYTES_PER_PX`` a pixel), SIFT runs by overlapping tiles
+        (:func:`plan_tiles`), each against the DOM around its own footprint, and the matches
+        are merged in scene coordinates before the one pre-correction fit.
 
     Returns
     -------
@@ -303,28 +339,198 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     h_mid = scene_height_m(model, dem, band=band)
     gsd = scene_gsd_m(model, band=band, height_m=h_mid)
     coarse_res = gsd * f  # metres per reduced pixel
-    win = _dom_window(model, dom, band=band, h_mid=h_mid, gsd=gsd, coarse_res=coarse_res,
-                      max_offset_px=max_offset_px)
-    dem_cover, note = _restrict_to_dem(win, dem)
-    a_pred = _predicted_affine(model, band, h_mid, scene.shape, f, win)
-    warped, warped_valid = _warp_to_dom(small, small_valid, a_pred)
-    ps, pd, n_kp_s, n_kp_d, ransac_in = _sift_ransac(warped, warped_valid, win.dom_small, n_features=n_features,
-                                                     ransac_px=ransac_px, seed=seed, backend=backend, device=device)
-    row, col, glon, glat, gh = _matches_on_ground(ps, pd, a_pred, f, win, dem)
+    geo = {"band": band, "h_mid": h_mid, "gsd": gsd, "coarse_res": coarse_res, "max_offset_px": max_offset_px}
+    sift = {"n_features": n_features, "ransac_px": ransac_px, "seed": seed, "backend": backend, "device": device}
+    tiles = plan_tiles(model, dom, small.shape, f, budget_px=int(sift_budget_bytes // SIFT_BYTES_PER_PX), **geo)
+    if tiles is None:  # the whole scene within the budget: one SIFT pass
+        found = _whole_matches(small, small_valid, f, scene.shape, model, dom, dem, geo, sift)
+    else:
+        found = _tiled_matches(small, small_valid, f, tiles, model, dom, dem, geo, sift)
+    row, col, glon, glat, gh, ransac_in = found.matches
+    note = found.note
     inside = (row > 0) & (row < n_rows) & (col > 0) & (col < n_cols) & np.isfinite(gh)
     sel = ransac_in & inside
     if sel.sum() < 6:
         where = "" if not note else f" ({note})"
         raise CoarseMatchError(f"too few RANSAC inliers inside the scene and the DEM: {int(sel.sum())} < 6{where}")
-    corrected, keep, rms_m, offsets = _precorrect(model, band, row, col, glon, glat, gh, sel=sel, inside=inside,
+    corrected, keep, rms_m, offsets = precorrect_matches(model, band, row, col, glon, glat, gh, sel=sel, inside=inside,
                                                   min_scale_m=0.5 * coarse_res)
     return CoarseResult(
-        model=corrected, n_keypoints_scene=n_kp_s, n_keypoints_dom=n_kp_d, n_matches=len(ps),
+        model=corrected, n_keypoints_scene=found.n_kp_scene, n_keypoints_dom=found.n_kp_dom, n_matches=row.size,
         n_ransac_inliers=int(ransac_in.sum()), n_inliers=int(keep.size), rms_m=rms_m, factor=f,
         ccd_offsets_px=offsets,
         points={"row": row[keep], "col": col[keep], "lon": glon[keep], "lat": glat[keep], "h": gh[keep]},
-        dem_coverage=dem_cover, note=note,
+        dem_coverage=found.dem_cover, note=note, tiles=1 if tiles is None else len(tiles),
     )
+
+
+@dataclass
+class _Found:
+    """SIFT matches of the coarse stage in full-scene coordinates, before the pre-correction.
+
+    ``matches`` is ``(row, col, lon, lat, h, ransac_in)``: scene pixels (continuous), ground
+    degrees, DEM height (metres) and the RANSAC verdict of every ratio-test match.
+    """
+
+    matches: tuple
+    n_kp_scene: int
+    n_kp_dom: int
+    dem_cover: float
+    note: str
+
+
+def _whole_matches(small, small_valid, f, shape, model, dom, dem, geo, sift) -> _Found:
+    """SIFT of the whole reduced scene against the whole DOM window around it (one RANSAC)."""
+    band, h_mid = geo["band"], geo["h_mid"]
+    win = _dom_window(model, dom, **geo)
+    dem_cover, note = _restrict_to_dem(win, dem)
+    a_pred = _predicted_affine(model, band, h_mid, shape, f, win)
+    warped, warped_valid = _warp_to_dom(small, small_valid, a_pred)
+    ps, pd, n_kp_s, n_kp_d, ransac_in = _sift_ransac(warped, warped_valid, win.dom_small, **sift)
+    row, col, glon, glat, gh = _matches_on_ground(ps, pd, a_pred, f, win, dem)
+    return _Found((row, col, glon, glat, gh, ransac_in), n_kp_s, n_kp_d, dem_cover, note)
+
+
+def _tiled_matches(small, small_valid, f, tiles, model, dom, dem, geo, sift) -> _Found:
+    """SIFT tile by tile (each against the DOM window around its own footprint, its own RANSAC);
+    the matches whose scene position falls in a tile's core, merged in full-scene coordinates.
+
+    A tile without a consistent set (clouds, water, a DOM or DEM that misses it) adds nothing;
+    none at all raises :class:`CoarseMatchError`.
+    """
+    merged, n_kp_s, n_kp_d, covered, searched, reasons = [], 0, 0, 0.0, 0, []
+    for t in tiles:
+        r0, r1, c0, c1 = t.box
+        try:
+            win = _dom_window(model, dom, part=(r0 * f, r1 * f, c0 * f, c1 * f), **geo)
+            cover, _ = _restrict_to_dem(win, dem)
+            a_pred = _predicted_affine(model, geo["band"], geo["h_mid"], ((r1 - r0) * f, (c1 - c0) * f), f, win,
+                                       origin=(r0, c0))
+            warped, warped_valid = _warp_to_dom(small[r0:r1, c0:c1], small_valid[r0:r1, c0:c1], a_pred)
+            ps, pd, kp_s, kp_d, ransac_in = _sift_ransac(warped, warped_valid, win.dom_small, **sift)
+        except CoarseMatchError as exc:
+            reasons.append(str(exc))
+            continue
+        n_kp_s, n_kp_d = n_kp_s + kp_s, n_kp_d + kp_d
+        searched += win.dom_small.size
+        covered += cover * win.dom_small.size
+        row, col, glon, glat, gh = _matches_on_ground(ps, pd, a_pred, f, win, dem, origin=(r0, c0))
+        k0, k1, j0, j1 = t.core
+        core = (row >= k0 * f) & (row < k1 * f) & (col >= j0 * f) & (col < j1 * f)
+        merged.append([a[core] for a in (row, col, glon, glat, gh, ransac_in)])
+    if not merged:
+        raise CoarseMatchError(f"no tile of the {len(tiles)} found a consistent set of SIFT matches "
+                               f"(first: {reasons[0]})")
+    cover = covered / max(searched, 1)
+    name = getattr(dem, "source", None) or "the DEM"
+    note = "" if cover >= _FULL_COVER else (
+        f"the DEM covers {100 * cover:.0f} % of the reference searched around the scene ({name}); "
+        "the coarse search was restricted to that part")
+    return _Found(tuple(np.concatenate(parts) for parts in zip(*merged)), n_kp_s, n_kp_d, cover, note)
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One SIFT pass of a tiled coarse stage, in reduced-scene pixels (half-open, ``row0, row1,
+    col0, col1``): ``box`` is what SIFT sees, ``core`` where its matches are kept (the tiles'
+    cores partition the plane, the outer ones open-ended); ``cost_px`` is the larger of its warped image and
+    its DOM window, pixels."""
+
+    box: tuple
+    core: tuple
+    cost_px: int
+
+
+def _split(n: int, k: int, overlap: int) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """``k`` boxes along ``range(n)``: cores partitioning it (the outer ones open-ended, so a match
+    the warp puts just outside the reduced scene stays with its tile), each widened by
+    ``overlap // 2`` on its inner sides."""
+    edges = np.round(np.linspace(0, n, k + 1)).astype(int)
+    half = overlap // 2
+    return [((max(0, int(a) - half), min(n, int(b) + half)), (float(a) if i else -np.inf, float(b) if i < k - 1 else np.inf))
+            for i, (a, b) in enumerate(zip(edges[:-1], edges[1:]))]
+
+
+def _cost_px(model, dom, f, box, geo) -> int:
+    """Pixels of the larger image SIFT sees for reduced-scene ``box``: its warped canvas or its
+    DOM window (placed and sized, not read)."""
+    r0, r1, c0, c1 = box
+    win = _dom_window(model, dom, part=(r0 * f, r1 * f, c0 * f, c1 * f), read=False, **geo)
+    a_pred = _predicted_affine(model, geo["band"], geo["h_mid"], ((r1 - r0) * f, (c1 - c0) * f), f, win,
+                               origin=(r0, c0))
+    w, h = _warp_canvas((r1 - r0, c1 - c0), a_pred)
+    return int(max(w * h, win.dom_small.shape[0] * win.dom_small.shape[1]))
+
+
+def _grid(model, dom, f, small_shape, k_rows, k_cols, geo) -> list[Tile]:
+    """The tiles of a ``k_rows x k_cols`` split of the reduced scene, with their costs."""
+    rows = _split(small_shape[0], k_rows, TILE_OVERLAP_PX)
+    cols = _split(small_shape[1], k_cols, TILE_OVERLAP_PX)
+    tiles = []
+    for (r0, r1), core_r in rows:
+        for (c0, c1), core_c in cols:
+            box = (r0, r1, c0, c1)
+            tiles.append(Tile(box, (*core_r, *core_c), _cost_px(model, dom, f, box, geo)))
+    return tiles
+
+
+def plan_tiles(model, dom, small_shape, f, *, budget_px, **geo) -> list[Tile] | None:
+    """The SIFT passes of the coarse stage under a memory budget: None when the whole reduced
+    scene and its DOM window fit, else the coarsest grid of overlapping tiles that does.
+
+    Parameters
+    ----------
+    model : SensorModel
+        Current model (places each tile's footprint in the DOM).
+    dom : MapImage
+        Reference orthoimage (only its grid is used: nothing is read).
+    small_shape : (int, int)
+        Reduced scene, pixels.
+    f : int
+        Reduction factor (scene pixels per reduced pixel).
+    budget_px : int
+        Most pixels of one image SIFT may run on: ``SIFT budget (bytes) / SIFT_BYTES_PER_PX``.
+    **geo
+        ``band``, ``h_mid``, ``gsd``, ``coarse_res``, ``max_offset_px`` of :func:`coarse_match`.
+
+    Returns
+    -------
+    list of Tile or None
+        None: one pass over the whole scene. Else tiles of ``k_rows x k_cols``: ``k_rows`` from 1
+        up, and for each the fewest ``k_cols`` (bisection) whose every tile's cost is at most
+        ``budget_px``; tile sides are kept at ``MIN_REDUCED_SIDE_PX`` or more (the whole side
+        where it is shorter), so SIFT keeps rows and columns to work in. When even the finest
+        such grid is over the budget, that grid (the least memory the search margin allows).
+
+    Notes
+    -----
+    A tile's DOM window is its footprint plus ``max_offset_px`` scene pixels on each side, so
+    the margin, not the tile, sets the floor of the cost: ``(2 m + t)^2`` pixels for a tile of
+    ``t`` and a margin of ``m`` reduced pixels.
+    """
+    if _cost_px(model, dom, f, (0, small_shape[0], 0, small_shape[1]), geo) <= budget_px:
+        return None
+    k_max = [max(1, n // MIN_REDUCED_SIDE_PX) for n in small_shape]
+    long_axis = int(small_shape[1] >= small_shape[0])  # 1: columns are the longer side
+    finest = None
+    for k_short in range(1, k_max[1 - long_axis] + 1):
+        def grid(k_long):
+            k = (k_short, k_long) if long_axis else (k_long, k_short)
+            return _grid(model, dom, f, small_shape, *k, geo)
+        lo, hi = 1, k_max[long_axis]
+        finest = grid(hi)
+        if max(t.cost_px for t in finest) > budget_px:
+            continue
+        best = finest
+        while lo < hi:  # fewest tiles along the long side that fit (costs fall as tiles shrink)
+            mid = (lo + hi) // 2
+            tiles = grid(mid)
+            if max(t.cost_px for t in tiles) <= budget_px:
+                best, hi = tiles, mid
+            else:
+                lo = mid + 1
+        return best
+    return finest
 
 
 #: the reduced scene's shorter side is kept at this many pixels or more (when the scene has them):
@@ -333,13 +539,6 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
 #: found no consistent set of SIFT matches" on that strip, profile realistic; the realistic demo
 #: fixture reduced to 73 x 109 px fails the same way, at 256 x 384 px it matches)
 MIN_REDUCED_SIDE_PX = 256
-
-#: the re-screening refit on every ratio match is rejected when it moves the RANSAC consensus
-#: (median distance) by more than this many times the consensus's own robust spread about the
-#: first fit. Measured: 2.4-3.5 on same-band scenes (cloudy ideal scene of tests/test_match.py,
-#: Sentinel-2 scenes of bench/change_pairs.py), 43-80 for Sentinel-2 red against
-#: near-infrared, where about 20 % of the ratio matches are right
-PULLED_FACTOR = 10.0
 
 #: below this fraction of the searched DOM with DEM heights, the search is restricted to them
 _FULL_COVER = 0.99
@@ -443,14 +642,19 @@ class _DomWindow:
         return u, v
 
 
-def _dom_window(model, dom, *, band, h_mid, gsd, coarse_res, max_offset_px) -> _DomWindow:
-    """Read the DOM over the predicted footprint plus ``max_offset_px`` scene pixels of margin."""
+def _dom_window(model, dom, *, band, h_mid, gsd, coarse_res, max_offset_px, part=None, read=True) -> _DomWindow:
+    """The DOM over the predicted footprint of the scene (or of its rectangle ``part``, scene
+    pixels ``(row0, row1, col0, col1)``) plus ``max_offset_px`` scene pixels of margin.
+
+    ``read=False`` places the window and sizes ``dom_small`` (an empty array of its shape) without
+    reading the DOM: what the tile planner needs.
+    """
     dom_res = grid_resolution_m(dom.grid)
     to_map = pyproj.Transformer.from_crs("EPSG:4326", dom.grid.crs, always_xy=True)
     from_map = pyproj.Transformer.from_crs(dom.grid.crs, "EPSG:4326", always_xy=True)
     win = _DomWindow(None, 0, 0, 1.0, 1.0, dom.grid.index_affine(), to_map, from_map)
     # predicted footprint in DOM indices, plus the search margin
-    br, bc = _border(model, band)
+    br, bc = _border(model, band, part=part)
     lon, lat, _ = model.image_to_ground(br, bc, height=h_mid, band=band)
     u, v = win.ground_to_index(lon, lat)
     margin = max_offset_px * gsd / dom_res
@@ -461,25 +665,38 @@ def _dom_window(model, dom, *, band, h_mid, gsd, coarse_res, max_offset_px) -> _
         raise CoarseMatchError("the DOM does not overlap the scene's predicted footprint")
     k = coarse_res / dom_res  # DOM pixels per reduced pixel
     out_shape = (max(8, int(round((r1 - r0) / k))), max(8, int(round((c1 - c0) / k))))
-    win.dom_small = dom.read_decimated(r0, r1, c0, c1, out_shape)
+    win.dom_small = dom.read_decimated(r0, r1, c0, c1, out_shape) if read else np.empty((*out_shape, 0), np.uint8)
     win.r0, win.c0 = r0, c0
     win.sy, win.sx = (r1 - r0) / out_shape[0], (c1 - c0) / out_shape[1]  # DOM px per reduced DOM px
     return win
 
 
-def _predicted_affine(model, band, h_mid, shape, f, win: _DomWindow) -> np.ndarray:
+def _predicted_affine(model, band, h_mid, shape, f, win: _DomWindow, origin=(0, 0)) -> np.ndarray:
     """(2, 3) affine map reduced scene -> reduced DOM as the model predicts, re-positioned.
 
+    ``shape`` is the scene's (or a tile's) size in scene pixels and ``origin`` its first pixel in
+    reduced-scene pixels (a tile's ``(row, col)``; the map then acts on the tile's own pixels).
     It keeps the predicted mirror, rotation and scale but not the position: the model may be
     off by more than the scene's size, so the warped scene gets a canvas of its own.
     """
     n_rows, n_cols = shape
     gr, gc = np.meshgrid(np.linspace(0.5, n_rows - 0.5, 12), np.linspace(0.5, n_cols - 0.5, 12), indexing="ij")
-    lon, lat, _ = model.image_to_ground(gr.ravel(), gc.ravel(), height=h_mid, band=band)
+    lon, lat, _ = model.image_to_ground(gr.ravel() + origin[0] * f, gc.ravel() + origin[1] * f, height=h_mid,
+                                        band=band)
     uu, vv = win.ground_to_index(lon, lat)
     src = np.stack([gc.ravel() / f - 0.5, gr.ravel() / f - 0.5], axis=-1)
     dst = np.stack([(uu - win.c0 + 0.5) / win.sx - 0.5, (vv - win.r0 + 0.5) / win.sy - 0.5], axis=-1)
     return np.linalg.lstsq(np.c_[src, np.ones(len(src))], dst, rcond=None)[0].T  # (2, 3)
+
+
+def _warp_canvas(shape, a_pred):
+    """Canvas ``(width, height)`` that holds an image of ``shape`` warped by ``a_pred``; sets
+    ``a_pred``'s translation in place so that the warped image starts at (0, 0)."""
+    h_s, w_s = shape
+    corners = np.array([[0, 0], [w_s, 0], [0, h_s], [w_s, h_s]], dtype=np.float64) - 0.5
+    moved = corners @ a_pred[:, :2].T
+    a_pred[:, 2] = -moved.min(axis=0)
+    return tuple(int(np.ceil(v)) + 1 for v in (moved.max(axis=0) - moved.min(axis=0)))
 
 
 def _warp_to_dom(small, small_valid, a_pred):
@@ -487,11 +704,7 @@ def _warp_to_dom(small, small_valid, a_pred):
 
     ``a_pred``'s translation is set in place so that the warped scene starts at (0, 0).
     """
-    h_s, w_s = small.shape
-    corners = np.array([[0, 0], [w_s, 0], [0, h_s], [w_s, h_s]], dtype=np.float64) - 0.5
-    moved = corners @ a_pred[:, :2].T
-    a_pred[:, 2] = -moved.min(axis=0)
-    canvas = tuple(int(np.ceil(v)) + 1 for v in (moved.max(axis=0) - moved.min(axis=0)))
+    canvas = _warp_canvas(small.shape, a_pred)
     warped = cv2.warpAffine(to_uint8(small, small_valid), a_pred, canvas, flags=cv2.INTER_LINEAR)
     warped_valid = cv2.warpAffine(small_valid.astype(np.uint8), a_pred, canvas, flags=cv2.INTER_NEAREST)
     return warped, warped_valid
@@ -554,13 +767,14 @@ def _enough(ransac_in: np.ndarray) -> np.ndarray:
     return ransac_in
 
 
-def _matches_on_ground(ps, pd, a_pred, f, win: _DomWindow, dem):
+def _matches_on_ground(ps, pd, a_pred, f, win: _DomWindow, dem, origin=(0, 0)):
     """Scene ``row, col`` (continuous pixels, the warp undone) and DOM ground ``lon, lat, h``
-    of every ratio-test match (``h`` from the DEM, metres above the ellipsoid)."""
+    of every ratio-test match (``h`` from the DEM, metres above the ellipsoid); ``origin`` is the
+    first reduced-scene pixel ``(row, col)`` of the tile the matches were found in."""
     inv = cv2.invertAffineTransform(a_pred)
     sc = ps @ inv[:, :2].T + inv[:, 2]
-    col = (sc[:, 0] + 0.5) * f
-    row = (sc[:, 1] + 0.5) * f
+    col = (sc[:, 0] + origin[1] + 0.5) * f
+    row = (sc[:, 1] + origin[0] + 0.5) * f
     ui, vi = win.small_to_index(pd[:, 0].astype(np.float64), pd[:, 1].astype(np.float64))
     inv_index = ~win.index
     xm = inv_index.a * ui + inv_index.b * vi + inv_index.c
@@ -569,53 +783,3 @@ def _matches_on_ground(ps, pd, a_pred, f, win: _DomWindow, dem):
     glon, glat = np.asarray(glon), np.asarray(glat)
     gh = dem.height_m(glon, glat)
     return row, col, glon, glat, gh
-
-
-def _precorrect(model, band, row, col, glon, glat, gh, *, sel, inside, min_scale_m):
-    """Fit the exterior to the RANSAC inliers, re-screen all matches, remove CCD offsets.
-
-    Returns
-    -------
-    corrected : SensorModel
-        The pre-corrected model.
-    keep : ndarray of intp
-        Indices of the matches kept by the re-screening.
-    rms_m : float
-        Ground-space RMS of the re-screened fit, metres.
-    offsets : dict
-        Per-CCD offsets removed, pixels (empty for models without CCDs).
-    """
-    # models whose detector arrays carry their own interior (push-broom CCDs) get CCD offsets
-    per_array = any(g.startswith("interior.") for g in model.parameter_groups())
-    ccd = model.detector_index(col, band=band) if per_array else None
-    fit = fit_exterior_in_ground(model, row[sel], col[sel], glon[sel], glat[sel], gh[sel], band=band,
-                                 ccd=None if ccd is None else ccd[sel], min_scale_m=min_scale_m)
-    # re-screen every ratio-test match against the corrected model: a robust refit on all of them
-    # picks up the matches the affine RANSAC left out (CCD offsets, parallax), unless most ratio
-    # matches are wrong (bands whose contrast inverts): then it is pulled off the RANSAC
-    # consensus (PULLED_FACTOR), and only the matches within 3 of the consensus's own spread
-    # are refitted
-    fit2 = fit_exterior_in_ground(fit.model, row[inside], col[inside], glon[inside], glat[inside], gh[inside],
-                                  band=band, ccd=None if ccd is None else ccd[inside], min_scale_m=min_scale_m)
-    consensus = np.flatnonzero(sel)[fit.inlier]
-    kw = {"band": band}
-    before = ground_distance_m(fit.model, row[consensus], col[consensus], glon[consensus], glat[consensus],
-                               gh[consensus], ccd=None if ccd is None else ccd[consensus], **kw)
-    after = ground_distance_m(fit2.model, row[consensus], col[consensus], glon[consensus], glat[consensus],
-                              gh[consensus], ccd=None if ccd is None else ccd[consensus], **kw)
-    scale = max(min_scale_m, 1.4826 * float(np.median(before)))
-    near = inside
-    if not np.median(after) < PULLED_FACTOR * scale:
-        dist = np.full(row.size, np.inf)
-        dist[inside] = ground_distance_m(fit.model, row[inside], col[inside], glon[inside], glat[inside],
-                                         gh[inside], ccd=None if ccd is None else ccd[inside], **kw)
-        near = inside & (dist < 3.0 * scale)
-        fit2 = fit_exterior_in_ground(fit.model, row[near], col[near], glon[near], glat[near], gh[near],
-                                      band=band, ccd=None if ccd is None else ccd[near], min_scale_m=min_scale_m)
-    keep = np.flatnonzero(near)[fit2.inlier]
-    corrected = fit2.model
-    offsets = {}
-    if ccd is not None:
-        corrected, offsets = fit_ccd_offsets(corrected, row[keep], col[keep], glon[keep], glat[keep], gh[keep],
-                                             ccd[keep], band=band or corrected.reference_band)
-    return corrected, keep, fit2.rms_m, offsets

@@ -21,7 +21,8 @@ import numpy as np
 
 from sensor_models.geometry.geodesy import enu_basis, geodetic_to_ecef
 
-__all__ = ["PrecorrectResult", "exterior_names", "fit_exterior_in_ground", "fit_ccd_offsets", "ground_distance_m"]
+__all__ = ["PULLED_FACTOR", "PrecorrectResult", "exterior_names", "fit_exterior_in_ground", "fit_ccd_offsets",
+           "ground_distance_m", "precorrect_matches"]
 
 HUBER_K = 1.345
 
@@ -240,3 +241,78 @@ def fit_ccd_offsets(model, row, col, lon, lat, h, ccd, *, band: str, min_points:
         med = np.median(res, axis=0)
         removed[i] = (float(med[0]), float(med[1]))
     return model.with_parameters(x), removed
+
+
+#: the re-screening refit on every ratio match is rejected when it moves the RANSAC consensus
+#: (median distance) by more than this many times the consensus's own robust spread about the
+#: first fit. Measured: 2.4-3.5 on same-band scenes (cloudy ideal scene of tests/test_match.py,
+#: Sentinel-2 scenes of bench/change_pairs.py), 43-80 for Sentinel-2 red against
+#: near-infrared, where about 20 % of the ratio matches are right
+PULLED_FACTOR = 10.0
+
+
+def precorrect_matches(model, band, row, col, glon, glat, gh, *, sel, inside, min_scale_m):
+    """Fit the exterior to the RANSAC inliers, re-screen all matches, remove CCD offsets.
+
+    Parameters
+    ----------
+    model : SensorModel
+        The model to pre-correct.
+    band : str or None
+        Its band.
+    row, col : ndarray, shape (m,)
+        Scene pixels of the coarse matches (continuous, first pixel's centre at (0.5, 0.5)).
+    glon, glat, gh : ndarray, shape (m,)
+        Their ground points: degrees, metres above the ellipsoid.
+    sel : ndarray of bool, shape (m,)
+        The RANSAC inliers inside the scene and the DEM (the first fit).
+    inside : ndarray of bool, shape (m,)
+        Every match inside the scene and the DEM (the re-screening).
+    min_scale_m : float
+        Floor of the robust scale, metres (half a reduced pixel).
+
+    Returns
+    -------
+    corrected : SensorModel
+        The pre-corrected model.
+    keep : ndarray of intp
+        Indices of the matches kept by the re-screening.
+    rms_m : float
+        Ground-space RMS of the re-screened fit, metres.
+    offsets : dict
+        Per-CCD offsets removed, pixels (empty for models without CCDs).
+    """
+    # models whose detector arrays carry their own interior (push-broom CCDs) get CCD offsets
+    per_array = any(g.startswith("interior.") for g in model.parameter_groups())
+    ccd = model.detector_index(col, band=band) if per_array else None
+    fit = fit_exterior_in_ground(model, row[sel], col[sel], glon[sel], glat[sel], gh[sel], band=band,
+                                 ccd=None if ccd is None else ccd[sel], min_scale_m=min_scale_m)
+    # re-screen every ratio-test match against the corrected model: a robust refit on all of them
+    # picks up the matches the affine RANSAC left out (CCD offsets, parallax), unless most ratio
+    # matches are wrong (bands whose contrast inverts): then it is pulled off the RANSAC
+    # consensus (PULLED_FACTOR), and only the matches within 3 of the consensus's own spread
+    # are refitted
+    fit2 = fit_exterior_in_ground(fit.model, row[inside], col[inside], glon[inside], glat[inside], gh[inside],
+                                  band=band, ccd=None if ccd is None else ccd[inside], min_scale_m=min_scale_m)
+    consensus = np.flatnonzero(sel)[fit.inlier]
+    kw = {"band": band}
+    before = ground_distance_m(fit.model, row[consensus], col[consensus], glon[consensus], glat[consensus],
+                               gh[consensus], ccd=None if ccd is None else ccd[consensus], **kw)
+    after = ground_distance_m(fit2.model, row[consensus], col[consensus], glon[consensus], glat[consensus],
+                              gh[consensus], ccd=None if ccd is None else ccd[consensus], **kw)
+    scale = max(min_scale_m, 1.4826 * float(np.median(before)))
+    near = inside
+    if not np.median(after) < PULLED_FACTOR * scale:
+        dist = np.full(row.size, np.inf)
+        dist[inside] = ground_distance_m(fit.model, row[inside], col[inside], glon[inside], glat[inside],
+                                         gh[inside], ccd=None if ccd is None else ccd[inside], **kw)
+        near = inside & (dist < 3.0 * scale)
+        fit2 = fit_exterior_in_ground(fit.model, row[near], col[near], glon[near], glat[near], gh[near],
+                                      band=band, ccd=None if ccd is None else ccd[near], min_scale_m=min_scale_m)
+    keep = np.flatnonzero(near)[fit2.inlier]
+    corrected = fit2.model
+    offsets = {}
+    if ccd is not None:
+        corrected, offsets = fit_ccd_offsets(corrected, row[keep], col[keep], glon[keep], glat[keep], gh[keep],
+                                             ccd[keep], band=band or corrected.reference_band)
+    return corrected, keep, fit2.rms_m, offsets

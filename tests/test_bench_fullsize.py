@@ -126,6 +126,24 @@ def test_lines_strip_then_true_dem_reuses_the_render(tmp_path):
     assert 0.005 < true["truth_error"]["cal_auto"]["reference_band"]["rms_px"] < 1.0
     dem_term_of_the_render(Path(given["cache"]) / "scene", tmp_path)
     widened_match_of_the_render(Path(given["cache"]), tmp_path)
+    match_memory_of_the_render(Path(given["cache"]), tmp_path)
+
+
+def match_memory_of_the_render(cache: Path, tmp_path: Path) -> None:
+    """``bench/bench_match_memory.py``: both coarse-stage settings measured, calibrated and graded."""
+    spec = importlib.util.spec_from_file_location("bench_match_memory", ROOT / "bench" / "bench_match_memory.py")
+    memory = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(memory)
+    out = tmp_path / "match_memory.json"
+    assert memory.main(["--cache", str(cache), "--truth-step", "32", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    for name in ("tiled", "whole"):
+        r = res[name]
+        assert r["match"]["rc"] in (0, 4) and r["match"]["peak_rss_mib"] > 100
+        assert r["coarse_alone"]["tiles"] == 1  # 1364 columns: within the default budget, matched whole
+        assert r["coarse_alone"]["coarse_adds_mib"] > 0 and r["gcps"] > 100
+        assert r["gcp_truth_error"]["all"]["n"] == r["gcps"] + r["check_points"]
+        assert r["truth_error"]["reference_band"]["rms_px"] < 1.0
 
 
 def widened_match_of_the_render(cache: Path, tmp_path: Path) -> None:
