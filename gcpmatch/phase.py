@@ -286,13 +286,19 @@ def phase_correlate(reference, moving, *, upsample: int | None = None, window: s
     if options["backend"] == "numpy":
         outputs = _run_numpy_batches(plan, ref, mov, batch, thread_count(None if workers == -1 else workers))
     else:
-        from gcpmatch import _phase_torch  # lazy: torch is an optional dependency
-
-        kernel = _phase_torch.TorchKernel(plan, device=options["device"])
-        if batch is None:  # from the device's free memory (gcpmatch.phase_batch)
-            batch = device_batch((height, width), plan.dtype, kernel.device)
-        outputs = _concatenate([kernel(ref[a:b], mov[a:b]) for a, b in _batches(ref.shape, batch)])
+        outputs = _run_torch_batches(plan, ref, mov, batch, options["device"])
     return _assess(*outputs, min_score, min_peak_ratio, max_shift)
+
+
+def _run_torch_batches(plan, ref, mov, batch, device):
+    """The torch kernel over the pairs by batches (``None``: sized from the device's free memory,
+    :func:`gcpmatch.phase_batch.device_batch`); the concatenated kernel outputs."""
+    from gcpmatch import _phase_torch  # lazy: torch is an optional dependency
+
+    kernel = _phase_torch.TorchKernel(plan, device=device)
+    if batch is None:
+        batch = device_batch(ref.shape[1:], plan.dtype, kernel.device)
+    return _concatenate([kernel(ref[a:b], mov[a:b]) for a, b in _batches(ref.shape, batch)])
 
 
 def _batches(shape: tuple[int, int, int], batch) -> list[tuple[int, int]]:
