@@ -38,3 +38,19 @@ def demo_folder(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo-session") / "demo"
     assert main(["-q", "demo", "--fixture", "ideal", "--out", str(out), "--json"]) == 0
     return out
+
+
+@pytest.fixture(scope="session")
+def realistic_demo_inputs():
+    """The realistic demo fixture's coarse-stage inputs (``fixtures/hy1c_czi_realistic``), read
+    once: ``(reference band raster, LAB model, Dem, DOM MapImage, band name, TRUE model)``."""
+    from gcpmatch.extract import read_band
+    from sensor_models.maps.raster import MapImage
+    from sensor_models.readers import open_model, open_scene
+    from sensor_models.terrain.dem import Dem
+
+    fixture = PROJECT_ROOT / "fixtures" / "hy1c_czi_realistic"
+    scene = open_scene(fixture / "manifest.json")
+    band = scene.model.reference_band
+    return (read_band(scene, band), scene.model, Dem.open(fixture / "reference" / "dem.tif"),
+            MapImage.open(fixture / "reference" / "dom.tif"), band, open_model(fixture / "truth_manifest.json"))

@@ -8,15 +8,12 @@ the coarse stage fails, with the shorter side kept at ``MIN_REDUCED_SIDE_PX`` it
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import pytest
 
 import gcpmatch.coarse as coarse
 from gcpmatch.coarse import MIN_REDUCED_SIDE_PX, CoarseMatchError, coarse_match, reduction_factor
 
-ROOT = Path(__file__).resolve().parents[1]
-FIXTURE = ROOT / "fixtures" / "hy1c_czi_realistic"
 
 
 @pytest.mark.parametrize(
@@ -34,22 +31,8 @@ def test_reduction_factor(shape, target, expected):
     assert min(small) >= min(MIN_REDUCED_SIDE_PX, min(shape))
 
 
-@pytest.fixture(scope="module")
-def demo_inputs():
-    from gcpmatch.extract import read_band
-    from sensor_models.maps.raster import MapImage
-    from sensor_models.readers import open_scene
-    from sensor_models.terrain.dem import Dem
-
-    scene = open_scene(FIXTURE / "manifest.json")
-    model = scene.model
-    band = model.reference_band
-    return (read_band(scene, band), model, Dem.open(FIXTURE / "reference" / "dem.tif"),
-            MapImage.open(FIXTURE / "reference" / "dom.tif"), band)
-
-
-def test_a_strip_reduced_by_its_longest_side_fails_and_matches_with_the_minimum_side(demo_inputs, monkeypatch):
-    scene, model, dem, dom, band = demo_inputs
+def test_a_strip_reduced_by_its_longest_side_fails_and_matches_with_the_minimum_side(realistic_demo_inputs, monkeypatch):
+    scene, model, dem, dom, band, _ = realistic_demo_inputs
     result = coarse_match(scene, model, dem, dom, band=band, target_px=120)
     assert result.factor == 2 and result.n_inliers >= 30
     assert result.rms_m < 300.0  # profile realistic, 30 m pixels: within the pre-correction's reach

@@ -22,25 +22,9 @@ from gcpmatch.coarse import MIN_REDUCED_SIDE_PX, SIFT_BYTES_PER_PX, coarse_match
 from gcpmatch.options import MatchOptions
 from gcpmatch.reference import scene_gsd_m
 
-ROOT = Path(__file__).resolve().parents[1]
-FIXTURE = ROOT / "fixtures" / "hy1c_czi_realistic"
 #: search margin of these tests, scene pixels: the fixture's DOM reaches 100-200 px beyond the
 #: scene, so a wider margin is clipped to the raster and every tile would search the whole DOM
 MAX_OFFSET_PX = 100.0
-
-
-@pytest.fixture(scope="module")
-def demo_inputs():
-    from gcpmatch.extract import read_band
-    from sensor_models.maps.raster import MapImage
-    from sensor_models.readers import open_model, open_scene
-    from sensor_models.terrain.dem import Dem
-
-    scene = open_scene(FIXTURE / "manifest.json")
-    model = scene.model
-    band = model.reference_band
-    return (read_band(scene, band), model, Dem.open(FIXTURE / "reference" / "dem.tif"),
-            MapImage.open(FIXTURE / "reference" / "dom.tif"), band, open_model(FIXTURE / "truth_manifest.json"))
 
 
 def _geo(model, dem, band):
@@ -49,8 +33,8 @@ def _geo(model, dem, band):
     return {"band": band, "h_mid": h_mid, "gsd": gsd, "coarse_res": gsd, "max_offset_px": MAX_OFFSET_PX}
 
 
-def test_the_plan_follows_the_budget(demo_inputs):
-    _, model, dem, dom, band, _ = demo_inputs
+def test_the_plan_follows_the_budget(realistic_demo_inputs):
+    _, model, dem, dom, band, _ = realistic_demo_inputs
     geo = _geo(model, dem, band)
     small = model.image_shape  # factor 1: the fixture is not reduced
     assert plan_tiles(model, dom, small, 1, budget_px=10**9, **geo) is None  # fits: the whole-image path
@@ -76,10 +60,10 @@ def test_the_plan_follows_the_budget(demo_inputs):
     assert len(finest) == (small[0] // MIN_REDUCED_SIDE_PX) * (small[1] // MIN_REDUCED_SIDE_PX)
 
 
-def test_tiled_precorrection_equals_the_whole_image_one(demo_inputs):
+def test_tiled_precorrection_equals_the_whole_image_one(realistic_demo_inputs):
     from sensor_models.simulate.truth import truth_error
 
-    scene, model, dem, dom, band, truth = demo_inputs
+    scene, model, dem, dom, band, truth = realistic_demo_inputs
     kw = {"band": band, "max_offset_px": MAX_OFFSET_PX, "n_features": 4000}
     whole = coarse_match(scene, model, dem, dom, **kw)
     geo = _geo(model, dem, band)
