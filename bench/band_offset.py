@@ -153,7 +153,7 @@ def _objective(kind: str, a: np.ndarray, b: np.ndarray):
     raise ValueError(kind)
 
 
-def estimate(kind: str, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def estimate(kind: str, a: np.ndarray, b: np.ndarray, *, x0=None) -> np.ndarray:
     """Shift ``d`` (px, shape (2,): row, col) of band ``b`` against band ``a`` by estimator ``kind``.
 
     Parameters
@@ -162,6 +162,8 @@ def estimate(kind: str, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         Estimator (module docstring).
     a, b : ndarray, shape (rows, cols)
         The two bands on one grid.
+    x0 : (float, float), optional
+        Start of the refinement (px); None: the best node of the coarse grid. ``ecc`` starts at 0.
 
     Returns
     -------
@@ -171,12 +173,14 @@ def estimate(kind: str, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if kind == "ecc":
         return _ecc(a, b)
     f = _objective(kind, a, b)
-    grid = np.arange(-SEARCH_PX, SEARCH_PX + 1e-9, 0.25)
-    vals = np.array([[f((r, c)) for c in grid] for r in grid])
-    i, j = np.unravel_index(np.argmin(vals), vals.shape)
-    res = minimize(f, x0=[grid[i], grid[j]], method="Nelder-Mead",
-                   options={"xatol": 1e-3, "fatol": 1e-12, "initial_simplex": [[grid[i], grid[j]], [grid[i] + 0.2, grid[j]],
-                                                                             [grid[i], grid[j] + 0.2]]})
+    if x0 is None:
+        grid = np.arange(-SEARCH_PX, SEARCH_PX + 1e-9, 0.25)
+        vals = np.array([[f((r, c)) for c in grid] for r in grid])
+        i, j = np.unravel_index(np.argmin(vals), vals.shape)
+        x0 = (grid[i], grid[j])
+    simplex = [[x0[0], x0[1]], [x0[0] + 0.2, x0[1]], [x0[0], x0[1] + 0.2]]
+    res = minimize(f, x0=list(x0), method="Nelder-Mead",
+                   options={"xatol": 1e-3, "fatol": 1e-12, "initial_simplex": simplex})
     return np.asarray(res.x, dtype=float)
 
 
