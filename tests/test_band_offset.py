@@ -1,7 +1,7 @@
 """The band-displacement estimators of ``bench/band_offset.py`` (mutual information, doubled-angle
 orientation correlation, OpenCV ECC on gradient magnitudes): a known Fourier shift recovered,
 across a contrast inversion, and the Sentinel-2 crop's B08 - B04 displacement that
-``bench/change_pairs.py`` takes out of the cross-band truth re-measured (docs/matching.md,
+``bench/change_pairs.py`` takes out of the cross-band truth re-measured by ECC (docs/matching.md,
 "Matching under real change")."""
 
 from __future__ import annotations
@@ -73,18 +73,17 @@ def test_real_tile_shift_recovered(kind, s2_tile):
     assert np.all(np.abs(moved - base - shift) < 0.06), (kind, moved - base)
 
 
-@pytest.mark.slow
 def test_sentinel2_band_offset_remeasured(shared_data):
     """The whole crop's B08 - B04 displacement (``change_pairs.S2_NIR_MINUS_RED_M``, the mean of
-    three estimators) by ECC and by orientation correlation (refined from ECC's estimate)."""
+    three estimators) re-measured by ECC (about 1 s; mutual information and orientation
+    correlation take minutes on the whole crop: ``python bench/band_offset.py``)."""
     if not (shared_data / "real_textures" / "sentinel2" / "s2_B04.jp2").exists():
         pytest.skip("Sentinel-2 crop not found")
     red, nir, transform = band_offset.sentinel2_bands()
     east, north = change_pairs.S2_NIR_MINUS_RED_M
     stated = np.array([north / transform.e, east / transform.a])  # (row, col) px
     ecc = band_offset.estimate("ecc", red, nir)
-    orient = band_offset.estimate("orientation", red, nir, x0=ecc)
-    print("stated", stated, "ecc", ecc, "orientation", orient)
-    # measured: ecc (-0.166, +0.076), orientation (-0.119, +0.057) against the mean (-0.157, +0.062)
-    assert np.all(np.abs(ecc - stated) < 0.05) and np.all(np.abs(orient - stated) < 0.06)
+    print("stated", stated, "ecc", ecc)
+    # measured: ecc (-0.166, +0.076) against the mean (-0.157, +0.062); orientation (-0.117, +0.056)
+    assert np.all(np.abs(ecc - stated) < 0.05), (ecc, stated)
     assert stated[0] < -0.1  # the near-infrared band shows the ground north of the red band
