@@ -64,6 +64,11 @@ MI_BINS = 64
 #: Sentinel-2 B08 digital number under which a pixel counts as water (open sea: median 313, 95th
 #: percentile 423; land vegetation 1500-3000)
 WATER_NIR_DN = 500
+#: Sentinel-2 crop regions (rows, cols of the 10 m grid): the footprint of the scenes of
+#: bench/change_pairs.py (the bounding box of their GCPs' ground points, seeds 11 and 12) and its
+#: land, coast (barrier island and its shore) and open-sea parts, split by eye on the image
+S2_REGIONS = {"footprint": ((700, 1270), (220, 1660)), "footprint_land": ((700, 1270), (220, 1150)),
+              "footprint_coast": ((700, 1270), (1150, 1450)), "footprint_sea": ((700, 1270), (1450, 1660))}
 #: Landsat-8 crop rows (30 m) of the cloud-free strip south of the cumulus field (the BQA flags
 #: 15 % of the crop as cloud; the small cumulus over most of it are not flagged)
 L8_CLEAR_ROWS = (470, 603)
@@ -274,6 +279,11 @@ def main(argv=None) -> int:
         # water: near-infrared under WATER_NIR_DN (the open sea's 95th percentile is about 420 DN)
         res["sentinel2_tile_water_fraction"] = [float(np.mean(nir[t] < WATER_NIR_DN)) for t in tiles(red.shape)]
         _print("Sentinel-2 B04 -> B08 (10 m px)", res["sentinel2_B04_to_B08"], res["sentinel2_tile_water_fraction"], "water")
+        for name, ((r0, r1), (c0, c1)) in S2_REGIONS.items():
+            part = (slice(r0, r1), slice(c0, c1))
+            res["sentinel2_" + name] = measure(red[part], nir[part], n_tiles=0)
+            print(f"  {name} (rows {r0}-{r1}, cols {c0}-{c1}):",
+                  {k: np.round(v["whole"], 3).tolist() for k, v in res["sentinel2_" + name].items()})
     if "landsat8" in which:
         red, pan, tr, tp = landsat8_bands()
         # the pan average is on its own grid: common window, shift by the transforms' origins

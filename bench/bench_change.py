@@ -73,6 +73,9 @@ def run(cache: Path, pairs, seeds, variants) -> list:
                     rows.append(row)
                     _print_row(row)
                     if table is not None and kind == "cross" and name in change_pairs.BAND_OFFSET_M:
+                        nir = DATA / (source if "B08" in source else ref)
+                        wet = change_pairs.water_fraction(table, nir)
+                        print(f"{'':14s} {table.row.size} GCPs, {int(np.sum(wet >= 0.6))} on windows at least 60 % water")
                         # the same GCPs graded against the source band's ground: the reference
                         # band's own displacement (measured by bench/band_offset.py) taken out
                         err, sigma = change_pairs.truth_errors(scene, table, change_pairs.BAND_OFFSET_M[name],
