@@ -13,7 +13,9 @@ rms of truth error over ``sigma_px`` pooled and per axis (1: honest); then the r
 seeds per (pair, reference, variant). Each ``cross`` row of a Sentinel-2 pair is followed by
 ``cross_band_offset_out``: the same GCPs graded against the source band's ground, the reference
 band's own displacement (:data:`change_pairs.BAND_OFFSET_M`, measured by ``bench/band_offset.py``)
-taken out of the truth.
+taken out of the truth, and ``cross_local_offset_out``: each GCP's own window displacement
+between the bands (ECC, :func:`band_offset.local_offsets_m`) taken out instead, a diagnostic of
+what a constant leaves.
 
 Usage: ``python bench/bench_change.py [--cache DIR] [--seeds 11,12] [--pairs a,b] [--json FILE]``
 (``--cache`` keeps the rendered scenes between runs; default a temporary folder; ``--json``
@@ -34,6 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
+import band_offset  # noqa: E402
 import change_pairs  # noqa: E402
 
 DATA = change_pairs.DATA
@@ -85,6 +88,15 @@ def run(cache: Path, pairs, seeds, variants) -> list:
                                      err=err.tolist(), sigma=sigma.tolist())
                         rows.append(fixed)
                         _print_row(fixed)
+                        # diagnostic: each GCP's own window displacement (ECC) taken out instead
+                        err, sigma = change_pairs.truth_errors(
+                            scene, table, band_offset.local_offsets_m(table, DATA / source, DATA / ref),
+                            change_pairs.dom_crs(DATA / ref))
+                        local = {**row, "reference": "cross_local_offset_out"}
+                        local.update(change_pairs.figures(err, sigma), mean_px=err.mean(axis=0).round(4).tolist(),
+                                     err=err.tolist(), sigma=sigma.tolist())
+                        rows.append(local)
+                        _print_row(local)
     return rows
 
 
