@@ -10,7 +10,12 @@ against the TRUE model (:func:`bench.change_pairs.truth_errors`).
 
 Printed per row: GCPs, truth error rms / median / p95 (2-D, px), mean error (row, col) px, and
 rms of truth error over ``sigma_px`` pooled and per axis (1: honest); then the rms pooled over the
-seeds per (pair, reference, variant).
+seeds per (pair, reference, variant). Each ``cross`` row of a Sentinel-2 pair is followed by
+``cross_band_offset_out``: the same GCPs graded against the source band's ground, the reference
+band's own displacement (:data:`change_pairs.BAND_OFFSET_M`, measured by ``bench/band_offset.py``)
+taken out of the truth, and ``cross_local_offset_out``: each GCP's own window displacement
+between the bands (ECC, :func:`band_offset.local_offsets_m`) taken out instead, a diagnostic of
+what a constant leaves.
 
 Usage: ``python bench/bench_change.py [--cache DIR] [--seeds 11,12] [--pairs a,b] [--json FILE]``
 (``--cache`` keeps the rendered scenes between runs; default a temporary folder; ``--json``
@@ -31,6 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 
+import band_offset  # noqa: E402
 import change_pairs  # noqa: E402
 
 DATA = change_pairs.DATA
@@ -69,11 +75,33 @@ def run(cache: Path, pairs, seeds, variants) -> list:
                                    err=err.tolist(), sigma=sigma.tolist())
                     rows.append(row)
                     _print_row(row)
+                    if table is not None and kind == "cross" and name in change_pairs.BAND_OFFSET_M:
+                        nir = DATA / (source if "B08" in source else ref)
+                        wet = change_pairs.water_fraction(table, nir)
+                        print(f"{'':14s} {table.row.size} GCPs, {int(np.sum(wet >= 0.6))} on windows at least 60 % water")
+                        # the same GCPs graded against the source band's ground: the reference
+                        # band's own displacement (measured by bench/band_offset.py) taken out
+                        err, sigma = change_pairs.truth_errors(scene, table, change_pairs.BAND_OFFSET_M[name],
+                                                               change_pairs.dom_crs(DATA / ref))
+                        fixed = {**row, "reference": "cross_band_offset_out"}
+                        fixed.update(change_pairs.figures(err, sigma), mean_px=err.mean(axis=0).round(4).tolist(),
+                                     err=err.tolist(), sigma=sigma.tolist())
+                        rows.append(fixed)
+                        _print_row(fixed)
+                        # diagnostic: each GCP's own window displacement (ECC) taken out instead
+                        err, sigma = change_pairs.truth_errors(
+                            scene, table, band_offset.local_offsets_m(table, DATA / source, DATA / ref),
+                            change_pairs.dom_crs(DATA / ref))
+                        local = {**row, "reference": "cross_local_offset_out"}
+                        local.update(change_pairs.figures(err, sigma), mean_px=err.mean(axis=0).round(4).tolist(),
+                                     err=err.tolist(), sigma=sigma.tolist())
+                        rows.append(local)
+                        _print_row(local)
     return rows
 
 
 def _print_row(r: dict) -> None:
-    head = f"{r['pair']:14s} seed {r['seed']:3d} {r['reference']:5s} {r['variant']:12s}"
+    head = f"{r['pair']:14s} seed {r['seed']:3d} {r['reference']:21s} {r['variant']:12s}"
     if not r["n"]:
         print(f"{head} no GCP: {r.get('message', '')[:120]}")
         return
@@ -116,7 +144,7 @@ def main(argv=None) -> int:
     print("\npooled over seeds", seeds)
     summary = pooled(rows)
     for r in summary:
-        head = f"{r['pair']:14s} {r['reference']:5s} {r['variant']:12s}"
+        head = f"{r['pair']:14s} {r['reference']:21s} {r['variant']:12s}"
         print(head + (" no GCP" if not r["n"] else
                       f" {r['n']:4d} GCPs  rms {r['rms_px']:.4f}  p95 {r['p95_px']:.4f}  z {r['z']:.2f} "
                       f"({r['z_row']:.2f}, {r['z_col']:.2f})"))

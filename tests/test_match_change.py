@@ -4,7 +4,9 @@ The scenes come from :mod:`bench.change_pairs` (the realistic profile's TRUE mod
 noise and sun shading; the reference a real file, exact by construction). ``same``: the
 reference is the band the scene was rendered from; ``cross``: the Sentinel-2 red band against a
 scene of its near-infrared band or the other way round (contrast inverted over vegetation; the
-shared test data hold no two dates of one place). Each GCP is graded against the TRUE model. The
+shared test data hold no two dates of one place). Each GCP is graded against the TRUE model, and
+across bands also with the bands' own displacement (``change_pairs.BAND_OFFSET_M``, measured by
+``bench/band_offset.py`` outside the matcher) taken out of the truth. The
 figures in the comments are ``python bench/bench_change.py`` (docs/matching.md, "Matching under
 real change").
 """
@@ -83,10 +85,15 @@ def red_scene(tmp_path_factory, shared_data):
     return scene, {k: data / v for k, v in refs.items()}
 
 
-def _graded(scene, dom, options):
+def _graded(scene, dom, options, band_offset_m=None):
+    """Figures of the GCPs of ``scene`` on ``dom``; with ``band_offset_m`` (east, north m) the
+    reference band's own displacement is taken out of the truth (:func:`change_pairs.truth_errors`)."""
     table, summary = change_pairs.match(scene, dom, options)
     assert table is not None, summary.get("message")
-    return change_pairs.figures(*change_pairs.truth_errors(scene, table))
+    raw = change_pairs.figures(*change_pairs.truth_errors(scene, table))
+    if band_offset_m is None:
+        return raw
+    return raw, change_pairs.figures(*change_pairs.truth_errors(scene, table, band_offset_m, change_pairs.dom_crs(dom)))
 
 
 def test_same_band_reference_keeps_the_matcher_accurate(red_scene):
@@ -106,8 +113,8 @@ def test_cross_band_reference_gcps_and_honest_sigma(red_scene):
     scene, refs = red_scene
     default = _graded(scene, refs["cross"], MatchOptions())
     spread = _graded(scene, refs["cross"], MatchOptions(spectral_spread_sigma=True))
-    change = _graded(scene, refs["cross"], CHANGE)
-    print("cross band: default", default, "spread sigma", spread, "change options", change)
+    change, fixed = _graded(scene, refs["cross"], CHANGE, change_pairs.BAND_OFFSET_M["s2_red_vs_nir"])
+    print("cross band: default", default, "spread sigma", spread, "change options", change, "band offset out", fixed)
     assert default["n"] > 40  # measured 74 GCPs (a coarse refit on all SIFT matches lands 4.7 km off: none)
     assert default["z"] > 1.8  # measured 2.4: the score-based sigma does not see the change
     assert 0.8 <= spread["z"] <= 1.2, spread["z"]  # measured 1.10
@@ -115,14 +122,18 @@ def test_cross_band_reference_gcps_and_honest_sigma(red_scene):
     assert change["rms_px"] < 0.6 * default["rms_px"], (change["rms_px"], default["rms_px"])
     assert change["rms_px"] < 0.16  # measured 0.136 px (bias about 0.1 px along rows: not 0.06)
     assert 0.8 <= change["z"] <= 1.4, change["z"]  # measured 1.30: the common bias is not in sigma
+    # the bias is the bands' own displacement (measured outside the matcher, bench/band_offset.py):
+    # taken out of the truth, the same GCPs are graded 0.098 px, truth / sigma 1.04
+    assert fixed["rms_px"] < 0.8 * change["rms_px"] and fixed["rms_px"] < 0.115, (fixed, change)
+    assert 0.8 <= fixed["z"] <= 1.2, fixed["z"]
 
 
 @pytest.mark.slow
 def test_cross_band_family(tmp_path, shared_data):
     """Both directions (red on near-infrared, near-infrared on red), seeds 11 and 12, pooled."""
     data = shared_data / "real_textures"
-    err = {"spread": [], "change": []}
-    sig = {"spread": [], "change": []}
+    err = {"spread": [], "change": [], "change_band_offset_out": []}
+    sig = {"spread": [], "change": [], "change_band_offset_out": []}
     for name in ("s2_red_vs_nir", "s2_nir_vs_red"):
         source, refs = change_pairs.PAIRS[name]
         for seed in (11, 12):
@@ -132,8 +143,18 @@ def test_cross_band_family(tmp_path, shared_data):
                 e, s = change_pairs.truth_errors(scene, table)
                 err[key].append(e)
                 sig[key].append(s)
+                if key == "change":
+                    e, s = change_pairs.truth_errors(scene, table, change_pairs.BAND_OFFSET_M[name],
+                                                     change_pairs.dom_crs(data / refs["cross"]))
+                    err["change_band_offset_out"].append(e)
+                    sig["change_band_offset_out"].append(s)
     fig = {k: change_pairs.figures(np.concatenate(err[k]), np.concatenate(sig[k])) for k in err}
     print(fig)
     assert 0.8 <= fig["spread"]["z"] <= 1.2, fig["spread"]  # measured 1.12
     assert fig["change"]["rms_px"] < 0.16, fig["change"]  # measured 0.134
     assert fig["change"]["z"] <= 1.35, fig["change"]  # measured 1.23
+    # the row bias is the bands' own displacement: taken out of the truth, 0.090 px and 0.92 (the
+    # 0.06 px target is not reached: 0.088 px rms is left about the mean, twice the same-band error)
+    fixed = fig["change_band_offset_out"]
+    assert fixed["rms_px"] < 0.105 and fixed["rms_px"] < 0.75 * fig["change"]["rms_px"], fixed
+    assert 0.8 <= fixed["z"] <= 1.2, fixed
