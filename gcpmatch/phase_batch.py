@@ -38,7 +38,6 @@ sizes to the last bits the FFT library's plan for a batch size may change
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 
@@ -97,14 +96,10 @@ def free_memory_bytes(device) -> int:
         free, _total = torch.cuda.mem_get_info(device)
         cached = torch.cuda.memory_reserved(device) - torch.cuda.memory_allocated(device)
         return int(free + max(cached, 0))
-    try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    from sensor_models.files.memory import available_memory_bytes
+
+    free = available_memory_bytes()
+    return 0 if free is None else free
 
 
 def device_batch(shape: tuple[int, int], dtype, device, *, budget_bytes: int | None = None,

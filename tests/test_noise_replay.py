@@ -7,7 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sensor_models.simulate.noise_replay import NormalReplay, available_memory_bytes
+from sensor_models.files.memory import available_memory_bytes
+from sensor_models.simulate.noise_replay import NormalReplay
 
 
 def test_replayed_draws_equal_fresh_ones_and_leave_the_generator_where_drawing_does():

@@ -191,7 +191,7 @@ def replay_budget_bytes(workers: int) -> int:
     int
         Bytes (a 160-frame session of 1024 x 1024 frames draws 1.34 GB).
     """
-    from sensor_models.simulate.noise_replay import available_memory_bytes
+    from sensor_models.files.memory import available_memory_bytes
 
     free = available_memory_bytes()
     return 0 if free is None else int(free // (4 * max(1, int(workers))))

@@ -14,25 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["NormalReplay", "available_memory_bytes"]
-
-
-def available_memory_bytes() -> int | None:
-    """The memory the system can give without swapping (``MemAvailable`` of ``/proc/meminfo``).
-
-    Returns
-    -------
-    int or None
-        Bytes; None where the system does not say (not Linux).
-    """
-    try:
-        with open("/proc/meminfo", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
+__all__ = ["NormalReplay"]
 
 
 def _state_key(rng: np.random.Generator) -> tuple:
