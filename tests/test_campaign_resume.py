@@ -239,3 +239,21 @@ def test_sigterm_mid_campaign_then_resume_equals_a_clean_run(tmp_path, capsys):
     summary = run_campaign(read_campaign(campaign), clean, workers=1, processes=False, spacing_px=SPACING)
     assert [r["status"] for r in summary["rows"]] == ["ok", "failed", "ok"]
     _assert_same_tables(out, clean)
+
+
+def test_a_scene_folder_left_by_a_stopped_resume_run_is_gcpcals_to_a_run_without_it(tmp_path):
+    """A scene committed alone (its own ledger, as a stopped ``--resume`` run leaves it), then a campaign
+    staged whole over it: every file stays gcpcal's, so that later runs replace them."""
+    from calibrate.pipelines.campaign import campaign_scene
+
+    campaign = _campaign(tmp_path, ["tiny"])
+    scenes = read_campaign(campaign)
+    out = tmp_path / "out"
+    out.mkdir()
+    row = campaign_scene(scenes[0], out, options=_options(), made_from=made_from(scenes[0], _options()))
+    assert row["status"] == "failed" and (out / "tiny" / LEDGER_NAME).is_file()
+    before = _files(out / "tiny")
+    run_campaign(scenes, out, workers=1, processes=False, spacing_px=SPACING)
+    assert _files(out / "tiny") != before and not (out / "tiny" / LEDGER_NAME).exists()
+    assert all(owned(p) for p in out.rglob("*") if p.is_file() and p.name != LEDGER_NAME)
+    run_campaign(scenes, out, workers=1, processes=False, spacing_px=SPACING)  # and again: nothing refused
