@@ -161,10 +161,11 @@ def test_campaign_at_a_scheduler_address(tmp_path, capsys):
 
 # --------------------------------------------------------------------------- equal to the serial runs
 def _figures(run: Path, name: str, scene: Path) -> dict:
-    """A summary's numbers, without what names the run (its folder and scene, times, provenance)."""
+    """A summary's numbers, without what names the run (its folder and scene, times, provenance, and
+    the campaign's record of what a scene was made from)."""
     text = (run / name).read_text().replace(str(run), "<run>").replace(str(scene), "<scene>")
     doc = json.loads(text)
-    for key in ("provenance", "seconds", "warnings"):
+    for key in ("provenance", "seconds", "warnings", "campaign"):
         doc.pop(key, None)
     return doc
 

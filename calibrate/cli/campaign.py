@@ -37,10 +37,14 @@ __all__ = ["command"]
               help="Share of a 4 x 4 partition of the image the GCPs must cover.")
 @click.option("--timeout", type=click.FloatRange(min=0.1), default=10.0, show_default=True,
               help="Seconds allowed to reach --scheduler and for its first worker.")
+@click.option("--resume", is_flag=True,
+              help="Keep the scene folders of OUT that a run completed from the same inputs and options; run the "
+                   "other scenes (each folder moved into OUT as its scene ends, so that an interrupted run can "
+                   "resume) and rebuild the campaign's table and layer over all.")
 @json_option
 @click.pass_context
 def command(ctx, campaign_path, out_dir, dom_path, dem_path, dem_datum, geoid, scheduler, workers, threads, relative,
-            spacing, min_gcps, min_coverage, timeout, as_json):
+            spacing, min_gcps, min_coverage, timeout, resume, as_json):
     """Run gcpcal run on every scene of CAMPAIGN, one Dask task per scene; one table for all.
 
     CAMPAIGN is a campaign file (YAML, JSON or CSV: name, scene, dom, dem, and optionally out,
@@ -49,6 +53,13 @@ def command(ctx, campaign_path, out_dir, dom_path, dem_path, dem_datum, geoid, s
 
     The DOM and DEM options apply to a folder CAMPAIGN only: every scene's DOM and DEM (default:
     each scene's reference/dom.tif and reference/dem.tif).
+
+    With --resume, a scene whose folder in OUT a run completed from the same inputs (files by
+    size and modification time, content when only the time changed), the same campaign entry
+    and the same options is kept, its row read from its run.summary.json; every other scene
+    (new, changed, failed, or never finished) runs again, and stderr says why. Give --resume
+    from the first run of a long campaign: without it OUT is written whole at the end, and an
+    interrupted run leaves nothing to resume.
     """
     from calibrate.pipelines.campaign import read_campaign, run_campaign
 
@@ -56,7 +67,8 @@ def command(ctx, campaign_path, out_dir, dom_path, dem_path, dem_datum, geoid, s
     with stage_progress(ctx, "gcpcal campaign", as_json) as bar:
         summary = run_campaign(scenes, out_dir, source=campaign_path, scheduler=scheduler, workers=workers,
                                threads=threads, timeout_s=timeout, spacing_px=spacing, min_gcps=min_gcps,
-                               min_coverage=min_coverage, relative=relative, progress=scene_lines(bar, _ok_text))
+                               min_coverage=min_coverage, relative=relative, resume=resume,
+                               progress=scene_lines(bar, _ok_text), note=bar.note)
     if as_json:
         echo_json(summary)
     else:
@@ -88,5 +100,6 @@ def _print_table(summary, out_dir) -> None:
     out.print(table)
     for name, reason in summary["failures"].items():
         out.print(f"[red]failed[/red] {escape(name)}: {escape(reason or '')}", highlight=False)
-    out.print(f"{summary['ok']}/{summary['scenes']} scenes in {summary['seconds']:.1f} s on {summary['workers']} "
+    kept = f" ({len(summary['kept'])} kept from the earlier run)" if summary.get("kept") else ""
+    out.print(f"{summary['ok']}/{summary['scenes']} scenes{kept} in {summary['seconds']:.1f} s on {summary['workers']} "
               f"worker(s); wrote {out_dir}/campaign.csv, campaign.json, campaign_residuals.gpkg", highlight=False)

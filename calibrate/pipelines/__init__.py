@@ -9,6 +9,7 @@ A pipeline calls the very functions the ``gcpcal`` stage commands call (:mod:`ca
   TRUE model;
 * :mod:`.run`: ``gcpcal run``, match, then calibrate from the GCPs or from star frames;
 * :mod:`.campaign`: ``gcpcal campaign``, the run pipeline on many scenes, one Dask task each;
+  :mod:`.campaign_resume`, which scene folders of an earlier campaign ``--resume`` keeps;
 * :mod:`.experiment`: ``gcpcal experiment``, a seed experiment (:mod:`calibrate.experiments`),
   handed the scene pipeline where it runs the user's chain (seed 003).
 

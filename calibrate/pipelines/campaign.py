@@ -23,7 +23,10 @@ The campaign folder ``OUT`` holds, besides the scenes' folders:
 
 A scene that fails (bad input, no GCP, a failed calibration, a lost worker) is a row with its
 reason; the others go on. ``OUT`` is staged whole (:func:`calibrate.actions._io.staged_folder`):
-an interrupted campaign leaves the previous ``OUT`` (or none), never part of one.
+an interrupted campaign leaves the previous ``OUT`` (or none), never part of one. With
+``resume``, each scene's folder is moved into ``OUT`` whole as its scene ends instead, the scene
+folders an earlier run completed from the same inputs and options are kept
+(:mod:`calibrate.pipelines.campaign_resume`), and the campaign's files are rebuilt over all scenes.
 """
 
 from __future__ import annotations
@@ -42,8 +45,11 @@ from calibrate.actions._guard import OutputRefusedError, allow_overwrite, overwr
 from calibrate.actions._io import final_paths, staged_folder
 from calibrate.actions._provenance import command_line, current_command_line, with_provenance
 from calibrate.cluster import available_cores, check_scheduler_address, connect, dask_log_level, worker_count
+from calibrate.pipelines.campaign_resume import (RECORD_KEY, clear_scene, earlier_output, fold_ledgers, made_from,
+                                                 summary_row)
 from calibrate.pipelines.run import MIN_COVERAGE, MIN_GCPS, run_scene
 from sensor_models.errors import GcpcalError, InputError
+from sensor_models.files.atomic import atomic_folder
 
 __all__ = ["COLUMNS", "CampaignScene", "campaign_scene", "read_campaign", "run_campaign"]
 
@@ -224,14 +230,15 @@ def _failed_row(scene: CampaignScene, reason: str) -> dict:
     return row
 
 
-def campaign_scene(scene: CampaignScene, out_dir, *, options: dict, argv=None, overwrite: bool = False) -> dict:
+def campaign_scene(scene: CampaignScene, out_dir, *, options: dict, argv=None, overwrite: bool = False,
+                   made_from: dict | None = None) -> dict:
     """Run one scene of a campaign (:func:`calibrate.pipelines.run.run_scene` into ``out_dir/scene.out``); never raises.
 
     Parameters
     ----------
     scene : CampaignScene
     out_dir : str or Path
-        The campaign's folder (its staging folder while the campaign runs).
+        The campaign's folder (its staging folder while a campaign staged whole runs).
     options : dict
         Keywords of :func:`calibrate.pipelines.run.run_scene` common to every scene
         (``spacing_px``, ``min_gcps``, ``min_coverage``, ``relative``, ``threads``).
@@ -239,6 +246,9 @@ def campaign_scene(scene: CampaignScene, out_dir, *, options: dict, argv=None, o
         The campaign's command line, recorded in the scene's provenance.
     overwrite : bool
         ``--overwrite`` of the campaign (a worker does not share the command's context).
+    made_from : dict, optional
+        What the scene is made from (:func:`calibrate.pipelines.campaign_resume.made_from`),
+        recorded with the worker in the scene's ``run.summary.json`` under ``campaign``.
 
     Returns
     -------
@@ -248,6 +258,7 @@ def campaign_scene(scene: CampaignScene, out_dir, *, options: dict, argv=None, o
     """
     t0 = time.perf_counter()
     row = _failed_row(scene, "")
+    worker = f"{os.uname().nodename}:{os.getpid()}"
     try:
         if not Path(out_dir).is_dir():  # a task started after its campaign stopped: write nothing
             raise InputError("the campaign's folder is gone (the campaign was stopped)", path=str(out_dir))
@@ -258,14 +269,9 @@ def campaign_scene(scene: CampaignScene, out_dir, *, options: dict, argv=None, o
                 stack.enter_context(command_line(argv))
             summary = run_scene(scene.scene, dom_path=_dom_source(scene), dem_path=scene.dem,
                                 out_dir=Path(out_dir) / scene.out, star_frames=scene.star_frames,
-                                dem_datum=scene.dem_datum, geoid=scene.geoid, **options)
-        rmse = summary.get("check_rmse_px") or {}
-        row.update(path=summary.get("path"), gcps=summary.get("gcps"), check_rmse_before_px=rmse.get("before"),
-                   check_rmse_after_px=rmse.get("after"), calibration_status=summary.get("calibration_status"))
-        if summary.get("success"):
-            row.update(status="ok", reason="")
-        else:
-            row["reason"] = " ".join(str(summary.get("message") or "the calibration failed").split())
+                                dem_datum=scene.dem_datum, geoid=scene.geoid,
+                                record={RECORD_KEY: {"made_from": made_from, "worker": worker}}, **options)
+        summary_row(row, summary)
     except GcpcalError as exc:
         row["reason"] = " ".join(str(exc).split())
     except MemoryError:
@@ -273,14 +279,24 @@ def campaign_scene(scene: CampaignScene, out_dir, *, options: dict, argv=None, o
     except Exception as exc:  # noqa: BLE001 - a failing scene is a row, never a stopped campaign
         row["reason"] = " ".join(f"{type(exc).__name__}: {exc}".split())
     row["seconds"] = time.perf_counter() - t0
-    row["worker"] = f"{os.uname().nodename}:{os.getpid()}"
+    row["worker"] = worker
+    return json_safe(row)
+
+
+def _kept_row(scene: CampaignScene, summary: dict) -> dict:
+    """The row of a scene whose earlier folder stands: read from its ``run.summary.json``
+    (``seconds``: that run's, ``worker``: the one that ran it)."""
+    row = summary_row(_failed_row(scene, ""), summary)
+    row["seconds"] = summary.get("seconds")
+    row["worker"] = (summary.get(RECORD_KEY) or {}).get("worker")
     return json_safe(row)
 
 
 # --------------------------------------------------------------------------- the campaign
 def run_campaign(scenes, out_dir, *, source=None, scheduler=None, workers: int | None = None, threads: int | None = None,
                  processes: bool = True, timeout_s: float = 10.0, spacing_px: int = 16, min_gcps: int = MIN_GCPS,
-                 min_coverage: float = MIN_COVERAGE, relative: bool = False, progress=None) -> dict:
+                 min_coverage: float = MIN_COVERAGE, relative: bool = False, resume: bool = False, progress=None,
+                 note=None) -> dict:
     """Run every scene (module docstring) and write the campaign folder ``out_dir``.
 
     Parameters
@@ -304,14 +320,23 @@ def run_campaign(scenes, out_dir, *, source=None, scheduler=None, workers: int |
         Seconds allowed to reach ``scheduler`` and for its first worker.
     spacing_px, min_gcps, min_coverage, relative
         As :func:`calibrate.pipelines.run.run_scene` (``gcpcal run``'s options).
+    resume : bool
+        Keep the scene folders of ``out_dir`` that an earlier run completed from the same inputs
+        and options (:mod:`calibrate.pipelines.campaign_resume`), run the other scenes, each
+        folder moved into ``out_dir`` as soon as its scene ends, and rebuild the campaign's files
+        over all. Without it ``out_dir`` is staged whole.
     progress : callable(done, total, row), optional
-        Called with ``(0, n, None)`` when the work starts, then as each scene finishes.
+        Called with ``(0, n, None)`` when the work starts, then as each scene finishes (a kept
+        scene first).
+    note : callable(str), optional
+        Receives the resume decisions: how many scenes are kept, and why each other scene runs again.
 
     Returns
     -------
     dict
         The summary written to ``campaign.json`` (``rows`` in the campaign's order, ``ok``,
-        ``failed``, ``failures`` by name, ``files``), its paths naming ``out_dir``.
+        ``failed``, ``failures`` by name, ``files``; with ``resume``, ``kept``: the names of the
+        scenes kept and ``rerun``: name -> why), its paths naming ``out_dir``.
 
     Raises
     ------
@@ -332,20 +357,85 @@ def run_campaign(scenes, out_dir, *, source=None, scheduler=None, workers: int |
                "relative": bool(relative), "threads": int(threads)}
     _refuse_foreign_files(out_dir)
     inputs = [source] + [s.inputs for s in scenes]
+    records = [made_from(s, options) for s in scenes]
+    cluster = {"scheduler": scheduler, "workers": workers, "processes": processes, "timeout_s": timeout_s}
+    if resume:
+        return _resume_campaign(scenes, records, out_dir, options, inputs, cluster, source, t0, progress, note)
     with staged_folder(out_dir, ".campaign-", inputs=inputs) as stage:
+        if Path(out_dir).is_dir():  # scene folders an interrupted --resume run committed: one ledger
+            fold_ledgers(Path(out_dir), [Path(out_dir) / s.out for s in scenes])
         if progress is not None:
             progress(0, len(scenes), None)
+        todo = dict(enumerate(scenes))
         with dask_log_level():
-            rows, n_workers = _run_tasks(scenes, stage, out_dir, options, scheduler=scheduler, workers=workers,
-                                         processes=processes, timeout_s=timeout_s, progress=progress)
-        summary = {"kind": "gcpcal.campaign", "campaign": None if source is None else str(source),
-                   "scenes": len(rows), "ok": sum(r["status"] == "ok" for r in rows),
-                   "failed": sum(r["status"] != "ok" for r in rows),
-                   "failures": {r["name"]: r["reason"] for r in rows if r["status"] != "ok"},
-                   "options": options, "scheduler": scheduler or "LocalCluster", "workers": n_workers,
-                   "task_seconds": float(sum(r["seconds"] or 0.0 for r in rows))}
-        _write_outputs(stage, scenes, rows, summary, t0)
+            rows, n_workers = _run_tasks(todo, records, stage, out_dir, options, progress=progress, **cluster)
+        rows = [rows[k] for k in range(len(scenes))]
+        summary = _summary(source, rows, options, scheduler, n_workers)
+        with atomic_folder(stage, mode="merge", inside=True) as tmp:
+            _write_outputs({key: tmp / name for key, name in FILES.items()}, stage, scenes, rows, summary, t0)
     return final_paths(summary, stage, out_dir)
+
+
+def _summary(source, rows, options, scheduler, n_workers) -> dict:
+    return {"kind": "gcpcal.campaign", "campaign": None if source is None else str(source),
+            "scenes": len(rows), "ok": sum(r["status"] == "ok" for r in rows),
+            "failed": sum(r["status"] != "ok" for r in rows),
+            "failures": {r["name"]: r["reason"] for r in rows if r["status"] != "ok"},
+            "options": options, "scheduler": scheduler or "LocalCluster", "workers": n_workers,
+            "task_seconds": float(sum(r["seconds"] or 0.0 for r in rows))}
+
+
+def _resume_campaign(scenes, records, out_dir, options, inputs, cluster, source, t0, progress, note) -> dict:
+    """``run_campaign(resume=True)``: keep the scene folders that stand, run the others into ``out_dir``
+    one folder at a time, then write the campaign's files (:func:`run_campaign`)."""
+    from calibrate.actions._commit import folder_unit
+    from calibrate.actions._guard import input_set
+    from calibrate.actions._io import check_output_folder, staged_files
+    from calibrate.actions._ledger import record
+    from calibrate.actions._staging import clean_stale
+
+    inputs = input_set(inputs)
+    final = check_output_folder(out_dir, inputs=inputs)
+    final.mkdir(parents=True, exist_ok=True)
+    clean_stale(final)  # staging of scenes a killed campaign was running
+    fold_ledgers(final, [final / s.out for s in scenes])
+    rows: list = [None] * len(scenes)
+    todo, rerun = {}, {}
+    for k, scene in enumerate(scenes):
+        summary, why = earlier_output(final / scene.out, records[k])
+        if summary is not None:
+            rows[k] = _kept_row(scene, summary)
+            continue
+        todo[k] = scene
+        if why is not None:
+            rerun[scene.name] = why
+            clear_scene(final / scene.out)
+    kept = [s.name for k, s in enumerate(scenes) if k not in todo]
+    if note is not None:
+        note(f"kept {len(kept)} of {len(scenes)} scene(s) from the earlier run (same inputs and options)")
+        for name, why in rerun.items():
+            note(f"{name} runs again: {why}")
+    if progress is not None:
+        progress(0, len(scenes), None)
+        for done, row in enumerate((r for r in rows if r is not None), start=1):
+            progress(done, len(scenes), row)
+    n_workers = 0
+    if todo:
+        with dask_log_level():
+            new, n_workers = _run_tasks(todo, records, final, out_dir, options, progress=progress,
+                                        done0=len(kept), **cluster)
+        for k in todo:
+            rows[k] = new[k]
+    fold_ledgers(final, [final / s.out for s in scenes])
+    summary = _summary(source, rows, options, cluster["scheduler"], n_workers)
+    summary.update(kept=kept, rerun=rerun)
+    paths = {key: final / name for key, name in FILES.items()}
+    keys = list(paths)
+    with staged_files(*paths.values(), inputs=inputs) as staged:
+        _write_outputs(dict(zip(keys, staged)), final, scenes, rows, summary, t0)
+    # one unit with the scenes' files, as a campaign staged whole records them
+    record(final, {name: final / name for name in FILES.values()}, unit=folder_unit("campaign"), command="campaign")
+    return final_paths(summary, final, out_dir)
 
 
 def _refuse_foreign_files(out_dir) -> None:
@@ -365,28 +455,31 @@ def _refuse_foreign_files(out_dir) -> None:
                                      "replace it, or another --out", path=str(path))
 
 
-def _run_tasks(scenes, stage: Path, out_dir, options: dict, *, scheduler, workers, processes, timeout_s, progress):
-    """Submit one :func:`campaign_scene` per scene into ``stage``; return the rows in the campaign's order
-    (their messages naming ``out_dir``, not the staging folder) and the worker count."""
+def _run_tasks(todo: dict, records, into: Path, out_dir, options: dict, *, scheduler, workers, processes, timeout_s,
+               progress, done0: int = 0):
+    """Submit one :func:`campaign_scene` per scene of ``todo`` (index -> scene) into ``into``; return
+    their rows by index (their messages naming ``out_dir``, not ``into``) and the worker count."""
     from distributed import as_completed
 
     argv, overwrite = current_command_line(), overwrite_allowed()
-    rows: list = [None] * len(scenes)
+    rows: dict = {}
+    total = len(records)
     client, cluster = connect(scheduler, workers, timeout_s, processes=processes)
     futures = {}
     try:
         n_workers = worker_count(client, cluster, scheduler, timeout_s)
-        futures = {client.submit(campaign_scene, s, str(stage), options=options, argv=argv, overwrite=overwrite,
-                                 pure=False, key=f"gcpcal-campaign-{k}-{s.out}"): k for k, s in enumerate(scenes)}
-        for done, fut in enumerate(as_completed(futures), start=1):
+        futures = {client.submit(campaign_scene, s, str(into), options=options, argv=argv, overwrite=overwrite,
+                                 made_from=records[k], pure=False, key=f"gcpcal-campaign-{k}-{s.out}"): k
+                   for k, s in todo.items()}
+        for done, fut in enumerate(as_completed(futures), start=done0 + 1):
             k = futures[fut]
             try:
                 row = fut.result()
             except Exception as exc:  # noqa: BLE001 - a lost worker fails its scene only
-                row = _failed_row(scenes[k], f"task error: {type(exc).__name__}: {exc}")
-            rows[k] = row = final_paths(row, stage, out_dir)
+                row = _failed_row(todo[k], f"task error: {type(exc).__name__}: {exc}")
+            rows[k] = row = final_paths(row, into, out_dir)
             if progress is not None:
-                progress(done, len(scenes), row)
+                progress(done, total, row)
     finally:
         if futures:
             client.cancel(list(futures))
@@ -396,30 +489,29 @@ def _run_tasks(scenes, stage: Path, out_dir, options: dict, *, scheduler, worker
     return rows, n_workers
 
 
-def _write_outputs(stage: Path, scenes, rows, summary: dict, t0: float) -> None:
-    """``campaign_residuals.gpkg``, ``campaign.csv`` and ``campaign.json`` into the staged campaign folder."""
+def _write_outputs(paths: dict, scene_root: Path, scenes, rows, summary: dict, t0: float) -> None:
+    """Write the campaign's files (:data:`FILES`) to ``paths`` (key -> staged path): the residual
+    layer of the scene folders under ``scene_root``, the table and the summary."""
     from calibrate.residual_layer import LAYER_NAMES, concatenate_layers, read_residual_layer, write_residual_layer
-    from sensor_models.files.atomic import atomic_folder
 
     layers = []
     for scene, row in zip(scenes, rows):
-        part = stage / scene.out / "calibration" / "residuals.gpkg"
+        part = scene_root / scene.out / "calibration" / "residuals.gpkg"
         if row["status"] == "ok" and part.is_file():
             layer = read_residual_layer(part)
             layer["site"] = [scene.name] * len(layer["id"])
             layers.append(layer)
     summary["residual_points"] = int(sum(len(x["id"]) for x in layers))
     summary["files"] = dict(FILES)
-    with atomic_folder(stage, mode="merge", inside=True) as tmp:
-        write_residual_layer(concatenate_layers(layers), tmp / FILES["residuals"], layer=LAYER_NAMES["campaign"])
-        buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n")
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({c: "" if r.get(c) is None else (repr(r[c]) if isinstance(r[c], float) else r[c])
-                             for c in COLUMNS})
-        (tmp / FILES["csv"]).write_text(buf.getvalue(), encoding="utf-8")
-        summary["seconds"] = time.perf_counter() - t0
-        summary.update(columns=list(COLUMNS), rows=rows)
-        doc = json_safe(with_provenance(summary))
-        (tmp / FILES["json"]).write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    write_residual_layer(concatenate_layers(layers), paths["residuals"], layer=LAYER_NAMES["campaign"])
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({c: "" if r.get(c) is None else (repr(r[c]) if isinstance(r[c], float) else r[c])
+                         for c in COLUMNS})
+    Path(paths["csv"]).write_text(buf.getvalue(), encoding="utf-8")
+    summary["seconds"] = time.perf_counter() - t0
+    summary.update(columns=list(COLUMNS), rows=rows)
+    doc = json_safe(with_provenance(summary))
+    Path(paths["json"]).write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")

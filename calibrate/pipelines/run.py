@@ -154,7 +154,8 @@ def _own_status(out_dir: Path, summary: dict) -> dict:
 @staged_output("out_dir", inputs=("scene_path", "dom_path", "dem_path", "geoid", "star_frames"), prefix=".run-")
 def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_datum=None, geoid=None,
               min_gcps: int = MIN_GCPS, min_coverage: float = MIN_COVERAGE, spacing_px: int = 16,
-              relative: bool = False, threads: int = 0, progress=None, self_check: str = "refuse") -> dict:
+              relative: bool = False, threads: int = 0, progress=None, self_check: str = "refuse",
+              record: dict | None = None) -> dict:
     """Match, decide, calibrate (see the module docstring).
 
     Parameters
@@ -190,6 +191,9 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
     self_check : {"refuse", "warn"}
         For a vendor product whose model disagrees with its own statements: refuse, or proceed
         and record the disagreement (``product_check``, ``warnings``) in every summary.
+    record : dict, optional
+        Fields added to the summary as they are (``gcpcal campaign`` records there what the run
+        was made from, :mod:`calibrate.pipelines.campaign_resume`).
 
     Returns
     -------
@@ -239,5 +243,6 @@ def run_scene(scene_path, *, dom_path, dem_path, out_dir, star_frames=None, dem_
     summary.update(_own_status(out_dir, summary))
     record_product_check(summary, scene.product_check)
     summary["seconds"] = time.perf_counter() - t0
+    summary.update(record or {})
     atomic_write_text(out_dir / "run.summary.json", json.dumps(with_provenance(summary), indent=1, default=str) + "\n")
     return summary
