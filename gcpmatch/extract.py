@@ -245,7 +245,8 @@ def coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
     band : str
         The band matched.
     opt : MatchOptions
-        ``max_offset_px``, ``seed``, ``backend``, ``window_px`` and ``coarse_skip`` are used.
+        ``max_offset_px``, ``seed``, ``backend``, ``window_px`` (the capture radius
+        ``window_px / 4``) and ``coarse_skip`` are used.
 
     Returns
     -------
@@ -256,7 +257,8 @@ def coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
     device = "cuda" if opt.backend == "gpu" else ("cpu" if torch_backend else None)
     return coarse_match(scene, model, dem, dom, band=band, max_offset_px=opt.max_offset_px, seed=opt.seed,
                         backend="torch" if torch_backend else "cpu", device=device,
-                        skip_within_px=opt.window_px / 4.0 if opt.coarse_skip else None)
+                        skip_within_px=opt.window_px / 4.0 if opt.coarse_skip else None,
+                        capture_px=opt.window_px / 4.0)
 
 
 def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, look, opt: MatchOptions,
