@@ -12,7 +12,8 @@ the offset the whole-scene fit leaves it, which can exceed the fine stage's capt
    ``S / 4``);
 2. the DOM is rendered through the pre-corrected model in that CCD's geometry
    (:func:`gcpmatch.reference.reference_for_ccd`); windows of ``S`` x ``S`` pixels, half
-   overlapping, are averaged down by ``r = S / 128`` (``r >= 1``) and phase-correlated with the
+   overlapping, with data on 90 % of both or more (the rest filled with the window's mean), are
+   averaged down by ``r = S / 128`` (``r >= 1``) and phase-correlated with the
    scene's (:func:`gcpmatch.phase.phase_correlate`, its own null-based score and peak-ratio
    tests);
 3. the offset is accepted only when at least :data:`MIN_WINDOWS` windows (and half of those with
@@ -31,7 +32,7 @@ import numpy as np
 
 from gcpmatch.precorrect import fit_ccd_offsets
 
-__all__ = ["MAX_SPREAD_PX", "MIN_WINDOWS", "REDUCED_WINDOW_PX", "search_ccd_offsets", "search_missing_ccds",
+__all__ = ["MAX_SPREAD_PX", "MIN_DATA_FRACTION", "MIN_WINDOWS", "REDUCED_WINDOW_PX", "search_ccd_offsets", "search_missing_ccds",
            "search_radius_px", "window_side_px"]
 
 #: fewest valid, agreeing windows for an offset to be accepted
@@ -43,6 +44,9 @@ MIN_WINDOWS = 6
 MAX_SPREAD_PX = 2.0
 #: side of the windows after the reduction, pixels
 REDUCED_WINDOW_PX = 128
+#: least share of a window with scene and reference data (DEM voids and DOM holes are filled
+#: with the window's mean: a 256-pixel window rarely misses them all)
+MIN_DATA_FRACTION = 0.9
 
 
 def search_radius_px(capture_px: float, removed: dict) -> float:
@@ -91,19 +95,26 @@ def _starts(n: int, side: int) -> np.ndarray:
     return np.linspace(0, n - side, k).astype(int)
 
 
+def _filled(win: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """``win`` (float32) with its invalid pixels set to the mean of its valid ones."""
+    return np.where(ok, win, np.float32(win[ok].mean())).astype(np.float32)
+
+
 def _windows(scene, ref, first_col, side, r):
-    """Reduced window pairs with data everywhere and their full-resolution centres."""
+    """Reduced window pairs with data on at least :data:`MIN_DATA_FRACTION` of both (the rest
+    filled with the window's mean) and their full-resolution centres."""
     n_rows, n_det = ref.shape
     refs, scenes, centres = [], [], []
     for r0 in _starts(n_rows, side):
         for c0 in _starts(n_det, side):
             a = ref[r0 : r0 + side, c0 : c0 + side]
-            b = scene[r0 : r0 + side, first_col + c0 : first_col + c0 + side]
-            if not (np.isfinite(a).all() and np.isfinite(b).all() and (b > 0).all()):
+            b = scene[r0 : r0 + side, first_col + c0 : first_col + c0 + side].astype(np.float32)
+            ok_a, ok_b = np.isfinite(a), np.isfinite(b) & (b > 0)
+            if min(ok_a.mean(), ok_b.mean()) < MIN_DATA_FRACTION:
                 continue
             shape = (side // r, r, side // r, r)
-            refs.append(a.reshape(shape).mean(axis=(1, 3)))
-            scenes.append(b.astype(np.float32).reshape(shape).mean(axis=(1, 3)))
+            refs.append(_filled(a, ok_a).reshape(shape).mean(axis=(1, 3)))
+            scenes.append(_filled(b, ok_b).reshape(shape).mean(axis=(1, 3)))
             centres.append((r0 + 0.5 * side, first_col + c0 + 0.5 * side))
     return refs, scenes, np.array(centres, dtype=float).reshape(-1, 2)
 
