@@ -32,8 +32,8 @@ import numpy as np
 
 from gcpmatch.precorrect import fit_ccd_offsets
 
-__all__ = ["MAX_SPREAD_PX", "MIN_DATA_FRACTION", "MIN_WINDOWS", "REDUCED_WINDOW_PX", "search_ccd_offsets", "search_missing_ccds",
-           "search_radius_px", "window_side_px"]
+__all__ = ["MAX_SPREAD_PX", "MIN_DATA_FRACTION", "MIN_WINDOWS", "REDUCED_WINDOW_PX", "search_ccd_offsets",
+           "search_missing_ccds", "search_radius_px", "window_side_px"]
 
 #: fewest valid, agreeing windows for an offset to be accepted
 MIN_WINDOWS = 6
@@ -125,7 +125,8 @@ def _ground(model, dem, band, ccd, row, col, h0, iterations: int = 3):
     lon = lat = None
     for _ in range(iterations):
         lon, lat, _ = model.image_to_ground(row, col, height=h, band=band, array=np.full(row.size, ccd))
-        h = np.where(np.isfinite(dem.height_m(lon, lat)), dem.height_m(lon, lat), h)
+        dem_h = dem.height_m(lon, lat)
+        h = np.where(np.isfinite(dem_h), dem_h, h)
     return lon, lat, h
 
 
@@ -141,7 +142,7 @@ def _search_one(scene, model, dem, dom, *, band, ccd, radius_px, h_mid):
         report["reason"] = "CCD or scene too small for a search window"
         return report, None
     r = max(1, side // REDUCED_WINDOW_PX)
-    ref = reference_for_ccd(model, dem, dom, band=band, ccd=ccd, workers=1)
+    ref = reference_for_ccd(model, dem, dom, band=band, ccd=ccd)
     refs, scenes, centres = _windows(scene, ref, look.first_col, side, r)
     report["windows"] = len(refs)
     if len(refs) < MIN_WINDOWS:
