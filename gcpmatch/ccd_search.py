@@ -16,10 +16,11 @@ the offset the whole-scene fit leaves it, which can exceed the fine stage's capt
    averaged down by ``r = S / 128`` (``r >= 1``) and phase-correlated with the
    scene's (:func:`gcpmatch.phase.phase_correlate`, its own null-based score and peak-ratio
    tests);
-3. the offset is accepted only when at least :data:`MIN_WINDOWS` windows (and half of those with
-   data) give a valid peak and they agree: robust spread (1.4826 MAD) at most
-   :data:`MAX_SPREAD_PX` on both axes. The agreeing windows (within 3 spreads plus one reduced
-   pixel of the median) then become matches at their centres and the CCD's ``tan psi`` terms are
+3. the offset is accepted only when at least :data:`MIN_WINDOWS` windows give a valid peak and
+   they agree: robust spread (1.4826 MAD) at most :data:`MAX_SPREAD_PX` on both axes, and at
+   least :data:`MIN_WINDOWS` of them, and half, within 3 spreads plus one reduced pixel of the
+   median (windows over the sea or a cloud deck find no peak: a coastal CCD is judged on its
+   land). The agreeing windows then become matches at their centres and the CCD's ``tan psi`` terms are
    fitted to them as for SIFT matches. Otherwise the CCD is left as it is and reported.
 
 A CCD whose ground has no texture (open sea, a cloud deck) gives no agreeing windows: it is
@@ -151,7 +152,7 @@ def _search_one(scene, model, dem, dom, *, band, ccd, radius_px, h_mid):
     res = phase_correlate(np.stack(refs).astype(np.float32), np.stack(scenes).astype(np.float32))
     shifts = np.asarray(res.shift_px, dtype=float) * r
     valid = np.asarray(res.valid)
-    if valid.sum() < max(MIN_WINDOWS, 0.5 * len(refs)):
+    if valid.sum() < MIN_WINDOWS:  # (a coast: the windows over the sea find none, the others count)
         report["reason"] = f"{int(valid.sum())} of {len(refs)} windows found a peak"
         return report, None
     med = np.median(shifts[valid], axis=0)
@@ -159,9 +160,11 @@ def _search_one(scene, model, dem, dom, *, band, ccd, radius_px, h_mid):
     agree = valid & np.all(np.abs(shifts - med) <= 3.0 * spread + r, axis=1)
     report.update(agree=int(agree.sum()), shift_px=[round(float(v), 2) for v in med],
                   spread_px=[round(float(v), 2) for v in spread])
-    if spread.max() > MAX_SPREAD_PX or agree.sum() < MIN_WINDOWS:
-        report["reason"] = (f"the windows disagree (spread {spread.max():.1f} px > {MAX_SPREAD_PX:g})"
-                            if spread.max() > MAX_SPREAD_PX else f"{int(agree.sum())} agreeing windows < {MIN_WINDOWS}")
+    if spread.max() > MAX_SPREAD_PX:
+        report["reason"] = f"the windows disagree (spread {spread.max():.1f} px > {MAX_SPREAD_PX:g})"
+        return report, None
+    if agree.sum() < max(MIN_WINDOWS, 0.5 * valid.sum()):
+        report["reason"] = f"{int(agree.sum())} of {int(valid.sum())} windows with a peak agree"
         return report, None
     row_p, col_p = centres[agree, 0], centres[agree, 1]
     lon, lat, h = _ground(model, dem, band, ccd, row_p, col_p, h_mid)

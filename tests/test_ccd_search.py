@@ -5,7 +5,8 @@ further by 18-28 px (beyond the fine stage's 16 px capture radius, within the 32
 covers on 192-detector CCDs), drawn at random directions, and SIFT made to find nothing on that
 CCD (its matches dropped before the pre-correction, as on texture-poor ground): the search must
 bring the CCD within a fraction of the capture radius of the TRUE model. A CCD whose scene is
-flat noise (no ground signal) must be reported "not pre-corrected" and left as it was.
+flat noise (no ground signal) must be reported "not pre-corrected" and left as it was; one
+whose scene is flat noise over 60 % of its lines (a coast) is found from the rest.
 """
 
 from __future__ import annotations
@@ -119,3 +120,23 @@ def test_a_featureless_ccd_is_reported_not_faked(inputs, no_sift_on_ccd):
     names = _tan_psi_names(model, CCD)
     pv_in, pv_out = model.parameters(), result.model.parameters()
     assert np.array_equal(pv_in.values[pv_in.index(names)], pv_out.values[pv_out.index(names)])
+
+
+def test_a_coastal_ccd_is_found_from_its_land(inputs, no_sift_on_ccd, monkeypatch):
+    """60 % of the CCD's lines flat noise (sea), the fine stage's capture radius 8 px (32-px
+    windows), the CCD moved a further 8.5 px (15 px from the TRUE model after the whole-scene
+    fit): the windows over the land decide, those over the sea find no peak and do not veto."""
+    truth, lab, dem, dom, img = inputs
+    capture = 8.0
+    model = _moved(lab, CCD, -3.0, 8.0)
+    coastal = img.astype(np.float32).copy()
+    cols, sea = slice(192 * CCD, 192 * (CCD + 1)), int(0.6 * img.shape[0])
+    coastal[:sea, cols] = np.random.default_rng(8).normal(1000.0, 10.0, coastal[:sea, cols].shape)
+    result = coarse.coarse_match(coastal, model, dem, dom, band=BAND, capture_px=capture)
+    report = result.ccd_search[CCD]
+    assert report["status"] == "pre-corrected", report
+    assert report["agree"] < 0.5 * report["windows"]  # most windows are over the sea
+    assert _error_px(result.model, truth, dem, CCD) < 0.2 * capture
+    monkeypatch.setattr(coarse, "search_missing_ccds", lambda scene, m, *a, **k: (m, {}))
+    before = coarse.coarse_match(coastal, model, dem, dom, band=BAND, capture_px=capture)
+    assert _error_px(before.model, truth, dem, CCD) > capture
