@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 import pyproj
 
+from gcpmatch.ccd_search import search_missing_ccds
 from gcpmatch.coarse_skip import within_fine_radius
 from gcpmatch.precorrect import precorrect_matches
 from gcpmatch.reference import grid_resolution_m, scene_gsd_m
@@ -91,6 +92,7 @@ class CoarseResult:
     dem_coverage: float = 1.0  # fraction of the searched DOM with DEM heights
     note: str = ""
     tiles: int = 1  # SIFT passes: 1 for the whole scene, else the tiles of plan_tiles
+    ccd_search: dict = field(default_factory=dict)  # CCD -> report of gcpmatch.ccd_search
 
     def summary(self) -> dict:
         """The counts and fit figures as a JSON-ready dict (no model, no points).
@@ -101,7 +103,8 @@ class CoarseResult:
             Keypoints, ratio matches, RANSAC inliers, kept inliers, ``rms_m``, ``factor``,
             ``ccd_offsets_px`` (keys as strings), ``dem_coverage`` (fraction of the DOM searched
             around the scene that has DEM heights), ``note`` (says when the search was
-            restricted to that part) and ``tiles`` (SIFT passes: 1 for the whole scene).
+            restricted to that part), ``tiles`` (SIFT passes: 1 for the whole scene) and, when
+            a CCD had too few SIFT matches, ``ccd_search`` (:func:`gcpmatch.ccd_search.search_ccd_offsets`).
         """
         return {
             "keypoints_scene": self.n_keypoints_scene, "keypoints_dom": self.n_keypoints_dom,
@@ -109,6 +112,7 @@ class CoarseResult:
             "inliers": self.n_inliers, "rms_m": self.rms_m, "factor": self.factor,
             "ccd_offsets_px": {str(k): v for k, v in self.ccd_offsets_px.items()},
             "dem_coverage": self.dem_coverage, "note": self.note, "tiles": self.tiles,
+            **({"ccd_search": {str(k): v for k, v in self.ccd_search.items()}} if self.ccd_search else {}),
         }
 
 
@@ -265,7 +269,7 @@ def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0, device=
 def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None, max_offset_px: float = 1000.0,
                  target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
                  seed: int = 0, backend: str = "cpu", device=None, skip_within_px: float | None = None,
-                 sift_budget_bytes: int = SIFT_BUDGET_BYTES) -> CoarseResult:
+                 sift_budget_bytes: int = SIFT_BUDGET_BYTES, capture_px: float = 16.0) -> CoarseResult:
     """Pre-correct ``model`` so that it lands within a few pixels of the truth (see module doc).
 
     Parameters
@@ -308,6 +312,9 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         need more (``SIFT_BYTES_PER_PX`` a pixel), SIFT runs by overlapping tiles
         (:func:`plan_tiles`), each against the DOM around its own footprint, and the matches
         are merged in scene coordinates before the one pre-correction fit.
+    capture_px : float
+        The fine stage's capture radius, pixels: sets the search of a CCD without SIFT matches
+        (:func:`gcpmatch.ccd_search.search_missing_ccds`).
 
     Returns
     -------
@@ -355,10 +362,12 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         raise CoarseMatchError(f"too few RANSAC inliers inside the scene and the DEM: {int(sel.sum())} < 6{where}")
     corrected, keep, rms_m, offsets = precorrect_matches(model, band, row, col, glon, glat, gh, sel=sel, inside=inside,
                                                   min_scale_m=0.5 * coarse_res)
+    corrected, searched = search_missing_ccds(scene, corrected, dem, dom, band=band or corrected.reference_band,
+                                              removed=offsets, capture_px=capture_px, h_mid=h_mid)
     return CoarseResult(
         model=corrected, n_keypoints_scene=found.n_kp_scene, n_keypoints_dom=found.n_kp_dom, n_matches=row.size,
         n_ransac_inliers=int(ransac_in.sum()), n_inliers=int(keep.size), rms_m=rms_m, factor=f,
-        ccd_offsets_px=offsets,
+        ccd_offsets_px=offsets, ccd_search=searched,
         points={"row": row[keep], "col": col[keep], "lon": glon[keep], "lat": glat[keep], "h": gh[keep]},
         dem_coverage=found.dem_cover, note=note, tiles=1 if tiles is None else len(tiles),
     )

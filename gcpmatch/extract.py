@@ -157,7 +157,8 @@ def _extract(model, scene, dem, dom, *, band, mask, opt: MatchOptions, accuracy,
     timings = {"coarse_s": time.perf_counter() - t0}
     model_pc = coarse.model
     if progress:
-        progress(f"coarse stage: {coarse.n_inliers} SIFT matches, model pre-corrected")
+        searched = _searched(coarse, model_pc, band)
+        progress(f"coarse stage: {coarse.n_inliers} SIFT matches, model pre-corrected{searched}")
     height_m = scene_height_m(model_pc, dem, band=band)
     tally = _Tally(height_m=height_m, mask_given=mask is not None, accuracy=_accuracy(dom, opt, accuracy),
                    count=progress_count, windows_total=window_count(model_pc, band, opt))
@@ -169,11 +170,28 @@ def _extract(model, scene, dem, dom, *, band, mask, opt: MatchOptions, accuracy,
         split = model_pc.detector_view(band, i) is not model_pc
         _match_ccd(tally, model_pc, scene, mask, dem, dom, band=band, ccd=i if split else None,
                    look=look, opt=opt, progress=progress)
+    for i, report in coarse.ccd_search.items():  # the coarse stage's word on a CCD without SIFT matches
+        if report["status"] != "pre-corrected" and tally.per_ccd[i].get("cause"):
+            tally.per_ccd[i]["cause"] += f"; coarse stage: not pre-corrected ({report['reason']})"
     timings["reference_s"] = tally.t_ref
     timings["phase_s"] = tally.t_phase
     table = _gcp_table(tally.tables, opt)
     timings["total_s"] = time.perf_counter() - t0
     return table, _summary(band, table, tally, coarse, opt, timings, n_cols=scene.shape[1])
+
+
+def _searched(coarse, model, band) -> str:
+    """"; CCD x pre-corrected by its own search (offset ...)" / "not pre-corrected (why)", or ""."""
+    arrays = model.detector_arrays(band)
+    parts = []
+    for i, report in coarse.ccd_search.items():
+        name = arrays[i].name or str(i)
+        if report["status"] == "pre-corrected":
+            d_row, d_col = report["shift_px"]
+            parts.append(f"CCD {name} pre-corrected by its own search (offset {d_row:+.1f}, {d_col:+.1f} px)")
+        else:
+            parts.append(f"CCD {name} not pre-corrected ({report['reason']})")
+    return "".join(f"; {p}" for p in parts)
 
 
 def _accuracy(dom, opt: MatchOptions, accuracy):
@@ -245,7 +263,8 @@ def coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
     band : str
         The band matched.
     opt : MatchOptions
-        ``max_offset_px``, ``seed``, ``backend``, ``window_px`` and ``coarse_skip`` are used.
+        ``max_offset_px``, ``seed``, ``backend``, ``window_px`` (the capture radius
+        ``window_px / 4``) and ``coarse_skip`` are used.
 
     Returns
     -------
@@ -256,7 +275,8 @@ def coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
     device = "cuda" if opt.backend == "gpu" else ("cpu" if torch_backend else None)
     return coarse_match(scene, model, dem, dom, band=band, max_offset_px=opt.max_offset_px, seed=opt.seed,
                         backend="torch" if torch_backend else "cpu", device=device,
-                        skip_within_px=opt.window_px / 4.0 if opt.coarse_skip else None)
+                        skip_within_px=opt.window_px / 4.0 if opt.coarse_skip else None,
+                        capture_px=opt.window_px / 4.0)
 
 
 def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, look, opt: MatchOptions,
