@@ -39,17 +39,13 @@ import numpy as np
 import pyproj
 
 from gcpmatch.ccd_search import search_missing_ccds
+from gcpmatch.coarse_sift import CoarseMatchError, sift_ransac, to_uint8
 from gcpmatch.coarse_skip import within_fine_radius
 from gcpmatch.precorrect import precorrect_matches
 from gcpmatch.reference import grid_resolution_m, scene_gsd_m
-from sensor_models.errors import GcpcalError
 
-__all__ = ["MIN_REDUCED_SIDE_PX", "SIFT_BUDGET_BYTES", "SIFT_BYTES_PER_PX", "CoarseResult", "Tile", "coarse_match",
-           "plan_tiles", "reduction_factor", "to_uint8"]
-
-
-class CoarseMatchError(GcpcalError, RuntimeError):
-    """The coarse stage found no consistent set of matches."""
+__all__ = ["MIN_REDUCED_SIDE_PX", "SIFT_BUDGET_BYTES", "SIFT_BYTES_PER_PX", "CoarseMatchError", "CoarseResult", "Tile",
+           "coarse_match", "plan_tiles", "reduction_factor", "to_uint8"]
 
 
 @dataclass
@@ -114,29 +110,6 @@ class CoarseResult:
             "dem_coverage": self.dem_coverage, "note": self.note, "tiles": self.tiles,
             **({"ccd_search": {str(k): v for k, v in self.ccd_search.items()}} if self.ccd_search else {}),
         }
-
-
-def to_uint8(img: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-    """Stretch the 1-99 % range of the valid pixels to 0..255 (invalid -> 0).
-
-    Parameters
-    ----------
-    img : ndarray, shape (H, W)
-        Image, any real dtype.
-    valid : ndarray of bool, shape (H, W), optional
-        Pixels to use and keep; default: the finite ones.
-
-    Returns
-    -------
-    ndarray of uint8, shape (H, W)
-        The stretched image, 0 where not valid (all 0 when nothing is valid).
-    """
-    valid = np.isfinite(img) if valid is None else valid
-    if not valid.any():
-        return np.zeros(img.shape, np.uint8)
-    lo, hi = np.percentile(img[valid], [1.0, 99.0])
-    out = (np.clip((img - lo) / max(hi - lo, 1e-6), 0.0, 1.0) * 255.0)
-    return np.where(valid, out, 0.0).astype(np.uint8)
 
 
 def _border(model, band, n=24, part=None):
@@ -205,67 +178,6 @@ SIFT_BUDGET_BYTES = 1 << 30
 TILE_OVERLAP_PX = 64
 
 
-#: Scene keypoints of the first SIFT pass (the DOM keeps the full budget: its search window is
-#: larger than the scene, and where clouds or bare ground leave the scene few features, the DOM's
-#: strongest ones would lie elsewhere). Measured, one thread, CPU time of the coarse stage with
-#: the brute-force matcher and 12 000 features against FLANN and this budget: realistic demo 2.72
-#: -> 0.93 s (pre-correction against the TRUE model 2.37 px rms both), Pleiades tutorial pair
-#: 1.42 -> 0.48 s (the two pre-corrections 0.69 px apart), a 60 %-cloud scene 0.23 -> 0.22 px
-#: against the TRUE model.
-FIRST_FEATURE_BUDGET = 4000
-#: RANSAC inliers below which the first pass is not trusted and the full budget runs: an affine
-#: map has 6 parameters, and the pre-correction then fits the exterior to the inliers in ground
-#: space; 50 leaves it determined several times over where a few outliers survive RANSAC.
-MIN_FIRST_INLIERS = 50
-#: FLANN randomized k-d trees and leaves checked per query (OpenCV's FlannBasedMatcher).
-FLANN_TREES, FLANN_CHECKS = 4, 64
-
-
-def _sift_features(img, mask, n_features):
-    """OpenCV SIFT keypoints and descriptors of a uint8 image, the ``n_features`` strongest
-    (``mask`` True where usable)."""
-    return cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.01).detectAndCompute(
-        img, mask.astype(np.uint8) * 255)
-
-
-def _flann_ratio_pairs(des_a, des_b, *, seed: int = 0):
-    """FLANN k-d tree two nearest neighbours with Lowe's ratio test (0.8): (query, train) indices.
-
-    The trees are randomized by OpenCV's generator of the calling thread, seeded here, so the
-    matches do not depend on what ran before in the process.
-    """
-    cv2.setRNGSeed(seed)
-    matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": FLANN_TREES}, {"checks": FLANN_CHECKS})
-    pairs = matcher.knnMatch(des_a, des_b, k=2)
-    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
-    return (np.array([m.queryIdx for m in good], dtype=np.intp), np.array([m.trainIdx for m in good], dtype=np.intp))
-
-
-def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0, device=None):
-    """Ratio-test matches of two images' SIFT features: FLANN on the CPU (``device`` None), else the
-    exact two nearest neighbours on the torch ``device`` (:mod:`gcpmatch._features_torch`).
-
-    Returns
-    -------
-    pa, pb : ndarray of float32, shape (m, 2)
-        Matched keypoint positions (x, y) in each image (OpenCV pixels).
-    n_a, n_b : int
-        Keypoints of each image.
-    """
-    (kp_a, des_a), (kp_b, des_b) = scene_features, dom_features
-    if des_a is None or des_b is None or len(kp_a) < 2 or len(kp_b) < 2:
-        return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32), len(kp_a), len(kp_b)
-    if device is None:
-        query, train = _flann_ratio_pairs(des_a, des_b, seed=seed)
-    else:
-        from gcpmatch._features_torch import ratio_test_pairs
-
-        query, train = ratio_test_pairs(des_a, des_b, ratio=0.8, device=device)
-    pa = np.float32([kp_a[i].pt for i in query]).reshape(-1, 2)
-    pb = np.float32([kp_b[j].pt for j in train]).reshape(-1, 2)
-    return pa, pb, len(kp_a), len(kp_b)
-
-
 def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None, max_offset_px: float = 1000.0,
                  target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
                  seed: int = 0, backend: str = "cpu", device=None, skip_within_px: float | None = None,
@@ -296,12 +208,9 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         Most SIFT keypoints kept per image.
     seed : int
         Seed of the RANSAC draws.
-    backend : {"cpu", "torch"}
-        OpenCV SIFT, FLANN ratio-test matching and affine RANSAC; or the same SIFT features and
-        RANSAC with the descriptors' exact two nearest neighbours found on the torch ``device``
-        (:mod:`gcpmatch._features_torch`: the matches of a brute-force matcher).
-    device : str or torch.device, optional
-        Torch device of the ``"torch"`` backend (``None``: CUDA if available, else the CPU).
+    backend, device : {"cpu", "torch"}, str or torch.device, optional
+        ``"torch"``: the descriptors' exact two nearest neighbours on the torch ``device``
+        (None: CUDA if available) instead of FLANN (:mod:`gcpmatch.coarse_sift`).
     skip_within_px : float, optional
         The fine stage's search radius, pixels: when a few windows' phase correlation shows
         the model already within half of it, SIFT is skipped and ``model`` is returned
@@ -335,12 +244,9 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     test in true ground coordinates, independent of the model's error), so whatever the DOM
     the same part is searched; the result's ``note`` says so, an error names the coverage.
     """
-    if skip_within_px is not None:
-        note = within_fine_radius(scene, model, dem, dom, band=band or model.reference_band,
-                                  radius_px=float(skip_within_px))
-        if note is not None:  # the model as it is, no match counts, the note saying so
-            return CoarseResult(model=model, n_keypoints_scene=0, n_keypoints_dom=0, n_matches=0, n_ransac_inliers=0,
-                                n_inliers=0, rms_m=float("nan"), factor=1, note=note)
+    skipped = _skipped(scene, model, dem, dom, band, skip_within_px)
+    if skipped is not None:
+        return skipped
     n_rows, n_cols = scene.shape
     small, small_valid, f = _reduce_scene(scene, target_px)
     h_mid = scene_height_m(model, dem, band=band)
@@ -373,6 +279,19 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     )
 
 
+def _skipped(scene, model, dem, dom, band, skip_within_px) -> CoarseResult | None:
+    """The model as it is, with no match counts and the note saying so, when a few windows'
+    phase correlation shows it already within ``skip_within_px`` (None: not asked, or not so)."""
+    if skip_within_px is None:
+        return None
+    note = within_fine_radius(scene, model, dem, dom, band=band or model.reference_band,
+                              radius_px=float(skip_within_px))
+    if note is None:
+        return None
+    return CoarseResult(model=model, n_keypoints_scene=0, n_keypoints_dom=0, n_matches=0, n_ransac_inliers=0,
+                        n_inliers=0, rms_m=float("nan"), factor=1, note=note)
+
+
 @dataclass
 class _Found:
     """SIFT matches of the coarse stage in full-scene coordinates, before the pre-correction.
@@ -395,7 +314,7 @@ def _whole_matches(small, small_valid, f, shape, model, dom, dem, geo, sift) -> 
     dem_cover, note = _restrict_to_dem(win, dem)
     a_pred = _predicted_affine(model, band, h_mid, shape, f, win)
     warped, warped_valid = _warp_to_dom(small, small_valid, a_pred)
-    ps, pd, n_kp_s, n_kp_d, ransac_in = _sift_ransac(warped, warped_valid, win.dom_small, **sift)
+    ps, pd, n_kp_s, n_kp_d, ransac_in = sift_ransac(warped, warped_valid, win.dom_small, **sift)
     row, col, glon, glat, gh = _matches_on_ground(ps, pd, a_pred, f, win, dem)
     return _Found((row, col, glon, glat, gh, ransac_in), n_kp_s, n_kp_d, dem_cover, note)
 
@@ -416,7 +335,7 @@ def _tiled_matches(small, small_valid, f, tiles, model, dom, dem, geo, sift) -> 
             a_pred = _predicted_affine(model, geo["band"], geo["h_mid"], ((r1 - r0) * f, (c1 - c0) * f), f, win,
                                        origin=(r0, c0))
             warped, warped_valid = _warp_to_dom(small[r0:r1, c0:c1], small_valid[r0:r1, c0:c1], a_pred)
-            ps, pd, kp_s, kp_d, ransac_in = _sift_ransac(warped, warped_valid, win.dom_small, **sift)
+            ps, pd, kp_s, kp_d, ransac_in = sift_ransac(warped, warped_valid, win.dom_small, **sift)
         except CoarseMatchError as exc:
             reasons.append(str(exc))
             continue
@@ -717,63 +636,6 @@ def _warp_to_dom(small, small_valid, a_pred):
     warped = cv2.warpAffine(to_uint8(small, small_valid), a_pred, canvas, flags=cv2.INTER_LINEAR)
     warped_valid = cv2.warpAffine(small_valid.astype(np.uint8), a_pred, canvas, flags=cv2.INTER_NEAREST)
     return warped, warped_valid
-
-
-def _sift_ransac(warped, warped_valid, dom_small, *, n_features, ransac_px, seed, backend, device):
-    """SIFT matches (ratio test) between the warped scene and the DOM, and their RANSAC inliers.
-
-    Both backends adapt the feature budget (module docstring, step 3); ``backend`` other than
-    ``"cpu"`` matches the descriptors on the torch ``device`` (None: CUDA if available).
-
-    Returns
-    -------
-    ps, pd : ndarray of float32, shape (m, 2)
-        Matched (x, y) positions in the warped scene and in the reduced DOM (OpenCV pixels).
-    n_kp_s, n_kp_d : int
-        Keypoints found in each image.
-    ransac_in : ndarray of bool, shape (m,)
-        Matches consistent with one affine map.
-    """
-    dom_valid = np.isfinite(dom_small)
-    dom_u8 = to_uint8(dom_small, dom_valid)
-    device = (device or "auto") if backend != "cpu" else None  # None: FLANN on the CPU
-    dom_features = _sift_features(dom_u8, dom_valid, n_features)  # the full budget in both passes
-    first = min(n_features, FIRST_FEATURE_BUDGET)
-    if first < n_features:  # the full budget in the scene only where the first is not enough
-        try:
-            found = _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, first), dom_features,
-                                        ransac_px, seed, device)
-            if int(found[-1].sum()) >= MIN_FIRST_INLIERS:
-                return found
-        except CoarseMatchError:
-            pass
-    return _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, n_features), dom_features, ransac_px, seed,
-                               device)
-
-
-def _sift_ransac_opencv(scene_features, dom_features, ransac_px, seed, device=None):
-    """Ratio matches of the scene's and the DOM's SIFT features (FLANN, or exact on a torch
-    ``device``), seeded affine RANSAC."""
-    ps, pd, n_kp_s, n_kp_d = _sift_matches_opencv(scene_features, dom_features, seed=seed, device=device)
-    _check_matches(ps, n_kp_s, n_kp_d)
-    cv2.setRNGSeed(seed)
-    _, mask = cv2.estimateAffine2D(ps, pd, method=cv2.RANSAC, ransacReprojThreshold=ransac_px,
-                                   maxIters=10000, confidence=0.999)
-    ransac_in = np.zeros(len(ps), bool) if mask is None else mask.ravel().astype(bool)
-    return ps, pd, n_kp_s, n_kp_d, _enough(ransac_in)
-
-
-def _check_matches(ps, n_kp_s, n_kp_d) -> None:
-    if n_kp_s < 8 or n_kp_d < 8:
-        raise CoarseMatchError(f"too few SIFT keypoints (scene {n_kp_s}, DOM {n_kp_d}): no texture?")
-    if len(ps) < 8:
-        raise CoarseMatchError(f"only {len(ps)} SIFT matches pass the ratio test")
-
-
-def _enough(ransac_in: np.ndarray) -> np.ndarray:
-    if ransac_in.sum() < 6:
-        raise CoarseMatchError("RANSAC found no consistent set of SIFT matches")
-    return ransac_in
 
 
 def _matches_on_ground(ps, pd, a_pred, f, win: _DomWindow, dem, origin=(0, 0)):
