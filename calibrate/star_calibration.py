@@ -254,6 +254,7 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, *, options: Star
     t = check_frame_seconds(seconds, len(frames))
     cat = resolve_catalog(options.catalog, options.mag_limit)
     models = [lab_model.at_frame(float(s)) for s in t]
+    b_all = np.stack([m.body_to_gcrf for m in models])  # B_k of every frame (seed 000 eq. 9)
     timings["models_s"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -261,7 +262,7 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, *, options: Star
     timings["detection_s"] = time.perf_counter() - t1
 
     t2 = time.perf_counter()
-    obs, offset = _identify_all(detections, n_det, models, cat, t, options)
+    obs, offset = _identify_all(detections, n_det, models, b_all, cat, t, options)
     timings["identification_s"] = time.perf_counter() - t2
 
     t3 = time.perf_counter()
@@ -278,7 +279,7 @@ def process_frames(frames, seconds, lab_model: GeoStaringModel, *, options: Star
     model0 = models[0]
     base = dict(success=False, scheme=options.scheme, parameter_names=model0.parameter_names(),
                 initial=model0.parameters().values, sigma=None, sigma_names=(), tracks=tracks, frames=frame_info,
-                observations=obs, timings=timings, frame_body_to_gcrf=np.stack([m.body_to_gcrf for m in models]),
+                observations=obs, timings=timings, frame_body_to_gcrf=b_all,
                 frame_seconds=t)
     if obs.calibration.sum() < 5:
         return StarCalibrationResult(message=f"only {int(obs.calibration.sum())} usable track points "
@@ -303,7 +304,7 @@ def _detect_all(frames, lab_model, detections, options):
     return detections, n_det, empty
 
 
-def _identify_all(detections, n_det, models, cat, t, options):
+def _identify_all(detections, n_det, models, b_all, cat, t, options):
     """Steps 2, 3 and 5: predicted stars matched to detections, with their virtual vectors."""
     pred = predict_catalog(models, cat, margin_px=options.search_px)
     pairs, offset = identify(detections, pred, search_px=options.search_px, tolerance_px=options.tolerance_px)
@@ -315,7 +316,6 @@ def _identify_all(detections, n_det, models, cat, t, options):
     det_flux = np.concatenate([d.flux for d in detections])
     start = np.r_[0, np.cumsum(n_det)[:-1]]
     flat = start[k] + di
-    b_all = np.stack([m.body_to_gcrf for m in models])
     b0 = models[0].body_to_gcrf
     vec = pred.vectors_gcrf[pi]
     virtual = np.einsum("ij,nkj,nk->ni", b0, b_all[k], vec)  # B0 B_k^T w  (seed 000 eq. 9)

@@ -31,7 +31,7 @@
 
 References
 ----------
-.. [1] ESA, "Sentinel-2 Products Specification Document", S2-PDGS-TAS-DI-PSD, issue 15,
+.. [1] ESA, "Sentinel-2 Products Specification Document", S2-PDGS-TAS-DI-PSD, edition 15,
    sections on the radiometric offset introduced with processing baseline 04.00 (25 January
    2022): ``L1C reflectance = (DN + RADIO_ADD_OFFSET) / QUANTIFICATION_VALUE``, likewise L2A
    with ``BOA_ADD_OFFSET``.
