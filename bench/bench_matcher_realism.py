@@ -102,10 +102,16 @@ def chip_interpolation() -> str:
     return CHIP_KERNEL["name"] or CHIP_INTERPOLATION
 
 
-def prepare_windows(scene: Path, options) -> dict:
+def prepare_windows(scene: Path, options, *, dom_path: Path | None = None, band_offset=None) -> dict:
     """Coarse stage, reference chips, screened windows and TRUE shifts of one scene (arrays).
 
     Every window of every CCD's grid is kept, in grid order, CCD after CCD.
+
+    ``dom_path`` (default: the scene's ``reference/dom.tif``) is the reference DOM. With
+    ``band_offset`` = ``(east_m, north_m, crs)``, where the reference shows a ground feature minus
+    where the scene's source shows it (:data:`change_pairs.BAND_OFFSET_M`, in the map CRS ``crs``),
+    the ground point of each window centre is moved back by it before the TRUE projection, as
+    :func:`change_pairs.truth_errors` does: the truth is the source's ground.
 
     Returns
     -------
@@ -134,7 +140,7 @@ def prepare_windows(scene: Path, options) -> dict:
     band = model.reference_band
     img_all = read_band(opened, band)
     dem = Dem.open(scene / "reference" / "dem.tif")
-    dom = MapImage.open(scene / "reference" / "dom.tif")
+    dom = MapImage.open(dom_path or scene / "reference" / "dom.tif")
     model_pc = coarse_stage(img_all, model, dem, dom, band, options).model
     w, half = options.window_px, options.window_px // 2
     out = {k: [] for k in ("ws", "wr", "status", "std_r", "true_shift", "rr", "cc", "ccd")}
@@ -159,6 +165,8 @@ def prepare_windows(scene: Path, options) -> dict:
         status[(status == "") & cloudy] = "cloud"
         r_c, c_c = rr + half, cc + half + look.first_col
         lon, lat, h = model_pc.image_to_ground(r_c.astype(float), c_c.astype(float), dem=dem, band=band, array=i)
+        if band_offset is not None:
+            lon, lat = _moved_back(lon, lat, band_offset)
         fin = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(h)
         r_t, c_t = np.full(lon.size, np.nan), np.full(lon.size, np.nan)
         r_t[fin], c_t[fin] = truth.ground_to_image(lon[fin], lat[fin], h[fin], band=band,
@@ -180,6 +188,16 @@ def prepare_windows(scene: Path, options) -> dict:
     arrays["ref_px_per_m"] = np.array(per_m)
     arrays["gsd_m"] = np.array(scene_gsd_m(model_pc, band=band))
     return arrays
+
+
+def _moved_back(lon, lat, band_offset):
+    """``(lon, lat)`` moved by minus ``band_offset`` = ``(east_m, north_m, crs)`` in that map CRS."""
+    import pyproj
+
+    east_m, north_m, crs = band_offset
+    to_map = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    e, n = to_map.transform(lon, lat)
+    return to_map.transform(e - east_m, n - north_m, direction="INVERSE")
 
 
 def load_windows(cache: Path, profile: str, gsd_m: float, source, options) -> dict:
