@@ -18,6 +18,9 @@ red scene on NIR (``A``), NIR scene on red (``B``), and each scene on its own ba
   roles, ``(c_A - c_B) / 2`` (a displacement of the content between the bands, or a bias that
   the content difference drives: either way fixed by the two bands' content), and the part that
   does not, ``(c_A + c_B) / 2``;
+* ``detection``: per seed, the median over the matched windows of the spectral spread over the
+  matching noise the score predicts (:func:`gcpmatch.window_match.spectral_spread_px`,
+  :func:`gcpmatch.uncertainty.score_sigma_px`) and the share above 1, for each reference;
 * ``candidates``: truth error of window-level estimators on all matched windows, land and water
   apart, across and on the same band: the production phase correlation (``pc``); the reference
   mapped through the conditional mean of the scene given the reference's grey level at the
@@ -153,7 +156,8 @@ def fourier_moved(win: np.ndarray, shift_px: np.ndarray) -> np.ndarray:
 
 def lut_shift(reference: np.ndarray, scene: np.ndarray, start_px: np.ndarray, bins: int = 16) -> np.ndarray:
     """``lut`` candidate: the reference mapped through ``E[scene | reference]`` at ``start_px``
-    (``bins`` quantile bins of the reference, piecewise linear), phase-correlated again."""
+    (``bins`` quantile bins of the reference, piecewise linear, continued linearly beyond the end
+    bins), phase-correlated again."""
     from gcpmatch.phase import phase_correlate
 
     ref = np.asarray(reference, dtype=float)
@@ -168,8 +172,19 @@ def lut_shift(reference: np.ndarray, scene: np.ndarray, start_px: np.ndarray, bi
         x = np.bincount(which, a, bins)[full] / count[full]
         y = np.bincount(which, b, bins)[full] / count[full]
         order = np.argsort(x)
-        mapped[k] = np.interp(ref[k], x[order], y[order])
+        mapped[k] = _interp_linear_ends(ref[k], x[order], y[order])
     return phase_correlate(mapped, scene, max_shift_px=h / 4.0).shift_px
+
+
+def _interp_linear_ends(v: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Piecewise-linear ``y(x)`` at ``v``, continued by the end segments beyond ``x``'s range."""
+    out = np.interp(v, x, y)
+    if x.size < 2:
+        return out
+    low, high = v < x[0], v > x[-1]
+    out[low] = y[0] + (v[low] - x[0]) * (y[1] - y[0]) / max(x[1] - x[0], 1e-12)
+    out[high] = y[-1] + (v[high] - x[-1]) * (y[-1] - y[-2]) / max(x[-1] - x[-2], 1e-12)
+    return out
 
 
 def _orientation_channels(win: np.ndarray, sigma_px: float = 1.0):
@@ -252,6 +267,30 @@ def kept_report(cache: Path, seeds, options) -> dict:
         out[name] = {"n": int(len(err)), "cross_rms_px": rms2(err), "same_band_rms_px": rms2(same),
                      "n_same": int(len(same)), "water_share": float(wet.mean()),
                      "z": float(np.sqrt(np.mean(z**2))), "mean_px": err.mean(axis=0).round(4).tolist()}
+    return out
+
+
+def detection(cache: Path, seeds) -> dict:
+    """Per (direction, reference): per seed, the median over the matched windows of the spectral
+    spread over the matching noise the score predicts, and the share of windows above 1 (the
+    ``max_spectral_spread=1`` rejection): how a scene tells a reference that shows its ground
+    otherwise from a faithful one."""
+    from gcpmatch.options import MatchOptions
+    from gcpmatch.uncertainty import score_sigma_px
+    from gcpmatch.window_match import correlate_pairs
+
+    out = {}
+    for name in DIRECTIONS:
+        for kind in ("same", "cross"):
+            rows = []
+            for seed in seeds:
+                win = windows(cache, name, seed, kind)
+                go = np.flatnonzero(win["status"] == "")
+                res = correlate_pairs(win["wr"][go], win["ws"][go], MatchOptions(spectral_spread_sigma=True))
+                ok = res.status == ""
+                ratio = res.quality["spectral_spread_px"][ok] / score_sigma_px(res.quality["score"][ok])
+                rows.append([float(np.median(ratio)), float(np.mean(ratio > 1.0))])
+            out[f"{name} {kind}"] = rows
     return out
 
 
@@ -343,7 +382,7 @@ def main(argv=None) -> int:
         cache = a.cache or Path(tmp)
         cache.mkdir(parents=True, exist_ok=True)
         result = {"seeds": seeds, "kept": kept_report(cache, seeds, change_options()),
-                  "decomposition": decomposition(cache, seeds)}
+                  "decomposition": decomposition(cache, seeds), "detection": detection(cache, seeds)}
         print(f"seeds {seeds}; kept with the change options (cross-band GCPs / truth rms px / the same windows "
               "on the same band: n, rms px / share on water / rms(error / sigma) / mean error px)")
         for name, r in result["kept"].items():
@@ -356,6 +395,9 @@ def main(argv=None) -> int:
                   f"  corr(change A, change B) (row, col) {r['corr_change_a_b'][0]:+.2f}, {r['corr_change_a_b'][1]:+.2f}"
                   f"  flipping part mean {r['flipping_mean_px']} std {r['flipping_std_px']}"
                   f"  staying part rms {r['staying_rms_px']}")
+        print("spectral spread over the noise its score predicts: median (share > 1) per seed")
+        for key, rows in result["detection"].items():
+            print(f"  {key:20s} " + "  ".join(f"{m:.2f} ({f:.2f})" for m, f in rows))
         names = [n for n in a.candidates.split(",") if n]
         if names:
             result["candidates"] = candidates(cache, seeds, names)
