@@ -9,7 +9,8 @@ outlier rejection, ``sigma_px``) with each variant of :data:`VARIANTS`, and its 
 against the TRUE model (:func:`bench.change_pairs.truth_errors`).
 
 Printed per row: GCPs, truth error rms / median / p95 (2-D, px), mean error (row, col) px, and
-rms of truth error over ``sigma_px`` pooled and per axis (1: honest); then the rms pooled over the
+rms of truth error over ``sigma_px`` pooled and per axis (1: honest), and with ``detect`` the
+scene's median spread ratio and whether it switched the change options on; then the rms pooled over the
 seeds per (pair, reference, variant). Each ``cross`` row of a Sentinel-2 pair is followed by
 ``cross_band_offset_out``: the same GCPs graded against the source band's ground, the reference
 band's own displacement (:data:`change_pairs.BAND_OFFSET_M`, measured by ``bench/band_offset.py``)
@@ -41,12 +42,14 @@ import change_pairs  # noqa: E402
 
 DATA = change_pairs.DATA
 
-#: name -> keywords of MatchOptions; ``default`` is the matcher as shipped
+#: name -> keywords of MatchOptions; ``default`` is the matcher as shipped; ``detect`` lets the
+#: scene switch the change options on (``MatchOptions.detect_change``)
 VARIANTS = {
     "default": {},
     "spread_sigma": {"spectral_spread_sigma": True},
     "change": {"spectral_spread_sigma": True, "max_spectral_spread": 1.0},
     "change_2": {"spectral_spread_sigma": True, "max_spectral_spread": 2.0},
+    "detect": {"detect_change": True},
 }
 
 
@@ -66,7 +69,7 @@ def run(cache: Path, pairs, seeds, variants) -> list:
                     t0 = time.perf_counter()
                     table, summary = change_pairs.match(scene, DATA / ref, replace(MatchOptions(), **VARIANTS[variant]))
                     row = {"pair": name, "seed": seed, "reference": kind, "variant": variant,
-                           "seconds": time.perf_counter() - t0}
+                           "seconds": time.perf_counter() - t0, "change": summary.get("change")}
                     if table is None:
                         row.update(n=0, message=summary.get("message", ""))
                     else:
@@ -106,7 +109,9 @@ def _print_row(r: dict) -> None:
         print(f"{head} no GCP: {r.get('message', '')[:120]}")
         return
     print(f"{head} {r['n']:4d} GCPs  rms {r['rms_px']:.4f}  median {r['median_px']:.4f}  p95 {r['p95_px']:.4f}  "
-          f"mean {r['mean_px']}  z {r['z']:.2f} ({r['z_row']:.2f}, {r['z_col']:.2f})  {r['seconds']:.1f} s")
+          f"mean {r['mean_px']}  z {r['z']:.2f} ({r['z_row']:.2f}, {r['z_col']:.2f})  {r['seconds']:.1f} s"
+          + (f"  change: median spread ratio {r['change']['median_spread_ratio']:.2f}, detected {r['change']['detected']}"
+             if r.get("change") and r["change"]["median_spread_ratio"] is not None else ""))
 
 
 def pooled(rows: list) -> list:

@@ -21,7 +21,7 @@ summary:
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -37,7 +37,7 @@ from gcpmatch.reference import reference_for_ccd, reference_for_image, scene_gsd
 from gcpmatch.texture import band_noise_dn, gradient_snr, weak_texture
 from gcpmatch.uncertainty import reference_sigma_px, score_sigma_px, window_sigma
 from sensor_models.maps.dom_inputs import ReferenceAccuracy, reference_accuracy
-from gcpmatch.window_match import correlate_pairs
+from gcpmatch.window_match import correlate_pairs, reference_disagrees
 from sensor_models.errors import InputError
 from sensor_models.files.threads import opencv_threads
 
@@ -165,11 +165,20 @@ def _extract(model, scene, dem, dom, *, band, mask, opt: MatchOptions, accuracy,
     tally.windows_done_by(0)
     # no DOM read session across CCDs (MapImage.reading): at full size it fills GDAL's block cache
     # (+1.27 GB peak, 2931 -> 4205 MiB) for no end-to-end gain (84.0 vs 86.3 s; docs/speed.md)
+    pending = []  # with detect_change, every CCD is correlated before any is rejected
     for i, look in enumerate(model_pc.detector_arrays(band)):
         # an array that is a model of its own (a CCD) is rendered alone; a whole image at once
         split = model_pc.detector_view(band, i) is not model_pc
-        _match_ccd(tally, model_pc, scene, mask, dem, dom, band=band, ccd=i if split else None,
-                   look=look, opt=opt, progress=progress)
+        ccd = _correlate_ccd(tally, model_pc, scene, mask, dem, dom, band=band, ccd=i if split else None,
+                             look=look, opt=opt)
+        if opt.detect_change:
+            pending.append(ccd)
+        else:
+            _finish_ccd(tally, ccd, model_pc, dem, dom, band=band, opt=opt, progress=progress)
+    if opt.detect_change:
+        run_opt = _change_decision(tally, pending, opt)
+        for ccd in pending:
+            _finish_ccd(tally, ccd, model_pc, dem, dom, band=band, opt=run_opt, progress=progress)
     for i, report in coarse.ccd_search.items():  # the coarse stage's word on a CCD without SIFT matches
         if report["status"] != "pre-corrected" and tally.per_ccd[i].get("cause"):
             tally.per_ccd[i]["cause"] += f"; coarse stage: not pre-corrected ({report['reason']})"
@@ -222,6 +231,7 @@ class _Tally:
     count: object = None  # progress_count(done, total) of extract_gcps
     windows_total: int = 0
     windows_done: int = 0
+    change: dict | None = None  # detect_change: the scene's median spread ratio and the decision
 
     def windows_done_by(self, k: int) -> None:
         """``k`` more windows done: tell the progress counter."""
@@ -279,9 +289,28 @@ def coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
                         capture_px=opt.window_px / 4.0)
 
 
-def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, look, opt: MatchOptions,
-               progress) -> None:
-    """Match the windows of one CCD (``ccd`` None: the whole image) and add them to ``tally``."""
+@dataclass
+class _CcdMatches:
+    """One CCD's windows after correlation, before rejection (:func:`_correlate_ccd`)."""
+
+    look: object
+    ccd: int | None
+    shape: tuple
+    cloud_px: float | None
+    cover: dict
+    grid: tuple = (0, 0)
+    rr: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+    cc: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+    status: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=object))
+    std_r: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    shift: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    quality: dict = field(default_factory=dict)
+    ref_rc_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+
+def _correlate_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, look,
+                   opt: MatchOptions) -> _CcdMatches:
+    """Render the reference of one CCD (``ccd`` None: the whole image), screen and correlate its windows."""
     t1 = time.perf_counter()
     if ccd is not None:
         ref = reference_for_ccd(model_pc, dem, dom, band=band, ccd=ccd, psf_sigma_px=opt.psf_sigma_px,
@@ -297,35 +326,59 @@ def _match_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd, loo
         msk = mask[:, cols]
         cloud_px = float(msk.mean())
     cover = reference_coverage(model_pc, dem, dom, band=band, array=ccd, height_m=tally.height_m)
+    out = _CcdMatches(look=look, ccd=ccd, shape=img.shape, cloud_px=cloud_px, cover=cover)
     rs = grid_starts(img.shape[0], opt.window_px, opt.spacing_px)
     cs = grid_starts(img.shape[1], opt.window_px, opt.spacing_px)
     if rs.size == 0 or cs.size == 0:
-        tally.per_ccd.append(_ccd_report(look, 0, 0, cloud_px, cover, {}, float("nan"), (np.empty(0),) * 2,
-                                         img.shape, dem, dom))
-        return
-    rr, cc = (a.ravel() for a in np.meshgrid(rs, cs, indexing="ij"))
-    n = rr.size
-    tally.n_windows += n
+        return out
+    out.grid = (rs.size, cs.size)
+    out.rr, out.cc = (a.ravel() for a in np.meshgrid(rs, cs, indexing="ij"))
+    tally.n_windows += out.rr.size
     t1 = time.perf_counter()
-    status, std_r, shift, quality = _correlate_windows(img, ref, msk, rr, cc, opt, on_batch=tally.windows_done_by)
+    out.status, out.std_r, out.shift, out.quality = _correlate_windows(img, ref, msk, out.rr, out.cc, opt,
+                                                                       on_batch=tally.windows_done_by)
     tally.t_phase += time.perf_counter() - t1
-    ref_rc_px = _reference_px(tally, model_pc, band, look, ccd)
-    keep, r_c, c_c, sigma = reject_outliers(status, std_r, shift, rr, cc, (rs.size, cs.size), look.first_col, opt,
-                                            quality=quality, reference_sigma_px=float(np.sqrt(np.mean(ref_rc_px**2))))
-    score = quality.get("score", np.full(n, np.nan))
+    out.ref_rc_px = _reference_px(tally, model_pc, band, look, ccd)
+    return out
+
+
+def _change_decision(tally: _Tally, pending: list, opt: MatchOptions) -> MatchOptions:
+    """``detect_change``: the options the scene's windows are rejected with, and ``tally.change``."""
+    spread = np.concatenate([c.quality.get("spectral_spread_px", np.zeros(0)) for c in pending] or [np.zeros(0)])
+    score = np.concatenate([c.quality.get("score", np.zeros(0)) for c in pending] or [np.zeros(0)])
+    disagrees, median = reference_disagrees(spread, score, window_px=opt.window_px)
+    tally.change = {"median_spread_ratio": None if not np.isfinite(median) else median, "detected": disagrees}
+    if not disagrees:
+        return opt
+    return replace(opt, spectral_spread_sigma=True, max_spectral_spread=opt.max_spectral_spread or 1.0)
+
+
+def _finish_ccd(tally: _Tally, m: _CcdMatches, model_pc, dem, dom, *, band, opt: MatchOptions, progress) -> None:
+    """Reject the outliers of one correlated CCD, add its GCPs and its report to ``tally``."""
+    look, n = m.look, m.rr.size
+    if n == 0:
+        tally.per_ccd.append(_ccd_report(look, 0, 0, m.cloud_px, m.cover, {}, float("nan"), (np.empty(0),) * 2,
+                                         m.shape, dem, dom))
+        return
+    keep, r_c, c_c, sigma = reject_outliers(m.status, m.std_r, m.shift, m.rr, m.cc, m.grid, look.first_col, opt,
+                                            quality=m.quality,
+                                            reference_sigma_px=float(np.sqrt(np.mean(m.ref_rc_px**2))))
+    status, shift = m.status, m.shift
+    score = m.quality.get("score", np.full(n, np.nan))
     for r in REASONS:
         tally.reasons[r] += int(np.sum(status == r))
     if keep.size:
-        kw = {"array": ccd} if ccd is not None else {}
+        kw = {"array": m.ccd} if m.ccd is not None else {}
         tally.tables.append(_ccd_gcps(model_pc, dem, band, look, r_c, c_c, shift[keep], score[keep], sigma, kw))
+    cloud_px = m.cloud_px
     if cloud_px is not None:
         tally.cloud_sum += cloud_px * look.n_detectors
         tally.cloud_cols += look.n_detectors
     counts = {r: int(np.sum(status == r)) for r in REASONS}
     sigma_ccd = float(np.sqrt(np.mean(sigma**2))) if sigma.size else float("nan")
-    tally.per_ccd.append(_ccd_report(look, n, keep.size, cloud_px, cover, counts, sigma_ccd,
-                                     (r_c, c_c - look.first_col), img.shape, dem, dom))
-    tally.per_ccd[-1]["reference_sigma_px"] = [float(v) for v in ref_rc_px]  # (row, col)
+    tally.per_ccd.append(_ccd_report(look, n, keep.size, cloud_px, m.cover, counts, sigma_ccd,
+                                     (r_c, c_c - look.first_col), m.shape, dem, dom))
+    tally.per_ccd[-1]["reference_sigma_px"] = [float(v) for v in m.ref_rc_px]  # (row, col)
     if progress:
         line = f"CCD {look.name}: {keep.size} GCPs from {n} windows" if look.name else \
             f"image: {keep.size} GCPs from {n} windows"
@@ -569,6 +622,8 @@ def _summary(band, table, tally: _Tally, coarse, opt: MatchOptions, timings: dic
         summary["cloud_note"] = ("cloud fraction unknown" if not tally.cloud_cols else
                                  f"cloud fraction over the {100 * tally.cloud_cols / n_cols:.0f} % of the columns "
                                  "where the detector could estimate it") + "; give --mask for a known cover"
+    if tally.change is not None:
+        summary["change"] = tally.change
     if tally.accuracy is not None:
         summary["reference_accuracy"] = tally.accuracy.to_dict()
         if tally.accuracy.note:

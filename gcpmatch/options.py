@@ -119,6 +119,15 @@ class MatchOptions:
         that disagrees with itself beyond its noise shows the ground differently in the two
         images; > 0, or 0 (default) for no test. 1 keeps the pairs consistent within their
         predicted noise (docs/matching.md, "Matching under real change").
+    detect_change : bool
+        Let the scene decide: every window's spectral spread is measured, and when the median
+        over the scene's matched windows of the spread over the noise its score predicts exceeds
+        1 (most pairs disagree with themselves beyond their noise: a reference of another band,
+        season or sensor; :func:`gcpmatch.window_match.reference_disagrees`), the scene is
+        matched as with ``spectral_spread_sigma=True`` and ``max_spectral_spread`` 1 (or the
+        value given), else as the other options say. The summary's ``change`` reports the median
+        and the decision. Costs two more phase correlations per window; default False
+        (docs/matching.md, "What limits matching across the bands").
     coarse_skip : bool
         Skip the coarse SIFT stage when a cheap check finds the model already within the fine
         search radius (``window_px / 4``); ``gcpcal validate`` sets it (default False).
@@ -150,6 +159,7 @@ class MatchOptions:
     mismatch_sigma_scale: float = 1.0
     spectral_spread_sigma: bool = False
     max_spectral_spread: float = 0.0
+    detect_change: bool = False
     threads: int = 0
 
     def thread_count(self) -> int:
@@ -218,7 +228,7 @@ class MatchOptions:
                 raise InputError(f"must be a finite number >= 0, got {value!r}", field=name)
         if not _is_int(self.threads) or self.threads < 0:
             raise InputError(f"threads must be an integer >= 0 (0: every core), got {self.threads!r}", field="threads")
-        for name in ("coarse_skip", "spectral_spread_sigma"):
+        for name in ("coarse_skip", "spectral_spread_sigma", "detect_change"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}", field=name)
         return self

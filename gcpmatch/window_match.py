@@ -17,8 +17,9 @@ from gcpmatch.options import MatchOptions
 from gcpmatch.phase import Reject, phase_correlate
 from gcpmatch.radiometry import prepare_windows
 from gcpmatch.texture import mismatch_cr_sigma_px
+from gcpmatch.uncertainty import score_sigma_px
 
-__all__ = ["PairMatches", "SPREAD_WEIGHTINGS", "correlate_pairs", "spectral_spread_px"]
+__all__ = ["PairMatches", "SPREAD_WEIGHTINGS", "correlate_pairs", "reference_disagrees", "spectral_spread_px"]
 
 #: the other weightings of the cross-power that :func:`spectral_spread_px` compares the shift with
 #: (keywords of :func:`gcpmatch.phase.phase_correlate`): pure phase correlation (every frequency
@@ -49,8 +50,8 @@ class PairMatches:
         of the raw windows at the measured shift; NaN where the shift is not finite or too large, for
         rejected pairs, and for all when ``options`` does not use it: ``sigma_model`` other than
         ``"window"`` or ``mismatch_sigma_scale`` 0); ``spectral_spread_px`` only with
-        ``options.spectral_spread_sigma`` or ``options.max_spectral_spread`` (:func:`spectral_spread_px`;
-        NaN for rejected pairs).
+        ``options.spectral_spread_sigma``, ``options.max_spectral_spread`` or ``options.detect_change``
+        (:func:`spectral_spread_px`; NaN for rejected pairs).
     """
 
     shift_px: np.ndarray
@@ -99,7 +100,7 @@ def correlate_pairs(reference: np.ndarray, scene: np.ndarray, options: MatchOpti
                                            threads=options.thread_count())
     quality = {"score": pm.score, "peak_ratio": pm.peak_ratio,
                "mismatch_cr_row_px": cr[:, 0], "mismatch_cr_col_px": cr[:, 1]}
-    if options.spectral_spread_sigma or options.max_spectral_spread > 0.0:
+    if options.spectral_spread_sigma or options.max_spectral_spread > 0.0 or options.detect_change:
         spread = np.full(n, np.nan)
         if matched.any():
             spread[matched] = spectral_spread_px(ref[matched], mov[matched], pm.shift_px[matched],
@@ -149,3 +150,39 @@ def spectral_spread_px(reference: np.ndarray, moving: np.ndarray, shift_px: np.n
         found = np.isfinite(d2) & (np.abs(other.shift_px) <= max_shift_px).all(axis=1)
         total += np.where(found, d2, max_shift_px**2)
     return np.sqrt(0.5 * total)
+
+
+def reference_disagrees(spread_px: np.ndarray, score: np.ndarray, *, window_px: int = 64) -> tuple[bool, float]:
+    """Whether most window pairs of a scene disagree with themselves beyond their own noise.
+
+    Each matched pair's spectral spread (:func:`spectral_spread_px`) is divided by the matching
+    noise its score predicts (:func:`gcpmatch.uncertainty.score_sigma_px`), the quantity that
+    ``MatchOptions.max_spectral_spread`` tests per pair. Against a faithful reference most pairs
+    lie below 1; against a reference that shows the ground otherwise (another band, season or
+    sensor) most lie above (docs/matching.md, "What limits matching across the bands": scene
+    medians 0.46-0.58 against the scene's own Sentinel-2 band, 1.10-1.34 across red and
+    near-infrared). The median over the whole scene decides; no constant is fitted: 1 is the
+    pair's own predicted noise.
+
+    Parameters
+    ----------
+    spread_px : ndarray of float, shape (n,)
+        Spectral spread of the pairs, pixels (NaN: not matched, left out).
+    score : ndarray of float, shape (n,)
+        Their phase-correlation scores.
+    window_px : int
+        Window side, pixels.
+
+    Returns
+    -------
+    disagrees : bool
+        The median ratio exceeds 1 (False without a matched pair).
+    median_ratio : float
+        The median of spread over predicted noise (NaN without a matched pair).
+    """
+    spread_px, score = np.asarray(spread_px, dtype=float), np.asarray(score, dtype=float)
+    ok = np.isfinite(spread_px) & np.isfinite(score)
+    if not ok.any():
+        return False, float("nan")
+    median = float(np.median(spread_px[ok] / score_sigma_px(score[ok], window_px=window_px)))
+    return median > 1.0, median

@@ -59,7 +59,7 @@ def test_spectral_spread_is_small_for_a_faithful_pair_and_grows_with_change():
 
 
 @pytest.mark.parametrize("field, value", [("spectral_spread_sigma", 1), ("max_spectral_spread", -1.0),
-                                          ("max_spectral_spread", float("inf"))])
+                                          ("max_spectral_spread", float("inf")), ("detect_change", "yes")])
 def test_change_options_name_a_bad_field(field, value):
     with pytest.raises(InputError) as exc:
         replace(MatchOptions(), **{field: value}).validate()
@@ -72,6 +72,26 @@ def test_spread_options_off_by_default_leave_the_quality_alone():
     ref, mov = _textures(n_pairs=4)
     assert "spectral_spread_px" not in correlate_pairs(ref, mov).quality
     assert np.all(np.isfinite(correlate_pairs(ref, mov, CHANGE).quality["spectral_spread_px"]))
+
+
+def test_reference_disagrees_tells_a_changed_reference_from_a_faithful_one():
+    from gcpmatch.window_match import correlate_pairs, reference_disagrees
+
+    ref, mov = _textures(n_pairs=32)
+    rng = np.random.default_rng(1)
+    # a faithful reference, noisy scene: texture std 20, noise 2 (median ratio 0.65; noise 5 gives
+    # 1.21: pure phase whitens the noise, so a very noisy scene can pass for a changed one)
+    noisy = mov + rng.normal(scale=2.0, size=mov.shape)
+    q = correlate_pairs(ref, noisy, MatchOptions(detect_change=True)).quality
+    faithful, median_faithful = reference_disagrees(q["spectral_spread_px"], q["score"])
+    changed = ref.copy()
+    changed[:, :, 40:] = 1000.0 - changed[:, :, 40:]  # contrast inverted over a third of each window
+    changed[:, 40:, :] += 30.0 * np.sin(np.arange(64) / 3.0)  # a structure the scene does not show
+    q = correlate_pairs(changed, noisy, MatchOptions(detect_change=True)).quality
+    other, median_changed = reference_disagrees(q["spectral_spread_px"], q["score"])
+    assert not faithful and median_faithful < 1.0, median_faithful
+    assert other and median_changed > 1.0, median_changed
+    assert reference_disagrees(np.full(3, np.nan), np.full(3, 0.5)) == (False, pytest.approx(np.nan, nan_ok=True))
 
 
 @pytest.fixture(scope="module")
@@ -126,6 +146,26 @@ def test_cross_band_reference_gcps_and_honest_sigma(red_scene):
     # taken out of the truth, the same GCPs are graded 0.098 px, truth / sigma 1.04
     assert fixed["rms_px"] < 0.8 * change["rms_px"] and fixed["rms_px"] < 0.115, (fixed, change)
     assert 0.8 <= fixed["z"] <= 1.2, fixed["z"]
+
+
+def test_detect_change_lets_the_scene_choose(red_scene):
+    """``detect_change``: on the scene's own band the matcher is the default one (same GCPs); on
+    the other band the scene switches the change options on (same GCPs as with them)."""
+    scene, refs = red_scene
+    detect = MatchOptions(detect_change=True)
+    same_table, same_summary = change_pairs.match(scene, refs["same"], detect)
+    default_table, _ = change_pairs.match(scene, refs["same"], MatchOptions())
+    cross_table, cross_summary = change_pairs.match(scene, refs["cross"], detect)
+    change_table, _ = change_pairs.match(scene, refs["cross"], CHANGE)
+    print(same_summary["change"], cross_summary["change"])
+    assert not same_summary["change"]["detected"] and same_summary["change"]["median_spread_ratio"] < 0.8
+    assert cross_summary["change"]["detected"] and cross_summary["change"]["median_spread_ratio"] > 1.05
+    for got, want in ((same_table, default_table), (cross_table, change_table)):
+        assert len(got) == len(want)
+        assert np.array_equal(got.row, want.row) and np.array_equal(got.sigma_px, want.sigma_px)
+    fixed = change_pairs.figures(*change_pairs.truth_errors(scene, cross_table, change_pairs.BAND_OFFSET_M["s2_red_vs_nir"],
+                                                            change_pairs.dom_crs(refs["cross"])))
+    assert fixed["rms_px"] < 0.115 and 0.8 <= fixed["z"] <= 1.2, fixed  # the default matcher: 0.22 px, 2.1
 
 
 @pytest.mark.slow
