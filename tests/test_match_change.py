@@ -198,3 +198,26 @@ def test_cross_band_family(tmp_path, shared_data):
     fixed = fig["change_band_offset_out"]
     assert fixed["rms_px"] < 0.105 and fixed["rms_px"] < 0.75 * fig["change"]["rms_px"], fixed
     assert 0.8 <= fixed["z"] <= 1.2, fixed
+
+
+def test_match_command_change_option(red_scene, tmp_path, capsys):
+    """``gcpcal match --change auto`` on the other band: the scene decides, the printed line says so,
+    and the GCP table is the one ``--change on`` writes; ``--change`` refuses other words."""
+    import json
+
+    from calibrate.cli import main
+    from calibrate.cli.match import change_options
+
+    scene, refs = red_scene
+    args = [str(scene / "manifest.json"), "--dom", str(refs["cross"]), "--dem", str(scene / "reference" / "dem.tif"),
+            "--reference-sigma-m", "0"]
+    assert main(["match", *args, "--out", str(tmp_path / "auto.csv"), "--change", "auto"]) == 0
+    printed = capsys.readouterr().out
+    assert "change: median spectral spread over its noise" in printed and "change options on" in printed, printed
+    summary = json.loads((tmp_path / "auto.summary.json").read_text())
+    assert summary["change"]["detected"] is True
+    assert main(["match", *args, "--out", str(tmp_path / "on.csv"), "--change", "on"]) == 0
+    assert (tmp_path / "auto.csv").read_bytes() == (tmp_path / "on.csv").read_bytes()
+    assert change_options("on") == {"spectral_spread_sigma": True, "max_spectral_spread": 1.0}
+    assert change_options("off") == {}
+    assert main(["match", *args, "--out", str(tmp_path / "x.csv"), "--change", "maybe"]) == 2

@@ -13,7 +13,24 @@ from calibrate.cli.options import (accept_product_disagreement_option, add_optio
                                    required_dem_options, threads_option, window_option)
 from sensor_models.maps.dom_inputs import ASSUMED_REFERENCE_SIGMA_M
 
-__all__ = ["command"]
+__all__ = ["CHANGE_MODES", "change_options", "command"]
+
+#: ``--change``: the matcher's handling of a reference that shows the ground differently
+CHANGE_MODES = ("off", "auto", "on")
+
+
+def change_options(mode: str) -> dict:
+    """Keywords of :class:`~gcpmatch.options.MatchOptions` for ``--change`` ``mode``.
+
+    ``off``: none (the matcher as it is); ``on``: ``spectral_spread_sigma`` and
+    ``max_spectral_spread`` 1 (each window's spread in its sigma; windows beyond their noise
+    rejected); ``auto``: ``detect_change`` (the scene's windows decide between the two).
+    """
+    if mode == "on":
+        return {"spectral_spread_sigma": True, "max_spectral_spread": 1.0}
+    if mode == "auto":
+        return {"detect_change": True}
+    return {}
 
 
 @click.command("match")
@@ -42,12 +59,17 @@ __all__ = ["command"]
 @reference_sigma_option("the DOM's, as its producer states it (default: the DOM's GEOLOCATION_RMSE_M or "
                         "GEOMETRIC_RMSE_X/Y tags, or GEOMETRIC_RMSE_MODEL_X/Y of a Landsat MTL beside it, else an "
                         f"assumed {ASSUMED_REFERENCE_SIGMA_M:.1f} m); used by --sigma-model window.")
+@click.option("--change", type=click.Choice(CHANGE_MODES), default="off", show_default=True,
+              help="A reference of another band, season or sensor: 'on' adds each window's spectral spread to its "
+                   "sigma and rejects windows whose shift depends on the weighting beyond their noise; 'auto' "
+                   "turns that on when most windows of the scene disagree with themselves (the summary's "
+                   "'change' says which); docs/matching.md, 'Matching under real change'.")
 @threads_option("the reference chips, the phase correlation's batches of windows and OpenCV (SIFT)")
 @accept_product_disagreement_option
 @json_option
 @click.pass_context
 def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_path, geotiff_path, band, image,
-            mask_path, check_fraction, window, spacing, max_offset, backend, sigma_model, reference_sigma_m, threads,
+            mask_path, check_fraction, window, spacing, max_offset, backend, sigma_model, change, reference_sigma_m, threads,
             as_json, self_check):
     """Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation).
 
@@ -57,7 +79,7 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpk
     """
     options = MatchOptions(window_px=window, spacing_px=spacing, max_offset_px=max_offset,
                            check_fraction=check_fraction, backend=backend, sigma_model=sigma_model,
-                           reference_sigma_m=reference_sigma_m, threads=threads)
+                           reference_sigma_m=reference_sigma_m, threads=threads, **change_options(change))
     with stage_progress(ctx, "gcpcal match: windows", as_json) as progress:
         summary = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=out_path, geoid=geoid,
                               dem_datum=dem_datum, band=band, image=image, mask_path=mask_path, gpkg_path=gpkg_path,
@@ -82,6 +104,13 @@ def _print_summary(out_path, summary) -> None:
     for key in ("note", "cloud_note", "dom_note", "reference_note"):
         if summary.get(key):
             click.echo(f"  note: {summary[key]}")
+    change = summary.get("change")
+    if change:
+        ratio = change["median_spread_ratio"]
+        ratio = "unknown" if ratio is None else f"{ratio:.2f}"
+        click.echo(f"  change: median spectral spread over its noise {ratio}; "
+                   + ("the reference disagrees with the scene: change options on" if change["detected"]
+                      else "the reference agrees with the scene: default matcher"))
     acc = summary.get("reference_accuracy")
     if acc and not acc["assumed"]:
         click.echo(f"  reference accuracy: {acc['east_m']:g} m east, {acc['north_m']:g} m north (1 sigma, from "
