@@ -201,6 +201,7 @@ def refine_at_full_resolution(warped, warped_valid, dom_u8, dom_valid, linear, p
               & (centres[:, 1] >= half) & (centres[:, 1] <= hd - half))
     refs, movs, scene_xy, centre_xy = [], [], [], []
     valid_u8 = warped_valid.astype(np.uint8)
+    inverse = np.linalg.inv(linear)
     for k in np.flatnonzero(inside):
         x, y = centres[k]
         rows, cols = slice(y - half, y + half), slice(x - half, x + half)
@@ -214,7 +215,7 @@ def refine_at_full_resolution(warped, warped_valid, dom_u8, dom_valid, linear, p
         refs.append(dom_u8[rows, cols])
         movs.append(mov)
         centre = np.array([x - 0.5, y - 0.5])  # OpenCV coordinates of the patch centre
-        scene_xy.append(np.linalg.solve(linear, centre - pd[k]) + ps[k])
+        scene_xy.append(inverse @ (centre - pd[k]) + ps[k])
         centre_xy.append(centre)
     if not refs:
         return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
