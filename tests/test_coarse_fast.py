@@ -159,3 +159,13 @@ def test_trust_rule_on_synthetic_matches(seed):
     # a set no larger than wrong matches give by chance over a small DOM is not trusted
     assert not trusted(*_synthetic(rng, 14, 4000), corners, **{**kw, "dom_area_px": 200.0 * 200.0})
     assert chance_inliers(4000, 200.0 * 200.0, 4.0) > 14
+
+
+def test_match_options_name_the_search():
+    from gcpmatch.options import COARSE_SEARCHES, MatchOptions
+    from sensor_models.errors import InputError
+
+    assert MatchOptions().coarse_search == COARSE_SEARCHES[0] == "adaptive"
+    assert MatchOptions(coarse_search="fast").validate().coarse_search == "fast"
+    with pytest.raises(InputError, match="coarse search"):
+        MatchOptions(coarse_search="lsh").validate()
