@@ -232,13 +232,10 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         (:func:`gcpmatch.ccd_search.search_missing_ccds`) and how precisely the fast pass must
         pin the pre-correction.
     search : {"adaptive", "fast", "exhaustive"}
-        ``"adaptive"``: the full-resolution search with the adaptive scene budget
-        (:func:`gcpmatch.coarse_sift.sift_ransac`). ``"fast"``: first the half-resolution pass of
-        :mod:`gcpmatch.coarse_fast`, kept where it is trusted and its kept matches reach every
-        detector array that has matches (a scene matched whole; tiles search as ``"adaptive"``),
-        else ``"adaptive"``; not the default: on the Pleiades tutorial pair its pre-correction
-        lands further from the brute-force one (docs/matching.md). ``"exhaustive"``: the full
-        budget in both images and brute-force matching (the reference search).
+        ``"adaptive"``: full-resolution SIFT with the adaptive scene budget (:func:`gcpmatch.coarse_sift.sift_ransac`);
+        ``"fast"``: the pass of :mod:`gcpmatch.coarse_fast` where trusted (a scene matched whole), else
+        ``"adaptive"``; ``"exhaustive"``: the full budget in both images, brute force (docs/matching.md,
+        "Coarse stage searches").
 
     Returns
     -------
@@ -272,15 +269,8 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     sift = {"n_features": n_features, "ransac_px": ransac_px, "seed": seed, "backend": backend, "device": device,
             "exhaustive": search == "exhaustive"}
     tiles = plan_tiles(model, dom, small.shape, f, budget_px=int(sift_budget_bytes // SIFT_BYTES_PER_PX), **geo)
-    if tiles is None:  # the whole scene within the budget: one SIFT pass
-        fast = {"capture_px": capture_px / f} if search == "fast" else None
-        found = _whole_matches(small, small_valid, f, scene.shape, model, dom, dem, geo, sift, fast)
-    else:
-        found = _tiled_matches(small, small_valid, f, tiles, model, dom, dem, geo, sift)
-    fitted = _precorrect(found, model, band, scene.shape, coarse_res, fast=found.fast)
-    if fitted is None:  # the fast pass's kept matches miss a detector array: the full search instead
-        found = _whole_matches(small, small_valid, f, scene.shape, model, dom, dem, geo, sift)
-        fitted = _precorrect(found, model, band, scene.shape, coarse_res)
+    found, fitted = _found_and_fitted(small, small_valid, f, scene.shape, tiles, model, dom, dem, geo, sift,
+                                      capture_px / f if search == "fast" else None)
     row, col, glon, glat, gh, ransac_in = found.matches
     note = found.note
     corrected, keep, rms_m, offsets = fitted
@@ -293,6 +283,22 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         points={"row": row[keep], "col": col[keep], "lon": glon[keep], "lat": glat[keep], "h": gh[keep]},
         dem_coverage=found.dem_cover, note=note, tiles=1 if tiles is None else len(tiles), fast_pass=found.fast,
     )
+
+
+def _found_and_fitted(small, small_valid, f, shape, tiles, model, dom, dem, geo, sift, fast_capture_px):
+    """The matches (:class:`_Found`) and their pre-correction (:func:`_precorrect`): by tiles, or the
+    whole scene, there first by the fast pass when ``fast_capture_px`` (the fine stage's capture
+    radius, reduced pixels) is given and the full search where the fast pass is refused."""
+    if tiles is not None:
+        found = _tiled_matches(small, small_valid, f, tiles, model, dom, dem, geo, sift)
+        return found, _precorrect(found, model, geo["band"], shape, geo["coarse_res"])
+    fast = None if fast_capture_px is None else {"capture_px": fast_capture_px}
+    found = _whole_matches(small, small_valid, f, shape, model, dom, dem, geo, sift, fast)
+    fitted = _precorrect(found, model, geo["band"], shape, geo["coarse_res"], fast=found.fast)
+    if fitted is None:  # the fast pass's kept matches miss a detector array: the full search instead
+        found = _whole_matches(small, small_valid, f, shape, model, dom, dem, geo, sift)
+        fitted = _precorrect(found, model, geo["band"], shape, geo["coarse_res"])
+    return found, fitted
 
 
 def _precorrect(found, model, band, shape, coarse_res, fast: bool = False):
