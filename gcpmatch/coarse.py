@@ -39,12 +39,14 @@ import numpy as np
 import pyproj
 
 from gcpmatch.ccd_search import search_missing_ccds
+from gcpmatch.coarse_fast import fast_pass, spread_over_arrays
 from gcpmatch.coarse_sift import CoarseMatchError, sift_ransac, to_uint8
 from gcpmatch.coarse_skip import within_fine_radius
 from gcpmatch.precorrect import precorrect_matches
 from gcpmatch.reference import grid_resolution_m, scene_gsd_m
 
-__all__ = ["MIN_REDUCED_SIDE_PX", "SIFT_BUDGET_BYTES", "SIFT_BYTES_PER_PX", "CoarseMatchError", "CoarseResult", "Tile",
+__all__ = ["MIN_REDUCED_SIDE_PX", "SEARCHES", "SIFT_BUDGET_BYTES", "SIFT_BYTES_PER_PX", "CoarseMatchError",
+           "CoarseResult", "Tile",
            "coarse_match", "plan_tiles", "reduction_factor", "to_uint8"]
 
 
@@ -89,6 +91,7 @@ class CoarseResult:
     note: str = ""
     tiles: int = 1  # SIFT passes: 1 for the whole scene, else the tiles of plan_tiles
     ccd_search: dict = field(default_factory=dict)  # CCD -> report of gcpmatch.ccd_search
+    fast_pass: bool = False  # the half-resolution pass was trusted (gcpmatch.coarse_fast)
 
     def summary(self) -> dict:
         """The counts and fit figures as a JSON-ready dict (no model, no points).
@@ -173,6 +176,8 @@ SIFT_BYTES_PER_PX = 230
 #: scene of the tests and tutorials stays whole (0.92 M pixels at most); a 512-line strip of the
 #: seed-003 width (reduced twice, a 31.3 M pixel DOM window) runs as 7 tiles.
 SIFT_BUDGET_BYTES = 1 << 30
+#: the coarse stage's searches (:func:`coarse_match`)
+SEARCHES = ("adaptive", "fast", "exhaustive")
 #: Tiles overlap by this many reduced pixels: a keypoint near a tile's edge has its
 #: descriptor's support (about 10 times its scale) in the neighbour, where it is kept.
 TILE_OVERLAP_PX = 64
@@ -181,7 +186,8 @@ TILE_OVERLAP_PX = 64
 def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None, max_offset_px: float = 1000.0,
                  target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
                  seed: int = 0, backend: str = "cpu", device=None, skip_within_px: float | None = None,
-                 sift_budget_bytes: int = SIFT_BUDGET_BYTES, capture_px: float = 16.0) -> CoarseResult:
+                 sift_budget_bytes: int = SIFT_BUDGET_BYTES, capture_px: float = 16.0,
+                 search: str = "adaptive") -> CoarseResult:
     """Pre-correct ``model`` so that it lands within a few pixels of the truth (see module doc).
 
     Parameters
@@ -223,7 +229,13 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         are merged in scene coordinates before the one pre-correction fit.
     capture_px : float
         The fine stage's capture radius, pixels: sets the search of a CCD without SIFT matches
-        (:func:`gcpmatch.ccd_search.search_missing_ccds`).
+        (:func:`gcpmatch.ccd_search.search_missing_ccds`) and how precisely the fast pass must
+        pin the pre-correction.
+    search : {"adaptive", "fast", "exhaustive"}
+        ``"adaptive"``: full-resolution SIFT with the adaptive scene budget (:func:`gcpmatch.coarse_sift.sift_ransac`);
+        ``"fast"``: the pass of :mod:`gcpmatch.coarse_fast` where trusted (a scene matched whole), else
+        ``"adaptive"``; ``"exhaustive"``: the full budget in both images, brute force (docs/matching.md,
+        "Coarse stage searches").
 
     Returns
     -------
@@ -244,30 +256,24 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     test in true ground coordinates, independent of the model's error), so whatever the DOM
     the same part is searched; the result's ``note`` says so, an error names the coverage.
     """
+    if search not in SEARCHES:
+        raise ValueError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}")
     skipped = _skipped(scene, model, dem, dom, band, skip_within_px)
     if skipped is not None:
         return skipped
-    n_rows, n_cols = scene.shape
     small, small_valid, f = _reduce_scene(scene, target_px)
     h_mid = scene_height_m(model, dem, band=band)
     gsd = scene_gsd_m(model, band=band, height_m=h_mid)
     coarse_res = gsd * f  # metres per reduced pixel
     geo = {"band": band, "h_mid": h_mid, "gsd": gsd, "coarse_res": coarse_res, "max_offset_px": max_offset_px}
-    sift = {"n_features": n_features, "ransac_px": ransac_px, "seed": seed, "backend": backend, "device": device}
+    sift = {"n_features": n_features, "ransac_px": ransac_px, "seed": seed, "backend": backend, "device": device,
+            "exhaustive": search == "exhaustive"}
     tiles = plan_tiles(model, dom, small.shape, f, budget_px=int(sift_budget_bytes // SIFT_BYTES_PER_PX), **geo)
-    if tiles is None:  # the whole scene within the budget: one SIFT pass
-        found = _whole_matches(small, small_valid, f, scene.shape, model, dom, dem, geo, sift)
-    else:
-        found = _tiled_matches(small, small_valid, f, tiles, model, dom, dem, geo, sift)
+    found, fitted = _found_and_fitted(small, small_valid, f, scene.shape, tiles, model, dom, dem, geo, sift,
+                                      capture_px / f if search == "fast" else None)
     row, col, glon, glat, gh, ransac_in = found.matches
     note = found.note
-    inside = (row > 0) & (row < n_rows) & (col > 0) & (col < n_cols) & np.isfinite(gh)
-    sel = ransac_in & inside
-    if sel.sum() < 6:
-        where = "" if not note else f" ({note})"
-        raise CoarseMatchError(f"too few RANSAC inliers inside the scene and the DEM: {int(sel.sum())} < 6{where}")
-    corrected, keep, rms_m, offsets = precorrect_matches(model, band, row, col, glon, glat, gh, sel=sel, inside=inside,
-                                                  min_scale_m=0.5 * coarse_res)
+    corrected, keep, rms_m, offsets = fitted
     corrected, searched = search_missing_ccds(scene, corrected, dem, dom, band=band or corrected.reference_band,
                                               removed=offsets, capture_px=capture_px, h_mid=h_mid)
     return CoarseResult(
@@ -275,8 +281,44 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         n_ransac_inliers=int(ransac_in.sum()), n_inliers=int(keep.size), rms_m=rms_m, factor=f,
         ccd_offsets_px=offsets, ccd_search=searched,
         points={"row": row[keep], "col": col[keep], "lon": glon[keep], "lat": glat[keep], "h": gh[keep]},
-        dem_coverage=found.dem_cover, note=note, tiles=1 if tiles is None else len(tiles),
+        dem_coverage=found.dem_cover, note=note, tiles=1 if tiles is None else len(tiles), fast_pass=found.fast,
     )
+
+
+def _found_and_fitted(small, small_valid, f, shape, tiles, model, dom, dem, geo, sift, fast_capture_px):
+    """The matches (:class:`_Found`) and their pre-correction (:func:`_precorrect`): by tiles, or the
+    whole scene, there first by the fast pass when ``fast_capture_px`` (the fine stage's capture
+    radius, reduced pixels) is given and the full search where the fast pass is refused."""
+    if tiles is not None:
+        found = _tiled_matches(small, small_valid, f, tiles, model, dom, dem, geo, sift)
+        return found, _precorrect(found, model, geo["band"], shape, geo["coarse_res"])
+    fast = None if fast_capture_px is None else {"capture_px": fast_capture_px}
+    found = _whole_matches(small, small_valid, f, shape, model, dom, dem, geo, sift, fast)
+    fitted = _precorrect(found, model, geo["band"], shape, geo["coarse_res"], fast=found.fast)
+    if fitted is None:  # the fast pass's kept matches miss a detector array: the full search instead
+        found = _whole_matches(small, small_valid, f, shape, model, dom, dem, geo, sift)
+        fitted = _precorrect(found, model, geo["band"], shape, geo["coarse_res"])
+    return found, fitted
+
+
+def _precorrect(found, model, band, shape, coarse_res, fast: bool = False):
+    """:func:`gcpmatch.precorrect.precorrect_matches` of ``found``'s matches inside the scene and
+    the DEM. ``fast``: the matches of the half-resolution pass, whose result is None (not an
+    error) when they are too few or the kept ones miss a detector array with matches
+    (:func:`gcpmatch.coarse_fast.spread_over_arrays`)."""
+    row, col, glon, glat, gh, ransac_in = found.matches
+    inside = (row > 0) & (row < shape[0]) & (col > 0) & (col < shape[1]) & np.isfinite(gh)
+    sel = ransac_in & inside
+    if sel.sum() < 6:
+        if fast:
+            return None
+        where = "" if not found.note else f" ({found.note})"
+        raise CoarseMatchError(f"too few RANSAC inliers inside the scene and the DEM: {int(sel.sum())} < 6{where}")
+    out = precorrect_matches(model, band, row, col, glon, glat, gh, sel=sel, inside=inside,
+                             min_scale_m=0.5 * coarse_res)
+    if fast and not spread_over_arrays(model, band, col[out[1]], col[inside]):
+        return None
+    return out
 
 
 def _skipped(scene, model, dem, dom, band, skip_within_px) -> CoarseResult | None:
@@ -305,18 +347,39 @@ class _Found:
     n_kp_dom: int
     dem_cover: float
     note: str
+    fast: bool = False
 
 
-def _whole_matches(small, small_valid, f, shape, model, dom, dem, geo, sift) -> _Found:
-    """SIFT of the whole reduced scene against the whole DOM window around it (one RANSAC)."""
+def _whole_matches(small, small_valid, f, shape, model, dom, dem, geo, sift, fast=None) -> _Found:
+    """SIFT of the whole reduced scene against the whole DOM window around it (one RANSAC); with
+    ``fast`` (``{"capture_px": reduced pixels}``) the half-resolution pass first, kept when it is
+    trusted (:mod:`gcpmatch.coarse_fast`)."""
     band, h_mid = geo["band"], geo["h_mid"]
     win = _dom_window(model, dom, **geo)
     dem_cover, note = _restrict_to_dem(win, dem)
     a_pred = _predicted_affine(model, band, h_mid, shape, f, win)
     warped, warped_valid = _warp_to_dom(small, small_valid, a_pred)
+    if fast is not None:
+        found = _fast_matches(warped, warped_valid, win, a_pred, f, dem, sift, fast["capture_px"])
+        if found is not None:
+            return _Found(found[0], found[1], found[2], dem_cover, note, fast=True)
     ps, pd, n_kp_s, n_kp_d, ransac_in = sift_ransac(warped, warped_valid, win.dom_small, **sift)
     row, col, glon, glat, gh = _matches_on_ground(ps, pd, a_pred, f, win, dem)
     return _Found((row, col, glon, glat, gh, ransac_in), n_kp_s, n_kp_d, dem_cover, note)
+
+
+def _fast_matches(warped, warped_valid, win, a_pred, f, dem, sift, capture_px):
+    """The half-resolution pass's matches on the ground and its keypoint counts, or None where it
+    is not trusted (:func:`gcpmatch.coarse_fast.fast_pass`)."""
+    dom_valid = np.isfinite(win.dom_small)
+    device = None if sift["backend"] == "cpu" else (sift["device"] or "auto")
+    found = fast_pass(warped, warped_valid, to_uint8(win.dom_small, dom_valid), dom_valid,
+                      n_features=sift["n_features"], ransac_px=sift["ransac_px"], seed=sift["seed"],
+                      capture_px=capture_px, device=device)
+    if found is None:
+        return None
+    ps, pd, n_kp_s, n_kp_d, ransac_in = found
+    return _matches_on_ground(ps, pd, a_pred, f, win, dem) + (ransac_in,), n_kp_s, n_kp_d
 
 
 def _tiled_matches(small, small_valid, f, tiles, model, dom, dem, geo, sift) -> _Found:

@@ -14,7 +14,7 @@ import numpy as np
 from sensor_models.errors import GcpcalError
 
 __all__ = ["FIRST_FEATURE_BUDGET", "FLANN_CHECKS", "FLANN_TREES", "MIN_FIRST_INLIERS", "CoarseMatchError",
-           "sift_ransac", "to_uint8"]
+           "ratio_pairs", "sift_features", "sift_ransac", "to_uint8"]
 
 
 class CoarseMatchError(GcpcalError, RuntimeError):
@@ -67,7 +67,7 @@ FLANN_TREES = 4
 FLANN_CHECKS = 64
 
 
-def _sift_features(img, mask, n_features):
+def sift_features(img, mask, n_features):
     """OpenCV SIFT keypoints and descriptors of a uint8 image, the ``n_features`` strongest
     (``mask`` True where usable)."""
     return cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.01).detectAndCompute(
@@ -87,6 +87,23 @@ def _flann_ratio_pairs(des_a, des_b, *, seed: int = 0):
     return (np.array([m.queryIdx for m in good], dtype=np.intp), np.array([m.trainIdx for m in good], dtype=np.intp))
 
 
+def ratio_pairs(des_a, des_b, *, seed: int = 0, device=None):
+    """Ratio-test (0.8) pairs ``(query, train)`` of two descriptor sets: FLANN on the CPU (``device``
+    None), else the exact two nearest neighbours on the torch ``device``."""
+    if device is None:
+        return _flann_ratio_pairs(des_a, des_b, seed=seed)
+    from gcpmatch._features_torch import ratio_test_pairs
+
+    return ratio_test_pairs(des_a, des_b, ratio=0.8, device=device)
+
+
+def _brute_ratio_pairs(des_a, des_b):
+    """Exhaustive two nearest neighbours (``cv2.BFMatcher``, L2) with Lowe's ratio test (0.8)."""
+    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(des_a, des_b, k=2)
+    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
+    return (np.array([m.queryIdx for m in good], dtype=np.intp), np.array([m.trainIdx for m in good], dtype=np.intp))
+
+
 def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0, device=None):
     """Ratio-test matches of two images' SIFT features: FLANN on the CPU (``device`` None), else the
     exact two nearest neighbours on the torch ``device`` (:mod:`gcpmatch._features_torch`).
@@ -101,22 +118,24 @@ def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0, device=
     (kp_a, des_a), (kp_b, des_b) = scene_features, dom_features
     if des_a is None or des_b is None or len(kp_a) < 2 or len(kp_b) < 2:
         return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32), len(kp_a), len(kp_b)
-    if device is None:
-        query, train = _flann_ratio_pairs(des_a, des_b, seed=seed)
+    if device == "brute":
+        query, train = _brute_ratio_pairs(des_a, des_b)
     else:
-        from gcpmatch._features_torch import ratio_test_pairs
-
-        query, train = ratio_test_pairs(des_a, des_b, ratio=0.8, device=device)
+        query, train = ratio_pairs(des_a, des_b, seed=seed, device=device)
     pa = np.float32([kp_a[i].pt for i in query]).reshape(-1, 2)
     pb = np.float32([kp_b[j].pt for j in train]).reshape(-1, 2)
     return pa, pb, len(kp_a), len(kp_b)
 
 
-def sift_ransac(warped, warped_valid, dom_small, *, n_features, ransac_px, seed, backend, device):
+def sift_ransac(warped, warped_valid, dom_small, *, n_features, ransac_px, seed, backend, device,
+                exhaustive: bool = False):
     """SIFT matches (ratio test) between the warped scene and the DOM, and their RANSAC inliers.
 
     Both backends adapt the feature budget (module docstring, step 3); ``backend`` other than
     ``"cpu"`` matches the descriptors on the torch ``device`` (None: CUDA if available).
+    ``exhaustive``: the full budget in both images at once and brute-force matching
+    (``cv2.BFMatcher``), whatever the backend: the reference search the faster ones are measured
+    against (bench/bench_coarse.py).
 
     Returns
     -------
@@ -130,17 +149,20 @@ def sift_ransac(warped, warped_valid, dom_small, *, n_features, ransac_px, seed,
     dom_valid = np.isfinite(dom_small)
     dom_u8 = to_uint8(dom_small, dom_valid)
     device = (device or "auto") if backend != "cpu" else None  # None: FLANN on the CPU
-    dom_features = _sift_features(dom_u8, dom_valid, n_features)  # the full budget in both passes
+    dom_features = sift_features(dom_u8, dom_valid, n_features)  # the full budget in both passes
+    if exhaustive:
+        return _sift_ransac_opencv(sift_features(warped, warped_valid > 0, n_features), dom_features, ransac_px,
+                                   seed, "brute")
     first = min(n_features, FIRST_FEATURE_BUDGET)
     if first < n_features:  # the full budget in the scene only where the first is not enough
         try:
-            found = _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, first), dom_features,
+            found = _sift_ransac_opencv(sift_features(warped, warped_valid > 0, first), dom_features,
                                         ransac_px, seed, device)
             if int(found[-1].sum()) >= MIN_FIRST_INLIERS:
                 return found
         except CoarseMatchError:
             pass
-    return _sift_ransac_opencv(_sift_features(warped, warped_valid > 0, n_features), dom_features, ransac_px, seed,
+    return _sift_ransac_opencv(sift_features(warped, warped_valid > 0, n_features), dom_features, ransac_px, seed,
                                device)
 
 

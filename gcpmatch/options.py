@@ -14,10 +14,12 @@ from dataclasses import dataclass
 from sensor_models.errors import InputError
 from sensor_models.files.threads import thread_count
 
-__all__ = ["BACKENDS", "SIGMA_MODELS", "MatchOptions", "require_cuda"]
+__all__ = ["BACKENDS", "COARSE_SEARCHES", "SIGMA_MODELS", "MatchOptions", "require_cuda"]
 
 BACKENDS = ("cpu", "gpu", "torch")  # numpy/scipy; torch on CUDA; torch on the CPU
 SIGMA_MODELS = ("window", "ccd")  # the first is the default
+#: the coarse stage's feature searches (gcpmatch.coarse.coarse_match); the first is the default
+COARSE_SEARCHES = ("adaptive", "fast", "exhaustive")
 
 
 def require_cuda() -> None:
@@ -128,6 +130,12 @@ class MatchOptions:
         value given), else as the other options say. The summary's ``change`` reports the median
         and the decision. Costs two more phase correlations per window; default False
         (docs/matching.md, "What limits matching across the bands").
+    coarse_search : {"adaptive", "fast", "exhaustive"}
+        Feature search of the coarse stage (:func:`gcpmatch.coarse.coarse_match`): ``"adaptive"``
+        (default; full-resolution SIFT, FLANN, 4 000 scene keypoints first), ``"fast"`` (SIFT
+        on the images averaged down 1.5 times, matches measured at full resolution, where
+        trusted; :mod:`gcpmatch.coarse_fast`) or ``"exhaustive"`` (brute force, 12 000 keypoints
+        per image); docs/matching.md, "Coarse stage searches".
     coarse_skip : bool
         Skip the coarse SIFT stage when a cheap check finds the model already within the fine
         search radius (``window_px / 4``); ``gcpcal validate`` sets it (default False).
@@ -154,6 +162,7 @@ class MatchOptions:
     lowpass_cycles_px: float | None = None
     reference_sigma_m: float | tuple[float, float] | None = None
     coarse_skip: bool = False
+    coarse_search: str = "adaptive"
     min_gradient_snr: float = 0.0
     texture_sigma_px: float = 0.0
     mismatch_sigma_scale: float = 1.0
@@ -228,6 +237,9 @@ class MatchOptions:
                 raise InputError(f"must be a finite number >= 0, got {value!r}", field=name)
         if not _is_int(self.threads) or self.threads < 0:
             raise InputError(f"threads must be an integer >= 0 (0: every core), got {self.threads!r}", field="threads")
+        if self.coarse_search not in COARSE_SEARCHES:
+            raise InputError(f"coarse search must be one of {', '.join(COARSE_SEARCHES)}, got {self.coarse_search!r}",
+                             field="coarse_search")
         for name in ("coarse_skip", "spectral_spread_sigma", "detect_change"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}", field=name)

@@ -6,7 +6,7 @@ import click
 
 from calibrate.actions.match import match_scene
 from calibrate.config import MatchOptions
-from gcpmatch.options import SIGMA_MODELS
+from gcpmatch.options import COARSE_SEARCHES, SIGMA_MODELS
 from calibrate.cli._progress import stage_progress
 from calibrate.cli.options import (accept_product_disagreement_option, add_options, allow_implausible_option,
                                    dom_options, echo_json, echo_warnings, json_option, reference_sigma_option,
@@ -51,6 +51,11 @@ def change_options(mode: str) -> dict:
               help="Window grid spacing, pixels.")
 @click.option("--max-offset", type=click.FloatRange(min=1.0), default=MatchOptions.max_offset_px, show_default=True,
               help="Largest expected model error, pixels.")
+@click.option("--coarse-search", type=click.Choice(COARSE_SEARCHES), default=MatchOptions.coarse_search,
+              show_default=True,
+              help="Coarse SIFT search: 'adaptive' (full resolution, FLANN), 'fast' (SIFT on the images averaged "
+                   "down 1.5 times, matches measured at full resolution, where trusted) or 'exhaustive' (brute "
+                   "force); docs/matching.md.")
 @click.option("--backend", type=click.Choice(["cpu", "gpu"]), default=MatchOptions.backend, show_default=True,
               help="Phase correlation on CPU (numpy) or GPU (torch).")
 @click.option("--sigma-model", type=click.Choice(SIGMA_MODELS), default=MatchOptions.sigma_model, show_default=True,
@@ -69,8 +74,8 @@ def change_options(mode: str) -> dict:
 @json_option
 @click.pass_context
 def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpkg_path, geotiff_path, band, image,
-            mask_path, check_fraction, window, spacing, max_offset, backend, sigma_model, change, reference_sigma_m, threads,
-            as_json, self_check):
+            mask_path, check_fraction, window, spacing, max_offset, coarse_search, backend, sigma_model, change,
+            reference_sigma_m, threads, as_json, self_check):
     """Extract GCPs of SCENE against a DOM and a DEM (coarse SIFT, dense phase correlation).
 
     SCENE is a gcpcal manifest, a model file (.geom, .RPB, _RPC.TXT, .DIM, .XML) with its raster
@@ -79,7 +84,8 @@ def command(ctx, scene_path, dom_path, dem_path, dem_datum, geoid, out_path, gpk
     """
     options = MatchOptions(window_px=window, spacing_px=spacing, max_offset_px=max_offset,
                            check_fraction=check_fraction, backend=backend, sigma_model=sigma_model,
-                           reference_sigma_m=reference_sigma_m, threads=threads, **change_options(change))
+                           coarse_search=coarse_search, reference_sigma_m=reference_sigma_m, threads=threads,
+                           **change_options(change))
     with stage_progress(ctx, "gcpcal match: windows", as_json) as progress:
         summary = match_scene(scene_path, dom_path=dom_path, dem_path=dem_path, out_path=out_path, geoid=geoid,
                               dem_datum=dem_datum, band=band, image=image, mask_path=mask_path, gpkg_path=gpkg_path,
