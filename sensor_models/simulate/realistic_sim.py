@@ -49,7 +49,7 @@ from sensor_models.simulate.render_io import (PhaseClock, check_covers, footprin
                                               utm_crs, write_outputs)
 from sensor_models.simulate.reference_pair import DEM_NODATA, degrade_dem, degrade_dom, write_raster
 from sensor_models.simulate.scene import build_models, ccd_layout
-from sensor_models.simulate.source_windows import FilteredWindows, RowFile
+from sensor_models.simulate.source_windows import FilteredWindows, RowFile, read_rows
 from sensor_models.simulate.true_lens import cubic_residual_px, lens_extras
 from sensor_models.simulate.truth import truth_error
 from sensor_models.terrain.dem import Dem
@@ -349,7 +349,7 @@ def _sunlit(radiance, transform, data, suns, skylight: float, which: str, lit, d
     step = max(1, _STRIP_PIXELS // radiance.shape[1])
     for r0 in range(0, radiance.shape[0], step):
         rows = slice(r0, min(r0 + step, radiance.shape[0]))
-        strip = np.array(radiance[rows], dtype=np.float32)
+        strip = np.array(read_rows(radiance, rows.start, rows.stop), dtype=np.float32)
         if on_dem:
             light = {}
             for name, (on_grid, shadow) in on_dem.items():
@@ -491,15 +491,21 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     data = replace(data, dom=None, water_mask=None, land_cover=None)  # the next steps read its DEM only
     clock.mark("models")
     setup_done(1)
-    # each whole source-grid array is let go as soon as the next step no longer needs it
-    dom_source, _ = _lit_source(cfg, profile, source, data, "dom")
-    reference_files, degraded = _write_reference(tmp, cfg, profile, dom_source, data)
-    del dom_source
-    # the scene's lit radiance goes to a scratch file by strips; the blocks read it by windows
-    scratch = RowFile(tmp / ".scene_radiance.f32", source[0].shape)
+    # the source, the DOM's and the scene's lit radiance live in scratch files, written and read by strips
+    shape, scratch = source[0].shape, []
+    tmp.mkdir(parents=True, exist_ok=True)
+
+    def scratch_file(name, values=None):
+        scratch.append(RowFile(tmp / f".{name}.f32", shape) if values is None
+                       else RowFile.from_array(tmp / f".{name}.f32", values))
+        return scratch[-1]
+
     try:
-        scene_source, sky = _lit_source(cfg, profile, source, data, "scene", out=scratch)
-        del source, data
+        source = (scratch_file("source_radiance", source[0]),) + tuple(source[1:])  # the array let go
+        dom_source, _ = _lit_source(cfg, profile, source, data, "dom", out=scratch_file("dom_radiance"))
+        reference_files, degraded = _write_reference(tmp, cfg, profile, dom_source, data)
+        scene_source, sky = _lit_source(cfg, profile, source, data, "scene", out=scratch_file("scene_radiance"))
+        del source, data, dom_source
         renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, scene_source, lens, sky)
         del scene_source
         dem_planes(true_dem)
@@ -509,7 +515,8 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
                               len(models.true_model.band_ccds(cfg.camera.reference_band)), block_lines, workers,
                               block_progress)
     finally:
-        scratch.remove()
+        for f in scratch:
+            f.remove()
     render_seconds = clock.mark("blocks")  # the whole render: models, reference and blocks
     user_dem = Dem.open(tmp / "reference" / "dem.tif")
     g_lon, g_lat = footprint_sample_lonlat(models.true_model, float(np.mean(true_dem.height_range_m)), n_side=65)

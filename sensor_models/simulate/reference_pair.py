@@ -32,6 +32,7 @@ import numpy as np
 from affine import Affine
 
 from sensor_models.simulate.radiometry import smooth_field
+from sensor_models.simulate.source_windows import read_rows
 
 __all__ = ["DegradedRaster", "degrade_dem", "degrade_dom", "displacement_field_m", "write_raster"]
 
@@ -158,8 +159,9 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
 
     Parameters
     ----------
-    radiance : ndarray of float32, shape (H, W)
-        Source radiance, 0..1 (NaN: no data), on a north-up grid.
+    radiance : ndarray of float32, shape (H, W), or RowFile
+        Source radiance, 0..1 (NaN: no data), on a north-up grid; a
+        :class:`sensor_models.simulate.source_windows.RowFile` is read by strips of rows.
     transform : affine.Affine
         Its pixel-corner affine, metres.
     profile : PushbroomProfile
@@ -180,14 +182,14 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
                                           field_scale_m=v("dom_field_scale_m"), seed=seed)
     change = _smooth_rows(radiance.shape, v("seasonal_scale_m") / res, seed, 10)
     haze = _smooth_rows(radiance.shape, 5000.0 / res, seed, 11)
-    src = np.asarray(radiance, dtype=np.float32)
-    x = np.empty(src.shape, dtype=np.float32)
-    cols = np.arange(src.shape[1], dtype=np.float32)[None, :]
+    shape = radiance.shape
+    x = np.empty(shape, dtype=np.float32)
+    cols = np.arange(shape[1], dtype=np.float32)[None, :]
     sums = np.zeros(3)  # east, north, squared magnitude (float64 sums over the strips)
     mag_max = 0.0
-    step = max(1, _STRIP_PIXELS // src.shape[1])
-    for r0 in range(0, src.shape[0], step):  # pixel by pixel: no whole-raster field or map is held
-        r1 = min(r0 + step, src.shape[0])
+    step = max(1, _STRIP_PIXELS // shape[1])
+    for r0 in range(0, shape[0], step):  # pixel by pixel: no whole-raster field or map is held
+        r1 = min(r0 + step, shape[0])
         east = (np.float32(bias_e) + rms * unit_e.rows(r0, r1)).astype(np.float32)
         north = (np.float32(bias_n) + rms * unit_n.rows(r0, r1)).astype(np.float32)
         mag = np.hypot(east, north)
@@ -195,12 +197,11 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
         mag_max = max(mag_max, float(mag.max()))
         r = np.arange(r0, r1, dtype=np.float32)[:, None]
         # the DOM pixel at p shows the ground at p + e (north is up: row decreases northwards)
-        xs = cv2.remap(src, cols + east / np.float32(res), r - north / np.float32(res),
-                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        xs = _remap_rows(radiance, cols + east / np.float32(res), r - north / np.float32(res))
         xs = (xs * (1.0 + np.float32(v("seasonal_change")) * change.rows(r0, r1))
               + np.float32(v("haze")) * (1.0 + 0.5 * haze.rows(r0, r1)))
         x[r0:r1] = np.power(np.clip(xs, 0.0, None), np.float32(v("reference_gamma")))
-    n = float(src.size)
+    n = float(shape[0] * shape[1])
     figures = {"geolocation_rms_m": float(np.sqrt(sums[2] / n)), "geolocation_max_m": mag_max,
                "geolocation_bias_m": [float(sums[0] / n), float(sums[1] / n)]}
     sigma_src = v("reference_mtf_sigma_px") * v("reference_resolution_m") / res
@@ -214,6 +215,23 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
     dn = np.clip(np.rint(x, out=x), 1, 4095, out=x).astype(np.uint16)
     figures["resolution_m"] = float(abs(out_transform.a))
     return DegradedRaster(dn, out_transform, figures)
+
+
+def _remap_rows(radiance, map_col: np.ndarray, map_row: np.ndarray) -> np.ndarray:
+    """``cv2.remap(radiance, map_col, map_row, INTER_LINEAR, BORDER_REPLICATE)`` from only the rows the maps reach.
+
+    ``radiance``: an array or a :class:`sensor_models.simulate.source_windows.RowFile`. The rows
+    read are those of the map's range plus 2 on each side (clipped to the raster, whose edge rows
+    the border replicates); the row map is shifted by the first row read after it is computed,
+    which is exact in float32, so the pixels are those of the remap of the whole raster.
+    """
+    lo, hi = float(np.nanmin(map_row)), float(np.nanmax(map_row))
+    a0 = min(max(0, int(np.floor(lo)) - 2), radiance.shape[0] - 1)
+    a1 = max(min(radiance.shape[0], int(np.floor(hi)) + 3), a0 + 1)
+    rows = read_rows(radiance, a0, a1)
+    if a0 > 0:
+        map_row = map_row - np.float32(a0)
+    return cv2.remap(rows, map_col, map_row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def _blur_in_place(x: np.ndarray, sigma_px: float) -> None:

@@ -25,7 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["FilteredWindows", "RowFile"]
+__all__ = ["FilteredWindows", "RowFile", "read_rows"]
 
 
 class RowFile:
@@ -68,9 +68,25 @@ class RowFile:
                                                strides=(n_cols * self.dtype.itemsize, self.dtype.itemsize))
         return np.array(rows, dtype=self.dtype)
 
+    @classmethod
+    def from_array(cls, path, values: np.ndarray, strip_pixels: int = 1 << 22) -> "RowFile":
+        """A scratch copy of ``values`` (2-D), written by strips of at most ``strip_pixels`` pixels."""
+        out = cls(path, values.shape)
+        step = max(1, strip_pixels // max(1, values.shape[1]))
+        for r0 in range(0, values.shape[0], step):
+            out.write_rows(r0, values[r0:r0 + step])
+        return out
+
     def remove(self) -> None:
         """Delete the scratch file."""
         self.path.unlink(missing_ok=True)
+
+
+def read_rows(raster, row0: int, row1: int) -> np.ndarray:
+    """Rows ``row0:row1`` (every column) of an array or a :class:`RowFile`, as float32."""
+    if isinstance(raster, RowFile):
+        return raster.read(row0, row1, 0, raster.shape[1])
+    return np.asarray(raster[row0:row1], dtype=np.float32)
 
 
 class FilteredWindows:
