@@ -145,22 +145,21 @@ def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0,
                               dem_resolution_m=ref.dem_resolution_m, relief_m=ref.relief_m,
                               mean_height_m=ref.mean_height_m, sea_fraction=ref.sea_fraction if procedural else 0.0,
                               progress=progress)
-    if procedural:
-        dom = data.dom.astype(np.float32)
-        if contrast > 0.0:
-            from sensor_models.simulate.texture_stats import scale_contrast
+    if not procedural:
+        return given_source, replace(data, dom=None, land_cover=None)
+    dom = data.dom.astype(np.float32)
+    data = replace(data, dom=None, land_cover=None)  # the next steps read the DEM and the water only
+    if contrast > 0.0:
+        from sensor_models.simulate.texture_stats import scale_contrast
 
-            dom = scale_contrast(dom, abs(data.dom_transform.a), contrast)[0]
-        if texture_poor[0] > 0.0:
-            from sensor_models.simulate.texture_poor import texture_poor_cover
+        dom = scale_contrast(dom, abs(data.dom_transform.a), contrast)[0]
+    if texture_poor[0] > 0.0:
+        from sensor_models.simulate.texture_poor import texture_poor_cover
 
-            dom = texture_poor_cover(dom, abs(data.dom_transform.a), *texture_poor, seed=[cfg.seed, 40],
-                                     water=data.water_mask)[0]
-        dom /= np.float32(np.percentile(dom, 99.5))  # dom is this function's own float32 array
-        source = (dom, data.dom_transform, data.crs)
-    else:
-        source = given_source
-    return source, data
+        dom = texture_poor_cover(dom, abs(data.dom_transform.a), *texture_poor, seed=[cfg.seed, 40],
+                                 water=data.water_mask)[0]
+    dom /= np.float32(np.percentile(dom, 99.5))  # dom is this function's own float32 array
+    return (dom, data.dom_transform, data.crs), data
 
 
 def detector_gains(profile, seed: int, band_index: int, ccd: int, n_detectors: int, n_ccds: int):
