@@ -83,3 +83,35 @@ def test_footprint_by_column_tiles_equals_the_whole_grid(tmp_path, seed):
         np.testing.assert_array_equal(np.isnan(got), np.isnan(expected))
         np.testing.assert_allclose(got, expected, rtol=0, atol=2e-6)
     assert np.isnan(expected).any() and np.isfinite(expected).any()  # the block ran off the grid and over it
+
+
+class _Recorded(FilteredWindows):
+    """FilteredWindows that records the size of every window read."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.sizes = []
+
+    def window(self, row0, row1, col0, col1):
+        self.sizes.append((row1 - row0) * (col1 - col0))
+        return super().window(row0, row1, col0, col1)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_windows_stay_within_the_budget_whatever_the_grid(seed):
+    """A block turned against the grid: its column tiles' windows stay under the budget as the grid and block grow."""
+    rng = np.random.default_rng([seed, 3])
+    scale, turn = float(rng.uniform(1.5, 3.0)), np.radians(rng.uniform(10.0, 30.0))
+    kernels = _kernels(rng, scale)
+    budget = 20_000
+    for n_det in (100, 400):  # the grid (and the block's box) grows 16 times in area
+        side = int(1.2 * scale * n_det) + 120
+        a = rng.random((side, side), dtype=np.float32)
+        line, det = np.meshgrid(np.arange(16.0), np.arange(float(n_det)), indexing="ij")
+        u = (60 + scale * (np.cos(turn) * det - np.sin(turn) * line)).astype(np.float32)
+        v = (20 + scale * (np.sin(turn) * det + np.cos(turn) * line)).astype(np.float32)
+        windows = _Recorded(a, kernels)
+        got = integrate_footprint(windows, u, v, *footprint_offsets(3, 0.3), max_window_px=budget)
+        assert np.isfinite(got).all()
+        assert max(windows.sizes) <= budget
+        assert sum(windows.sizes) < 4 * (scale * n_det) * (scale * 16 + 2 * windows.margin + 10) + 16 * budget
