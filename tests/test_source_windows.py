@@ -1,5 +1,6 @@
 """The realistic renderer's source by windows: a scratch raster read by windows, the optics per window,
-the footprint integrated by column tiles, each equal to the whole-grid computation.
+the footprint integrated by column tiles, the reference DOM's displacement by windows of columns,
+each equal to the whole-grid computation.
 
 Random draws: source grids of 150-400 x 150-400 pixels with NaN holes, PSFs of the realistic
 profile's family (disk radius 0.3-1.5 detector pitches, astigmatic edge, halo), 1.5-3 source
@@ -12,6 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from affine import Affine
 
 from sensor_models.simulate.kernel import footprint_offsets, integrate_footprint, optics_kernel
 from sensor_models.simulate.source_windows import FilteredWindows, RowFile
@@ -115,3 +117,21 @@ def test_windows_stay_within_the_budget_whatever_the_grid(seed):
         assert np.isfinite(got).all()
         assert max(windows.sizes) <= budget
         assert sum(windows.sizes) < 4 * (scale * n_det) * (scale * 16 + 2 * windows.margin + 10) + 16 * budget
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_degraded_dom_from_a_row_file_by_column_chunks_equals_the_whole_raster(tmp_path, monkeypatch, seed):
+    """The reference DOM's displacement remap reads windows of a scratch file by chunks of columns: same DN."""
+    from sensor_models.simulate import reference_pair
+    from sensor_models.simulate.profiles import get_profile
+
+    rng = np.random.default_rng([seed, 4])
+    a = _source(rng)
+    transform = Affine(15.0, 0.0, 500_000.0, 0.0, -15.0, 4_000_000.0)
+    profile = get_profile("realistic")
+    expected = reference_pair.degrade_dom(a, transform, profile, seed=seed)
+    monkeypatch.setattr(reference_pair, "_REMAP_COLS", int(rng.integers(7, 60)))
+    got = reference_pair.degrade_dom(RowFile.from_array(tmp_path / "a.f32", a, strip_pixels=3_000), transform, profile,
+                                     seed=seed)
+    np.testing.assert_array_equal(got.values, expected.values)
+    assert got.figures == expected.figures

@@ -32,7 +32,7 @@ import numpy as np
 from affine import Affine
 
 from sensor_models.simulate.radiometry import smooth_field
-from sensor_models.simulate.source_windows import read_rows
+from sensor_models.simulate.source_windows import read_window
 
 __all__ = ["DegradedRaster", "degrade_dem", "degrade_dom", "displacement_field_m", "write_raster"]
 
@@ -197,7 +197,7 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
         mag_max = max(mag_max, float(mag.max()))
         r = np.arange(r0, r1, dtype=np.float32)[:, None]
         # the DOM pixel at p shows the ground at p + e (north is up: row decreases northwards)
-        xs = _remap_rows(radiance, cols + east / np.float32(res), r - north / np.float32(res))
+        xs = _remap_window(radiance, cols + east / np.float32(res), r - north / np.float32(res))
         xs = (xs * (1.0 + np.float32(v("seasonal_change")) * change.rows(r0, r1))
               + np.float32(v("haze")) * (1.0 + 0.5 * haze.rows(r0, r1)))
         x[r0:r1] = np.power(np.clip(xs, 0.0, None), np.float32(v("reference_gamma")))
@@ -217,21 +217,36 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
     return DegradedRaster(dn, out_transform, figures)
 
 
-def _remap_rows(radiance, map_col: np.ndarray, map_row: np.ndarray) -> np.ndarray:
-    """``cv2.remap(radiance, map_col, map_row, INTER_LINEAR, BORDER_REPLICATE)`` from only the rows the maps reach.
+#: output columns :func:`_remap_window` remaps at a time (OpenCV's remap: less than 32 767 a side)
+_REMAP_COLS = 16_384
 
-    ``radiance``: an array or a :class:`sensor_models.simulate.source_windows.RowFile`. The rows
-    read are those of the map's range plus 2 on each side (clipped to the raster, whose edge rows
-    the border replicates); the row map is shifted by the first row read after it is computed,
-    which is exact in float32, so the pixels are those of the remap of the whole raster.
+
+def _remap_window(radiance, map_col: np.ndarray, map_row: np.ndarray) -> np.ndarray:
+    """``cv2.remap(radiance, map_col, map_row, INTER_LINEAR, BORDER_REPLICATE)`` from only the pixels the maps reach.
+
+    ``radiance``: an array or a :class:`sensor_models.simulate.source_windows.RowFile`. By chunks
+    of at most :data:`_REMAP_COLS` output columns, each from the window of the source its maps
+    span plus 2 pixels on each side (clipped to the raster, whose edge the border replicates);
+    the maps are shifted by the window's first row and column after they are computed, which is
+    exact in float32, so the pixels are those of the remap of the whole raster.
     """
-    lo, hi = float(np.nanmin(map_row)), float(np.nanmax(map_row))
-    a0 = min(max(0, int(np.floor(lo)) - 2), radiance.shape[0] - 1)
-    a1 = max(min(radiance.shape[0], int(np.floor(hi)) + 3), a0 + 1)
-    rows = read_rows(radiance, a0, a1)
-    if a0 > 0:
-        map_row = map_row - np.float32(a0)
-    return cv2.remap(rows, map_col, map_row, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = np.empty(map_col.shape, dtype=np.float32)
+    for c in range(0, map_col.shape[1], _REMAP_COLS):
+        cols = slice(c, c + _REMAP_COLS)
+        (a0, a1), (b0, b1) = (_span(m[:, cols], n) for m, n in ((map_row, radiance.shape[0]),
+                                                                  (map_col, radiance.shape[1])))
+        window = read_window(radiance, a0, a1, b0, b1)
+        mc, mr = map_col[:, cols], map_row[:, cols]
+        mc = mc - np.float32(b0) if b0 > 0 else mc
+        mr = mr - np.float32(a0) if a0 > 0 else mr
+        out[:, cols] = cv2.remap(window, mc, mr, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out
+
+
+def _span(coords: np.ndarray, n: int) -> tuple:
+    """``(first, stop)`` of the ``n`` pixels within 2 of ``coords``' range (at least the nearest edge pixel)."""
+    first = min(max(0, int(np.floor(float(np.nanmin(coords)))) - 2), n - 1)
+    return first, max(min(n, int(np.floor(float(np.nanmax(coords)))) + 3), first + 1)
 
 
 def _blur_in_place(x: np.ndarray, sigma_px: float) -> None:

@@ -25,7 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["FilteredWindows", "RowFile", "read_rows"]
+__all__ = ["FilteredWindows", "RowFile", "read_rows", "read_window"]
 
 
 class RowFile:
@@ -89,6 +89,13 @@ def read_rows(raster, row0: int, row1: int) -> np.ndarray:
     return np.asarray(raster[row0:row1], dtype=np.float32)
 
 
+def read_window(raster, row0: int, row1: int, col0: int, col1: int) -> np.ndarray:
+    """Rows ``row0:row1``, columns ``col0:col1`` of an array or a :class:`RowFile`, as float32 (C order)."""
+    if isinstance(raster, RowFile):
+        return raster.read(row0, row1, col0, col1)
+    return np.ascontiguousarray(raster[row0:row1, col0:col1], dtype=np.float32)
+
+
 class FilteredWindows:
     """A source radiance convolved with one or more optical PSFs, computed window by window.
 
@@ -115,9 +122,8 @@ class FilteredWindows:
         self.margin = max(k.shape[0] // 2 for k in self.kernels)
 
     def _read(self, row0, row1, col0, col1):
-        if isinstance(self.source, np.ndarray):
-            return np.array(self.source[row0:row1, col0:col1], dtype=np.float32)
-        return self.source.read(row0, row1, col0, col1)
+        window = read_window(self.source, row0, row1, col0, col1)
+        return window.copy() if isinstance(self.source, np.ndarray) else window  # filled in place next
 
     def window(self, row0: int, row1: int, col0: int, col1: int) -> np.ndarray:
         """The filtered radiance over rows ``row0:row1``, columns ``col0:col1`` (inside the grid).
