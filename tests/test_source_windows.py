@@ -135,3 +135,19 @@ def test_degraded_dom_from_a_row_file_by_column_chunks_equals_the_whole_raster(t
                                      seed=seed)
     np.testing.assert_array_equal(got.values, expected.values)
     assert got.figures == expected.figures
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_area_average_without_weights_when_they_are_all_one(monkeypatch, seed):
+    """An all-finite source onto a finer or coarser reference grid: the weightless average is the weighted one, to the bit."""
+    from sensor_models.simulate import reference_pair
+
+    rng = np.random.default_rng([seed, 7])
+    a = rng.random((int(rng.integers(20, 400)), int(rng.integers(20, 400))), dtype=np.float32)
+    res = float(rng.uniform(10.0, 60.0))
+    transform = Affine(res, 0.0, 5e5, 0.0, -res, 4e6)
+    got, got_t = reference_pair._area_average(a, transform, 30.0)
+    monkeypatch.setattr(reference_pair, "_ones_stay_ones", lambda *args: False)  # the weighted path
+    expected, expected_t = reference_pair._area_average(a, transform, 30.0)
+    np.testing.assert_array_equal(got, expected)
+    assert got_t == expected_t

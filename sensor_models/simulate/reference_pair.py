@@ -136,9 +136,14 @@ def _area_average(values: np.ndarray, transform: Affine, out_res_m: float):
     res = abs(transform.a)
     n_rows = max(2, int(round(values.shape[0] * res / out_res_m)))
     n_cols = max(2, int(round(values.shape[1] * res / out_res_m)))
+    out_transform = Affine(values.shape[1] * res / n_cols, 0.0, transform.c, 0.0, -values.shape[0] * res / n_rows,
+                           transform.f)
     # the weights first, their full-size mask let go before the sums are made (the output grid may
     # be finer than the input's)
     finite = np.isfinite(values)
+    if finite.all() and _ones_stay_ones(values.shape, n_rows, n_cols):
+        # every weight would be exactly 1 (the sums divided by 1): the area average is the resize itself
+        return cv2.resize(np.asarray(values, np.float32), (n_cols, n_rows), interpolation=cv2.INTER_AREA), out_transform
     w = cv2.resize(finite.astype(np.float32), (n_cols, n_rows), interpolation=cv2.INTER_AREA)
     # all finite (a procedural source): the values themselves, no filled copy
     filled = np.asarray(values, np.float32) if finite.all() else np.where(finite, values, 0.0).astype(np.float32)
@@ -149,9 +154,22 @@ def _area_average(values: np.ndarray, transform: Affine, out_res_m: float):
     out = np.divide(s, np.maximum(w, np.float32(1e-6), out=w), out=s)  # in place: no further full-size copies
     if void is not None:
         out[void] = np.nan
-    sx = values.shape[1] * res / n_cols
-    sy = values.shape[0] * res / n_rows
-    return out, Affine(sx, 0.0, transform.c, 0.0, -sy, transform.f)
+    return out, out_transform
+
+
+def _ones_stay_ones(shape, n_rows: int, n_cols: int) -> bool:
+    """Whether ``cv2.resize`` (``INTER_AREA``) of ones of ``shape`` to ``(n_rows, n_cols)`` gives exactly ones.
+
+    OpenCV resizes along the rows and then along the columns; on ones each pass gives, per
+    output index, the sum of its own weights, whatever the other axis, so two thin probes
+    (``shape[0] x 2`` and ``2 x shape[1]``) answer for the whole grid. An enlargement
+    (OpenCV's area enlargement is a linear interpolation) gives exact ones; a reduction may
+    miss by a unit in the last place.
+    """
+    ones = np.ones((shape[0], 2), np.float32)
+    down = cv2.resize(ones, (2, n_rows), interpolation=cv2.INTER_AREA)
+    across = cv2.resize(np.ones((2, shape[1]), np.float32), (n_cols, 2), interpolation=cv2.INTER_AREA)
+    return bool((down == 1.0).all() and (across == 1.0).all())
 
 
 def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) -> DegradedRaster:
