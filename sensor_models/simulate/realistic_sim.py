@@ -457,7 +457,9 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     Parameters
     ----------
     tmp : Path
-        Output folder (the caller moves it into place).
+        Output folder (the caller moves it into place). The source and its lit radiances are
+        float32 scratch files there while the scene is made (4 bytes a source pixel each,
+        hidden names, removed before returning; :mod:`sensor_models.simulate.source_windows`).
     cfg : SimConfig
         Geometry, camera and calibration targets; the profile overrides attitude, orbit and
         detector magnitudes (:func:`apply_profile`).

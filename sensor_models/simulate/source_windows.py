@@ -2,8 +2,8 @@
 
 The realistic renderer (:mod:`sensor_models.simulate.realistic_sim`) samples a source grid that
 covers the bounding box of the whole footprint in UTM: at a wide swath it is far larger than the
-image (the seed-003 geometry at +-32 degrees: 1252 M pixels at 22.5 m). Two pieces keep the
-render's memory independent of that grid:
+image (the seed-003 geometry at +-32 degrees: 1252 M pixels at 22.5 m). Two pieces keep what the
+blocks of lines hold independent of that grid:
 
 * :class:`RowFile`: a float32 raster of ``(H, W)`` in a scratch file, written by strips of rows
   as each strip is computed and read back by windows. Each access maps only the bytes of its
