@@ -16,8 +16,8 @@ child process; its wall time, CPU time (user + sys of the child and what it wait
 
    * ``realistic``: ``--profile realistic`` (procedural source radiance, the profile's kernel,
      degraded DOM and DEM as references). Its source grid is the footprint's bounding box: at full
-     size over the procedural generator's pixel cap and OpenCV's remap size (docs/speed.md), so it
-     runs at reduced ``--scale`` or ``--lines`` only;
+     size over the procedural generator's pixel cap, with a TRUE DEM held whole (docs/speed.md), so
+     it runs at reduced ``--scale`` or ``--lines`` only;
    * ``ideal-dom``: ``--dom DOM --dem DEM`` (ideal kernel, bounded memory) from a synthetic DOM
      (30 m value noise) and DEM (6 arc-seconds) written by strips under ``<cache>/inputs_scale<F>``
      (not timed), with the realistic profile's attitude and orbit magnitudes in the TRUE model

@@ -145,14 +145,27 @@ def system_mtf(freq_cyc_px, *, defocus_radius_px: float, halo_fraction: float, h
     return optics * foot * interp
 
 
-def integrate_footprint(radiance: np.ndarray, u, v, d_row, d_col, *, irregular_row=None, irregular_col=None):
+#: pixels of one window of the filtered source radiance that :func:`integrate_footprint` reads at a time
+#: (a block's detectors are split into column tiles until each tile's window is within it)
+MAX_WINDOW_PIXELS = 1 << 24
+#: OpenCV's ``remap`` takes sources and maps of less than ``SHRT_MAX`` (32 767) pixels a side
+_REMAP_MAX_SIDE = 32_000
+#: NaN outside the source in every channel (a scalar ``np.nan`` border fills only the first)
+_NAN_BORDER = (np.nan,) * 4
+
+
+def integrate_footprint(radiance, u, v, d_row, d_col, *, irregular_row=None, irregular_col=None,
+                        max_window_px: int = MAX_WINDOW_PIXELS):
     """Mean of the (optics-filtered) source radiance over every pixel's footprint.
 
     Parameters
     ----------
-    radiance : ndarray of float32, shape (H, W) or (H, W, C)
+    radiance : ndarray of float32, shape (H, W) or (H, W, C), or FilteredWindows
         Source radiance already convolved with :func:`optics_kernel` (``C`` channels: e.g. the
-        same radiance through the PSFs of two field positions, integrated in one pass).
+        same radiance through the PSFs of two field positions, integrated in one pass); or a
+        :class:`sensor_models.simulate.source_windows.FilteredWindows`, filtered window by window:
+        the detectors are then split into column tiles whose windows hold at most
+        ``max_window_px`` source pixels and less than 32 000 a side (OpenCV's ``remap`` limit).
     u, v : ndarray of float32, shape (L, N)
         Source-raster column and row (0 at the first pixel's centre) of the pixel centres of
         ``L`` lines of ``N`` detectors (``L >= 2``, ``N >= 2``).
@@ -160,11 +173,23 @@ def integrate_footprint(radiance: np.ndarray, u, v, d_row, d_col, *, irregular_r
         Sub-pixel offsets (:func:`footprint_offsets`), px.
     irregular_row, irregular_col : ndarray, shape (N,), optional
         Per-detector line-of-sight offsets, px.
+    max_window_px : int
+        Largest window of a column tile (windowed ``radiance`` only), source pixels.
 
     Returns
     -------
     ndarray of float32, shape (L, N) or (L, N, C)
         NaN where a sample leaves the source raster.
+
+    Notes
+    -----
+    Sample ``k`` of detector ``(l, n)`` lies at ``u + du/dr (d_row_k + ir_n) + du/dc (d_col_k + ic_n)``
+    (likewise ``v``), the Jacobian from :func:`numpy.gradient` of the whole block. A tile's window
+    is the box of ``u -+ (|du/dr| R_r + |du/dc| R_c)`` over its pixels (``R_r = max |d_row| +
+    max |ir|``, ``R_c`` likewise), grown by 2 pixels, so every sample and its bilinear
+    neighbours lie inside it or outside the grid; the samples are shifted by the window's integer
+    origin after they are computed, which is exact in float32, so a window gives the whole grid's
+    interpolation.
     """
     u = np.asarray(u, dtype=np.float32)
     v = np.asarray(v, dtype=np.float32)
@@ -174,13 +199,66 @@ def integrate_footprint(radiance: np.ndarray, u, v, d_row, d_col, *, irregular_r
     n_det = u.shape[1]
     ir = np.zeros(n_det, np.float32) if irregular_row is None else np.asarray(irregular_row, np.float32)
     ic = np.zeros(n_det, np.float32) if irregular_col is None else np.asarray(irregular_col, np.float32)
+    jac = (du_dr, du_dc, dv_dr, dv_dc)
+    if isinstance(radiance, np.ndarray):
+        return _integrate(radiance, (0, 0), u, v, jac, d_row, d_col, ir, ic)
+    channels = () if radiance.channels == 1 else (radiance.channels,)
+    out = np.full(u.shape + channels, np.nan, dtype=np.float32)
+    reach_r = float(np.max(np.abs(d_row))) + float(np.max(np.abs(ir)))
+    reach_c = float(np.max(np.abs(d_col))) + float(np.max(np.abs(ic)))
+    reach_u = np.abs(du_dr) * reach_r + np.abs(du_dc) * reach_c
+    reach_v = np.abs(dv_dr) * reach_r + np.abs(dv_dc) * reach_c
+    for cols, box in _column_tiles(u, v, reach_u, reach_v, radiance.shape, max_window_px, 0, n_det):
+        if box is None:  # the tile's footprint misses the grid: NaN
+            continue
+        r0, r1, c0, c1 = box
+        part = (slice(None), cols)
+        out[part] = _integrate(radiance.window(r0, r1, c0, c1), (r0, c0), u[part], v[part],
+                               tuple(j[part] for j in jac), d_row, d_col, ir[cols], ic[cols])
+    return out
+
+
+def _window_box(u, v, reach_u, reach_v, shape):
+    """``(row0, row1, col0, col1)`` of the source pixels the samples around ``(u, v)`` need; None: none."""
+    with np.errstate(invalid="ignore"):
+        lo_u, hi_u = np.nanmin(u - reach_u), np.nanmax(u + reach_u)
+        lo_v, hi_v = np.nanmin(v - reach_v), np.nanmax(v + reach_v)
+    if not np.isfinite([lo_u, hi_u, lo_v, hi_v]).all():
+        return None
+    c0, c1 = max(0, int(np.floor(lo_u)) - 2), min(shape[1], int(np.floor(hi_u)) + 3)
+    r0, r1 = max(0, int(np.floor(lo_v)) - 2), min(shape[0], int(np.floor(hi_v)) + 3)
+    return (r0, r1, c0, c1) if r0 < r1 and c0 < c1 else None
+
+
+def _column_tiles(u, v, reach_u, reach_v, shape, max_px: int, a: int, b: int):
+    """``(slice of detectors, window box or None)`` tiles covering detectors ``a:b``, halved until each fits."""
+    cols = slice(a, b)
+    box = _window_box(u[:, cols], v[:, cols], reach_u[:, cols], reach_v[:, cols], shape)
+    if box is not None and b - a > 1:
+        h, w = box[1] - box[0], box[3] - box[2]
+        if h * w > max_px or max(h, w) > _REMAP_MAX_SIDE:
+            mid = (a + b) // 2
+            yield from _column_tiles(u, v, reach_u, reach_v, shape, max_px, a, mid)
+            yield from _column_tiles(u, v, reach_u, reach_v, shape, max_px, mid, b)
+            return
+    yield cols, box
+
+
+def _integrate(radiance, origin, u, v, jac, d_row, d_col, ir, ic):
+    """The footprint mean of ``radiance`` (a window whose first pixel is ``origin`` = (row, col) of the grid)."""
+    du_dr, du_dc, dv_dr, dv_dc = jac
+    row0, col0 = np.float32(origin[0]), np.float32(origin[1])
     acc = np.zeros(u.shape + radiance.shape[2:], np.float32)
     for a, b in zip(d_row, d_col):
         rr = np.float32(a) + ir[None, :]
         cc = np.float32(b) + ic[None, :]
         uu = u + du_dr * rr + du_dc * cc
         vv = v + dv_dr * rr + dv_dc * cc
-        acc += cv2.remap(radiance, uu, vv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+        if origin != (0, 0):  # exact: an integer shift of a float32 inside the window
+            uu -= col0
+            vv -= row0
+        acc += cv2.remap(radiance, uu, vv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                         borderValue=_NAN_BORDER)
     return acc / np.float32(len(d_row))
 
 

@@ -69,6 +69,7 @@ def render_dom(args, grid, ext, centre, terrain, lakes, rivers, roads, cover, rn
         radiance[rows], water[rows], cover_map[rows] = _render_strip(ctx, rows, rng)
         if strip_done is not None:
             strip_done()
+    del ctx  # its whole-grid overlays (rivers, riparian strips, roads: 4 bytes a pixel) are drawn in
 
     # the PSF blurred strip by strip, each with the rows its kernel reaches (scipy's radius
     # int(truncate sigma + 0.5)): the same pixels as one blur of the whole radiance

@@ -36,15 +36,38 @@ def smooth_field(shape, scale_px: float, seed_seq) -> np.ndarray:
         Zero mean, unit standard deviation.
     """
     rng = np.random.default_rng(seed_seq)
-    noise = rng.standard_normal(shape)
-    ky = np.fft.fftfreq(shape[0])[:, None]
-    kx = np.fft.rfftfreq(shape[1])[None, :]
-    k = np.hypot(ky, kx) * 2.0 * np.pi
-    filt = np.exp(-0.5 * (k * scale_px) ** 2) + 0.15 / (1.0 + (k * scale_px) ** 2)
-    field = np.fft.irfft2(np.fft.rfft2(noise) * filt, s=shape)
+    n_rows, n_cols = int(shape[0]), int(shape[1])
+    n_half = n_cols // 2 + 1
+    # the 2-D transforms of ``irfft2(rfft2(noise) * filt)`` one axis at a time, by strips of rows
+    # and of columns of one half spectrum (``rfft2`` is ``rfft`` along the rows then ``fft``
+    # along the columns; the noise is drawn in the same order): the same numbers without the
+    # whole noise, product and inverse arrays beside the spectrum
+    spec = np.empty((n_rows, n_half), dtype=np.complex128)
+    rows_step = max(1, _FFT_STRIP_VALUES // n_cols)
+    for r0 in range(0, n_rows, rows_step):
+        r1 = min(r0 + rows_step, n_rows)
+        spec[r0:r1] = np.fft.rfft(rng.standard_normal((r1 - r0, n_cols)), axis=1)
+    ky = np.fft.fftfreq(n_rows)[:, None]
+    kx = np.fft.rfftfreq(n_cols)
+    cols_step = max(1, _FFT_STRIP_VALUES // n_rows)
+    for c0 in range(0, n_half, cols_step):
+        cols = slice(c0, min(c0 + cols_step, n_half))
+        k = np.hypot(ky, kx[None, cols]) * 2.0 * np.pi
+        filt = np.exp(-0.5 * (k * scale_px) ** 2) + 0.15 / (1.0 + (k * scale_px) ** 2)
+        spec[:, cols] = np.fft.ifft(np.fft.fft(spec[:, cols], axis=0) * filt, axis=0)
+    # the field's rows written over the spectrum's bytes: row r ends before spectrum row r + 1 starts
+    flat = spec.reshape(-1).view(np.float64)
+    for r0 in range(0, n_rows, rows_step):
+        r1 = min(r0 + rows_step, n_rows)
+        flat[r0 * n_cols:r1 * n_cols] = np.fft.irfft(spec[r0:r1], n=n_cols, axis=1).ravel()
+    field = flat[:n_rows * n_cols].reshape(n_rows, n_cols)
     field -= field.mean()
     field /= max(field.std(), 1e-12)
     return field.astype(np.float32)
+
+
+#: complex values of the half spectrum :func:`smooth_field` transforms at a time
+_FFT_STRIP_VALUES = 1 << 20
 
 
 def to_dn(reflectance, *, gain: float, offset_dn: float, gamma: float, seasonal, prnu_gain, snr: float,

@@ -49,6 +49,7 @@ from sensor_models.simulate.render_io import (PhaseClock, check_covers, footprin
                                               utm_crs, write_outputs)
 from sensor_models.simulate.reference_pair import DEM_NODATA, degrade_dem, degrade_dom, write_raster
 from sensor_models.simulate.scene import build_models, ccd_layout
+from sensor_models.simulate.source_windows import FilteredWindows, RowFile, read_rows
 from sensor_models.simulate.true_lens import cubic_residual_px, lens_extras
 from sensor_models.simulate.truth import truth_error
 from sensor_models.terrain.dem import Dem
@@ -144,22 +145,21 @@ def _source_and_dem(cfg: SimConfig, models, given_source, contrast: float = 0.0,
                               dem_resolution_m=ref.dem_resolution_m, relief_m=ref.relief_m,
                               mean_height_m=ref.mean_height_m, sea_fraction=ref.sea_fraction if procedural else 0.0,
                               progress=progress)
-    if procedural:
-        dom = data.dom.astype(np.float32)
-        if contrast > 0.0:
-            from sensor_models.simulate.texture_stats import scale_contrast
+    if not procedural:
+        return given_source, replace(data, dom=None, land_cover=None)
+    dom = data.dom.astype(np.float32)
+    data = replace(data, dom=None, land_cover=None)  # the next steps read the DEM and the water only
+    if contrast > 0.0:
+        from sensor_models.simulate.texture_stats import scale_contrast
 
-            dom = scale_contrast(dom, abs(data.dom_transform.a), contrast)[0]
-        if texture_poor[0] > 0.0:
-            from sensor_models.simulate.texture_poor import texture_poor_cover
+        dom = scale_contrast(dom, abs(data.dom_transform.a), contrast)[0]
+    if texture_poor[0] > 0.0:
+        from sensor_models.simulate.texture_poor import texture_poor_cover
 
-            dom = texture_poor_cover(dom, abs(data.dom_transform.a), *texture_poor, seed=[cfg.seed, 40],
-                                     water=data.water_mask)[0]
-        dom /= np.float32(np.percentile(dom, 99.5))  # dom is this function's own float32 array
-        source = (dom, data.dom_transform, data.crs)
-    else:
-        source = given_source
-    return source, data
+        dom = texture_poor_cover(dom, abs(data.dom_transform.a), *texture_poor, seed=[cfg.seed, 40],
+                                 water=data.water_mask)[0]
+    dom /= np.float32(np.percentile(dom, 99.5))  # dom is this function's own float32 array
+    return (dom, data.dom_transform, data.crs), data
 
 
 def detector_gains(profile, seed: int, band_index: int, ccd: int, n_detectors: int, n_ccds: int):
@@ -216,19 +216,12 @@ class _KernelRenderer:
 
     def __init__(self, cfg: SimConfig, profile, model, dem: Dem, source, lens, sky=None):
         v = profile.value
-        radiance, transform, crs = source
+        radiance, transform, crs = source  # an array or a RowFile
         self.cfg, self.model, self.dem, self.lens = cfg, model, dem, lens
         self.grid = MapGrid(transform, crs, radiance.shape)
         self.scale = cfg.scene.gsd_m / abs(transform.a)
-        filled = np.nan_to_num(radiance, nan=0.0) if np.isnan(radiance).any() else radiance
-        kernels = _field_kernels(profile, self.scale)  # centre (and edge, with astigmatism)
-        if len(kernels) == 1:
-            self.radiance = cv2.filter2D(filled, cv2.CV_32F, kernels[0], borderType=cv2.BORDER_REFLECT)
-        else:  # (H, W, n_kernels), each plane filtered into place
-            self.radiance = np.empty(filled.shape + (len(kernels),), dtype=np.float32)
-            for i, kern in enumerate(kernels):
-                self.radiance[..., i] = cv2.filter2D(filled, cv2.CV_32F, kern, borderType=cv2.BORDER_REFLECT)
-        del filled
+        # centre (and edge, with astigmatism) PSFs, applied per window of the source the blocks read
+        self.radiance = FilteredWindows(radiance, _field_kernels(profile, self.scale))
         self.weights = field_weights(cfg)
         self.offsets = footprint_offsets(int(v("supersampling")), float(v("motion_smear_lines")))
         self.profile = profile
@@ -286,14 +279,17 @@ def _sun(profile, key: str, lat_deg: float):
     return None if when is None else sun_angles_deg(lat_deg, float(when[0]), float(when[1]))
 
 
-def _lit_source(cfg: SimConfig, profile, source, data, which: str):
+def _lit_source(cfg: SimConfig, profile, source, data, which: str, out=None):
     """The scene's (``which="scene"``, with its clouds and their shadows) or the DOM's (``"dom"``)
     radiance under its own sun.
 
-    Returns ``(source, sky)``: the source as ``(radiance, transform, crs)``; ``sky`` holds
-    ``layers`` (:class:`CloudLayers` or None), ``cloud_shadow`` (ground map) and JSON-safe
-    ``figures`` (both suns; the clouds with ``"scene"``). One at a time, so that the DOM's is
-    degraded and let go before the scene's is made.
+    ``out`` (optional): a :class:`sensor_models.simulate.source_windows.RowFile` of the source's
+    shape that receives the lit radiance strip by strip (it is then never whole in memory).
+
+    Returns ``(source, sky)``: the source as ``(radiance, transform, crs)`` (``radiance`` is
+    ``out`` when given); ``sky`` holds ``layers`` (:class:`CloudLayers` or None),
+    ``cloud_shadow`` (ground map) and JSON-safe ``figures`` (both suns; the clouds with
+    ``"scene"``). One at a time, so that the DOM's is degraded and let go before the scene's is made.
     """
     radiance, transform, crs = source
     v, res = profile.value, abs(transform.a)
@@ -302,11 +298,9 @@ def _lit_source(cfg: SimConfig, profile, source, data, which: str):
     if cfg.clouds.cover > 0 and int(v("cloud_layers")) <= 0:
         raise InputError(f"clouds need cloud layers under the {profile.name} profile (cloud_layers = 0)",
                          field="clouds.cover")
-    lit, figures = radiance, {}
     k = float(v("skylight_fraction"))
-    if sun_s is not None and sun_d is not None:
-        lit, figures = _sunlit(radiance, transform, data, {"scene": sun_s, "dom": sun_d}, k, which)
-    sky = {"layers": None, "cloud_shadow": None, "figures": figures}
+    sky = {"layers": None, "cloud_shadow": None, "figures": {}}
+    dim = None  # the cloud shadows' factor on the light, whole grid
     if which == "scene" and cfg.clouds.cover > 0:
         ground = resample_to_grid(data.dem_m, data.dem_transform, radiance.shape, transform,
                                   fill=float(np.nanmean(data.dem_m)))
@@ -314,49 +308,70 @@ def _lit_source(cfg: SimConfig, profile, source, data, which: str):
                               heights_km=v("cloud_top_height_km"), n_layers=int(v("cloud_layers")),
                               mean_ground_m=float(np.nanmean(data.dem_m)), seed=cfg.pass_seed)
         shade = ground_shadow(layers, ground, res, sun_s or Sun(89.9, 180.0)) * np.float32(v("cloud_shadow"))
-        lit = lit * (1.0 - np.float32(1.0 - k) * shade)
+        del ground
+        dim = 1.0 - np.float32(1.0 - k) * shade
         sky.update(layers=layers, cloud_shadow=shade)
-        figures["clouds"] = {**layers.to_dict(), "ground_shadow_fraction": round(float((shade > 0.5).mean()), 4)}
-    return (lit.astype(np.float32, copy=False), transform, crs), sky
+        sky["figures"]["clouds"] = {**layers.to_dict(),
+                                    "ground_shadow_fraction": round(float((shade > 0.5).mean()), 4)}
+    suns = {"scene": sun_s, "dom": sun_d} if sun_s is not None and sun_d is not None else None
+    if suns is None and dim is None and out is None:
+        return (radiance, transform, crs), sky
+    lit = out if out is not None else np.empty(radiance.shape, dtype=np.float32)
+    sky["figures"] = {**_sunlit(radiance, transform, data, suns, k, which, lit, dim), **sky["figures"]}
+    return (lit, transform, crs), sky
 
 
 #: source pixels :func:`_sunlit` lights at a time (whole rows)
 _STRIP_PIXELS = 1 << 18
 
 
-def _sunlit(radiance, transform, data, suns: dict, skylight: float, which: str):
-    """``radiance`` under ``suns[which]``: hill shading and cast shadows of the TRUE DEM
+def _sunlit(radiance, transform, data, suns, skylight: float, which: str, lit, dim=None) -> dict:
+    """``radiance`` under ``suns[which]`` into ``lit``: hill shading and cast shadows of the TRUE DEM
     (:func:`sensor_models.simulate.illumination.illumination`, computed on the DEM grid), resampled to the
-    source grid strip by strip (:func:`sensor_models.simulate.illumination.resample_to_grid`).
+    source grid strip by strip (:func:`sensor_models.simulate.illumination.resample_to_grid`), times
+    ``dim`` (the clouds' shadows) when given.
 
-    Returns ``(lit, figures)``: the lit radiance (float32, the source's shape) and, per sun of
-    ``suns`` (``"scene"`` and ``"dom"``), its angles and cast-shadow fraction, with
-    ``light_ratio_rms`` = std of ``log(light_scene / light_dom)`` over the source grid.
+    ``suns`` None: no sun (``lit`` gets ``radiance`` times ``dim``). ``lit``: a float32 array of the
+    source's shape or a :class:`sensor_models.simulate.source_windows.RowFile`, written strip by strip.
+
+    Returns the figures: per sun of ``suns`` (``"scene"`` and ``"dom"``), its angles and
+    cast-shadow fraction, with ``light_ratio_rms`` = std of ``log(light_scene / light_dom)`` over
+    the source grid (empty without suns).
     """
     dem_res = abs(data.dem_transform.a)
     on_dem = {}
-    for name, sun in suns.items():
+    for name, sun in (suns or {}).items():
         shadow = cast_shadow(data.dem_m, dem_res, sun)
         on_dem[name] = illumination(data.dem_m, dem_res, sun, skylight=skylight, shadow=shadow), shadow
-    lit = np.empty(radiance.shape, dtype=np.float32)
-    shaded = dict.fromkeys(suns, 0)
+    shaded = dict.fromkeys(on_dem, 0)
     log_sum = log_sq = 0.0
     step = max(1, _STRIP_PIXELS // radiance.shape[1])
     for r0 in range(0, radiance.shape[0], step):
         rows = slice(r0, min(r0 + step, radiance.shape[0]))
-        light = {}
-        for name, (on_grid, shadow) in on_dem.items():
-            light[name] = resample_to_grid(on_grid, data.dem_transform, radiance.shape, transform, fill=1.0, rows=rows)
-            cast = resample_to_grid(shadow, data.dem_transform, radiance.shape, transform, fill=0.0, rows=rows)
-            shaded[name] += int(np.count_nonzero(cast > 0.5))
-        np.multiply(radiance[rows], light[which], out=lit[rows])
-        ratio = np.log(light["scene"] / light["dom"]).astype(np.float64)
-        log_sum, log_sq = log_sum + float(ratio.sum()), log_sq + float(np.square(ratio).sum())
-    n = radiance.size
+        strip = np.array(read_rows(radiance, rows.start, rows.stop), dtype=np.float32)
+        if on_dem:
+            light = {}
+            for name, (on_grid, shadow) in on_dem.items():
+                light[name] = resample_to_grid(on_grid, data.dem_transform, radiance.shape, transform, fill=1.0,
+                                               rows=rows)
+                cast = resample_to_grid(shadow, data.dem_transform, radiance.shape, transform, fill=0.0, rows=rows)
+                shaded[name] += int(np.count_nonzero(cast > 0.5))
+            np.multiply(strip, light[which], out=strip)
+            ratio = np.log(light["scene"] / light["dom"]).astype(np.float64)
+            log_sum, log_sq = log_sum + float(ratio.sum()), log_sq + float(np.square(ratio).sum())
+        if dim is not None:
+            strip = strip * dim[rows]
+        if isinstance(lit, np.ndarray):
+            lit[rows] = strip
+        else:
+            lit.write_rows(r0, strip)
+    if not on_dem:
+        return {}
+    n = radiance.shape[0] * radiance.shape[1]
     figures = {f"sun_{name}": {**sun.to_dict(), "cast_shadow_fraction": round(shaded[name] / n, 5)}
                for name, sun in suns.items()}
     figures["light_ratio_rms"] = round(float(np.sqrt(max(log_sq / n - (log_sum / n) ** 2, 0.0))), 4)
-    return lit, figures
+    return figures
 
 
 def _stated_dom_accuracy(profile) -> dict:
@@ -442,7 +457,9 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     Parameters
     ----------
     tmp : Path
-        Output folder (the caller moves it into place).
+        Output folder (the caller moves it into place). The source and its lit radiances are
+        float32 scratch files there while the scene is made (4 bytes a source pixel each,
+        hidden names, removed before returning; :mod:`sensor_models.simulate.source_windows`).
     cfg : SimConfig
         Geometry, camera and calibration targets; the profile overrides attitude, orbit and
         detector magnitudes (:func:`apply_profile`).
@@ -475,20 +492,32 @@ def simulate_realistic(tmp, cfg: SimConfig, profile, *, dom_path=None, dem_path=
     data = replace(data, dom=None, water_mask=None, land_cover=None)  # the next steps read its DEM only
     clock.mark("models")
     setup_done(1)
-    # each whole source-grid array is let go as soon as the next step no longer needs it
-    dom_source, _ = _lit_source(cfg, profile, source, data, "dom")
-    reference_files, degraded = _write_reference(tmp, cfg, profile, dom_source, data)
-    del dom_source
-    scene_source, sky = _lit_source(cfg, profile, source, data, "scene")
-    del source, data
-    renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, scene_source, lens, sky)
-    del scene_source
-    dem_planes(true_dem)
-    clock.mark("reference")
-    setup_done(2)
-    clouds = render_scene(renderer, models.true_model, tmp, list(cfg.camera.bands), cfg.camera.reference_band,
-                          len(models.true_model.band_ccds(cfg.camera.reference_band)), block_lines, workers,
-                          block_progress)
+    # the source, the DOM's and the scene's lit radiance live in scratch files, written and read by strips
+    shape, scratch = source[0].shape, []
+    tmp.mkdir(parents=True, exist_ok=True)
+
+    def scratch_file(name, values=None):
+        scratch.append(RowFile(tmp / f".{name}.f32", shape) if values is None
+                       else RowFile.from_array(tmp / f".{name}.f32", values))
+        return scratch[-1]
+
+    try:
+        source = (scratch_file("source_radiance", source[0]),) + tuple(source[1:])  # the array let go
+        dom_source, _ = _lit_source(cfg, profile, source, data, "dom", out=scratch_file("dom_radiance"))
+        reference_files, degraded = _write_reference(tmp, cfg, profile, dom_source, data)
+        scene_source, sky = _lit_source(cfg, profile, source, data, "scene", out=scratch_file("scene_radiance"))
+        del source, data, dom_source
+        renderer = _KernelRenderer(cfg, profile, models.true_model, true_dem, scene_source, lens, sky)
+        del scene_source
+        dem_planes(true_dem)
+        clock.mark("reference")
+        setup_done(2)
+        clouds = render_scene(renderer, models.true_model, tmp, list(cfg.camera.bands), cfg.camera.reference_band,
+                              len(models.true_model.band_ccds(cfg.camera.reference_band)), block_lines, workers,
+                              block_progress)
+    finally:
+        for f in scratch:
+            f.remove()
     render_seconds = clock.mark("blocks")  # the whole render: models, reference and blocks
     user_dem = Dem.open(tmp / "reference" / "dem.tif")
     g_lon, g_lat = footprint_sample_lonlat(models.true_model, float(np.mean(true_dem.height_range_m)), n_side=65)

@@ -32,6 +32,7 @@ import numpy as np
 from affine import Affine
 
 from sensor_models.simulate.radiometry import smooth_field
+from sensor_models.simulate.source_windows import read_window
 
 __all__ = ["DegradedRaster", "degrade_dem", "degrade_dom", "displacement_field_m", "write_raster"]
 
@@ -135,9 +136,14 @@ def _area_average(values: np.ndarray, transform: Affine, out_res_m: float):
     res = abs(transform.a)
     n_rows = max(2, int(round(values.shape[0] * res / out_res_m)))
     n_cols = max(2, int(round(values.shape[1] * res / out_res_m)))
+    out_transform = Affine(values.shape[1] * res / n_cols, 0.0, transform.c, 0.0, -values.shape[0] * res / n_rows,
+                           transform.f)
     # the weights first, their full-size mask let go before the sums are made (the output grid may
     # be finer than the input's)
     finite = np.isfinite(values)
+    if finite.all() and _ones_stay_ones(values.shape, n_rows, n_cols):
+        # every weight would be exactly 1 (the sums divided by 1): the area average is the resize itself
+        return cv2.resize(np.asarray(values, np.float32), (n_cols, n_rows), interpolation=cv2.INTER_AREA), out_transform
     w = cv2.resize(finite.astype(np.float32), (n_cols, n_rows), interpolation=cv2.INTER_AREA)
     # all finite (a procedural source): the values themselves, no filled copy
     filled = np.asarray(values, np.float32) if finite.all() else np.where(finite, values, 0.0).astype(np.float32)
@@ -148,9 +154,22 @@ def _area_average(values: np.ndarray, transform: Affine, out_res_m: float):
     out = np.divide(s, np.maximum(w, np.float32(1e-6), out=w), out=s)  # in place: no further full-size copies
     if void is not None:
         out[void] = np.nan
-    sx = values.shape[1] * res / n_cols
-    sy = values.shape[0] * res / n_rows
-    return out, Affine(sx, 0.0, transform.c, 0.0, -sy, transform.f)
+    return out, out_transform
+
+
+def _ones_stay_ones(shape, n_rows: int, n_cols: int) -> bool:
+    """Whether ``cv2.resize`` (``INTER_AREA``) of ones of ``shape`` to ``(n_rows, n_cols)`` gives exactly ones.
+
+    OpenCV resizes along the rows and then along the columns; on ones each pass gives, per
+    output index, the sum of its own weights, whatever the other axis, so two thin probes
+    (``shape[0] x 2`` and ``2 x shape[1]``) answer for the whole grid. An enlargement
+    (OpenCV's area enlargement is a linear interpolation) gives exact ones; a reduction may
+    miss by a unit in the last place.
+    """
+    ones = np.ones((shape[0], 2), np.float32)
+    down = cv2.resize(ones, (2, n_rows), interpolation=cv2.INTER_AREA)
+    across = cv2.resize(np.ones((2, shape[1]), np.float32), (n_cols, 2), interpolation=cv2.INTER_AREA)
+    return bool((down == 1.0).all() and (across == 1.0).all())
 
 
 def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) -> DegradedRaster:
@@ -158,8 +177,9 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
 
     Parameters
     ----------
-    radiance : ndarray of float32, shape (H, W)
-        Source radiance, 0..1 (NaN: no data), on a north-up grid.
+    radiance : ndarray of float32, shape (H, W), or RowFile
+        Source radiance, 0..1 (NaN: no data), on a north-up grid; a
+        :class:`sensor_models.simulate.source_windows.RowFile` is read by strips of rows.
     transform : affine.Affine
         Its pixel-corner affine, metres.
     profile : PushbroomProfile
@@ -180,14 +200,14 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
                                           field_scale_m=v("dom_field_scale_m"), seed=seed)
     change = _smooth_rows(radiance.shape, v("seasonal_scale_m") / res, seed, 10)
     haze = _smooth_rows(radiance.shape, 5000.0 / res, seed, 11)
-    src = np.asarray(radiance, dtype=np.float32)
-    x = np.empty(src.shape, dtype=np.float32)
-    cols = np.arange(src.shape[1], dtype=np.float32)[None, :]
+    shape = radiance.shape
+    x = np.empty(shape, dtype=np.float32)
+    cols = np.arange(shape[1], dtype=np.float32)[None, :]
     sums = np.zeros(3)  # east, north, squared magnitude (float64 sums over the strips)
     mag_max = 0.0
-    step = max(1, _STRIP_PIXELS // src.shape[1])
-    for r0 in range(0, src.shape[0], step):  # pixel by pixel: no whole-raster field or map is held
-        r1 = min(r0 + step, src.shape[0])
+    step = max(1, _STRIP_PIXELS // shape[1])
+    for r0 in range(0, shape[0], step):  # pixel by pixel: no whole-raster field or map is held
+        r1 = min(r0 + step, shape[0])
         east = (np.float32(bias_e) + rms * unit_e.rows(r0, r1)).astype(np.float32)
         north = (np.float32(bias_n) + rms * unit_n.rows(r0, r1)).astype(np.float32)
         mag = np.hypot(east, north)
@@ -195,12 +215,11 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
         mag_max = max(mag_max, float(mag.max()))
         r = np.arange(r0, r1, dtype=np.float32)[:, None]
         # the DOM pixel at p shows the ground at p + e (north is up: row decreases northwards)
-        xs = cv2.remap(src, cols + east / np.float32(res), r - north / np.float32(res),
-                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        xs = _remap_window(radiance, cols + east / np.float32(res), r - north / np.float32(res))
         xs = (xs * (1.0 + np.float32(v("seasonal_change")) * change.rows(r0, r1))
               + np.float32(v("haze")) * (1.0 + 0.5 * haze.rows(r0, r1)))
         x[r0:r1] = np.power(np.clip(xs, 0.0, None), np.float32(v("reference_gamma")))
-    n = float(src.size)
+    n = float(shape[0] * shape[1])
     figures = {"geolocation_rms_m": float(np.sqrt(sums[2] / n)), "geolocation_max_m": mag_max,
                "geolocation_bias_m": [float(sums[0] / n), float(sums[1] / n)]}
     sigma_src = v("reference_mtf_sigma_px") * v("reference_resolution_m") / res
@@ -214,6 +233,38 @@ def degrade_dom(radiance: np.ndarray, transform: Affine, profile, *, seed: int) 
     dn = np.clip(np.rint(x, out=x), 1, 4095, out=x).astype(np.uint16)
     figures["resolution_m"] = float(abs(out_transform.a))
     return DegradedRaster(dn, out_transform, figures)
+
+
+#: output columns :func:`_remap_window` remaps at a time (OpenCV's remap: less than 32 767 a side)
+_REMAP_COLS = 16_384
+
+
+def _remap_window(radiance, map_col: np.ndarray, map_row: np.ndarray) -> np.ndarray:
+    """``cv2.remap(radiance, map_col, map_row, INTER_LINEAR, BORDER_REPLICATE)`` from only the pixels the maps reach.
+
+    ``radiance``: an array or a :class:`sensor_models.simulate.source_windows.RowFile`. By chunks
+    of at most :data:`_REMAP_COLS` output columns, each from the window of the source its maps
+    span plus 2 pixels on each side (clipped to the raster, whose edge the border replicates);
+    the maps are shifted by the window's first row and column after they are computed, which is
+    exact in float32, so the pixels are those of the remap of the whole raster.
+    """
+    out = np.empty(map_col.shape, dtype=np.float32)
+    for c in range(0, map_col.shape[1], _REMAP_COLS):
+        cols = slice(c, c + _REMAP_COLS)
+        (a0, a1), (b0, b1) = (_span(m[:, cols], n) for m, n in ((map_row, radiance.shape[0]),
+                                                                  (map_col, radiance.shape[1])))
+        window = read_window(radiance, a0, a1, b0, b1)
+        mc, mr = map_col[:, cols], map_row[:, cols]
+        mc = mc - np.float32(b0) if b0 > 0 else mc
+        mr = mr - np.float32(a0) if a0 > 0 else mr
+        out[:, cols] = cv2.remap(window, mc, mr, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out
+
+
+def _span(coords: np.ndarray, n: int) -> tuple:
+    """``(first, stop)`` of the ``n`` pixels within 2 of ``coords``' range (at least the nearest edge pixel)."""
+    first = min(max(0, int(np.floor(float(np.nanmin(coords)))) - 2), n - 1)
+    return first, max(min(n, int(np.floor(float(np.nanmax(coords)))) + 3), first + 1)
 
 
 def _blur_in_place(x: np.ndarray, sigma_px: float) -> None:
