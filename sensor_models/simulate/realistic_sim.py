@@ -9,8 +9,8 @@ but:
   (:mod:`sensor_models.simulate.true_lens`);
 * the pixels come from the simulator's own kernel (:mod:`sensor_models.simulate.kernel`);
 * ``reference/dom.tif`` and ``reference/dem.tif`` are NOT what rendered the scene: they are
-  degraded copies (:mod:`sensor_models.simulate.reference_pair`); the source radiance and the
-  TRUE DEM are kept in ``reference/truth/`` for inspection.
+  degraded copies (:mod:`sensor_models.simulate.reference_pair`); the TRUE DEM is kept as
+  ``reference/truth/dem_true.tif`` for inspection (the source radiance is not written).
 
 The source radiance is a given raster (``dom``: e.g. a real Sentinel-2 red band, see
 docs/error_budget.md; the scene is then centred on it) or the procedural texture
