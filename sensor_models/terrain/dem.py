@@ -31,7 +31,7 @@ from sensor_models.geometry.geodesy import geodetic_to_ecef
 from sensor_models.terrain.datum import check_datum_name, declared_datum, horizontal_crs, tagged_datum
 from sensor_models.terrain.geoid import as_geoid
 from sensor_models.terrain.grid_geometry import GridGeometry, apply_affine, as_affine
-from sensor_models.terrain.height_bounds import RangePyramid, float32_bound
+from sensor_models.terrain.height_bounds import RangePyramid, node_bounds
 from sensor_models.terrain.los_intersect import intersect_rays
 from sensor_models.terrain.raster_read import read_raster
 
@@ -111,15 +111,20 @@ class Dem:
         self._z = z
         self._z.setflags(write=False)
         self._z_flat = z.reshape(-1)
-        self._h_min = float(z[valid].min())
-        self._h_max = float(z[valid].max())
+        self._h_min = float(np.min(z, where=valid, initial=np.inf))
+        self._h_max = float(np.max(z, where=valid, initial=-np.inf))
+        del valid
         self._geometry = GridGeometry(self.transform, self.crs, self.shape)
+        # float32 bounds of the heights, rounded outwards (+-inf without data): a maximum of them
+        # is the bound of the float64 maximum, bit for bit (height_bounds.node_bounds)
+        upper, lower = node_bounds(z)
         # Upper bound of the bilinear surface over any march step starting in cell (j, i):
         # such a step stays within cells j-1..j+1, i-1..i+1, i.e. nodes j-1..j+2, i-1..i+2.
-        z_inf = np.where(valid, z, np.inf)
-        dmax = ndimage.maximum_filter(z_inf, size=4, mode="constant", cval=np.inf, origin=-1)
-        self._cell_max_flat = float32_bound(dmax[:-1, :-1], upper=True).reshape(-1)
-        self._pyramid = RangePyramid(z)
+        dmax = ndimage.maximum_filter(upper, size=4, mode="constant", cval=np.inf, origin=-1)
+        self._cell_max_flat = np.ascontiguousarray(dmax[:-1, :-1]).reshape(-1)
+        del dmax
+        self._pyramid = RangePyramid(z, bounds=(upper, lower))
+        del upper, lower
         self._bounds_lonlat = self._lonlat_box()
         lon0, lat0, lon1, lat1 = self._bounds_lonlat
         if not (np.isfinite([lon0, lon1]).all() and -90.0 <= lat0 <= lat1 <= 90.0):

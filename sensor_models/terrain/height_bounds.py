@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["RangePyramid", "float32_bound"]
+__all__ = ["RangePyramid", "float32_bound", "node_bounds"]
 
 
 class RangePyramid:
@@ -21,27 +21,16 @@ class RangePyramid:
     the maxima and ``-inf`` in the minima (no bound there).
     """
 
-    def __init__(self, z):
-        valid = np.isfinite(z)
-        self._n_cells = (z.shape[0] - 1, z.shape[1] - 1)
-        flats = []
-        for reduce, fill in ((np.maximum, np.inf), (np.minimum, -np.inf)):
-            zz = np.where(valid, z, fill)
-            level = reduce(reduce(zz[:-1, :-1], zz[:-1, 1:]), reduce(zz[1:, :-1], zz[1:, 1:]))
-            blocks, offsets, widths, offset = [], [], [], 0
-            while True:
-                blocks.append(level.reshape(-1))
-                offsets.append(offset)
-                widths.append(level.shape[1])
-                offset += level.size
-                if max(level.shape) == 1:
-                    break
-                rows, cols = level.shape
-                padded = np.full((rows + rows % 2, cols + cols % 2), -fill)
-                padded[:rows, :cols] = level
-                level = reduce(reduce(padded[0::2, 0::2], padded[0::2, 1::2]),
-                               reduce(padded[1::2, 0::2], padded[1::2, 1::2]))
-            flats.append(float32_bound(np.concatenate(blocks), upper=reduce is np.maximum))
+    def __init__(self, z, *, bounds=None):
+        n_rows, n_cols = z.shape
+        self._n_cells = (n_rows - 1, n_cols - 1)
+        if bounds is None:
+            bounds = node_bounds(z)
+        flats, offsets, widths = [], None, None
+        for upper, nodes in zip((True, False), bounds):
+            flat, offsets, widths = _pyramid(nodes, np.maximum if upper else np.minimum,
+                                             np.float32(-np.inf if upper else np.inf))
+            flats.append(flat)
         self._max_flat, self._min_flat = flats
         self._offsets = np.array(offsets, dtype=np.intp)
         self._widths = np.array(widths, dtype=np.intp)
@@ -87,3 +76,62 @@ def float32_bound(values, *, upper):
     if upper:
         return np.where(out < values, np.nextafter(out, np.float32(np.inf)), out)
     return np.where(out > values, np.nextafter(out, np.float32(-np.inf)), out)
+
+
+def node_bounds(z):
+    """Node heights as float32 bounds: ``(upper, lower)`` (H, W), rounded outwards, ``+inf`` /
+    ``-inf`` at nodes without data.
+
+    Rounding outwards to float32 is monotone, so a maximum (minimum) over these bounds equals
+    the bound of the maximum (minimum) of the float64 heights, bit for bit: the pyramid and the
+    DEM's cell maxima are built on them at 4 bytes a node instead of 8.
+    """
+    invalid = ~np.isfinite(z)
+    bounds = []
+    for upper, fill in ((True, np.inf), (False, -np.inf)):
+        b = float32_bound(z, upper=upper)
+        b[invalid] = fill
+        bounds.append(b)
+    return tuple(bounds)
+
+
+def _level_shapes(n_rows: int, n_cols: int):
+    """(rows, cols) of every level of a pyramid over ``n_rows x n_cols`` cells, level 0 first."""
+    shapes = [(n_rows, n_cols)]
+    while max(shapes[-1]) > 1:
+        rows, cols = shapes[-1]
+        shapes.append(((rows + 1) // 2, (cols + 1) // 2))
+    return shapes
+
+
+def _pyramid(nodes, reduce, pad):
+    """Every level of a min or max pyramid over the cells of a (H, W) node grid, in one flat float32 array.
+
+    Level 0 reduces each cell's four corner nodes; level ``l + 1`` reduces 2 x 2 blocks of level
+    ``l``, padded with ``pad`` (the reduction's identity) to even sides. Returns ``(flat, offsets,
+    widths)``: the levels one after the other, each level's first index and its width.
+    """
+    shapes = _level_shapes(nodes.shape[0] - 1, nodes.shape[1] - 1)
+    sizes = [r * c for r, c in shapes]
+    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
+    flat = np.empty(sum(sizes), dtype=np.float32)
+    rows, cols = shapes[0]
+    level = flat[:sizes[0]].reshape(rows, cols)
+    reduce(nodes[:-1, :-1], nodes[:-1, 1:], out=level)
+    step = max(1, (1 << 22) // max(1, cols))  # the second pair by strips of rows: a small temporary
+    for r0 in range(0, rows, step):
+        r1 = min(rows, r0 + step)
+        part = level[r0:r1]
+        reduce(part, reduce(nodes[r0 + 1:r1 + 1, :-1], nodes[r0 + 1:r1 + 1, 1:]), out=part)
+    for k in range(1, len(shapes)):
+        rows, cols = shapes[k - 1]
+        if rows % 2 or cols % 2:
+            padded = np.full((rows + rows % 2, cols + cols % 2), pad, dtype=np.float32)
+            padded[:rows, :cols] = level
+        else:
+            padded = level
+        nxt = flat[offsets[k]:offsets[k] + sizes[k]].reshape(shapes[k])
+        reduce(padded[0::2, 0::2], padded[0::2, 1::2], out=nxt)
+        np.copyto(nxt, reduce(nxt, reduce(padded[1::2, 0::2], padded[1::2, 1::2])))
+        level = nxt
+    return flat, offsets, [c for _, c in shapes]
