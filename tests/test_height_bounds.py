@@ -69,3 +69,20 @@ def test_pyramid_and_cell_maxima_equal_the_float64_construction(seed):
     assert dem.height_range_m == (finite.min(), finite.max())
     # the bounds bound: every float64 node height lies within its float32 bounds
     assert (dem._cell_max_flat.reshape(z.shape[0] - 1, -1) >= np.nan_to_num(z[:-1, :-1], nan=-np.inf)).all()
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_height_planes_by_strips_equal_the_whole_grid(seed):
+    """The renderer's sampling planes by strips of rows (a few rows each here) equal the whole-grid
+    gradient, bit for bit, with nodata and infinite heights, down to 2-row grids."""
+    from sensor_models.terrain.intersect import height_planes
+
+    rng = np.random.default_rng([seed, 3])
+    z = _heights(seed)
+    z[rng.random(z.shape) < 0.02] = np.inf
+    gv, gu = np.gradient(np.where(np.isfinite(z), z, np.nan))
+    whole = np.ascontiguousarray(np.stack([z, gu, gv], axis=-1).astype(np.float32))
+    for strip_nodes in (1, z.shape[1] * int(rng.integers(1, 5)), z.size):
+        got = height_planes(z, strip_nodes=strip_nodes)
+        assert got.flags["C_CONTIGUOUS"] and got.dtype == np.float32
+        np.testing.assert_array_equal(got, whole)

@@ -35,7 +35,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["dem_planes", "intersect_dem_adaptive", "intersect_dem_fixed"]
+__all__ = ["dem_planes", "height_planes", "intersect_dem_adaptive", "intersect_dem_fixed"]
 
 #: pixels per row of the compact arrays the refinement steps sample (cv2.remap needs < 32767)
 _COMPACT_WIDTH = 4096
@@ -230,11 +230,47 @@ def dem_planes(dem) -> np.ndarray:
     """
     cached = getattr(dem, "_render_planes", None)
     if cached is None:
-        z = np.asarray(dem.heights_m, dtype=np.float64)
-        gv, gu = np.gradient(np.where(np.isfinite(z), z, np.nan))
-        cached = np.ascontiguousarray(np.stack([z, gu, gv], axis=-1).astype(np.float32))
+        cached = height_planes(np.asarray(dem.heights_m, dtype=np.float64))
         dem._render_planes = cached  # derived data only; the DEM itself is immutable
     return cached
+
+
+#: nodes :func:`height_planes` differentiates at a time (whole rows)
+PLANE_STRIP_NODES = 1 << 20
+
+
+def height_planes(z: np.ndarray, strip_nodes: int = PLANE_STRIP_NODES) -> np.ndarray:
+    """``[z, dz/du, dz/dv]`` (H, W, 3) float32 of a (H, W) height grid, by strips of rows.
+
+    The derivatives are :func:`numpy.gradient`'s (central differences, one-sided on the grid's
+    edges) of the heights with non-finite values as NaN. Each strip is differentiated with one
+    row of its neighbours on either side, so its rows get the whole grid's differences, bit for
+    bit, while the float64 temporaries stay the size of a strip.
+
+    Parameters
+    ----------
+    z : ndarray of float64, shape (H, W)
+        Heights, H, W >= 2.
+    strip_nodes : int
+        Nodes per strip (at least one row).
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W, 3), C-contiguous
+    """
+    n_rows, n_cols = z.shape
+    out = np.empty((n_rows, n_cols, 3), dtype=np.float32)
+    step = max(1, strip_nodes // n_cols)
+    for r0 in range(0, n_rows, step):
+        r1 = min(n_rows, r0 + step)
+        a, b = max(0, r0 - 1), min(n_rows, r1 + 1)  # one row of context each side
+        part = z[a:b]
+        d_row, d_col = np.gradient(np.where(np.isfinite(part), part, np.nan))
+        inner = slice(r0 - a, r1 - a)
+        out[r0:r1, :, 0] = part[inner]
+        out[r0:r1, :, 1] = d_col[inner]
+        out[r0:r1, :, 2] = d_row[inner]
+    return out
 
 
 def intersect_dem_fixed(dem, u_lo, v_lo, du, dv, h_lo, iterations: int):
