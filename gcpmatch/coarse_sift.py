@@ -82,31 +82,31 @@ def _flann_ratio_pairs(des_a, des_b, *, seed: int = 0):
     """
     cv2.setRNGSeed(seed)
     matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": FLANN_TREES}, {"checks": FLANN_CHECKS})
-    pairs = matcher.knnMatch(des_a, des_b, k=2)
-    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
+    return _lowe_pairs(matcher.knnMatch(des_a, des_b, k=2))
+
+
+def _lowe_pairs(knn_pairs):
+    """``(query, train)`` indices of OpenCV two-nearest-neighbour matches that pass Lowe's ratio test (0.8)."""
+    good = [p[0] for p in knn_pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
     return (np.array([m.queryIdx for m in good], dtype=np.intp), np.array([m.trainIdx for m in good], dtype=np.intp))
 
 
 def ratio_pairs(des_a, des_b, *, seed: int = 0, device=None):
     """Ratio-test (0.8) pairs ``(query, train)`` of two descriptor sets: FLANN on the CPU (``device``
-    None), else the exact two nearest neighbours on the torch ``device``."""
+    None), exhaustive ``cv2.BFMatcher`` (L2; ``device`` ``"brute"``), else the exact two nearest
+    neighbours on the torch ``device``."""
     if device is None:
         return _flann_ratio_pairs(des_a, des_b, seed=seed)
+    if device == "brute":
+        return _lowe_pairs(cv2.BFMatcher(cv2.NORM_L2).knnMatch(des_a, des_b, k=2))
     from gcpmatch._features_torch import ratio_test_pairs
 
     return ratio_test_pairs(des_a, des_b, ratio=0.8, device=device)
 
 
-def _brute_ratio_pairs(des_a, des_b):
-    """Exhaustive two nearest neighbours (``cv2.BFMatcher``, L2) with Lowe's ratio test (0.8)."""
-    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(des_a, des_b, k=2)
-    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
-    return (np.array([m.queryIdx for m in good], dtype=np.intp), np.array([m.trainIdx for m in good], dtype=np.intp))
-
-
 def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0, device=None):
-    """Ratio-test matches of two images' SIFT features: FLANN on the CPU (``device`` None), else the
-    exact two nearest neighbours on the torch ``device`` (:mod:`gcpmatch._features_torch`).
+    """Ratio-test matches of two images' SIFT features, the pairs of :func:`ratio_pairs` (FLANN on
+    the CPU for ``device`` None, brute force for ``"brute"``, else exact on the torch ``device``).
 
     Returns
     -------
@@ -118,10 +118,7 @@ def _sift_matches_opencv(scene_features, dom_features, *, seed: int = 0, device=
     (kp_a, des_a), (kp_b, des_b) = scene_features, dom_features
     if des_a is None or des_b is None or len(kp_a) < 2 or len(kp_b) < 2:
         return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32), len(kp_a), len(kp_b)
-    if device == "brute":
-        query, train = _brute_ratio_pairs(des_a, des_b)
-    else:
-        query, train = ratio_pairs(des_a, des_b, seed=seed, device=device)
+    query, train = ratio_pairs(des_a, des_b, seed=seed, device=device)
     pa = np.float32([kp_a[i].pt for i in query]).reshape(-1, 2)
     pb = np.float32([kp_b[j].pt for j in train]).reshape(-1, 2)
     return pa, pb, len(kp_a), len(kp_b)
