@@ -132,6 +132,6 @@ def _pyramid(nodes, reduce, pad):
             padded = level
         nxt = flat[offsets[k]:offsets[k] + sizes[k]].reshape(shapes[k])
         reduce(padded[0::2, 0::2], padded[0::2, 1::2], out=nxt)
-        np.copyto(nxt, reduce(nxt, reduce(padded[1::2, 0::2], padded[1::2, 1::2])))
+        reduce(nxt, reduce(padded[1::2, 0::2], padded[1::2, 1::2]), out=nxt)
         level = nxt
     return flat, offsets, [c for _, c in shapes]
