@@ -10,6 +10,14 @@ count once, in forward then reverse order, so a change of load over the run touc
   64 x 64 px float32 window pairs (``bench/bench_phase.py``'s power-law textures with edges,
   SNR 50, a radiometric change; 2048 distinct pairs repeated), after a warm-up call: pairs per
   second.
+- ``phase_procs``: the same pairs on ``n`` processes of one thread each, each pinned to one core
+  with its share of the pairs, started together after their warm-up: what the cores give without
+  a shared interpreter (no GIL, no shared allocator), the ceiling the threads are measured
+  against. ``--phase-batch`` sets both stages' batch (pairs per kernel call, default 256).
+- ``windows``: the matcher's window stage (``gcpmatch.extract._correlate_windows``: gather,
+  screening, phase correlation, sigma model, in tasks of ``MatchOptions.batch`` windows on
+  ``n`` threads) on a textured 4096 x 2048 px CCD against a shifted, noisy copy, windows every
+  32 px: windows per second.
 - ``ortho``: :func:`sensor_models.imaging.ortho.orthorectify_to_file` of the synthetic push-broom
   scene of ``bench/bench_ortho.py`` (``--ortho-scene`` px a side, 512 px blocks) at its GSD:
   output pixels per second.
@@ -28,8 +36,9 @@ scene's bytes): they must be the same for every count.
 adds the stage ``phase_base``: the same phase runs with that revision's code, interleaved with
 ``phase`` (``workers = n`` there too), so the two compare on the same load.
 
-Usage: ``python bench/bench_cores.py [--cores 1,2,4,8,16] [--stages phase,ortho,simulate]
-[--pairs 20000] [--repeat 3] [--json PATH]``. Prints a table; writes JSON only with ``--json``.
+Usage: ``python bench/bench_cores.py [--cores 1,2,4,8,16]
+[--stages phase,phase_procs,windows,ortho,simulate] [--pairs 20000] [--phase-batch 256] [--repeat 3]
+[--json PATH]``. Prints a table; writes JSON only with ``--json``.
 """
 
 from __future__ import annotations
@@ -51,7 +60,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-STAGES = ("phase", "ortho", "simulate")
+STAGES = ("phase", "phase_procs", "windows", "ortho", "simulate")
 CHILD_STAGES = STAGES + ("phase_base",)
 BASE_PAIRS = 2048
 #: target efficiency of phase correlation (speed-up / cores)
@@ -72,11 +81,79 @@ def _phase_child(args) -> dict:
     mov = np.tile(np.asarray(base[1]), (reps, 1, 1))[:args.pairs]
     phase_correlate(ref[:1024], mov[:1024], workers=args.threads)  # warm-up: plans, tables, pages
     wall, cpu = time.perf_counter(), time.process_time()
-    m = phase_correlate(ref, mov, workers=args.threads)
+    m = phase_correlate(ref, mov, workers=args.threads, batch=args.phase_batch)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     digest = hashlib.sha256(np.ascontiguousarray(m.shift_px).tobytes() + m.score.tobytes()).hexdigest()[:16]
     return {"items": args.pairs, "unit": "pairs", "wall_s": wall, "cpu_s": cpu, "digest": digest,
             "valid_fraction": float(m.valid.mean())}
+
+
+def _phase_procs_child(args) -> dict:
+    """The phase stage on ``args.threads`` processes instead of threads, one per core (each
+    pinned to one of this process's cores, one thread each, its share of the pairs; started
+    together after their warm-up): what the cores give without a shared interpreter, the ceiling
+    that threads are measured against."""
+    import multiprocessing as mp
+
+    import numpy as np
+
+    from gcpmatch.phase import phase_correlate
+
+    base = np.load(Path(args.data) / "pairs.npy", mmap_mode="r")
+    reps = -(-args.pairs // BASE_PAIRS)
+    ref = np.tile(np.asarray(base[0]), (reps, 1, 1))[:args.pairs]
+    mov = np.tile(np.asarray(base[1]), (reps, 1, 1))[:args.pairs]
+    n, cores = args.threads, sorted(os.sched_getaffinity(0))
+    bounds = np.linspace(0, args.pairs, n + 1).astype(int)
+    ctx = mp.get_context("fork")
+    barrier, results = ctx.Barrier(n + 1), ctx.Queue()
+
+    def work(i):
+        os.sched_setaffinity(0, [cores[i % len(cores)]])
+        a, b = bounds[i], bounds[i + 1]
+        phase_correlate(ref[a:a + 256], mov[a:a + 256], workers=1, batch=args.phase_batch)
+        barrier.wait()
+        t0, c0 = time.perf_counter(), time.process_time()
+        m = phase_correlate(ref[a:b], mov[a:b], workers=1, batch=args.phase_batch)
+        results.put((i, time.perf_counter() - t0, time.process_time() - c0, m.shift_px, m.score))
+
+    procs = [ctx.Process(target=work, args=(i,)) for i in range(n)]
+    for pr in procs:
+        pr.start()
+    barrier.wait()
+    wall = time.perf_counter()
+    got = sorted((results.get() for _ in procs), key=lambda r: r[0])
+    wall = time.perf_counter() - wall
+    for pr in procs:
+        pr.join()
+    shift, score = np.concatenate([g[3] for g in got]), np.concatenate([g[4] for g in got])
+    digest = hashlib.sha256(np.ascontiguousarray(shift).tobytes() + score.tobytes()).hexdigest()[:16]
+    return {"items": args.pairs, "unit": "pairs", "wall_s": wall, "cpu_s": sum(g[2] for g in got),
+            "digest": digest}
+
+
+def _windows_child(args) -> dict:
+    """The matcher's window stage (:func:`gcpmatch.extract._correlate_windows`: gather, screen,
+    phase correlation, sigma model) on a textured 4096 x 2048 px CCD against a shifted, noisy
+    reference, windows every 32 px, ``args.threads`` threads."""
+    import numpy as np
+
+    from gcpmatch.extract import _correlate_windows, grid_starts
+    from gcpmatch.options import MatchOptions
+
+    data = np.load(Path(args.data) / "ccd.npz")
+    img, ref = data["img"], data["ref"]
+    msk = np.zeros(img.shape, bool)
+    rr, cc = (a.ravel() for a in np.meshgrid(grid_starts(img.shape[0], 64, 32), grid_starts(img.shape[1], 64, 32),
+                                             indexing="ij"))
+    opt = MatchOptions(threads=args.threads)
+    _correlate_windows(img, ref, msk, rr[:512], cc[:512], opt)  # warm-up
+    wall, cpu = time.perf_counter(), time.process_time()
+    status, _, shift, _ = _correlate_windows(img, ref, msk, rr, cc, opt)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    digest = hashlib.sha256(np.ascontiguousarray(shift).tobytes() + "".join(status).encode()).hexdigest()[:16]
+    return {"items": int(rr.size), "unit": "windows", "wall_s": wall, "cpu_s": cpu, "digest": digest,
+            "matched_fraction": float(np.mean(status == ""))}
 
 
 def _ortho_child(args) -> dict:
@@ -130,8 +207,8 @@ def child(args) -> None:
     """One stage at ``args.threads`` threads in this (pinned) process; prints one JSON line."""
     if args.code_root:  # another revision's packages first
         sys.path.insert(0, str(Path(args.code_root).resolve()))
-    run = {"phase": _phase_child, "phase_base": _phase_child, "ortho": _ortho_child,
-           "simulate": _simulate_child}[args.child]
+    run = {"phase": _phase_child, "phase_base": _phase_child, "phase_procs": _phase_procs_child,
+           "windows": _windows_child, "ortho": _ortho_child, "simulate": _simulate_child}[args.child]
     result = run(args)
     result.update(stage=args.child, threads=args.threads, affinity=len(os.sched_getaffinity(0)))
     print(json.dumps(result))
@@ -149,6 +226,19 @@ def prepare(stages, folder: Path, args) -> None:
 
         ref, mov, _ = render_pairs(BASE_PAIRS, 64, seed=7)
         np.save(folder / "pairs.npy", np.stack([ref, mov]).astype(np.float32))
+    if "phase_procs" in stages and "phase" not in stages:
+        from bench_phase import render_pairs
+
+        ref, mov, _ = render_pairs(BASE_PAIRS, 64, seed=7)
+        np.save(folder / "pairs.npy", np.stack([ref, mov]).astype(np.float32))
+    if "windows" in stages:
+        from scipy.ndimage import gaussian_filter, shift as nd_shift
+
+        rng = np.random.default_rng(3)
+        field = sum(gaussian_filter(rng.standard_normal((4096, 2048)), s) * s for s in (1.0, 3.0, 9.0))
+        img = (1000.0 + 200.0 * field / field.std()).astype(np.float32)
+        ref = nd_shift(img, (0.3, -0.2), order=3, mode="nearest") + rng.normal(0.0, 4.0, img.shape)
+        np.savez(folder / "ccd.npz", img=img, ref=ref.astype(np.float32))
     if "ortho" in stages:
         from bench_ortho import write_source
 
@@ -163,9 +253,10 @@ def run_child(stage: str, n: int, cores: list[int], folder: Path, args) -> dict:
     """The stage in a child process pinned to the first ``n`` of ``cores``."""
     code_root = Path(args.base_root).resolve() if stage == "phase_base" else ROOT
     env = {k: v for k, v in os.environ.items() if k != "GCPCAL_THREADS"}
-    env.update(OMP_NUM_THREADS=str(n), OPENBLAS_NUM_THREADS=str(n), MKL_NUM_THREADS=str(n), PYTHONPATH=str(code_root))
+    env.update(OMP_NUM_THREADS=str(n), OPENBLAS_NUM_THREADS=str(n), MKL_NUM_THREADS=str(n), PYTHONPATH=os.pathsep.join(
+        [str(code_root)] + [v for v in os.environ.get("PYTHONPATH", "").split(os.pathsep) if v]))
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", stage, "--threads", str(n), "--data", str(folder),
-           "--pairs", str(args.pairs), "--ortho-scene", str(args.ortho_scene), "--sim-rows", str(args.sim_rows),
+           "--pairs", str(args.pairs), "--phase-batch", str(args.phase_batch), "--ortho-scene", str(args.ortho_scene), "--sim-rows", str(args.sim_rows),
            "--sim-detectors", str(args.sim_detectors), "--code-root", str(code_root)]
     load = os.getloadavg()[0]
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False,
@@ -218,6 +309,8 @@ def main(argv=None) -> None:
     ap.add_argument("--cores", default="1,2,4,8,16", help="Core counts, comma-separated.")
     ap.add_argument("--stages", default=",".join(STAGES), help="Stages, comma-separated: " + ", ".join(STAGES))
     ap.add_argument("--pairs", type=int, default=20000, help="Window pairs of the phase stage.")
+    ap.add_argument("--phase-batch", type=int, default=256,
+                    help="Pairs per batch of the phase stages (phase_correlate's batch; 256 is its default).")
     ap.add_argument("--ortho-scene", type=int, default=2048, help="Side of the ortho stage's scene, px.")
     ap.add_argument("--sim-rows", type=int, default=1024, help="Lines of the simulated scene.")
     ap.add_argument("--sim-detectors", type=int, default=1024, help="Detectors per CCD of the simulated scene.")

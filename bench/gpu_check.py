@@ -170,8 +170,16 @@ def large_scene(work: Path, scale: float) -> dict:
             "prepare_s": round(time.perf_counter() - t0, 1)}
 
 
-def match_child(scene: str, dom: str, dem: str, backend: str, out: str) -> None:
-    """Child process: read the inputs, run the match, save its GCPs, times and pre-correction."""
+def match_child(scene: str, dom: str, dem: str, backend: str, out: str, given_model: str = "-") -> None:
+    """Child process: read the inputs, run the match, save its GCPs, times and pre-correction.
+
+    ``given_model``: a pickled pre-corrected model (another run's) to match from with the coarse
+    stage skipped, so both runs render the same windows ("-": the scene's own model, coarse
+    stage run). The run's pre-corrected model is pickled beside ``out``.
+    """
+    import pickle
+    import resource
+
     t0 = time.perf_counter()
     from gcpmatch.coarse import scene_height_m
     from gcpmatch.extract import coarse_stage, extract_gcps, read_band
@@ -185,21 +193,26 @@ def match_child(scene: str, dom: str, dem: str, backend: str, out: str) -> None:
     t_import = time.perf_counter() - t0
     t0 = time.perf_counter()
     model = open_model(Path(scene) / "manifest.json")
+    if given_model != "-":
+        model = pickle.loads(Path(given_model).read_bytes())
     band = model.reference_band
     img = read_band(open_scene(Path(scene) / "manifest.json"), band)
     dem_map, dom_map = Dem.open(dem), MapImage.open(dom)
-    opt = MatchOptions(backend=backend, check_fraction=0.0)
+    opt = MatchOptions(backend=backend, check_fraction=0.0, coarse_skip=given_model != "-")
     table, summary = extract_gcps(model, img, dem_map, dom_map, band=band, options=opt)
     wall = time.perf_counter() - t0
     info = {"backend": backend, "import_s": t_import, "read_and_match_s": wall, "timings": summary["timings"],
             "windows": summary["windows"], "gcps": 0 if table is None else len(table),
             "batch": match_batch(opt.window_px, backend, opt.batch), "threads": opt.thread_count()}
+    info["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    info["coarse_note"] = summary.get("coarse", {}).get("note") or ""
     if backend == "gpu":
         import torch
 
         info["device_peak_bytes"] = int(torch.cuda.max_memory_allocated())
     # the pre-corrected model's corners and mid-edges (the coarse stage again: it is deterministic)
     corrected = coarse_stage(img, model, dem_map, dom_map, band, opt).model
+    Path(out).with_suffix(".model.pkl").write_bytes(pickle.dumps(corrected))
     n_rows, n_cols = model.image_shape
     rows = np.array([0.5, 0.5, n_rows - 0.5, n_rows - 0.5, n_rows / 2, n_rows / 2, 0.5, n_rows - 0.5])
     cols = np.array([0.5, n_cols - 0.5, 0.5, n_cols - 0.5, 0.5, n_cols - 0.5, n_cols / 2, n_cols / 2])
@@ -212,22 +225,32 @@ def match_child(scene: str, dom: str, dem: str, backend: str, out: str) -> None:
     np.savez(out, info=json.dumps(info), **arrays)
 
 
-def run_match(inputs: dict, backend: str, work: Path, tag: str) -> tuple[dict, dict]:
-    """One match in a child process; its record and arrays."""
-    out = work / f"match_{tag}_{backend}.npz"
+def run_match(inputs: dict, backend: str, work: Path, tag: str, given_model: str = "-") -> tuple[dict, dict]:
+    """One match in a child process (``given_model``: :func:`match_child`); its record and arrays."""
+    out = work / f"match_{tag}_{backend}{'_fine' if given_model != '-' else ''}.npz"
     load0 = loadavg()
     t0 = time.perf_counter()
     subprocess.run([sys.executable, __file__, "--child-match", inputs["scene"], inputs["dom"], inputs["dem"],
-                    backend, str(out)], check=True)
+                    backend, str(out), given_model], check=True)
     data = np.load(out)
     info = json.loads(str(data["info"]))
     info.update(process_s=round(time.perf_counter() - t0, 2), loadavg_before=load0, loadavg_after=loadavg())
-    print(f"  match {tag} {backend}: {info['read_and_match_s']:.1f} s, {info['gcps']} GCPs", flush=True)
+    print(f"  match {tag} {backend}{' (fine stage from the CPU pre-correction)' if given_model != '-' else ''}: "
+          f"{info['read_and_match_s']:.1f} s, {info['gcps']} GCPs, peak RSS {info['peak_rss_mib']:.0f} MiB", flush=True)
     return info, {k: data[k] for k in data.files if k != "info"}
 
 
 def compare_matches(cpu: tuple[dict, dict], dev: tuple[dict, dict]) -> dict:
-    """Pre-correction difference at the corners and GCP agreement of the same surviving windows."""
+    """Pre-correction difference at the corners and GCP agreement of the same surviving windows.
+
+    A GCP is a ground point and the image point that sees it. Where the two runs' pre-corrections
+    differ, the same window's centre is a slightly different ground point (up to a quarter pixel
+    is taken as the same window), so the image points are compared at the same ground point: the
+    CPU run's image-point difference minus ``J (xy_cpu - xy_dev)``, with ``J`` the local
+    ground-to-image Jacobian fitted to the CPU run's 9 nearest GCPs of that CCD (an affine
+    map, by least squares). Where both runs share the pre-correction the ground points coincide
+    and the correction vanishes.
+    """
     from scipy.spatial import cKDTree
 
     (ci, ca), (di, da) = cpu, dev
@@ -245,15 +268,43 @@ def compare_matches(cpu: tuple[dict, dict], dev: tuple[dict, dict]) -> dict:
            "gcps_cpu": ci["gcps"], "gcps_device": di["gcps"]}
     if "row" not in ca or "row" not in da:
         return out
-    dist, j = cKDTree(xy(da["lon"], da["lat"])).query(xy(ca["lon"], ca["lat"]), distance_upper_bound=0.25 * gsd)
+    xy_c, xy_d = xy(ca["lon"], ca["lat"]), xy(da["lon"], da["lat"])
+    dist, j = cKDTree(xy_d).query(xy_c, distance_upper_bound=0.25 * gsd)
     same = np.isfinite(dist)
     same[same] &= ca["ccd"][same] == da["ccd"][j[same]]
-    d_px = np.hypot(ca["row"][same] - da["row"][j[same]], ca["col"][same] - da["col"][j[same]])
-    out.update(same_windows=int(same.sum()), max_gcp_diff_px=float(d_px.max()) if d_px.size else None,
-               p99_gcp_diff_px=float(np.percentile(d_px, 99)) if d_px.size else None,
+    i_c, i_d = np.flatnonzero(same), j[same]
+    d_rc = np.stack([ca["row"][i_c] - da["row"][i_d], ca["col"][i_c] - da["col"][i_d]], axis=1)
+    d_rc_ground = d_rc - np.einsum("nij,nj->ni", _local_jacobian(ca, xy_c, i_c), xy_c[i_c] - xy_d[i_d])
+    for name, d in (("", np.hypot(*d_rc_ground.T)), ("_uncorrected", np.hypot(*d_rc.T))):
+        out[f"max_gcp_diff_px{name}"] = float(d.max()) if d.size else None
+        out[f"p99_gcp_diff_px{name}"] = float(np.percentile(d, 99)) if d.size else None
+    out.update(same_windows=int(same.sum()),
                ground_diff_px_at_window_centres=float(dist[same].max() / gsd) if same.any() else None)
     out["speedup"] = round(ci["read_and_match_s"] / di["read_and_match_s"], 2)
     return out
+
+
+def _local_jacobian(arrays: dict, xy_m: np.ndarray, index: np.ndarray, k: int = 9) -> np.ndarray:
+    """(n, 2, 2) d(row, col) / d(x, y) at the GCPs ``index``: an affine map fitted to the ``k``
+    nearest GCPs of the same CCD (least squares; x, y metres)."""
+    from scipy.spatial import cKDTree
+
+    jac = np.zeros((index.size, 2, 2))
+    rc = np.stack([arrays["row"], arrays["col"]], axis=1)
+    for ccd in np.unique(arrays["ccd"][index]):
+        pts = np.flatnonzero(arrays["ccd"] == ccd)
+        here = np.flatnonzero(arrays["ccd"][index] == ccd)
+        kk = min(k, pts.size)
+        if kk < 3:
+            continue
+        _, nb = cKDTree(xy_m[pts]).query(xy_m[index[here]], k=kk)
+        nb = pts[nb.reshape(here.size, kk)]
+        dx = xy_m[nb] - xy_m[nb].mean(axis=1, keepdims=True)  # (m, k, 2)
+        drc = rc[nb] - rc[nb].mean(axis=1, keepdims=True)  # (m, k, 2)
+        # J^T = (dx^T dx)^-1 dx^T drc, per point
+        jac[here] = np.swapaxes(np.linalg.solve(np.einsum("mki,mkj->mij", dx, dx),
+                                                np.einsum("mki,mkj->mij", dx, drc)), 1, 2)
+    return jac
 
 
 def criteria(result: dict, large: str) -> dict:
@@ -269,7 +320,10 @@ def criteria(result: dict, large: str) -> dict:
     for tag, rec in result.get("match", {}).items():
         c = rec["compare"]
         out[f"{tag}: pre-correction difference < capture radius 16 px"] = c["precorrection_max_px"]
-        out[f"{tag}: GCPs of the same windows within 0.01 px"] = c.get("max_gcp_diff_px")
+        out[f"{tag}: GCPs of the same windows within 0.01 px, at the same ground point"] = c.get("max_gcp_diff_px")
+        if "fine" in rec:
+            out[f"{tag}: GCPs of the same windows within 0.01 px, fine stage from the CPU pre-correction"] = \
+                rec["fine"]["compare"].get("max_gcp_diff_px")
     if cuda and large in result.get("match", {}):
         out[f"{large}: whole match >= 5x faster than every CPU core"] = result["match"][large]["compare"].get("speedup")
     tests = {"phase_windows_per_s": lambda v: v >= 1e5, "batch from": lambda v: v != 256,
@@ -294,10 +348,16 @@ def print_table(result: dict) -> None:
     print("| scene | cpu s | device s | speedup | GCPs cpu / device | same windows | max GCP diff px | "
           "pre-correction max px |")
     for tag, rec in result.get("match", {}).items():
-        c = rec["compare"]
-        print(f"| {tag} | {rec['cpu']['read_and_match_s']:.1f} | {rec['device']['read_and_match_s']:.1f} | "
-              f"{c.get('speedup')} | {c['gcps_cpu']} / {c['gcps_device']} | {c.get('same_windows')} | "
-              f"{c.get('max_gcp_diff_px')} | {c['precorrection_max_px']:.4f} |")
+        for name, dev in (("", rec), (" (fine from CPU pre-correction)", rec.get("fine"))):
+            if dev is None:
+                continue
+            c = dev["compare"]
+            print(f"| {tag}{name} | {rec['cpu']['read_and_match_s']:.1f} | {dev['device']['read_and_match_s']:.1f} | "
+                  f"{c.get('speedup')} | {c['gcps_cpu']} / {c['gcps_device']} | {c.get('same_windows')} | "
+                  f"{c.get('max_gcp_diff_px')} | {c['precorrection_max_px']:.4f} |")
+    for tag, rec in result.get("match", {}).items():
+        print(f"{tag}: stage seconds cpu {rec['cpu']['timings']}, device {rec['device']['timings']}; peak RSS "
+              f"{rec['cpu']['peak_rss_mib']:.0f} / {rec['device']['peak_rss_mib']:.0f} MiB")
     for name, rec in result.get("criteria", {}).items():
         print(f"{'met' if rec['met'] else 'NOT met' if rec['met'] is False else 'not measured'}: {name} "
               f"(measured {rec['value']})")
@@ -312,7 +372,10 @@ def main(argv=None) -> int:
     ap.add_argument("--scale", type=float, default=None, help="large scene's scale of seed 003 (default 1, --small 1/16)")
     ap.add_argument("--work", type=Path, default=Path("/tmp/gpu_check"), help="generated inputs and outputs")
     ap.add_argument("--out", type=Path, default=None)
-    ap.add_argument("--child-match", nargs=5, metavar=("SCENE", "DOM", "DEM", "BACKEND", "OUT"), help=argparse.SUPPRESS)
+    ap.add_argument("--scenes", default="small,large", help="matches to run: small, large (comma-separated)")
+    ap.add_argument("--no-phase", action="store_true", help="leave out the phase-stage throughput (item 1)")
+    ap.add_argument("--child-match", nargs=6, metavar=("SCENE", "DOM", "DEM", "BACKEND", "OUT", "MODEL"),
+                    help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child_match:
         match_child(*args.child_match)
@@ -330,14 +393,22 @@ def main(argv=None) -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(result, indent=1, default=str))
 
-    print("phase stage", flush=True)
-    result["phase"] = phase_stage(args.device, args.small)
-    save()
-    for tag, make in (("small", lambda: small_scene(args.work)), (f"scale{scale:g}", lambda: large_scene(args.work, scale))):
+    if not args.no_phase:
+        print("phase stage", flush=True)
+        result["phase"] = phase_stage(args.device, args.small)
+        save()
+    makers = {"small": ("small", lambda: small_scene(args.work)),
+              "large": (f"scale{scale:g}", lambda: large_scene(args.work, scale))}
+    for tag, make in (makers[name] for name in args.scenes.split(",")):
         print(f"scene {tag}", flush=True)
         inputs = make()
         cpu, dev = run_match(inputs, "cpu", args.work, tag), run_match(inputs, backend, args.work, tag)
         result["match"][tag] = {"inputs": inputs, "cpu": cpu[0], "device": dev[0], "compare": compare_matches(cpu, dev)}
+        save()
+        # the fine stage alone: the device run from the CPU run's pre-corrected model, coarse skipped
+        fine = run_match(inputs, backend, args.work, tag,
+                         given_model=str((args.work / f"match_{tag}_cpu.npz").with_suffix(".model.pkl")))
+        result["match"][tag]["fine"] = {"device": fine[0], "compare": compare_matches(cpu, fine)}
         result["criteria"] = criteria(result, f"scale{scale:g}")
         save()
     print_table(result)

@@ -39,10 +39,14 @@ from gcpmatch.uncertainty import reference_sigma_px, score_sigma_px, window_sigm
 from sensor_models.maps.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs, reference_disagrees
 from sensor_models.errors import InputError
-from sensor_models.files.threads import opencv_threads
+from sensor_models.files.threads import blas_threads, map_ordered, opencv_threads
 
 __all__ = ["MatchOptions", "coarse_stage", "correlate_pairs", "extract_gcps", "grid_starts", "read_band", "reject_outliers",
            "window_count"]
+
+#: windows the CUDA backend's threads gather on the host at once, all together (about 100 kB of
+#: scratch a window: ~1.6 GB)
+GPU_HOST_WINDOWS = 16384
 
 REASONS = ("no_reference", "no_data", "cloud", "no_texture", "flat", "not_finite", "out_of_range",
            "low_score", "low_peak_ratio", "spectral_spread", "inconsistent", "model_residual")
@@ -467,43 +471,83 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions, on_batch=None):
     w, n = opt.window_px, rr.size
     win_s = sliding_window_view(img, (w, w))
     win_r = sliding_window_view(ref, (w, w))
-    status = np.full(n, "", dtype=object)
-    std_r = np.full(n, np.nan)
-    shift = np.full((n, 2), np.nan)
-    quality = {}
+    win_m = sliding_window_view(msk, (w, w))
     # the absolute texture measure (gcpmatch.texture), for the options that use it: the noise
     # estimate convolves the whole CCD (4.5 CPU-s and ~1.5 GB of float64 scratch at 8192 x 5450)
     snr_used = opt.min_gradient_snr > 0.0 or (opt.sigma_model == "window" and opt.texture_sigma_px > 0.0)
     noise_dn = band_noise_dn(img) if snr_used else None
-    step = match_batch(w, opt.backend, opt.batch)
-    for a in range(0, n, step):
-        b = min(n, a + step)
-        ws = win_s[rr[a:b], cc[a:b]]
-        wr = win_r[rr[a:b], cc[a:b]]
-        bad_ref = ~np.isfinite(wr).all(axis=(1, 2))
-        bad_s = ~(np.isfinite(ws).all(axis=(1, 2)) & (ws > 0).all(axis=(1, 2)))
-        status[a:b][bad_ref] = "no_reference"
-        status[a:b][~bad_ref & bad_s] = "no_data"
-        with np.errstate(invalid="ignore"):
-            std_r[a:b] = wr.std(axis=(1, 2))
-        cloudy = sliding_window_view(msk, (w, w))[rr[a:b], cc[a:b]].mean(axis=(1, 2)) > opt.cloud_window_fraction
-        status[a:b][(status[a:b] == "") & cloudy] = "cloud"
-        go = np.flatnonzero(status[a:b] == "")
-        if go.size == 0:
+    threads = opt.thread_count()
+    step = window_task_size(w, opt, threads)
+    spans = [(a, min(n, a + step)) for a in range(0, n, step)]
+    # one task per span on its own thread; inside a task, the phase correlation and the sigma
+    # model get the threads the spans leave (one each once there are as many spans as threads)
+    task_opt = replace(opt, threads=max(1, threads // max(1, len(spans))))
+
+    def task(span):
+        a, b = span
+        return _screen_and_correlate(win_s[rr[a:b], cc[a:b]], win_r[rr[a:b], cc[a:b]],
+                                     win_m[rr[a:b], cc[a:b]], task_opt, noise_dn)
+
+    status = np.full(n, "", dtype=object)
+    std_r = np.full(n, np.nan)
+    shift = np.full((n, 2), np.nan)
+    quality = {}
+    # BLAS on one thread: its idle workers spin beside the tasks' threads (measured on 2 cores:
+    # 1 task thread kept 2 cores busy, and 2 threads ran no faster than 1; docs/speed.md)
+    with blas_threads(1):
+        for (a, b), (st, sd, sh, q) in zip(spans, map_ordered(task, spans, min(threads, len(spans)))):
+            status[a:b], std_r[a:b], shift[a:b] = st, sd, sh
+            for k, v in q.items():
+                quality.setdefault(k, np.full(n, np.nan))[a:b] = v
             if on_batch is not None:
                 on_batch(b - a)
-            continue
-        pm = correlate_pairs(wr[go], ws[go], opt)
-        shift[a + go] = pm.shift_px
-        status[a + go] = pm.status
-        batch_quality = dict(pm.quality)
-        if snr_used:
-            snr = gradient_snr(ws[go], noise_dn)
-            batch_quality.update(gradient_snr_row=snr[:, 0], gradient_snr_col=snr[:, 1])
-        for k, v in batch_quality.items():
-            quality.setdefault(k, np.full(n, np.nan))[a + go] = v
-        if on_batch is not None:
-            on_batch(b - a)
+    return status, std_r, shift, quality
+
+
+def window_task_size(window_px: int, opt: MatchOptions, threads: int) -> int:
+    """Windows that one thread gathers, screens and correlates at once (:func:`_correlate_windows`).
+
+    On the CPU and torch-on-CPU backends ``opt.batch``: the tasks, and so the GCPs, are the same
+    whatever the thread count, and the host holds about ``threads x batch`` windows' scratch. On
+    CUDA the device's batch (:func:`gcpmatch.phase_batch.match_batch`) shared among the threads,
+    within ``GPU_HOST_WINDOWS`` gathered on the host at once, and at least ``opt.batch``.
+    """
+    batch = match_batch(window_px, opt.backend, opt.batch)
+    if opt.backend != "gpu":
+        return batch
+    return int(max(opt.batch, min(batch, GPU_HOST_WINDOWS // max(1, threads))))
+
+
+def _screen_and_correlate(ws, wr, wm, opt: MatchOptions, noise_dn):
+    """One task of :func:`_correlate_windows`: its (k, w, w) scene, reference and mask windows.
+
+    Returns the task's ``status``, ``std_r``, ``shift`` and ``quality`` (as the caller's).
+    """
+    k = ws.shape[0]
+    status = np.full(k, "", dtype=object)
+    shift = np.full((k, 2), np.nan)
+    bad_ref = ~np.isfinite(wr).all(axis=(1, 2))
+    bad_s = ~(np.isfinite(ws).all(axis=(1, 2)) & (ws > 0).all(axis=(1, 2)))
+    status[bad_ref] = "no_reference"
+    status[~bad_ref & bad_s] = "no_data"
+    with np.errstate(invalid="ignore"):
+        std_r = wr.std(axis=(1, 2))
+    cloudy = wm.mean(axis=(1, 2)) > opt.cloud_window_fraction
+    status[(status == "") & cloudy] = "cloud"
+    go = np.flatnonzero(status == "")
+    quality = {}
+    if go.size == 0:
+        return status, std_r, shift, quality
+    pm = correlate_pairs(wr[go], ws[go], opt)
+    shift[go] = pm.shift_px
+    status[go] = pm.status
+    batch_quality = dict(pm.quality)
+    if noise_dn is not None:
+        snr = gradient_snr(ws[go], noise_dn)
+        batch_quality.update(gradient_snr_row=snr[:, 0], gradient_snr_col=snr[:, 1])
+    for name, v in batch_quality.items():
+        quality[name] = np.full(k, np.nan)
+        quality[name][go] = v
     return status, std_r, shift, quality
 
 
