@@ -105,7 +105,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gcpmatch.phase_batch import BATCH_PIXELS, device_batch
+from gcpmatch.phase_batch import cpu_batch, device_batch
 from gcpmatch.phase_numpy import NumpyKernel
 from gcpmatch.phase_plan import make_plan
 from sensor_models.errors import InputError
@@ -246,14 +246,17 @@ def phase_correlate(reference, moving, *, upsample: int | None = None, window: s
     batch : int or None
         Pairs processed at once (bounds the memory: about 20 bytes per pixel and pair in
         float32, measured); ``None``: on the CPU backend 2**20 px worth of windows (256 pairs of
-        64 x 64 px), on the torch backends what the device's free memory holds
-        (:func:`gcpmatch.phase_batch.device_batch`). The results do not depend on it.
+        64 x 64 px) per four threads (:func:`gcpmatch.phase_batch.cpu_batch`: 1 024 pairs at 16
+        threads), on the torch backends what the device's free memory holds
+        (:func:`gcpmatch.phase_batch.device_batch`). The results do not depend on it (to the
+        last bits: :mod:`gcpmatch.phase_batch`).
     workers : int or None
         Threads over the batches (``None`` or -1: :func:`sensor_models.files.threads.thread_count`,
         ``GCPCAL_THREADS`` or every core; 1: one after the other); with fewer batches than
-        threads, the rest go to each batch's ``scipy.fft`` calls. The batches, and so the
-        results, are the same whatever the count; the scratch memory is ``workers`` times a
-        batch's. CPU backend only (torch uses ``torch.set_num_threads``).
+        threads, the rest go to each batch's ``scipy.fft`` calls. The default batch grows with
+        the count (``batch``); the results are the same whatever the count (tested); the scratch
+        memory is ``workers`` times a batch's. CPU backend only (torch uses
+        ``torch.set_num_threads``).
     first_pass : {"half", "full"}
         Where the first estimate and the peak ratio come from (module docstring, step 3):
         ``"half"`` at half resolution (windows with both sides divisible by 4 and at least
@@ -301,12 +304,12 @@ def _run_torch_batches(plan, ref, mov, batch, device):
     return _concatenate([kernel(ref[a:b], mov[a:b]) for a, b in _batches(ref.shape, batch)])
 
 
-def _batches(shape: tuple[int, int, int], batch) -> list[tuple[int, int]]:
+def _batches(shape: tuple[int, int, int], batch, threads: int = 1) -> list[tuple[int, int]]:
     """``(first, end)`` pair indices of the batches of (N, H, W) pairs: ``batch`` pairs each
-    (None: 2**20 px worth), whatever the thread count."""
+    (None: :func:`gcpmatch.phase_batch.cpu_batch` for ``threads``)."""
     n_pairs, height, width = shape
     if batch is None:
-        batch = max(1, BATCH_PIXELS // (height * width))
+        batch = cpu_batch(height, width, threads)
     return [(a, min(n_pairs, a + batch)) for a in range(0, n_pairs, batch)]
 
 
@@ -324,7 +327,7 @@ def _run_numpy_batches(plan, ref: np.ndarray, mov: np.ndarray, batch, threads: i
         The kernel's six outputs (shift, peak, quality mean and variance, secondary peak, first
         quality mean), each concatenated over the batches along the first axis (N).
     """
-    spans = _batches(ref.shape, batch)
+    spans = _batches(ref.shape, batch, threads)
     pool_threads = min(threads, len(spans))
     fft_workers = max(1, threads // pool_threads)
     idle = queue.SimpleQueue()  # kernels not running a batch now

@@ -33,7 +33,11 @@ The batch is then ``floor(fraction x free / window_bytes)``, at least 1 and at m
 The batch changes how many pairs share one call, not what is computed for a pair: every
 operation of the kernel is per pair (no sum runs across pairs), so the shifts agree across batch
 sizes to the last bits the FFT library's plan for a batch size may change
-(``tests/test_phase.py`` bounds the difference at 1e-4 px).
+(``tests/test_phase.py`` bounds the difference at 1e-4 px). Measured: batches of 64, 100, 256
+and 1 024 pairs give the same bits on 6 000 pairs; the FFT library transforms a few pairs at
+once in vector lanes and the last ``n mod L`` pairs of a call one at a time (``L`` lanes: 4 on
+the development machine; 16 is a multiple of the widths in use), so a pair that falls in that
+remainder of one split of the pairs and not of another can move by ~3e-8 px.
 """
 
 from __future__ import annotations
@@ -41,20 +45,50 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["BATCH_PIXELS", "BYTES_PER_PIXEL_PER_ITEM", "DEVICE_FRACTION", "MAX_DEVICE_BATCH", "device_batch",
-           "free_memory_bytes", "match_batch", "window_bytes"]
+__all__ = ["BATCH_PIXELS", "BYTES_PER_PIXEL_PER_ITEM", "DEVICE_FRACTION", "MAX_DEVICE_BATCH", "THREADS_PER_BATCH",
+           "cpu_batch", "device_batch", "free_memory_bytes", "match_batch", "window_bytes"]
 
 #: Default batch of the CPU backend: 256 windows of 64 x 64 px (~20 MB of scratch). Fewer Python
 #: calls per pair than 128 (measured, ``first_pass="half"``, 1 thread: 72.0 % of the FFT floor
 #: against 66.4 %); the floor itself is fastest at 32 pairs, where the kernel's per-call overhead
 #: dominates.
 BATCH_PIXELS = 1 << 20
+#: Threads per :data:`BATCH_PIXELS` of the CPU backend's default batch beyond four threads: the
+#: batch grows with the threads (1 024 pairs of 64 x 64 px at 16), so that each thread spends
+#: less of its time in the kernel's small per-call steps, which hold the interpreter lock.
+#: Measured on a 16-core CPU (``bench/bench_cores.py``, 60 000 pairs, one run each, docs/speed.md
+#: "Every core"): at 16 threads 64 / 256 / 1 024 pairs a batch gave 14.6 k / 37.5 k / 65.2 k
+#: pairs/s; at one thread 256 is the fastest (15.3 k against 10.0 k at 1 024: the caches).
+THREADS_PER_BATCH = 4
 #: Budgeted device bytes per pixel of one window pair, per byte of the working real type.
 BYTES_PER_PIXEL_PER_ITEM = 16
 #: Share of the free memory a batch may take (the rest: the caller's arrays, other processes).
 DEVICE_FRACTION = 0.5
 #: Most pairs per batch on a CUDA device.
 MAX_DEVICE_BATCH = 65536
+
+
+def cpu_batch(height: int, width: int, threads: int) -> int:
+    """Default pairs per batch of the CPU backend for ``threads`` threads.
+
+    ``BATCH_PIXELS * max(1, threads // THREADS_PER_BATCH)`` pixels worth of windows, rounded
+    down to a multiple of 16 pairs when that leaves any (a pair's numbers do not depend on the
+    batch while batches are multiples of the FFT library's vector width: module docstring).
+
+    Parameters
+    ----------
+    height, width : int
+        Window size, pixels.
+    threads : int
+        Threads the batches run on.
+
+    Returns
+    -------
+    int
+        Pairs per batch, >= 1.
+    """
+    pairs = BATCH_PIXELS * max(1, int(threads) // THREADS_PER_BATCH) // (height * width)
+    return max(1, pairs - pairs % 16 if pairs >= 16 else pairs)
 
 
 def window_bytes(height: int, width: int, itemsize: int) -> int:

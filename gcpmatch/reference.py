@@ -38,6 +38,12 @@ POSITION_TOLERANCE_DOM_PX = 1e-3
 #: the chips' exactly localized nodes lie every 16 lines (the attitude) and every 32 columns
 #: (the interior model across a CCD is smoother: tests/test_locate.py)
 NODE_STEP_COLS = 32
+#: blocks rendered at once hold about this many bytes a block pixel (positions, DOM windows,
+#: filter scratch: measured at half the seed-003 geometry, 512 x 2 725 px blocks, peak RSS with 16
+#: threads 1 981 MiB against 976 MiB with 2)
+REFERENCE_BYTES_PER_PX = 52
+#: the blocks in flight together stay within this (more threads than it allows wait their turn)
+REFERENCE_BLOCKS_BYTES = 1 << 30
 
 
 def grid_resolution_m(grid) -> float:
@@ -111,7 +117,9 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
         Lines per block.
     workers : int or None
         Threads rendering blocks; None: :func:`sensor_models.files.threads.thread_count` (``GCPCAL_THREADS``
-        or every core). The blocks, and so the chips, are the same whatever the count.
+        or every core), at most as many as keep the blocks in flight within
+        :data:`REFERENCE_BLOCKS_BYTES` (7 for the seed-003 geometry's 5 450-detector CCDs). The
+        blocks, and so the chips, are the same whatever the count.
     interpolation : {"lanczos", "cubic", "linear"}
         DOM resampling kernel (:func:`sensor_models.maps.raster.sample_map_image`).
 
@@ -143,7 +151,8 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
 
     dem_planes(dem)  # shared sampling planes, built once before the threads
     starts = list(range(row0, row1, block_lines))
-    workers = thread_count(workers)
+    per_block = REFERENCE_BYTES_PER_PX * min(block_lines, row1 - row0) * look.n_detectors
+    workers = max(1, min(thread_count(workers), REFERENCE_BLOCKS_BYTES // max(1, per_block)))
     with dom.reading():  # one file handle per thread: blocks share decompressed DOM tiles
         if workers <= 1 or len(starts) == 1:
             for a in starts:

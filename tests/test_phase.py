@@ -753,3 +753,21 @@ def test_newton_iterates_only_the_pairs_still_moving(realistic_set):
     got_centre, got_peak = newton_refine(cross, start, grid)
     np.testing.assert_allclose(got_centre, centre, atol=1e-12)
     np.testing.assert_allclose(got_peak, value / (shape[0] * shape[1]), rtol=1e-12)
+
+
+def test_default_batch_grows_with_the_threads_and_keeps_the_numbers(realistic_set):
+    """The CPU backend's default batch: 256 pairs of 64 x 64 px up to 7 threads, 512 at 8, 1 024
+    at 16 (``cpu_batch``); on 1 037 pairs (not a multiple of any batch) every count gives the
+    same bits as one thread's 256-pair batches."""
+    from gcpmatch.phase_batch import cpu_batch
+
+    assert [cpu_batch(64, 64, n) for n in (1, 2, 4, 7, 8, 12, 16, 32)] == [256, 256, 256, 256, 512, 768, 1024, 2048]
+    assert cpu_batch(48, 40, 1) == 544 and cpu_batch(2048, 2048, 16) == 1
+    ref, mov, _ = realistic_set
+    reps = -(-1037 // len(ref))
+    ref, mov = np.tile(ref, (reps, 1, 1))[:1037], np.tile(mov, (reps, 1, 1))[:1037]
+    serial = phase_correlate(ref, mov, workers=1)
+    for workers in (8, 16):
+        threaded = phase_correlate(ref, mov, workers=workers)
+        for name in ("shift_row_px", "shift_col_px", "score", "peak_ratio", "reason"):
+            np.testing.assert_array_equal(getattr(threaded, name), getattr(serial, name), err_msg=name)
