@@ -167,3 +167,40 @@ def test_round_trip_over_real_srtm(shared_data):
         r2, c2 = model.ground_to_image(lon[inside], lat[inside], h[inside], array=i)
         err = np.hypot(r2 - r[inside], c2 - c[inside])
         assert np.sqrt(np.mean(err**2)) <= 1e-4 and err.max() <= 1e-3
+
+
+def test_points_beyond_the_rows_stop_early_with_the_same_result(model, monkeypatch):
+    """Newton stops a point it sends past the line table's edge twice running (it would end
+    there: not imaged) instead of stepping against the edge until ``max_iter`` (30 steps); the
+    points inside come out bit for bit as when each is solved alone."""
+    import sensor_models.models.pushbroom_inverse as inverse
+
+    lo, hi = model.row_range
+    rows = np.r_[np.linspace(lo + 5.0, hi - 5.0, 40), np.linspace(hi + 50.0, hi + 900.0, 20),
+                 np.linspace(lo - 900.0, lo - 50.0, 20)]
+    cols = np.linspace(20.5, model.n_cols - 20.5, rows.size)
+    inside = (rows > lo) & (rows < hi)
+    lon, lat, h = model.image_to_ground(rows[inside], cols[inside], height=300.0)
+    # points beyond the rows: extrapolate the ground track along the scene's first and last lines
+    lon_e, lat_e, _ = model.image_to_ground(np.r_[lo + 1.0, hi - 1.0], np.r_[1000.5, 1000.5], height=300.0)
+    t = (rows[~inside] - (lo + 1.0)) / ((hi - 1.0) - (lo + 1.0))
+    lon = np.r_[lon, lon_e[0] + t * (lon_e[1] - lon_e[0])]
+    lat = np.r_[lat, lat_e[0] + t * (lat_e[1] - lat_e[0])]
+    h = np.full(lon.size, 300.0)
+    calls = []
+    collinearity = inverse.collinearity
+
+    def counted(*args, **kwargs):
+        calls.append(args[1].size)
+        return collinearity(*args, **kwargs)
+
+    monkeypatch.setattr(inverse, "collinearity", counted)
+    r, c = model.ground_to_image(lon, lat, h, array=0)
+    n_inside = int(inside.sum())
+    assert np.isnan(r[n_inside:]).all() and np.isfinite(r[:n_inside]).sum() > 0
+    assert len(calls) < 20  # against max_iter = 30 steps with the edge points left running
+    # each point alone: its own steps only (a point's Newton steps never depend on the others)
+    for k in range(lon.size):
+        r1, c1 = model.ground_to_image(lon[k:k + 1], lat[k:k + 1], h[k:k + 1], array=0)
+        np.testing.assert_array_equal(r1, r[k:k + 1])
+        np.testing.assert_array_equal(c1, c[k:k + 1])
