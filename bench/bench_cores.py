@@ -253,11 +253,13 @@ def run_child(stage: str, n: int, cores: list[int], folder: Path, args) -> dict:
     """The stage in a child process pinned to the first ``n`` of ``cores``."""
     code_root = Path(args.base_root).resolve() if stage == "phase_base" else ROOT
     env = {k: v for k, v in os.environ.items() if k != "GCPCAL_THREADS"}
-    env.update(OMP_NUM_THREADS=str(n), OPENBLAS_NUM_THREADS=str(n), MKL_NUM_THREADS=str(n), PYTHONPATH=os.pathsep.join(
-        [str(code_root)] + [v for v in os.environ.get("PYTHONPATH", "").split(os.pathsep) if v]))
+    # the code root first, then what the caller's path holds (packages carried beside the install)
+    path = [str(code_root)] + [v for v in os.environ.get("PYTHONPATH", "").split(os.pathsep) if v]
+    env.update(OMP_NUM_THREADS=str(n), OPENBLAS_NUM_THREADS=str(n), MKL_NUM_THREADS=str(n),
+               PYTHONPATH=os.pathsep.join(path))
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", stage, "--threads", str(n), "--data", str(folder),
-           "--pairs", str(args.pairs), "--phase-batch", str(args.phase_batch), "--ortho-scene", str(args.ortho_scene), "--sim-rows", str(args.sim_rows),
-           "--sim-detectors", str(args.sim_detectors), "--code-root", str(code_root)]
+           "--pairs", str(args.pairs), "--phase-batch", str(args.phase_batch), "--ortho-scene", str(args.ortho_scene),
+           "--sim-rows", str(args.sim_rows), "--sim-detectors", str(args.sim_detectors), "--code-root", str(code_root)]
     load = os.getloadavg()[0]
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False,
                           preexec_fn=lambda: os.sched_setaffinity(0, cores[:n]))

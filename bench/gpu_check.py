@@ -373,7 +373,8 @@ def main(argv=None) -> int:
     ap.add_argument("--work", type=Path, default=Path("/tmp/gpu_check"), help="generated inputs and outputs")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--scenes", default="small,large", help="matches to run: small, large (comma-separated)")
-    ap.add_argument("--no-phase", action="store_true", help="leave out the phase-stage throughput (item 1)")
+    ap.add_argument("--no-phase", action="store_true",
+                    help="leave out the phase stage's throughput (windows per second on the device and the CPU)")
     ap.add_argument("--child-match", nargs=6, metavar=("SCENE", "DOM", "DEM", "BACKEND", "OUT", "MODEL"),
                     help=argparse.SUPPRESS)
     args = ap.parse_args(argv)

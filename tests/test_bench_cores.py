@@ -18,7 +18,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_bench_cores_phase_processes_and_window_stage(tmp_path):
     cores = min(2, len(os.sched_getaffinity(0)))
     out = tmp_path / "cores.json"
-    subprocess.run([sys.executable, str(ROOT / "bench" / "bench_cores.py"), "--cores", ",".join(map(str, range(1, cores + 1))),
+    counts = ",".join(str(n) for n in range(1, cores + 1))
+    subprocess.run([sys.executable, str(ROOT / "bench" / "bench_cores.py"), "--cores", counts,
                     "--stages", "phase,phase_procs,windows", "--pairs", "1500", "--phase-batch", "128",
                     "--repeat", "1", "--json", str(out)], check=True, cwd=ROOT, timeout=600)
     doc = json.loads(out.read_text())
