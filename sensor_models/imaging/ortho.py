@@ -47,6 +47,9 @@ __all__ = ["orthorectify", "orthorectify_to_file"]
 
 #: source pixels (per side) a block may need; larger blocks are shrunk (coarse outputs)
 _MAX_SOURCE_SIDE = 2048
+#: blocks one thread computes together (their inverse localizations in one call per CCD:
+#: :meth:`OrthoGeometry.blocks`), consecutive in the write order
+GROUP_BLOCKS = 4
 
 
 def _default_band(model, band):
@@ -167,8 +170,8 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         Band of the geometry (default: the model's reference band).
     resampling : {"nearest", "bilinear", "cubic"}
     block : int
-        Output pixels per block side (memory ~ 150 bytes per block pixel and thread; smaller for
-        outputs much coarser than the image).
+        Output pixels per block side (memory ~ 150 bytes per block pixel, ``GROUP_BLOCKS``
+        blocks per thread; smaller for outputs much coarser than the image).
     nodata : number
         Value of output pixels off the image or the DEM.
     dtype : numpy dtype, optional
@@ -191,10 +194,11 @@ def orthorectify_to_file(model, image, dem, out_path, *, crs=None, resolution_m=
         Band -> ``{"path": str, "index": int}`` where a band name or None as ``image`` is looked
         up (``Scene.rasters`` of :func:`sensor_models.readers.open_scene`).
     threads : int or None
-        Blocks computed at once, each with one OpenCV and one BLAS thread (None: ``GCPCAL_THREADS`` or every
-        core, :func:`sensor_models.files.threads.thread_count`); the blocks are written, and the
-        check points drawn, in block order by the calling thread, so the file does not depend on
-        it. At most ``threads`` computed blocks wait to be written.
+        Groups of ``GROUP_BLOCKS`` blocks computed at once, each with one OpenCV and one BLAS
+        thread (None: ``GCPCAL_THREADS`` or every core,
+        :func:`sensor_models.files.threads.thread_count`); the blocks are written, and the check
+        points drawn, in block order by the calling thread, so the file does not depend on it.
+        At most ``threads`` computed groups wait to be written.
 
     Returns
     -------
@@ -300,16 +304,25 @@ class _BlockPlan:
         self.n_valid = 0
         self.threads = 1
 
-    def compute(self, block):
-        """Geometry and resampled values (None off the image) of one ``(row0, row1, col0, col1)`` block."""
-        geom = self.geometry.block(*block)
-        return geom, resample_block(self.source, geom, self.interpolation) if geom.valid.any() else None
+    def compute(self, blocks):
+        """Geometry and resampled values (None off the image) of ``(row0, row1, col0, col1)``
+        blocks, their localizations solved together (:meth:`OrthoGeometry.blocks`)."""
+        return [(geom, resample_block(self.source, geom, self.interpolation) if geom.valid.any() else None)
+                for geom in self.geometry.blocks(blocks)]
+
+    def computed(self):
+        """``compute`` of every block, in order: groups of ``GROUP_BLOCKS`` on ``threads`` threads."""
+        groups = [self.blocks[a:a + GROUP_BLOCKS] for a in range(0, len(self.blocks), GROUP_BLOCKS)]
+        # closing: on an error or early stop the running groups finish before the caller goes on
+        with closing(map_ordered(self.compute, groups, self.threads, in_flight=self.threads)) as results:
+            for group in results:
+                yield from group
 
     def write(self, dst, progress=None) -> None:
-        """Resample every block into band 1 of the open dataset ``dst``, ``threads`` blocks at once."""
+        """Resample every block into band 1 of the open dataset ``dst``, ``threads`` groups at once."""
         from rasterio.windows import Window
 
-        computed = map_ordered(self.compute, self.blocks, self.threads, in_flight=self.threads)
+        computed = self.computed()
         # closing: on an error the running blocks finish before the caller closes the source
         with closing(computed), libraries_single_threaded():  # the blocks fill the cores
             for k, ((a, b, c, d), (geom, values)) in enumerate(zip(self.blocks, computed)):

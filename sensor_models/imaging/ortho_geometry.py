@@ -196,6 +196,59 @@ class OrthoGeometry:
         BlockGeometry
             Arrays of shape ``(row1 - row0, col1 - col0)``.
         """
+        return self.blocks([(row0, row1, col0, col1)])[0]
+
+    def blocks(self, windows) -> list[BlockGeometry]:
+        """:meth:`block` of several output windows, their inverse localizations solved together.
+
+        Each block's steps run as in :meth:`block`; where they ask the model for image positions
+        (the coarse nodes of the plan, then the dense nodes CCD by CCD), the requests of all
+        blocks waiting at that step go to the model in one call per CCD. Newton's steps are per
+        point, so every block gets the same numbers as alone; one call over several blocks
+        takes the interpreter's per-call work once instead of once a block (the geometry is many
+        short numpy steps: docs/speed.md, "Every core").
+
+        Parameters
+        ----------
+        windows : sequence of (int, int, int, int)
+            ``(row0, row1, col0, col1)`` output windows.
+
+        Returns
+        -------
+        list of BlockGeometry
+            In the order of ``windows``.
+        """
+        steps = [self._block_steps(*w) for w in windows]
+        out = [None] * len(steps)
+        waiting = {}  # block -> its list of (solver, lon, lat, h) requests
+
+        def advance(i, answer):
+            try:
+                waiting[i] = steps[i].send(answer)
+            except StopIteration as done:
+                out[i] = done.value
+
+        for i in range(len(steps)):
+            advance(i, None)
+        while waiting:
+            asked, waiting = waiting, {}
+            flat = [(i, k, req) for i, reqs in asked.items() for k, req in enumerate(reqs)]
+            answers = {i: [None] * len(reqs) for i, reqs in asked.items()}
+            for key in dict.fromkeys(req[0].index for _, _, req in flat):  # one call per solver
+                group = [(i, k, req) for i, k, req in flat if req[0].index == key]
+                solver = group[0][2][0]
+                lon, lat, h = (np.concatenate([req[j] for _, _, req in group]) for j in (1, 2, 3))
+                r, c = self._solve(solver, lon, lat, h)
+                ends = np.cumsum([req[1].size for _, _, req in group])
+                for (i, k, _), a, b in zip(group, np.r_[0, ends[:-1]], ends):
+                    answers[i][k] = (r[a:b], c[a:b])
+            for i in asked:
+                advance(i, answers[i])
+        return out
+
+    def _block_steps(self, row0: int, row1: int, col0: int, col1: int):
+        """:meth:`block` as a generator: yields lists of ``(solver, lon, lat, h)`` localization
+        requests, is sent their ``(row, col)`` results, returns the BlockGeometry."""
         from sensor_models.imaging.locate import catmull_rom_matrix
 
         nr, nc = row1 - row0, col1 - col0
@@ -237,13 +290,14 @@ class OrthoGeometry:
         tau[~on_dem] = 0.0
 
         todo = on_dem.copy()
-        for solver, nodes in self._plan(lon_n, lat_n, pr.shape, h_lo, h_hi):
+        plan = yield from self._plan(lon_n, lat_n, pr.shape, h_lo, h_hi)
+        for solver, nodes in plan:
             idx = np.arange(lon_n.size) if nodes is None else np.flatnonzero(nodes)
             n = idx.size
             r3 = np.full((3, lon_n.size), np.nan)
             c3 = np.full((3, lon_n.size), np.nan)
-            r_exact, c_exact = self._solve(solver, np.tile(lon_n[idx], 3), np.tile(lat_n[idx], 3),
-                                           np.repeat([h_lo, h_mid, h_hi], n))
+            [(r_exact, c_exact)] = yield [(solver, np.tile(lon_n[idx], 3), np.tile(lat_n[idx], 3),
+                                           np.repeat([h_lo, h_mid, h_hi], n))]
             r3[:, idx] = r_exact.reshape(3, n)
             c3[:, idx] = c_exact.reshape(3, n)
             r_ccd = _quadratic_field(r3.reshape(3, *pr.shape), wr, wc, tau)
@@ -277,6 +331,9 @@ class OrthoGeometry:
         and a wide block does not localize every node on every CCD (nor far outside the image,
         where Newton iterations run to the edge of the orbit data).
 
+        A generator (:meth:`_block_steps`): it yields the coarse nodes' localization requests,
+        one per CCD, and is sent their results.
+
         Returns
         -------
         list of (_Solver, ndarray of bool (node_shape) or None)
@@ -297,8 +354,8 @@ class OrthoGeometry:
         cell_r = np.searchsorted(ir, np.arange(node_shape[0]), side="right") - 1
         cell_c = np.searchsorted(ic, np.arange(node_shape[1]), side="right") - 1
         plan = []
-        for solver in self.solvers:
-            r, c = self._solve(solver, lon, lat, hh)
+        solved = yield [(solver, lon, lat, hh) for solver in self.solvers]
+        for solver, (r, c) in zip(self.solvers, solved):
             r, c = r.reshape(2, ir.size, ic.size), c.reshape(2, ir.size, ic.size)
             with np.errstate(invalid="ignore"):
                 near = ((c >= solver.first_col - margin) & (c <= solver.last_col + margin)
