@@ -186,7 +186,7 @@ def write_dom(path: Path, bounds_m, crs_wkt: str, *, resolution_m: float = DOM_R
                    blockxsize=512, blockysize=512, BIGTIFF="YES",
                    transform=Affine(resolution_m, 0.0, x0, 0.0, -resolution_m, y1))
     norm = float(np.sqrt(sum(a * a for _, a in DOM_OCTAVES) + DOM_WHITE**2))
-    with rasterio.Env(GDAL_CACHEMAX=64), rasterio.open(path, "w", **profile) as dst:
+    with rasterio.Env(GDAL_CACHEMAX=64 << 20), rasterio.open(path, "w", **profile) as dst:
         for r0 in range(0, n_rows, strip_rows):
             r1 = min(n_rows, r0 + strip_rows)
             layer = np.random.default_rng([seed, 99, r0]).standard_normal((r1 - r0, n_cols), dtype=np.float32)

@@ -85,7 +85,7 @@ def write_tiled_uint16(path: Path, rows: int, cols: int, *, crs=None, transform=
         profile.update(crs=crs, transform=transform)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.Env(GDAL_CACHEMAX=64), rasterio.open(path, "w", **profile) as dst:
+        with rasterio.Env(GDAL_CACHEMAX=64 << 20), rasterio.open(path, "w", **profile) as dst:
             for r in range(0, rows, 512):
                 for c in range(0, cols, 512):
                     h, w = min(512, rows - r), min(512, cols - c)

@@ -38,6 +38,7 @@ import pyproj
 from affine import Affine
 
 from sensor_models.errors import InputError
+from sensor_models.files.gdal_cache import GDAL_BLOCK_CACHE_BYTES
 from sensor_models.files.threads import libraries_single_threaded, map_ordered, thread_count
 from sensor_models.imaging.ortho_geometry import OrthoGeometry, check_geometry, draw_checks
 from sensor_models.imaging.ortho_grid import ortho_grid
@@ -355,7 +356,7 @@ def _write_cog(plan: _BlockPlan, out_path: Path, *, model, band, resampling, pro
     tmp = temporary_beside(out_path, ".tif")
     cog = temporary_beside(out_path, ".cog.tif")
     try:
-        with rasterio.Env(GDAL_CACHEMAX=64, GDAL_PAM_ENABLED="NO"):
+        with rasterio.Env(GDAL_CACHEMAX=GDAL_BLOCK_CACHE_BYTES, GDAL_PAM_ENABLED="NO"):
             with rasterio.open(tmp, "w", **profile) as dst:
                 dst.set_band_description(1, str(band) if band is not None else "image")
                 dst.update_tags(GCPCAL_ORTHO_MODEL=getattr(model, "name", "") or model.kind,

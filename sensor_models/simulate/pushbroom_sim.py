@@ -38,6 +38,7 @@ import pyproj
 import rasterio
 
 from sensor_models.files.atomic import atomic_folder
+from sensor_models.files.gdal_cache import GDAL_BLOCK_CACHE_BYTES
 from sensor_models.errors import InputError
 from sensor_models.files.threads import thread_count
 from sensor_models.imaging.locate import dem_planes, locate_block
@@ -46,7 +47,7 @@ from sensor_models.imaging.psf import psf_sigma_dom_px
 from sensor_models.maps.raster import MapImage, sample_map_image
 from sensor_models.simulate.config import SimConfig
 from sensor_models.simulate.radiometry import smooth_field, to_dn
-from sensor_models.simulate.render_io import (GDAL_CACHE_MB, PhaseClock, check_covers, footprint_lonlat, render_scene,
+from sensor_models.simulate.render_io import (PhaseClock, check_covers, footprint_lonlat, render_scene,
                                              step_progress, utm_crs, write_outputs)
 from sensor_models.simulate.scene import SceneModels, build_models
 from sensor_models.terrain.dem import Dem
@@ -226,7 +227,7 @@ def simulate_pushbroom(
         tmp = tmp.resolve()
         # a decimated read of a large DOM (its scale) goes through GDAL's block cache (5 % of the
         # RAM by default): capped, the pixels are the same and the memory stays bounded
-        with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
+        with rasterio.Env(GDAL_CACHEMAX=GDAL_BLOCK_CACHE_BYTES):
             summary = _simulate(cfg, out_dir, tmp, dom, dem, geoid, workers, block_lines, progress, t_start,
                                 record_timings)
     return summary
@@ -430,7 +431,7 @@ def simulate_through_model(out_dir, model, *, dom, dem, config: SimConfig | None
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_folder(out_dir, mode="merge", inside=True) as tmp:
         tmp = tmp.resolve()
-        with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
+        with rasterio.Env(GDAL_CACHEMAX=GDAL_BLOCK_CACHE_BYTES):
             clock = PhaseClock(t_start)
             setup_done, block_progress = step_progress(progress, model.n_rows, block_lines)
             setup_done(1)

@@ -16,6 +16,7 @@ import numpy as np
 import pyproj
 
 from sensor_models.errors import InputError
+from sensor_models.files.gdal_cache import GDAL_BLOCK_CACHE_BYTES
 from sensor_models.files.threads import libraries_single_threaded, thread_count
 from sensor_models.maps.grid import MapGrid
 
@@ -24,8 +25,6 @@ __all__ = ["PhaseClock", "SetupProgress", "check_covers", "footprint_lonlat", "r
 
 #: set-up steps counted by the progress callback before the blocks (models, reference)
 SETUP_STEPS = 2
-#: GDAL block cache while rendering (MB): written blocks wait there until the file is closed
-GDAL_CACHE_MB = 64
 
 
 class PhaseClock:
@@ -190,14 +189,15 @@ def render_scene(renderer, model, tmp: Path, bands, ref_band, n_ccd, block_lines
     """Render every block of lines into ``tmp/<band>.tif`` (and ``cloud_mask.tif`` with clouds).
 
     Returns ``(cloud pixels in the reference band, whether a cloud mask was written)``.
-    GDAL's block cache is capped at :data:`GDAL_CACHE_MB` meanwhile.
+    GDAL's block cache is capped at
+    :data:`sensor_models.files.gdal_cache.GDAL_BLOCK_CACHE_BYTES` meanwhile.
     """
     import rasterio
 
     workers = thread_count(workers)
     # GDAL keeps written blocks in its cache until the file closes (by default 5 % of the RAM):
     # without a cap the whole compressed scene would sit in memory
-    with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_BLOCK_CACHE_BYTES):
         return _render_blocks(renderer, model, tmp, bands, ref_band, n_ccd, block_lines, workers, progress)
 
 

@@ -27,6 +27,7 @@ import threading
 import numpy as np
 import pyproj
 
+from sensor_models.files.gdal_cache import GDAL_BLOCK_CACHE_BYTES
 from sensor_models.errors import InputError
 from sensor_models.files.threads import PerThread
 
@@ -266,7 +267,7 @@ def _read_coarse(source: str, max_nodes: int):
     from rasterio.enums import Resampling
 
     # GDAL caps its block cache at 5 % of the RAM by default; a decimated read would fill it
-    with rasterio.Env(GDAL_CACHEMAX=64), rasterio.open(source) as ds:
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_BLOCK_CACHE_BYTES), rasterio.open(source) as ds:
         factor = int(np.ceil(np.sqrt(ds.width * ds.height / float(max_nodes))))
         out_shape = (max(2, ds.height // factor), max(2, ds.width // factor))
         band = ds.read(1, out_shape=out_shape, masked=True, resampling=Resampling.average)
