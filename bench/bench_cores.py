@@ -70,15 +70,22 @@ TARGET_EFFICIENCY = 0.7
 # --------------------------------------------------------------------------- children
 
 
+def _pairs(args):
+    """The phase stages' ``args.pairs`` window pairs: the prepared distinct pairs repeated."""
+    import numpy as np
+
+    base = np.load(Path(args.data) / "pairs.npy", mmap_mode="r")
+    reps = -(-args.pairs // BASE_PAIRS)
+    return (np.tile(np.asarray(base[0]), (reps, 1, 1))[:args.pairs],
+            np.tile(np.asarray(base[1]), (reps, 1, 1))[:args.pairs])
+
+
 def _phase_child(args) -> dict:
     import numpy as np
 
     from gcpmatch.phase import phase_correlate
 
-    base = np.load(Path(args.data) / "pairs.npy", mmap_mode="r")
-    reps = -(-args.pairs // BASE_PAIRS)
-    ref = np.tile(np.asarray(base[0]), (reps, 1, 1))[:args.pairs]
-    mov = np.tile(np.asarray(base[1]), (reps, 1, 1))[:args.pairs]
+    ref, mov = _pairs(args)
     phase_correlate(ref[:1024], mov[:1024], workers=args.threads)  # warm-up: plans, tables, pages
     wall, cpu = time.perf_counter(), time.process_time()
     m = phase_correlate(ref, mov, workers=args.threads, batch=args.phase_batch)
@@ -99,10 +106,7 @@ def _phase_procs_child(args) -> dict:
 
     from gcpmatch.phase import phase_correlate
 
-    base = np.load(Path(args.data) / "pairs.npy", mmap_mode="r")
-    reps = -(-args.pairs // BASE_PAIRS)
-    ref = np.tile(np.asarray(base[0]), (reps, 1, 1))[:args.pairs]
-    mov = np.tile(np.asarray(base[1]), (reps, 1, 1))[:args.pairs]
+    ref, mov = _pairs(args)
     n, cores = args.threads, sorted(os.sched_getaffinity(0))
     bounds = np.linspace(0, args.pairs, n + 1).astype(int)
     ctx = mp.get_context("fork")
@@ -221,12 +225,7 @@ def prepare(stages, folder: Path, args) -> None:
     """The stages' inputs, written once into ``folder`` (not timed)."""
     import numpy as np
 
-    if "phase" in stages:
-        from bench_phase import render_pairs
-
-        ref, mov, _ = render_pairs(BASE_PAIRS, 64, seed=7)
-        np.save(folder / "pairs.npy", np.stack([ref, mov]).astype(np.float32))
-    if "phase_procs" in stages and "phase" not in stages:
+    if {"phase", "phase_procs"} & set(stages):
         from bench_phase import render_pairs
 
         ref, mov, _ = render_pairs(BASE_PAIRS, 64, seed=7)

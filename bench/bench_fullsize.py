@@ -180,13 +180,15 @@ def write_dom(path: Path, bounds_m, crs_wkt: str, *, resolution_m: float = DOM_R
     from affine import Affine
     from rasterio.windows import Window
 
+    from sensor_models.files.gdal_cache import GDAL_BLOCK_CACHE_BYTES
+
     x0, y0, x1, y1 = bounds_m
     n_cols, n_rows = int(np.ceil((x1 - x0) / resolution_m)), int(np.ceil((y1 - y0) / resolution_m))
     profile = dict(driver="GTiff", width=n_cols, height=n_rows, count=1, dtype="uint16", crs=crs_wkt, tiled=True,
                    blockxsize=512, blockysize=512, BIGTIFF="YES",
                    transform=Affine(resolution_m, 0.0, x0, 0.0, -resolution_m, y1))
     norm = float(np.sqrt(sum(a * a for _, a in DOM_OCTAVES) + DOM_WHITE**2))
-    with rasterio.Env(GDAL_CACHEMAX=64 << 20), rasterio.open(path, "w", **profile) as dst:
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_BLOCK_CACHE_BYTES), rasterio.open(path, "w", **profile) as dst:
         for r0 in range(0, n_rows, strip_rows):
             r1 = min(n_rows, r0 + strip_rows)
             layer = np.random.default_rng([seed, 99, r0]).standard_normal((r1 - r0, n_cols), dtype=np.float32)

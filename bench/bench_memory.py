@@ -78,6 +78,8 @@ def write_tiled_uint16(path: Path, rows: int, cols: int, *, crs=None, transform=
     from rasterio.errors import NotGeoreferencedWarning
     from rasterio.windows import Window
 
+    from sensor_models.files.gdal_cache import GDAL_BLOCK_CACHE_BYTES
+
     tile = np.random.default_rng(seed).integers(200, 4000, size=(512, 512), dtype=np.uint16)
     profile = dict(driver="GTiff", width=cols, height=rows, count=1, dtype="uint16", tiled=True, blockxsize=512,
                    blockysize=512, BIGTIFF="IF_SAFER")
@@ -85,7 +87,7 @@ def write_tiled_uint16(path: Path, rows: int, cols: int, *, crs=None, transform=
         profile.update(crs=crs, transform=transform)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.Env(GDAL_CACHEMAX=64 << 20), rasterio.open(path, "w", **profile) as dst:
+        with rasterio.Env(GDAL_CACHEMAX=GDAL_BLOCK_CACHE_BYTES), rasterio.open(path, "w", **profile) as dst:
             for r in range(0, rows, 512):
                 for c in range(0, cols, 512):
                     h, w = min(512, rows - r), min(512, cols - c)

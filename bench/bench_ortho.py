@@ -72,11 +72,13 @@ def write_source(path: Path, scene: int):
     from rasterio.errors import NotGeoreferencedWarning
     from rasterio.windows import Window
 
+    from sensor_models.files.gdal_cache import GDAL_BLOCK_CACHE_BYTES
+
     warnings.simplefilter("ignore", NotGeoreferencedWarning)  # scene geometry: no georeferencing
     tile = np.random.default_rng(0).integers(200, 4000, size=(512, 512), dtype=np.uint16)
     profile = dict(driver="GTiff", width=scene, height=scene, count=1, dtype="uint16", tiled=True,
                    blockxsize=512, blockysize=512, BIGTIFF="IF_SAFER")
-    with rasterio.Env(GDAL_CACHEMAX=64 << 20), rasterio.open(path, "w", **profile) as dst:
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_BLOCK_CACHE_BYTES), rasterio.open(path, "w", **profile) as dst:
         for r in range(0, scene, 512):
             for c in range(0, scene, 512):
                 h, w = min(512, scene - r), min(512, scene - c)
