@@ -39,6 +39,7 @@ from gcpmatch.uncertainty import reference_sigma_px, score_sigma_px, window_sigm
 from sensor_models.maps.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs, reference_disagrees
 from sensor_models.errors import InputError
+from sensor_models.files.memory import release_free_heap
 from sensor_models.files.threads import blas_threads, map_ordered, opencv_threads
 
 __all__ = ["MatchOptions", "coarse_stage", "correlate_pairs", "extract_gcps", "grid_starts", "read_band", "reject_outliers",
@@ -159,6 +160,7 @@ def _extract(model, scene, dem, dom, *, band, mask, opt: MatchOptions, accuracy,
     except CoarseMatchError as exc:  # name the cloud figure: clouds are a common cause
         raise CoarseMatchError(f"{exc}; {_cloud_note(scene, mask)}") from exc
     timings = {"coarse_s": time.perf_counter() - t0}
+    release_free_heap()  # the stages' scratch goes back between them (sensor_models.files.memory)
     model_pc = coarse.model
     if progress:
         searched = _searched(coarse, model_pc, band)
@@ -321,6 +323,7 @@ def _correlate_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd,
                                 workers=opt.thread_count())
     else:
         ref = reference_for_image(model_pc, dem, dom, band=band, psf_sigma_px=opt.psf_sigma_px)
+    release_free_heap()
     tally.t_ref += time.perf_counter() - t1
     cols = slice(look.first_col, look.first_col + look.n_detectors)
     img = scene[:, cols]
@@ -341,6 +344,7 @@ def _correlate_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd,
     t1 = time.perf_counter()
     out.status, out.std_r, out.shift, out.quality = _correlate_windows(img, ref, msk, out.rr, out.cc, opt,
                                                                        on_batch=tally.windows_done_by)
+    release_free_heap()
     tally.t_phase += time.perf_counter() - t1
     out.ref_rc_px = _reference_px(tally, model_pc, band, look, ccd)
     return out

@@ -20,7 +20,9 @@ scenes of ``bench/bench_matcher_realism.py`` (GCP truth error rms, px, linear ->
 from __future__ import annotations
 
 import numpy as np
+import rasterio
 
+from sensor_models.files.gdal_cache import GDAL_BLOCK_CACHE_BYTES
 from sensor_models.imaging.locate import HEIGHT_TOLERANCE_M, locate_block
 from sensor_models.imaging.psf import psf_sigma_dom_px
 from sensor_models.maps.raster import MapImage, sample_map_image
@@ -44,6 +46,9 @@ NODE_STEP_COLS = 32
 REFERENCE_BYTES_PER_PX = 52
 #: the blocks in flight together stay within this (more threads than it allows wait their turn)
 REFERENCE_BLOCKS_BYTES = 1 << 30
+#: GDAL's cache of decompressed DOM tiles while a chip renders, bytes: it holds the tiles the
+#: blocks in flight share
+REFERENCE_GDAL_CACHE_BYTES = GDAL_BLOCK_CACHE_BYTES
 
 
 def grid_resolution_m(grid) -> float:
@@ -153,7 +158,9 @@ def reference_for_ccd(model, dem, dom: MapImage, *, band: str, ccd: int, row0: i
     starts = list(range(row0, row1, block_lines))
     per_block = REFERENCE_BYTES_PER_PX * min(block_lines, row1 - row0) * look.n_detectors
     workers = max(1, min(thread_count(workers), REFERENCE_BLOCKS_BYTES // max(1, per_block)))
-    with dom.reading():  # one file handle per thread: blocks share decompressed DOM tiles
+    # one file handle per thread: blocks share decompressed DOM tiles, in a cache of a set size
+    # (GDAL's default, 5 % of the RAM, grows the peak with the machine: docs/memory.md)
+    with rasterio.Env(GDAL_CACHEMAX=REFERENCE_GDAL_CACHE_BYTES), dom.reading():
         if workers <= 1 or len(starts) == 1:
             for a in starts:
                 render(a)
