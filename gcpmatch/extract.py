@@ -48,6 +48,10 @@ __all__ = ["MatchOptions", "coarse_stage", "correlate_pairs", "extract_gcps", "g
 #: windows the CUDA backend's threads gather on the host at once, all together (about 100 kB of
 #: scratch a window: ~1.6 GB)
 GPU_HOST_WINDOWS = 16384
+#: windows the CPU backends' tasks hold at once, all together: about 100 kB of scratch a 64 px
+#: window (measured on the full seed-003 geometry: 0.8-1.0 GB for 16 tasks of 512), so about
+#: 1 GB; 20 tasks of 512 windows, more threads than that wait their turn (docs/memory.md)
+CPU_HOST_WINDOWS = 10240
 
 REASONS = ("no_reference", "no_data", "cloud", "no_texture", "flat", "not_finite", "out_of_range",
            "low_score", "low_peak_ratio", "spectral_spread", "inconsistent", "model_residual")
@@ -484,8 +488,9 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions, on_batch=None):
     step = window_task_size(w, opt, threads)
     spans = [(a, min(n, a + step)) for a in range(0, n, step)]
     # one task per span on its own thread; inside a task, the phase correlation and the sigma
-    # model get the threads the spans leave (one each once there are as many spans as threads)
-    task_opt = replace(opt, threads=max(1, threads // max(1, len(spans))))
+    # model get the threads the tasks at once leave (one each once as many run as there are threads)
+    at_once = window_tasks_at_once(step, opt, threads, len(spans))
+    task_opt = replace(opt, threads=max(1, threads // at_once))
 
     def task(span):
         a, b = span
@@ -499,7 +504,7 @@ def _correlate_windows(img, ref, msk, rr, cc, opt: MatchOptions, on_batch=None):
     # BLAS on one thread: its idle workers spin beside the tasks' threads (measured on 2 cores:
     # 1 task thread kept 2 cores busy, and 2 threads ran no faster than 1; docs/speed.md)
     with blas_threads(1):
-        for (a, b), (st, sd, sh, q) in zip(spans, map_ordered(task, spans, min(threads, len(spans)))):
+        for (a, b), (st, sd, sh, q) in zip(spans, map_ordered(task, spans, at_once)):
             status[a:b], std_r[a:b], shift[a:b] = st, sd, sh
             for k, v in q.items():
                 quality.setdefault(k, np.full(n, np.nan))[a:b] = v
@@ -520,6 +525,17 @@ def window_task_size(window_px: int, opt: MatchOptions, threads: int) -> int:
     if opt.backend != "gpu":
         return batch
     return int(max(opt.batch, min(batch, GPU_HOST_WINDOWS // max(1, threads))))
+
+
+def window_tasks_at_once(step: int, opt: MatchOptions, threads: int, n_tasks: int) -> int:
+    """Window tasks of ``step`` windows that run at once: one a thread, at most as many tasks as
+    there are, and on the CPU backends at most ``CPU_HOST_WINDOWS`` windows together (the
+    scratch grows with the tasks in flight, not with the scene). The tasks, and so the GCPs, do
+    not depend on it."""
+    at_once = min(threads, n_tasks)
+    if opt.backend != "gpu":
+        at_once = min(at_once, CPU_HOST_WINDOWS // max(1, step))
+    return max(1, at_once)
 
 
 def _screen_and_correlate(ws, wr, wm, opt: MatchOptions, noise_dn):

@@ -1,5 +1,6 @@
-"""The memory a stage leaves behind: freed heap handed back between the match's stages, and
-GDAL's tile cache held to a set size while a reference chip renders.
+"""What bounds the match's memory whatever the machine: freed heap handed back between its
+stages, GDAL's tile cache held to a set size while a reference chip renders, and the window
+tasks in flight held to a set number of windows.
 
 * :func:`sensor_models.files.memory.release_free_heap` returns the free pages a thread's arena
   keeps (glibc): 192 MiB of 64 KiB arrays allocated on a thread, fifteen in sixteen freed (the
@@ -9,6 +10,8 @@ GDAL's tile cache held to a set size while a reference chip renders.
   ``REFERENCE_GDAL_CACHE_BYTES`` of GDAL cache (its default is 5 % of the RAM, so the match's
   peak grew with the machine) and gives the cap back when it returns; the chip does not change
   with the cap (tiles decoded again read the same pixels).
+* The window stage runs at most ``CPU_HOST_WINDOWS`` windows' tasks at once on the CPU backend,
+  whatever the threads, and its results are those of one thread.
 """
 
 from __future__ import annotations
@@ -79,3 +82,37 @@ def test_the_reference_renders_under_the_capped_tile_cache_and_restores_it(monke
     again = reference.reference_for_ccd(model, dem, dom, band="B2", ccd=1, block_lines=128, workers=2)
     np.testing.assert_array_equal(chip, again)
     assert np.isfinite(chip).mean() > 0.9
+
+
+def test_window_tasks_in_flight_stay_within_the_host_windows_and_keep_the_results(monkeypatch):
+    import cv2
+
+    import gcpmatch.extract as extract
+    from gcpmatch.extract import _correlate_windows, grid_starts
+    from gcpmatch.options import MatchOptions
+
+    rng = np.random.default_rng(5)
+    ref = cv2.GaussianBlur(rng.standard_normal((384, 160)).astype(np.float32), (0, 0), 1.5) * 300.0 + 1000.0
+    scene = np.roll(ref, (1, -2), axis=(0, 1)) + rng.normal(0.0, 3.0, ref.shape).astype(np.float32)
+    mask = np.zeros(ref.shape, bool)
+    rr, cc = (a.ravel() for a in np.meshgrid(grid_starts(384, 32, 16), grid_starts(160, 32, 16), indexing="ij"))
+    assert rr.size == 207
+    at_once = []
+    map_ordered = extract.map_ordered
+
+    def map_and_note(function, items, threads, **kwargs):  # the stage's own pool, noting its size
+        at_once.append(threads)
+        return map_ordered(function, items, threads, **kwargs)
+
+    monkeypatch.setattr(extract, "map_ordered", map_and_note)
+    monkeypatch.setattr(extract, "CPU_HOST_WINDOWS", 48)  # three tasks of 16 windows
+    runs = {n: _correlate_windows(scene, ref, mask, rr, cc, MatchOptions(window_px=32, spacing_px=16, batch=16,
+                                                                          threads=n))
+            for n in (1, 2, 8)}
+    assert at_once == [1, 2, 3]
+    status, _, shift, _ = runs[1]
+    assert np.count_nonzero(status == "") > 150
+    np.testing.assert_allclose(np.nanmedian(shift, axis=0), [1.0, -2.0], atol=0.02)
+    for n in (2, 8):
+        assert list(runs[n][0]) == list(status)
+        np.testing.assert_array_equal(runs[n][2], shift)
