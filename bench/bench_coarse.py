@@ -21,7 +21,9 @@ speed-ups against the reference search, whether the fast pass was trusted, RANSA
 inliers, the largest distance of each pre-correction from the reference search's at four points
 2 % inside the image's corners (pixels) and, for simulated scenes, each pre-correction's largest
 error against the TRUE model; for the Pleiades pair, the recovered RPC line offset (the geometry
-file carries a 60-line bias). JSON only where ``--json PATH`` says.
+file carries a 60-line bias); then the CPU seconds of the SIFT detections (scene and DOM window,
+``gcpmatch.coarse_sift.sift_features``) and the pixels they saw, and the rest of the stage
+(matching, RANSAC, the DOM read, the warp, the pre-correction). JSON only where ``--json PATH`` says.
 
 Usage: ``python bench/bench_coarse.py [--cache /tmp/bench_coarse] [--cases demo_realistic,far]
 [--repeat 2] [--json out.json] [--data ../shared/data]`` (``GCPCAL_SHARED_DATA`` also names the
@@ -170,16 +172,46 @@ def _truth_max(case: dict, model) -> float | None:
     return truth_error(case["truth"], model, dem=case["dem"], step_px=32)["max_px"]
 
 
+class _SiftClock:
+    """CPU seconds and pixels of the SIFT detections (``sift_features``) inside a ``with`` block."""
+
+    def __enter__(self):
+        import gcpmatch.coarse_fast as fast
+        import gcpmatch.coarse_sift as sift
+
+        self.seconds, self.pixels, self._modules = 0.0, 0, (sift, fast)
+        self._original = sift.sift_features
+
+        def timed(img, mask, n_features):
+            t0 = time.process_time()
+            try:
+                return self._original(img, mask, n_features)
+            finally:
+                self.seconds += time.process_time() - t0
+                self.pixels += img.size
+
+        for module in self._modules:
+            module.sift_features = timed
+        return self
+
+    def __exit__(self, *exc):
+        for module in self._modules:
+            module.sift_features = self._original
+
+
 def _run(case: dict, search: str):
+    """CPU seconds of one coarse stage, its result (or the error's text) and its SIFT clock."""
     from gcpmatch.coarse import CoarseMatchError, coarse_match
 
-    t0 = time.process_time()
-    try:
-        result = coarse_match(case["img"], case["model"], case["dem"], case["dom"], band=case["band"],
-                              max_offset_px=case["max_offset_px"], capture_px=case["capture_px"], search=search)
-    except CoarseMatchError as exc:
-        return time.process_time() - t0, str(exc)
-    return time.process_time() - t0, result
+    with _SiftClock() as clock:
+        t0 = time.process_time()
+        try:
+            result = coarse_match(case["img"], case["model"], case["dem"], case["dom"], band=case["band"],
+                                  max_offset_px=case["max_offset_px"], capture_px=case["capture_px"], search=search)
+        except CoarseMatchError as exc:
+            result = str(exc)
+        seconds = time.process_time() - t0
+    return seconds, result, clock
 
 
 def _line_offset(model):
@@ -190,12 +222,16 @@ def _line_offset(model):
 def run_case(case: dict, repeat: int) -> dict:
     """The three searches ``repeat`` times, interleaved; best CPU times, counts and pre-corrections."""
     times = {k: [] for k in SEARCHES}
-    results = {}
+    results, sift = {}, {}
     for _ in range(repeat):
         for key in SEARCHES:
-            dt, results[key] = _run(case, key)
+            dt, results[key], clock = _run(case, key)
             times[key].append(dt)
+            if dt == min(times[key]):  # the SIFT share of the best run
+                sift[key] = clock
     row = {f"{k}_s": min(v) for k, v in times.items()}
+    for key in SEARCHES:
+        row[f"{key}_sift_s"], row[f"{key}_sift_mpx"] = sift[key].seconds, sift[key].pixels / 1e6
     ref = results["exhaustive"]
     for key in SEARCHES:
         row[f"{key}_x"] = row["exhaustive_s"] / row[f"{key}_s"]
@@ -247,6 +283,9 @@ def main(argv=None) -> None:
               f"{trio('ransac'):>14s} {trio('inliers'):>14s} "
               f"{_fmt(row['adaptive_apart_px'])}/{_fmt(row['fast_apart_px']):<6s} "
               f"{trio('truth_max_px', '{:.2f}'):>17s} {trio('line_offset', '{:.2f}'):>20s}")
+        rest = "/".join(f"{row[k + '_s'] - row[k + '_sift_s']:.2f}" for k in SEARCHES)
+        print(f"{'':15s} SIFT detection e/a/f {trio('sift_s', '{:.2f}')} s on {trio('sift_mpx', '{:.2f}')} Mpx; "
+              f"the rest {rest} s")
     print(f"load {open('/proc/loadavg').read().split()[0:3]}")
     if args.json:
         args.json.write_text(json.dumps({"load": open("/proc/loadavg").read().split()[:3], "cases": rows}, indent=1))
