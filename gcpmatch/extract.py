@@ -48,10 +48,13 @@ __all__ = ["MatchOptions", "coarse_stage", "correlate_pairs", "extract_gcps", "g
 #: windows the CUDA backend's threads gather on the host at once, all together (about 100 kB of
 #: scratch a window: ~1.6 GB)
 GPU_HOST_WINDOWS = 16384
-#: windows the CPU backends' tasks hold at once, all together: about 100 kB of scratch a 64 px
-#: window (measured on the full seed-003 geometry: 0.8-1.0 GB for 16 tasks of 512), so about
-#: 1 GB; 20 tasks of 512 windows, more threads than that wait their turn (docs/memory.md)
-CPU_HOST_WINDOWS = 10240
+#: scratch of a window task on the CPU backends, bytes per window pixel (gathered windows, masks,
+#: spectra, sigma model): about 100 kB a 64 px window, measured on the full seed-003 geometry
+#: (0.75-1.0 GB for 16 tasks of 512 windows)
+WINDOW_SCRATCH_BYTES_PER_PX = 25
+#: the CPU backends' window tasks in flight together stay within this (20 tasks of 512 windows of
+#: 64 px; more threads than it allows wait their turn: docs/memory.md)
+CPU_HOST_WINDOW_BYTES = 1 << 30
 
 REASONS = ("no_reference", "no_data", "cloud", "no_texture", "flat", "not_finite", "out_of_range",
            "low_score", "low_peak_ratio", "spectral_spread", "inconsistent", "model_residual")
@@ -529,12 +532,13 @@ def window_task_size(window_px: int, opt: MatchOptions, threads: int) -> int:
 
 def window_tasks_at_once(step: int, opt: MatchOptions, threads: int, n_tasks: int) -> int:
     """Window tasks of ``step`` windows that run at once: one a thread, at most as many tasks as
-    there are, and on the CPU backends at most ``CPU_HOST_WINDOWS`` windows together (the
-    scratch grows with the tasks in flight, not with the scene). The tasks, and so the GCPs, do
-    not depend on it."""
+    there are, and on the CPU backends at most as many as keep their scratch within
+    ``CPU_HOST_WINDOW_BYTES`` (``WINDOW_SCRATCH_BYTES_PER_PX`` a window pixel: the scratch grows
+    with the tasks in flight, not with the scene). The tasks, and so the GCPs, do not depend on it."""
     at_once = min(threads, n_tasks)
     if opt.backend != "gpu":
-        at_once = min(at_once, CPU_HOST_WINDOWS // max(1, step))
+        task_bytes = WINDOW_SCRATCH_BYTES_PER_PX * opt.window_px**2 * max(1, step)
+        at_once = min(at_once, CPU_HOST_WINDOW_BYTES // task_bytes)
     return max(1, at_once)
 
 

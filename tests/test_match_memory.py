@@ -10,8 +10,8 @@ tasks in flight held to a set number of windows.
   ``REFERENCE_GDAL_CACHE_BYTES`` of GDAL cache (its default is 5 % of the RAM, so the match's
   peak grew with the machine) and gives the cap back when it returns; the chip does not change
   with the cap (tiles decoded again read the same pixels).
-* The window stage runs at most ``CPU_HOST_WINDOWS`` windows' tasks at once on the CPU backend,
-  whatever the threads, and its results are those of one thread.
+* The window stage runs at most the tasks whose scratch fits ``CPU_HOST_WINDOW_BYTES`` at once on
+  the CPU backend, whatever the threads, and its results are those of one thread.
 """
 
 from __future__ import annotations
@@ -105,7 +105,8 @@ def test_window_tasks_in_flight_stay_within_the_host_windows_and_keep_the_result
         return map_ordered(function, items, threads, **kwargs)
 
     monkeypatch.setattr(extract, "map_ordered", map_and_note)
-    monkeypatch.setattr(extract, "CPU_HOST_WINDOWS", 48)  # three tasks of 16 windows
+    task_bytes = extract.WINDOW_SCRATCH_BYTES_PER_PX * 32**2 * 16  # a task of 16 windows of 32 px
+    monkeypatch.setattr(extract, "CPU_HOST_WINDOW_BYTES", 3 * task_bytes + task_bytes // 2)  # room for three
     runs = {n: _correlate_windows(scene, ref, mask, rr, cc, MatchOptions(window_px=32, spacing_px=16, batch=16,
                                                                           threads=n))
             for n in (1, 2, 8)}
