@@ -47,10 +47,12 @@ def available_memory_bytes() -> int | None:
 
 @functools.cache
 def _malloc_trim():
-    """glibc's ``malloc_trim``, or None where the C library has none (musl, macOS, Windows)."""
-    name = ctypes.util.find_library("c")
+    """glibc's ``malloc_trim``, or None where the C library has none (musl, macOS, Windows).
+
+    On POSIX the process's own symbols are searched first (``dlopen(NULL)``: libc is loaded, and
+    no ``ldconfig`` runs); elsewhere the C library is looked up by name."""
     try:
-        libc = ctypes.CDLL(name)
+        libc = ctypes.CDLL(None) if os.name == "posix" else ctypes.CDLL(ctypes.util.find_library("c"))
         trim = libc.malloc_trim
     except (OSError, AttributeError, TypeError):
         return None
