@@ -39,6 +39,7 @@ from gcpmatch.uncertainty import reference_sigma_px, score_sigma_px, window_sigm
 from sensor_models.maps.dom_inputs import ReferenceAccuracy, reference_accuracy
 from gcpmatch.window_match import correlate_pairs, reference_disagrees
 from sensor_models.errors import InputError
+from gcpmatch.phase_pool import release_kernels
 from sensor_models.files.memory import release_free_heap
 from sensor_models.files.threads import blas_threads, map_ordered, opencv_threads
 
@@ -351,6 +352,7 @@ def _correlate_ccd(tally: _Tally, model_pc, scene, mask, dem, dom, *, band, ccd,
     t1 = time.perf_counter()
     out.status, out.std_r, out.shift, out.quality = _correlate_windows(img, ref, msk, out.rr, out.cc, opt,
                                                                        on_batch=tally.windows_done_by)
+    release_kernels()  # the phase kernels' scratch (gcpmatch.phase_pool), then the heap
     release_free_heap()
     tally.t_phase += time.perf_counter() - t1
     out.ref_rc_px = _reference_px(tally, model_pc, band, look, ccd)

@@ -108,6 +108,7 @@ import numpy as np
 from gcpmatch.phase_batch import cpu_batch, device_batch
 from gcpmatch.phase_numpy import NumpyKernel
 from gcpmatch.phase_plan import make_plan
+from gcpmatch.phase_pool import KERNEL_POOL
 from sensor_models.errors import InputError
 from sensor_models.files.threads import blas_threads, map_ordered, thread_count
 
@@ -287,8 +288,14 @@ def phase_correlate(reference, moving, *, upsample: int | None = None, window: s
     if min_peak_ratio is None:
         min_peak_ratio = MIN_PEAK_RATIO["half" if plan.coarse is not None else "full"]
     if options["backend"] == "numpy":
-        outputs = _run_numpy_batches(plan, ref, mov, batch, thread_count(None if workers == -1 else workers))
+        # the plan's arguments name a pooled kernel (gcpmatch.phase_pool); a user array window does not
+        key = None if isinstance(window, np.ndarray) else (
+            height, width, upsample, str(window).lower(), tukey_alpha, lowpass, eps, follow, exclusion_px,
+            stage1_upsample, np.dtype(options["dtype"]).name, first_pass)
+        outputs = _run_numpy_batches(plan, ref, mov, batch, thread_count(None if workers == -1 else workers), key)
     else:
+        with blas_threads(1):  # its product with ones would wake OpenBLAS's threads, which then spin
+            _raise_non_finite(ref, mov)
         outputs = _run_torch_batches(plan, ref, mov, batch, options["device"])
     return _assess(*outputs, min_score, min_peak_ratio, max_shift)
 
@@ -313,13 +320,15 @@ def _batches(shape: tuple[int, int, int], batch, threads: int = 1) -> list[tuple
     return [(a, min(n_pairs, a + batch)) for a in range(0, n_pairs, batch)]
 
 
-def _run_numpy_batches(plan, ref: np.ndarray, mov: np.ndarray, batch, threads: int):
+def _run_numpy_batches(plan, ref: np.ndarray, mov: np.ndarray, batch, threads: int, key=None):
     """The numpy kernel over the batches of pairs on ``threads`` threads, results in pair order.
 
     Each running thread takes a kernel of its own (a kernel keeps scratch buffers between
-    batches); with fewer batches than threads, each kernel's FFTs get ``threads // batches``
-    workers (``scipy.fft`` splits a batch over its transforms: the same numbers). BLAS runs one
-    thread meanwhile.
+    batches): one this call used already, else an idle one of ``key`` from
+    :data:`gcpmatch.phase_pool.KERNEL_POOL`, else a new one; the call's kernels go back to the
+    pool at its end (``key`` None: none is kept). With fewer batches than threads, each kernel's
+    FFTs get ``threads // batches`` workers (``scipy.fft`` splits a batch over its transforms: the
+    same numbers). BLAS runs one thread meanwhile.
 
     Returns
     -------
@@ -330,20 +339,29 @@ def _run_numpy_batches(plan, ref: np.ndarray, mov: np.ndarray, batch, threads: i
     spans = _batches(ref.shape, batch, threads)
     pool_threads = min(threads, len(spans))
     fft_workers = max(1, threads // pool_threads)
-    idle = queue.SimpleQueue()  # kernels not running a batch now
+    idle = queue.SimpleQueue()  # this call's kernels not running a batch now
+    pool_key = None if key is None else (key, fft_workers)
+
+    def build():
+        return NumpyKernel(plan, workers=fft_workers)
 
     def run(span):
         try:
             kernel = idle.get_nowait()
         except queue.Empty:
-            kernel = NumpyKernel(plan, workers=fft_workers)
+            kernel = build() if pool_key is None else KERNEL_POOL.take(pool_key, build)
         try:
-            return kernel(ref[span[0]:span[1]], mov[span[0]:span[1]])
+            a, b = span
+            _raise_non_finite(ref[a:b], mov[a:b], first_pair=a)  # while the batch is in the cache
+            return kernel(ref[a:b], mov[a:b])
         finally:
             idle.put(kernel)
 
     with blas_threads(1):  # small products: BLAS threads would only wait (sensor_models.files.threads)
-        return _concatenate(list(map_ordered(run, spans, pool_threads)))
+        outputs = _concatenate(list(map_ordered(run, spans, pool_threads)))
+    while pool_key is not None and not idle.empty():
+        KERNEL_POOL.give_back(pool_key, idle.get_nowait())
+    return outputs
 
 
 def _concatenate(parts) -> tuple:
@@ -407,16 +425,27 @@ def _validate_pairs(reference, moving) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"windows must be at least {MIN_WINDOW_PX} x {MIN_WINDOW_PX} px, got {ref.shape[1]} x {ref.shape[2]}", field="reference")
     if ref.shape[0] == 0:
         raise InputError("no window pairs given (N = 0)", field="reference")
+    return ref, mov
+
+
+def _raise_non_finite(ref: np.ndarray, mov: np.ndarray, first_pair: int = 0) -> None:
+    """InputError naming the first of the (N, H, W) pairs ``first_pair``... whose reference, then
+    moving, window holds a NaN or an infinity; nothing for finite or integer windows.
+
+    The CPU backend checks each batch just before its kernel reads it (the batch is then in the
+    cache: over the whole arrays first the check cost 6 % of the correlation, docs/speed.md), so
+    pairs before the first bad one have been correlated when it raises.
+    """
     for name, arr in (("reference", ref), ("moving", mov)):
         if not np.issubdtype(arr.dtype, np.floating):
             continue
         bad = _non_finite_windows(arr)
         if bad.any():
             raise InputError(
-                f"{int(bad.sum())} window(s) hold NaN or inf (first: pair {int(np.argmax(bad))}); fill or drop them before matching",
+                f"{int(bad.sum())} window(s) of pairs {first_pair}-{first_pair + len(arr) - 1} hold NaN or inf "
+                f"(first: pair {first_pair + int(np.argmax(bad))}); fill or drop them before matching",
                 field=name,
             )
-    return ref, mov
 
 
 def _non_finite_windows(arr: np.ndarray) -> np.ndarray:
