@@ -288,16 +288,22 @@ def phase_correlate(reference, moving, *, upsample: int | None = None, window: s
     if min_peak_ratio is None:
         min_peak_ratio = MIN_PEAK_RATIO["half" if plan.coarse is not None else "full"]
     if options["backend"] == "numpy":
-        # the plan's arguments name a pooled kernel (gcpmatch.phase_pool); a user array window does not
-        key = None if isinstance(window, np.ndarray) else (
-            height, width, upsample, str(window).lower(), tukey_alpha, lowpass, eps, follow, exclusion_px,
-            stage1_upsample, np.dtype(options["dtype"]).name, first_pass)
+        key = _kernel_key((height, width), window, upsample, tukey_alpha, lowpass, eps, follow, exclusion_px,
+                          stage1_upsample, options["dtype"], first_pass)
         outputs = _run_numpy_batches(plan, ref, mov, batch, thread_count(None if workers == -1 else workers), key)
     else:
         with blas_threads(1):  # its product with ones would wake OpenBLAS's threads, which then spin
             _raise_non_finite(ref, mov)
         outputs = _run_torch_batches(plan, ref, mov, batch, options["device"])
     return _assess(*outputs, min_score, min_peak_ratio, max_shift)
+
+
+def _kernel_key(shape, window, *plan_arguments):
+    """The key of a pooled kernel (:mod:`gcpmatch.phase_pool`): the window shape and every
+    argument of :func:`~gcpmatch.phase_plan.make_plan`; None for a user array window (not pooled)."""
+    if isinstance(window, np.ndarray):
+        return None
+    return (tuple(shape), str(window).lower(), *(np.dtype(a).name if isinstance(a, type) else a for a in plan_arguments))
 
 
 def _run_torch_batches(plan, ref, mov, batch, device):
