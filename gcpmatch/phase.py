@@ -282,28 +282,26 @@ def phase_correlate(reference, moving, *, upsample: int | None = None, window: s
                                 follow=follow, eps=eps, dtype=dtype, backend=backend, device=device, batch=batch,
                                 tukey_alpha=tukey_alpha, workers=workers, first_pass=first_pass)
     max_shift = _validate_max_shift(max_shift_px, height, width)
-    plan = make_plan((height, width), upsample=upsample, window=window, tukey_alpha=tukey_alpha, lowpass=lowpass,
-                     eps=eps, follow=follow, exclusion_px=exclusion_px, stage1_upsample=stage1_upsample,
-                     dtype=options["dtype"], first_pass=first_pass)
+    plan_args = dict(upsample=upsample, window=window, tukey_alpha=tukey_alpha, lowpass=lowpass, eps=eps, follow=follow,
+                     exclusion_px=exclusion_px, stage1_upsample=stage1_upsample, dtype=options["dtype"], first_pass=first_pass)
+    plan = make_plan((height, width), **plan_args)
     if min_peak_ratio is None:
         min_peak_ratio = MIN_PEAK_RATIO["half" if plan.coarse is not None else "full"]
     if options["backend"] == "numpy":
-        key = _kernel_key((height, width), window, upsample, tukey_alpha, lowpass, eps, follow, exclusion_px,
-                          stage1_upsample, options["dtype"], first_pass)
-        outputs = _run_numpy_batches(plan, ref, mov, batch, thread_count(None if workers == -1 else workers), key)
+        outputs = _run_numpy_batches(plan, ref, mov, batch, thread_count(None if workers == -1 else workers),
+                                     _kernel_key((height, width), plan_args))
     else:
-        with blas_threads(1):  # its product with ones would wake OpenBLAS's threads, which then spin
-            _raise_non_finite(ref, mov)
         outputs = _run_torch_batches(plan, ref, mov, batch, options["device"])
     return _assess(*outputs, min_score, min_peak_ratio, max_shift)
 
 
-def _kernel_key(shape, window, *plan_arguments):
-    """The key of a pooled kernel (:mod:`gcpmatch.phase_pool`): the window shape and every
-    argument of :func:`~gcpmatch.phase_plan.make_plan`; None for a user array window (not pooled)."""
-    if isinstance(window, np.ndarray):
+def _kernel_key(shape: tuple[int, int], plan_args: dict):
+    """The key of a pooled kernel (:mod:`gcpmatch.phase_pool`): the window shape and the
+    arguments of :func:`~gcpmatch.phase_plan.make_plan`; None for a user array window (not pooled)."""
+    if isinstance(plan_args["window"], np.ndarray):
         return None
-    return (tuple(shape), str(window).lower(), *(np.dtype(a).name if isinstance(a, type) else a for a in plan_arguments))
+    named = {**plan_args, "window": str(plan_args["window"]).lower(), "dtype": np.dtype(plan_args["dtype"]).name}
+    return tuple(shape), tuple(sorted(named.items()))
 
 
 def _run_torch_batches(plan, ref, mov, batch, device):
@@ -311,6 +309,8 @@ def _run_torch_batches(plan, ref, mov, batch, device):
     :func:`gcpmatch.phase_batch.device_batch`); the concatenated kernel outputs."""
     from gcpmatch import _phase_torch  # lazy: torch is an optional dependency
 
+    with blas_threads(1):  # its product with ones would wake OpenBLAS's threads, which then spin
+        _raise_non_finite(ref, mov)
     kernel = _phase_torch.TorchKernel(plan, device=device)
     if batch is None:
         batch = device_batch(ref.shape[1:], plan.dtype, kernel.device)
