@@ -272,8 +272,7 @@ def phase_correlate(reference, moving, *, upsample: int | None = None, window: s
     Raises
     ------
     sensor_models.errors.InputError
-        Mismatched shapes, windows smaller than 8 px, non-finite values, non-numeric data or
-        invalid options.
+        Mismatched shapes, windows under 8 px, non-finite or non-numeric data, invalid options.
     """
     ref, mov = _validate_pairs(reference, moving)
     _, height, width = ref.shape
