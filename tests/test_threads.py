@@ -154,3 +154,32 @@ def test_blas_setting_reaches_a_library_loaded_after_the_first_block():
 
     with blas_threads(1):
         assert all(i["num_threads"] == 1 for i in threadpool_info() if i["user_api"] == "blas")
+
+
+def test_a_command_runs_blas_on_one_thread_unless_the_user_chose(monkeypatch):
+    """``gcpcal`` commands hold BLAS to one thread (loaded libraries and, through the environment,
+    later ones and child processes); a user's own ``*_NUM_THREADS`` is left alone."""
+    from threadpoolctl import threadpool_info
+
+    from calibrate import cli
+    from sensor_models.files.threads import BLAS_THREAD_ENVS, command_blas_single_threaded
+
+    for name in BLAS_THREAD_ENVS:
+        monkeypatch.delenv(name, raising=False)
+    before = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+    with command_blas_single_threaded():
+        assert all(i["num_threads"] == 1 for i in threadpool_info() if i["user_api"] == "blas")
+        assert all(os.environ[name] == "1" for name in BLAS_THREAD_ENVS)
+    assert [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"] == before
+    assert not any(name in os.environ for name in BLAS_THREAD_ENVS)
+
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")
+    with command_blas_single_threaded():
+        assert [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"] == before
+        assert "MKL_NUM_THREADS" not in os.environ
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS")
+
+    seen = []
+    monkeypatch.setattr(cli.cli, "main", lambda **kw: seen.append(os.environ.get("OPENBLAS_NUM_THREADS")) or 0)
+    assert cli.main(["--version"]) == 0 and seen == ["1"]
+    assert "OPENBLAS_NUM_THREADS" not in os.environ

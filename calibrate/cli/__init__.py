@@ -25,7 +25,7 @@ from calibrate.actions._provenance import command_line
 from calibrate.cli._errors import Interrupted, note_signal, quiet_cluster_logs, run_guarded
 from calibrate.cli.options import add_options, apply_verbosity, verbosity_options
 from sensor_models import __version__
-from sensor_models.files.threads import thread_count
+from sensor_models.files.threads import command_blas_single_threaded, thread_count
 
 __all__ = ["COMMANDS", "cli", "load_all_commands", "main"]
 
@@ -280,7 +280,7 @@ def main(argv=None) -> int:
     if threading.current_thread() is threading.main_thread():
         previous = {signum: signal.signal(signum, _on_signal) for signum in _HANDLED}
     try:
-        with _worker_config(args), command_line(args):
+        with _worker_config(args), command_line(args), command_blas_single_threaded():
             return run_guarded(lambda: cli.main(args=args, prog_name="gcpcal", standalone_mode=False),
                                verbose=_verbosity(args))
     finally:

@@ -23,8 +23,8 @@ from contextlib import contextmanager
 
 from sensor_models.errors import InputError
 
-__all__ = ["THREADS_ENV", "PerThread", "available_cores", "blas_threads", "libraries_single_threaded", "map_ordered",
-           "opencv_threads", "parse_threads", "thread_count"]
+__all__ = ["BLAS_THREAD_ENVS", "THREADS_ENV", "PerThread", "available_cores", "blas_threads", "command_blas_single_threaded",
+           "libraries_single_threaded", "map_ordered", "opencv_threads", "parse_threads", "thread_count"]
 
 #: Environment variable capping the threads of every parallel stage (0 or unset: every core).
 THREADS_ENV = "GCPCAL_THREADS"
@@ -256,3 +256,34 @@ def libraries_single_threaded():
     """
     with opencv_threads(1), blas_threads(1):
         yield
+
+
+#: Environment variables naming the BLAS libraries' thread counts, read when a library loads.
+BLAS_THREAD_ENVS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
+
+
+@contextmanager
+def command_blas_single_threaded():
+    """BLAS on one thread for a whole gcpcal command, unless the user chose a count.
+
+    gcpcal's matrix products are small (normal equations of a few hundred unknowns, per-pair sums
+    of a few thousand terms) and its stages run their blocks on threads of their own. OpenBLAS
+    splits such products over its threads anyway, and the threads then busy-wait for the next
+    one: on 2 cores ``gcpcal demo`` used 25.9 CPU-s for 18.0 s of wall time with OpenBLAS's
+    default count and 18.0 CPU-s for 17.7 s on one thread, the same summary to the last digit
+    (docs/speed.md, "Every core"). Inside the block the BLAS libraries already loaded run one
+    thread (:data:`blas_threads`) and the ``*_NUM_THREADS`` variables of
+    :data:`BLAS_THREAD_ENVS` say 1, for libraries loaded later and for the processes started
+    meanwhile (Dask's local workers); both are restored after. When any of those variables is
+    set already, nothing changes.
+    """
+    if any(name in os.environ for name in BLAS_THREAD_ENVS):
+        yield
+        return
+    os.environ.update(dict.fromkeys(BLAS_THREAD_ENVS, "1"))
+    try:
+        with blas_threads(1):
+            yield
+    finally:
+        for name in BLAS_THREAD_ENVS:
+            os.environ.pop(name, None)
