@@ -123,3 +123,17 @@ def test_blas_stays_on_one_thread_for_the_whole_call():
         phase_correlate(ref, mov, workers=1)
         ratios.append((time.process_time() - c0) / (time.perf_counter() - w0))
     assert min(ratios) < 1.3, ratios
+
+
+def test_concurrent_callers_share_the_pool_and_get_their_own_numbers():
+    from concurrent.futures import ThreadPoolExecutor
+
+    release_kernels()
+    jobs = [_pairs(24, seed=s) for s in range(8)]
+    alone = [phase_correlate(r, m, workers=1, batch=8) for r, m in jobs]
+    release_kernels()
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        together = list(pool.map(lambda job: phase_correlate(*job, workers=2, batch=8), jobs * 3))
+    assert all(_same(a, b) for a, b in zip(alone * 3, together))
+    assert 0 < KERNEL_POOL.idle_bytes <= KERNEL_POOL.budget_bytes
+    release_kernels()
