@@ -40,6 +40,7 @@ import pyproj
 
 from gcpmatch.ccd_search import search_missing_ccds
 from gcpmatch.coarse_fast import fast_pass, spread_over_arrays
+from gcpmatch.coarse_reduce import reduce_scene
 from gcpmatch.coarse_sift import CoarseMatchError, sift_ransac, to_uint8
 from gcpmatch.coarse_skip import within_fine_radius
 from gcpmatch.precorrect import precorrect_matches
@@ -187,7 +188,7 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
                  target_px: int = 1600, ransac_px: float = 2.0, n_features: int = 12000,
                  seed: int = 0, backend: str = "cpu", device=None, skip_within_px: float | None = None,
                  sift_budget_bytes: int = SIFT_BUDGET_BYTES, capture_px: float = 16.0,
-                 search: str = "adaptive") -> CoarseResult:
+                 search: str = "adaptive", threads: int = 1) -> CoarseResult:
     """Pre-correct ``model`` so that it lands within a few pixels of the truth (see module doc).
 
     Parameters
@@ -236,6 +237,9 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         ``"fast"``: the pass of :mod:`gcpmatch.coarse_fast` where trusted (a scene matched whole), else
         ``"adaptive"``; ``"exhaustive"``: the full budget in both images, brute force (docs/matching.md,
         "Coarse stage searches").
+    threads : int
+        Threads of the scene's reduction (:func:`gcpmatch.coarse_reduce.reduce_scene`; the
+        result does not depend on it).
 
     Returns
     -------
@@ -261,7 +265,7 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
     skipped = _skipped(scene, model, dem, dom, band, skip_within_px)
     if skipped is not None:
         return skipped
-    small, small_valid, f = _reduce_scene(scene, target_px)
+    small, small_valid, f = _reduce_scene(scene, target_px, threads)
     h_mid = scene_height_m(model, dem, band=band)
     gsd = scene_gsd_m(model, band=band, height_m=h_mid)
     coarse_res = gsd * f  # metres per reduced pixel
@@ -584,23 +588,20 @@ def reduction_factor(n_rows: int, n_cols: int, target_px: int) -> int:
     return max(1, min(by_long, by_short))
 
 
-def _reduce_scene(scene: np.ndarray, target_px: int):
+def _reduce_scene(scene: np.ndarray, target_px: int, threads: int = 1):
     """The scene averaged down by the integer factor ``f`` of :func:`reduction_factor`.
 
     Returns
     -------
     small : ndarray of float32, shape (n_rows // f, n_cols // f)
-        Block means, no-data as 0.
+        Block means, no-data as 0 (:func:`gcpmatch.coarse_reduce.reduce_scene`).
     small_valid : ndarray of bool, same shape
         Blocks that hold valid pixels only.
     f : int
         The reduction factor.
     """
-    n_rows, n_cols = scene.shape
-    f = reduction_factor(n_rows, n_cols, target_px)
-    valid = np.isfinite(scene) & (scene > 0)
-    small = cv2.resize(np.where(valid, scene, 0).astype(np.float32), (n_cols // f, n_rows // f), interpolation=cv2.INTER_AREA)
-    small_valid = cv2.resize(valid.astype(np.float32), (n_cols // f, n_rows // f), interpolation=cv2.INTER_AREA) > 0.99
+    f = reduction_factor(*scene.shape, target_px)
+    small, small_valid = reduce_scene(scene, f, threads=threads)
     return small, small_valid, f
 
 

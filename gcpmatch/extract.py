@@ -300,7 +300,7 @@ def coarse_stage(scene, model, dem, dom, band, opt: MatchOptions):
     return coarse_match(scene, model, dem, dom, band=band, max_offset_px=opt.max_offset_px, seed=opt.seed,
                         backend="torch" if torch_backend else "cpu", device=device,
                         skip_within_px=opt.window_px / 4.0 if opt.coarse_skip else None,
-                        capture_px=opt.window_px / 4.0, search=opt.coarse_search)
+                        capture_px=opt.window_px / 4.0, search=opt.coarse_search, threads=opt.thread_count())
 
 
 @dataclass
