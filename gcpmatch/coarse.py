@@ -209,12 +209,9 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         The scene is averaged down by an integer factor until its longest side is at most
         this many pixels, or its shorter side would fall below ``MIN_REDUCED_SIDE_PX``
         (:func:`reduction_factor`).
-    ransac_px : float
-        RANSAC inlier threshold, reduced-scene pixels.
-    n_features : int
-        Most SIFT keypoints kept per image.
-    seed : int
-        Seed of the RANSAC draws.
+    ransac_px, n_features, seed : float, int, int
+        RANSAC inlier threshold (reduced-scene pixels), most SIFT keypoints kept per image,
+        seed of the RANSAC draws.
     backend, device : {"cpu", "torch"}, str or torch.device, optional
         ``"torch"``: the descriptors' exact two nearest neighbours on the torch ``device``
         (None: CUDA if available) instead of FLANN (:mod:`gcpmatch.coarse_sift`).
@@ -238,8 +235,7 @@ def coarse_match(scene: np.ndarray, model, dem, dom, *, band: str | None = None,
         ``"adaptive"``; ``"exhaustive"``: the full budget in both images, brute force (docs/matching.md,
         "Coarse stage searches").
     threads : int
-        Threads of the scene's reduction (:func:`gcpmatch.coarse_reduce.reduce_scene`; the
-        result does not depend on it).
+        Threads of the scene's reduction (the result does not depend on it).
 
     Returns
     -------
