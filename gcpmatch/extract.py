@@ -751,11 +751,18 @@ def read_band(scene, band: str, image=None) -> np.ndarray:
         path, index = rasters[band]["path"], int(rasters[band].get("index", 1))
     else:
         path, index = str(image), 1
+    from rasterio.enums import MaskFlags
+
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(path) as ds:
-                data = ds.read(index, masked=True)
+                # the native pixels, made float32 in place of a masked array's copies (a full-size
+                # band is 714 MB: three copies took seconds and 2 GB); GDAL's mask read only where
+                # the band has one
+                data = ds.read(index).astype(np.float32, copy=False)
+                if ds.mask_flag_enums[index - 1] != [MaskFlags.all_valid]:
+                    data[ds.read_masks(index) == 0] = np.nan
     except (RasterioError, IndexError) as exc:
         raise InputError(f"cannot read the scene raster ({exc})", path=path) from None
-    return np.ma.filled(data.astype(np.float32), np.nan)
+    return data
