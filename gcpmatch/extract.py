@@ -715,6 +715,10 @@ def _coverage(row, col, shape, cells: int = 8) -> float:
     return float(np.unique(i * cells + j).size / cells**2)
 
 
+#: Raster types whose every value float32 holds exactly (read_band lets GDAL convert them).
+_EXACT_IN_FLOAT32 = tuple(np.dtype(t) for t in ("uint8", "int8", "uint16", "int16", "float32"))
+
+
 def read_band(scene, band: str, image=None) -> np.ndarray:
     """The pixels of ``band`` (float32): ``image`` if given, else the manifest's raster.
 
@@ -757,10 +761,13 @@ def read_band(scene, band: str, image=None) -> np.ndarray:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(path) as ds:
-                # the native pixels, made float32 in place of a masked array's copies (a full-size
-                # band is 714 MB: three copies took seconds and 2 GB); GDAL's mask read only where
-                # the band has one
-                data = ds.read(index).astype(np.float32, copy=False)
+                # float32 pixels without a masked array's copies (a full-size band is 714 MB as
+                # float32): GDAL converts the types float32 holds exactly as it reads, others are
+                # converted by numpy; GDAL's mask is read only where the band has one
+                if np.dtype(ds.dtypes[index - 1]) in _EXACT_IN_FLOAT32:
+                    data = ds.read(index, out_dtype="float32")
+                else:
+                    data = ds.read(index).astype(np.float32)
                 if ds.mask_flag_enums[index - 1] != [MaskFlags.all_valid]:
                     data[ds.read_masks(index) == 0] = np.nan
     except (RasterioError, IndexError) as exc:

@@ -31,7 +31,7 @@ def _write(path, pixels, nodata=None, mask=None):
                 ds.write_mask(mask)
 
 
-@pytest.mark.parametrize("dtype, nodata", [("uint16", 0), ("uint16", None), ("int16", -1), ("uint8", 255),
+@pytest.mark.parametrize("dtype, nodata", [("uint16", 0), ("uint16", None), ("int16", -1), ("uint8", 255), ("int32", -5),
                                            ("float32", -9999.0), ("float32", np.nan), ("float64", None)])
 def test_read_band_equals_the_masked_read(tmp_path, dtype, nodata):
     rng = np.random.default_rng(3)
