@@ -41,6 +41,9 @@ JOURNAL_NAME = ".gcpcal-commit.json"
 ASIDE_TAG = "gcpcal-old"
 _STAGE_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<tag>gcpcal-stage|gcpcal-old)\.(?P<host>[A-Za-z0-9_-]+)\."
                          r"(?P<pid>\d+)\.[^.]*$")
+#: The temporary folder of a staged write whose target is itself a run's staging folder
+#: (``sensor_models.files.atomic.staged``: ``.<target name>.stage-XXXX`` beside the target).
+_NESTED_STAGE_NAME = re.compile(r"^\.(?P<inner>\..+)\.stage-[^.]*$")
 _DEFERRED = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
@@ -231,13 +234,20 @@ def clean_stale(*folders) -> list[Path]:
         except OSError:
             continue
         for entry in entries:
-            m = _STAGE_NAME.match(entry.name)
+            m, nested = _STAGE_NAME.match(entry.name), False
+            if m is None:  # a staged write into a run's staging, killed before its rename
+                outer = _NESTED_STAGE_NAME.match(entry.name)
+                m = None if outer is None else _STAGE_NAME.match(outer["inner"])
+                nested = m is not None
             if m is None or m["host"] != host or pid_alive(int(m["pid"])):
                 continue
             path = Path(entry.path)
             target = path.parent / m["name"]
             try:
-                if m["tag"] == ASIDE_TAG and not os.path.lexists(target):
+                if nested:
+                    shutil.rmtree(path) if entry.is_dir(follow_symlinks=False) else path.unlink()
+                    say(f"removed {path}, an unfinished write of an interrupted gcpcal run (pid {m['pid']})")
+                elif m["tag"] == ASIDE_TAG and not os.path.lexists(target):
                     os.rename(path, target)
                     say(f"put back {target}, set aside by an interrupted gcpcal run (pid {m['pid']})")
                 elif entry.is_dir(follow_symlinks=False):
