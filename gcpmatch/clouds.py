@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sensor_models.files.memory import line_bands
+
 __all__ = ["bright_outliers", "cloud_pixels", "detect_clouds", "low_texture"]
 
 #: fewest land pixels (scene and reference correlating) the detector needs to fit its relation
@@ -164,7 +166,7 @@ def _detect_decimated(scene, reference, f: int, *, k, ncc_land, box_d, min_size_
     scene = np.asarray(scene, dtype=np.float32)
     reference = np.asarray(reference, dtype=np.float32)
     ok = np.empty(scene.shape, bool)
-    for rows in _line_bands(scene.shape):  # small temporaries, the same values
+    for rows in line_bands(*scene.shape, BAND_PX):  # small temporaries, the same values
         np.isfinite(reference[rows], out=ok[rows])
         ok[rows] &= scene[rows] > 0
         ok[rows] &= scene[rows] < np.inf
@@ -174,7 +176,7 @@ def _detect_decimated(scene, reference, f: int, *, k, ncc_land, box_d, min_size_
     coef, s = _fit_land(reference.ravel()[land].astype(np.float64), scene.ravel()[land].astype(np.float64))
     gain, offset = np.float32(coef[0]), np.float32(coef[1] + k * s)
     bright = np.empty(scene.shape, bool)
-    for rows in _line_bands(scene.shape):
+    for rows in line_bands(*scene.shape, BAND_PX):
         threshold = reference[rows] * gain
         threshold += offset
         np.greater(scene[rows], threshold, out=bright[rows])  # False on NaN
@@ -227,13 +229,6 @@ def _open_where_bright(bright: np.ndarray, min_size_px: int, band_lines: int = 1
 
 #: Pixels per band of lines of the detector's full-resolution passes (whole lines).
 BAND_PX = 1 << 20
-
-
-def _line_bands(shape: tuple[int, int]):
-    """Slices of whole lines of about ``BAND_PX`` pixels covering an image of ``shape``."""
-    n_rows, n_cols = shape
-    step = max(1, BAND_PX // max(1, n_cols))
-    return [slice(r0, min(n_rows, r0 + step)) for r0 in range(0, n_rows, step)]
 
 
 def _land_decimated(scene, reference, ok, f: int, ncc_land: float, box_px: int):

@@ -17,9 +17,12 @@ a 12.5 s coarse stage on 2 cores (docs/speed.md, "Coarse stage").
 
 from __future__ import annotations
 
+from contextlib import nullcontext
+
 import cv2
 import numpy as np
 
+from sensor_models.files.memory import line_bands
 from sensor_models.files.threads import map_ordered, opencv_threads
 
 __all__ = ["BAND_PX", "reduce_scene"]
@@ -53,15 +56,14 @@ def reduce_scene(scene: np.ndarray, f: int, *, threads: int = 1):
         return _reduce_rows(scene, shape)
     small = np.empty(shape, np.float32)
     small_valid = np.empty(shape, bool)
-    band_rows = f * max(1, BAND_PX // (f * max(n_cols, 1)))
 
-    def band(r0):
-        r1 = min(n_rows, r0 + band_rows)
-        small[r0 // f:r1 // f], small_valid[r0 // f:r1 // f] = _reduce_rows(scene[r0:r1], ((r1 - r0) // f, shape[1]))
+    def band(rows):
+        out = slice(rows.start // f, rows.stop // f)
+        small[out], small_valid[out] = _reduce_rows(scene[rows], (out.stop - out.start, shape[1]))
 
     threads = max(1, int(threads))
-    with opencv_threads(1 if threads > 1 else cv2.getNumThreads()):  # the bands are the parallelism
-        for _ in map_ordered(band, range(0, n_rows, band_rows), threads):
+    with opencv_threads(1) if threads > 1 else nullcontext():  # the bands are the parallelism
+        for _ in map_ordered(band, line_bands(n_rows, n_cols, BAND_PX, multiple=f), threads):
             pass
     return small, small_valid
 

@@ -3,10 +3,10 @@
 
 A kernel's constants (grid tables, window spectra) take about 1 ms to build and its scratch
 buffers (about 8 MB for a batch of 256 pairs of 64 x 64 px) are fresh pages the first time a
-batch writes them: on a call of 2 048 such pairs the page faults alone cost about 8 us a pair of
-system time, 12 % of the kernel (docs/speed.md, "Phase correlation"). The match calls
-``phase_correlate`` once per task of a few hundred windows, so each call took a kernel it then
-dropped. Kept here, a kernel is built and its pages touched once per window shape and thread.
+batch writes them: on a call of 2 048 such pairs with a new kernel the page faults alone cost
+5-10 us a pair of system time (docs/speed.md, "Phase kernel against the FFT floor"). The match
+calls ``phase_correlate`` once per task of a few hundred windows; kept here, a kernel is built
+and its pages touched once per window shape and thread, not once per call.
 
 Kernels are keyed by everything their plan and thread count depend on; a kernel handed out is
 used by one thread at a time and put back after. The idle kernels' scratch stays within

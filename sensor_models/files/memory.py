@@ -1,5 +1,6 @@
 """The memory this machine can give a process now, for the stages that size their work by it,
-and the freed heap a process hands back between its stages.
+the freed heap a process hands back between its stages, and bands of lines that keep a pass's
+temporaries small.
 
 glibc's allocator keeps the memory a thread frees in that thread's arena (up to eight arenas a
 core) and gives it back to the system only from the top of a heap; arrays of up to 32 MiB come
@@ -18,7 +19,7 @@ import ctypes.util
 import functools
 import os
 
-__all__ = ["available_memory_bytes", "release_free_heap"]
+__all__ = ["available_memory_bytes", "line_bands", "release_free_heap"]
 
 
 def available_memory_bytes() -> int | None:
@@ -72,3 +73,28 @@ def release_free_heap() -> bool:
     """
     trim = _malloc_trim()
     return bool(trim(0)) if trim is not None else False
+
+
+def line_bands(n_rows: int, n_cols: int, band_px: int, multiple: int = 1) -> list[slice]:
+    """Slices of whole lines, about ``band_px`` pixels each, covering ``n_rows`` lines of ``n_cols``.
+
+    A pass over a large image band by band keeps its temporaries at a band's size: fresh
+    full-size arrays cost page faults (docs/speed.md, "Coarse stage").
+
+    Parameters
+    ----------
+    n_rows, n_cols : int
+        Image size, pixels.
+    band_px : int
+        Pixels wanted per band (at least ``multiple`` lines a band).
+    multiple : int
+        Every band but the last starts and ends on a multiple of this many lines (blocks of a
+        reduction must not straddle two bands).
+
+    Returns
+    -------
+    list of slice
+        Consecutive line ranges from 0 to ``n_rows``.
+    """
+    step = multiple * max(1, int(band_px) // (multiple * max(1, int(n_cols))))
+    return [slice(r0, min(n_rows, r0 + step)) for r0 in range(0, n_rows, step)]
